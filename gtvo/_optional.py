@@ -1,0 +1,26 @@
+"""Lazy imports of optional heavy dependencies.
+
+Open3D's wheel needs the system library libusb-1.0 (``apt-get install libusb-1.0-0``);
+without it ``import open3d`` fails. gtvo imports open3d only where it is used, so
+everything else keeps working and the user gets one line naming what is missing.
+"""
+
+from __future__ import annotations
+
+from types import ModuleType
+
+from gtvo.errors import DependencyError
+
+
+def require_open3d() -> ModuleType:
+    """Import and return ``open3d``, or raise :class:`DependencyError` with a one-line reason."""
+    try:
+        import open3d  # noqa: PLC0415
+    except ImportError as exc:  # pragma: no cover - depends on the machine
+        msg = str(exc)
+        if "libusb" in msg:
+            raise DependencyError(
+                "open3d needs the system library libusb-1.0 (install it: apt-get install libusb-1.0-0)"
+            ) from exc
+        raise DependencyError(f"open3d is not importable ({msg}); install it: pip install open3d") from exc
+    return open3d

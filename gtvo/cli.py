@@ -1,0 +1,57 @@
+"""The ``gtvo`` command line: a thin shell over the library.
+
+Each subcommand lives in its own module under :mod:`gtvo.commands` and exposes
+``register(subparsers)``, which adds its parser and sets ``func(args) -> int``.
+Bad input (:class:`gtvo.errors.InputError`) becomes one line on stderr and exit code 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from typing import Sequence
+
+from gtvo import __version__
+from gtvo.errors import DependencyError, InputError, TrackingFailure
+
+# One module per subcommand, in the order `gtvo --help` lists them.
+COMMAND_MODULES: tuple[str, ...] = (
+    "gtvo.commands.demo",
+    "gtvo.commands.run",
+)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser with every subcommand registered."""
+    parser = argparse.ArgumentParser(
+        prog="gtvo",
+        description="Direct stereo visual odometry on GTSAM: sliding-window optimisation of logged tracks.",
+    )
+    parser.add_argument("--version", action="version", version=f"gtvo {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+    for name in COMMAND_MODULES:
+        importlib.import_module(name).register(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``gtvo`` console script; returns the exit code."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except (InputError, DependencyError) as exc:
+        print(f"gtvo {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except TrackingFailure as exc:
+        print(f"gtvo {args.command}: tracking failed: {exc}", file=sys.stderr)
+        return 3
+    except KeyboardInterrupt:
+        print(f"gtvo {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,1 @@
+"""Subcommands of the ``gtvo`` CLI, one module each (see :mod:`gtvo.cli`)."""

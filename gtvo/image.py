@@ -1,0 +1,114 @@
+"""Image core: float conversion, pyramids, gradients and vectorised bilinear sampling.
+
+Pixel (0, 0) is the centre of the top-left pixel. A sample at (u, v) is valid when its four
+bilinear neighbours are inside the image, i.e. ``0 <= u <= W-1`` and ``0 <= v <= H-1``
+(optionally shrunk by a border); invalid samples return 0 and a False mask, never NaN.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from gtvo.errors import InputError
+
+FloatImage = NDArray[np.float32]
+
+
+def to_float_gray(image: NDArray, name: str = "image") -> FloatImage:
+    """Convert an 8/16-bit or float image (H, W) or (H, W, 3) to float32 gray in [0, 255] units.
+
+    Colour images are taken as BGR (OpenCV's order) and converted with ITU-R BT.601 weights.
+    """
+    img = np.asarray(image)
+    if img.ndim == 3 and img.shape[2] in (3, 4):
+        b, g, r = img[..., 0].astype(np.float32), img[..., 1].astype(np.float32), img[..., 2].astype(np.float32)
+        img = 0.114 * b + 0.587 * g + 0.299 * r
+    elif img.ndim != 2:
+        raise InputError(f"{name} must be a 2-D gray or 3-channel image, got shape {img.shape}")
+    out = img.astype(np.float32, copy=False)
+    if not np.all(np.isfinite(out)):
+        raise InputError(f"{name} contains NaN or infinite values")
+    return out
+
+
+def downsample(image: NDArray) -> FloatImage:
+    """Halve an image by 2x2 block averaging (DSO's pyramid); odd last rows/columns are dropped."""
+    img = np.asarray(image, dtype=np.float32)
+    h, w = (img.shape[0] // 2) * 2, (img.shape[1] // 2) * 2
+    img = img[:h, :w]
+    return 0.25 * (img[0::2, 0::2] + img[1::2, 0::2] + img[0::2, 1::2] + img[1::2, 1::2])
+
+
+def build_pyramid(image: NDArray, levels: int, min_size: int = 16) -> list[FloatImage]:
+    """Image pyramid ``[level 0 (full), level 1 (half), ...]``; stops early below ``min_size``.
+
+    Level ``l`` matches :meth:`gtvo.camera.PinholeCamera.scaled` ``(l)``.
+    """
+    if levels < 1:
+        raise InputError(f"pyramid needs at least one level, got {levels}")
+    pyr = [np.asarray(image, dtype=np.float32)]
+    while len(pyr) < levels and min(pyr[-1].shape[:2]) // 2 >= min_size:
+        pyr.append(downsample(pyr[-1]))
+    return pyr
+
+
+def image_gradients(image: NDArray) -> tuple[FloatImage, FloatImage]:
+    """Central-difference gradients ``(gx, gy)`` in intensity per pixel; one-sided at borders."""
+    img = np.asarray(image, dtype=np.float32)
+    gx = np.empty_like(img)
+    gy = np.empty_like(img)
+    gx[:, 1:-1] = 0.5 * (img[:, 2:] - img[:, :-2])
+    gx[:, 0] = img[:, 1] - img[:, 0]
+    gx[:, -1] = img[:, -1] - img[:, -2]
+    gy[1:-1, :] = 0.5 * (img[2:, :] - img[:-2, :])
+    gy[0, :] = img[1, :] - img[0, :]
+    gy[-1, :] = img[-1, :] - img[-2, :]
+    return gx, gy
+
+
+def bilinear_sample(image: NDArray, u: ArrayLike, v: ArrayLike,
+                    border: float = 0.0) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+    """Sample ``image`` (H, W) or (H, W, C) at float pixel positions, vectorised.
+
+    Args:
+        image: the image; a stack (H, W, C) samples all channels at once (e.g. I, gx, gy).
+        u, v: column and row coordinates, any equal shapes.
+        border: pixels kept free at each side for a sample to count as valid.
+
+    Returns:
+        ``(values, valid)``: values of shape ``u.shape`` (or ``u.shape + (C,)``), 0 where invalid;
+        ``valid`` is True where the sample and its neighbours lie inside the image and u, v are finite.
+    """
+    img = np.asarray(image)
+    u = np.asarray(u, dtype=np.float64)
+    v = np.asarray(v, dtype=np.float64)
+    h, w = img.shape[:2]
+    valid = (np.isfinite(u) & np.isfinite(v)
+             & (u >= border) & (u <= w - 1 - border) & (v >= border) & (v <= h - 1 - border))
+    us = np.where(valid, u, 0.0)
+    vs = np.where(valid, v, 0.0)
+    x0 = np.minimum(np.floor(us).astype(np.intp), w - 2)
+    y0 = np.minimum(np.floor(vs).astype(np.intp), h - 2)
+    x0 = np.maximum(x0, 0)
+    y0 = np.maximum(y0, 0)
+    ax = us - x0
+    ay = vs - y0
+    flat = img.reshape(h * w, *img.shape[2:])
+    i00 = y0 * w + x0
+    v00 = flat[i00]
+    v01 = flat[i00 + 1]
+    v10 = flat[i00 + w]
+    v11 = flat[i00 + w + 1]
+    if img.ndim == 3:
+        ax = ax[..., None]
+        ay = ay[..., None]
+    out = (1 - ay) * ((1 - ax) * v00 + ax * v01) + ay * ((1 - ax) * v10 + ax * v11)
+    out = np.where(valid[..., None] if img.ndim == 3 else valid, out, 0.0)
+    return out.astype(np.float64, copy=False), valid
+
+
+def check_same_size(a: NDArray, b: NDArray, what: str) -> None:
+    """Raise :class:`InputError` naming ``what`` when two images differ in size."""
+    if a.shape[:2] != b.shape[:2]:
+        raise InputError(f"{what}: image sizes differ, {a.shape[1]}x{a.shape[0]} vs {b.shape[1]}x{b.shape[0]}")

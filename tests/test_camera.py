@@ -1,0 +1,75 @@
+import numpy as np
+import pytest
+
+from gtvo.camera import PinholeCamera, StereoCamera
+from gtvo.errors import InputError
+
+
+def make_cam():
+    return PinholeCamera(fx=500.0, fy=400.0, cx=320.0, cy=240.0, width=640, height=480)
+
+
+def test_project_hand_computed():
+    cam = make_cam()
+    uv, ok = cam.project([[1.0, -0.5, 2.0], [0.0, 0.0, 1.0]])
+    # u = 500 * 1/2 + 320 = 570, v = 400 * -0.25 + 240 = 140
+    np.testing.assert_allclose(uv, [[570.0, 140.0], [320.0, 240.0]])
+    assert ok.all()
+
+
+def test_behind_camera_masked_not_nan():
+    cam = make_cam()
+    uv, ok = cam.project([[1.0, 1.0, -2.0], [1.0, 1.0, 0.0]])
+    assert not ok.any()
+    assert np.all(np.isfinite(uv))
+
+
+def test_backproject_roundtrip():
+    rng = np.random.default_rng(0)
+    cam = make_cam()
+    P = rng.uniform([-2, -2, 0.5], [2, 2, 20], size=(100, 3))
+    uv, _ = cam.project(P)
+    np.testing.assert_allclose(cam.backproject(uv, P[:, 2]), P, rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(cam.backproject_inverse_depth(uv, 1 / P[:, 2]), P, rtol=1e-10, atol=1e-12)
+
+
+def test_K_and_inverse():
+    cam = make_cam()
+    np.testing.assert_allclose(cam.K @ cam.K_inv, np.eye(3), atol=1e-15)
+    assert PinholeCamera.from_matrix(cam.K, 640, 480) == cam
+
+
+def test_scaled_matches_block_average_centres():
+    cam = make_cam()
+    c1 = cam.scaled(1)
+    # pixels 0 and 1 of level 0 average into pixel 0 of level 1, whose centre is u0 = 0.5
+    assert c1.fx == 250.0 and c1.cx == (320.0 + 0.5) / 2 - 0.5
+    assert (c1.width, c1.height) == (320, 240)
+    P = np.array([[0.3, -0.2, 3.0]])
+    uv0, _ = cam.project(P)
+    uv1, _ = c1.project(P)
+    np.testing.assert_allclose(uv1, (uv0 + 0.5) / 2 - 0.5)
+
+
+def test_stereo_disparity():
+    st = StereoCamera(make_cam(), baseline=0.5)
+    P = np.array([[0.2, 0.1, 5.0]])
+    uvl, _ = st.left.project(P)
+    uvr, _ = st.project_right(P)
+    disp = uvl[0, 0] - uvr[0, 0]
+    assert disp == pytest.approx(500 * 0.5 / 5.0)
+    assert st.inverse_depth_from_disparity(disp) == pytest.approx(0.2)
+    np.testing.assert_allclose(st.T_right_left @ np.r_[P[0], 1.0], [0.2 - 0.5, 0.1, 5.0, 1.0])
+
+
+@pytest.mark.parametrize("kwargs", [dict(fx=0.0), dict(fy=float("nan")), dict(width=0), dict(cx=float("inf"))])
+def test_bad_intrinsics_rejected(kwargs):
+    base = dict(fx=500.0, fy=400.0, cx=320.0, cy=240.0, width=640, height=480)
+    base.update(kwargs)
+    with pytest.raises(InputError):
+        PinholeCamera(**base)
+
+
+def test_bad_baseline_rejected():
+    with pytest.raises(InputError, match="baseline"):
+        StereoCamera(make_cam(), baseline=-0.1)

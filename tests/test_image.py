@@ -1,0 +1,69 @@
+import numpy as np
+import pytest
+
+from gtvo.errors import InputError
+from gtvo.image import bilinear_sample, build_pyramid, downsample, image_gradients, to_float_gray
+
+
+def ramp(h=6, w=8):
+    v, u = np.mgrid[0:h, 0:w]
+    return (3.0 * u + 10.0 * v).astype(np.float32)
+
+
+def test_bilinear_exact_on_affine_image():
+    img = ramp()
+    u = np.array([0.0, 1.25, 6.5, 7.0])
+    v = np.array([0.0, 2.5, 4.75, 5.0])
+    val, ok = bilinear_sample(img, u, v)
+    assert ok.all()
+    np.testing.assert_allclose(val, 3 * u + 10 * v)
+
+
+def test_bilinear_hand_computed_corner():
+    img = np.array([[0.0, 10.0], [20.0, 40.0]], dtype=np.float32)
+    val, ok = bilinear_sample(img, np.array([0.5]), np.array([0.5]))
+    assert ok[0] and val[0] == pytest.approx(17.5)
+
+
+def test_bilinear_border_and_nan_masked():
+    img = ramp()
+    u = np.array([-0.01, 7.01, 3.0, np.nan, 0.5])
+    v = np.array([1.0, 1.0, 5.2, 1.0, 0.5])
+    val, ok = bilinear_sample(img, u, v)
+    np.testing.assert_array_equal(ok, [False, False, False, False, True])
+    assert np.all(np.isfinite(val)) and np.all(val[~ok] == 0)
+    _, ok2 = bilinear_sample(img, np.array([0.5]), np.array([0.5]), border=1.0)
+    assert not ok2[0]
+
+
+def test_bilinear_multichannel():
+    img = ramp()
+    stack = np.dstack([img, 2 * img])
+    val, ok = bilinear_sample(stack, np.array([2.5]), np.array([1.5]))
+    np.testing.assert_allclose(val[0], [3 * 2.5 + 15, 2 * (3 * 2.5 + 15)])
+
+
+def test_gradients_of_ramp():
+    gx, gy = image_gradients(ramp())
+    np.testing.assert_allclose(gx, 3.0)
+    np.testing.assert_allclose(gy, 10.0)
+
+
+def test_pyramid_block_average():
+    img = ramp(8, 8)
+    d = downsample(img)
+    assert d.shape == (4, 4)
+    assert d[0, 0] == pytest.approx(np.mean(img[:2, :2]))
+    pyr = build_pyramid(np.zeros((64, 100)), levels=5, min_size=8)
+    assert [p.shape for p in pyr] == [(64, 100), (32, 50), (16, 25), (8, 12)]
+
+
+def test_to_float_gray():
+    bgr = np.zeros((2, 2, 3), np.uint8)
+    bgr[..., 2] = 100  # red
+    g = to_float_gray(bgr)
+    assert g.dtype == np.float32 and g[0, 0] == pytest.approx(29.9, rel=1e-5)
+    with pytest.raises(InputError):
+        to_float_gray(np.zeros((2, 2, 2, 2)))
+    with pytest.raises(InputError, match="NaN"):
+        to_float_gray(np.full((2, 2), np.nan))
