@@ -1,0 +1,148 @@
+"""The one lazy sequence type every reader returns (and the synthetic generator too).
+
+A :class:`Sequence` knows its camera, timestamps and optional ground truth up front, and loads
+images only when asked (``seq.left(i)``), so a 4000-frame log costs nothing to open.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Iterator, Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from gtvo.camera import PinholeCamera, StereoCamera
+from gtvo.errors import InputError
+
+ImageLoader = Callable[[int], NDArray]
+SequenceKind = Literal["stereo", "rgbd"]
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One time step: index, timestamp (s) and its images, loaded when the frame is made."""
+
+    index: int
+    timestamp: float
+    left: NDArray[np.float32]
+    right: NDArray[np.float32] | None = None
+    depth: NDArray[np.float32] | None = None  # metres, 0 = no measurement (RGB-D)
+    gt_T_world_cam: NDArray[np.float64] | None = None
+
+
+@dataclass
+class Sequence:
+    """A logged stereo (or RGB-D) track.
+
+    Attributes:
+        name: a short name (folder name).
+        kind: ``"stereo"`` (left/right rectified pair) or ``"rgbd"`` (image + metric depth).
+        camera: for stereo a :class:`StereoCamera` (rectified); for RGB-D a :class:`PinholeCamera`.
+        timestamps: (N,) seconds, strictly increasing.
+        gt_poses: optional (N, 4, 4) ground-truth ``T_world_cam`` of the left camera, NaN-filled
+            rows where no ground truth covers a frame.
+        source: the folder it was read from (None for generated sequences).
+        frame_names: (N,) a name per frame for error messages (e.g. the left image's path).
+    """
+
+    name: str
+    kind: SequenceKind
+    camera: StereoCamera | PinholeCamera
+    timestamps: NDArray[np.float64]
+    load_left: ImageLoader
+    load_right: ImageLoader | None = None
+    load_depth: ImageLoader | None = None
+    gt_poses: NDArray[np.float64] | None = None
+    source: Path | None = None
+    frame_names: list[str] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        self.timestamps = np.asarray(self.timestamps, dtype=np.float64).reshape(-1)
+        where = self.source if self.source is not None else self.name
+        if self.timestamps.size == 0:
+            raise InputError("empty sequence: no frames", path=where)
+        if not np.all(np.isfinite(self.timestamps)):
+            raise InputError("timestamps contain NaN or infinite values", path=where)
+        if self.timestamps.size > 1 and np.any(np.diff(self.timestamps) <= 0):
+            k = int(np.argmax(np.diff(self.timestamps) <= 0))
+            raise InputError(f"timestamps are not strictly increasing at frame {k + 1}", path=where)
+        if self.kind == "stereo" and (self.load_right is None or not isinstance(self.camera, StereoCamera)):
+            raise InputError("a stereo sequence needs right images and a StereoCamera", path=where)
+        if self.kind == "rgbd" and self.load_depth is None:
+            raise InputError("an RGB-D sequence needs depth images", path=where)
+        if self.gt_poses is not None:
+            self.gt_poses = np.asarray(self.gt_poses, dtype=np.float64)
+            if self.gt_poses.shape != (len(self), 4, 4):
+                raise InputError(f"ground truth has shape {self.gt_poses.shape}, expected ({len(self)}, 4, 4)",
+                                 path=where)
+        if not self.frame_names:
+            self.frame_names = [f"{self.name}[{i}]" for i in range(len(self))]
+
+    def __len__(self) -> int:
+        return int(self.timestamps.size)
+
+    @property
+    def pinhole(self) -> PinholeCamera:
+        """The (left) pinhole camera."""
+        return self.camera.left if isinstance(self.camera, StereoCamera) else self.camera
+
+    @property
+    def has_ground_truth(self) -> bool:
+        """True when at least one frame has a ground-truth pose."""
+        return self.gt_poses is not None and bool(np.any(np.isfinite(self.gt_poses[:, 0, 0])))
+
+    def left(self, i: int) -> NDArray[np.float32]:
+        """Left (or RGB-D colour, as gray) image ``i``, float32 gray."""
+        return self._checked(self.load_left(i), i, "left")
+
+    def right(self, i: int) -> NDArray[np.float32]:
+        """Right image ``i`` (stereo only)."""
+        if self.load_right is None:
+            raise InputError(f"sequence {self.name} has no right images")
+        return self._checked(self.load_right(i), i, "right")
+
+    def depth(self, i: int) -> NDArray[np.float32]:
+        """Metric depth image ``i`` (RGB-D only), metres, 0 where unknown."""
+        if self.load_depth is None:
+            raise InputError(f"sequence {self.name} has no depth images")
+        return self._checked(self.load_depth(i), i, "depth")
+
+    def frame(self, i: int) -> Frame:
+        """Frame ``i`` with its images loaded."""
+        if not 0 <= i < len(self):
+            raise IndexError(f"frame {i} out of range 0..{len(self) - 1}")
+        gt = None
+        if self.gt_poses is not None and np.isfinite(self.gt_poses[i, 0, 0]):
+            gt = self.gt_poses[i]
+        return Frame(
+            index=i,
+            timestamp=float(self.timestamps[i]),
+            left=self.left(i),
+            right=self.right(i) if self.kind == "stereo" else None,
+            depth=self.depth(i) if self.kind == "rgbd" else None,
+            gt_T_world_cam=gt,
+        )
+
+    def __iter__(self) -> Iterator[Frame]:
+        for i in range(len(self)):
+            yield self.frame(i)
+
+    def truncated(self, max_frames: int | None) -> "Sequence":
+        """The first ``max_frames`` frames (the same sequence when None)."""
+        if max_frames is None or max_frames >= len(self):
+            return self
+        if max_frames < 1:
+            raise InputError(f"--max-frames must be >= 1, got {max_frames}")
+        n = int(max_frames)
+        return Sequence(self.name, self.kind, self.camera, self.timestamps[:n], self.load_left, self.load_right,
+                        self.load_depth, None if self.gt_poses is None else self.gt_poses[:n], self.source,
+                        self.frame_names[:n])
+
+    def _checked(self, img: NDArray, i: int, which: str) -> NDArray[np.float32]:
+        h, w = self.pinhole.height, self.pinhole.width
+        if img.shape[:2] != (h, w):
+            raise InputError(f"{which} image is {img.shape[1]}x{img.shape[0]}, the camera expects {w}x{h}",
+                             path=self.frame_names[i] if i < len(self.frame_names) else None)
+        return img

@@ -1,0 +1,25 @@
+"""Shared fixtures: where the real data lives, and skipping when it is absent."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+
+
+def shared_data_dir() -> Path:
+    """``$GTVO_SHARED_DATA`` or ``../shared/data`` beside the checkout."""
+    env = os.environ.get("GTVO_SHARED_DATA")
+    return Path(env) if env else REPO_ROOT.parent / "shared" / "data"
+
+
+@pytest.fixture(scope="session")
+def shared_data() -> Path:
+    """The real-data folder; tests that use it are skipped when it is absent."""
+    d = shared_data_dir()
+    if not d.is_dir():
+        pytest.skip(f"real data not found at {d}")
+    return d
