@@ -1,0 +1,92 @@
+"""Dataset readers: KITTI odometry, EuRoC MAV (ASL) and TUM RGB-D folders as a lazy
+:class:`gtvo.sequence.Sequence`. Layouts, association rules and frame conventions:
+``docs/datasets.md``.
+
+>>> seq = open_sequence("/data/KITTI/00")            # doctest: +SKIP
+>>> validate(seq)                                    # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Literal
+
+from tqdm import tqdm
+
+from gtvo.datasets._common import require_dir
+from gtvo.datasets.euroc import looks_like_euroc, read_euroc
+from gtvo.datasets.kitti import looks_like_kitti, read_kitti
+from gtvo.datasets.tum import TUM_INTRINSICS, looks_like_tum, read_tum
+from gtvo.errors import InputError
+from gtvo.sequence import Sequence
+
+DatasetFormat = Literal["auto", "kitti", "euroc", "tum"]
+FORMATS: tuple[str, ...] = ("kitti", "euroc", "tum")
+
+__all__ = ["DatasetFormat", "FORMATS", "TUM_INTRINSICS", "detect_format", "open_sequence", "read_euroc",
+           "read_kitti", "read_tum", "validate"]
+
+
+def detect_format(path: str | Path) -> str:
+    """The layout of a sequence folder: ``"kitti"``, ``"euroc"`` or ``"tum"``.
+
+    Raises:
+        InputError: the folder is missing or matches no known layout.
+    """
+    folder = require_dir(Path(path), "sequence folder")
+    if looks_like_kitti(folder):
+        return "kitti"
+    if looks_like_euroc(folder):
+        return "euroc"
+    if looks_like_tum(folder):
+        return "tum"
+    raise InputError("unknown dataset layout: expected KITTI (calib.txt + image_0/ or image_l/), "
+                     "EuRoC (mav0/cam0/ + mav0/cam1/) or TUM RGB-D (rgb.txt + depth.txt)", path=folder)
+
+
+def open_sequence(path: str | Path, format: DatasetFormat = "auto",
+                  camera: tuple[float, float, float, float] | None = None, max_frames: int | None = None,
+                  ground_truth: str | Path | None = None) -> Sequence:
+    """Open a dataset folder as a lazy :class:`Sequence` (images are read when asked for).
+
+    Args:
+        path: the sequence folder.
+        format: ``"auto"`` (see :func:`detect_format`), ``"kitti"``, ``"euroc"`` or ``"tum"``.
+        camera: ``(fx, fy, cx, cy)`` for TUM folders (overrides the name-based intrinsics).
+        max_frames: keep only the first ``max_frames`` frames.
+        ground_truth: a ground-truth file to use instead of the one in the folder (KITTI poses,
+            ASL csv or TUM trajectory, as the layout reads).
+    """
+    folder = Path(path)
+    if max_frames is not None and int(max_frames) < 1:
+        raise InputError(f"max_frames must be >= 1, got {max_frames}")
+    if format not in ("auto",) + FORMATS:
+        raise InputError(f"unknown dataset format {format!r}: choose auto, {', '.join(FORMATS)}")
+    kind = detect_format(folder) if format == "auto" else format
+    if camera is not None and kind != "tum":
+        raise InputError(f"a camera override applies to TUM folders only, this is {kind}", path=folder)
+    gt = None if ground_truth is None else Path(ground_truth)
+    n = None if max_frames is None else int(max_frames)
+    if kind == "kitti":
+        return read_kitti(folder, max_frames=n, ground_truth=gt)
+    if kind == "euroc":
+        return read_euroc(folder, max_frames=n, ground_truth=gt)
+    return read_tum(folder, max_frames=n, camera=camera, ground_truth=gt)
+
+
+def validate(seq: Sequence, check_images: bool = True, progress: bool = True) -> None:
+    """Load every frame's images once; raise the first :class:`InputError` (naming its file).
+
+    Args:
+        seq: the sequence.
+        check_images: when False, nothing is loaded (only the up-front checks ``Sequence`` did).
+        progress: show a tqdm progress bar.
+    """
+    if not check_images:
+        return
+    for i in tqdm(range(len(seq)), desc=f"checking {seq.name}", unit="frame", disable=not progress):
+        seq.left(i)
+        if seq.kind == "stereo":
+            seq.right(i)
+        else:
+            seq.depth(i)

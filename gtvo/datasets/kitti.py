@@ -1,0 +1,133 @@
+"""KITTI odometry layout: rectified stereo pairs with a ``calib.txt`` of projection matrices.
+
+::
+
+    <seq>/calib.txt                 P0 and P1 (3x4 row-major), labelled "P0:"/"P1:" or not;
+                                    further lines (P2, P3, Tr, ...) are ignored
+    <seq>/image_0/*.png, image_1/   left/right (or image_l/, image_r/), same file names
+    <seq>/times.txt                 optional, one time [s] per image (else 0.1 s steps)
+    <seq>/poses.txt                 optional ground truth, 3x4 row-major T_world_cam0 per image
+
+baseline = -(P1[0,3] - P0[0,3]) / P1[0,0]  (= -P1[0,3]/P1[0,0] for KITTI, where P0[0,3] = 0).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from gtvo.camera import PinholeCamera, StereoCamera
+from gtvo.datasets._common import (FloatArray, GrayImageLoader, TextRow, image_size, parse_floats,
+                                   parse_float_table, read_rows, require_dir, require_file)
+from gtvo.errors import InputError
+from gtvo.sequence import Sequence
+
+#: (left, right) image folder names tried in order.
+IMAGE_DIRS: tuple[tuple[str, str], ...] = (("image_0", "image_1"), ("image_l", "image_r"))
+#: Frame period used when there is no times.txt (KITTI runs at 10 Hz).
+DEFAULT_PERIOD_S = 0.1
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".pgm", ".ppm", ".bmp", ".tif", ".tiff")
+
+
+def looks_like_kitti(path: Path) -> bool:
+    """True when ``path`` has a calib.txt and a left image folder."""
+    return (path / "calib.txt").is_file() and any((path / left).is_dir() for left, _ in IMAGE_DIRS)
+
+
+def read_calibration(path: Path) -> StereoCamera:
+    """The rectified stereo camera of a KITTI ``calib.txt`` (image size filled in later: 1x1)."""
+    P0, P1 = read_projections(path)
+    fx = P0[0, 0]
+    if not fx > 0 or not P0[1, 1] > 0:
+        raise InputError(f"P0 has non-positive focal length fx={fx!r}, fy={P0[1, 1]!r}", path=path)
+    if not np.allclose(P0[:, :3], P1[:, :3], rtol=1e-6, atol=1e-6 * fx):
+        raise InputError("P0 and P1 have different intrinsics: images are not rectified", path=path)
+    baseline = -(P1[0, 3] - P0[0, 3]) / P1[0, 0]
+    if not baseline > 0:
+        raise InputError(f"baseline -(P1[0,3]-P0[0,3])/P1[0,0] = {baseline!r} must be positive", path=path)
+    return StereoCamera(PinholeCamera.from_matrix(P0[:, :3], 1, 1), float(baseline))
+
+
+def read_projections(path: Path) -> tuple[FloatArray, FloatArray]:
+    """``(P0, P1)`` 3x4 from ``calib.txt``: labelled lines ``P0: ...`` or the first two lines."""
+    rows = read_rows(require_file(path, "calibration file"), 1)
+    labelled = {r.fields[0].rstrip(":"): r for r in rows if r.fields[0].endswith(":")}
+    if labelled:
+        missing = [k for k in ("P0", "P1") if k not in labelled]
+        if missing:
+            raise InputError(f"no {' or '.join(missing)} line", path=path)
+        picked = [TextRow(labelled[k].line, labelled[k].fields[1:]) for k in ("P0", "P1")]
+    else:
+        if len(rows) < 2:
+            raise InputError(f"expected P0 and P1 lines, found {len(rows)} line(s)", path=path)
+        picked = rows[:2]
+    matrices = []
+    for row in picked:
+        if len(row.fields) != 12:
+            raise InputError(f"projection matrix needs 12 numbers, got {len(row.fields)}", path=path, line=row.line)
+        matrices.append(parse_floats(row, path).reshape(3, 4))
+    return matrices[0], matrices[1]
+
+
+def _image_dirs(root: Path) -> tuple[Path, Path]:
+    for left, right in IMAGE_DIRS:
+        if (root / left).is_dir():
+            return root / left, require_dir(root / right, "right image folder")
+    raise InputError(f"no left image folder ({', '.join(l for l, _ in IMAGE_DIRS)})", path=root)
+
+
+def _read_poses(path: Path, count: int) -> FloatArray:
+    rows = read_rows(path, 12)
+    if len(rows) != count:
+        raise InputError(f"{len(rows)} poses for {count} images: poses.txt needs one line per image", path=path)
+    for row in rows:
+        if len(row.fields) != 12:
+            raise InputError(f"pose needs 12 numbers, got {len(row.fields)}", path=path, line=row.line)
+    table = parse_float_table(rows, path, slice(0, 12))
+    poses = np.tile(np.eye(4), (count, 1, 1))
+    poses[:, :3, :] = table.reshape(count, 3, 4)
+    return poses
+
+
+def _read_times(path: Path, count: int) -> FloatArray:
+    rows = read_rows(path, 1)
+    if len(rows) != count:
+        raise InputError(f"{len(rows)} timestamps for {count} images: times.txt needs one line per image",
+                         path=path)
+    return parse_float_table(rows, path, slice(0, 1)).reshape(-1)
+
+
+def read_kitti(root: Path, max_frames: int | None = None, ground_truth: Path | None = None) -> Sequence:
+    """Open a KITTI odometry sequence folder (see the module docstring for the layout).
+
+    Args:
+        root: the sequence folder.
+        max_frames: keep only the first frames.
+        ground_truth: a KITTI poses file to use instead of ``root/poses.txt``.
+    """
+    require_dir(root, "KITTI sequence folder")
+    calib = root / "calib.txt"
+    stereo = read_calibration(calib)
+    left_dir, right_dir = _image_dirs(root)
+    lefts = sorted(p for p in left_dir.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+    if not lefts:
+        raise InputError("empty sequence: no images", path=left_dir)
+    rights = [right_dir / p.name for p in lefts]
+    for left, right in zip(lefts, rights):
+        if not right.is_file():
+            raise InputError(f"missing right image for left image {left}", path=right)
+    count = len(lefts)
+    times_path = root / "times.txt"
+    times = _read_times(times_path, count) if times_path.exists() else DEFAULT_PERIOD_S * np.arange(count)
+    gt_path = ground_truth if ground_truth is not None else root / "poses.txt"
+    poses = _read_poses(gt_path, count) if (ground_truth is not None or gt_path.exists()) else None
+    n = count if max_frames is None else min(count, int(max_frames))
+    width, height = image_size(lefts[0])
+    k = stereo.left
+    camera = StereoCamera(PinholeCamera(k.fx, k.fy, k.cx, k.cy, width, height), stereo.baseline)
+    shape = (height, width)
+    return Sequence(
+        name=root.resolve().name, kind="stereo", camera=camera, timestamps=times[:n],
+        load_left=GrayImageLoader(lefts[:n], shape, "left"), load_right=GrayImageLoader(rights[:n], shape, "right"),
+        gt_poses=None if poses is None else poses[:n], source=root, frame_names=[str(p) for p in lefts[:n]])
