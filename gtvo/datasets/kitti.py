@@ -35,8 +35,8 @@ def looks_like_kitti(path: Path) -> bool:
     return (path / "calib.txt").is_file() and any((path / left).is_dir() for left, _ in IMAGE_DIRS)
 
 
-def read_calibration(path: Path) -> StereoCamera:
-    """The rectified stereo camera of a KITTI ``calib.txt`` (image size filled in later: 1x1)."""
+def read_calibration(path: Path) -> tuple[FloatArray, float]:
+    """``(K, baseline)`` of the rectified pair in a KITTI ``calib.txt``."""
     P0, P1 = read_projections(path)
     fx = P0[0, 0]
     if not fx > 0 or not P0[1, 1] > 0:
@@ -46,7 +46,7 @@ def read_calibration(path: Path) -> StereoCamera:
     baseline = -(P1[0, 3] - P0[0, 3]) / P1[0, 0]
     if not baseline > 0:
         raise InputError(f"baseline -(P1[0,3]-P0[0,3])/P1[0,0] = {baseline!r} must be positive", path=path)
-    return StereoCamera(PinholeCamera.from_matrix(P0[:, :3], 1, 1), float(baseline))
+    return P0[:, :3].copy(), float(baseline)
 
 
 def read_projections(path: Path) -> tuple[FloatArray, FloatArray]:
@@ -108,7 +108,7 @@ def read_kitti(root: Path, max_frames: int | None = None, ground_truth: Path | N
     """
     require_dir(root, "KITTI sequence folder")
     calib = root / "calib.txt"
-    stereo = read_calibration(calib)
+    K, baseline = read_calibration(calib)
     left_dir, right_dir = _image_dirs(root)
     lefts = sorted(p for p in left_dir.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
     if not lefts:
@@ -124,8 +124,7 @@ def read_kitti(root: Path, max_frames: int | None = None, ground_truth: Path | N
     poses = _read_poses(gt_path, count) if (ground_truth is not None or gt_path.exists()) else None
     n = count if max_frames is None else min(count, int(max_frames))
     width, height = image_size(lefts[0])
-    k = stereo.left
-    camera = StereoCamera(PinholeCamera(k.fx, k.fy, k.cx, k.cy, width, height), stereo.baseline)
+    camera = StereoCamera(PinholeCamera.from_matrix(K, width, height), baseline)
     shape = (height, width)
     return Sequence(
         name=root.resolve().name, kind="stereo", camera=camera, timestamps=times[:n],
