@@ -325,6 +325,10 @@ def test_euroc_ground_truth_outside_the_images_and_corrupt_image(tmp_path):
     far.write_text(f"{T0_NS},0,0,0,0,0,0,0\n")
     _raises("data.csv:1: quaternion has zero length", open_sequence, root)
     far.unlink()
+    wrong = root / "mav0" / "cam0" / "data" / f"{T0_NS + DT_NS}.png"
+    cv2.imwrite(str(wrong), _texture(H - 1, W))
+    err = _raises("mismatched size", open_sequence(root).left, 1)
+    assert err.path == wrong
     img = root / "mav0" / "cam1" / "data" / f"{T0_NS}.png"
     img.write_bytes(img.read_bytes()[:-20])
     err = _raises("cannot read image", open_sequence(root).right, 0)
@@ -484,3 +488,40 @@ def test_real_tum(shared_data):
     R_near = Rotation.from_quat(gt[near, 4:8]).as_matrix()
     assert np.degrees(np.linalg.norm(Rotation.from_matrix(R_near.T @ seq.gt_poses[0][:3, :3]).as_rotvec())) < 1.0
     validate(seq, progress=False)
+
+
+def _link_tree(src: Path, dst: Path, skip: set[str] = frozenset()) -> Path:
+    """A copy of ``src`` in ``dst`` made of symlinks (files named in ``skip`` left out)."""
+    for path in src.rglob("*"):
+        rel = path.relative_to(src)
+        if path.is_dir() or rel.as_posix() in skip:
+            continue
+        (dst / rel).parent.mkdir(parents=True, exist_ok=True)
+        (dst / rel).symlink_to(path)
+    return dst
+
+
+@pytest.mark.realdata
+def test_real_data_damaged_copies(shared_data, tmp_path):
+    kitti = shared_data / "kitti_stereo_sample" / "KITTI_sequence_1"
+    root = _link_tree(kitti, tmp_path / "k1", skip={"poses.txt", "image_r/000017.png"})
+    _raises("missing right image for left image", open_sequence, root)
+    root = _link_tree(kitti, tmp_path / "k2", skip={"poses.txt"})
+    (root / "poses.txt").write_text("\n".join((kitti / "poses.txt").read_text().splitlines()[:50]))
+    _raises("50 poses for 51 images", open_sequence, root)
+    (root / "image_l" / "000003.png").unlink()
+    (root / "image_l" / "000003.png").write_bytes((kitti / "image_l" / "000003.png").read_bytes()[:5000])
+    (root / "poses.txt").unlink()
+    _raises("image_l/000003.png: cannot read image", validate, open_sequence(root), progress=False)
+
+    euroc = shared_data / "euroc_v101_static_stereo"
+    root = _link_tree(euroc, tmp_path / "e1")
+    gt = tmp_path / "late.txt"
+    rows = (euroc / "V1_01_easy_groundtruth_openvins_tum.txt").read_text().splitlines()[100:200]
+    gt.write_text("\n".join(rows))
+    _raises("does not overlap the images", open_sequence, root, ground_truth=gt)
+
+    tum = shared_data / "rgbd_dataset_freiburg3_teddy_first20"
+    root = _link_tree(tum, tmp_path / "teddy")  # the folder name no longer says freiburg3
+    _raises("pass --camera", open_sequence, root)
+    assert open_sequence(root, camera=(535.4, 539.2, 320.1, 247.6)).camera.fx == 535.4

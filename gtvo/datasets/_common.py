@@ -298,7 +298,8 @@ def _sorted_trajectory(times: FloatArray, poses: FloatArray, path: Path) -> tupl
 def read_trajectory(path: Path) -> tuple[FloatArray, FloatArray]:
     """A ground-truth trajectory in ASL csv (comma separated, ns) or TUM (whitespace, s) form."""
     require_file(path, "ground-truth file")
-    first = next((r for r in read_rows(path, 1)), None)
+    with path.open("r", encoding="utf-8", errors="replace") as f:
+        first = next((line for line in f if line.strip() and not line.lstrip().startswith("#")), None)
     if first is None:
         raise InputError("ground-truth file is empty", path=path)
-    return read_asl_trajectory(path) if "," in " ".join(first.fields) else read_tum_trajectory(path)
+    return read_asl_trajectory(path) if "," in first else read_tum_trajectory(path)
