@@ -3,7 +3,8 @@
 Rule (docs/frontend.md, "Point selection"):
 
 1. ``G = |grad I|`` (central differences, :func:`gtvo.image.image_gradients`).
-2. The image is split into ``block x block`` blocks (32 px); each block's threshold is the
+2. The image is split into ``block x block`` blocks (32 px; partial edge blocks are completed
+   by mirroring); each block's threshold is the
    median of ``G`` over the block plus ``threshold_offset`` (DSO: 7 grey levels); the block
    thresholds are smoothed over 3x3 neighbouring blocks and spread to a per-pixel map ``T``.
 3. With a cell size ``s``: in every ``s x s`` cell the pixel of largest ``G`` with
@@ -57,10 +58,11 @@ def block_gradient_thresholds(grad_mag: NDArray, block: int = 32,
         raise InputError(f"block size must be >= 1, got {block}")
     g = np.asarray(grad_mag, dtype=np.float32)
     h, w = g.shape
-    padded = _pad_to_multiple(g, block, np.nan)
+    # partial blocks at the right/bottom edge are completed by mirroring (keeps np.median vectorised)
+    padded = np.pad(g, ((0, (-h) % block), (0, (-w) % block)), mode="symmetric")
     nby, nbx = padded.shape[0] // block, padded.shape[1] // block
     cells = padded.reshape(nby, block, nbx, block).transpose(0, 2, 1, 3).reshape(nby, nbx, block * block)
-    med = np.nanmedian(cells, axis=-1)
+    med = np.median(cells, axis=-1)
     # 3x3 smoothing over neighbouring blocks (edge blocks average over the blocks that exist).
     p = np.pad(med, 1, constant_values=np.nan)
     stack = np.stack([p[i:i + nby, j:j + nbx] for i in range(3) for j in range(3)])
