@@ -254,3 +254,18 @@ def test_agrees_with_opencv_sgbm_on_kitti(shared_data, frame):
     assert median < 0.4
     assert within1 > 0.82
     assert not np.any(np.isnan(res.variance))
+
+
+def test_empty_inputs_give_empty_outputs():
+    left, right, _ = stereo_pair(plane=PLANES[0])
+    res = stereo_inverse_depth(left, right, camera(), np.zeros((0, 2)))
+    assert res.valid.shape == (0,) and res.inverse_depth.shape == (0,)
+    flat = np.full((240, 320), 9, dtype=np.uint8)
+    kp = init_keyframe_points(flat, flat, camera())
+    assert len(kp) == 0 and kp.pixels.shape == (0, 2)
+
+
+def test_search_range_wider_than_the_image_still_finds_the_match():
+    left, right, disp = stereo_pair(plane=PLANES[0])
+    res = stereo_inverse_depth(left, right, camera(), np.array([[100.0, 100.0]]), max_disparity=1000)
+    assert res.valid[0] and abs(res.disparity[0] - 12.3) < 0.05
