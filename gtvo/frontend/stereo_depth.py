@@ -276,7 +276,6 @@ def stereo_inverse_depth(left: NDArray, right: NDArray, stereo_camera: StereoCam
             raise InputError(f"{name} must be finite and >= 0, got {val!r}")
     pat = _as_pattern(pattern)
     n = px.shape[0]
-    h, w = left_f.shape
     u = px[:, 0].astype(np.int64)
     v = px[:, 1].astype(np.int64)
     disps = np.arange(int(min_disparity), int(max_disparity) + 1, dtype=np.int64)
