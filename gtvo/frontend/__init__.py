@@ -1,0 +1,43 @@
+"""Front end: point selection and stereo inverse-depth initialisation of keyframes.
+
+* :func:`select_points` picks well-spread, high-gradient pixels (DSO-like).
+* :func:`stereo_inverse_depth` finds their inverse depth and variance ``V`` by an epipolar
+  search in the right image of a rectified pair (LSD-SLAM-style variance).
+* :func:`init_keyframe_points` does both and keeps the points that pass every check.
+
+The math, with the names used here, is in ``docs/frontend.md``.
+"""
+
+from gtvo.frontend.point_selection import (
+    DEFAULT_BORDER,
+    block_gradient_thresholds,
+    gradient_magnitude,
+    select_points,
+)
+from gtvo.frontend.stereo_depth import (
+    DSO_PATTERN_8,
+    PATCH_5X5,
+    KeyframePoints,
+    Rejection,
+    StereoDepthResult,
+    disparity_variance,
+    epipolar_direction,
+    init_keyframe_points,
+    stereo_inverse_depth,
+)
+
+__all__ = [
+    "DEFAULT_BORDER",
+    "DSO_PATTERN_8",
+    "PATCH_5X5",
+    "KeyframePoints",
+    "Rejection",
+    "StereoDepthResult",
+    "block_gradient_thresholds",
+    "disparity_variance",
+    "epipolar_direction",
+    "gradient_magnitude",
+    "init_keyframe_points",
+    "select_points",
+    "stereo_inverse_depth",
+]

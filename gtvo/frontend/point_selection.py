@@ -1,0 +1,159 @@
+"""Gradient-based point selection spread over the image (DSO's PixelSelector, simplified).
+
+Rule (docs/frontend.md, "Point selection"):
+
+1. ``G = |grad I|`` (central differences, :func:`gtvo.image.image_gradients`).
+2. The image is split into ``block x block`` blocks (32 px; partial edge blocks are completed
+   by mirroring); each block's threshold is the
+   median of ``G`` over the block plus ``threshold_offset`` (DSO: 7 grey levels); the block
+   thresholds are smoothed over 3x3 neighbouring blocks and spread to a per-pixel map ``T``.
+3. With a cell size ``s``: in every ``s x s`` cell the pixel of largest ``G`` with
+   ``G > T`` is picked; every ``2s x 2s`` cell that got no pick tries again with the lower
+   threshold ``downweight * T``; every ``4s x 4s`` cell still empty tries ``downweight^2 * T``.
+   So low-texture regions still get (fewer) points.
+4. ``s`` is adapted (``s <- s * sqrt(count / target)``, a few iterations) to reach the target
+   count; a surplus is removed by a seeded random subsample (keeps the spread uniform).
+
+Pixels within ``border`` of the image edge are never picked.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from gtvo.errors import InputError
+from gtvo.image import image_gradients, to_float_gray
+
+#: Radius of the 8-pixel DSO pattern and of the 5x5 stereo patch.
+PATTERN_RADIUS = 2
+#: Default free border: pattern radius + 6 px margin (room for the coarse pyramid levels).
+DEFAULT_BORDER = PATTERN_RADIUS + 6
+
+
+def gradient_magnitude(image: NDArray) -> NDArray[np.float32]:
+    """``G = sqrt(gx^2 + gy^2)`` of a gray image, central differences, float32 (H, W)."""
+    gx, gy = image_gradients(to_float_gray(image))
+    return np.sqrt(gx * gx + gy * gy)
+
+
+def _pad_to_multiple(a: NDArray, m: int, fill: float) -> NDArray:
+    h, w = a.shape
+    ph, pw = (-h) % m, (-w) % m
+    if ph == 0 and pw == 0:
+        return a
+    return np.pad(a, ((0, ph), (0, pw)), constant_values=fill)
+
+
+def block_gradient_thresholds(grad_mag: NDArray, block: int = 32,
+                              threshold_offset: float = 7.0) -> NDArray[np.float32]:
+    """Per-pixel threshold map ``T`` (H, W): block median of ``grad_mag`` + offset, 3x3-smoothed.
+
+    Args:
+        grad_mag: gradient magnitude (H, W).
+        block: block side in pixels (DSO: 32).
+        threshold_offset: the constant added to the median (DSO's ``minGradHistAdd`` = 7).
+    """
+    if block < 1:
+        raise InputError(f"block size must be >= 1, got {block}")
+    g = np.asarray(grad_mag, dtype=np.float32)
+    h, w = g.shape
+    # partial blocks at the right/bottom edge are completed by mirroring (keeps np.median vectorised)
+    padded = np.pad(g, ((0, (-h) % block), (0, (-w) % block)), mode="symmetric")
+    nby, nbx = padded.shape[0] // block, padded.shape[1] // block
+    cells = padded.reshape(nby, block, nbx, block).transpose(0, 2, 1, 3).reshape(nby, nbx, block * block)
+    med = np.median(cells, axis=-1)
+    # 3x3 smoothing over neighbouring blocks (edge blocks average over the blocks that exist).
+    p = np.pad(med, 1, constant_values=np.nan)
+    stack = np.stack([p[i:i + nby, j:j + nbx] for i in range(3) for j in range(3)])
+    smooth = np.nanmean(stack, axis=0) + float(threshold_offset)
+    full = np.repeat(np.repeat(smooth, block, axis=0), block, axis=1)
+    return full[:h, :w].astype(np.float32)
+
+
+def _pick_hierarchical(score: NDArray, thr: NDArray, eligible: NDArray, cell: int, levels: int,
+                       downweight: float) -> NDArray[np.bool_]:
+    """Boolean map of picks for one cell size (the 3-level rule of step 3)."""
+    h, w = score.shape
+    picked = np.zeros((h, w), dtype=bool)
+    for lvl in range(levels):
+        c = cell * (2 ** lvl)
+        ok = eligible & (score > thr * (downweight ** lvl))
+        masked = _pad_to_multiple(np.where(ok, score, -1.0).astype(np.float32), c, -1.0)
+        have = _pad_to_multiple(picked, c, False)
+        nby, nbx = masked.shape[0] // c, masked.shape[1] // c
+        cells = masked.reshape(nby, c, nbx, c).transpose(0, 2, 1, 3).reshape(nby, nbx, c * c)
+        has_pick = have.reshape(nby, c, nbx, c).any(axis=(1, 3))
+        idx = np.argmax(cells, axis=-1)
+        best = np.take_along_axis(cells, idx[..., None], axis=-1)[..., 0]
+        take = (best >= 0) & ~has_pick
+        by, bx = np.nonzero(take)
+        k = idx[by, bx]
+        picked[by * c + k // c, bx * c + k % c] = True
+    return picked
+
+
+def select_points(image: NDArray, target: int = 2000, border: int = DEFAULT_BORDER, *,
+                  block: int = 32, threshold_offset: float = 7.0, levels: int = 3,
+                  downweight: float = 0.75, max_iterations: int = 6, tolerance: float = 0.25,
+                  seed: int = 0) -> NDArray[np.float64]:
+    """Select about ``target`` well-spread high-gradient pixels of a gray image.
+
+    Args:
+        image: gray (H, W) or BGR image, any dtype; converted by :func:`gtvo.image.to_float_gray`.
+        target: wanted number of points; the result has at most ``target`` (fewer on images
+            without enough texture).
+        border: pixels kept free at each image side (pattern radius + margin).
+        block: side of the threshold blocks (px).
+        threshold_offset: added to each block's median gradient magnitude (grey levels).
+        levels: number of cell levels (s, 2s, 4s, ...).
+        downweight: threshold factor per extra level.
+        max_iterations: iterations adapting the cell size.
+        tolerance: accept a count within ``[target, (1 + tolerance) target]`` without iterating
+            further (the surplus is then subsampled away).
+        seed: seed of the random subsample.
+
+    Returns:
+        (N, 2) float64 pixel coordinates ``(u, v)`` (integers, pixel centres), sorted by row then
+        column. Empty (0, 2) when nothing passes the thresholds (e.g. a flat image).
+    """
+    img = to_float_gray(image)
+    if int(target) < 1:
+        raise InputError(f"point-selection target must be >= 1, got {target}")
+    h, w = img.shape
+    border = int(border)
+    if border < 0 or 2 * border >= min(h, w):
+        raise InputError(f"point-selection border {border} does not fit a {w}x{h} image")
+    if levels < 1 or not 0 < downweight <= 1:
+        raise InputError(f"point selection needs levels >= 1 and 0 < downweight <= 1, got {levels}, {downweight}")
+    target = int(target)
+    score = gradient_magnitude(img)
+    thr = block_gradient_thresholds(score, block, threshold_offset)
+    eligible = np.zeros((h, w), dtype=bool)
+    eligible[border:h - border, border:w - border] = True
+
+    area = float((h - 2 * border) * (w - 2 * border))
+    cell = max(1.0, np.sqrt(area / target))
+    tried: dict[int, NDArray[np.bool_]] = {}
+    for _ in range(max_iterations):
+        c = int(max(1, round(cell)))
+        if c not in tried:
+            tried[c] = _pick_hierarchical(score, thr, eligible, c, levels, downweight)
+        n = int(tried[c].sum())
+        if target <= n <= (1 + tolerance) * target or n == 0:
+            break
+        new_cell = cell * np.sqrt(n / target)
+        if int(max(1, round(new_cell))) == c:  # no integer change possible: nudge one step
+            new_cell = c + (1 if n > target else -1)
+            if new_cell < 1:
+                break
+        cell = new_cell
+    # The best tried cell size: the smallest surplus, else the largest count.
+    counts = {c: int(m.sum()) for c, m in tried.items()}
+    over = [c for c, n in counts.items() if n >= target]
+    best_c = min(over, key=lambda c: counts[c]) if over else max(counts, key=lambda c: counts[c])
+    vs, us = np.nonzero(tried[best_c])
+    if us.size > target:
+        keep = np.sort(np.random.default_rng(seed).choice(us.size, size=target, replace=False))
+        us, vs = us[keep], vs[keep]
+    return np.column_stack([us, vs]).astype(np.float64)

@@ -1,0 +1,398 @@
+"""Stereo inverse depth by epipolar search, sub-pixel refinement and an LSD-SLAM variance.
+
+For each selected left pixel ``p = (u, v)`` of a rectified pair (docs/frontend.md):
+
+1. **Epipolar search.** The epipolar direction of the notes, ``(epx, epy) = (-a t3 + t1,
+   -b t3 + t2)`` with ``(a, b, 1)`` the bearing of ``p`` and ``t`` the translation of
+   ``T_right_left``, is ``(-baseline, 0)``: the line is the row ``v`` and a point of disparity
+   ``disp`` sits at ``(u - disp, v)``. Every integer disparity of ``[min_disparity,
+   max_disparity]`` is scored by the zero-mean SSD (ZSSD) of a small pattern (5x5 patch by
+   default), giving an (N, D) cost array.
+2. **Sub-pixel refinement**: a parabola through the costs at the best integer disparity and
+   its two neighbours, then ``gauss_newton_iterations`` 1-D Gauss-Newton steps on the
+   zero-mean photometric residual ``r_k(disp) = (L_k - mean L) - (R(p + o_k - disp e_x) - mean R)``
+   with ``dr_k/d disp = gR_k - mean gR`` (``gR`` the right image's x gradient).
+3. **Rejection** (:class:`Rejection`): pattern outside an image, the best cost at the end of the
+   search range, not unique (``best >= uniqueness_ratio * second best`` away from +-1 px),
+   too high a residual for the patch's contrast, refinement wandering more than 1 px, a left-right check failing,
+   non-positive inverse depth, or too large a disparity standard deviation.
+4. **Variance** (LSD-SLAM, Engel et al. 2013): with the pattern means ``g_ll = mean((g . l)^2)``
+   and ``g2 = mean(|g|^2)`` of the left gradients ``g`` and ``l`` the unit epipolar direction,
+   ``sigma_disp^2 = sigma_line^2 * g2 / g_ll + 2 sigma_intensity^2 / g_ll`` (geometric +
+   photometric disparity error), and ``V = sigma_disp^2 / (fx b)^2`` since ``d = disp / (fx b)``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import IntEnum
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from gtvo.camera import StereoCamera
+from gtvo.errors import InputError
+from gtvo.frontend.point_selection import DEFAULT_BORDER, select_points
+from gtvo.image import bilinear_sample, check_same_size, image_gradients, to_float_gray
+
+FloatArray = NDArray[np.float64]
+
+#: DSO's 8-pixel pattern, offsets (du, dv).
+DSO_PATTERN_8: NDArray[np.int64] = np.array(
+    [[0, -2], [-1, -1], [1, -1], [-2, 0], [0, 0], [2, 0], [-1, 1], [0, 2]], dtype=np.int64)
+#: A full 5x5 patch, offsets (du, dv) row by row.
+PATCH_5X5: NDArray[np.int64] = np.array(
+    [[du, dv] for dv in range(-2, 3) for du in range(-2, 3)], dtype=np.int64)
+
+
+class Rejection(IntEnum):
+    """Why a point has no valid depth (``StereoDepthResult.rejection``)."""
+
+    ACCEPTED = 0
+    OUTSIDE = 1          #: the pattern leaves the left image, or no candidate fits the right image
+    RANGE_BOUNDARY = 2   #: the best integer disparity is the first or last of the search range
+    NOT_UNIQUE = 3       #: a second minimum (more than 1 px away) is almost as good
+    HIGH_COST = 4        #: the refined mean squared residual is too large for the patch contrast
+    REFINEMENT = 5       #: sub-pixel refinement left the +-1 px bracket or the image
+    LEFT_RIGHT = 6       #: the right-to-left search does not come back within ``lr_tolerance``
+    NON_POSITIVE = 7     #: refined disparity (+ offset) <= 0, i.e. no positive inverse depth
+    UNCERTAIN = 8        #: disparity standard deviation above ``max_disparity_std``
+
+
+@dataclass(frozen=True)
+class StereoDepthResult:
+    """Per-point output of :func:`stereo_inverse_depth`, all arrays of length N.
+
+    Attributes:
+        inverse_depth: ``d = (disparity + disparity_offset) / (fx b)`` (1/m); 0 where invalid.
+        variance: inverse-depth variance ``V`` (1/m^2); ``inf`` where invalid.
+        valid: True where every check passed.
+        disparity: refined disparity ``u_left - u_right`` (px); 0 where not computed.
+        cost: mean squared zero-mean residual per pattern pixel at the refined disparity
+            (grey levels^2); ``inf`` where not computed.
+        disparity_std: ``sigma_disp`` (px); ``inf`` where invalid.
+        rejection: a :class:`Rejection` code per point (0 = accepted).
+    """
+
+    inverse_depth: FloatArray
+    variance: FloatArray
+    valid: NDArray[np.bool_]
+    disparity: FloatArray
+    cost: FloatArray
+    disparity_std: FloatArray
+    rejection: NDArray[np.int8]
+
+    def rejection_counts(self) -> dict[str, int]:
+        """Number of points per :class:`Rejection` name."""
+        return {r.name: int(np.sum(self.rejection == r)) for r in Rejection}
+
+
+@dataclass(frozen=True)
+class KeyframePoints:
+    """The points of one keyframe with a valid stereo depth (what the factors and tracker use).
+
+    Attributes:
+        pixels: (N, 2) ``(u, v)`` in the left image (pixel centres are integers).
+        inverse_depth: (N,) ``d = 1/z`` in the left camera (1/m), all > 0.
+        variance: (N,) inverse-depth variance ``V`` (1/m^2), finite and > 0.
+        intensity: (N,) the left image at ``pixels`` (grey levels, float).
+    """
+
+    pixels: FloatArray
+    inverse_depth: FloatArray
+    variance: FloatArray
+    intensity: FloatArray
+
+    def __len__(self) -> int:
+        return int(self.pixels.shape[0])
+
+
+def epipolar_direction(bearing: ArrayLike, translation: ArrayLike) -> FloatArray:
+    """Unit epipolar direction in the target image, the notes' ``(epx, epy)``, (N, 2).
+
+    ``(epx, epy) = (-a t3 + t1, -b t3 + t2)`` where ``(a, b, 1)`` is the (rotated) bearing of the
+    host pixel and ``t = (t1, t2, t3)`` the translation of ``T_target_host``: the direction in
+    which the projection moves as the inverse depth grows. For a rectified pair
+    (``t = (-baseline, 0, 0)``) it is ``(-1, 0)`` for every pixel: the search runs along the row.
+    Rows whose direction vanishes (pure forward motion at the epipole) are returned as 0.
+    """
+    b = np.asarray(bearing, dtype=float).reshape(-1, 3)
+    b = b / b[:, 2:3]
+    t = np.asarray(translation, dtype=float).reshape(3)
+    ep = np.column_stack([-b[:, 0] * t[2] + t[0], -b[:, 1] * t[2] + t[1]])
+    n = np.linalg.norm(ep, axis=1, keepdims=True)
+    return np.divide(ep, n, out=np.zeros_like(ep), where=n > 0)
+
+
+def disparity_variance(gx: ArrayLike, gy: ArrayLike, line: ArrayLike, sigma_intensity: float,
+                       sigma_line: float) -> FloatArray:
+    """LSD-SLAM disparity variance ``sigma_disp^2`` (px^2) of N points from their pattern gradients.
+
+    Args:
+        gx, gy: (N, P) host-image gradients at the P pattern pixels (grey levels per px).
+        line: (N, 2) unit epipolar directions ``l`` (:func:`epipolar_direction`).
+        sigma_intensity: image noise ``sigma_I`` (grey levels).
+        sigma_line: epipolar-line position error ``sigma_l`` (px).
+
+    Returns:
+        ``sigma_l^2 * g2 / g_ll + 2 sigma_I^2 / g_ll`` with ``g_ll = mean_k (g_k . l)^2`` and
+        ``g2 = mean_k |g_k|^2``: the geometric error ``sigma_l^2 / <g/|g|, l>^2`` plus the
+        photometric error ``2 sigma_I^2 / g_p^2`` (``g_p`` the gradient along the line), both
+        with pattern-averaged squared gradients. ``inf`` where ``g_ll`` is 0.
+    """
+    gx = np.atleast_2d(np.asarray(gx, dtype=float))
+    gy = np.atleast_2d(np.asarray(gy, dtype=float))
+    ln = np.asarray(line, dtype=float).reshape(-1, 2)
+    g_l = gx * ln[:, :1] + gy * ln[:, 1:]
+    g_ll = np.mean(g_l * g_l, axis=1)
+    g2 = np.mean(gx * gx + gy * gy, axis=1)
+    safe = g_ll > 1e-12
+    g_ll_s = np.where(safe, g_ll, 1.0)
+    return np.where(safe, (sigma_line ** 2) * g2 / g_ll_s + 2.0 * sigma_intensity ** 2 / g_ll_s, np.inf)
+
+
+def _as_pattern(pattern: ArrayLike | str) -> NDArray[np.int64]:
+    if isinstance(pattern, str):
+        table = {"patch5x5": PATCH_5X5, "dso8": DSO_PATTERN_8}
+        if pattern not in table:
+            raise InputError(f"unknown stereo pattern {pattern!r}; use one of {sorted(table)}")
+        return table[pattern]
+    p = np.asarray(pattern)
+    if p.ndim != 2 or p.shape[1] != 2 or p.shape[0] < 3 or not np.all(p == np.round(p)):
+        raise InputError(f"stereo pattern must be (P >= 3, 2) integer offsets, got shape {p.shape}")
+    return p.astype(np.int64)
+
+
+def _gather_integer(image: NDArray, u: NDArray, v: NDArray) -> tuple[NDArray, NDArray]:
+    """Values at integer positions (any equal shapes) and an inside mask; 0 outside."""
+    h, w = image.shape
+    ok = (u >= 0) & (u <= w - 1) & (v >= 0) & (v <= h - 1)
+    idx = np.where(ok, v * w + u, 0)
+    return np.where(ok, image.reshape(-1)[idx], 0.0), ok
+
+
+def _integer_search(src: NDArray, dst: NDArray, u: NDArray, v: NDArray, pattern: NDArray,
+                    disparities: NDArray, sign: int, chunk: int = 2048) -> NDArray[np.float64]:
+    """ZSSD cost (N, D) of matching ``src`` patterns at integer (u, v) against ``dst`` at
+    ``(u + sign * disp, v)``; ``inf`` where a pattern sample leaves ``dst``.
+
+    Per point, one strip of ``dst`` (the pattern's rows x the searched columns) is gathered; the
+    cost of every candidate is ``sum Lc^2 - 2 sum Lc R + sum R^2 - (sum R)^2 / P`` with ``Lc`` the
+    zero-mean source pattern, accumulated by a loop over the P pattern offsets (each step
+    vectorised over points x candidates).
+    """
+    n, d_count, p = u.size, disparities.size, pattern.shape[0]
+    pu, pv = pattern[:, 0], pattern[:, 1]
+    rows = np.unique(pv)
+    row_of = np.searchsorted(rows, pv)
+    dx0 = int(pu.min())
+    width = d_count + int(pu.max()) - dx0
+    cost = np.full((n, d_count), np.inf)
+    for s in range(0, n, chunk):
+        e = min(n, s + chunk)
+        us, vs = u[s:e], v[s:e]
+        src_vals, _ = _gather_integer(src, us[:, None] + pu, vs[:, None] + pv)          # (n, P)
+        src_c = src_vals - src_vals.mean(axis=1, keepdims=True)
+        # strip columns: start + j, j = 0..width-1; candidate i, offset dx -> j = dx - dx0 + i (sign +1)
+        # or j = dx - dx0 + (D - 1 - i) (sign -1).
+        first = disparities[0] if sign > 0 else disparities[-1]
+        start = us + sign * first + dx0
+        cols = start[:, None, None] + np.arange(width)[None, None, :]
+        rws = np.broadcast_to(vs[:, None, None] + rows[None, :, None], (e - s, rows.size, width))
+        strip, _ = _gather_integer(dst, np.broadcast_to(cols, rws.shape), rws)
+        strip = strip.astype(np.float64)
+        # accumulate in strip order (j0 + i), then flip the candidate axis for sign -1
+        s_lr = np.zeros((e - s, d_count))
+        s_r = np.zeros((e - s, d_count))
+        s_rr = np.zeros((e - s, d_count))
+        for k in range(p):
+            j0 = int(pu[k]) - dx0
+            r = strip[:, row_of[k], j0:j0 + d_count]
+            s_lr += src_c[:, k:k + 1] * r
+            s_r += r
+            s_rr += r * r
+        s_ll = np.sum(src_c * src_c, axis=1, keepdims=True)
+        c = np.maximum(s_ll - 2.0 * s_lr + s_rr - s_r * s_r / p, 0.0)
+        if sign < 0:
+            c = c[:, ::-1]
+        # a candidate is valid when its whole pattern lies inside dst
+        h, w = dst.shape
+        left_col = us[:, None] + sign * disparities[None, :] + dx0
+        inside = ((left_col >= 0) & (left_col + int(pu.max()) - dx0 <= w - 1)
+                  & (vs[:, None] + int(pv.min()) >= 0) & (vs[:, None] + int(pv.max()) <= h - 1))
+        cost[s:e] = np.where(inside, c, np.inf)
+    return cost
+
+
+def stereo_inverse_depth(left: NDArray, right: NDArray, stereo_camera: StereoCamera, pixels: ArrayLike, *,
+                         min_disparity: int = 0, max_disparity: int = 128,
+                         pattern: ArrayLike | str = "patch5x5", disparity_offset: float = 0.0,
+                         uniqueness_ratio: float = 0.9, max_relative_cost: float = 0.4,
+                         gauss_newton_iterations: int = 3, left_right_check: bool = True,
+                         lr_tolerance: float = 1.0, sigma_intensity: float = 2.0,
+                         sigma_line: float = 0.3, max_disparity_std: float = 2.0) -> StereoDepthResult:
+    """Inverse depth and its variance ``V`` of left pixels by a search along the right image row.
+
+    Args:
+        left, right: the rectified gray (or BGR) pair, same size as the camera.
+        stereo_camera: the rectified rig; ``fx`` and ``baseline`` convert disparity to inverse depth.
+        pixels: (N, 2) integer pixel positions ``(u, v)`` in the left image (from :func:`select_points`).
+        min_disparity, max_disparity: the integer search range (px), inclusive.
+        pattern: ``"patch5x5"`` (default), ``"dso8"`` or (P, 2) integer offsets.
+        disparity_offset: added to the disparity before the conversion, for pairs whose principal
+            points differ (Middlebury's ``doffs = cx1 - cx0``); 0 for KITTI-style rectification.
+        uniqueness_ratio: reject when ``best >= uniqueness_ratio * second`` (second best at least
+            2 px from the best).
+        max_relative_cost: reject when the refined mean squared residual per pattern pixel
+            exceeds ``2 sigma_intensity^2 + max_relative_cost * var(L)`` (``var(L)`` the left
+            pattern's intensity variance): the residual is judged against the patch's contrast.
+        gauss_newton_iterations: 1-D Gauss-Newton steps after the parabola fit (0 = parabola only).
+        left_right_check: search back from the right match into the left image.
+        lr_tolerance: allowed left-right discrepancy (px).
+        sigma_intensity: image noise standard deviation ``sigma_I`` (grey levels).
+        sigma_line: epipolar-line position standard deviation ``sigma_l`` (px; rectification error).
+        max_disparity_std: reject when ``sigma_disp`` exceeds this (px); ``inf`` keeps all.
+
+    Returns:
+        A :class:`StereoDepthResult`; never NaN.
+    """
+    left_f = to_float_gray(left, "left image")
+    right_f = to_float_gray(right, "right image")
+    check_same_size(left_f, right_f, "stereo pair")
+    if left_f.shape != stereo_camera.left.shape:
+        raise InputError(f"stereo images are {left_f.shape[1]}x{left_f.shape[0]}, the camera expects "
+                         f"{stereo_camera.left.width}x{stereo_camera.left.height}")
+    px = np.asarray(pixels, dtype=float)
+    if px.ndim != 2 or px.shape[1] != 2:
+        raise InputError(f"pixels must have shape (N, 2), got {px.shape}")
+    if not np.all(np.isfinite(px)):
+        raise InputError("pixels contain NaN or infinite values")
+    if not np.all(px == np.round(px)):
+        raise InputError("pixels must be integer pixel centres (as select_points returns)")
+    if not 0 <= int(min_disparity) < int(max_disparity):
+        raise InputError(f"disparity range must satisfy 0 <= min < max, got [{min_disparity}, {max_disparity}]")
+    for name, val in (("sigma_intensity", sigma_intensity), ("sigma_line", sigma_line)):
+        if not np.isfinite(val) or val < 0:
+            raise InputError(f"{name} must be finite and >= 0, got {val!r}")
+    pat = _as_pattern(pattern)
+    n = px.shape[0]
+    u = px[:, 0].astype(np.int64)
+    v = px[:, 1].astype(np.int64)
+    disps = np.arange(int(min_disparity), int(max_disparity) + 1, dtype=np.int64)
+    rej = np.zeros(n, dtype=np.int8)
+    fxb = stereo_camera.left.fx * stereo_camera.baseline
+
+    # --- left patch, gradients --------------------------------------------------------------
+    pu, pv = pat[:, 0], pat[:, 1]
+    lu, lv = u[:, None] + pu, v[:, None] + pv
+    left_vals, left_ok = _gather_integer(left_f, lu, lv)
+    inside = left_ok.all(axis=1)
+    rej[~inside] = Rejection.OUTSIDE
+    gxl, gyl = image_gradients(left_f)
+    gx_p, _ = _gather_integer(gxl, lu, lv)
+    gy_p, _ = _gather_integer(gyl, lu, lv)
+
+    # --- 1. integer epipolar search ---------------------------------------------------------
+    cost = _integer_search(left_f, right_f, u, v, pat, disps, sign=-1)
+    cost[~inside] = np.inf
+    k = np.argmin(cost, axis=1)
+    best = cost[np.arange(n), k]
+    some = np.isfinite(best)
+    rej[(rej == 0) & ~some] = Rejection.OUTSIDE
+    d_count = disps.size
+    boundary = (k == 0) | (k == d_count - 1)
+    # The neighbours must exist for the parabola: a best cost beside an inf (image edge) is a boundary too.
+    km, kp = np.clip(k - 1, 0, d_count - 1), np.clip(k + 1, 0, d_count - 1)
+    c_m, c_p = cost[np.arange(n), km], cost[np.arange(n), kp]
+    boundary |= ~np.isfinite(c_m) | ~np.isfinite(c_p)
+    rej[(rej == 0) & boundary] = Rejection.RANGE_BOUNDARY
+    far = np.abs(np.arange(d_count)[None, :] - k[:, None]) > 1
+    second = np.min(np.where(far, cost, np.inf), axis=1)
+    unique = best < uniqueness_ratio * second
+    rej[(rej == 0) & ~unique] = Rejection.NOT_UNIQUE
+
+    # --- 2. sub-pixel: parabola, then 1-D Gauss-Newton ----------------------------------------
+    work = rej == 0
+    c0 = np.where(work, best, 0.0).astype(np.float64)
+    cm = np.where(work, c_m, 0.0).astype(np.float64)
+    cp = np.where(work, c_p, 0.0).astype(np.float64)
+    denom = cm - 2.0 * c0 + cp
+    delta = np.where(denom > 0, 0.5 * (cm - cp) / np.where(denom > 0, denom, 1.0), 0.0)
+    d_int = disps[k].astype(np.float64)
+    disp = d_int + np.clip(delta, -0.5, 0.5)
+    disp = np.where(work, disp, 0.0)
+
+    right_stack = np.dstack([right_f, image_gradients(right_f)[0]])
+    left_c = left_vals - left_vals.mean(axis=1, keepdims=True)
+    fu, fv = u[:, None] + pu, v[:, None] + pv
+    for _ in range(int(gauss_newton_iterations)):
+        vals, ok = bilinear_sample(right_stack, fu - disp[:, None], fv)
+        ok_all = ok.all(axis=1)
+        r_img, r_gx = vals[..., 0], vals[..., 1]
+        res = left_c - (r_img - r_img.mean(axis=1, keepdims=True))
+        jac = r_gx - r_gx.mean(axis=1, keepdims=True)
+        jtj = np.sum(jac * jac, axis=1)
+        step = np.where(work & ok_all & (jtj > 1e-9), -np.sum(jac * res, axis=1) / np.where(jtj > 1e-9, jtj, 1.0),
+                        0.0)
+        disp = disp + np.clip(step, -0.5, 0.5)
+        work &= ok_all
+    vals, ok = bilinear_sample(right_stack, fu - disp[:, None], fv)
+    r_img = vals[..., 0]
+    res = left_c - (r_img - r_img.mean(axis=1, keepdims=True))
+    mse = np.where(ok.all(axis=1), np.mean(res * res, axis=1), np.inf)
+    wandered = (np.abs(disp - d_int) > 1.0) | ~ok.all(axis=1)
+    rej[(rej == 0) & wandered] = Rejection.REFINEMENT
+    max_mse = 2.0 * sigma_intensity ** 2 + max_relative_cost * np.mean(left_c * left_c, axis=1)
+    rej[(rej == 0) & ~(mse <= max_mse)] = Rejection.HIGH_COST
+
+    # --- 3. left-right check ----------------------------------------------------------------
+    if left_right_check:
+        cand = np.nonzero(rej == 0)[0]
+        if cand.size:
+            ur = np.rint(u[cand] - disp[cand]).astype(np.int64)
+            back = _integer_search(right_f, left_f, ur, v[cand], pat, disps, sign=+1)
+            kb = np.argmin(back, axis=1)
+            u_back = ur + disps[kb]
+            bad = (np.abs(u_back - u[cand]) > lr_tolerance) | ~np.isfinite(back[np.arange(cand.size), kb])
+            rej[cand[bad]] = Rejection.LEFT_RIGHT
+
+    # --- 4. inverse depth and LSD-SLAM variance ---------------------------------------------
+    total = disp + float(disparity_offset)
+    rej[(rej == 0) & (total <= 0)] = Rejection.NON_POSITIVE
+    line = epipolar_direction(stereo_camera.left.bearing(px), stereo_camera.T_right_left[:3, 3])
+    var_disp = disparity_variance(gx_p, gy_p, line, sigma_intensity, sigma_line)
+    std_disp = np.sqrt(var_disp)
+    rej[(rej == 0) & ~(std_disp <= max_disparity_std)] = Rejection.UNCERTAIN
+
+    valid = rej == 0
+    computed = np.isfinite(mse) & (rej != Rejection.OUTSIDE)
+    return StereoDepthResult(
+        inverse_depth=np.where(valid, total / fxb, 0.0),
+        variance=np.where(valid, var_disp / fxb ** 2, np.inf),
+        valid=valid,
+        disparity=np.where(computed, disp, 0.0),
+        cost=np.where(computed, mse, np.inf),
+        disparity_std=np.where(valid, std_disp, np.inf),
+        rejection=rej,
+    )
+
+
+def init_keyframe_points(left: NDArray, right: NDArray, stereo_camera: StereoCamera, target: int = 2000, *,
+                         border: int = DEFAULT_BORDER, selection_seed: int = 0,
+                         **stereo_options: object) -> KeyframePoints:
+    """Select about ``target`` points in the left image and keep those with a valid stereo depth.
+
+    ``stereo_options`` are passed to :func:`stereo_inverse_depth` (e.g. ``max_disparity``).
+    Typically 60-80 % of the selected points survive on KITTI (docs/frontend.md).
+    """
+    left_f = to_float_gray(left, "left image")
+    pixels = select_points(left_f, target=target, border=border, seed=selection_seed)
+    res = stereo_inverse_depth(left_f, right, stereo_camera, pixels, **stereo_options)  # type: ignore[arg-type]
+    keep = res.valid
+    px = pixels[keep]
+    return KeyframePoints(
+        pixels=px,
+        inverse_depth=res.inverse_depth[keep],
+        variance=res.variance[keep],
+        intensity=left_f[px[:, 1].astype(np.intp), px[:, 0].astype(np.intp)].astype(np.float64),
+    )
