@@ -28,6 +28,8 @@ Alignment = Literal["se3", "sim3", "origin", "none"]
 DeltaUnit = Literal["frames", "m"]
 PairsFrom = Literal["est", "ref"]
 
+#: Umeyama is degenerate when singular value 2 of the covariance is <= this times singular value 1.
+DEGENERATE_SINGULAR_RATIO = 1e-12
 #: The KITTI odometry benchmark's segment lengths in metres.
 KITTI_SEGMENT_LENGTHS: tuple[float, ...] = (100.0, 200.0, 300.0, 400.0, 500.0, 600.0, 700.0, 800.0)
 
@@ -118,7 +120,10 @@ def umeyama_alignment(src: ArrayLike, dst: ArrayLike, with_scale: bool = False) 
 
     Raises:
         InputError: shapes differ, fewer than 3 points, non-finite values, or degenerate
-            geometry (rank of ``C`` below 2, e.g. all points on a line, as evo rejects).
+            geometry: the second singular value of ``C`` is not above
+            :data:`DEGENERATE_SINGULAR_RATIO` times the first (all points on one line or in one
+            point: the rotation about that line is not determined; evo rejects these too, with
+            an absolute threshold).
     """
     X = np.asarray(src, dtype=np.float64)
     Y = np.asarray(dst, dtype=np.float64)
@@ -134,7 +139,7 @@ def umeyama_alignment(src: ArrayLike, dst: ArrayLike, with_scale: bool = False) 
     sigma_x = float(np.sum(Xc * Xc)) / n
     cov = Yc.T @ Xc / n
     U, d, Vt = np.linalg.svd(cov)
-    if np.count_nonzero(d > np.finfo(np.float64).eps) < 2:
+    if not d[1] > DEGENERATE_SINGULAR_RATIO * d[0]:
         raise InputError("umeyama_alignment: degenerate point sets (covariance rank < 2, e.g. collinear "
                          "or a single point); the alignment is not unique")
     S = np.eye(3)

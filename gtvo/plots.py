@@ -83,6 +83,10 @@ def _new_figure(figsize: tuple[float, float]):
     return Figure(figsize=figsize, dpi=100)
 
 
+def _label(traj: Trajectory, default: str) -> str:
+    return Path(traj.name).name if traj.name else default
+
+
 def _save(fig, path: str | Path) -> Path:
     path = Path(path)
     with atomic_path(path, suffix=".png") as tmp:
@@ -111,9 +115,9 @@ def plot_trajectory_top_view(est: Trajectory, ref: Trajectory | None = None, pat
     ax = fig.add_subplot(1, 1, 1)
     if ref is not None:
         uv_ref, xlabel, ylabel = project_to_plane(ref.positions, chosen, basis)
-        ax.plot(uv_ref[:, 0], uv_ref[:, 1], "--", color="0.4", lw=1.2, label=ref.name or "ground truth")
+        ax.plot(uv_ref[:, 0], uv_ref[:, 1], "--", color="0.4", lw=1.2, label=_label(ref, "ground truth"))
     uv, xlabel, ylabel = project_to_plane(est.positions, chosen, basis)
-    ax.plot(uv[:, 0], uv[:, 1], "-", color="tab:blue", lw=1.2, label=est.name or "estimate")
+    ax.plot(uv[:, 0], uv[:, 1], "-", color="tab:blue", lw=1.2, label=_label(est, "estimate"))
     ax.plot(uv[:1, 0], uv[:1, 1], "o", color="tab:green", ms=5, label="start")
     ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel)
