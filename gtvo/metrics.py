@@ -157,7 +157,8 @@ def _check_pair(est: Trajectory, ref: Trajectory, what: str) -> None:
                          "associate them first (gtvo.trajectory.synchronize)")
 
 
-def align_trajectory(est: Trajectory, ref: Trajectory, align: Alignment = "se3") -> tuple[Trajectory, SimilarityTransform]:
+def align_trajectory(est: Trajectory, ref: Trajectory,
+                     align: Alignment = "se3") -> tuple[Trajectory, SimilarityTransform]:
     """The estimate mapped into the reference's world, and the transform used.
 
     ``"se3"``/``"sim3"``: Umeyama on the positions (all pose pairs). ``"origin"``: the rigid
@@ -241,9 +242,9 @@ def pairs_by_path(positions: ArrayLike, delta: float, legacy: bool = False) -> N
 
     Walking along the poses, the path since the last kept index is summed step by step; the
     first pose at which it reaches ``>= delta`` is kept and the sum restarts at 0. The pairs
-    are consecutive kept indices. The first kept index is pose 0 (evo >= 1.25), or with
-    ``legacy=True`` the first pose at which the path from pose 0 reaches ``delta`` (older evo;
-    the results stored in evo's test data were made that way).
+    are consecutive kept indices. The first kept index is pose 0 (current evo, checked with
+    1.38.1), or with ``legacy=True`` the first pose at which the path from pose 0 reaches
+    ``delta`` (older evo releases; the results stored in evo's test data were made that way).
     """
     P = np.asarray(positions, dtype=np.float64)
     delta = float(delta)
@@ -324,7 +325,7 @@ def rpe(est: Trajectory, ref: Trajectory, delta: float = 1, delta_unit: DeltaUni
         delta_unit: ``"frames"`` (pairs ``(0, d), (d, 2d), ...``) or ``"m"`` (:func:`pairs_by_path`).
         pairs_from: whose path picks the pairs for ``"m"``: ``"est"`` (evo's default) or ``"ref"``
             (evo's ``pairs_from_reference``).
-        legacy_path_pairs: reproduce evo < 1.25's path pairing (see :func:`pairs_by_path`).
+        legacy_path_pairs: reproduce older evo releases' path pairing (see :func:`pairs_by_path`).
 
     Raises:
         InputError: lengths differ, bad delta, or no pair fits.
@@ -342,7 +343,8 @@ def rpe(est: Trajectory, ref: Trajectory, delta: float = 1, delta_unit: DeltaUni
     else:
         raise InputError(f"unknown RPE delta unit {delta_unit!r}: use 'frames' or 'm'")
     if len(pairs) == 0:
-        raise InputError(f"RPE: delta = {delta} {delta_unit} gives no pose pair in {len(est)} poses; use a smaller delta")
+        raise InputError(f"RPE: delta = {delta} {delta_unit} gives no pose pair in {len(est)} poses; "
+                         "use a smaller delta")
     E = relative_pose_errors(est.poses, ref.poses, pairs)
     t_err = np.linalg.norm(E[:, :3, 3], axis=1)
     r_err = np.degrees(rotation_angle(E[:, :3, :3]))

@@ -58,7 +58,8 @@ def choose_plane(positions: ArrayLike, plane: Plane = "auto") -> str:
     return "pca"
 
 
-def project_to_plane(points: ArrayLike, plane: str, basis_points: ArrayLike | None = None) -> tuple[FloatArray, str, str]:
+def project_to_plane(points: ArrayLike, plane: str,
+                     basis_points: ArrayLike | None = None) -> tuple[FloatArray, str, str]:
     """2-D coordinates of (N, 3) ``points`` in ``plane`` and the two axis labels.
 
     For ``"pca"`` the axes come from ``basis_points`` (default ``points``) and are centred

@@ -82,7 +82,7 @@ def _to_matrix(path: Path, numbers: list[int], rows: list[list[str]], ncols: int
                     float(v)
                 except ValueError:
                     raise InputError(f"not a number: {v!r}", path=path, line=k) from None
-        raise  # pragma: no cover - np.array failed although every field parses
+        raise InputError("values could not be read as numbers", path=path) from None  # pragma: no cover
     bad = ~np.all(np.isfinite(mat), axis=1)
     if np.any(bad):
         raise InputError("NaN or infinite value", path=path, line=numbers[int(np.argmax(bad))])
@@ -179,7 +179,8 @@ def detect_format(path: str | Path) -> Literal["tum", "kitti", "euroc"]:
                      path=path, line=numbers[0])
 
 
-def read_trajectory(path: str | Path, fmt: TrajectoryFormat = "auto", times_path: str | Path | None = None) -> Trajectory:
+def read_trajectory(path: str | Path, fmt: TrajectoryFormat = "auto",
+                    times_path: str | Path | None = None) -> Trajectory:
     """Read a trajectory in ``fmt`` (``"auto"``: :func:`detect_format`); ``times_path`` is for KITTI."""
     kind = detect_format(path) if fmt == "auto" else fmt
     if kind == "tum":
