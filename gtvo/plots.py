@@ -1,0 +1,155 @@
+"""Trajectory plots: PNG files through matplotlib's Agg backend, written atomically.
+
+* :func:`plot_trajectory_top_view`: estimate (and ground truth) seen from above.
+* :func:`plot_errors_over_time`: an error curve (e.g. ATE per pose) against time.
+
+The top view projects the positions onto a plane (``plane=``):
+
+* ``"xy"``, ``"xz"``, ``"yz"``: a coordinate plane; the first letter is the horizontal axis.
+  ``"xz"`` (x right, z up on the page) is the view from above for camera-frame worlds
+  (KITTI, a VO run's first camera: y points down), ``"xy"`` for z-up worlds (TUM, EuRoC).
+* ``"pca"``: the two largest principal axes of the ground-truth positions (of the estimate
+  when there is no ground truth), centred on their mean.
+* ``"auto"`` (default): the principal-axis plane's normal (the axis of least spread) is
+  compared with the coordinate axes; when it is within 30 degrees of one, the coordinate plane
+  normal to that axis is used (``"xz"`` for normal y, ``"xy"`` for z, ``"yz"`` for x) so the
+  axes keep their names; otherwise ``"pca"``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from gtvo.atomic import atomic_path
+from gtvo.errors import InputError
+from gtvo.trajectory import FloatArray, Trajectory
+
+Plane = Literal["auto", "pca", "xy", "xz", "yz"]
+
+_AXES = {"x": 0, "y": 1, "z": 2}
+#: "auto" uses a coordinate plane when the least-spread axis is within this angle of a coordinate axis.
+AUTO_PLANE_MAX_TILT_DEG = 30.0
+
+
+def _principal_axes(points: FloatArray) -> FloatArray:
+    """(3, 3) rows: principal directions of ``points``, largest spread first."""
+    centred = points - points.mean(axis=0)
+    _, _, Vt = np.linalg.svd(centred, full_matrices=True)
+    return Vt
+
+
+def choose_plane(positions: ArrayLike, plane: Plane = "auto") -> str:
+    """The plane :func:`plot_trajectory_top_view` uses for ``positions`` (see the module docstring)."""
+    if plane in ("xy", "xz", "yz", "pca"):
+        return plane
+    if plane != "auto":
+        raise InputError(f"unknown plot plane {plane!r}: use auto, pca, xy, xz or yz")
+    P = np.asarray(positions, dtype=np.float64)
+    if len(P) < 3:
+        return "xz"
+    normal = _principal_axes(P)[2]
+    axis = int(np.argmax(np.abs(normal)))
+    if np.degrees(np.arccos(min(1.0, abs(normal[axis])))) <= AUTO_PLANE_MAX_TILT_DEG:
+        return {0: "yz", 1: "xz", 2: "xy"}[axis]
+    return "pca"
+
+
+def project_to_plane(points: ArrayLike, plane: str,
+                     basis_points: ArrayLike | None = None) -> tuple[FloatArray, str, str]:
+    """2-D coordinates of (N, 3) ``points`` in ``plane`` and the two axis labels.
+
+    For ``"pca"`` the axes come from ``basis_points`` (default ``points``) and are centred
+    on their mean.
+    """
+    P = np.asarray(points, dtype=np.float64)
+    if plane == "pca":
+        B = np.asarray(points if basis_points is None else basis_points, dtype=np.float64)
+        axes = _principal_axes(B)
+        uv = (P - B.mean(axis=0)) @ axes[:2].T
+        return uv, "principal axis 1 [m]", "principal axis 2 [m]"
+    a, b = _AXES[plane[0]], _AXES[plane[1]]
+    return P[:, [a, b]], f"{plane[0]} [m]", f"{plane[1]} [m]"
+
+
+def _new_figure(figsize: tuple[float, float]):
+    import matplotlib  # noqa: PLC0415 - only plotting needs it
+
+    matplotlib.use("Agg")
+    from matplotlib.figure import Figure  # noqa: PLC0415
+
+    return Figure(figsize=figsize, dpi=100)
+
+
+def _label(traj: Trajectory, default: str) -> str:
+    return Path(traj.name).name if traj.name else default
+
+
+def _save(fig, path: str | Path) -> Path:
+    path = Path(path)
+    with atomic_path(path, suffix=".png") as tmp:
+        fig.savefig(tmp, format="png")
+    return path
+
+
+def plot_trajectory_top_view(est: Trajectory, ref: Trajectory | None = None, path: str | Path = "trajectory.png",
+                             title: str = "", plane: Plane = "auto") -> Path:
+    """Plot the estimated (and ground-truth) positions seen from above; write a PNG.
+
+    Args:
+        est: the estimate, already aligned to ``ref`` if the two should overlap
+            (e.g. ``gtvo.metrics.align_trajectory``).
+        ref: optional ground truth, drawn dashed in grey; it also picks the plane.
+        path: output PNG file.
+        title: figure title.
+        plane: ``"auto"``, ``"pca"``, ``"xy"``, ``"xz"`` or ``"yz"`` (module docstring).
+
+    Returns:
+        ``path``.
+    """
+    basis = ref.positions if ref is not None else est.positions
+    chosen = choose_plane(basis, plane)
+    fig = _new_figure((7.0, 6.0))
+    ax = fig.add_subplot(1, 1, 1)
+    if ref is not None:
+        uv_ref, xlabel, ylabel = project_to_plane(ref.positions, chosen, basis)
+        ax.plot(uv_ref[:, 0], uv_ref[:, 1], "--", color="0.4", lw=1.2, label=_label(ref, "ground truth"))
+    uv, xlabel, ylabel = project_to_plane(est.positions, chosen, basis)
+    ax.plot(uv[:, 0], uv[:, 1], "-", color="tab:blue", lw=1.2, label=_label(est, "estimate"))
+    ax.plot(uv[:1, 0], uv[:1, 1], "o", color="tab:green", ms=5, label="start")
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="best", fontsize=8)
+    ax.set_title(title or f"top view ({chosen} plane)")
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def plot_errors_over_time(times: ArrayLike, errors: ArrayLike, path: str | Path = "errors.png", title: str = "",
+                          ylabel: str = "error [m]") -> Path:
+    """Plot ``errors`` against ``times - times[0]`` (seconds) with the RMSE as a line; write a PNG."""
+    t = np.asarray(times, dtype=np.float64).reshape(-1)
+    e = np.asarray(errors, dtype=np.float64).reshape(-1)
+    if t.size == 0 or t.size != e.size:
+        raise InputError(f"plot_errors_over_time needs equally long non-empty arrays, got {t.size} times "
+                         f"and {e.size} errors")
+    fig = _new_figure((8.0, 4.0))
+    ax = fig.add_subplot(1, 1, 1)
+    ax.plot(t - t[0], e, "-", color="tab:red", lw=1.0, label="error")
+    finite = e[np.isfinite(e)]
+    if finite.size:
+        rmse = float(np.sqrt(np.mean(finite ** 2)))
+        ax.axhline(rmse, color="0.3", ls="--", lw=1.0, label=f"rmse {rmse:.4g}")
+    ax.set_xlabel("time since start [s]")
+    ax.set_ylabel(ylabel)
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="best", fontsize=8)
+    if title:
+        ax.set_title(title)
+    fig.tight_layout()
+    return _save(fig, path)
