@@ -48,12 +48,15 @@ DEFAULT_BASELINE = 0.5
 #: Texel size of the face textures (m).
 TEXEL_M = 0.01
 #: Lattice spacings (m) of the value-noise octaves and their amplitudes (gray levels, before squashing).
-NOISE_OCTAVES: tuple[tuple[float, float], ...] = ((2.56, 30.0), (1.28, 26.0), (0.64, 24.0), (0.32, 16.0))
+NOISE_OCTAVES: tuple[tuple[float, float], ...] = ((2.56, 26.0), (1.28, 26.0), (0.64, 28.0), (0.32, 24.0))
 #: Lattice spacing (m) of the field whose threshold gives the soft-edged blobs, their contrast (gray)
 #: and the Gaussian width (m) of their edges.
 BLOB_LATTICE_M = 0.48
-BLOB_CONTRAST = 40.0
-BLOB_EDGE_SIGMA_M = 0.08
+BLOB_CONTRAST = 50.0
+BLOB_EDGE_SIGMA_M = 0.07
+#: Faces along the direction of travel (texture rows along world z) are seen foreshortened; their
+#: texture is stretched along z by this factor, per face axis (x-walls, floor/ceiling), against aliasing.
+Z_STRETCH: dict[int, float] = {0: 2.0, 1: 3.0, 2: 1.0}
 #: The texture is squashed smoothly into ``MEAN +- HALF_RANGE`` (gray): headroom for exposure changes.
 TEXTURE_MEAN = 118.0
 TEXTURE_HALF_RANGE = 82.0
@@ -116,7 +119,8 @@ class SyntheticScene:
                 for value in (lo[k], hi[k]):
                     self.faces.append(_Face(k, float(value), s_axis, t_axis, (float(lo[s_axis]), float(lo[t_axis])),
                                             size))
-        textures = [face_texture(f.size, self.seed, i) for i, f in enumerate(self.faces)]
+        textures = [face_texture(f.size, self.seed, i, Z_STRETCH[f.axis] if f.t_axis == 2 else 1.0)
+                    for i, f in enumerate(self.faces)]
         self._atlas = np.concatenate([t.ravel() for t in textures]).astype(np.float32)
         sizes = np.array([t.size for t in textures])
         self._offset = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.intp)
@@ -249,18 +253,22 @@ class SyntheticScene:
         return t, face, dirs
 
 
-def _upsampled_noise(rng: np.random.Generator, size: tuple[int, int], factor: int) -> NDArray[np.float32]:
-    """Value noise: a unit-variance random lattice every ``factor`` texels, bicubically interpolated."""
-    rows = size[0] // factor + 4
-    cols = size[1] // factor + 4
+def _upsampled_noise(rng: np.random.Generator, size: tuple[int, int], lattice_m: float,
+                     row_stretch: float = 1.0) -> NDArray[np.float32]:
+    """Value noise: a unit-variance random lattice every ``lattice_m`` metres (times ``row_stretch``
+    along the rows), bicubically interpolated to the texel grid."""
+    fc = int(round(lattice_m / TEXEL_M))
+    fr = int(round(lattice_m * row_stretch / TEXEL_M))
+    rows = size[0] // fr + 4
+    cols = size[1] // fc + 4
     lattice = rng.standard_normal((rows, cols)).astype(np.float32)
-    up = cv2.resize(lattice, (cols * factor, rows * factor), interpolation=cv2.INTER_CUBIC)
-    r0 = int(rng.integers(0, factor))
-    c0 = int(rng.integers(0, factor))
-    return up[r0 + factor:r0 + factor + size[0], c0 + factor:c0 + factor + size[1]]
+    up = cv2.resize(lattice, (cols * fc, rows * fr), interpolation=cv2.INTER_CUBIC)
+    r0 = int(rng.integers(0, fr))
+    c0 = int(rng.integers(0, fc))
+    return up[r0 + fr:r0 + fr + size[0], c0 + fc:c0 + fc + size[1]]
 
 
-def face_texture(size: tuple[int, int], seed: int, face_index: int) -> NDArray[np.float32]:
+def face_texture(size: tuple[int, int], seed: int, face_index: int, row_stretch: float = 1.0) -> NDArray[np.float32]:
     """The texel array (rows, cols) of one face: octave noise + soft blobs, squashed into the gray range.
 
     Deterministic in ``(seed, face_index)``. Intensity = ``MEAN + HALF_RANGE * tanh(x / HALF_RANGE)``
@@ -270,11 +278,11 @@ def face_texture(size: tuple[int, int], seed: int, face_index: int) -> NDArray[n
     rng = np.random.default_rng([int(seed), int(face_index), 0x5EED])
     x = np.full(size, rng.uniform(-20.0, 20.0), dtype=np.float32)
     for lattice_m, amplitude in NOISE_OCTAVES:
-        x += amplitude * _upsampled_noise(rng, size, int(round(lattice_m / TEXEL_M)))
-    blob_field = _upsampled_noise(rng, size, int(round(BLOB_LATTICE_M / TEXEL_M)))
+        x += amplitude * _upsampled_noise(rng, size, lattice_m, row_stretch)
+    blob_field = _upsampled_noise(rng, size, BLOB_LATTICE_M, row_stretch)
     blob = (blob_field > 0.35).astype(np.float32)
     sigma = BLOB_EDGE_SIGMA_M / TEXEL_M
-    blob = cv2.GaussianBlur(blob, (0, 0), sigmaX=sigma, sigmaY=sigma, borderType=cv2.BORDER_REFLECT)
+    blob = cv2.GaussianBlur(blob, (0, 0), sigmaX=sigma, sigmaY=sigma * row_stretch, borderType=cv2.BORDER_REFLECT)
     x += BLOB_CONTRAST * (blob - 0.5)
     return (TEXTURE_MEAN + TEXTURE_HALF_RANGE * np.tanh(x / TEXTURE_HALF_RANGE)).astype(np.float32)
 

@@ -182,14 +182,14 @@ def test_subpixel_shift_matches_bilinear_sampling(seq):
     keep = ok & seq.interior_mask(0, margin=2).ravel()
     diff = np.abs(val - render.intensity.ravel())[keep]
     assert keep.mean() > 0.8
-    assert np.median(diff) < 0.5 and np.percentile(diff, 90) < 2.0
+    assert np.median(diff) < 0.25 and np.percentile(diff, 90) < 1.5
 
 
 @pytest.mark.parametrize("j", [1, 4])
 def test_exact_depth_and_poses_warp_frame_onto_frame(seq, j):
     diff, n = warp_consistency(seq, 0, j)
     assert n > 20000
-    assert np.median(diff) < 0.5 and np.percentile(diff, 90) < 2.0
+    assert np.median(diff) < 0.2 and np.percentile(diff, 90) < 1.0
 
 
 def test_a_wrong_pose_breaks_the_consistency(seq):
@@ -213,7 +213,7 @@ def test_stereo_consistency(seq):
     keep = ok & (np.abs(z_r - z) < 0.01 * z) & seq.interior_mask(3).ravel()
     diff = np.abs(seq.left(3).ravel() - I_r)[keep]
     assert keep.sum() > 40000
-    assert np.median(diff) < 0.25 and np.percentile(diff, 90) < 1.0
+    assert np.median(diff) < 0.1 and np.percentile(diff, 90) < 0.4
 
 
 def test_texture_has_gradient_at_every_pyramid_level(seq):
