@@ -5,6 +5,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
+from hypothesis import assume, given, settings
+from hypothesis import strategies as st
 
 import gtvo.synthetic as synthetic
 from gtvo.camera import PinholeCamera
@@ -165,6 +167,50 @@ def test_box_faces_are_hit_with_the_right_depth():
     T[:3, 3] = [4.0, 0.0, 5.0]
     r = scene.render(T, cam)
     assert r.depth[49, 49] == pytest.approx(3.8) and r.face[49, 49] == 6 + 2 * 0 + 1
+
+
+def brute_force_hit(scene: SyntheticScene, o: np.ndarray, d: np.ndarray) -> tuple[float, int]:
+    """Reference ray cast: intersect every face rectangle one by one, keep the nearest."""
+    best_t, best_face = np.inf, -1
+    for f, face in enumerate(scene.faces):
+        k = face.axis
+        if abs(d[k]) < 1e-12:
+            continue
+        t = (face.value - o[k]) / d[k]
+        if t > 0 and t < best_t and on_face(scene, f, o + t * d):
+            best_t, best_face = t, f
+    return best_t, best_face
+
+
+def on_face(scene: SyntheticScene, f: int, p: np.ndarray, tol: float = 1e-9) -> bool:
+    """True when ``p`` lies on face ``f``'s rectangle."""
+    face = scene.faces[f]
+    lo, hi = (scene.room_lo, scene.room_hi) if f < 6 else scene.boxes[(f - 6) // 6]
+    return abs(p[face.axis] - face.value) < tol and all(
+        lo[a] - tol <= p[a] <= hi[a] + tol for a in range(3) if a != face.axis)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.floats(0.05, 0.95), st.floats(0.05, 0.95), st.floats(0.05, 0.95),
+       st.floats(-1, 1), st.floats(-1, 1), st.floats(-1, 1))
+def test_raycast_matches_a_brute_force_reference(scene_and_rays, fx, fy, fz, dx, dy, dz):
+    scene, directions = scene_and_rays
+    o = scene.room_lo + np.array([fx, fy, fz]) * (scene.room_hi - scene.room_lo)
+    assume(scene.contains(o))
+    rays = np.vstack([directions, [dx, dy, dz]])
+    rays = rays[np.linalg.norm(rays, axis=1) > 1e-3]
+    t, face = scene.raycast(o, rays)
+    for i in range(rays.shape[0]):
+        t_ref, f_ref = brute_force_hit(scene, o, rays[i])
+        assert t[i] == pytest.approx(t_ref, rel=1e-9, abs=1e-9)
+        if f_ref != face[i]:  # allowed only on an edge or corner, where the hit lies on both faces
+            assert on_face(scene, int(face[i]), o + t[i] * rays[i], tol=1e-7)
+
+
+@pytest.fixture(scope="module")
+def scene_and_rays(seq):
+    rng = np.random.default_rng(0)
+    return seq.scene, rng.normal(size=(30, 3))
 
 
 # ------------------------------------------------------------------------ photometric consistency
