@@ -325,3 +325,19 @@ def test_writer_refuses_a_non_stereo_sequence(tmp_path):
                     load_depth=lambda i: np.ones((240, 320), np.float32))
     with pytest.raises(InputError, match="not stereo"):
         write_sequence_kitti(rgbd, tmp_path)
+
+
+def test_cli_command_writes_a_kitti_folder(tmp_path, capsys):
+    import argparse
+
+    from gtvo.commands import synthetic as command
+    parser = argparse.ArgumentParser()
+    command.register(parser.add_subparsers())
+    args = parser.parse_args(["synthetic", "--out", str(tmp_path / "s"), "--frames", "2", "--motion", "loop"])
+    assert args.func(args) == 0
+    assert "wrote 2 stereo pairs" in capsys.readouterr().out
+    assert sorted(p.name for p in (tmp_path / "s" / "image_1").iterdir()) == ["000000.png", "000001.png"]
+    assert np.loadtxt(tmp_path / "s" / "poses.txt").shape == (2, 12)
+    with pytest.raises(InputError):
+        bad = parser.parse_args(["synthetic", "--out", str(tmp_path / "t"), "--frames", "0"])
+        bad.func(bad)
