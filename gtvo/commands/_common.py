@@ -1,0 +1,48 @@
+"""Argument helpers shared by subcommands."""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+from gtvo.errors import InputError
+
+
+def parse_floats(text: str, n: int, what: str) -> tuple[float, ...]:
+    """Parse ``"a,b,c"`` into ``n`` finite floats, or raise :class:`InputError` naming ``what``."""
+    parts = [p.strip() for p in text.split(",")]
+    try:
+        vals = tuple(float(p) for p in parts)
+    except ValueError:
+        raise InputError(f"{what} must be {n} comma-separated numbers, got {text!r}") from None
+    if len(vals) != n or not all(v == v and abs(v) != float("inf") for v in vals):
+        raise InputError(f"{what} must be {n} comma-separated finite numbers, got {text!r}")
+    return vals
+
+
+def add_odometry_options(p: argparse.ArgumentParser) -> None:
+    """Options of the odometry shared by ``run`` and ``demo``."""
+    p.add_argument("--solver", choices=("handrolled", "gtsam"), default="handrolled",
+                   help="frame tracking solver (default: handrolled)")
+    p.add_argument("--points", type=int, default=2000, metavar="N", help="points per keyframe (default 2000)")
+    p.add_argument("--motion-model", choices=("constant-velocity", "kalman"), default="constant-velocity",
+                   help="initial guess of each frame's pose (default: constant-velocity)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def odometry_config(args: Any):
+    """An :class:`OdometryConfig` from parsed options."""
+    from gtvo.odometry import OdometryConfig  # noqa: PLC0415
+
+    return OdometryConfig(solver=args.solver, points_per_keyframe=args.points, motion_model=args.motion_model)
+
+
+def print_report(report: dict[str, Any]) -> None:
+    """Print the headline figures of a run's report."""
+    keys = ("frames", "keyframes", "seconds", "frames_per_second", "tracking_failures", "ate_rmse_m",
+            "rpe_trans_rmse_m", "drift_percent", "points")
+    for k in keys:
+        if k in report and report[k] is not None:
+            v = report[k]
+            print(f"  {k:<22} {v:.4g}" if isinstance(v, float) else f"  {k:<22} {v}")
+    print(f"  outputs in {report['out']}")

@@ -1,0 +1,43 @@
+"""``gtvo run``: offline odometry of a logged sequence (KITTI, EuRoC, TUM layouts)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from gtvo.commands._common import add_odometry_options, odometry_config, parse_floats, print_report
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "run", help="odometry of a logged sequence; writes trajectory, report, plots, points",
+        description="Track every frame of a KITTI / EuRoC / TUM RGB-D sequence and write DIR/trajectory.tum, "
+                    "DIR/report.json (with ATE, RPE and drift when ground truth exists), DIR/trajectory.png "
+                    "and DIR/points.ply.")
+    p.add_argument("sequence", metavar="SEQUENCE_DIR", help="the sequence folder")
+    p.add_argument("--format", choices=("auto", "kitti", "euroc", "tum"), default="auto",
+                   help="dataset layout (default: auto-detect)")
+    p.add_argument("--out", metavar="DIR", default=None, help="output folder (default gtvo_out/<name>)")
+    p.add_argument("--max-frames", type=int, metavar="N", default=None, help="use only the first N frames")
+    p.add_argument("--mode", choices=("track",), default="track",
+                   help="track: each frame against the latest stereo keyframe (the sliding window lands later)")
+    p.add_argument("--camera", metavar="FX,FY,CX,CY", default=None, help="intrinsics for TUM folders")
+    p.add_argument("--ground-truth", metavar="FILE", default=None, help="ground truth to use instead of the folder's")
+    p.add_argument("--strict", action="store_true", help="stop at an unreadable frame instead of skipping it")
+    add_odometry_options(p)
+    p.set_defaults(func=main)
+
+
+def main(args: argparse.Namespace) -> int:
+    from gtvo.pipeline import run  # noqa: PLC0415
+
+    options = {}
+    if args.camera is not None:
+        options["camera"] = parse_floats(args.camera, 4, "--camera")
+    if args.ground_truth is not None:
+        options["ground_truth"] = args.ground_truth
+    report = run(args.sequence, out=args.out, config=odometry_config(args), format=args.format,
+                 max_frames=args.max_frames, progress=not args.no_progress, strict=args.strict, **options)
+    print(f"gtvo run: {report['sequence']} ({report['mode']}, {report['solver']} solver)", file=sys.stdout)
+    print_report(report)
+    return 0

@@ -1,0 +1,310 @@
+"""The visual-odometry driver: frames in, poses out.
+
+:class:`VisualOdometry` is fed one :class:`gtvo.sequence.Frame` at a time (a user who imports
+gtvo as a backend does exactly this) and returns a :class:`FrameEstimate` per frame. The front
+end lives here; the residual math in :mod:`factors`, the trackers in :mod:`gtvo.tracking`:
+
+* the first frame becomes a keyframe: points selected in the left image
+  (:func:`gtvo.frontend.select_points`) get inverse depths and variances from stereo
+  (:func:`gtvo.frontend.init_keyframe_points`) or, for RGB-D, from the sensor's depth;
+* every later frame is tracked against the latest keyframe (coarse to fine, hand-rolled or
+  GTSAM solver), starting from a motion-model prediction (constant velocity, or the
+  constant-acceleration Kalman filter when it is available and chosen);
+* a new keyframe is made when the keyframe's points drift out of view, the motion relative to
+  the keyframe grows large against the scene depth, or the brightness changes a lot (rule in
+  :class:`OdometryConfig` and docs/architecture.md);
+* when tracking fails, the frame is re-initialised from stereo at the predicted pose and the run
+  goes on; the failures are counted.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Literal
+
+import gtsam
+import numpy as np
+from numpy.typing import NDArray
+
+from gtvo.camera import PinholeCamera, StereoCamera
+from gtvo.errors import InputError
+from gtvo.frontend import KeyframePoints, init_keyframe_points, select_points
+from gtvo.image import to_float_gray
+from gtvo.sequence import Frame, Sequence
+from gtvo.tracking import (TrackingConfig, TrackingKeyframe, TrackingResult, frame_pyramid, track_gtsam,
+                           track_handrolled)
+from gtvo.trajectory import Trajectory
+
+SolverName = Literal["handrolled", "gtsam"]
+MotionModelName = Literal["constant-velocity", "kalman"]
+
+
+@dataclass(frozen=True)
+class OdometryConfig:
+    """Settings of the VO front end.
+
+    Attributes:
+        solver: ``"handrolled"`` (vectorised LM, the notes' Algorithm 3) or ``"gtsam"``.
+        points_per_keyframe: target number of selected points per keyframe.
+        tracking: the tracker's settings.
+        keyframe_min_visible: make a new keyframe when fewer than this fraction of the keyframe's
+            points are still tracked (valid residuals).
+        keyframe_max_motion: make a new keyframe when ``|t_keyframe_frame| * median(d)`` (the
+            translation relative to the median scene depth, i.e. about the mean optical-flow
+            angle caused by translation) exceeds this.
+        keyframe_max_rotation_deg: ... or the rotation since the keyframe exceeds this.
+        keyframe_max_brightness: ... or ``|a_frame - a_keyframe|`` (log gain) exceeds this.
+        max_disparity: largest disparity (px) searched by the stereo initialisation.
+        depth_sigma_model: for RGB-D: ``(s0, s2)`` of the depth noise ``sigma_z = s0 + s2 z^2``.
+        motion_model: initial guess of each frame: ``"constant-velocity"`` or ``"kalman"``.
+    """
+
+    solver: SolverName = "handrolled"
+    points_per_keyframe: int = 2000
+    tracking: TrackingConfig = field(default_factory=TrackingConfig)
+    keyframe_min_visible: float = 0.7
+    keyframe_max_motion: float = 0.12
+    keyframe_max_rotation_deg: float = 8.0
+    keyframe_max_brightness: float = 0.3
+    max_disparity: int = 128
+    depth_sigma_model: tuple[float, float] = (0.0012, 0.0019)
+    motion_model: MotionModelName = "constant-velocity"
+
+    def __post_init__(self) -> None:
+        if self.solver not in ("handrolled", "gtsam"):
+            raise InputError(f"unknown solver {self.solver!r}: use 'handrolled' or 'gtsam'")
+        if self.points_per_keyframe < 50:
+            raise InputError(f"points per keyframe must be >= 50, got {self.points_per_keyframe}")
+        if self.motion_model not in ("constant-velocity", "kalman"):
+            raise InputError(f"unknown motion model {self.motion_model!r}")
+
+
+@dataclass(frozen=True)
+class FrameEstimate:
+    """What the VO says about one frame.
+
+    Attributes:
+        index, timestamp: the frame's.
+        T_world_cam: the left camera's pose (4x4).
+        is_keyframe: True when the frame became a keyframe.
+        tracking: the tracker's result (None for keyframes made without tracking: the first
+            frame and re-initialisations).
+        reinitialised: True when tracking failed and the frame was re-initialised.
+        seconds: wall time spent on the frame.
+    """
+
+    index: int
+    timestamp: float
+    T_world_cam: NDArray[np.float64]
+    is_keyframe: bool
+    tracking: TrackingResult | None
+    reinitialised: bool
+    seconds: float
+
+
+@dataclass
+class Keyframe:
+    """A keyframe: its pose, its points (hosted in it) and its tracking pyramid."""
+
+    index: int
+    T_world_cam: gtsam.Pose3
+    points: KeyframePoints
+    tracker: TrackingKeyframe
+    affine: NDArray[np.float64]
+
+
+class VisualOdometry:
+    """Frame-to-keyframe direct stereo (or RGB-D) odometry.
+
+    Args:
+        camera: a :class:`StereoCamera` for stereo input, a :class:`PinholeCamera` for RGB-D.
+        config: settings (defaults suit KITTI-like and indoor data alike).
+
+    Example::
+
+        vo = VisualOdometry(seq.camera)
+        for frame in seq:
+            est = vo.process(frame)
+        traj = vo.trajectory()
+    """
+
+    def __init__(self, camera: StereoCamera | PinholeCamera, config: OdometryConfig | None = None) -> None:
+        self.camera = camera
+        self.pinhole = camera.left if isinstance(camera, StereoCamera) else camera
+        self.config = config or OdometryConfig()
+        self.estimates: list[FrameEstimate] = []
+        self.keyframes: list[Keyframe] = []
+        self.failures = 0
+        self._kalman = None
+        if self.config.motion_model == "kalman":
+            from gtvo.motion_model import ConstantAccelerationFilter  # noqa: PLC0415
+
+            self._kalman = ConstantAccelerationFilter()
+
+    # -- public ---------------------------------------------------------------------------------
+    def process(self, frame: Frame) -> FrameEstimate:
+        """Estimate the pose of the next frame (frames must come in time order)."""
+        t0 = time.perf_counter()
+        if self.estimates and frame.timestamp <= self.estimates[-1].timestamp:
+            raise InputError(f"frame {frame.index}: timestamp {frame.timestamp} is not after the previous frame's")
+        left = to_float_gray(frame.left, f"frame {frame.index} left image")
+        if not self.keyframes:
+            kf = self._make_keyframe(frame, left, gtsam.Pose3(), np.zeros(2))
+            return self._record(frame, kf.T_world_cam, True, None, False, t0)
+
+        kf = self.keyframes[-1]
+        T_pred = self._predict(frame.timestamp)
+        pyr = frame_pyramid(left, kf.tracker.levels)
+        init = kf.T_world_cam.between(T_pred)
+        prev_affine = self._last_affine()
+        result = self._track(kf, pyr, init, prev_affine)
+        if not result.success:
+            # second chance from the last pose (no motion model) before giving up
+            last = gtsam.Pose3(self.estimates[-1].T_world_cam)
+            retry = self._track(kf, pyr, kf.T_world_cam.between(last), prev_affine)
+            if retry.success:
+                result = retry
+        if not result.success:
+            self.failures += 1
+            new_kf = self._make_keyframe(frame, left, T_pred, prev_affine)
+            return self._record(frame, new_kf.T_world_cam, True, result, True, t0)
+
+        T_world = kf.T_world_cam.compose(result.T_keyframe_frame)
+        if self._needs_keyframe(kf, result):
+            self._make_keyframe(frame, left, T_world, result.affine)
+            return self._record(frame, T_world, True, result, False, t0)
+        return self._record(frame, T_world, False, result, False, t0)
+
+    def run(self, sequence: Sequence, progress: bool = False) -> Trajectory:
+        """Process every frame of ``sequence``; returns the estimated trajectory."""
+        frames = range(len(sequence))
+        bar = None
+        if progress:
+            from tqdm import tqdm  # noqa: PLC0415
+
+            bar = tqdm(frames, desc=f"gtvo {sequence.name}", unit="frame", dynamic_ncols=True)
+            frames = bar
+        for i in frames:
+            self.process(sequence.frame(i))
+            if bar is not None:
+                bar.set_postfix(kf=len(self.keyframes), fail=self.failures)
+        return self.trajectory(sequence.name)
+
+    def trajectory(self, name: str = "gtvo") -> Trajectory:
+        """The estimated left-camera trajectory so far (every frame)."""
+        if not self.estimates:
+            raise InputError("no frame has been processed yet")
+        return Trajectory(np.array([e.timestamp for e in self.estimates]),
+                          np.stack([e.T_world_cam for e in self.estimates]), name=name)
+
+    def point_cloud(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Every keyframe's points in the world frame (N, 3) and their intensities (N,)."""
+        pts, vals = [], []
+        for kf in self.keyframes:
+            X = self.pinhole.backproject_inverse_depth(kf.points.pixels, kf.points.inverse_depth)
+            T = kf.T_world_cam.matrix()
+            pts.append(X @ T[:3, :3].T + T[:3, 3])
+            vals.append(kf.points.intensity)
+        if not pts:
+            return np.zeros((0, 3)), np.zeros(0)
+        return np.concatenate(pts), np.concatenate(vals)
+
+    # -- internals ------------------------------------------------------------------------------
+    def _track(self, kf: Keyframe, pyr, init: gtsam.Pose3, affine: NDArray) -> TrackingResult:
+        fn = track_handrolled if self.config.solver == "handrolled" else track_gtsam
+        return fn(kf.tracker, pyr, init, affine)
+
+    def _last_affine(self) -> NDArray[np.float64]:
+        for e in reversed(self.estimates):
+            if e.tracking is not None and e.tracking.success:
+                return e.tracking.affine.copy()
+        return self.keyframes[-1].affine.copy()
+
+    def _predict(self, timestamp: float) -> gtsam.Pose3:
+        """Motion-model guess of ``T_world_cam`` at ``timestamp``."""
+        last = gtsam.Pose3(self.estimates[-1].T_world_cam)
+        if len(self.estimates) < 2:
+            return last
+        prev = gtsam.Pose3(self.estimates[-2].T_world_cam)
+        dt_prev = self.estimates[-1].timestamp - self.estimates[-2].timestamp
+        dt = timestamp - self.estimates[-1].timestamp
+        if self._kalman is not None and self._kalman.initialized:
+            from gtvo.motion_model import T_world_cam_from_planar_pose  # noqa: PLC0415
+
+            X, Z, theta = self._kalman.predict_pose(dt)
+            planar = T_world_cam_from_planar_pose(X, Z, theta, last.matrix())
+            return gtsam.Pose3(planar)
+        # constant velocity, scaled to the time step
+        xi = gtsam.Pose3.Logmap(prev.between(last)) * (dt / dt_prev if dt_prev > 0 else 1.0)
+        return last.compose(gtsam.Pose3.Expmap(xi))
+
+    def _needs_keyframe(self, kf: Keyframe, result: TrackingResult) -> bool:
+        cfg = self.config
+        n = len(kf.points)
+        if result.n_valid < cfg.keyframe_min_visible * n:
+            return True
+        T = result.T_keyframe_frame
+        med_d = float(np.median(kf.points.inverse_depth))
+        if float(np.linalg.norm(T.translation())) * med_d > cfg.keyframe_max_motion:
+            return True
+        if np.degrees(np.linalg.norm(gtsam.Rot3.Logmap(T.rotation()))) > cfg.keyframe_max_rotation_deg:
+            return True
+        return abs(float(result.affine[0] - kf.affine[0])) > cfg.keyframe_max_brightness
+
+    def _frame_points(self, frame: Frame, left: NDArray[np.float32]) -> KeyframePoints:
+        cfg = self.config
+        if isinstance(self.camera, StereoCamera):
+            if frame.right is None:
+                raise InputError(f"frame {frame.index}: stereo odometry needs a right image")
+            return init_keyframe_points(left, frame.right, self.camera, target=cfg.points_per_keyframe,
+                                        max_disparity=cfg.max_disparity)
+        if frame.depth is None:
+            raise InputError(f"frame {frame.index}: RGB-D odometry needs a depth image")
+        return rgbd_keyframe_points(left, frame.depth, cfg.points_per_keyframe, cfg.depth_sigma_model)
+
+    def _make_keyframe(self, frame: Frame, left: NDArray[np.float32], T_world_cam: gtsam.Pose3,
+                       affine: NDArray) -> Keyframe:
+        pts = self._frame_points(frame, left)
+        if len(pts) < self.config.tracking.min_valid_points:
+            raise InputError(f"frame {frame.index}: only {len(pts)} points with a valid depth; "
+                             "the images may be blank or the stereo calibration wrong")
+        tracker = TrackingKeyframe(self.pinhole, left, pts.pixels, pts.inverse_depth, pts.variance, affine,
+                                   self.config.tracking)
+        kf = Keyframe(frame.index, T_world_cam, pts, tracker, np.asarray(affine, dtype=float).copy())
+        self.keyframes.append(kf)
+        return kf
+
+    def _record(self, frame: Frame, T_world_cam: gtsam.Pose3, is_kf: bool, result: TrackingResult | None,
+                reinit: bool, t0: float) -> FrameEstimate:
+        est = FrameEstimate(frame.index, float(frame.timestamp), T_world_cam.matrix(), is_kf, result, reinit,
+                            time.perf_counter() - t0)
+        self.estimates.append(est)
+        if self._kalman is not None:
+            from gtvo.motion_model import planar_pose_from_T_world_cam  # noqa: PLC0415
+
+            z = planar_pose_from_T_world_cam(est.T_world_cam)
+            if not self._kalman.initialized:
+                self._kalman.initialize(z)
+            else:
+                self._kalman.step(z, est.timestamp - self.estimates[-2].timestamp)
+        return est
+
+
+def rgbd_keyframe_points(image: NDArray[np.float32], depth: NDArray[np.float32], target: int,
+                         sigma_model: tuple[float, float] = (0.0012, 0.0019)) -> KeyframePoints:
+    """Keyframe points from an RGB-D frame: selected pixels with the sensor's depth.
+
+    The depth noise ``sigma_z = s0 + s2 z^2`` (structured-light sensors) becomes an inverse-depth
+    variance ``V = sigma_z^2 / z^4`` (first-order propagation through ``d = 1/z``).
+    """
+    px = select_points(image, target=target)
+    iu = np.rint(px[:, 0]).astype(np.intp)
+    iv = np.rint(px[:, 1]).astype(np.intp)
+    z = np.asarray(depth, dtype=np.float64)[iv, iu]
+    ok = np.isfinite(z) & (z > 0.1) & (z < 10.0)
+    px, z = px[ok], z[ok]
+    s0, s2 = sigma_model
+    sigma = s0 + s2 * z * z
+    return KeyframePoints(pixels=px, inverse_depth=1.0 / z, variance=(sigma * sigma) / z ** 4,
+                          intensity=np.asarray(image, dtype=np.float64)[iv[ok], iu[ok]])

@@ -1,0 +1,103 @@
+"""The whole job on one sequence: read -> track -> outputs. Used by ``gtvo run``, ``gtvo demo``
+and by Python users (:func:`run`).
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+from gtvo.datasets import open_sequence
+from gtvo.errors import InputError
+from gtvo.odometry import OdometryConfig, VisualOdometry
+from gtvo.report import write_run_outputs
+from gtvo.sequence import Sequence
+from gtvo.trajectory import Trajectory
+
+
+def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progress: bool = False,
+                     strict: bool = False, warn: Callable[[str], None] | None = None,
+                     ) -> tuple[VisualOdometry, Trajectory, dict[str, Any]]:
+    """Run the odometry over ``seq``.
+
+    A frame whose images cannot be read is skipped with a warning (and counted), unless
+    ``strict``; the first frame must be readable, since everything starts from it.
+
+    Returns:
+        ``(vo, trajectory, run_info)`` where ``run_info`` holds frames, keyframes, seconds,
+        frames per second, failures and skipped frames.
+    """
+    config = config or OdometryConfig()
+    vo = VisualOdometry(seq.camera, config)
+    warn = warn or (lambda msg: print(f"warning: {msg}", file=sys.stderr))
+    skipped: list[int] = []
+    bar = None
+    indices: Any = range(len(seq))
+    if progress:
+        from tqdm import tqdm  # noqa: PLC0415
+
+        bar = tqdm(indices, desc=f"gtvo {seq.name}", unit="frame", dynamic_ncols=True, file=sys.stderr)
+        indices = bar
+    t0 = time.perf_counter()
+    for i in indices:
+        try:
+            frame = seq.frame(i)
+        except InputError as exc:
+            if strict or not vo.estimates:
+                raise
+            skipped.append(i)
+            warn(f"skipping frame {i}: {exc}")
+            continue
+        vo.process(frame)
+        if bar is not None:
+            bar.set_postfix(kf=len(vo.keyframes), fail=vo.failures)
+    seconds = time.perf_counter() - t0
+    traj = vo.trajectory(seq.name)
+    n = len(vo.estimates)
+    info: dict[str, Any] = {
+        "mode": "track",
+        "solver": config.solver,
+        "motion_model": config.motion_model,
+        "frames": n,
+        "keyframes": len(vo.keyframes),
+        "seconds": seconds,
+        "frames_per_second": n / seconds if seconds > 0 else None,
+        "tracking_failures": vo.failures,
+        "reinitialisations": sum(1 for e in vo.estimates if e.reinitialised),
+        "skipped_frames": skipped,
+        "tracking_iterations_mean": _mean([e.tracking.iterations for e in vo.estimates if e.tracking is not None]),
+    }
+    return vo, traj, info
+
+
+def run(path: str | Path | Sequence, out: str | Path | None = None, config: OdometryConfig | None = None,
+        format: str = "auto", max_frames: int | None = None, progress: bool = False,
+        strict: bool = False, **open_options: Any) -> dict[str, Any]:
+    """Run gtvo on a sequence folder (or an opened :class:`Sequence`) and write its outputs.
+
+    Args:
+        path: a KITTI / EuRoC / TUM folder, or a :class:`Sequence`.
+        out: output folder (``gtvo_out/<sequence name>`` when None).
+        config: odometry settings.
+        format, max_frames, open_options: passed to :func:`gtvo.datasets.open_sequence`.
+        progress: show a progress bar.
+        strict: stop at the first unreadable frame instead of skipping it.
+
+    Returns:
+        The report (also written to ``out/report.json``), with ``"out"`` added.
+    """
+    seq = path if isinstance(path, Sequence) else open_sequence(path, format=format, max_frames=max_frames,  # type: ignore[arg-type]
+                                                               **open_options)
+    if isinstance(path, Sequence) and max_frames is not None:
+        seq = seq.truncated(max_frames)
+    out_dir = Path(out) if out is not None else Path("gtvo_out") / seq.name
+    vo, traj, info = process_sequence(seq, config, progress=progress, strict=strict)
+    report = write_run_outputs(out_dir, traj, seq, info, points=vo.point_cloud())
+    report["out"] = str(out_dir)
+    return report
+
+
+def _mean(xs: list[float]) -> float | None:
+    return float(sum(xs) / len(xs)) if xs else None

@@ -1,0 +1,129 @@
+"""Outputs of a run: trajectory file, report, plots, point cloud (I/O at the edge).
+
+:func:`evaluate` is pure (metrics against the sequence's ground truth); :func:`write_run_outputs`
+writes ``trajectory.tum``, ``report.json``, ``trajectory.png`` (and ``errors.png``) and
+``points.ply`` atomically into one folder.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from gtvo._optional import require_open3d
+from gtvo.atomic import atomic_path, write_json
+from gtvo.errors import DependencyError, InputError
+from gtvo.metrics import align_trajectory, ate, drift_percent, kitti_segment_errors, rpe
+from gtvo.plots import plot_errors_over_time, plot_trajectory_top_view
+from gtvo.sequence import Sequence
+from gtvo.trajectory import Trajectory
+from gtvo.trajectory_io import write_tum
+
+
+def ground_truth(seq: Sequence, est: Trajectory) -> tuple[Trajectory, Trajectory] | None:
+    """The (estimate, ground truth) pair restricted to frames that have ground truth, or None."""
+    if not seq.has_ground_truth:
+        return None
+    assert seq.gt_poses is not None
+    idx = np.searchsorted(seq.timestamps, est.timestamps)
+    idx = np.clip(idx, 0, len(seq) - 1)
+    gt = seq.gt_poses[idx]
+    ok = np.isfinite(gt[:, 0, 0]) & np.isclose(seq.timestamps[idx], est.timestamps)
+    if np.count_nonzero(ok) < 2:
+        return None
+    return est.subset(np.flatnonzero(ok)), Trajectory(est.timestamps[ok], gt[ok], name="ground truth")
+
+
+def evaluate(est: Trajectory, ref: Trajectory) -> dict[str, Any]:
+    """Metrics of an estimate against associated ground truth (same length, same times).
+
+    ``ate_rmse_m``: SE(3)-aligned ATE; ``rpe_trans_rmse_m`` / ``rpe_rot_rmse_deg``: frame-to-frame
+    RPE; ``drift_percent``: final position error after aligning the first pose over the path
+    length; ``kitti_*``: the devkit's segment metric on lengths that fit the path (None if none).
+    """
+    out: dict[str, Any] = {}
+    a = ate(est, ref, "se3")
+    out["ate_rmse_m"] = a.rmse
+    out["ate_max_m"] = a.translation.max
+    if len(est) >= 2:
+        r = rpe(est, ref, 1, "frames")
+        out["rpe_trans_rmse_m"] = r.translation.rmse
+        out["rpe_rot_rmse_deg"] = r.rotation_deg.rmse
+    length = ref.path_length()
+    out["path_length_m"] = length
+    out["drift_percent"] = drift_percent(est, ref) if length > 1e-9 else None
+    if length > 1e-9:
+        lengths = [L for L in (100, 200, 300, 400, 500, 600, 700, 800) if L < length]
+        if not lengths:  # short logs: segments of a quarter, half and three quarters of the path
+            lengths = [round(length * f, 3) for f in (0.25, 0.5, 0.75)]
+        k = kitti_segment_errors(est, ref, lengths=lengths, step=1)
+        out["kitti_segment_lengths_m"] = list(lengths)
+        out["kitti_translation_percent"] = None if k is None else k.translation_percent
+        out["kitti_rotation_deg_per_100m"] = None if k is None else k.rotation_deg_per_100m
+    return out
+
+
+def write_point_cloud(path: str | Path, points: NDArray[np.float64], intensity: NDArray[np.float64]) -> Path:
+    """Write points (N, 3) with gray colours from intensities (0..255) as a PLY via open3d."""
+    o3d = require_open3d()
+    pcd = o3d.geometry.PointCloud()
+    pcd.points = o3d.utility.Vector3dVector(np.asarray(points, dtype=np.float64).reshape(-1, 3))
+    g = np.clip(np.asarray(intensity, dtype=np.float64).reshape(-1, 1) / 255.0, 0.0, 1.0)
+    pcd.colors = o3d.utility.Vector3dVector(np.repeat(g, 3, axis=1))
+    with atomic_path(path) as tmp:
+        if not o3d.io.write_point_cloud(str(tmp), pcd, write_ascii=False):
+            raise InputError("open3d could not write the point cloud", path=path)
+    return Path(path)
+
+
+def write_run_outputs(out_dir: str | Path, est: Trajectory, seq: Sequence, run_info: dict[str, Any],
+                      points: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None) -> dict[str, Any]:
+    """Write a run's outputs into ``out_dir`` and return the report written to ``report.json``.
+
+    ``run_info`` holds the run's own figures (frames, keyframes, seconds, ...); metrics are added
+    when the sequence has ground truth. Every file is written atomically.
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    report: dict[str, Any] = {"sequence": seq.name, "source": None if seq.source is None else str(seq.source)}
+    report.update(run_info)
+    write_tum(out / "trajectory.tum", est)
+    pair = ground_truth(seq, est)
+    if pair is not None:
+        est_gt, ref = pair
+        report.update(evaluate(est_gt, ref))
+        aligned, _ = align_trajectory(est_gt, ref, "se3")
+        plot_trajectory_top_view(aligned, ref, out / "trajectory.png",
+                                 title=f"{seq.name}: ATE {report['ate_rmse_m']:.3f} m (SE(3)-aligned)")
+        errs = np.linalg.norm(aligned.positions - ref.positions, axis=1)
+        plot_errors_over_time(ref.timestamps, errs, out / "errors.png", title=f"{seq.name}: position error")
+    else:
+        report["ground_truth"] = False
+        plot_trajectory_top_view(est, None, out / "trajectory.png", title=f"{seq.name} (no ground truth)")
+    if points is not None and len(points[0]):
+        try:
+            write_point_cloud(out / "points.ply", *points)
+            report["points"] = int(len(points[0]))
+        except DependencyError as exc:
+            report["points"] = None
+            report["points_skipped"] = str(exc)
+    write_json(out / "report.json", _jsonable(report))
+    return report
+
+
+def _jsonable(obj: Any) -> Any:
+    if isinstance(obj, dict):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, (np.floating, float)):
+        v = float(obj)
+        return v if np.isfinite(v) else None
+    if isinstance(obj, np.integer):
+        return int(obj)
+    if isinstance(obj, np.bool_):
+        return bool(obj)
+    return obj
