@@ -22,7 +22,9 @@ from gtvo.planning.astar import (
     path_cost,
 )
 
-SEARCHES = {"heap": astar, "banded": astar_banded, "banded_wide": lambda o, s, g: astar_banded(o, s, g, band=7.5)}
+SEARCHES = {"heap": astar, "banded": astar_banded,
+            "banded_narrow": lambda o, s, g: astar_banded(o, s, g, band=0.3),
+            "banded_wide": lambda o, s, g: astar_banded(o, s, g, band=7.5)}
 
 
 def _assert_valid(path: np.ndarray, occ: np.ndarray, start, goal) -> None:
