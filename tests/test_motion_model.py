@@ -213,3 +213,59 @@ def test_bad_model_parameters():
     with pytest.raises(InputError):
         filter_sequence(np.zeros((2, 3)), [0, 1], np.zeros(6), -np.eye(6))
     assert POSE_MEASUREMENT_MATRIX.shape == (3, 6)
+
+
+def test_process_factor_encodes_x_next_equals_A_x_prev_plus_G_a():
+    """Unweighted residual W (x_next - A x_prev): soft rows = the accelerations a, hard rows = 0,
+    and its Jacobians equal central differences of that residual (tolerance 1e-9)."""
+    import gtsam
+
+    from factors.motion import process_factor, process_row_map, state_key
+
+    dt, k = 0.13, np.array([0.8, 1.2, 0.3])
+    f = process_factor(state_key(0), state_key(1), dt, k)
+    rng = np.random.default_rng(7)
+    x_prev = rng.normal(size=6)
+    a = rng.normal(size=3)
+    x_next = transition_matrix(dt) @ x_prev + noise_gain(dt) @ a
+    vv = gtsam.VectorValues()
+    vv.insert(state_key(0), x_prev)
+    vv.insert(state_key(1), x_next)
+    r = np.asarray(f.unweighted_error(vv))
+    np.testing.assert_allclose(r[0::2], a, atol=1e-12)      # soft rows: the acceleration
+    np.testing.assert_allclose(r[1::2], 0.0, atol=1e-12)    # hard rows: satisfied exactly
+    assert f.isConstrained()
+    sig = np.asarray(f.get_model().sigmas())
+    np.testing.assert_allclose(sig[0::2], k)
+    np.testing.assert_allclose(sig[1::2], 0.0)
+
+    def residual(xp, xn):
+        return process_row_map(dt) @ (xn - transition_matrix(dt) @ xp)
+
+    A_unw, _ = f.jacobianUnweighted()
+    eps = 1e-6
+    num = np.zeros((6, 12))
+    for j in range(12):
+        d = np.zeros(12)
+        d[j] = eps
+        num[:, j] = (residual(x_prev + d[:6], x_next + d[6:]) - residual(x_prev - d[:6], x_next - d[6:])) / (2 * eps)
+    np.testing.assert_allclose(A_unw, num, atol=1e-9)
+
+
+def test_measurement_and_prior_factors():
+    import gtsam
+
+    from factors.motion import pose_measurement_factor, state_key, state_prior_factor
+
+    rng = np.random.default_rng(8)
+    x = rng.normal(size=6)
+    vv = gtsam.VectorValues()
+    vv.insert(state_key(3), x)
+    z = rng.normal(size=3)
+    m = pose_measurement_factor(state_key(3), z, NOISE.measurement_sigmas)
+    np.testing.assert_allclose(np.asarray(m.unweighted_error(vv)), x[[0, 2, 4]] - z, atol=1e-12)
+    mean, cov = _prior(np.zeros(3))
+    p = state_prior_factor(state_key(3), mean, cov)
+    # whitened squared error = Mahalanobis distance under cov
+    e = x - mean
+    assert 2 * p.error(vv) == pytest.approx(e @ np.linalg.solve(cov, e), rel=1e-12)
