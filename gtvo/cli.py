@@ -20,6 +20,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "gtvo.commands.demo",
     "gtvo.commands.run",
     "gtvo.commands.synthetic",
+    "gtvo.commands.plan",
 )
 
 
