@@ -13,8 +13,6 @@ Math modules do no I/O; readers are in :mod:`gtvo.calibration.io`, the plot in
 """
 
 from gtvo.calibration.diff_drive import DiffDriveCalibration, apply_diff_drive, fit_diff_drive
-from gtvo.calibration.gtsam_solvers import (JointCalibrationResult, LoopClosure, PosePrior, fit_diff_drive_gtsam,
-                                            fit_linear_gtsam, joint_calibration)
 from gtvo.calibration.io import read_motion_pair, read_motions
 from gtvo.calibration.linear import LinearCalibration, ResidualStatistics, apply_linear, fit_linear
 from gtvo.calibration.motions import integrate_motions, position_rmse, relative_motions
@@ -28,9 +26,22 @@ __all__ = [
 ]
 
 
+_GTSAM_NAMES = ("JointCalibrationResult", "LoopClosure", "PosePrior", "fit_diff_drive_gtsam", "fit_linear_gtsam",
+                "joint_calibration")
+
+
+def __getattr__(name: str):
+    """The GTSAM solvers, imported on first use (they import :mod:`factors`, which imports this package's math)."""
+    if name in _GTSAM_NAMES:
+        from gtvo.calibration import gtsam_solvers  # noqa: PLC0415
+        return getattr(gtsam_solvers, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
 def calibrate(odom, reference, model: str = "linear", solver: str = "handrolled", nominal_baseline: float = 1.0):
     """One entry point: ``model`` in {"linear", "diff-drive"}, ``solver`` in {"handrolled", "gtsam"}."""
     from gtvo.errors import InputError  # noqa: PLC0415
+    from gtvo.calibration.gtsam_solvers import fit_diff_drive_gtsam, fit_linear_gtsam  # noqa: PLC0415
     fits = {("linear", "handrolled"): lambda: fit_linear(odom, reference),
             ("linear", "gtsam"): lambda: fit_linear_gtsam(odom, reference),
             ("diff-drive", "handrolled"): lambda: fit_diff_drive(odom, reference, nominal_baseline),
