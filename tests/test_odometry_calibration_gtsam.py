@@ -159,8 +159,11 @@ def test_joint_calibration_bad_input():
     raw, _, priors, _ = synthetic_joint_problem()
     with pytest.raises(InputError, match="at least one absolute pose prior"):
         joint_calibration(raw, (1e-3, 1e-3, 1e-3), [])
-    with pytest.raises(InputError, match="pose prior index 99"):
-        joint_calibration(raw, (1e-3, 1e-3, 1e-3), [PosePrior(99, (0, 0, 0), (1, 1, 1))])
+    with pytest.raises(InputError, match="pose prior index 999"):
+        joint_calibration(raw, (1e-3, 1e-3, 1e-3), [PosePrior(999, (0, 0, 0), (1, 1, 1))])
+    # one absolute pose cannot fix X (scale and skew of the motions are free)
+    with pytest.raises(InputError, match="indeterminate system"):
+        joint_calibration(raw, (1e-3, 1e-3, 1e-3), priors[:1])
 
 
 # ---------------------------------------------------------------- CLI

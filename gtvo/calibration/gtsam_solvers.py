@@ -11,9 +11,11 @@
 
 from __future__ import annotations
 
+import contextlib
+import re
 import time
 from dataclasses import dataclass
-from typing import Iterable, Sequence
+from typing import Iterable, Iterator, Sequence
 
 import gtsam
 import numpy as np
@@ -150,6 +152,20 @@ def piecewise_dead_reckoning(motions: ArrayLike, priors: Sequence[PosePrior]) ->
     return poses
 
 
+@contextlib.contextmanager
+def _indeterminate_as_input_error() -> Iterator[None]:
+    """GTSAM's IndeterminateSystemException (a RuntimeError here) as a one-line InputError."""
+    try:
+        yield
+    except RuntimeError as exc:
+        if "Indeterminate" not in str(exc):
+            raise
+        m = re.search(r"Symbol: (\w+)", str(exc))
+        near = f" near {m.group(1)}" if m else ""
+        raise InputError(f"joint calibration: indeterminate system{near}: the pose priors and loop "
+                         "closures do not determine all poses and X") from None
+
+
 def pose_key(index: int) -> int:
     """Key of pose ``index`` in the joint graph: ``gtsam.symbol('x', index)``."""
     return gtsam.symbol("x", index)
@@ -172,6 +188,10 @@ def joint_calibration(raw_motions: ArrayLike, odometry_sigmas: Sequence[float],
     from the linear fit (:func:`fit_linear`) of the raw motions to that graph's relative motions;
     otherwise :func:`piecewise_dead_reckoning` of the motions ``initial_X u_i``.
     ``calibration_prior_sigma`` optionally adds a prior ``vec(X) ~ vec(initial_X)``.
+
+    With ``marginals`` (default) the marginal covariance of vec(X) is computed; this is also the
+    degeneracy check: too little absolute information (e.g. one pose prior) raises InputError. LM
+    itself damps an indeterminate system silently, so with ``marginals=False`` that check is skipped.
     """
     u = as_motions(raw_motions, "raw motions")
     x0 = np.eye(3) if initial_X is None else np.asarray(initial_X, dtype=np.float64).reshape(3, 3)
@@ -228,12 +248,14 @@ def joint_calibration(raw_motions: ArrayLike, odometry_sigmas: Sequence[float],
         values.insert(ckey, x_start.ravel())
     t0 = time.perf_counter()
     optimizer = gtsam.LevenbergMarquardtOptimizer(graph, values, _lm_params(max_iterations))
-    result = optimizer.optimize()
+    with _indeterminate_as_input_error():
+        result = optimizer.optimize()
     seconds = time.perf_counter() - t0
     poses = np.array([[p.x(), p.y(), p.theta()] for p in (result.atPose2(pose_key(i)) for i in range(n_poses))])
     x = result.atVector(ckey).reshape(3, 3) if calibrate else x0
     cov = None
     if calibrate and marginals:
-        cov = gtsam.Marginals(graph, result).marginalCovariance(ckey)
+        with _indeterminate_as_input_error():
+            cov = gtsam.Marginals(graph, result).marginalCovariance(ckey)
     return JointCalibrationResult(poses=poses, X=x, covariance=cov, iterations=int(optimizer.iterations()),
                                   final_error=float(graph.error(result)), seconds=seconds)
