@@ -34,7 +34,7 @@ import gtsam
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from gtvo.calibration.diff_drive import apply_diff_drive
+from gtvo.calibration.diff_drive import diff_drive_motion_scalar, wheel_arcs
 
 
 def calibration_key(index: int = 0) -> int:
@@ -81,13 +81,13 @@ def diff_drive_calibration_factor(key: int, odom_motion: ArrayLike, reference_mo
     u = np.array(odom_motion, dtype=np.float64).reshape(1, 3)
     ref = np.array(reference_motion, dtype=np.float64).reshape(3)
     b0 = float(nominal_baseline)
+    s_l, s_r = (float(w[0]) for w in wheel_arcs(u, b0))  # constant: computed once
 
     def error(this: gtsam.CustomFactor, values: gtsam.Values, H: list | None) -> NDArray[np.float64]:
-        p = values.atVector(this.keys()[0])
-        f, df = apply_diff_drive(p, u, b0, with_jacobian=True)
+        f, df = diff_drive_motion_scalar(values.atVector(this.keys()[0]), s_l, s_r, b0)
         if H is not None:
-            H[0] = -df[0]
-        return ref - f[0]
+            H[0] = -df
+        return ref - f
 
     return gtsam.CustomFactor(noise, [key], error)
 

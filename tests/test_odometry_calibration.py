@@ -7,7 +7,8 @@ import pytest
 
 from gtvo.calibration import (fit_diff_drive, fit_linear, integrate_motions, position_rmse, read_motion_pair,
                               read_motions, relative_motions)
-from gtvo.calibration.diff_drive import apply_diff_drive, arc_coefficients, diff_drive_motions_from_arcs, wheel_arcs
+from gtvo.calibration.diff_drive import (apply_diff_drive, arc_coefficients, diff_drive_motion_scalar,
+                                         diff_drive_motions_from_arcs, wheel_arcs)
 from gtvo.calibration.linear import linear_errors, linear_jacobians, normal_equations
 from gtvo.errors import InputError
 
@@ -141,6 +142,11 @@ def test_diff_drive_wheel_arcs_roundtrip_and_jacobian():
     num = np.stack([(apply_diff_drive(p + eps * d, u, b0) - apply_diff_drive(p - eps * d, u, b0)) / (2 * eps)
                     for d in np.eye(3)], axis=2)
     np.testing.assert_allclose(jac, num, atol=1e-9)
+    # the one-motion path used by the GTSAM factor is the same math
+    for k in range(len(u)):
+        f1, j1 = diff_drive_motion_scalar(p, sl2[k], sr2[k], b0)
+        np.testing.assert_allclose(f1, apply_diff_drive(p, u[k:k + 1], b0)[0], rtol=0, atol=1e-14)
+        np.testing.assert_allclose(j1, jac[k], rtol=0, atol=1e-13)
 
 
 def test_diff_drive_recovers_known_parameters():
