@@ -203,3 +203,14 @@ def test_real_data_matches_readme(shared_data):
     dd = fit_diff_drive(odom, ref, 0.5)
     assert position_rmse(integrate_motions(dd.apply(odom)), reference_path, align=False) < 0.25 * raw_err
     assert dd.residuals.rss < 1.01 * fit.residuals.rss  # 3 physical parameters fit about as well as 9
+
+
+def test_calibrate_dispatch_and_unknown_model():
+    from gtvo.calibration import calibrate
+    rng = np.random.default_rng(8)
+    u = random_motions(rng, 50)
+    ref = u @ X_TRUE.T
+    np.testing.assert_allclose(calibrate(u, ref).X, X_TRUE, atol=1e-10)
+    assert calibrate(u, ref, "diff-drive", nominal_baseline=0.5).to_dict()["model"] == "diff-drive"
+    with pytest.raises(InputError, match="unknown model/solver 'tricycle'"):
+        calibrate(u, ref, "tricycle")

@@ -12,6 +12,8 @@ Math modules do no I/O; readers are in :mod:`gtvo.calibration.io`, the plot in
 :mod:`gtvo.calibration.plot`. Details: docs/odometry_calibration.md.
 """
 
+from numpy.typing import ArrayLike
+
 from gtvo.calibration.diff_drive import DiffDriveCalibration, apply_diff_drive, fit_diff_drive
 from gtvo.calibration.io import read_motion_pair, read_motions
 from gtvo.calibration.linear import LinearCalibration, ResidualStatistics, apply_linear, fit_linear
@@ -38,8 +40,13 @@ def __getattr__(name: str):
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-def calibrate(odom, reference, model: str = "linear", solver: str = "handrolled", nominal_baseline: float = 1.0):
-    """One entry point: ``model`` in {"linear", "diff-drive"}, ``solver`` in {"handrolled", "gtsam"}."""
+def calibrate(odom: ArrayLike, reference: ArrayLike, model: str = "linear", solver: str = "handrolled",
+              nominal_baseline: float = 1.0) -> LinearCalibration | DiffDriveCalibration:
+    """Fit ``reference ~ f(odom)``: ``model`` in {"linear", "diff-drive"}, ``solver`` in {"handrolled", "gtsam"}.
+
+    ``nominal_baseline`` (m) is used by the diff-drive model only. Raises InputError for bad or
+    degenerate input (naming the unobservable parameters) and for an unknown model/solver.
+    """
     from gtvo.errors import InputError  # noqa: PLC0415
     from gtvo.calibration.gtsam_solvers import fit_diff_drive_gtsam, fit_linear_gtsam  # noqa: PLC0415
     fits = {("linear", "handrolled"): lambda: fit_linear(odom, reference),
