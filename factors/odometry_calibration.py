@@ -28,7 +28,6 @@ Values (see docs/odometry_calibration.md for what that costs here).
 
 from __future__ import annotations
 
-from typing import Callable
 
 import gtsam
 import numpy as np
@@ -133,4 +132,3 @@ def calibrated_odometry_factor(key_i: int, key_j: int, key_calibration: int, raw
     return gtsam.CustomFactor(noise, [key_i, key_j, key_calibration], error)
 
 
-ErrorFunction = Callable[[gtsam.CustomFactor, gtsam.Values, "list | None"], NDArray[np.float64]]
