@@ -21,6 +21,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "gtvo.commands.run",
     "gtvo.commands.synthetic",
     "gtvo.commands.plan",
+    "gtvo.commands.calibrate_odometry",
 )
 
 
