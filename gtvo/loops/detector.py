@@ -266,7 +266,10 @@ class LoopDetector:
 
     def similarities(self, index: int) -> tuple[FloatArray, float]:
         """Raw L1 scores ``s(i, k)`` (by insertion rank, over the keyframes inserted up to ``i``) and
-        the reference score of query ``i`` (the floor when it has no preceding keyframe)."""
+        the reference score of query ``i`` (the floor when it has no preceding keyframe).
+
+        Trains or retrains the online vocabulary first when it is due (see the module docstring);
+        before the first training all scores are 0."""
         kf = self.keyframe(index)
         self._update_vocabulary()
         if self._vocabulary is None:
@@ -293,7 +296,7 @@ class LoopDetector:
         if ranks.size == 0:
             return []
         # Islands of consecutive ranks (DBoW2): score = sum of eta, representative = best member.
-        breaks = np.flatnonzero(np.diff(ranks) > cfg.island_gap + 0) + 1
+        breaks = np.flatnonzero(np.diff(ranks) > cfg.island_gap) + 1
         islands = np.split(ranks, breaks)
         island_scores = np.array([eta[isl].sum() for isl in islands])
         out: list[LoopCandidate] = []
