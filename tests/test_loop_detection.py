@@ -129,6 +129,12 @@ def test_synthetic_revisit_is_detected_with_the_true_relative_pose(revisit):
     values.insert(gtsam.symbol("x", 8), gtsam.Pose3(REVISIT_POSES[8]))
     values.insert(gtsam.symbol("x", 0), gtsam.Pose3(REVISIT_POSES[0]))
     assert factor.error(values) < 50.0  # 0.5 chi2 of 6 dof at the true poses: a consistent information
+    # A fixed vocabulary (e.g. trained offline) is used as given, never retrained.
+    fixed = LoopDetector(CAM, LoopDetectorConfig(temporal_window=3), vocabulary=det.vocabulary)
+    for k in (0, 1, 2, 3, 4, 8):
+        fixed.add_keyframe(k, revisit[k][0], revisit[k][1])
+    assert [c.j for c in fixed.query(8)] == [0]
+    assert fixed.vocabulary is det.vocabulary
 
 
 def test_different_places_are_not_accepted(revisit):

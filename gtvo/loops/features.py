@@ -25,7 +25,6 @@ from gtvo.errors import InputError
 FloatArray = NDArray[np.float64]
 #: Bits in an ORB descriptor (32 bytes).
 ORB_BITS = 256
-CORRECT_OCTAVE_OFFSET = True
 
 
 @dataclass(frozen=True)
@@ -111,7 +110,11 @@ def to_uint8(image: NDArray, name: str = "image") -> NDArray[np.uint8]:
 
 
 def extract_orb(image: NDArray, params: OrbParams = OrbParams(), detector: cv2.ORB | None = None) -> OrbFeatures:
-    """ORB keypoints and descriptors of a gray image."""
+    """ORB keypoints and descriptors of a gray image.
+
+    Keypoints of octave ``o`` are moved by ``+0.5 (s - 1)`` pixels, ``s = scale_factor ** o``, to
+    the pixel-centre convention (OpenCV scales level coordinates by ``s`` without that offset).
+    """
     img = to_uint8(image)
     orb = detector if detector is not None else params.create()
     keypoints, descriptors = orb.detectAndCompute(img, None)
@@ -119,10 +122,9 @@ def extract_orb(image: NDArray, params: OrbParams = OrbParams(), detector: cv2.O
         return OrbFeatures(np.zeros((0, 2)), np.zeros(0, dtype=np.int64), np.zeros((0, 32), dtype=np.uint8))
     uv = np.array([kp.pt for kp in keypoints], dtype=np.float64)
     octave = np.array([kp.octave & 0xFF for kp in keypoints], dtype=np.int64)
-    if CORRECT_OCTAVE_OFFSET:
-        # OpenCV reports pt = x_level * s, but its pyramid (cv2.resize) maps a level pixel centre
-        # x_level to (x_level + 0.5) * s - 0.5 at full resolution.
-        uv += 0.5 * (params.scale_factor ** octave[:, None] - 1.0)
+    # OpenCV reports pt = x_level * s, but its pyramid (cv2.resize) maps a level pixel centre
+    # x_level to (x_level + 0.5) * s - 0.5 at full resolution.
+    uv += 0.5 * (params.scale_factor ** octave[:, None] - 1.0)
     return OrbFeatures(uv, octave, np.ascontiguousarray(descriptors, dtype=np.uint8))
 
 
