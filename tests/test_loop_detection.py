@@ -223,6 +223,25 @@ def test_kitti_frames_verify_to_the_ground_truth_and_the_window_excludes_them(ki
     assert np.allclose(loops[0].T_i_j, loop.T_i_j, atol=1e-9)
 
 
+@pytest.mark.realdata
+def test_tum_rgbd_frames_verify_to_the_mocap_ground_truth(shared_data):
+    from gtvo.datasets import read_tum
+
+    root = shared_data / "rgbd_dataset_freiburg3_teddy_first20"
+    if not root.is_dir():
+        pytest.skip(f"{root} absent")
+    seq = read_tum(root)
+    det = LoopDetector(seq.camera)  # PinholeCamera: keyframes carry depth images
+    for k in (0, 12):
+        det.add_keyframe(k, seq.left(k), depth=seq.depth(k))
+    loop = det.verify(12, 0)
+    assert loop is not None and loop.inliers >= 50
+    # 0.18 m and 10 deg apart; measured 5 mm / 0.44 deg (the mocap's time alignment limits the
+    # rotation check); tolerance 2 cm / 1 deg.
+    dt, dr = _pose_error(loop.T_i_j, _true_T_i_j(seq.gt_poses, 12, 0))
+    assert dt < 0.02 and dr < 1.0, (dt, dr)
+
+
 # ---------------------------------------------------------------------------- vocabulary and scores
 def test_hamming_distances_match_popcount():
     rng = np.random.default_rng(0)

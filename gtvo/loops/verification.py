@@ -37,6 +37,9 @@ class VerificationParams:
         min_inlier_ratio: and at least this fraction of the matches as inliers.
         pixel_sigma_px: keypoint noise at octave 0; octave ``o`` has ``pixel_sigma_px * s**o``.
         ransac_seed: seed of OpenCV's global RNG set before each RANSAC (reproducible results).
+        min_rotation_sigma_rad, min_translation_sigma_m: a covariance floor
+            ``diag(sr^2 I3, st^2 I3)`` added to ``inv(Lambda)`` for the errors the reprojection model
+            leaves out (calibration, rolling shutter, keypoint bias); see docs/loop_closure.md.
     """
 
     ratio: float = 0.8
@@ -48,6 +51,8 @@ class VerificationParams:
     min_inlier_ratio: float = 0.3
     pixel_sigma_px: float = 1.0
     ransac_seed: int = 0
+    min_rotation_sigma_rad: float = 0.002
+    min_translation_sigma_m: float = 0.01
 
 
 @dataclass(frozen=True)
@@ -60,7 +65,8 @@ class PnPResult:
         n_matches: number of matches tried.
         rmse_px: reprojection RMSE of the inliers after refinement (pixels).
         information: 6x6 information of ``T_i_j`` in GTSAM's Pose3 tangent [rot, trans], right
-            perturbation ``T_i_j * Exp(xi)``.
+            perturbation ``T_i_j * Exp(xi)``: ``inv(inv(Lambda) + floor)`` with Lambda from
+            :func:`pose_information` and the covariance floor of :class:`VerificationParams`.
     """
 
     T_i_j: FloatArray
@@ -166,7 +172,8 @@ def verify_pnp(points_j: FloatArray, point_covariances: FloatArray, uv_i: FloatA
     ``cv2.solvePnPRansac`` (threshold ``reprojection_threshold_px``), then ``cv2.solvePnPRefineLM``
     on its inliers, then the inliers are re-counted under the refined pose (in front of the
     camera, error below the threshold) and refined once more. Accepted when the final inlier
-    count is at least ``min_inliers`` and ``min_inlier_ratio`` of the M matches.
+    count is at least ``min_inliers`` and ``min_inlier_ratio`` of the M matches. The information
+    is :func:`pose_information` of the inliers with the covariance floor added.
     """
     m = points_j.shape[0]
     if m < max(params.min_inliers, 6):
@@ -195,4 +202,7 @@ def verify_pnp(points_j: FloatArray, point_covariances: FloatArray, uv_i: FloatA
     rmse = float(np.sqrt(np.mean(err[inliers] ** 2)))
     info, _ = pose_information(T, obj[inliers], point_covariances[inliers], img[inliers], pixel_sigmas[inliers],
                                camera)
-    return PnPResult(T, inliers, m, rmse, info)
+    floor = np.diag([params.min_rotation_sigma_rad**2] * 3 + [params.min_translation_sigma_m**2] * 3)
+    cov = np.linalg.inv(info) + floor
+    info = np.linalg.inv(cov)
+    return PnPResult(T, inliers, m, rmse, 0.5 * (info + info.T))
