@@ -16,7 +16,7 @@ import pytest
 from gtvo.camera import PinholeCamera, StereoCamera
 from gtvo.errors import InputError
 from gtvo.loops import (BinaryVocabulary, LoopDetector, LoopDetectorConfig, OrbParams,
-                        depth_image_points, extract_orb, hamming_distances, idf_weights, l1_scores,
+                        depth_image_points, detect_loops, extract_orb, hamming_distances, idf_weights, l1_scores,
                         match_descriptors, pose_information, reprojection_jacobians, stereo_points, tfidf_vectors,
                         verify_pnp)
 
@@ -205,10 +205,8 @@ def test_kitti_frames_verify_to_the_ground_truth_and_the_window_excludes_them(ki
     seq, images = kitti
     gt = seq.gt_poses
     windowed = LoopDetector(seq.camera)  # default temporal_window = 10
-    near = LoopDetector(seq.camera, LoopDetectorConfig(temporal_window=2))
     for k, (left, right) in enumerate(images):
         windowed.add_keyframe(k, left, right, T_world_cam=gt[k])
-        near.add_keyframe(k, left, right, T_world_cam=gt[k])
     # Frames 0 and 3 (3.6 m apart): verification recovers T_3_0. Tolerance 0.15 m / 0.6 deg
     # (measured 0.04-0.10 m / 0.36 deg; dense SGBM depths give the same offset from poses.txt).
     loop = windowed.verify(3, 0)
@@ -217,10 +215,43 @@ def test_kitti_frames_verify_to_the_ground_truth_and_the_window_excludes_them(ki
     assert dt < 0.15 and dr < 0.6, (dt, dr)
     # Temporal neighbours are never reported as loops ...
     assert all(windowed.query(k) == [] for k in range(4))
-    # ... which is what keeps them out: with a 2-keyframe window, 3 -> 0 is reported.
-    loops = near.query(3)
-    assert [c.j for c in loops] == [0]
+    # ... which is what keeps them out: with a 2-keyframe window (and a low score threshold, so that
+    # only the window decides), 3 -> 0 is reported, with the same verified pose.
+    _, loops = detect_loops(seq, range(4), LoopDetectorConfig(temporal_window=2, min_normalised_score=0.1))
+    assert [(c.i, c.j) for c in loops] == [(3, 0)]
     assert np.allclose(loops[0].T_i_j, loop.T_i_j, atol=1e-9)
+
+
+@pytest.mark.realdata
+def test_loops_command_writes_json_with_ground_truth_errors(shared_data, tmp_path, capsys):
+    import argparse
+    import json
+
+    from gtvo.commands import loops as loops_command
+
+    root = shared_data / "kitti_stereo_sample" / "KITTI_sequence_1"
+    if not root.is_dir():
+        pytest.skip(f"{root} absent")
+    parser = argparse.ArgumentParser()
+    loops_command.register(parser.add_subparsers(dest="command"))
+    out = tmp_path / "sub" / "loops.json"
+    args = parser.parse_args(["loops", str(root), "--max-frames", "4", "--window", "2", "--min-inliers", "40",
+                              "--out", str(out), "--json"])
+    assert args.func(args) == 0
+    printed = json.loads(capsys.readouterr().out)
+    written = json.loads(out.read_text())
+    assert printed == written and written["keyframes"] == 4 and written["temporal_window"] == 2
+    for rec in written["loops"]:
+        assert rec["i"] - rec["j"] > 2 and rec["inliers"] >= 40
+        assert rec["error_translation_m"] < 0.15 and rec["error_rotation_deg"] < 0.6
+        assert np.asarray(rec["T_i_j"]).shape == (4, 4) and np.asarray(rec["information"]).shape == (6, 6)
+    for bad in (["--every", "0"], ["--min-inliers", "2"]):
+        args = parser.parse_args(["loops", str(root), "--max-frames", "2"] + bad)
+        with pytest.raises(InputError):
+            args.func(args)
+    args = parser.parse_args(["loops", str(tmp_path)])
+    with pytest.raises(InputError, match="unknown dataset layout"):
+        args.func(args)
 
 
 @pytest.mark.realdata

@@ -19,11 +19,13 @@ by ORB matching and PnP RANSAC against its stereo/depth 3-D points.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any, Iterable
 
 import cv2
 import gtsam
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from tqdm import tqdm
 
 from gtvo.camera import PinholeCamera, StereoCamera
 from gtvo.errors import InputError
@@ -31,6 +33,7 @@ from gtvo.loops.features import (KeypointPoints, OrbFeatures, OrbParams, depth_i
                                  stereo_points, to_uint8)
 from gtvo.loops.verification import VerificationParams, match_descriptors, verify_pnp
 from gtvo.loops.vocabulary import BinaryVocabulary, idf_weights, l1_scores, tfidf_vectors
+from gtvo.sequence import Sequence
 
 FloatArray = NDArray[np.float64]
 
@@ -69,6 +72,12 @@ class LoopCandidate:
         noise = gtsam.noiseModel.Gaussian.Information(self.information)
         return gtsam.BetweenFactorPose3(gtsam.symbol(symbol_char, self.i), gtsam.symbol(symbol_char, self.j),
                                         gtsam.Pose3(self.T_i_j), noise)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain-JSON form: indices, scores, ``T_i_j`` (4x4 rows) and ``information`` (6x6 rows)."""
+        return {"i": self.i, "j": self.j, "inliers": self.inliers, "n_matches": self.n_matches,
+                "score": self.score, "similarity": self.similarity, "rmse_px": self.rmse_px,
+                "T_i_j": np.asarray(self.T_i_j).tolist(), "information": np.asarray(self.information).tolist()}
 
 
 @dataclass(frozen=True)
@@ -339,3 +348,24 @@ class LoopDetector:
             return None
         return LoopCandidate(kf_i.index, kf_j.index, result.T_i_j, int(result.inliers.size), score,
                              result.information, similarity, result.n_matches, result.rmse_px)
+
+
+def detect_loops(sequence: Sequence, frames: Iterable[int] | None = None, config: LoopDetectorConfig | None = None,
+                 progress: bool = False) -> tuple[LoopDetector, list[LoopCandidate]]:
+    """Run place recognition over a sequence: every frame in ``frames`` (all when None) is added as a
+    keyframe (right image or depth image by the sequence's kind) and queried right after.
+
+    Returns the detector (its database) and all verified loops in query order.
+    """
+    det = LoopDetector(sequence.camera, config)
+    indices = list(range(len(sequence))) if frames is None else [int(k) for k in frames]
+    loops: list[LoopCandidate] = []
+    for k in tqdm(indices, desc=f"loops {sequence.name}", unit="kf", disable=not progress):
+        if not 0 <= k < len(sequence):
+            raise InputError(f"frame {k} out of range 0..{len(sequence) - 1}")
+        if sequence.kind == "stereo":
+            det.add_keyframe(k, sequence.left(k), sequence.right(k))
+        else:
+            det.add_keyframe(k, sequence.left(k), depth=sequence.depth(k))
+        loops += det.query(k)
+    return det, loops
