@@ -40,7 +40,7 @@ FloatArray = NDArray[np.float64]
 
 @dataclass(frozen=True)
 class LoopCandidate:
-    """A verified loop between query keyframe ``i`` and an earlier keyframe ``j``.
+    """A verified loop between query keyframe ``i`` and keyframe ``j`` (earlier, from :meth:`LoopDetector.query`).
 
     Attributes:
         i: the query keyframe's index (as given to :meth:`LoopDetector.add_keyframe`).
@@ -48,9 +48,10 @@ class LoopCandidate:
         T_i_j: 4x4 pose of ``j`` in ``i``'s camera frame, ``T_world_i^-1 T_world_j``: the
             measurement of ``BetweenFactorPose3(x_i, x_j, T_i_j)``.
         inliers: PnP inlier count.
-        score: DBoW2's normalised score ``eta = s(i, j) / s(i, reference)`` (NaN-free; see docs).
+        score: DBoW2's normalised score ``eta = s(i, j) / s_ref(i)`` (docs/loop_closure.md).
         information: 6x6 information of ``T_i_j``, GTSAM Pose3 tangent [rot, trans], right
-            perturbation (``T_i_j * Exp(xi)``).
+            perturbation (``T_i_j * Exp(xi)``), with the covariance floor of
+            :class:`VerificationParams`.
         similarity: raw L1 bag-of-words score ``s(i, j)`` in [0, 1].
         n_matches: ORB matches tried by PnP.
         rmse_px: inlier reprojection RMSE after refinement (pixels).
