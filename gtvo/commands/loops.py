@@ -34,6 +34,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--min-inliers", type=int, default=None, help="PnP inliers needed to accept (default 30)")
     p.add_argument("--json", action="store_true", help="print a JSON object instead of the table")
     p.add_argument("--out", default=None, help="write the JSON object to this file")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
 
@@ -63,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
             raise InputError(f"--min-inliers must be >= 6, got {args.min_inliers}")
         config = replace(config, verification=replace(config.verification, min_inliers=args.min_inliers))
     frames = range(0, len(seq), args.every)
-    _, loops = detect_loops(seq, frames, config, progress=not args.json)
+    _, loops = detect_loops(seq, frames, config, progress=not (args.json or args.no_progress))
     gt = seq.gt_poses if seq.has_ground_truth else None
     result = {"sequence": seq.name, "keyframes": len(frames), "temporal_window": config.temporal_window,
               "loops": [_loop_record(c, gt) for c in loops]}
