@@ -22,6 +22,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "gtvo.commands.synthetic",
     "gtvo.commands.plan",
     "gtvo.commands.calibrate_odometry",
+    "gtvo.commands.loops",
 )
 
 
