@@ -292,6 +292,10 @@ class PhotometricBatchFactor(gtsam.CustomFactor):
         host_key: host pose key, or None to hold the host fixed at ``T_world_host``.
         affine_host_key, affine_target_key: affine keys or None (fixed values).
         sigma_intensity, huber_k, pattern: as in :class:`PhotometricFactor`.
+        host_intensity: precomputed :func:`factors.photometric.sample_host` output (then
+            ``host_image`` may be None).
+        weights: (N, P) fixed variance weights W; None evaluates W at the current values
+            (the tracker freezes W per pyramid level so that W does not move with the state).
     """
 
     def __init__(self, target_key: int, camera: PinholeCamera, pixels: ArrayLike, inverse_depth: ArrayLike,
@@ -301,7 +305,8 @@ class PhotometricBatchFactor(gtsam.CustomFactor):
                  affine_target_key: int | None = None, affine_host: ArrayLike = (0.0, 0.0),
                  affine_target: ArrayLike = (0.0, 0.0), sigma_intensity: float = DEFAULT_SIGMA_INTENSITY,
                  huber_k: float | None = DEFAULT_HUBER_K, pattern: ArrayLike = PATTERN_DSO8,
-                 host_intensity: tuple[np.ndarray, np.ndarray] | None = None) -> None:
+                 host_intensity: tuple[np.ndarray, np.ndarray] | None = None,
+                 weights: ArrayLike | None = None) -> None:
         self.camera = camera
         self.pixels = np.asarray(pixels, dtype=float).reshape(-1, 2)
         n = self.pixels.shape[0]
@@ -316,6 +321,7 @@ class PhotometricBatchFactor(gtsam.CustomFactor):
         self.target_image = target_image
         self.sigma = float(sigma_intensity)
         self.huber_k = huber_k
+        self.weights = None if weights is None else np.asarray(weights, dtype=float).reshape(n, self.pattern.shape[0])
         self.target_key, self.host_key = target_key, host_key
         self.T_world_host = gtsam.Pose3() if T_world_host is None else T_world_host
         self.affine_host_key, self.affine_target_key = affine_host_key, affine_target_key
@@ -332,8 +338,10 @@ class PhotometricBatchFactor(gtsam.CustomFactor):
         at = _affine(values, self.affine_target_key, self.affine_target)
         lin = photometric_residuals(self.camera, self.host_intensity, self.host_valid, self.pixels,
                                     self.inverse_depth, Twh, Twt, self.target_image, ah, at, self.pattern,
-                                    jacobians=H is not None)
-        s = np.sqrt(variance_weight(lin.J_depth, self.variance, self.sigma))
+                                    jacobians=H is not None,
+                                    host_jacobians=self.host_key is not None or self.affine_host_key is not None)
+        W = variance_weight(lin.J_depth, self.variance, self.sigma) if self.weights is None else self.weights
+        s = np.sqrt(W)
         e = s * lin.residual
         norm = np.linalg.norm(e, axis=1)
         if self.huber_k is None:

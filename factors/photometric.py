@@ -141,7 +141,8 @@ def photometric_residuals(camera: PinholeCamera, host_intensity: ArrayLike, host
                           pixels: ArrayLike, inverse_depth: ArrayLike, T_world_host: object,
                           T_world_target: object, target: GradientSampler,
                           affine_host: ArrayLike = (0.0, 0.0), affine_target: ArrayLike = (0.0, 0.0),
-                          pattern: ArrayLike = PATTERN_DSO8, jacobians: bool = True) -> PhotometricLinearization:
+                          pattern: ArrayLike = PATTERN_DSO8, jacobians: bool = True,
+                          host_jacobians: bool = True) -> PhotometricLinearization:
     """Photometric residuals of hosted points in one target image, with analytic Jacobians.
 
     Args:
@@ -154,7 +155,9 @@ def photometric_residuals(camera: PinholeCamera, host_intensity: ArrayLike, host
         target: the target image with gradients.
         affine_host, affine_target: brightness parameters ``(a, b)``.
         pattern: (P, 2) pixel offsets.
-        jacobians: compute Jacobians (False: residuals and masks only).
+        jacobians: compute Jacobians (False: residuals, masks and dr/dd only).
+        host_jacobians: also compute ``J_host`` and ``J_affine_host`` (False: they are None;
+            tracking with a fixed keyframe does not need them).
     """
     pat = np.asarray(pattern, dtype=float).reshape(-1, 2)
     px = np.asarray(pixels, dtype=float).reshape(-1, 2)
@@ -211,14 +214,16 @@ def photometric_residuals(camera: PinholeCamera, host_intensity: ArrayLike, host
     J_target = np.empty((n, p, 6))
     J_target[..., :3] = np.cross(a, q)
     J_target[..., 3:] = -dd * a
-    ap = a @ R  # R^T a, row form
-    J_host = np.empty((n, p, 6))
-    J_host[..., :3] = np.cross(f, ap)
-    J_host[..., 3:] = dd * ap
     hb = np.where(valid, e * (Ih - b_h), 0.0)
     vf = valid.astype(float)
-    J_aff_h = np.stack([hb, e * vf], axis=-1)
     J_aff_t = np.stack([-hb, -vf], axis=-1)
+    J_host = J_aff_h = None
+    if host_jacobians:
+        ap = a @ R  # R^T a, row form
+        J_host = np.empty((n, p, 6))
+        J_host[..., :3] = np.cross(f, ap)
+        J_host[..., 3:] = dd * ap
+        J_aff_h = np.stack([hb, e * vf], axis=-1)
     return PhotometricLinearization(r, valid, J_depth, J_host, J_target, J_aff_h, J_aff_t, uv,
                                     n_bad, n_behind, n_out)
 
