@@ -23,7 +23,7 @@ import gtsam
 import numpy as np
 from numpy.typing import ArrayLike
 
-from factors.photometric import (PATTERN_DSO8, GradientSampler, huber_loss, huber_weight,
+from factors.photometric import (PATTERN_DSO8, GradientSampler, huber_loss, huber_weight, pattern_bearings,
                                  photometric_residuals, sample_host, stereo_residuals, variance_weight)
 from gtvo.camera import PinholeCamera
 from gtvo.errors import InputError
@@ -296,6 +296,7 @@ class PhotometricBatchFactor(gtsam.CustomFactor):
             ``host_image`` may be None).
         weights: (N, P) fixed variance weights W; None evaluates W at the current values
             (the tracker freezes W per pyramid level so that W does not move with the state).
+        bearings: precomputed :func:`factors.photometric.pattern_bearings` of ``pixels``.
     """
 
     def __init__(self, target_key: int, camera: PinholeCamera, pixels: ArrayLike, inverse_depth: ArrayLike,
@@ -306,7 +307,7 @@ class PhotometricBatchFactor(gtsam.CustomFactor):
                  affine_target: ArrayLike = (0.0, 0.0), sigma_intensity: float = DEFAULT_SIGMA_INTENSITY,
                  huber_k: float | None = DEFAULT_HUBER_K, pattern: ArrayLike = PATTERN_DSO8,
                  host_intensity: tuple[np.ndarray, np.ndarray] | None = None,
-                 weights: ArrayLike | None = None) -> None:
+                 weights: ArrayLike | None = None, bearings: ArrayLike | None = None) -> None:
         self.camera = camera
         self.pixels = np.asarray(pixels, dtype=float).reshape(-1, 2)
         n = self.pixels.shape[0]
@@ -319,6 +320,7 @@ class PhotometricBatchFactor(gtsam.CustomFactor):
             host_intensity = sample_host(host_image, self.pixels, self.pattern)
         self.host_intensity, self.host_valid = host_intensity
         self.target_image = target_image
+        self.bearings = pattern_bearings(camera, self.pixels, self.pattern) if bearings is None else bearings
         self.sigma = float(sigma_intensity)
         self.huber_k = huber_k
         self.weights = None if weights is None else np.asarray(weights, dtype=float).reshape(n, self.pattern.shape[0])
@@ -339,7 +341,8 @@ class PhotometricBatchFactor(gtsam.CustomFactor):
         lin = photometric_residuals(self.camera, self.host_intensity, self.host_valid, self.pixels,
                                     self.inverse_depth, Twh, Twt, self.target_image, ah, at, self.pattern,
                                     jacobians=H is not None,
-                                    host_jacobians=self.host_key is not None or self.affine_host_key is not None)
+                                    host_jacobians=self.host_key is not None or self.affine_host_key is not None,
+                                    bearings=self.bearings)
         W = variance_weight(lin.J_depth, self.variance, self.sigma) if self.weights is None else self.weights
         s = np.sqrt(W)
         e = s * lin.residual

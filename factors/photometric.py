@@ -76,12 +76,40 @@ class GradientImage:
         gx, gy = image_gradients(img)
         self.image = img
         self.stack = np.ascontiguousarray(np.stack([img, gx, gy], axis=-1))
+        self._flat = self.stack.reshape(-1, 3)
         self.height, self.width = img.shape
         self.border = float(border)
 
     def sample(self, u: NDArray, v: NDArray) -> tuple[FloatArray, BoolArray]:
-        """Bilinear (I, gx, gy) at ``(u, v)`` via :func:`gtvo.image.bilinear_sample`."""
-        return bilinear_sample(self.stack, u, v, border=self.border)
+        """Bilinear (I, gx, gy) at ``(u, v)``; 0 and False where invalid, never NaN.
+
+        Same result and validity rule as :func:`gtvo.image.bilinear_sample` on :attr:`stack`
+        (tested), about 3x faster: ``np.take`` gathers and no per-channel masking (the hot path
+        of tracking).
+        """
+        u = np.asarray(u, dtype=np.float64)
+        v = np.asarray(v, dtype=np.float64)
+        h, w, b = self.height, self.width, self.border
+        with np.errstate(invalid="ignore"):
+            valid = (u >= b) & (u <= w - 1 - b) & (v >= b) & (v <= h - 1 - b)  # False for NaN
+        us = np.where(valid, u, 0.0)
+        vs = np.where(valid, v, 0.0)
+        x0 = np.minimum(us.astype(np.intp), w - 2)
+        y0 = np.minimum(vs.astype(np.intp), h - 2)
+        ax = (us - x0)[..., None]
+        ay = (vs - y0)[..., None]
+        i = (y0 * w + x0).reshape(-1)
+        shape = u.shape + (3,)
+        f = self._flat
+        v00 = f.take(i, axis=0).reshape(shape)
+        v01 = f.take(i + 1, axis=0).reshape(shape)
+        v10 = f.take(i + w, axis=0).reshape(shape)
+        v11 = f.take(i + w + 1, axis=0).reshape(shape)
+        top = v00 + ax * (v01 - v00)
+        bot = v10 + ax * (v11 - v10)
+        out = top + ay * (bot - top)
+        out *= valid[..., None]
+        return out, valid
 
     def sample_intensity(self, u: NDArray, v: NDArray) -> tuple[FloatArray, BoolArray]:
         """Bilinear intensity only."""
@@ -103,6 +131,23 @@ def pattern_pixels(pixels: ArrayLike, pattern: ArrayLike = PATTERN_DSO8) -> Floa
     px = np.asarray(pixels, dtype=float).reshape(-1, 1, 2)
     pat = np.asarray(pattern, dtype=float).reshape(1, -1, 2)
     return px + pat
+
+
+def pattern_bearings(camera: PinholeCamera, pixels: ArrayLike, pattern: ArrayLike = PATTERN_DSO8) -> FloatArray:
+    """Bearings ``f = K^-1 [u, v, 1]`` (f_z = 1) of every pattern pixel: shape (N, P, 3)."""
+    pp = pattern_pixels(pixels, pattern)
+    f = np.empty(pp.shape[:2] + (3,))
+    f[..., 0] = (pp[..., 0] - camera.cx) / camera.fx
+    f[..., 1] = (pp[..., 1] - camera.cy) / camera.fy
+    f[..., 2] = 1.0
+    return f
+
+
+def _cross_into(out: FloatArray, a: FloatArray, b: FloatArray) -> None:
+    """``out[..., :3] = a x b`` without np.cross's axis shuffling."""
+    out[..., 0] = a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1]
+    out[..., 1] = a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2]
+    out[..., 2] = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
 
 
 def sample_host(host: GradientSampler, pixels: ArrayLike,
@@ -142,7 +187,7 @@ def photometric_residuals(camera: PinholeCamera, host_intensity: ArrayLike, host
                           T_world_target: object, target: GradientSampler,
                           affine_host: ArrayLike = (0.0, 0.0), affine_target: ArrayLike = (0.0, 0.0),
                           pattern: ArrayLike = PATTERN_DSO8, jacobians: bool = True,
-                          host_jacobians: bool = True) -> PhotometricLinearization:
+                          host_jacobians: bool = True, bearings: ArrayLike | None = None) -> PhotometricLinearization:
     """Photometric residuals of hosted points in one target image, with analytic Jacobians.
 
     Args:
@@ -158,6 +203,8 @@ def photometric_residuals(camera: PinholeCamera, host_intensity: ArrayLike, host
         jacobians: compute Jacobians (False: residuals, masks and dr/dd only).
         host_jacobians: also compute ``J_host`` and ``J_affine_host`` (False: they are None;
             tracking with a fixed keyframe does not need them).
+        bearings: (N, P, 3) precomputed :func:`pattern_bearings` (they depend on the host pixels
+            only; a tracker computes them once per keyframe and level).
     """
     pat = np.asarray(pattern, dtype=float).reshape(-1, 2)
     px = np.asarray(pixels, dtype=float).reshape(-1, 2)
@@ -177,11 +224,7 @@ def photometric_residuals(camera: PinholeCamera, host_intensity: ArrayLike, host
 
     good_d = np.isfinite(d) & (d > 0)
     ds = np.where(good_d, d, 1.0)
-    pp = px[:, None, :] + pat[None, :, :]
-    f = np.empty((n, p, 3))
-    f[..., 0] = (pp[..., 0] - camera.cx) / camera.fx
-    f[..., 1] = (pp[..., 1] - camera.cy) / camera.fy
-    f[..., 2] = 1.0
+    f = pattern_bearings(camera, px, pat) if bearings is None else np.asarray(bearings, dtype=float)
     q = f @ R.T + ds[:, None, None] * t
     qz = q[..., 2]
     front = qz > MIN_DEPTH * ds[:, None]
@@ -212,7 +255,7 @@ def photometric_residuals(camera: PinholeCamera, host_intensity: ArrayLike, host
         return PhotometricLinearization(r, valid, J_depth, None, None, None, None, uv, n_bad, n_behind, n_out)
     dd = ds[:, None, None]
     J_target = np.empty((n, p, 6))
-    J_target[..., :3] = np.cross(a, q)
+    _cross_into(J_target, a, q)
     J_target[..., 3:] = -dd * a
     hb = np.where(valid, e * (Ih - b_h), 0.0)
     vf = valid.astype(float)
@@ -221,7 +264,7 @@ def photometric_residuals(camera: PinholeCamera, host_intensity: ArrayLike, host
     if host_jacobians:
         ap = a @ R  # R^T a, row form
         J_host = np.empty((n, p, 6))
-        J_host[..., :3] = np.cross(f, ap)
+        _cross_into(J_host, f, ap)
         J_host[..., 3:] = dd * ap
         J_aff_h = np.stack([hb, e * vf], axis=-1)
     return PhotometricLinearization(r, valid, J_depth, J_host, J_target, J_aff_h, J_aff_t, uv,

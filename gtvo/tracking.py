@@ -32,8 +32,8 @@ import scipy.linalg
 from numpy.typing import ArrayLike, NDArray
 
 from factors.gtsam_factors import PhotometricBatchFactor
-from factors.photometric import (PATTERN_DSO8, GradientImage, huber_loss, huber_weight, photometric_residuals,
-                                 sample_host, variance_weight)
+from factors.photometric import (PATTERN_DSO8, GradientImage, huber_loss, huber_weight, pattern_bearings,
+                                 photometric_residuals, sample_host, variance_weight)
 from gtvo.camera import PinholeCamera
 from gtvo.errors import InputError, TrackingFailure
 from gtvo.image import build_pyramid
@@ -58,6 +58,14 @@ class TrackingConfig:
         min_valid_fraction: a smaller fraction of the keyframe's points valid is a failure.
         max_rms: a whitened RMS residual per valid pixel above this at level 0 is a failure
             (the pose explains the images no better than noise of ``max_rms * sqrt(2) sigma_I``).
+        max_outlier_fraction: more valid points than this fraction down-weighted by Huber at
+            level 0 is a failure.
+        max_abs_log_gain: a brightness gain ``|a| = |log(gain)|`` above this is a failure (a
+            solver that explains an unrelated image by fading the keyframe out).
+        coarse_decay: level ``l`` uses every ``ceil(coarse_decay^l)``-th point (at least
+            ``min_coarse_points``): a coarse image has fewer pixels to constrain the pose and the
+            points crowd there; the finest level always uses all points.
+        min_coarse_points: lower bound of the points used on a coarse level.
     """
 
     levels: int = 4
@@ -70,6 +78,10 @@ class TrackingConfig:
     min_valid_points: int = 30
     min_valid_fraction: float = 0.1
     max_rms: float = 2.0
+    max_outlier_fraction: float = 0.6
+    max_abs_log_gain: float = 1.0
+    coarse_decay: float = 2.0
+    min_coarse_points: int = 300
 
 
 @dataclass
@@ -146,9 +158,20 @@ class TrackingKeyframe:
         pyr = build_pyramid(img, self.config.levels)
         self.levels = len(pyr)
         self.cameras = [camera.scaled(lv) for lv in range(self.levels)]
-        self.level_pixels = [(px + 0.5) / 2.0 ** lv - 0.5 for lv in range(self.levels)]
-        self.host_samples = [sample_host(GradientImage(pyr[lv]), self.level_pixels[lv], self.config.pattern)
-                             for lv in range(self.levels)]
+        pat = self.config.pattern
+        self.level_index: list[NDArray[np.intp]] = []
+        self.level_pixels: list[NDArray[np.float64]] = []
+        self.level_bearings: list[NDArray[np.float64]] = []
+        self.host_samples: list[tuple[NDArray, NDArray]] = []
+        for lv in range(self.levels):
+            step = max(1, int(np.ceil(self.config.coarse_decay ** lv)))
+            step = min(step, max(1, n // max(1, self.config.min_coarse_points)))
+            idx = np.arange(0, n, step)
+            lp = (px[idx] + 0.5) / 2.0 ** lv - 0.5
+            self.level_index.append(idx)
+            self.level_pixels.append(lp)
+            self.level_bearings.append(pattern_bearings(self.cameras[lv], lp, pat))
+            self.host_samples.append(sample_host(GradientImage(pyr[lv]), lp, pat))
 
 
 def frame_pyramid(image: ArrayLike, levels: int) -> list[GradientImage]:
@@ -175,20 +198,24 @@ def level_weights(kf: TrackingKeyframe, level: int, target: GradientImage, T: gt
                   affine: NDArray) -> NDArray[np.float64]:
     """The variance weights W (N, P) at state (T, affine) on a level; frozen for that level's LM."""
     Ih, hv = kf.host_samples[level]
-    lin = photometric_residuals(kf.cameras[level], Ih, hv, kf.level_pixels[level], kf.inverse_depth, np.eye(4),
-                                T.matrix(), target, kf.affine, affine, kf.config.pattern, jacobians=False)
-    return variance_weight(lin.J_depth, kf.variance, kf.config.sigma_intensity)
+    idx = kf.level_index[level]
+    lin = photometric_residuals(kf.cameras[level], Ih, hv, kf.level_pixels[level], kf.inverse_depth[idx], np.eye(4),
+                                T.matrix(), target, kf.affine, affine, kf.config.pattern, jacobians=False,
+                                bearings=kf.level_bearings[level])
+    return variance_weight(lin.J_depth, kf.variance[idx], kf.config.sigma_intensity)
 
 
 def _evaluate(kf: TrackingKeyframe, level: int, target: GradientImage, T: gtsam.Pose3, affine: NDArray,
               with_normal_equations: bool, W: NDArray | None = None) -> _Eval:
     cfg = kf.config
     Ih, hv = kf.host_samples[level]
-    lin = photometric_residuals(kf.cameras[level], Ih, hv, kf.level_pixels[level], kf.inverse_depth, np.eye(4),
+    idx = kf.level_index[level]
+    lin = photometric_residuals(kf.cameras[level], Ih, hv, kf.level_pixels[level], kf.inverse_depth[idx], np.eye(4),
                                 T.matrix(), target, kf.affine, affine, cfg.pattern,
-                                jacobians=with_normal_equations, host_jacobians=False)
+                                jacobians=with_normal_equations, host_jacobians=False,
+                                bearings=kf.level_bearings[level])
     if W is None:
-        W = variance_weight(lin.J_depth, kf.variance, cfg.sigma_intensity)
+        W = variance_weight(lin.J_depth, kf.variance[idx], cfg.sigma_intensity)
     e = np.sqrt(W) * lin.residual
     norm = np.linalg.norm(e, axis=1)
     w = huber_weight(norm, cfg.huber_k)
@@ -267,6 +294,12 @@ def _finish(kf: TrackingKeyframe, target0: GradientImage, T: gtsam.Pose3, affine
         reason = f"too few valid points: {ev.n_valid} of {n} (< {cfg.min_valid_fraction:.0%})"
     elif rms > cfg.max_rms:
         reason = f"residual too large after tracking: whitened RMS {rms:.3g} > {cfg.max_rms}"
+    elif ev.n_outliers > cfg.max_outlier_fraction * ev.n_valid:
+        reason = (f"residual too large after tracking: {ev.n_outliers} of {ev.n_valid} points are outliers "
+                  f"(> {cfg.max_outlier_fraction:.0%})")
+    elif abs(float(affine[0]) - float(kf.affine[0])) > cfg.max_abs_log_gain:
+        reason = (f"implausible brightness change: log gain {float(affine[0]) - float(kf.affine[0]):.3g} "
+                  f"(limit {cfg.max_abs_log_gain})")
     return TrackingResult(T, np.asarray(affine, dtype=float).copy(), ev.cost, initial_cost, iterations, ev.n_valid,
                           ev.n_outliers, rms, reason == "", reason)
 
@@ -325,13 +358,14 @@ def track_gtsam(keyframe: TrackingKeyframe, frame: ArrayLike | list[GradientImag
     W = None
     for level in range(keyframe.levels - 1, -1, -1):
         W = level_weights(keyframe, level, pyr[level], T, affine)
+        idx = keyframe.level_index[level]
         factor = PhotometricBatchFactor(
-            FRAME_KEY, keyframe.cameras[level], keyframe.level_pixels[level], keyframe.inverse_depth,
-            None, pyr[level], keyframe.variance, affine_host=keyframe.affine,
+            FRAME_KEY, keyframe.cameras[level], keyframe.level_pixels[level], keyframe.inverse_depth[idx],
+            None, pyr[level], keyframe.variance[idx], affine_host=keyframe.affine,
             affine_target_key=AFFINE_KEY if cfg.estimate_affine else None, affine_target=affine,
             sigma_intensity=cfg.sigma_intensity, huber_k=cfg.huber_k, pattern=cfg.pattern,
             host_intensity=keyframe.host_samples[level],
-            weights=W)
+            weights=W, bearings=keyframe.level_bearings[level])
         graph = gtsam.NonlinearFactorGraph()
         graph.add(factor)
         values = gtsam.Values()
