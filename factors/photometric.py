@@ -84,8 +84,8 @@ class GradientImage:
         """Bilinear (I, gx, gy) at ``(u, v)``; 0 and False where invalid, never NaN.
 
         Same result and validity rule as :func:`gtvo.image.bilinear_sample` on :attr:`stack`
-        (tested), about 3x faster: ``np.take`` gathers and no per-channel masking (the hot path
-        of tracking).
+        up to float32 rounding (tested to 1e-4 grey levels), about 3x faster: ``np.take`` gathers,
+        float32 arithmetic and no per-channel masking (the hot path of tracking).
         """
         u = np.asarray(u, dtype=np.float64)
         v = np.asarray(v, dtype=np.float64)
@@ -96,8 +96,9 @@ class GradientImage:
         vs = np.where(valid, v, 0.0)
         x0 = np.minimum(us.astype(np.intp), w - 2)
         y0 = np.minimum(vs.astype(np.intp), h - 2)
-        ax = (us - x0)[..., None]
-        ay = (vs - y0)[..., None]
+        # float32 interpolation weights: 6e-8 px resolution, ~1e-5 grey levels; 1.5x faster
+        ax = (us - x0).astype(np.float32)[..., None]
+        ay = (vs - y0).astype(np.float32)[..., None]
         i = (y0 * w + x0).reshape(-1)
         shape = u.shape + (3,)
         f = self._flat
@@ -109,7 +110,7 @@ class GradientImage:
         bot = v10 + ax * (v11 - v10)
         out = top + ay * (bot - top)
         out *= valid[..., None]
-        return out, valid
+        return out.astype(np.float64), valid
 
     def sample_intensity(self, u: NDArray, v: NDArray) -> tuple[FloatArray, BoolArray]:
         """Bilinear intensity only."""

@@ -53,7 +53,12 @@ class TrackingConfig:
         sigma_intensity: sigma_I of the weight W.
         huber_k: Huber threshold on the whitened pattern norm of a point.
         estimate_affine: include the frame's affine brightness (a, b) in the state.
-        step_tolerance: stop when |dx| is below this.
+        step_tolerance: stop when the step is below this (pose in rad and m, log gain, offset b
+            in units of 100 grey levels): 1e-5 rad moves a KITTI pixel by 0.007 px.
+        max_rejections: consecutive rejected steps (lambda 0.2 .. 0.2 * 2^(n-1)) after which a
+            level counts as converged (the model no longer predicts the cost at that scale).
+        cost_tolerance: stop when an accepted step lowers the cost, or the Gauss-Newton model
+            promises to lower it, by less than this fraction (GTSAM: relative error tolerance).
         min_valid_points: fewer points with a valid residual at level 0 is a failure.
         min_valid_fraction: a smaller fraction of the keyframe's points valid is a failure.
         max_rms: a whitened RMS residual per valid pixel above this at level 0 is a failure
@@ -71,10 +76,12 @@ class TrackingConfig:
     levels: int = 4
     max_iterations: int = 12
     pattern: NDArray[np.float64] = field(default_factory=lambda: PATTERN_DSO8.copy())
-    sigma_intensity: float = 4.0
+    sigma_intensity: float = 8.0
     huber_k: float = 3.0
     estimate_affine: bool = True
-    step_tolerance: float = 1e-6
+    step_tolerance: float = 1e-5
+    cost_tolerance: float = 1e-3
+    max_rejections: int = 2
     min_valid_points: int = 30
     min_valid_fraction: float = 0.1
     max_rms: float = 2.0
@@ -192,6 +199,7 @@ class _Eval:
     n_valid: int
     n_outliers: int
     n_pixels: int
+    W: NDArray[np.float64]
 
 
 def level_weights(kf: TrackingKeyframe, level: int, target: GradientImage, T: gtsam.Pose3,
@@ -232,13 +240,21 @@ def _evaluate(kf: TrackingKeyframe, level: int, target: GradientImage, T: gtsam.
         Jw = J * ww[:, None]
         A = J.T @ Jw
         b = Jw.T @ lin.residual.reshape(-1)
-    return _Eval(cost, A, b, int(np.count_nonzero(point_valid)), n_out, int(np.count_nonzero(lin.valid)))
+    return _Eval(cost, A, b, int(np.count_nonzero(point_valid)), n_out, int(np.count_nonzero(lin.valid)), W)
 
 
 def _apply(T: gtsam.Pose3, affine: NDArray, dx: NDArray) -> tuple[gtsam.Pose3, NDArray]:
     T2 = T.retract(dx[:6])
     a2 = affine + dx[6:8] if dx.shape[0] > 6 else affine
     return T2, a2
+
+
+def _step_norm(dx: NDArray) -> float:
+    """Size of a step: pose (rad, m) and log gain as they are, the offset b in units of 100 grey levels."""
+    scaled = dx.copy()
+    if scaled.shape[0] > 7:
+        scaled[7] *= 0.01
+    return float(np.linalg.norm(scaled))
 
 
 def _solve(A: NDArray, b: NDArray, lam: float) -> NDArray:
@@ -253,8 +269,8 @@ def _lm_level(kf: TrackingKeyframe, level: int, target: GradientImage, T: gtsam.
               affine: NDArray) -> tuple[gtsam.Pose3, NDArray, int, NDArray]:
     """The notes' Algorithm 3 on one level; returns the new state, the iterations and the frozen W."""
     cfg = kf.config
-    W = level_weights(kf, level, target, T, affine)
-    cur = _evaluate(kf, level, target, T, affine, True, W)
+    cur = _evaluate(kf, level, target, T, affine, True)
+    W = cur.W
     if cur.n_pixels < 6:
         return T, affine, 0, W
     lam = 0.0
@@ -262,17 +278,24 @@ def _lm_level(kf: TrackingKeyframe, level: int, target: GradientImage, T: gtsam.
     done = False
     while it < cfg.max_iterations and not done:
         it += 1
+        rejected = 0
         while True:
             dx = _solve(cur.A, cur.b, lam)
+            predicted = -float(cur.b @ dx + 0.5 * dx @ cur.A @ dx)  # decrease the GN model promises
+            if predicted < cfg.cost_tolerance * cur.cost:
+                done = True  # converged: no step can gain more than the tolerance
+                break
             T_new, a_new = _apply(T, affine, dx)
             new = _evaluate(kf, level, target, T_new, a_new, True, W)
-            small = float(np.linalg.norm(dx)) < cfg.step_tolerance
+            small = _step_norm(dx) < cfg.step_tolerance
             if new.cost < cur.cost and new.n_pixels >= 6:
+                converged = cur.cost - new.cost < cfg.cost_tolerance * cur.cost
                 T, affine, cur = T_new, a_new, new
                 lam = 0.0 if lam <= 0.2 else 0.5 * lam
-                done = small
+                done = small or converged
                 break
-            if small or lam > 1e8:
+            rejected += 1
+            if small or rejected > cfg.max_rejections:
                 done = True
                 break
             lam = 0.2 if lam == 0.0 else 2.0 * lam
@@ -374,7 +397,7 @@ def track_gtsam(keyframe: TrackingKeyframe, frame: ArrayLike | list[GradientImag
             values.insert(AFFINE_KEY, affine)
         params = gtsam.LevenbergMarquardtParams()
         params.setMaxIterations(cfg.max_iterations)
-        params.setRelativeErrorTol(1e-10)
+        params.setRelativeErrorTol(cfg.cost_tolerance)
         params.setAbsoluteErrorTol(0.0)
         opt = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
         try:
