@@ -7,7 +7,9 @@ PhotometricFactors + N native depth priors, Values = 3 poses + N inverse depths.
 one HostPointsFactor, Values = 3 poses. Wall-clock seconds (the machine is shared: compare the
 two designs within one run).
 
-    OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 python benchmarks/factors_linearize.py [KITTI_DIR]
+    OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 python benchmarks/factors_linearize.py [KITTI_DIR] [--all]
+
+--all also runs the per-point design at N = 8000 (minutes).
 """
 
 from __future__ import annotations
@@ -135,7 +137,8 @@ def lm_iteration(folder: Path, n: int, skip_per_point: bool) -> None:
 
 
 if __name__ == "__main__":
-    folder = Path(sys.argv[1]) if len(sys.argv) > 1 else DEFAULT
+    args = [a for a in sys.argv[1:] if not a.startswith("--")]
+    folder = Path(args[0]) if args else DEFAULT
     per_factor(folder)
     print("## one LM iteration (host + 2 targets)")
     for n in (500, 2000, 8000):

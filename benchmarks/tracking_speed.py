@@ -73,6 +73,7 @@ def run(folder: Path, n_points: int, frames: int = 10, keyframe_every: int = 5) 
 
 
 if __name__ == "__main__":
-    folder = Path(sys.argv[1]) if len(sys.argv) > 1 else DEFAULT
+    args = [a for a in sys.argv[1:] if not a.startswith("--")]
+    folder = Path(args[0]) if args else DEFAULT
     for n in (500, 2000, 8000):
         run(folder, n)
