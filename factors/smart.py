@@ -35,7 +35,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from factors.gtsam_factors import DEFAULT_HUBER_K, DEFAULT_SIGMA_INTENSITY
 from factors.photometric import (PATTERN_DSO8, GradientSampler, huber_loss, huber_weight, photometric_residuals,
-                                 sample_host, variance_weight)
+                                 sample_host, stereo_residuals, variance_weight)
 from gtvo.camera import PinholeCamera
 from gtvo.errors import InputError
 
@@ -72,6 +72,12 @@ class HostPointsFactor(gtsam.CustomFactor):
         affine_host_key, affine_target_keys: affine (a, b) keys, or None (all affines fixed at 0).
         depth_prior: keep a prior ``(d - d_init)^2 / V`` on each inverse depth (e.g. the stereo
             estimate), which also fixes depths of points seen in no target.
+        right_image, baseline, lambda_stereo: add the notes' stereo energy ``lambda E_s`` of the
+            host frame (``factors.photometric.stereo_residuals``, the residual of
+            :class:`factors.gtsam_factors.StereoFactor`); it involves only the depths, so it enters
+            ``H_dd``, ``g_d`` and the cost.
+        stereo_affine: the right image's brightness ``(a, b)`` relative to the host's left image,
+            held fixed (the stereo residual is ``I_R(p') - b - exp(a) I_L(p)``).
 
     The variance weights W are frozen at the first linearisation of an optimisation run and
     released by :meth:`commit` (so the next run re-evaluates them): with W moving with the
@@ -83,7 +89,9 @@ class HostPointsFactor(gtsam.CustomFactor):
                  inverse_depth_variance: ArrayLike | float = 1e-4,
                  sigma_intensity: float = DEFAULT_SIGMA_INTENSITY, huber_k: float | None = DEFAULT_HUBER_K,
                  affine_host_key: int | None = None, affine_target_keys: Sequence[int] | None = None,
-                 depth_prior: bool = True, pattern: ArrayLike = PATTERN_DSO8) -> None:
+                 depth_prior: bool = True, pattern: ArrayLike = PATTERN_DSO8,
+                 right_image: GradientSampler | None = None, baseline: float | None = None,
+                 lambda_stereo: float = 1.0, stereo_affine: ArrayLike = (0.0, 0.0)) -> None:
         self.target_keys = list(target_keys)
         if not self.target_keys:
             raise InputError("HostPointsFactor needs at least one target")
@@ -114,6 +122,15 @@ class HostPointsFactor(gtsam.CustomFactor):
         self.affine_keys = ([affine_host_key] + list(affine_target_keys)) if self.with_affine else []
         nt = len(self.target_keys)
         self.dim = 6 * (1 + nt) + (2 * (1 + nt) if self.with_affine else 0)
+        self.right_image = right_image
+        if right_image is not None:
+            if baseline is None or not (np.isfinite(baseline) and baseline > 0):
+                raise InputError(f"HostPointsFactor: a stereo term needs a positive baseline, got {baseline!r}")
+            if not (np.isfinite(lambda_stereo) and lambda_stereo > 0):
+                raise InputError(f"HostPointsFactor: lambda_stereo must be positive, got {lambda_stereo!r}")
+        self.baseline = None if baseline is None else float(baseline)
+        self.lambda_stereo = float(lambda_stereo)
+        self.stereo_affine = np.asarray(stereo_affine, dtype=float).reshape(2)
         self._lin: _Linearization | None = None
         self._W: list[FloatArray] | None = None
         super().__init__(gtsam.noiseModel.Unit.Create(self.dim + 1), self.pose_keys + self.affine_keys,
@@ -170,6 +187,24 @@ class HostPointsFactor(gtsam.CustomFactor):
             out.append((lin, W, w, loss, norm))
         return out
 
+    def _stereo_term(self, d: FloatArray):
+        """The stereo residuals of the host frame: (linearisation, lambda W, Huber weight, loss) or None."""
+        if self.right_image is None:
+            return None
+        lin = stereo_residuals(self.camera, self.baseline, self.host_intensity, self.host_valid, self.pixels, d,
+                               self.right_image, (0.0, 0.0), self.stereo_affine, self.pattern)
+        nt = len(self.target_images)
+        if self._W is None:
+            W = self.lambda_stereo * variance_weight(lin.J_depth, self.variance, self.sigma)
+        else:
+            W = self._W[nt]
+        norm = np.sqrt(np.sum(W * lin.residual ** 2, axis=1))
+        if self.huber_k is None:
+            w, loss = np.ones_like(norm), 0.5 * norm ** 2
+        else:
+            w, loss = huber_weight(norm, self.huber_k), huber_loss(norm, self.huber_k)
+        return lin, W, w, loss
+
     def cost(self, values: gtsam.Values, inverse_depth: ArrayLike | None = None) -> float:
         """The true nonlinear cost at ``values`` with the given (default: current) inverse depths."""
         poses, affs = self._read(values)
@@ -178,6 +213,9 @@ class HostPointsFactor(gtsam.CustomFactor):
 
     def _cost(self, poses, affs, d) -> float:
         E = sum(float(t[3].sum()) for t in self._target_terms(poses, affs, d, False))
+        st = self._stereo_term(d)
+        if st is not None:
+            E += float(st[3].sum())
         if self.depth_prior:
             E += 0.5 * float(np.sum((d - self.d_prior) ** 2 / self.variance))
         return E
@@ -196,7 +234,9 @@ class HostPointsFactor(gtsam.CustomFactor):
             self.depths = self._depths_at(poses, affs)
         d = self.depths
         if self._W is None:  # freeze W for this optimisation run (see class docstring)
-            self._W = [t[1] for t in self._target_terms(poses, affs, d, False)]
+            W_list = [t[1] for t in self._target_terms(poses, affs, d, False)]
+            st = self._stereo_term(d)
+            self._W = W_list + ([st[1]] if st is not None else [])
         n, M = d.shape[0], self.dim
         H_pp = np.zeros((M, M))
         g_p = np.zeros(M)
@@ -219,6 +259,13 @@ class HostPointsFactor(gtsam.CustomFactor):
             H_pd[:, cols] += np.einsum("npk,np->nk", Jw, lin.J_depth)
             H_dd += np.sum(ww * lin.J_depth ** 2, axis=1)
             g_d += np.sum(ww * lin.J_depth * lin.residual, axis=1)
+        st = self._stereo_term(d)
+        if st is not None:
+            lin, W, w, loss = st
+            ww = W * w[:, None]
+            H_dd += np.sum(ww * lin.J_depth ** 2, axis=1)
+            g_d += np.sum(ww * lin.J_depth * lin.residual, axis=1)
+            E += float(loss.sum())
         if self.depth_prior:
             H_dd += 1.0 / self.variance
             g_d += (d - self.d_prior) / self.variance

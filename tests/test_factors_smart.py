@@ -7,7 +7,7 @@ import gtsam
 import numpy as np
 import pytest
 
-from factors.gtsam_factors import PhotometricFactor
+from factors.gtsam_factors import PhotometricFactor, StereoFactor
 from factors.smart import HostPointsFactor
 from gtvo.camera import PinholeCamera
 from gtvo.errors import InputError
@@ -16,10 +16,14 @@ from tests._factors_synthetic import PlaneSceneImage, SinusoidImage, small_camer
 X, D, A = (lambda i: gtsam.symbol("x", i)), (lambda i: gtsam.symbol("d", i)), (lambda i: gtsam.symbol("a", i))
 
 
-def per_point_graph(cam, px, d, V, host, targets, huber_k, affine):
+def per_point_graph(cam, px, d, V, host, targets, huber_k, affine, right=None, baseline=None, lam=1.0,
+                    stereo_affine=(0.0, 0.0)):
     g = gtsam.NonlinearFactorGraph()
     for j in range(len(d)):
         g.add(gtsam.PriorFactorDouble(D(j), d[j], gtsam.noiseModel.Isotropic.Sigma(1, np.sqrt(V[j]))))
+        if right is not None:
+            g.add(StereoFactor(D(j), None, cam, baseline, px[j], host, right, lam, V[j], huber_k=huber_k,
+                               affine_right=stereo_affine))
         for t, img in enumerate(targets):
             g.add(PhotometricFactor(X(0), X(1 + t), D(j), cam, px[j], host, img, V[j], huber_k=huber_k,
                                     affine_host_key=A(0) if affine else None,
@@ -27,8 +31,8 @@ def per_point_graph(cam, px, d, V, host, targets, huber_k, affine):
     return g
 
 
-@pytest.mark.parametrize("seed", [0, 1, 2])
-def test_reduced_system_is_schur_complement_of_per_point_graph(seed):
+@pytest.mark.parametrize("seed,stereo", [(0, False), (1, False), (2, True), (3, True)])
+def test_reduced_system_is_schur_complement_of_per_point_graph(seed, stereo):
     """Relative agreement 1e-8 (measured 1e-10: the 1e-9 eigenvalue floor of the factor)."""
     rng = np.random.default_rng(seed)
     cam = small_camera()
@@ -37,13 +41,16 @@ def test_reduced_system_is_schur_complement_of_per_point_graph(seed):
     px = np.c_[rng.uniform(25, 135, n), rng.uniform(25, 95, n)]
     d = rng.uniform(0.2, 1.5, n)
     V = rng.uniform(1e-4, 1e-2, n)
+    st = dict(right=SinusoidImage(seed=seed + 4), baseline=0.2, lam=0.7, stereo_affine=(0.05, 2.0)) if stereo else {}
     f = HostPointsFactor(X(0), [X(1), X(2)], cam, px, d, host, targets, V, huber_k=2.0,
-                         affine_host_key=A(0), affine_target_keys=[A(1), A(2)])
+                         affine_host_key=A(0), affine_target_keys=[A(1), A(2)],
+                         right_image=st.get("right"), baseline=st.get("baseline"), lambda_stereo=st.get("lam", 1.0),
+                         stereo_affine=st.get("stereo_affine", (0.0, 0.0)))
     v = gtsam.Values()
     for i in range(3):
         v.insert(X(i), gtsam.Pose3(gtsam.Rot3.Expmap(rng.normal(0, 0.02, 3)), rng.normal(0, 0.05, 3)))
         v.insert(A(i), rng.normal(0, 0.1, 2))
-    g = per_point_graph(cam, px, d, V, host, targets, 2.0, True)
+    g = per_point_graph(cam, px, d, V, host, targets, 2.0, True, **st)
     vf = gtsam.Values(v)
     for j in range(n):
         vf.insert(D(j), d[j])
