@@ -76,6 +76,8 @@ class HostPointsFactor(gtsam.CustomFactor):
             host frame (``factors.photometric.stereo_residuals``, the residual of
             :class:`factors.gtsam_factors.StereoFactor`); it involves only the depths, so it enters
             ``H_dd``, ``g_d`` and the cost.
+        prior_inverse_depth: the depth prior's mean (default: ``inverse_depth``); pass the original
+            stereo estimate when rebuilding a factor (new targets) from ``old.depths``.
         stereo_affine: the right image's brightness ``(a, b)`` relative to the host's left image,
             held fixed (the stereo residual is ``I_R(p') - b - exp(a) I_L(p)``).
 
@@ -91,7 +93,8 @@ class HostPointsFactor(gtsam.CustomFactor):
                  affine_host_key: int | None = None, affine_target_keys: Sequence[int] | None = None,
                  depth_prior: bool = True, pattern: ArrayLike = PATTERN_DSO8,
                  right_image: GradientSampler | None = None, baseline: float | None = None,
-                 lambda_stereo: float = 1.0, stereo_affine: ArrayLike = (0.0, 0.0)) -> None:
+                 lambda_stereo: float = 1.0, stereo_affine: ArrayLike = (0.0, 0.0),
+                 prior_inverse_depth: ArrayLike | None = None) -> None:
         self.target_keys = list(target_keys)
         if not self.target_keys:
             raise InputError("HostPointsFactor needs at least one target")
@@ -116,7 +119,10 @@ class HostPointsFactor(gtsam.CustomFactor):
         self.sigma = float(sigma_intensity)
         self.huber_k = huber_k
         self.depth_prior = bool(depth_prior)
-        self.d_prior = d.copy()
+        self.d_prior = d.copy() if prior_inverse_depth is None else \
+            np.asarray(prior_inverse_depth, dtype=float).reshape(-1).copy()
+        if self.d_prior.shape[0] != n or not np.all(np.isfinite(self.d_prior)):
+            raise InputError(f"HostPointsFactor: prior_inverse_depth must hold {n} finite values")
         self.depths = d.copy()
         self.pose_keys = [host_key] + self.target_keys
         self.affine_keys = ([affine_host_key] + list(affine_target_keys)) if self.with_affine else []

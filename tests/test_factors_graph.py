@@ -134,3 +134,29 @@ def test_stereo_factor_alone_recovers_inverse_depth():
         values.insert(D(j), d[j] + 0.01 * rng.normal())  # ~0.75 px disparity error
     res = gtsam.LevenbergMarquardtOptimizer(graph, values).optimize()
     np.testing.assert_allclose([res.atDouble(D(j)) for j in range(len(d))], d, rtol=1e-6)
+
+
+def test_gradient_image_sample_matches_gtvo_bilinear_sample():
+    from gtvo.image import bilinear_sample
+    rng = np.random.default_rng(0)
+    g = GradientImage(rng.uniform(0, 255, (40, 60)))
+    u = rng.uniform(-3, 62, (50, 8))
+    v = rng.uniform(-3, 42, (50, 8))
+    u[0, 0] = np.nan
+    v[1, 1] = np.inf
+    a, va = g.sample(u, v)
+    b, vb = bilinear_sample(g.stack, u, v, border=1.0)
+    np.testing.assert_array_equal(va, vb)
+    assert 0.2 < va.mean() < 0.95
+    np.testing.assert_allclose(a, b, atol=1e-4)  # float32 interpolation weights
+    assert np.all(np.isfinite(a)) and np.all(a[~va] == 0)
+
+
+def test_kernel_rejects_mismatched_input():
+    cam = small_camera()
+    img = SinusoidImage()
+    Ih, hv = sample_host(img, np.array([[50.0, 50.0], [60.0, 60.0]]))
+    with pytest.raises(InputError):
+        photometric_residuals(cam, Ih, hv, [[50, 50], [60, 60]], [0.5], gtsam.Pose3(), gtsam.Pose3(), img)
+    with pytest.raises(InputError):
+        photometric_residuals(cam, Ih, hv, [[50, 50], [60, 60]], [0.5, 0.5], np.eye(3), gtsam.Pose3(), img)
