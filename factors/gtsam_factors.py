@@ -297,6 +297,10 @@ class PhotometricBatchFactor(gtsam.CustomFactor):
         weights: (N, P) fixed variance weights W; None evaluates W at the current values
             (the tracker freezes W per pyramid level so that W does not move with the state).
         bearings: precomputed :func:`factors.photometric.pattern_bearings` of ``pixels``.
+        lost_pixel_loss: constant cost of each pattern pixel that is valid in the host (positive
+            depth, inside the host image) but invalid in the target at the current values (outside,
+            behind); enters ``c`` only (zero Jacobian), so that pushing points out of the image
+            does not lower the cost.
     """
 
     def __init__(self, target_key: int, camera: PinholeCamera, pixels: ArrayLike, inverse_depth: ArrayLike,
@@ -307,7 +311,8 @@ class PhotometricBatchFactor(gtsam.CustomFactor):
                  affine_target: ArrayLike = (0.0, 0.0), sigma_intensity: float = DEFAULT_SIGMA_INTENSITY,
                  huber_k: float | None = DEFAULT_HUBER_K, pattern: ArrayLike = PATTERN_DSO8,
                  host_intensity: tuple[np.ndarray, np.ndarray] | None = None,
-                 weights: ArrayLike | None = None, bearings: ArrayLike | None = None) -> None:
+                 weights: ArrayLike | None = None, bearings: ArrayLike | None = None,
+                 lost_pixel_loss: float = 0.0) -> None:
         self.camera = camera
         self.pixels = np.asarray(pixels, dtype=float).reshape(-1, 2)
         n = self.pixels.shape[0]
@@ -331,6 +336,8 @@ class PhotometricBatchFactor(gtsam.CustomFactor):
         self.affine_target = np.asarray(affine_target, dtype=float).reshape(2)
         keys = [target_key] + [k for k in (host_key, affine_host_key, affine_target_key) if k is not None]
         self.last_valid_points = 0
+        self.lost_pixel_loss = float(lost_pixel_loss)
+        self._trackable = self.host_valid & (self.inverse_depth > 0)[:, None]
         super().__init__(gtsam.noiseModel.Unit.Create(n * self.pattern.shape[0] + 1), keys, self._evaluate)
 
     def _evaluate(self, this: gtsam.CustomFactor, values: gtsam.Values, H: list | None) -> np.ndarray:
@@ -354,6 +361,8 @@ class PhotometricBatchFactor(gtsam.CustomFactor):
             w = huber_weight(norm, self.huber_k)
             c2 = float(np.sum(np.maximum(2.0 * huber_loss(norm, self.huber_k) - w * norm * norm, 0.0)))
         self.last_valid_points = int(np.count_nonzero(lin.valid.any(axis=1)))
+        if self.lost_pixel_loss > 0:
+            c2 += 2.0 * self.lost_pixel_loss * int(np.count_nonzero(self._trackable & ~lin.valid))
         sw = s * np.sqrt(w)[:, None]
         out = np.empty(e.size + 1)
         out[:-1] = (sw * lin.residual).reshape(-1)

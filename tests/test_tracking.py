@@ -9,7 +9,7 @@ import pytest
 from gtvo.camera import PinholeCamera
 from gtvo.errors import InputError, TrackingFailure
 from gtvo.tracking import (TrackingConfig, TrackingKeyframe, predict_constant_velocity, track_gtsam,
-                           track_handrolled)
+                           track_handrolled, track_with_guesses)
 from tests._factors_synthetic import PlaneSceneImage
 
 CAM = PinholeCamera(250.0, 250.0, 159.5, 119.5, 320, 240)
@@ -31,15 +31,20 @@ def pose_error(A: gtsam.Pose3, B: gtsam.Pose3) -> float:
 
 @pytest.mark.parametrize("solver", [track_handrolled, track_gtsam])
 def test_recovers_true_pose_on_exact_synthetic_scene(solver):
-    """Rendered plane, exact depths, 8 % brightness gain: pose within 5e-4 (rad, m).
+    """Rendered plane, exact depths, 10 % brightness gain: pose within 1e-4 (rad, m).
 
-    Measured 5.5e-5: what is left is the bilinear interpolation of the rendered rasters.
+    Measured 3.7e-5 with a tight cost tolerance (1e-6): what is left is the bilinear
+    interpolation of the rendered rasters. The default tolerance (1e-3 of the cost) stops at
+    1.7e-4 here; the default-settings run below must still be within 5e-4.
     """
     T_true, Ih, It, px, d = scene()
     kf = TrackingKeyframe(CAM, Ih, px, d, np.full(len(d), 1e-4))
     r = solver(kf, It)
+    assert r.success and pose_error(T_true, r.T_keyframe_frame) < 5e-4
+    kf = TrackingKeyframe(CAM, Ih, px, d, np.full(len(d), 1e-4), config=TrackingConfig(cost_tolerance=1e-6))
+    r = solver(kf, It)
     assert r.success, r.reason
-    assert pose_error(T_true, r.T_keyframe_frame) < 5e-4
+    assert pose_error(T_true, r.T_keyframe_frame) < 1e-4
     assert r.affine[0] == pytest.approx(np.log(1.1), abs=1e-3)
     assert r.affine[1] == pytest.approx(5.0, abs=0.1)
     assert r.cost < 1e-2 * r.initial_cost
@@ -123,3 +128,18 @@ def test_bad_keyframe_input_raises():
     kf = TrackingKeyframe(CAM, Ih, px, d, 1e-4)
     with pytest.raises(InputError):
         track_handrolled(kf, Ih[:, :200])
+
+
+def test_track_with_guesses_falls_back_and_reports():
+    T_true, Ih, It, px, d = scene(6)
+    kf = TrackingKeyframe(CAM, Ih, px, d, 1e-4)
+    hopeless = gtsam.Pose3(gtsam.Rot3(), np.array([40.0, 0.0, 0.0]))
+    r = track_with_guesses(kf, It, [hopeless, gtsam.Pose3()])
+    assert r.success and pose_error(T_true, r.T_keyframe_frame) < 5e-4
+    # accept_rms below any reachable RMS: every guess is tried and the lowest-cost success wins
+    r2 = track_with_guesses(kf, It, [hopeless, gtsam.Pose3(), T_true], accept_rms=0.0, solver=track_gtsam)
+    assert r2.success and pose_error(T_true, r2.T_keyframe_frame) < 5e-4
+    r3 = track_with_guesses(kf, It, [hopeless, hopeless])
+    assert not r3.success and r3.reason.startswith("all 2 initial guesses failed")
+    with pytest.raises(InputError):
+        track_with_guesses(kf, It, [])
