@@ -57,6 +57,8 @@ def run(folder: Path, n_points: int, frames: int = 10, keyframe_every: int = 5) 
             pyr = frame_pyramid(left, kf.levels)
             r = fn(kf, pyr, guess)
             rows[solver].append((time.process_time() - c0, time.perf_counter() - w0, r.iterations, r.success))
+            if "--verbose" in sys.argv:
+                print(solver, i, r.success, r.reason, round(r.rms, 3), r.n_valid)
             T_new = T_world_kf.compose(r.T_keyframe_frame)
             e = gtsam.Pose3.Logmap(gtsam.Pose3(np.linalg.inv(gt[i - 1]) @ gt[i]).between(T_prev.between(T_new)))
             errs[solver].append((np.linalg.norm(e[3:]), np.degrees(np.linalg.norm(e[:3]))))

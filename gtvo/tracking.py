@@ -110,7 +110,8 @@ class TrackingResult:
         iterations: LM iterations over all levels.
         n_valid: points with at least one valid pattern residual at level 0.
         n_outliers: valid points whose Huber weight is below 1 at level 0.
-        rms: whitened RMS residual per valid pixel at level 0.
+        rms: whitened RMS residual per valid pixel at level 0 (``sqrt(2 E_valid / n)``, the robust
+            cost of the valid pixels only).
         success: False when tracking failed; ``reason`` says why.
     """
 
@@ -206,6 +207,7 @@ class _Eval:
     n_outliers: int
     n_pixels: int
     W: NDArray[np.float64]
+    data_cost: float  # without the lost-pixel cost
 
 
 def level_weights(kf: TrackingKeyframe, level: int, target: GradientImage, T: gtsam.Pose3,
@@ -235,7 +237,8 @@ def _evaluate(kf: TrackingKeyframe, level: int, target: GradientImage, T: gtsam.
     w = huber_weight(norm, cfg.huber_k)
     point_valid = lin.valid.any(axis=1)
     lost = int(np.count_nonzero(hv & (kf.inverse_depth[idx] > 0)[:, None] & ~lin.valid))
-    cost = float(huber_loss(norm, cfg.huber_k).sum()) + lost * _lost_pixel_loss(cfg)
+    data_cost = float(huber_loss(norm, cfg.huber_k).sum())
+    cost = data_cost + lost * _lost_pixel_loss(cfg)
     n_out = int(np.count_nonzero(point_valid & (w < 1.0)))
     A = b = None
     if with_normal_equations:
@@ -247,7 +250,8 @@ def _evaluate(kf: TrackingKeyframe, level: int, target: GradientImage, T: gtsam.
         Jw = J * ww[:, None]
         A = J.T @ Jw
         b = Jw.T @ lin.residual.reshape(-1)
-    return _Eval(cost, A, b, int(np.count_nonzero(point_valid)), n_out, int(np.count_nonzero(lin.valid)), W)
+    return _Eval(cost, A, b, int(np.count_nonzero(point_valid)), n_out, int(np.count_nonzero(lin.valid)), W,
+                 data_cost)
 
 
 def _lost_pixel_loss(cfg: TrackingConfig) -> float:
@@ -318,7 +322,7 @@ def _finish(kf: TrackingKeyframe, target0: GradientImage, T: gtsam.Pose3, affine
             iterations: int, W0: NDArray | None) -> TrackingResult:
     cfg = kf.config
     ev = _evaluate(kf, 0, target0, T, affine, False, W0)
-    rms = float(np.sqrt(2.0 * ev.cost / ev.n_pixels)) if ev.n_pixels else float("inf")
+    rms = float(np.sqrt(2.0 * ev.data_cost / ev.n_pixels)) if ev.n_pixels else float("inf")
     n = kf.pixels.shape[0]
     reason = ""
     if not (np.all(np.isfinite(T.matrix())) and np.all(np.isfinite(affine)) and np.isfinite(ev.cost)):
