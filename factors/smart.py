@@ -19,8 +19,9 @@ An extra error entry ``c`` with zero Jacobian, ``c^2 = 2E - sum_n g_d^2/H_dd - |
 makes the linear model at ``dx`` equal the Gauss-Newton model of the cost with the depths at
 their conditional optimum (at ``dx = 0``: E minus the depth-only Newton decrease). ``error(x)`` is the true nonlinear cost at ``x``
 with the depths GTSAM's step implies, ``d(x) = d_lin + dd(x)``, the back-substitution
-``dd = -(g_d + H_pd^T (x - x_lin)) / H_dd``; the next linearisation commits ``d(x)``, so the
-depths follow every accepted step. :meth:`HostPointsFactor.commit` commits them at the final
+``dd = -(g_d + H_pd^T (x - x_lin)) / H_dd``; the next linearisation at a *different* point
+commits ``d(x)``, so the depths follow every accepted step (a linearisation at the same point
+again returns the cached system: iSAM2 linearises new factors twice). :meth:`HostPointsFactor.commit` commits them at the final
 values after optimisation. Details: docs/factors.md.
 """
 
@@ -139,6 +140,7 @@ class HostPointsFactor(gtsam.CustomFactor):
         self.stereo_affine = np.asarray(stereo_affine, dtype=float).reshape(2)
         self._lin: _Linearization | None = None
         self._W: list[FloatArray] | None = None
+        self._cached: tuple[FloatArray, list[FloatArray]] | None = None
         super().__init__(gtsam.noiseModel.Unit.Create(self.dim + 1), self.pose_keys + self.affine_keys,
                          self._evaluate)
 
@@ -172,6 +174,7 @@ class HostPointsFactor(gtsam.CustomFactor):
         self.depths = self._depths_at(poses, affs)
         self._lin = None
         self._W = None
+        self._cached = None
         return self.depths
 
     # --- residuals ---------------------------------------------------------------------------
@@ -292,6 +295,11 @@ class HostPointsFactor(gtsam.CustomFactor):
             out = np.zeros(self.dim + 1)
             out[-1] = np.sqrt(2.0 * max(E, 0.0))
             return out
+        if self._lin is not None and self._cached is not None and np.abs(self._delta(poses, affs)).max() <= 1e-12:
+            out, blocks = self._cached  # same point again (iSAM2 linearises new factors twice): no new commit
+            for i, b in enumerate(blocks):
+                H[i] = b
+            return out.copy()
         H_red, g_red, E = self._linearize(poses, affs)  # E: the model's value at dx = 0
         M = self.dim
         reg = 1e-9 * max(float(np.trace(H_red)) / M, 1e-12)
@@ -309,4 +317,5 @@ class HostPointsFactor(gtsam.CustomFactor):
             base = 6 * (1 + nt)
             for i in range(1 + nt):
                 H[1 + nt + i] = Rfull[:, base + 2 * i:base + 2 * (i + 1)]
+        self._cached = (out.copy(), [np.array(H[i]) for i in range(len(self.pose_keys) + len(self.affine_keys))])
         return out
