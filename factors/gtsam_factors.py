@@ -66,6 +66,9 @@ class PhotometricFactor(gtsam.CustomFactor):
         affine_host_key, affine_target_key: keys of affine variables, or None to hold them fixed at
             ``affine_host`` / ``affine_target``.
         pattern: (P, 2) pixel offsets.
+        weights: (P,) fixed variance weights W (e.g. evaluated once at the initial values); None
+            evaluates W at the current values. Fixed weights keep the cost LM compares equal to
+            the one its Gauss-Newton model describes (docs/factors.md §4).
     """
 
     def __init__(self, host_key: int, target_key: int, depth_key: int, camera: PinholeCamera,
@@ -73,7 +76,8 @@ class PhotometricFactor(gtsam.CustomFactor):
                  inverse_depth_variance: float = 0.0, sigma_intensity: float = DEFAULT_SIGMA_INTENSITY,
                  huber_k: float | None = DEFAULT_HUBER_K, affine_host_key: int | None = None,
                  affine_target_key: int | None = None, affine_host: ArrayLike = (0.0, 0.0),
-                 affine_target: ArrayLike = (0.0, 0.0), pattern: ArrayLike = PATTERN_DSO8) -> None:
+                 affine_target: ArrayLike = (0.0, 0.0), pattern: ArrayLike = PATTERN_DSO8,
+                 weights: ArrayLike | None = None) -> None:
         self.camera = camera
         self.pixel = np.asarray(host_pixel, dtype=float).reshape(1, 2)
         self.pattern = np.asarray(pattern, dtype=float).reshape(-1, 2)
@@ -81,6 +85,7 @@ class PhotometricFactor(gtsam.CustomFactor):
         self.target_image = target_image
         self.variance = float(inverse_depth_variance)
         self.sigma = float(sigma_intensity)
+        self.weights = None if weights is None else np.asarray(weights, dtype=float).reshape(1, -1)
         self.affine_host_key = affine_host_key
         self.affine_target_key = affine_target_key
         self.affine_host = np.asarray(affine_host, dtype=float).reshape(2)
@@ -100,7 +105,9 @@ class PhotometricFactor(gtsam.CustomFactor):
         lin = photometric_residuals(self.camera, self.host_intensity, self.host_valid, self.pixel,
                                     np.array([d]), Twh, Twt, self.target_image, ah, at, self.pattern,
                                     jacobians=H is not None)
-        s = np.sqrt(variance_weight(lin.J_depth, np.array([self.variance]), self.sigma))[0]
+        W = variance_weight(lin.J_depth, np.array([self.variance]), self.sigma) if self.weights is None \
+            else self.weights
+        s = np.sqrt(W)[0]
         if H is not None:
             H[0] = s[:, None] * lin.J_host[0]
             H[1] = s[:, None] * lin.J_target[0]
@@ -133,6 +140,7 @@ class StereoFactor(gtsam.CustomFactor):
         lambda_stereo: the weight lambda of the stereo energy.
         inverse_depth_variance, sigma_intensity, huber_k, pattern: as in :class:`PhotometricFactor`.
         left_affine_key: key of the left image's affine, or None (fixed at ``affine_left``).
+        weights: (P,) fixed W (without lambda), or None: W at the current values.
     """
 
     def __init__(self, depth_key: int, right_affine_key: int | None, camera: PinholeCamera, baseline: float,
@@ -140,7 +148,8 @@ class StereoFactor(gtsam.CustomFactor):
                  lambda_stereo: float = 1.0, inverse_depth_variance: float = 0.0,
                  sigma_intensity: float = DEFAULT_SIGMA_INTENSITY, huber_k: float | None = DEFAULT_HUBER_K,
                  left_affine_key: int | None = None, affine_left: ArrayLike = (0.0, 0.0),
-                 affine_right: ArrayLike = (0.0, 0.0), pattern: ArrayLike = PATTERN_DSO8) -> None:
+                 affine_right: ArrayLike = (0.0, 0.0), pattern: ArrayLike = PATTERN_DSO8,
+                 weights: ArrayLike | None = None) -> None:
         if not (np.isfinite(lambda_stereo) and lambda_stereo > 0):
             raise InputError(f"lambda_stereo must be positive, got {lambda_stereo!r}")
         if not (np.isfinite(baseline) and baseline > 0):
@@ -152,6 +161,7 @@ class StereoFactor(gtsam.CustomFactor):
         self.left_intensity, self.left_valid = sample_host(left_image, self.pixel, self.pattern)
         self.right_image = right_image
         self.lambda_stereo = float(lambda_stereo)
+        self.weights = None if weights is None else np.asarray(weights, dtype=float).reshape(1, -1)
         self.variance = float(inverse_depth_variance)
         self.sigma = float(sigma_intensity)
         self.depth_key = depth_key
@@ -168,7 +178,9 @@ class StereoFactor(gtsam.CustomFactor):
         aL = _affine(values, self.left_affine_key, self.affine_left)
         lin = stereo_residuals(self.camera, self.baseline, self.left_intensity, self.left_valid, self.pixel,
                                np.array([d]), self.right_image, aL, aR, self.pattern)
-        s = np.sqrt(self.lambda_stereo * variance_weight(lin.J_depth, np.array([self.variance]), self.sigma))[0]
+        W = variance_weight(lin.J_depth, np.array([self.variance]), self.sigma) if self.weights is None \
+            else self.weights
+        s = np.sqrt(self.lambda_stereo * W)[0]
         if H is not None:
             H[0] = (s * lin.J_depth[0])[:, None]
             i = 1

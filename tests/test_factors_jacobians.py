@@ -246,3 +246,20 @@ def test_matrix_cost_of_JtWJ_analytic_vs_numeric():
     cost = float(np.sum((A_ - B_) ** 2))
     print(f"matrix cost sum (A-B)^2 = {cost:.3e}, relative to sum A^2 = {cost / np.sum(A_ ** 2):.3e}")
     assert cost / np.sum(A_ ** 2) < 1e-12
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_photometric_factor_fixed_weights_exact_jacobian(seed):
+    """With fixed weights (V > 0), the factor's full numerical derivative is its analytic H."""
+    f, v = photometric_setup(seed, variance=0.05)
+    e, H = evaluate(f, v)
+    f0, _ = photometric_setup(seed, variance=0.0)  # W = 1/(2 sigma^2): its H gives the raw dr/dd
+    Jd = evaluate(f0, v)[1][2][:, 0] * np.sqrt(2 * f0.sigma ** 2)
+    W = variance_weight(Jd[None], np.array([0.05]), f.sigma)[0]
+    fixed = PhotometricFactor(X(0), X(1), D(0), f.camera, f.pixel[0], SinusoidImage(seed=seed + 1),
+                              SinusoidImage(seed=seed + 2), inverse_depth_variance=0.05, huber_k=None,
+                              affine_host_key=A(0), affine_target_key=A(1), weights=W)
+    e2, H2 = evaluate(fixed, v)
+    np.testing.assert_allclose(e2, e, rtol=1e-12)
+    for Ha, Hn in zip(H2, numeric_jacobians(lambda vv: evaluate(fixed, vv)[0], v, list(fixed.keys()))):
+        assert_close(Ha, Hn)
