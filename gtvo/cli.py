@@ -19,6 +19,7 @@ from gtvo.errors import DependencyError, InputError, TrackingFailure
 COMMAND_MODULES: tuple[str, ...] = (
     "gtvo.commands.demo",
     "gtvo.commands.run",
+    "gtvo.commands.posegraph",
 )
 
 

@@ -10,7 +10,8 @@
 * The gauge is fixed by a prior on ``x_0`` with sigma 1e-6 (reported errors exclude it).
 * Initialisations: ``file`` (the vertices), ``odometry`` (edges composed along a spanning tree),
   ``chordal`` (LAGO ``gtsam.lago.initialize`` in 2-D on a diagonal-information copy of the
-  graph; ``gtsam.InitializePose3.initialize`` in 3-D).
+  graph, over the odometric path or, when an edge (i, i+1) is missing as in ais2klinik, over
+  GTSAM's own spanning tree; ``gtsam.InitializePose3.initialize`` in 3-D).
 """
 
 from __future__ import annotations
@@ -143,7 +144,10 @@ def initial_poses(graph: PoseGraph, init: str) -> tuple[F64, F64]:
         if graph.dim == 2:
             anchor.insert(key(0), gtsam.Pose2())
             fg.add(_prior(graph, anchor))
-            values = gtsam.lago.initialize(fg)
+            try:  # LAGO's default spanning tree is the odometric path (i, i+1): needs every such edge
+                values = gtsam.lago.initialize(fg, True)
+            except (IndexError, RuntimeError):
+                values = gtsam.lago.initialize(fg, False)
         else:
             anchor.insert(key(0), gtsam.Pose3())
             fg.add(_prior(graph, anchor))

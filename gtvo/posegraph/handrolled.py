@@ -10,7 +10,7 @@ cost ``0.5 sum e_ij^T Omega_ij e_ij``. With ``E_ij = Z_ij^-1 X_i^-1 X_j``:
 ``H_ii += A^T A``, ``H_ij += A^T B``, ``H_jj += B^T B``, ``b_i += A^T e``, ``b_j += B^T e`` are
 assembled for all edges at once into a ``scipy.sparse`` matrix whose pattern is computed once
 (:class:`SparseSystem`). The gauge is fixed by removing the rows and columns of ``x_0``
-(notes 4.3). ``(H + lambda D) dx = -b`` is solved by a sparse LU in symmetric mode with a
+(notes 4.3). ``(H + lambda I) dx = -b`` is solved by a sparse LU in symmetric mode with a
 fill-reducing ordering (``scipy.sparse.linalg.splu``, ``MMD_AT_PLUS_A``) and
 applied as ``X_k <- X_k Exp(dx_k)``.
 """
@@ -183,8 +183,8 @@ def optimize(graph: PoseGraph, R0: F64, t0: F64, objective: str = "geodesic", me
              max_iterations: int = 100, rel_tol: float = 1e-10, abs_tol: float = 1e-12,
              lambda0: float = 1e-5, progress: Callable[[int, float], None] | None = None) -> HandrolledResult:
     """Minimise the chosen objective from ``(R0, t0)`` with Gauss-Newton (``method="gn"``, the
-    notes' loop) or Levenberg-Marquardt (``"lm"``: damping ``lambda diag(H)``, steps accepted only
-    when the cost drops). ``objective``: ``"geodesic"`` (GTSAM's) or ``"sesync"``.
+    notes' loop) or Levenberg-Marquardt (``"lm"``: ``H + lambda I`` as GTSAM's default LM, lambda
+    divided by 10 after an accepted step and multiplied by 10 after a rejected one). ``objective``: ``"geodesic"`` (GTSAM's) or ``"sesync"``.
     Stops when the relative cost decrease is below ``rel_tol`` or the cost below ``abs_tol``.
     """
     start = time.perf_counter()
@@ -215,9 +215,8 @@ def optimize(graph: PoseGraph, R0: F64, t0: F64, objective: str = "geodesic", me
             if method == "gn":
                 Hd = H
             else:
-                d = H.diagonal()
                 Hd = H.copy()
-                Hd.data[system.diag_slots] += lam * np.maximum(d, 1e-6)
+                Hd.data[system.diag_slots] += lam
             dx = system.expand(system.solve(Hd, -b))
             Rn, tn = retract(graph.dim, R, t, dx)
             rn, _, _ = lin(Rn, tn, False)
