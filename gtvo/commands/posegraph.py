@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from pathlib import Path
 
 from gtvo import posegraph as pg
 
@@ -54,7 +55,7 @@ def run(args: argparse.Namespace) -> int:
         from gtvo.posegraph.plot import plot_graph  # noqa: PLC0415
 
         plot_graph(result.graph, args.plot,
-                   title=f"{graph.source} ({args.solver}, {args.objective}, GTSAM error {result.gtsam_error:.6g})")
+                   title=f"{Path(graph.source).name} ({args.solver}, {args.objective}, GTSAM error {result.gtsam_error:.6g})")
     info = result.as_dict()
     info["skipped_lines"] = graph.skipped
     info["identity_information_edges"] = graph.identity_information
