@@ -129,6 +129,24 @@ def test_edge_jacobians_numerically(dim: int, objective: str) -> None:
             assert np.allclose(num, J[:, :, k], atol=1e-6 * max(1.0, np.abs(J).max()))
 
 
+def test_sparse_assembly_matches_dense(shared_data: Path) -> None:
+    """H and b from SparseSystem equal the dense J^T J, J^T r with x_0's rows/columns removed."""
+    for rel in ("gtsam/pose3example.txt", "gtsam/pose2example.txt"):
+        g = io.read(pg_file(shared_data, rel))
+        p = g.tangent_dim
+        system = handrolled.SparseSystem(g.num_poses, p, g.edge_i, g.edge_j)
+        r, A, B = handrolled.geodesic_linearize(g, g.rotations, g.translations)
+        H, b = system.assemble(r, A, B)
+        J = np.zeros((g.num_edges * p, g.num_poses * p))
+        for e in range(g.num_edges):  # dense reference, a loop is fine here
+            J[e * p:(e + 1) * p, g.edge_i[e] * p:(g.edge_i[e] + 1) * p] += A[e]
+            J[e * p:(e + 1) * p, g.edge_j[e] * p:(g.edge_j[e] + 1) * p] += B[e]
+        scale = np.abs(J.T @ J).max()
+        assert np.allclose(H.toarray(), (J.T @ J)[p:, p:], atol=1e-12 * scale)
+        assert np.allclose(b, (J.T @ r.ravel())[p:], atol=1e-12 * scale)
+        assert np.array_equal(H.data[system.diag_slots], H.diagonal())
+
+
 def test_geodesic_error_and_sesync_objective_match_gtsam_graphs(shared_data: Path) -> None:
     for rel in ("gtsam/pose3example.txt", "se_sync/intel.g2o"):
         g = io.read(pg_file(shared_data, rel))

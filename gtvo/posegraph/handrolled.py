@@ -19,12 +19,12 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
-from scipy.sparse.linalg import splu
+from scipy.sparse.linalg import LinearOperator, cg, splu
 
 from gtvo.posegraph import lie, sesync
 from gtvo.posegraph.graph import PoseGraph
@@ -57,11 +57,8 @@ def sqrt_information(graph: PoseGraph) -> F64:
     return np.swapaxes(C, 1, 2)
 
 
-def geodesic_linearize(graph: PoseGraph, R: F64, t: F64, jacobians: bool = True,
-                       L: F64 | None = None) -> tuple[F64, F64 | None, F64 | None]:
-    """Whitened ``r = L e``, ``A = L A_ij``, ``B = L B_ij`` for all edges (see module docstring)."""
-    if L is None:
-        L = sqrt_information(graph)
+def geodesic_parts(graph: PoseGraph, R: F64, t: F64) -> tuple[F64, F64, F64]:
+    """``e_ij`` and the relative poses ``X_i^-1 X_j = (Rrel, trel)`` of all edges."""
     i, j = graph.edge_i, graph.edge_j
     RiT = np.swapaxes(R[i], 1, 2)
     RmT = np.swapaxes(graph.meas_rotations, 1, 2)
@@ -69,17 +66,15 @@ def geodesic_linearize(graph: PoseGraph, R: F64, t: F64, jacobians: bool = True,
     trel = np.einsum("mab,mb->ma", RiT, t[j] - t[i])
     RE = RmT @ Rrel
     tE = np.einsum("mab,mb->ma", RmT, trel - graph.meas_translations)
-    if graph.dim == 2:
-        e = lie.se2_log(RE, tE)
-    else:
-        e = lie.se3_log(RE, tE)
-    r = np.einsum("mab,mb->ma", L, e)
-    if not jacobians:
-        return r, None, None
-    # X_j^-1 X_i = (Rrel^T, -Rrel^T trel)
-    RjiR = np.swapaxes(Rrel, 1, 2)
+    e = lie.se2_log(RE, tE) if graph.dim == 2 else lie.se3_log(RE, tE)
+    return e, Rrel, trel
+
+
+def geodesic_jacobians(dim: int, e: F64, Rrel: F64, trel: F64, L: F64) -> tuple[F64, F64]:
+    """Whitened ``L A_ij`` and ``L B_ij`` from the parts of :func:`geodesic_parts`."""
+    RjiR = np.swapaxes(Rrel, 1, 2)  # X_j^-1 X_i = (Rrel^T, -Rrel^T trel)
     Rji_t = -np.einsum("mab,mb->ma", RjiR, trel)
-    if graph.dim == 2:
+    if dim == 2:
         Jinv = lie.se2_right_jacobian_inv(e)
         Ad = lie.se2_adjoint(RjiR, Rji_t)
     else:
@@ -87,6 +82,19 @@ def geodesic_linearize(graph: PoseGraph, R: F64, t: F64, jacobians: bool = True,
         Ad = lie.se3_adjoint(RjiR, Rji_t)
     LB = L @ Jinv
     LA = -LB @ Ad
+    return LA, LB
+
+
+def geodesic_linearize(graph: PoseGraph, R: F64, t: F64, jacobians: bool = True,
+                       L: F64 | None = None) -> tuple[F64, F64 | None, F64 | None]:
+    """Whitened ``r = L e``, ``A = L A_ij``, ``B = L B_ij`` for all edges (see module docstring)."""
+    if L is None:
+        L = sqrt_information(graph)
+    e, Rrel, trel = geodesic_parts(graph, R, t)
+    r = np.einsum("mab,mb->ma", L, e)
+    if not jacobians:
+        return r, None, None
+    LA, LB = geodesic_jacobians(graph.dim, e, Rrel, trel, L)
     return r, LA, LB
 
 
@@ -100,64 +108,88 @@ def retract(graph_dim: int, R: F64, t: F64, dx: F64) -> tuple[F64, F64]:
 
 
 class SparseSystem:
-    """Assembles ``H`` (upper and lower) and ``b`` from per-edge whitened blocks, gauge node removed.
+    """Assembles ``H`` and ``b`` from per-edge whitened blocks, gauge node removed.
 
-    The pattern (CSC ``indices``/``indptr`` and the map from every block entry to its CSC slot)
-    is computed once; each assembly is two ``np.bincount`` calls.
+    The block pattern (which ``p x p`` blocks of ``H`` are non-zero) is found once from the
+    edges; from it the CSC ``indices``/``indptr`` and the CSC slot of every entry of every edge
+    block follow in closed form (rows inside a block column are sorted by block row, then by
+    the row inside the block). Each assembly is then one batched ``J^T J`` and two
+    ``np.bincount`` calls.
     """
 
     def __init__(self, n: int, p: int, edge_i: NDArray[np.int64], edge_j: NDArray[np.int64], gauge: int = 0):
         self.n, self.p = n, p
-        var = np.arange(n) - (np.arange(n) > gauge)  # variable index of each node (gauge: dropped)
+        var = np.arange(n) - (np.arange(n) > gauge)  # variable index of each node (gauge: -1)
         var[gauge] = -1
         self.var = var
-        self.N = (n - 1) * p
+        nb = n - 1
+        self.N = nb * p
         m = len(edge_i)
         vi, vj = var[edge_i], var[edge_j]
+        # edge blocks in the order ii, ij, ji, jj: (4, m) block rows / columns
+        br = np.stack([vi, vi, vj, vj], 0)
+        bc = np.stack([vi, vj, vi, vj], 0)
+        valid = (br >= 0) & (bc >= 0)
+        bkey = bc[valid].astype(np.int64) * nb + br[valid]
+        ukey, binv = np.unique(bkey, return_inverse=True)
+        ucol = ukey // nb
+        blocks_per_col = np.bincount(ucol, minlength=nb)
+        first_in_col = np.concatenate([[0], np.cumsum(blocks_per_col)])[:-1]
+        pos_in_col = np.arange(len(ukey)) - first_in_col[ucol]  # l: rank of the block in its block column
         a = np.arange(p)
-        # blocks in the order ii, ij, ji, jj; each (m, p, p) row-major
-        rb = np.stack([vi, vi, vj, vj], 0)  # (4, m)
-        cb = np.stack([vi, vj, vi, vj], 0)
-        rows = rb[:, :, None, None] * p + a[None, None, :, None]
-        cols = cb[:, :, None, None] * p + a[None, None, None, :]
-        rows = np.broadcast_to(rows, (4, m, p, p)).ravel()
-        cols = np.broadcast_to(cols, (4, m, p, p)).ravel()
-        valid = np.broadcast_to(((rb >= 0) & (cb >= 0))[:, :, None, None], (4, m, p, p)).ravel()
-        self.valid = valid
-        key = cols[valid].astype(np.int64) * self.N + rows[valid]
-        uniq, inv = np.unique(key, return_inverse=True)
-        self.slot = inv
-        self.nnz = len(uniq)
-        self.indices = (uniq % self.N).astype(np.int32)
-        colcount = np.bincount((uniq // self.N).astype(np.int64), minlength=self.N)
-        self.indptr = np.concatenate([[0], np.cumsum(colcount)]).astype(np.int32)
-        diag_mask = self.indices == np.repeat(np.arange(self.N), colcount)
-        self.diag_slots = np.flatnonzero(diag_mask)
-        # gradient: b entries of node i and node j for each edge
-        gi = np.broadcast_to(vi[:, None] * p + a, (m, p))
-        gj = np.broadcast_to(vj[:, None] * p + a, (m, p))
-        self.grad_idx = np.concatenate([gi.ravel(), gj.ravel()])
-        self.grad_valid = self.grad_idx >= 0
+        col_len = np.repeat(blocks_per_col * p, p)  # entries in each scalar column
+        self.indptr = np.concatenate([[0], np.cumsum(col_len)]).astype(np.int64)
+        self.nnz = int(self.indptr[-1])
+        # slot of entry (r, c) of unique block u: indptr[col_u p + c] + l_u p + r
+        ub_slot = (self.indptr[:-1][(ucol[:, None] * p + a[None, :])][:, None, :]
+                   + (pos_in_col[:, None, None] * p + a[None, :, None]))  # (nu, p_r, p_c)
+        urow = ukey % nb
+        self.indices = np.empty(self.nnz, dtype=np.int64)
+        self.indices[ub_slot.ravel()] = np.broadcast_to((urow[:, None, None] * p + a[None, :, None]),
+                                                        ub_slot.shape).ravel()
+        # slot of every entry of every edge's (2p x 2p) J^T J; entries of the gauge node go to a
+        # dummy slot nnz that is dropped after the sum
+        slot4 = np.full((4, m, p, p), self.nnz, dtype=np.int64)
+        slot4[valid] = ub_slot[binv]
+        full = np.empty((m, 2 * p, 2 * p), dtype=np.int64)
+        full[:, :p, :p], full[:, :p, p:], full[:, p:, :p], full[:, p:, p:] = slot4
+        self.slot = full.ravel()
+        self.diag_slots = ub_slot[ucol == urow][:, a, a].ravel()
+        gi = np.where(vi[:, None] >= 0, vi[:, None] * p + a, self.N)
+        gj = np.where(vj[:, None] >= 0, vj[:, None] * p + a, self.N)
+        self.grad_idx = np.concatenate([gi, gj], axis=1).ravel()  # per edge: [node i block, node j block]
 
     def assemble(self, r: F64, A: F64, B: F64) -> tuple[sp.csc_matrix, F64]:
         """``H = J^T J`` (CSC, gauge removed) and ``b = J^T r`` from whitened ``r, A, B``."""
-        AtA = np.einsum("mka,mkb->mab", A, A)
-        AtB = np.einsum("mka,mkb->mab", A, B)
-        BtB = np.einsum("mka,mkb->mab", B, B)
-        vals = np.stack([AtA, AtB, np.swapaxes(AtB, 1, 2), BtB], 0).ravel()[self.valid]
-        data = np.bincount(self.slot, weights=vals, minlength=self.nnz)
+        J = np.concatenate([A, B], axis=2)  # (m, k, 2p)
+        JT = np.swapaxes(J, 1, 2)
+        data = np.bincount(self.slot, weights=(JT @ J).ravel(), minlength=self.nnz + 1)[:self.nnz]
         H = sp.csc_matrix((data, self.indices, self.indptr), shape=(self.N, self.N))
-        ga = np.einsum("mka,mk->ma", A, r).ravel()
-        gb = np.einsum("mka,mk->ma", B, r).ravel()
-        g = np.concatenate([ga, gb])
-        b = np.bincount(self.grad_idx[self.grad_valid], weights=g[self.grad_valid], minlength=self.N)
+        g = (JT @ r[:, :, None]).ravel()
+        b = np.bincount(self.grad_idx, weights=g, minlength=self.N + 1)[:self.N]
         return H, b
 
-    def solve(self, H: sp.csc_matrix, rhs: F64) -> F64:
-        """Solve ``H x = rhs`` (``H`` SPD) by sparse LU in symmetric mode (no pivoting, so in effect
-        ``L D L^T``) with SuperLU's fill-reducing minimum-degree ordering of ``H + H^T``."""
-        lu = splu(H, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
-        return lu.solve(rhs)
+    def factor(self, H: sp.csc_matrix) -> Any:
+        """Factor ``H`` (SPD) by sparse LU in symmetric mode (no pivoting, so in effect ``L D L^T``)
+        with SuperLU's fill-reducing minimum-degree ordering of ``H + H^T``."""
+        return splu(H, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
+
+    def solve(self, H: sp.csc_matrix, rhs: F64, previous: Any = None, rtol: float = 1e-10,
+              max_cg: int = 10) -> tuple[F64, Any]:
+        """Solve ``H x = rhs``; returns ``(x, factor)``.
+
+        With ``previous`` (the factor of an earlier, nearby ``H``) it first runs preconditioned
+        conjugate gradients with that factor as preconditioner, accepted when the residual
+        ``||H x - rhs|| <= rtol ||rhs||`` within ``max_cg`` iterations; otherwise (or without
+        ``previous``) ``H`` is factored afresh.
+        """
+        if previous is not None:
+            M = LinearOperator(H.shape, matvec=previous.solve, dtype=np.float64)
+            x, info = cg(H, rhs, x0=previous.solve(rhs), rtol=rtol, atol=0.0, maxiter=max_cg, M=M)
+            if info == 0 and np.linalg.norm(H @ x - rhs) <= rtol * np.linalg.norm(rhs) * 10:
+                return x, previous
+        lu = self.factor(H)
+        return lu.solve(rhs), lu
 
     def expand(self, dx: F64) -> F64:
         """Per-node steps ``(n, p)`` from the reduced step (zero at the gauge node)."""
@@ -181,19 +213,33 @@ class HandrolledResult:
 
 def optimize(graph: PoseGraph, R0: F64, t0: F64, objective: str = "geodesic", method: str = "lm",
              max_iterations: int = 100, rel_tol: float = 1e-10, abs_tol: float = 1e-12,
-             lambda0: float = 1e-5, progress: Callable[[int, float], None] | None = None) -> HandrolledResult:
+             lambda0: float = 1e-5, reuse_factor: bool = True, progress: Callable[[int, float], None] | None = None) -> HandrolledResult:
     """Minimise the chosen objective from ``(R0, t0)`` with Gauss-Newton (``method="gn"``, the
     notes' loop) or Levenberg-Marquardt (``"lm"``: ``H + lambda I`` as GTSAM's default LM, lambda
-    divided by 10 after an accepted step and multiplied by 10 after a rejected one). ``objective``: ``"geodesic"`` (GTSAM's) or ``"sesync"``.
+    divided by 10 after an accepted step and multiplied by 10 after a rejected one).
+    ``objective``: ``"geodesic"`` (GTSAM's) or ``"sesync"``.
     Stops when the relative cost decrease is below ``rel_tol`` or the cost below ``abs_tol``.
+    Near convergence (the last step lowered the cost by less than 1 %) and with
+    ``reuse_factor``, each system is first solved by PCG preconditioned with the previous
+    factorisation (:meth:`SparseSystem.solve`), which saves factorisations once ``H`` barely moves.
     """
     start = time.perf_counter()
     p = graph.tangent_dim
     if objective == "geodesic":
         L = sqrt_information(graph)
+        last: dict[str, Any] = {}
 
         def lin(R: F64, t: F64, jac: bool) -> tuple[F64, F64 | None, F64 | None]:
-            return geodesic_linearize(graph, R, t, jac, L)
+            # the residual of an accepted trial step is reused for its Jacobians
+            if last.get("R") is R and last.get("t") is t:
+                r, parts = last["r"], last["parts"]
+            else:
+                parts = geodesic_parts(graph, R, t)
+                r = np.einsum("mab,mb->ma", L, parts[0])
+                last.update(R=R, t=t, r=r, parts=parts)
+            if not jac:
+                return r, None, None
+            return (r, *geodesic_jacobians(graph.dim, *parts, L))
     elif objective == "sesync":
         w = sesync.weights(graph)
 
@@ -208,6 +254,8 @@ def optimize(graph: PoseGraph, R0: F64, t0: F64, objective: str = "geodesic", me
     res = HandrolledResult(R, t, [cost])
     lam = lambda0
     it = 0
+    lu = None  # factor of the last system; reused as a PCG preconditioner near convergence
+    near = False
     for it in range(1, max_iterations + 1):
         H, b = system.assemble(r, A, B)  # type: ignore[arg-type]
         accepted = False
@@ -217,12 +265,14 @@ def optimize(graph: PoseGraph, R0: F64, t0: F64, objective: str = "geodesic", me
             else:
                 Hd = H.copy()
                 Hd.data[system.diag_slots] += lam
-            dx = system.expand(system.solve(Hd, -b))
+            step, lu_new = system.solve(Hd, -b, lu if near else None)
+            dx = system.expand(step)
             Rn, tn = retract(graph.dim, R, t, dx)
             rn, _, _ = lin(Rn, tn, False)
             new_cost = 0.5 * float(np.sum(rn * rn))
             if method == "gn" or new_cost <= cost:
                 accepted = True
+                lu = lu_new
                 lam = max(lam / 10.0, 1e-12)
                 break
             lam *= 10.0
@@ -232,6 +282,7 @@ def optimize(graph: PoseGraph, R0: F64, t0: F64, objective: str = "geodesic", me
             res.converged = True
             break
         decrease = cost - new_cost
+        near = reuse_factor and decrease <= 1e-2 * cost
         R, t, cost = Rn, tn, new_cost
         res.costs.append(cost)
         if progress is not None:
