@@ -54,7 +54,7 @@ def test_gnc_with_only_a_false_loop_keeps_the_vo() -> None:
     gt, vo = _circle_run(seed=1)
     res = close_loops(vo, [LoopCandidate(5, 25, np.eye(4), LOOP_INFO)], ODO_INFO)
     assert res.accepted.tolist() == [False]
-    assert np.allclose(res.poses, vo, atol=1e-3)  # GNC leaves the false loop a weight ~1e-5
+    assert np.allclose(res.poses, vo, atol=1e-6)
 
 
 def test_loop_closure_bad_input() -> None:

@@ -5,7 +5,8 @@ odometry edges) and candidate loop edges ``(i, j, T_i_j, information)`` from pla
 (not part of this module), :func:`close_loops` adds every candidate as a ``BetweenFactorPose3``
 and optimises with Graduated Non-Convexity (``gtsam.GncLMOptimizer``, truncated-least-squares
 loss). Odometry edges are declared known inliers; a candidate whose final GNC weight is below
-0.5 is rejected, so one false loop cannot bend the map. ``method="huber"`` / ``"cauchy"``
+0.5 is rejected, so one false loop cannot bend the map; a last LM solve on odometry plus the
+accepted loops gives the returned poses. ``method="huber"`` / ``"cauchy"``
 instead wrap the loop edges in a robust kernel and reject by the chi-square test of the
 final residual.
 """
@@ -39,7 +40,8 @@ class LoopCandidate:
 
 @dataclass
 class LoopClosureResult:
-    """Optimised keyframe poses (4x4 ``T_world_kf``), per-candidate acceptance and weight."""
+    """Optimised keyframe poses (4x4 ``T_world_kf``), per-candidate acceptance and weight, and the
+    final error of odometry plus accepted loops."""
 
     poses: F64
     accepted: NDArray[np.bool_]
@@ -105,8 +107,8 @@ def close_loops(poses: Sequence[F64] | F64, candidates: Sequence[LoopCandidate],
             chi2[e] = 2.0 * f.error(result)
         accepted = chi2 < CHI2_6DOF_99
         weights = accepted.astype(float)
-    out = np.stack([result.atPose3(key(k)).matrix() for k in range(n)])
-    # error of the graph that keeps only the accepted loops (what the map now rests on)
+    # final solve on the graph that keeps only the accepted loops, so a rejected loop has no
+    # influence at all (GNC leaves it a weight of ~1e-5, which still moves poses by centimetres)
     kept = gtsam.NonlinearFactorGraph()
     for k in range(first_loop):
         kept.add(graph.at(k))
@@ -114,4 +116,6 @@ def close_loops(poses: Sequence[F64] | F64, candidates: Sequence[LoopCandidate],
         if accepted[e]:
             kept.add(gtsam.BetweenFactorPose3(key(c.i), key(c.j), _pose3(c.T_i_j),
                                               gtsam.noiseModel.Gaussian.Information(np.asarray(c.information, float))))
+    result = gtsam.LevenbergMarquardtOptimizer(kept, result, gtsam.LevenbergMarquardtParams()).optimize()
+    out = np.stack([result.atPose3(key(k)).matrix() for k in range(n)])
     return LoopClosureResult(out, accepted, weights, float(kept.error(result)))
