@@ -159,11 +159,18 @@ class SparseSystem:
         gj = np.where(vj[:, None] >= 0, vj[:, None] * p + a, self.N)
         self.grad_idx = np.concatenate([gi, gj], axis=1).ravel()  # per edge: [node i block, node j block]
 
-    def assemble(self, r: F64, A: F64, B: F64) -> tuple[sp.csc_matrix, F64]:
-        """``H = J^T J`` (CSC, gauge removed) and ``b = J^T r`` from whitened ``r, A, B``."""
+    def assemble(self, r: F64, A: F64, B: F64,
+                 extra: tuple[F64, F64] | None = None) -> tuple[sp.csc_matrix, F64]:
+        """``H = J^T J`` (CSC, gauge removed) and ``b = J^T r`` from whitened ``r, A, B``;
+        ``extra = (H_ii, H_jj)`` adds per-edge blocks to the node-i and node-j diagonal blocks."""
+        p = self.p
         J = np.concatenate([A, B], axis=2)  # (m, k, 2p)
         JT = np.swapaxes(J, 1, 2)
-        data = np.bincount(self.slot, weights=(JT @ J).ravel(), minlength=self.nnz + 1)[:self.nnz]
+        JtJ = JT @ J
+        if extra is not None:
+            JtJ[:, :p, :p] += extra[0]
+            JtJ[:, p:, p:] += extra[1]
+        data = np.bincount(self.slot, weights=JtJ.ravel(), minlength=self.nnz + 1)[:self.nnz]
         H = sp.csc_matrix((data, self.indices, self.indptr), shape=(self.N, self.N))
         g = (JT @ r[:, :, None]).ravel()
         b = np.bincount(self.grad_idx, weights=g, minlength=self.N + 1)[:self.N]
@@ -213,7 +220,7 @@ class HandrolledResult:
 
 def optimize(graph: PoseGraph, R0: F64, t0: F64, objective: str = "geodesic", method: str = "lm",
              max_iterations: int = 100, rel_tol: float = 1e-10, abs_tol: float = 1e-12,
-             lambda0: float = 1e-5, reuse_factor: bool = True, progress: Callable[[int, float], None] | None = None) -> HandrolledResult:
+             lambda0: float = 1e-5, reuse_factor: bool = True, newton: bool = True, progress: Callable[[int, float], None] | None = None) -> HandrolledResult:
     """Minimise the chosen objective from ``(R0, t0)`` with Gauss-Newton (``method="gn"``, the
     notes' loop) or Levenberg-Marquardt (``"lm"``: ``H + lambda I`` as GTSAM's default LM, lambda
     divided by 10 after an accepted step and multiplied by 10 after a rejected one).
@@ -222,6 +229,9 @@ def optimize(graph: PoseGraph, R0: F64, t0: F64, objective: str = "geodesic", me
     Near convergence (the last step lowered the cost by less than 1 %) and with
     ``reuse_factor``, each system is first solved by PCG preconditioned with the previous
     factorisation (:meth:`SparseSystem.solve`), which saves factorisations once ``H`` barely moves.
+    For the SE-Sync objective with ``newton``, the same near-convergence test switches from
+    ``J^T J`` to the full Hessian (:func:`gtvo.posegraph.sesync.second_order_blocks`): Newton's
+    method, where Gauss-Newton converges only linearly on this objective.
     """
     start = time.perf_counter()
     p = graph.tangent_dim
@@ -257,7 +267,10 @@ def optimize(graph: PoseGraph, R0: F64, t0: F64, objective: str = "geodesic", me
     lu = None  # factor of the last system; reused as a PCG preconditioner near convergence
     near = False
     for it in range(1, max_iterations + 1):
-        H, b = system.assemble(r, A, B)  # type: ignore[arg-type]
+        extra = None
+        if objective == "sesync" and newton and near:
+            extra = sesync.second_order_blocks(graph, R, t, w)
+        H, b = system.assemble(r, A, B, extra)  # type: ignore[arg-type]
         accepted = False
         while True:
             if method == "gn":
@@ -265,16 +278,23 @@ def optimize(graph: PoseGraph, R0: F64, t0: F64, objective: str = "geodesic", me
             else:
                 Hd = H.copy()
                 Hd.data[system.diag_slots] += lam
-            step, lu_new = system.solve(Hd, -b, lu if near else None)
+            step, lu_new = system.solve(Hd, -b, lu if (near and reuse_factor) else None)
             dx = system.expand(step)
             Rn, tn = retract(graph.dim, R, t, dx)
             rn, _, _ = lin(Rn, tn, False)
             new_cost = 0.5 * float(np.sum(rn * rn))
-            if method == "gn" or new_cost <= cost:
+            if not np.isfinite(new_cost):
+                new_cost = np.inf
+            if new_cost <= cost or (method == "gn" and extra is None and np.isfinite(new_cost)):
                 accepted = True
                 lu = lu_new
                 lam = max(lam / 10.0, 1e-12)
                 break
+            if extra is not None and method == "gn":
+                # a failed Newton step in plain GN: fall back to the Gauss-Newton Hessian
+                extra = None
+                H, b = system.assemble(r, A, B)  # type: ignore[arg-type]
+                continue
             lam *= 10.0
             if lam > 1e10:
                 break
@@ -282,7 +302,7 @@ def optimize(graph: PoseGraph, R0: F64, t0: F64, objective: str = "geodesic", me
             res.converged = True
             break
         decrease = cost - new_cost
-        near = reuse_factor and decrease <= 1e-2 * cost
+        near = decrease <= 1e-2 * cost
         R, t, cost = Rn, tn, new_cost
         res.costs.append(cost)
         if progress is not None:
