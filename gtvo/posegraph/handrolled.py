@@ -30,7 +30,6 @@ from gtvo.posegraph import lie, sesync
 from gtvo.posegraph.graph import PoseGraph
 
 F64 = NDArray[np.float64]
-Linearizer = Callable[[F64, F64, bool], tuple[F64, F64 | None, F64 | None]]
 
 
 def edge_errors(graph: PoseGraph, R: F64, t: F64) -> F64:
@@ -220,7 +219,8 @@ class HandrolledResult:
 
 def optimize(graph: PoseGraph, R0: F64, t0: F64, objective: str = "geodesic", method: str = "lm",
              max_iterations: int = 100, rel_tol: float = 1e-10, abs_tol: float = 1e-12,
-             lambda0: float = 1e-5, reuse_factor: bool = True, newton: bool = True, progress: Callable[[int, float], None] | None = None) -> HandrolledResult:
+             lambda0: float = 1e-5, reuse_factor: bool = True, newton: bool = True,
+             progress: Callable[[int, float], None] | None = None) -> HandrolledResult:
     """Minimise the chosen objective from ``(R0, t0)`` with Gauss-Newton (``method="gn"``, the
     notes' loop) or Levenberg-Marquardt (``"lm"``: ``H + lambda I`` as GTSAM's default LM, lambda
     divided by 10 after an accepted step and multiplied by 10 after a rejected one).
