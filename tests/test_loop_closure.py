@@ -7,7 +7,7 @@ import pytest
 
 from gtvo.errors import InputError
 from gtvo.posegraph import lie
-from gtvo.posegraph.loop_closure import LoopCandidate, close_loops
+from gtvo.posegraph.loop_closure import LoopEdge, close_loops
 
 ODO_INFO = np.diag([1e4] * 3 + [1e3] * 3)  # matches the simulated odometry noise (0.01 rad, 0.03 m)
 LOOP_INFO = np.diag([1e4] * 3 + [1e2] * 3)
@@ -36,8 +36,8 @@ def _rmse(P: np.ndarray, gt: np.ndarray) -> float:
 def test_gnc_rejects_false_loop_and_accepts_true_one() -> None:
     gt, vo = _circle_run()
     n = len(gt)
-    true_loop = LoopCandidate(n - 1, 0, np.linalg.inv(gt[n - 1]) @ gt[0], LOOP_INFO)
-    false_loop = LoopCandidate(10, 30, np.eye(4), LOOP_INFO)  # "same place" across the circle: wrong
+    true_loop = LoopEdge(n - 1, 0, np.linalg.inv(gt[n - 1]) @ gt[0], LOOP_INFO)
+    false_loop = LoopEdge(10, 30, np.eye(4), LOOP_INFO)  # "same place" across the circle: wrong
     res = close_loops(vo, [true_loop, false_loop], ODO_INFO, method="gnc")
     assert res.accepted.tolist() == [True, False]
     only_true = close_loops(vo, [true_loop], ODO_INFO, method="gnc")
@@ -52,7 +52,7 @@ def test_gnc_rejects_false_loop_and_accepts_true_one() -> None:
 
 def test_gnc_with_only_a_false_loop_keeps_the_vo() -> None:
     gt, vo = _circle_run(seed=1)
-    res = close_loops(vo, [LoopCandidate(5, 25, np.eye(4), LOOP_INFO)], ODO_INFO)
+    res = close_loops(vo, [LoopEdge(5, 25, np.eye(4), LOOP_INFO)], ODO_INFO)
     assert res.accepted.tolist() == [False]
     assert np.allclose(res.poses, vo, atol=1e-6)
 
@@ -60,7 +60,7 @@ def test_gnc_with_only_a_false_loop_keeps_the_vo() -> None:
 def test_loop_closure_bad_input() -> None:
     _, vo = _circle_run(n=5)
     with pytest.raises(InputError):
-        close_loops(vo, [LoopCandidate(0, 7, np.eye(4), LOOP_INFO)])
+        close_loops(vo, [LoopEdge(0, 7, np.eye(4), LOOP_INFO)])
     with pytest.raises(InputError):
         close_loops(vo[:, :3], [])
     with pytest.raises(InputError):

@@ -28,9 +28,10 @@ CHI2_6DOF_99 = 16.812  # 99 % quantile of chi-square with 6 degrees of freedom
 
 
 @dataclass
-class LoopCandidate:
+class LoopEdge:
     """A loop edge: the measured ``T_i_j = T_world_i^-1 T_world_j`` (4x4) with its 6x6 information
-    (GTSAM order ``[rot, trans]``)."""
+    (GTSAM order ``[rot, trans]``). Any object with these four fields works too (e.g. a
+    :class:`gtvo.loops.LoopCandidate`, once its indices are keyframe positions)."""
 
     i: int
     j: int
@@ -56,7 +57,7 @@ def _pose3(T: F64) -> gtsam.Pose3:
     return gtsam.Pose3(gtsam.Rot3(T[:3, :3]), T[:3, 3])
 
 
-def close_loops(poses: Sequence[F64] | F64, candidates: Sequence[LoopCandidate],
+def close_loops(poses: Sequence[F64] | F64, candidates: Sequence[LoopEdge],
                 odometry_information: F64 | None = None, method: str = "gnc") -> LoopClosureResult:
     """Optimise the keyframe graph ``odometry + candidate loops``; see the module docstring.
 
