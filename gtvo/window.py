@@ -346,6 +346,10 @@ def solve_gtsam(camera: PinholeCamera, baseline: float | None, keyframes: Sequen
     params.setMaxIterations(config.max_iterations)
     params.setRelativeErrorTol(config.relative_tolerance)
     params.setAbsoluteErrorTol(0.0)
+    params.setDiagonalDamping(True)  # Marquardt: lambda scales diag(H), as the hand-rolled solver
+    params.setlambdaUpperBound(1e10)
+    import os
+    if os.environ.get("GTVO_LM_VERBOSE"): params.setVerbosityLM("TRYLAMBDA")
     opt = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
     result = opt.optimize()
     cost = graph.error(result)
