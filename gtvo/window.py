@@ -40,7 +40,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from factors.gtsam_factors import DEFAULT_HUBER_K, DEFAULT_SIGMA_INTENSITY
-from factors.photometric import (PATTERN_DSO8, GradientImage, huber_loss, huber_weight, photometric_residuals,
+from factors.photometric import (PATTERN_DSO8, GradientImage, huber_loss, huber_weight, pattern_bearings,
+                                 photometric_residuals,
                                  sample_host, stereo_residuals, variance_weight)
 from factors.smart import HostPointsFactor
 from gtvo.camera import MIN_DEPTH, PinholeCamera
@@ -341,18 +342,16 @@ def solve_gtsam(camera: PinholeCamera, baseline: float | None, keyframes: Sequen
     t0 = time.perf_counter()
     targets = visible_targets(camera, keyframes, config) if targets is None else targets
     graph, values, hosts = build_graph(camera, baseline, keyframes, config, marginal, targets)
-    initial = graph.error(values)
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(config.max_iterations)
     params.setRelativeErrorTol(config.relative_tolerance)
     params.setAbsoluteErrorTol(0.0)
     params.setDiagonalDamping(True)  # Marquardt: lambda scales diag(H), as the hand-rolled solver
     params.setlambdaUpperBound(1e10)
-    import os
-    if os.environ.get("GTVO_LM_VERBOSE"): params.setVerbosityLM("TRYLAMBDA")
     opt = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
+    initial = opt.error()  # computed by the optimiser at construction: no extra pass
     result = opt.optimize()
-    cost = graph.error(result)
+    cost = opt.error()
     for h, f in hosts.items():
         keyframes[h].inverse_depth = f.commit(result).copy()
     for kf in keyframes:
@@ -378,6 +377,7 @@ class _HostTerms:
         kh = keyframes[h]
         self.h, self.targets, self.camera, self.baseline, self.config = h, list(targets), camera, baseline, config
         self.host_I, self.host_valid = sample_host(kh.image, kh.pixels, config.pattern)
+        self.bearings = pattern_bearings(camera, kh.pixels, config.pattern)  # fixed per host
         self.W: list[FloatArray] = []
         for t in self.targets:
             lin = self._target(keyframes, t, kh.inverse_depth, [k.pose for k in keyframes],
@@ -392,7 +392,8 @@ class _HostTerms:
         kh = keyframes[self.h]
         return photometric_residuals(self.camera, self.host_I, self.host_valid, kh.pixels, d, poses[self.h],
                                      poses[t], keyframes[t].image, affines[self.h], affines[t],
-                                     self.config.pattern, jacobians=jac, host_jacobians=jac)
+                                     self.config.pattern, jacobians=jac, host_jacobians=jac,
+                                     bearings=self.bearings)
 
     def _stereo(self, kh: WindowKeyframe, d: FloatArray):
         return stereo_residuals(self.camera, self.baseline, self.host_I, self.host_valid, kh.pixels, d, kh.right,
