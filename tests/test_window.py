@@ -193,3 +193,16 @@ def test_bad_input_raises():
         OdometryConfig(mode="batch")
     with pytest.raises(InputError):
         OdometryConfig(window_solver="ceres")
+
+
+def test_pipeline_window_mode_report(seq, tmp_path):
+    """`gtvo.pipeline.run` in window mode writes its outputs and the window's report fields."""
+    from gtvo.pipeline import run  # noqa: PLC0415
+
+    cfg = OdometryConfig(mode="window", window_solver="handrolled", points_per_keyframe=200,
+                         keyframe_max_motion=0.02)
+    report = run(seq, out=tmp_path / "out", config=cfg, max_frames=4)
+    assert report["mode"] == "window" and report["window_solver"] == "handrolled"
+    assert report["window_optimisations"] >= 1 and report["window_seconds_mean"] > 0
+    assert (tmp_path / "out" / "trajectory.tum").exists() and (tmp_path / "out" / "report.json").exists()
+    assert report["ate_rmse_m"] < 0.05
