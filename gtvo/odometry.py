@@ -33,9 +33,9 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
+from factors.photometric import GradientImage
 from gtvo.camera import PinholeCamera, StereoCamera
 from gtvo.errors import InputError
-from factors.photometric import GradientImage
 from gtvo.frontend import KeyframePoints, init_keyframe_points, select_points
 from gtvo.image import to_float_gray
 from gtvo.sequence import Frame, Sequence
@@ -174,7 +174,7 @@ class VisualOdometry:
         self._previous: tuple[Frame, NDArray[np.float32]] | None = None
         self._kalman = None
         self._keyframe_by_index: dict[int, Keyframe] = {}
-        self._window_keyframes: dict[int, WindowKeyframe] = {}
+        self._window_affine: dict[int, NDArray[np.float64]] = {}  # keyframe index -> (a, b) in the window
         self.window: SlidingWindowOptimizer | None = None
         if self.config.mode == "window":
             baseline = camera.baseline if isinstance(camera, StereoCamera) else None
@@ -355,8 +355,8 @@ class VisualOdometry:
         """
         assert self.window is not None
         affine = np.zeros(2)
-        if tracked is not None and tracked[0] in self._window_keyframes:
-            a_h, b_h = self._window_keyframes[tracked[0]].affine
+        if tracked is not None and tracked[0] in self._window_affine:
+            a_h, b_h = self._window_affine[tracked[0]]
             a, b = np.asarray(tracked[1], dtype=float)
             affine = np.array([a_h + a, b + np.exp(a) * b_h])
         elif self.window.keyframes:
@@ -366,9 +366,9 @@ class VisualOdometry:
             right = GradientImage(to_float_gray(frame.right, f"frame {frame.index} right image"))
         wk = WindowKeyframe(frame.index, T_world_cam, affine, GradientImage(left), pts.pixels, pts.inverse_depth,
                             pts.variance, right=right, depth_prior=right is None)
-        self._window_keyframes[frame.index] = wk
         self.window.add_keyframe(wk)
         res = self.window.optimize(self.config.window_solver)
+        self._window_affine = {w.index: w.affine.copy() for w in self.window.keyframes}
         if res is None:
             return T_world_cam, pts
         self.window_results.append(res)

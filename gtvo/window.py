@@ -653,7 +653,7 @@ class SlidingWindowOptimizer:
         self.config = config or WindowConfig()
         self.keyframes: list[WindowKeyframe] = []
         self.marginal: MarginalPrior | None = None
-        self.marginalized: list[WindowKeyframe] = []
+        self.n_removed = 0  # keyframes that left the window (not kept: they hold images)
         self.results: list[WindowResult] = []
 
     def add_keyframe(self, keyframe: WindowKeyframe) -> None:
@@ -669,7 +669,7 @@ class SlidingWindowOptimizer:
         if self.config.marginalize:
             self.marginal = marginalize(self.camera, self.baseline, self.keyframes, self.config, self.marginal, 0)
         kf = self.keyframes.pop(0)
-        self.marginalized.append(kf)
+        self.n_removed += 1
         return kf
 
     def cost(self) -> float:
