@@ -52,7 +52,8 @@ def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progre
             continue
         vo.process(frame)
         if bar is not None:
-            bar.set_postfix(kf=len(vo.keyframes), fail=vo.failures)
+            bar.set_postfix(kf=len(vo.keyframes), fail=vo.failures,
+                            **({"win": len(vo.window_results)} if config.mode == "window" else {}))
     seconds = time.perf_counter() - t0
     traj = vo.trajectory(seq.name)
     n = len(vo.estimates)
