@@ -42,7 +42,8 @@ from gtvo.sequence import Frame, Sequence
 from gtvo.tracking import (TrackingConfig, TrackingKeyframe, TrackingResult, frame_pyramid, track_gtsam,
                            track_handrolled, track_with_guesses)
 from gtvo.trajectory import Trajectory
-from gtvo.window import SlidingWindowOptimizer, WindowConfig, WindowKeyframe, WindowResult
+from gtvo.window import (SlidingWindowOptimizer, WindowConfig, WindowKeyframe, WindowResult,
+                         estimate_stereo_affine)
 
 SolverName = Literal["handrolled", "gtsam"]
 MotionModelName = Literal["constant-velocity", "kalman"]
@@ -362,10 +363,15 @@ class VisualOdometry:
         elif self.window.keyframes:
             affine = self.window.keyframes[-1].affine.copy()
         right = None
+        left_img = GradientImage(left)
+        stereo_affine = np.zeros(2)
         if isinstance(self.camera, StereoCamera):
             right = GradientImage(to_float_gray(frame.right, f"frame {frame.index} right image"))
-        wk = WindowKeyframe(frame.index, T_world_cam, affine, GradientImage(left), pts.pixels, pts.inverse_depth,
-                            pts.variance, right=right, depth_prior=right is None)
+            stereo_affine = estimate_stereo_affine(self.pinhole, self.camera.baseline, left_img, right, pts.pixels,
+                                                   pts.inverse_depth, pts.variance,
+                                                   sigma_intensity=self.config.window.sigma_intensity)
+        wk = WindowKeyframe(frame.index, T_world_cam, affine, left_img, pts.pixels, pts.inverse_depth,
+                            pts.variance, right=right, depth_prior=right is None, stereo_affine=stereo_affine)
         self.window.add_keyframe(wk)
         res = self.window.optimize(self.config.window_solver)
         self._window_affine = {w.index: w.affine.copy() for w in self.window.keyframes}
