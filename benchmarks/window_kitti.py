@@ -12,7 +12,8 @@ the tracker's typical error) with 500 / 1000 / 2000 / 4000 points per keyframe, 
 both solvers with a fixed number of iterations (6), fastest of 3 runs; prints seconds per window optimisation and
 per iteration, and the ratio to 500 points (linear growth: ratio ~ points / 500).
 
-    OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 python benchmarks/window_kitti.py [accuracy|speed|synthetic|all] [KITTI_DIR]
+    OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 python benchmarks/window_kitti.py \
+        [accuracy|speed|synthetic|all] [KITTI_DIR]
 """
 
 from __future__ import annotations

@@ -318,8 +318,9 @@ def estimate_stereo_affine(camera: PinholeCamera, baseline: float, left: Gradien
     Fitted by weighted least squares over the points' pattern pixels at their stereo matches,
     weights ``W = (2 sigma_I^2 + (dr/dd)^2 V)^-1`` (a pixel on a strong horizontal gradient
     carries the depth's uncertainty), twice, the second time without the pixels whose residual
-    exceeds 3 times the first fit's median absolute residual (occlusions, specularities). The two cameras of a rig have their own gain (KITTI:
-    about 0.96 with an offset of 2-3 grey levels); a stereo term that ignores it pulls depths.
+    exceeds 3 times the first fit's median absolute residual (occlusions, specularities). The two
+    cameras of a rig have their own gain (KITTI: about 0.96 with an offset of 2-3 grey levels); a
+    stereo term that ignores it pulls depths.
     The default pattern is the point's own pixel, where its stereo match was found (on the
     synthetic rig the 8-pixel pattern biases the log gain by 5e-3, the single pixel by 2e-3).
     Returns ``(0, 0)`` when fewer than 50 pixels are usable.
