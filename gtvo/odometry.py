@@ -114,7 +114,8 @@ class FrameEstimate:
 
     Attributes:
         index, timestamp: the frame's.
-        T_world_cam: the left camera's pose (4x4).
+        T_world_cam: the left camera's pose (4x4). In window mode it is rewritten whenever the
+            window moves the frame's keyframe (``T_world_keyframe * T_keyframe_frame``).
         is_keyframe: True when the frame became a keyframe.
         tracking: the tracker's result (None for keyframes made without tracking: the first
             frame and re-initialisations).
@@ -155,6 +156,12 @@ class VisualOdometry:
     Args:
         camera: a :class:`StereoCamera` for stereo input, a :class:`PinholeCamera` for RGB-D.
         config: settings (defaults suit KITTI-like and indoor data alike).
+
+    Attributes:
+        estimates: one :class:`FrameEstimate` per processed frame.
+        keyframes: every keyframe made so far (window mode: with the last optimised pose and depths).
+        window: the :class:`gtvo.window.SlidingWindowOptimizer` (window mode), else None.
+        window_results: one :class:`gtvo.window.WindowResult` per window optimisation.
 
     Example::
 
