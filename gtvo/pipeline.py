@@ -52,12 +52,13 @@ def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progre
             continue
         vo.process(frame)
         if bar is not None:
-            bar.set_postfix(kf=len(vo.keyframes), fail=vo.failures)
+            bar.set_postfix(kf=len(vo.keyframes), fail=vo.failures,
+                            **({"win": len(vo.window_results)} if config.mode == "window" else {}))
     seconds = time.perf_counter() - t0
     traj = vo.trajectory(seq.name)
     n = len(vo.estimates)
     info: dict[str, Any] = {
-        "mode": "track",
+        "mode": config.mode,
         "solver": config.solver,
         "motion_model": config.motion_model,
         "frames": n,
@@ -69,6 +70,14 @@ def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progre
         "skipped_frames": skipped,
         "tracking_iterations_mean": _mean([e.tracking.iterations for e in vo.estimates if e.tracking is not None]),
     }
+    if config.mode == "window":
+        info.update({
+            "window_solver": config.window_solver,
+            "window_size": config.window.size,
+            "window_optimisations": len(vo.window_results),
+            "window_seconds_mean": _mean([r.seconds for r in vo.window_results]),
+            "window_iterations_mean": _mean([r.iterations for r in vo.window_results]),
+        })
     return vo, traj, info
 
 
