@@ -27,6 +27,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--camera", metavar="FX,FY,CX,CY", default=None, help="intrinsics for TUM folders")
     p.add_argument("--ground-truth", metavar="FILE", default=None, help="ground truth to use instead of the folder's")
     p.add_argument("--strict", action="store_true", help="stop at an unreadable frame instead of skipping it")
+    p.add_argument("--loop-closure", action="store_true",
+                   help="detect loops among the keyframes, optimise the keyframe pose graph robustly (GNC) and "
+                        "write DIR/trajectory_loop_closed.tum as a second output")
     add_odometry_options(p)
     p.set_defaults(func=main)
 
@@ -41,7 +44,8 @@ def main(args: argparse.Namespace) -> int:
         options["ground_truth"] = args.ground_truth
     config = dataclasses.replace(odometry_config(args), mode=args.mode, window_solver=args.solver)
     report = run(args.sequence, out=args.out, config=config, format=args.format,
-                 max_frames=args.max_frames, progress=not args.no_progress, strict=args.strict, **options)
+                 max_frames=args.max_frames, progress=not args.no_progress, strict=args.strict,
+                 loop_closure=args.loop_closure, **options)
     print(f"gtvo run: {report['sequence']} ({report['mode']}, {report['solver']} solver)", file=sys.stdout)
     print_report(report)
     return 0
