@@ -91,7 +91,7 @@ class OdometryConfig:
     depth_sigma_model: tuple[float, float] = (0.0012, 0.0019)
     motion_model: MotionModelName = "constant-velocity"
     accept_rms_factor: float = 1.1
-    mode: ModeName = "track"
+    mode: ModeName = "window"
     window_solver: SolverName = "gtsam"
     window: WindowConfig = field(default_factory=WindowConfig)
 

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import sys
 
 from gtvo.commands._common import add_odometry_options, odometry_config, parse_floats, print_report
@@ -20,10 +19,6 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="dataset layout (default: auto-detect)")
     p.add_argument("--out", metavar="DIR", default=None, help="output folder (default gtvo_out/<name>)")
     p.add_argument("--max-frames", type=int, metavar="N", default=None, help="use only the first N frames")
-    p.add_argument("--mode", choices=("track", "window"), default="track",
-                   help="track: each frame against the latest keyframe; window: in addition, every new keyframe "
-                        "joins a sliding window of 7 keyframes optimised jointly (poses, brightness, inverse "
-                        "depths); --solver then also picks the window's solver (default: track)")
     p.add_argument("--camera", metavar="FX,FY,CX,CY", default=None, help="intrinsics for TUM folders")
     p.add_argument("--ground-truth", metavar="FILE", default=None, help="ground truth to use instead of the folder's")
     p.add_argument("--strict", action="store_true", help="stop at an unreadable frame instead of skipping it")
@@ -42,7 +37,7 @@ def main(args: argparse.Namespace) -> int:
         options["camera"] = parse_floats(args.camera, 4, "--camera")
     if args.ground_truth is not None:
         options["ground_truth"] = args.ground_truth
-    config = dataclasses.replace(odometry_config(args), mode=args.mode, window_solver=args.solver)
+    config = odometry_config(args)
     report = run(args.sequence, out=args.out, config=config, format=args.format,
                  max_frames=args.max_frames, progress=not args.no_progress, strict=args.strict,
                  loop_closure=args.loop_closure, **options)
