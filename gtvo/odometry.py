@@ -60,6 +60,9 @@ class OdometryConfig:
         tracking: the tracker's settings.
         keyframe_min_visible: make a new keyframe when fewer than this fraction of the keyframe's
             points are still tracked (valid residuals).
+        keyframe_max_flow: make a new keyframe when the RMS optical flow that the translation
+            since the keyframe causes at its points exceeds this fraction of ``width + height``
+            (DSO's rule: its translation weight 0.04 (640 + 480) = 44.8 gives 25 px at VGA).
         keyframe_max_motion: make a new keyframe when ``|t_keyframe_frame| * median(d)`` (the
             translation relative to the median scene depth, i.e. about the mean optical-flow
             angle caused by translation) exceeds this.
@@ -85,6 +88,7 @@ class OdometryConfig:
     tracking: TrackingConfig = field(default_factory=TrackingConfig)
     keyframe_min_visible: float = 0.7
     keyframe_max_motion: float = 0.3
+    keyframe_max_flow: float = 1.0 / 44.8
     keyframe_max_rotation_deg: float = 8.0
     keyframe_max_brightness: float = 0.3
     max_disparity: int = 128
@@ -318,6 +322,9 @@ class VisualOdometry:
         med_d = float(np.median(kf.points.inverse_depth))
         if float(np.linalg.norm(T.translation())) * med_d > cfg.keyframe_max_motion:
             return True
+        if translation_flow_rms(self.pinhole, kf.points, T.translation()) > cfg.keyframe_max_flow * (
+                self.pinhole.width + self.pinhole.height):
+            return True
         if np.degrees(np.linalg.norm(gtsam.Rot3.Logmap(T.rotation()))) > cfg.keyframe_max_rotation_deg:
             return True
         return abs(float(result.affine[0])) > cfg.keyframe_max_brightness
@@ -436,6 +443,20 @@ class VisualOdometry:
             else:
                 self._kalman.step(z, est.timestamp - self.estimates[-2].timestamp)
         return est
+
+
+def translation_flow_rms(camera: PinholeCamera, points: KeyframePoints, t_keyframe_frame: NDArray) -> float:
+    """RMS displacement (px) of a keyframe's points caused by the translation alone.
+
+    A point ``X`` of the keyframe is at ``X - t`` in a frame translated by ``t`` (rotation
+    ignored: rotation alone gives no parallax, so it is no reason for a new keyframe).
+    """
+    X = camera.backproject_inverse_depth(points.pixels, points.inverse_depth)
+    uv, ok = camera.project(X - np.asarray(t_keyframe_frame, dtype=float).reshape(1, 3))
+    if not np.any(ok):
+        return float("inf")
+    d = uv[ok] - points.pixels[ok]
+    return float(np.sqrt(np.mean(np.sum(d * d, axis=1))))
 
 
 def rigid_pose(T: NDArray[np.float64]) -> gtsam.Pose3:
