@@ -3,6 +3,11 @@
 from __future__ import annotations
 
 import os
+
+# Single-threaded BLAS, as the gtvo CLI runs (gtvo/cli.py): the window's many small products are
+# far slower multithreaded on a busy 2-core machine. Set before numpy is first imported.
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
 from pathlib import Path
 
 import pytest
