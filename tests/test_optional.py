@@ -1,0 +1,43 @@
+"""open3d is imported lazily: its absence costs only the point-cloud features, with one line."""
+
+import builtins
+import json
+import sys
+
+import pytest
+
+from gtvo._optional import require_open3d
+from gtvo.errors import DependencyError
+
+
+@pytest.fixture
+def open3d_missing_libusb(monkeypatch):
+    real_import = builtins.__import__
+
+    def fake_import(name, *args, **kwargs):
+        if name == "open3d" or name.startswith("open3d."):
+            raise ImportError("libusb-1.0.so.0: cannot open shared object file: No such file or directory")
+        return real_import(name, *args, **kwargs)
+
+    monkeypatch.delitem(sys.modules, "open3d", raising=False)
+    monkeypatch.setattr(builtins, "__import__", fake_import)
+
+
+def test_missing_libusb_is_named(open3d_missing_libusb):
+    with pytest.raises(DependencyError) as e:
+        require_open3d()
+    msg = str(e.value)
+    assert "libusb-1.0" in msg and "apt-get install libusb-1.0-0" in msg and "\n" not in msg
+
+
+def test_run_without_open3d_still_writes_everything_else(open3d_missing_libusb, tmp_path):
+    from gtvo.odometry import OdometryConfig
+    from gtvo.pipeline import run
+    from gtvo.synthetic import make_synthetic_sequence
+
+    rep = run(make_synthetic_sequence(n_frames=4), out=tmp_path, config=OdometryConfig(points_per_keyframe=400))
+    assert (tmp_path / "trajectory.tum").is_file() and (tmp_path / "report.json").is_file()
+    assert not (tmp_path / "points.ply").exists()
+    saved = json.loads((tmp_path / "report.json").read_text())
+    assert saved["points"] is None and "libusb" in saved["points_skipped"]
+    assert rep["frames"] == 4
