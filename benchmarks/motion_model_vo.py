@@ -1,0 +1,75 @@
+"""Tracker initial guess: constant velocity vs the constant-acceleration Kalman filter, in gtvo's
+VO on real KITTI frames, one run (issue 7, item 3).
+
+    python benchmarks/motion_model_vo.py [--sequence DIR] [--max-frames N] [--solvers handrolled,gtsam]
+                                         [--repeats R] [--json OUT]
+
+For each solver, gtvo runs with ``OdometryConfig(motion_model="constant-velocity")`` and with
+``motion_model="kalman"`` on the same preloaded frames (interleaved, ``--repeats`` times; the
+figures except time are deterministic, the time is the median). Rows: mean tracking iterations
+per tracked frame (the tracker's LM iterations summed over pyramid levels, as
+``TrackingResult.iterations`` counts them), tracking failures, keyframes, ATE RMSE (SE(3)),
+drift %, RPE over 1 frame, ms/frame.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from benchmarks.vo_bench import KITTI_SEQUENCE_1, fmt, gtvo_config, load_frames, markdown_table, run_gtvo, score  # noqa: E402
+from gtvo.atomic import write_json  # noqa: E402
+from gtvo.datasets import open_sequence  # noqa: E402
+
+MODELS = ("constant-velocity", "kalman")
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--sequence", type=Path, default=KITTI_SEQUENCE_1, metavar="DIR")
+    ap.add_argument("--max-frames", type=int, default=None, metavar="N")
+    ap.add_argument("--solvers", default="handrolled", help="gtvo solvers (comma-separated)")
+    ap.add_argument("--repeats", type=int, default=1, help="runs per row (time: median)")
+    ap.add_argument("--json", type=Path, default=None, metavar="OUT")
+    ap.add_argument("--no-progress", action="store_true")
+    args = ap.parse_args(argv)
+    seq = open_sequence(args.sequence, max_frames=args.max_frames)
+    frames = load_frames(seq, not args.no_progress)
+    rows = []
+    for solver in [s.strip() for s in args.solvers.split(",") if s.strip()]:
+        runs: dict[str, list[dict]] = {m: [] for m in MODELS}
+        for _ in range(max(1, args.repeats)):
+            for model in MODELS:
+                print(f"  running {solver}, {model} ...", file=sys.stderr, flush=True)
+                g = run_gtvo(seq.camera, frames, gtvo_config(solver, motion_model=model))
+                g.pop("vo")
+                g.update(score(g.pop("trajectory"), seq))
+                runs[model].append(g)
+        for model in MODELS:
+            g = runs[model][0]
+            secs = float(np.median([r["seconds"] for r in runs[model]]))
+            rows.append({"solver": solver, "motion_model": model, "frames": len(frames),
+                         "tracking_iterations_mean": g["tracking_iterations_mean"], "failures": g["failures"],
+                         "keyframes": g["keyframes"], "ate_m": g["ate_m"], "drift_pct": g["drift_pct"],
+                         "rpe_t_m": g["rpe_t_m"], "rpe_r_deg": g["rpe_r_deg"],
+                         "ms_per_frame": 1000.0 * secs / len(frames),
+                         "deterministic": all(r["ate_m"] == g["ate_m"] for r in runs[model])})
+    header = ["solver", "initial guess", "tracking iterations (mean)", "failures", "keyframes", "ATE RMSE (m)",
+              "drift %", "RPE t (m)", "RPE r (deg)", "ms/frame"]
+    print(f"\n### {seq.name} ({len(frames)} frames)\n")
+    print(markdown_table(header, [[r["solver"], r["motion_model"], fmt(r["tracking_iterations_mean"], ".2f"),
+                                   str(r["failures"]), str(r["keyframes"]), fmt(r["ate_m"], ".3f"),
+                                   fmt(r["drift_pct"], ".2f"), fmt(r["rpe_t_m"], ".3f"), fmt(r["rpe_r_deg"], ".3f"),
+                                   fmt(r["ms_per_frame"], ".0f")] for r in rows]))
+    if args.json is not None:
+        write_json(args.json, {"command": " ".join(sys.argv), "sequence": str(args.sequence), "rows": rows})
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

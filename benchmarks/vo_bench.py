@@ -1,0 +1,151 @@
+"""Shared pieces of the VO benchmarks (``kitti_vo.py``, ``motion_model_vo.py``): run gtvo on
+preloaded frames with per-frame timing, score a trajectory against ground truth, a reference
+timing, and markdown tables.
+
+Scores (``gtvo.metrics``, on the frames that have a ground-truth pose):
+
+* ``ate_m``: ATE RMSE after SE(3) (Umeyama) alignment, metres;
+* ``drift_pct``: final position error after aligning the first pose, % of the GT path length
+  (None when the GT path is shorter than :data:`MIN_DRIFT_PATH_M`: a static clip has no drift %);
+* ``rpe_t_m``, ``rpe_r_deg``: RPE RMSE over 1-frame pairs, translation (m) and rotation (deg);
+* ``max_disp_m``: the largest distance of an estimated camera position from the first one (the
+  figure for a static clip, where it must stay below 1 cm).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+if str(REPO_ROOT) not in sys.path:  # run as `python benchmarks/<script>.py`
+    sys.path.insert(0, str(REPO_ROOT))
+
+from benchmarks.peers import make_sgbm, to_uint8  # noqa: E402
+from gtvo.errors import InputError  # noqa: E402
+from gtvo.metrics import ate, drift_percent, rpe  # noqa: E402
+from gtvo.sequence import Frame, Sequence  # noqa: E402
+from gtvo.trajectory import Trajectory  # noqa: E402
+
+#: Below this GT path length (m) the drift in % is not reported.
+MIN_DRIFT_PATH_M = 0.1
+SHARED_DATA = REPO_ROOT.parent / "shared" / "data"
+KITTI_SEQUENCE_1 = SHARED_DATA / "kitti_stereo_sample" / "KITTI_sequence_1"
+
+
+class ModeUnavailable(Exception):
+    """The installed gtvo has no such mode (yet)."""
+
+
+def gtvo_config(solver: str, mode: str = "track", **overrides: Any):
+    """An ``OdometryConfig`` for ``solver`` and ``mode``.
+
+    ``mode`` goes to the config's ``mode`` field when gtvo has one; without it only ``"track"``
+    (frame-to-keyframe tracking) exists and any other mode raises :class:`ModeUnavailable`.
+    """
+    from gtvo.odometry import OdometryConfig  # noqa: PLC0415
+
+    names = {f.name for f in dataclasses.fields(OdometryConfig)}
+    kwargs: dict[str, Any] = {"solver": solver, **overrides}
+    if "mode" in names:
+        kwargs["mode"] = mode
+    elif mode != "track":
+        raise ModeUnavailable(f"gtvo has no mode {mode!r} (OdometryConfig has no 'mode' field)")
+    try:
+        return OdometryConfig(**kwargs)
+    except InputError as exc:
+        raise ModeUnavailable(str(exc)) from exc
+
+
+def run_gtvo(camera: Any, frames: list[Frame], config: Any) -> dict[str, Any]:
+    """Feed preloaded ``frames`` to a ``VisualOdometry``; its trajectory, timing and counters."""
+    from gtvo.odometry import VisualOdometry  # noqa: PLC0415
+
+    vo = VisualOdometry(camera, config)
+    times = np.empty(len(frames))
+    for k, frame in enumerate(frames):
+        t0 = time.perf_counter()
+        vo.process(frame)
+        times[k] = time.perf_counter() - t0
+    iters = [e.tracking.iterations for e in vo.estimates if e.tracking is not None]
+    return {
+        "trajectory": vo.trajectory("gtvo"),
+        "seconds": float(times.sum()),
+        "keyframes": len(vo.keyframes),
+        "failures": int(vo.failures),
+        "tracking_iterations_mean": float(np.mean(iters)) if iters else None,
+        "vo": vo,
+    }
+
+
+def score(est: Trajectory, seq: Sequence) -> dict[str, float | None]:
+    """ATE, drift, RPE and max displacement of ``est`` (one pose per frame of ``seq``)."""
+    out: dict[str, float | None] = {
+        "max_disp_m": float(np.max(np.linalg.norm(est.positions - est.positions[0], axis=1)))}
+    out.update(ate_m=None, drift_pct=None, rpe_t_m=None, rpe_r_deg=None)
+    if seq.gt_poses is None:
+        return out
+    has = np.isfinite(seq.gt_poses[:, 0, 0])[: len(est)]
+    if has.sum() < 3:
+        return out
+    e = Trajectory(est.timestamps[has], est.poses[has], "est")
+    g = Trajectory(seq.timestamps[: len(est)][has], seq.gt_poses[: len(est)][has], "gt")
+    try:
+        out["ate_m"] = ate(e, g, "se3").rmse
+    except InputError:  # degenerate (e.g. a static clip): no unique alignment
+        pass
+    r = rpe(e, g, 1)
+    out["rpe_t_m"], out["rpe_r_deg"] = r.translation.rmse, r.rotation_deg.rmse
+    if g.path_length() >= MIN_DRIFT_PATH_M:
+        out["drift_pct"] = drift_percent(e, g)
+    out["gt_path_m"] = float(g.path_length())
+    return out
+
+
+def reference_ms(frames: list[Frame], repeats: int = 5) -> float:
+    """Median wall time (ms) of one OpenCV StereoSGBM (the peers' settings) on the first frame.
+
+    Stereo: left against right; RGB-D: left against itself (same work per pixel). Measured in
+    the same run as the rows, so ms/frame divided by it compares runs on a busy machine.
+    """
+    f = frames[0]
+    left = to_uint8(f.left)
+    right = to_uint8(f.right) if f.right is not None else left
+    matcher = make_sgbm()
+    ts = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        matcher.compute(left, right)
+        ts.append(time.perf_counter() - t0)
+    return 1000.0 * float(np.median(ts))
+
+
+def fmt(x: Any, spec: str) -> str:
+    """``x`` formatted with ``spec``, or ``-`` for None."""
+    return "-" if x is None else format(x, spec)
+
+
+def markdown_table(header: list[str], rows: list[list[str]]) -> str:
+    """A markdown table."""
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(r) + " |" for r in rows]
+    return "\n".join(lines)
+
+
+def load_frames(seq: Sequence, progress: bool = True) -> list[Frame]:
+    """All frames of ``seq`` in memory (so runs time computation, not PNG decoding)."""
+    idx: Any = range(len(seq))
+    if progress:
+        from tqdm import tqdm  # noqa: PLC0415
+
+        idx = tqdm(idx, desc=f"loading {seq.name}", unit="frame", file=sys.stderr, leave=False)
+    return [seq.frame(i) for i in idx]
+
+
+__all__ = ["KITTI_SEQUENCE_1", "ModeUnavailable", "SHARED_DATA", "fmt", "gtvo_config", "load_frames",
+           "markdown_table", "reference_ms", "run_gtvo", "score"]
