@@ -1,7 +1,7 @@
 """gtvo against the two peers a user would otherwise build, in one run on the same frames (issue 4, item 5).
 
     python benchmarks/kitti_vo.py [--sequence DIR ...] [--max-frames N] [--solvers handrolled,gtsam]
-                                  [--modes track,...] [--peers open3d,orb] [--json OUT]
+                                  [--modes track,...] [--peers open3d,orb] [--json OUT] [--failure-detail]
 
 Rows: gtvo for every requested solver x mode (a mode the installed gtvo lacks is skipped with a
 note), then the peers of ``benchmarks/peers.py``: (a) SGBM + Open3D RGB-D odometry with the
@@ -28,8 +28,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks.peers import Open3DColorOdometryPeer, OrbPnPPeer, run_peer  # noqa: E402
-from benchmarks.vo_bench import (KITTI_SEQUENCE_1, ModeUnavailable, fmt, gtvo_config, load_frames,  # noqa: E402
-                                 markdown_table, reference_ms, run_gtvo, score)
+from benchmarks.vo_bench import (KITTI_SEQUENCE_1, ModeUnavailable, failure_details, fmt, gtvo_config,  # noqa: E402
+                                 load_frames, markdown_table, reference_ms, run_gtvo, score)
 from gtvo.atomic import write_json  # noqa: E402
 from gtvo.datasets import open_sequence  # noqa: E402
 
@@ -63,6 +63,7 @@ def bench_sequence(path: Path, max_frames: int | None, solvers: list[str], modes
             rows.append({"method": label, "kind": "gtvo", "mode": mode, "solver": solver, "frames": len(frames),
                          "seconds": g["seconds"], "keyframes": g["keyframes"], "failures": g["failures"],
                          "tracking_iterations_mean": g["tracking_iterations_mean"],
+                         "failure_reasons": g["failure_reasons"], "failure_details": failure_details(g["vo"], seq),
                          **score(g["trajectory"], seq)})
     for name in peers:
         peer = PEERS[name](seq.camera)
@@ -94,6 +95,25 @@ def table(result: dict[str, Any]) -> str:
     return markdown_table(HEADER, rows)
 
 
+def failure_summary(row: dict[str, Any], detail: bool) -> str:
+    """gtvo's tracking failures of one row: reasons and, per failed frame, the kept (predicted)
+    and the tracked pose's frame-to-frame error against the ground truth."""
+    lines = [f"{row['method']}: {row['failures']} tracking failures"]
+    lines += [f"  {n} x {reason}" for reason, n in row["failure_reasons"].items()]
+    d = row["failure_details"]
+    if d:
+        mean = {k: float(np.mean([x[k] for x in d])) for k in ("kept_t_m", "kept_r_deg", "tracked_t_m", "tracked_r_deg")}
+        lines.append(f"  frame-to-frame error vs GT, mean over failed frames: kept pose (motion-model prediction) "
+                     f"{mean['kept_t_m']:.3f} m / {mean['kept_r_deg']:.3f} deg; rejected tracked pose "
+                     f"{mean['tracked_t_m']:.3f} m / {mean['tracked_r_deg']:.3f} deg")
+    if detail and d:
+        lines.append("")
+        lines.append(markdown_table(["frame", "reason", "kept t (m)", "kept r (deg)", "tracked t (m)", "tracked r (deg)"],
+                                    [[str(x["frame"]), x["reason"], f"{x['kept_t_m']:.3f}", f"{x['kept_r_deg']:.3f}",
+                                      f"{x['tracked_t_m']:.3f}", f"{x['tracked_r_deg']:.3f}"] for x in d]))
+    return "\n".join(lines)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sequence", type=Path, action="append", default=None, metavar="DIR",
@@ -104,6 +124,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--peers", default="open3d,orb", help="peers to run: open3d, orb (comma-separated; '' for none)")
     ap.add_argument("--motion-model", default="constant-velocity", choices=("constant-velocity", "kalman"))
     ap.add_argument("--json", type=Path, default=None, metavar="OUT", help="also write all figures as JSON")
+    ap.add_argument("--failure-detail", action="store_true", help="list gtvo's failed frames one by one")
     ap.add_argument("--no-progress", action="store_true")
     args = ap.parse_args(argv)
     peers = _split(args.peers)
@@ -123,6 +144,9 @@ def main(argv: list[str] | None = None) -> int:
         print(table(res))
         for note in res["notes"]:
             print(f"\nNote: {note}")
+        for row in res["rows"]:
+            if row["kind"] == "gtvo" and row["failures"]:
+                print("\n" + failure_summary(row, args.failure_detail))
         sys.stdout.flush()
     if args.json is not None:
         write_json(args.json, {"command": " ".join(sys.argv), "results": results})

@@ -15,6 +15,8 @@ Scores (``gtvo.metrics``, on the frames that have a ground-truth pose):
 from __future__ import annotations
 
 import dataclasses
+import os
+import re
 import sys
 import time
 from pathlib import Path
@@ -34,7 +36,8 @@ from gtvo.trajectory import Trajectory  # noqa: E402
 
 #: Below this GT path length (m) the drift in % is not reported.
 MIN_DRIFT_PATH_M = 0.1
-SHARED_DATA = REPO_ROOT.parent / "shared" / "data"
+#: The real data: ``$GTVO_SHARED_DATA`` or ``../shared/data`` beside the checkout (as tests/conftest.py).
+SHARED_DATA = Path(os.environ.get("GTVO_SHARED_DATA") or REPO_ROOT.parent / "shared" / "data")
 KITTI_SEQUENCE_1 = SHARED_DATA / "kitti_stereo_sample" / "KITTI_sequence_1"
 
 
@@ -73,14 +76,46 @@ def run_gtvo(camera: Any, frames: list[Frame], config: Any) -> dict[str, Any]:
         vo.process(frame)
         times[k] = time.perf_counter() - t0
     iters = [e.tracking.iterations for e in vo.estimates if e.tracking is not None]
+    reasons: dict[str, int] = {}
+    for e in vo.estimates:
+        if e.reinitialised and e.tracking is not None:
+            key = re.sub(r"\d+(\.\d+)?", "N", e.tracking.reason or "unknown")
+            reasons[key] = reasons.get(key, 0) + 1
     return {
         "trajectory": vo.trajectory("gtvo"),
         "seconds": float(times.sum()),
         "keyframes": len(vo.keyframes),
         "failures": int(vo.failures),
         "tracking_iterations_mean": float(np.mean(iters)) if iters else None,
+        "failure_reasons": reasons,
         "vo": vo,
     }
+
+
+def failure_details(vo: Any, seq: Sequence) -> list[dict[str, Any]]:
+    """For each frame where gtvo's tracking failed: the reason, and how far from the ground-truth
+    frame-to-frame motion (previous estimate -> this frame) the pose it kept (the motion-model
+    prediction) and the pose the tracker had found are, translation (m) / rotation (deg)."""
+    from gtvo.trajectory import invert_poses, rotation_angle  # noqa: PLC0415
+
+    out = []
+    est = vo.estimates
+    for k, e in enumerate(est):
+        if not (e.reinitialised and e.tracking is not None) or k == 0 or seq.gt_poses is None:
+            continue
+        i, p = e.index, est[k - 1]
+        if not (np.isfinite(seq.gt_poses[i, 0, 0]) and np.isfinite(seq.gt_poses[p.index, 0, 0])):
+            continue
+        kf = max((kf for kf in vo.keyframes if kf.index < i), key=lambda kf: kf.index)
+        T_tracked = kf.T_world_cam.compose(e.tracking.T_keyframe_frame).matrix()
+        gt_rel = invert_poses(seq.gt_poses[p.index]) @ seq.gt_poses[i]
+        row: dict[str, Any] = {"frame": i, "reason": e.tracking.reason}
+        for name, T in (("kept", e.T_world_cam), ("tracked", T_tracked)):
+            E = invert_poses(gt_rel) @ (invert_poses(p.T_world_cam) @ T)
+            row[f"{name}_t_m"] = float(np.linalg.norm(E[:3, 3]))
+            row[f"{name}_r_deg"] = float(np.degrees(rotation_angle(E[:3, :3])))
+        out.append(row)
+    return out
 
 
 def score(est: Trajectory, seq: Sequence) -> dict[str, float | None]:
@@ -148,4 +183,4 @@ def load_frames(seq: Sequence, progress: bool = True) -> list[Frame]:
 
 
 __all__ = ["KITTI_SEQUENCE_1", "ModeUnavailable", "SHARED_DATA", "fmt", "gtvo_config", "load_frames",
-           "markdown_table", "reference_ms", "run_gtvo", "score"]
+           "failure_details", "markdown_table", "reference_ms", "run_gtvo", "score"]
