@@ -1,0 +1,318 @@
+"""Vectorised photometric residuals and their analytic Jacobians (the kernel of every factor).
+
+For N points hosted in a host keyframe and a pixel pattern of P offsets (default
+:data:`PATTERN_DSO8`), the residual of pattern pixel ``p = p_n + o_k`` in a target image is
+(DSO's sign convention, used everywhere in gtvo)::
+
+    r = I_target(w(p, d, T)) - b_t - exp(a_t - a_h) * (I_host(p) - b_h)
+
+with the warp through the point's inverse depth ``d`` (one per point, shared by its pattern)::
+
+    f   = K^-1 [u, v, 1]^T                   # bearing, f_z = 1
+    q   = R_th f + t_th d   (= d * X_target)  # T_th = T_world_target^-1 T_world_host
+    w   = (fx q_x / q_z + cx, fy q_y / q_z + cy)
+
+Jacobians are with respect to GTSAM's right perturbations ``T <- T Exp(xi)``, ``xi = [omega, v]``
+(docs/conventions.md); with ``a = dr/dq = g^T dw/dq`` (g the target gradient at w)::
+
+    dr/dxi_target = [ a x q , -d a ]
+    dr/dxi_host   = [ f x a', d a' ]     with a' = R_th^T a
+    dr/dd         = a . t_th
+    dr/d(a_h, b_h) = ( e (I_h - b_h), e ),  dr/d(a_t, b_t) = ( -e (I_h - b_h), -1 ),  e = exp(a_t - a_h)
+
+Derivations with these names: docs/factors.md. Residuals that are invalid (inverse depth
+<= 0, behind the target camera, outside the target image, host sample outside the host image)
+are 0 with zero Jacobian rows, flagged in ``valid`` and counted; never NaN.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from gtvo.camera import MIN_DEPTH, PinholeCamera
+from gtvo.errors import InputError
+from gtvo.image import bilinear_sample, image_gradients
+
+FloatArray = NDArray[np.float64]
+BoolArray = NDArray[np.bool_]
+
+#: DSO's 8-pixel residual pattern (offsets (du, dv) in pixels of the pyramid level used).
+PATTERN_DSO8: FloatArray = np.array(
+    [[0, -2], [-1, -1], [1, -1], [-2, 0], [0, 0], [2, 0], [-1, 1], [0, 2]], dtype=np.float64)
+
+#: A single pixel (no pattern), e.g. for fast coarse levels or tests.
+PATTERN_SINGLE: FloatArray = np.zeros((1, 2))
+
+
+class GradientSampler(Protocol):
+    """An image that returns intensity and gradient at float pixel positions."""
+
+    width: int
+    height: int
+
+    def sample(self, u: NDArray, v: NDArray) -> tuple[FloatArray, BoolArray]:
+        """Return ``(values, valid)``: values ``u.shape + (3,)`` = (I, dI/du, dI/dv)."""
+        ...
+
+
+class GradientImage:
+    """An image stacked with its central-difference gradients, sampled bilinearly.
+
+    Args:
+        image: 2-D float image in 8-bit units.
+        border: pixels kept free at each side for a sample to count as valid.
+    """
+
+    def __init__(self, image: ArrayLike, border: float = 1.0) -> None:
+        img = np.asarray(image, dtype=np.float32)
+        if img.ndim != 2 or img.shape[0] < 2 or img.shape[1] < 2:
+            raise InputError(f"GradientImage needs a 2-D image of at least 2x2, got shape {img.shape}")
+        if not np.all(np.isfinite(img)):
+            raise InputError("GradientImage: image contains NaN or infinite values")
+        gx, gy = image_gradients(img)
+        self.image = img
+        self.stack = np.ascontiguousarray(np.stack([img, gx, gy], axis=-1))
+        self._flat = self.stack.reshape(-1, 3)
+        self.height, self.width = img.shape
+        self.border = float(border)
+
+    def sample(self, u: NDArray, v: NDArray) -> tuple[FloatArray, BoolArray]:
+        """Bilinear (I, gx, gy) at ``(u, v)``; 0 and False where invalid, never NaN.
+
+        Same result and validity rule as :func:`gtvo.image.bilinear_sample` on :attr:`stack`
+        up to float32 rounding (tested to 1e-4 grey levels), about 3x faster: ``np.take`` gathers,
+        float32 arithmetic and no per-channel masking (the hot path of tracking).
+        """
+        u = np.asarray(u, dtype=np.float64)
+        v = np.asarray(v, dtype=np.float64)
+        h, w, b = self.height, self.width, self.border
+        with np.errstate(invalid="ignore"):
+            valid = (u >= b) & (u <= w - 1 - b) & (v >= b) & (v <= h - 1 - b)  # False for NaN
+        us = np.where(valid, u, 0.0)
+        vs = np.where(valid, v, 0.0)
+        x0 = np.minimum(us.astype(np.intp), w - 2)
+        y0 = np.minimum(vs.astype(np.intp), h - 2)
+        # float32 interpolation weights: 6e-8 px resolution, ~1e-5 grey levels; 1.5x faster
+        ax = (us - x0).astype(np.float32)[..., None]
+        ay = (vs - y0).astype(np.float32)[..., None]
+        i = (y0 * w + x0).reshape(-1)
+        shape = u.shape + (3,)
+        f = self._flat
+        v00 = f.take(i, axis=0).reshape(shape)
+        v01 = f.take(i + 1, axis=0).reshape(shape)
+        v10 = f.take(i + w, axis=0).reshape(shape)
+        v11 = f.take(i + w + 1, axis=0).reshape(shape)
+        top = v00 + ax * (v01 - v00)
+        bot = v10 + ax * (v11 - v10)
+        out = top + ay * (bot - top)
+        out *= valid[..., None]
+        return out.astype(np.float64), valid
+
+    def sample_intensity(self, u: NDArray, v: NDArray) -> tuple[FloatArray, BoolArray]:
+        """Bilinear intensity only."""
+        return bilinear_sample(self.image, u, v, border=self.border)
+
+
+def _as_matrix(T: object) -> FloatArray:
+    """A 4x4 matrix from a ``gtsam.Pose3`` or an array."""
+    if hasattr(T, "matrix"):
+        return np.asarray(T.matrix(), dtype=float)  # type: ignore[attr-defined]
+    M = np.asarray(T, dtype=float)
+    if M.shape != (4, 4):
+        raise InputError(f"pose must be a 4x4 matrix or gtsam.Pose3, got shape {M.shape}")
+    return M
+
+
+def pattern_pixels(pixels: ArrayLike, pattern: ArrayLike = PATTERN_DSO8) -> FloatArray:
+    """Pixels of every pattern offset around every point: shape (N, P, 2)."""
+    px = np.asarray(pixels, dtype=float).reshape(-1, 1, 2)
+    pat = np.asarray(pattern, dtype=float).reshape(1, -1, 2)
+    return px + pat
+
+
+def pattern_bearings(camera: PinholeCamera, pixels: ArrayLike, pattern: ArrayLike = PATTERN_DSO8) -> FloatArray:
+    """Bearings ``f = K^-1 [u, v, 1]`` (f_z = 1) of every pattern pixel: shape (N, P, 3)."""
+    pp = pattern_pixels(pixels, pattern)
+    f = np.empty(pp.shape[:2] + (3,))
+    f[..., 0] = (pp[..., 0] - camera.cx) / camera.fx
+    f[..., 1] = (pp[..., 1] - camera.cy) / camera.fy
+    f[..., 2] = 1.0
+    return f
+
+
+def _cross_into(out: FloatArray, a: FloatArray, b: FloatArray) -> None:
+    """``out[..., :3] = a x b`` without np.cross's axis shuffling."""
+    out[..., 0] = a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1]
+    out[..., 1] = a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2]
+    out[..., 2] = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+
+
+def sample_host(host: GradientSampler, pixels: ArrayLike,
+                pattern: ArrayLike = PATTERN_DSO8) -> tuple[FloatArray, BoolArray]:
+    """Host intensities at the pattern around each point: ``(I_host (N, P), valid (N, P))``.
+
+    The host values do not depend on any variable, so they are sampled once per point.
+    """
+    pp = pattern_pixels(pixels, pattern)
+    vals, ok = host.sample(pp[..., 0], pp[..., 1])
+    return vals[..., 0], ok
+
+
+@dataclass
+class PhotometricLinearization:
+    """Residuals and Jacobians of N points x P pattern pixels in one target.
+
+    All arrays are zero where ``valid`` is False. Pose Jacobians are 6-vectors in GTSAM's
+    [rotation, translation] order for right perturbations.
+    """
+
+    residual: FloatArray  #: (N, P) r = I_t(w) - b_t - exp(a_t - a_h)(I_h - b_h)
+    valid: BoolArray  #: (N, P)
+    J_depth: FloatArray  #: (N, P) dr/dd
+    J_host: FloatArray | None  #: (N, P, 6) dr/dxi_host
+    J_target: FloatArray | None  #: (N, P, 6) dr/dxi_target
+    J_affine_host: FloatArray | None  #: (N, P, 2) dr/d(a_h, b_h)
+    J_affine_target: FloatArray | None  #: (N, P, 2) dr/d(a_t, b_t)
+    uv_target: FloatArray  #: (N, P, 2) warped pixels (meaningless where invalid)
+    n_bad_depth: int  #: points with inverse depth <= 0 (or not finite)
+    n_behind: int  #: pattern pixels behind the target camera (of points with good depth)
+    n_outside: int  #: pattern pixels outside the target or host image (in front, good depth)
+
+
+def photometric_residuals(camera: PinholeCamera, host_intensity: ArrayLike, host_valid: ArrayLike | None,
+                          pixels: ArrayLike, inverse_depth: ArrayLike, T_world_host: object,
+                          T_world_target: object, target: GradientSampler,
+                          affine_host: ArrayLike = (0.0, 0.0), affine_target: ArrayLike = (0.0, 0.0),
+                          pattern: ArrayLike = PATTERN_DSO8, jacobians: bool = True,
+                          host_jacobians: bool = True, bearings: ArrayLike | None = None) -> PhotometricLinearization:
+    """Photometric residuals of hosted points in one target image, with analytic Jacobians.
+
+    Args:
+        camera: intrinsics of the pyramid level (host and target share them).
+        host_intensity: (N, P) host intensities at the pattern (:func:`sample_host`).
+        host_valid: (N, P) validity of those samples, or None (all valid).
+        pixels: (N, 2) host pixels of the points at this level.
+        inverse_depth: (N,) inverse depths ``d = 1/z`` in the host camera.
+        T_world_host, T_world_target: poses (``gtsam.Pose3`` or 4x4).
+        target: the target image with gradients.
+        affine_host, affine_target: brightness parameters ``(a, b)``.
+        pattern: (P, 2) pixel offsets.
+        jacobians: compute Jacobians (False: residuals, masks and dr/dd only).
+        host_jacobians: also compute ``J_host`` and ``J_affine_host`` (False: they are None;
+            tracking with a fixed keyframe does not need them).
+        bearings: (N, P, 3) precomputed :func:`pattern_bearings` (they depend on the host pixels
+            only; a tracker computes them once per keyframe and level).
+    """
+    pat = np.asarray(pattern, dtype=float).reshape(-1, 2)
+    px = np.asarray(pixels, dtype=float).reshape(-1, 2)
+    d = np.asarray(inverse_depth, dtype=float).reshape(-1)
+    n, p = px.shape[0], pat.shape[0]
+    if d.shape[0] != n:
+        raise InputError(f"photometric_residuals: {n} pixels but {d.shape[0]} inverse depths")
+    Ih = np.asarray(host_intensity, dtype=float).reshape(n, p)
+    hv = np.ones((n, p), dtype=bool) if host_valid is None else np.asarray(host_valid, dtype=bool).reshape(n, p)
+    Twh = _as_matrix(T_world_host)
+    Twt = _as_matrix(T_world_target)
+    Tth = np.linalg.solve(Twt, Twh)
+    R = Tth[:3, :3]
+    t = Tth[:3, 3]
+    a_h, b_h = (float(x) for x in np.asarray(affine_host, dtype=float).reshape(2))
+    a_t, b_t = (float(x) for x in np.asarray(affine_target, dtype=float).reshape(2))
+
+    good_d = np.isfinite(d) & (d > 0)
+    ds = np.where(good_d, d, 1.0)
+    f = pattern_bearings(camera, px, pat) if bearings is None else np.asarray(bearings, dtype=float)
+    q = f @ R.T + ds[:, None, None] * t
+    qz = q[..., 2]
+    front = qz > MIN_DEPTH * ds[:, None]
+    qzs = np.where(front, qz, 1.0)
+    iz = 1.0 / qzs
+    uv = np.empty((n, p, 2))
+    uv[..., 0] = camera.fx * q[..., 0] * iz + camera.cx
+    uv[..., 1] = camera.fy * q[..., 1] * iz + camera.cy
+    vals, inside = target.sample(uv[..., 0], uv[..., 1])
+    valid = good_d[:, None] & front & inside & hv
+    e = np.exp(a_t - a_h)
+    r = vals[..., 0] - b_t - e * (Ih - b_h)
+    r = np.where(valid, r, 0.0)
+
+    n_bad = int(np.count_nonzero(~good_d))
+    n_behind = int(np.count_nonzero(good_d[:, None] & ~front))
+    n_out = int(np.count_nonzero(good_d[:, None] & front & ~(inside & hv)))
+
+    gx = np.where(valid, vals[..., 1], 0.0)
+    gy = np.where(valid, vals[..., 2], 0.0)
+    # a = dr/dq = g^T dw/dq, dw/dq = [[fx/qz, 0, -fx qx/qz^2], [0, fy/qz, -fy qy/qz^2]]
+    a = np.empty((n, p, 3))
+    a[..., 0] = gx * camera.fx * iz
+    a[..., 1] = gy * camera.fy * iz
+    a[..., 2] = -(a[..., 0] * q[..., 0] + a[..., 1] * q[..., 1]) * iz
+    J_depth = a @ t
+    if not jacobians:
+        return PhotometricLinearization(r, valid, J_depth, None, None, None, None, uv, n_bad, n_behind, n_out)
+    dd = ds[:, None, None]
+    J_target = np.empty((n, p, 6))
+    _cross_into(J_target, a, q)
+    J_target[..., 3:] = -dd * a
+    hb = np.where(valid, e * (Ih - b_h), 0.0)
+    vf = valid.astype(float)
+    J_aff_t = np.stack([-hb, -vf], axis=-1)
+    J_host = J_aff_h = None
+    if host_jacobians:
+        ap = a @ R  # R^T a, row form
+        J_host = np.empty((n, p, 6))
+        _cross_into(J_host, f, ap)
+        J_host[..., 3:] = dd * ap
+        J_aff_h = np.stack([hb, e * vf], axis=-1)
+    return PhotometricLinearization(r, valid, J_depth, J_host, J_target, J_aff_h, J_aff_t, uv,
+                                    n_bad, n_behind, n_out)
+
+
+def variance_weight(J_depth: ArrayLike, inverse_depth_variance: ArrayLike, sigma_intensity: float) -> FloatArray:
+    """The notes' weight ``W = (2 sigma_I^2 + (dr/dd)^2 V)^-1`` per residual.
+
+    Args:
+        J_depth: (N, P) dr/dd.
+        inverse_depth_variance: (N,) V of each point (0: depth known exactly).
+        sigma_intensity: intensity noise sigma_I (8-bit units); both images carry it, hence 2.
+    """
+    Jd = np.asarray(J_depth, dtype=float)
+    V = np.asarray(inverse_depth_variance, dtype=float).reshape(-1, *([1] * (Jd.ndim - 1)))
+    return 1.0 / (2.0 * sigma_intensity ** 2 + Jd * Jd * V)
+
+
+def huber_weight(norm: ArrayLike, k: float) -> FloatArray:
+    """IRLS weight of the Huber kernel on a whitened norm: 1 inside ``k``, ``k/|x|`` outside."""
+    x = np.abs(np.asarray(norm, dtype=float))
+    return np.where(x <= k, 1.0, k / np.maximum(x, 1e-300))
+
+
+def huber_loss(norm: ArrayLike, k: float) -> FloatArray:
+    """Huber loss ``rho(x)``: ``x^2/2`` inside ``k``, ``k|x| - k^2/2`` outside (GTSAM's)."""
+    x = np.abs(np.asarray(norm, dtype=float))
+    return np.where(x <= k, 0.5 * x * x, k * x - 0.5 * k * k)
+
+
+def stereo_residuals(camera: PinholeCamera, baseline: float, left_intensity: ArrayLike,
+                     left_valid: ArrayLike | None, pixels: ArrayLike, inverse_depth: ArrayLike,
+                     right: GradientSampler, affine_left: ArrayLike = (0.0, 0.0),
+                     affine_right: ArrayLike = (0.0, 0.0),
+                     pattern: ArrayLike = PATTERN_DSO8) -> PhotometricLinearization:
+    """Left-right residual of points of a rectified stereo frame.
+
+    ``p' = d^R K T_RL (d^L)^-1 K^-1 p`` with ``T_RL`` a translation ``(-b, 0, 0)``: the right
+    pixel is ``(u - fx b d, v)``, so ``dp'/dd = (-fx b, 0)`` (not zero) and
+    ``dr/dd = -fx b gx_R``. Returned as a :class:`PhotometricLinearization` whose "host" is
+    the left image and "target" the right image (pose Jacobians are None).
+    """
+    T_world_right = np.eye(4)
+    T_world_right[0, 3] = float(baseline)  # right camera at +b along the left x axis
+    lin = photometric_residuals(camera, left_intensity, left_valid, pixels, inverse_depth, np.eye(4),
+                                T_world_right, right, affine_left, affine_right, pattern, jacobians=True)
+    lin.J_host = None
+    lin.J_target = None
+    return lin

@@ -1,0 +1,321 @@
+"""A per-host "smart" photometric factor: the host's inverse depths live inside the factor.
+
+GTSAM's Python ``CustomFactor`` copies the whole ``Values`` on every call from inside an
+optimiser (``/work/shared/notes/dependency-facts.md``), so one factor and one variable per
+inverse depth costs O(points x variables) per iteration. :class:`HostPointsFactor` holds all
+points hosted in one keyframe, evaluates all their residuals in all targets in one vectorised
+pass, eliminates the inverse depths by the Schur complement and hands GTSAM only the pose and
+affine blocks of its keys. The optimiser's Values then hold a few dozen variables.
+
+Linearisation at values ``x`` (poses/affines of the keys) and inverse depths ``d``, with the
+IRLS weights ``w_n`` (Huber on each point-target pattern norm) and variance weights ``W``::
+
+    H_pp = sum J_p^T wW J_p,  H_pd[n] = sum J_p^T wW J_d,  H_dd[n] = sum wW J_d^2 (+ 1/sigma_prior^2)
+    g_p  = sum J_p^T wW r,    g_d[n]  = sum wW J_d r      (+ (d - d_prior)/sigma_prior^2)
+    H_red = H_pp - sum_n H_pd H_pd^T / H_dd,    g_red = g_p - sum_n H_pd g_d / H_dd
+
+and the factor's linear part is ``|R dx + e'|^2`` with ``R^T R = H_red``, ``R^T e' = g_red``.
+An extra error entry ``c`` with zero Jacobian, ``c^2 = 2E - sum_n g_d^2/H_dd - |e'|^2 >= 0``,
+makes the linear model at ``dx`` equal the Gauss-Newton model of the cost with the depths at
+their conditional optimum (at ``dx = 0``: E minus the depth-only Newton decrease). ``error(x)`` is the true nonlinear cost at ``x``
+with the depths GTSAM's step implies, ``d(x) = d_lin + dd(x)``, the back-substitution
+``dd = -(g_d + H_pd^T (x - x_lin)) / H_dd``; the next linearisation at a *different* point
+commits ``d(x)``, so the depths follow every accepted step (a linearisation at the same point
+again returns the cached system: iSAM2 linearises new factors twice). :meth:`HostPointsFactor.commit` commits them at the final
+values after optimisation. Details: docs/factors.md.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import gtsam
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from factors.gtsam_factors import DEFAULT_HUBER_K, DEFAULT_SIGMA_INTENSITY
+from factors.photometric import (PATTERN_DSO8, GradientSampler, huber_loss, huber_weight, photometric_residuals,
+                                 sample_host, stereo_residuals, variance_weight)
+from gtvo.camera import PinholeCamera
+from gtvo.errors import InputError
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass
+class _Linearization:
+    x_poses: list[gtsam.Pose3]
+    x_affines: list[FloatArray]
+    d: FloatArray
+    H_pd: FloatArray  # (N, M)
+    H_dd: FloatArray  # (N,)
+    g_d: FloatArray  # (N,)
+    active: NDArray[np.bool_]  # (N,) points with curvature
+
+
+class HostPointsFactor(gtsam.CustomFactor):
+    """All points hosted in one keyframe, observed in several targets; inverse depths Schur-eliminated.
+
+    Keys, in this order: ``host_key``, ``target_keys...``, then (if given) ``affine_host_key`` and
+    ``affine_target_keys...``. Error dimension M + 1, M = 6 (1 + T) (+ 2 (1 + T) with affines).
+
+    Args:
+        host_key: the host keyframe's pose key.
+        target_keys: pose keys of the frames the points are observed in (T >= 1).
+        camera: intrinsics (all images share them).
+        pixels: (N, 2) host pixels; inverse_depth (N,) initial inverse depths (> 0).
+        host_image: the host image with gradients.
+        target_images: one image with gradients per target key.
+        inverse_depth_variance: (N,) V used in the weight W (and, with ``depth_prior``, as the
+            prior's variance).
+        sigma_intensity, huber_k, pattern: as in :class:`factors.gtsam_factors.PhotometricFactor`.
+        affine_host_key, affine_target_keys: affine (a, b) keys, or None (all affines fixed at 0).
+        depth_prior: keep a prior ``(d - d_init)^2 / V`` on each inverse depth (e.g. the stereo
+            estimate), which also fixes depths of points seen in no target.
+        right_image, baseline, lambda_stereo: add the notes' stereo energy ``lambda E_s`` of the
+            host frame (``factors.photometric.stereo_residuals``, the residual of
+            :class:`factors.gtsam_factors.StereoFactor`); it involves only the depths, so it enters
+            ``H_dd``, ``g_d`` and the cost.
+        prior_inverse_depth: the depth prior's mean (default: ``inverse_depth``); pass the original
+            stereo estimate when rebuilding a factor (new targets) from ``old.depths``.
+        stereo_affine: the right image's brightness ``(a, b)`` relative to the host's left image,
+            held fixed (the stereo residual is ``I_R(p') - b - exp(a) I_L(p)``).
+
+    The variance weights W are frozen at the first linearisation of an optimisation run and
+    released by :meth:`commit` (so the next run re-evaluates them): with W moving with the
+    state the Gauss-Newton model would not match the cost that LM compares, and LM stalls.
+    """
+
+    def __init__(self, host_key: int, target_keys: Sequence[int], camera: PinholeCamera, pixels: ArrayLike,
+                 inverse_depth: ArrayLike, host_image: GradientSampler, target_images: Sequence[GradientSampler],
+                 inverse_depth_variance: ArrayLike | float = 1e-4,
+                 sigma_intensity: float = DEFAULT_SIGMA_INTENSITY, huber_k: float | None = DEFAULT_HUBER_K,
+                 affine_host_key: int | None = None, affine_target_keys: Sequence[int] | None = None,
+                 depth_prior: bool = True, pattern: ArrayLike = PATTERN_DSO8,
+                 right_image: GradientSampler | None = None, baseline: float | None = None,
+                 lambda_stereo: float = 1.0, stereo_affine: ArrayLike = (0.0, 0.0),
+                 prior_inverse_depth: ArrayLike | None = None) -> None:
+        self.target_keys = list(target_keys)
+        if not self.target_keys:
+            raise InputError("HostPointsFactor needs at least one target")
+        if len(target_images) != len(self.target_keys):
+            raise InputError(f"HostPointsFactor: {len(self.target_keys)} target keys but "
+                             f"{len(target_images)} target images")
+        self.with_affine = affine_host_key is not None
+        if self.with_affine and (affine_target_keys is None or len(affine_target_keys) != len(self.target_keys)):
+            raise InputError("HostPointsFactor: give one affine target key per target with affine_host_key")
+        self.camera = camera
+        self.pixels = np.asarray(pixels, dtype=float).reshape(-1, 2)
+        n = self.pixels.shape[0]
+        d = np.asarray(inverse_depth, dtype=float).reshape(-1)
+        if n == 0 or d.shape[0] != n or not np.all(np.isfinite(d)) or np.any(d <= 0):
+            raise InputError(f"HostPointsFactor: need N > 0 points with finite positive inverse depths (N={n})")
+        self.variance = np.broadcast_to(np.asarray(inverse_depth_variance, dtype=float), (n,)).copy()
+        if depth_prior and not np.all(self.variance > 0):
+            raise InputError("HostPointsFactor: a depth prior needs positive inverse-depth variances")
+        self.pattern = np.asarray(pattern, dtype=float).reshape(-1, 2)
+        self.host_intensity, self.host_valid = sample_host(host_image, self.pixels, self.pattern)
+        self.target_images = list(target_images)
+        self.sigma = float(sigma_intensity)
+        self.huber_k = huber_k
+        self.depth_prior = bool(depth_prior)
+        self.d_prior = d.copy() if prior_inverse_depth is None else \
+            np.asarray(prior_inverse_depth, dtype=float).reshape(-1).copy()
+        if self.d_prior.shape[0] != n or not np.all(np.isfinite(self.d_prior)):
+            raise InputError(f"HostPointsFactor: prior_inverse_depth must hold {n} finite values")
+        self.depths = d.copy()
+        self.pose_keys = [host_key] + self.target_keys
+        self.affine_keys = ([affine_host_key] + list(affine_target_keys)) if self.with_affine else []
+        nt = len(self.target_keys)
+        self.dim = 6 * (1 + nt) + (2 * (1 + nt) if self.with_affine else 0)
+        self.right_image = right_image
+        if right_image is not None:
+            if baseline is None or not (np.isfinite(baseline) and baseline > 0):
+                raise InputError(f"HostPointsFactor: a stereo term needs a positive baseline, got {baseline!r}")
+            if not (np.isfinite(lambda_stereo) and lambda_stereo > 0):
+                raise InputError(f"HostPointsFactor: lambda_stereo must be positive, got {lambda_stereo!r}")
+        self.baseline = None if baseline is None else float(baseline)
+        self.lambda_stereo = float(lambda_stereo)
+        self.stereo_affine = np.asarray(stereo_affine, dtype=float).reshape(2)
+        self._lin: _Linearization | None = None
+        self._W: list[FloatArray] | None = None
+        self._cached: tuple[FloatArray, list[FloatArray]] | None = None
+        super().__init__(gtsam.noiseModel.Unit.Create(self.dim + 1), self.pose_keys + self.affine_keys,
+                         self._evaluate)
+
+    # --- state -----------------------------------------------------------------------------
+    def _read(self, values: gtsam.Values) -> tuple[list[gtsam.Pose3], list[FloatArray]]:
+        poses = [values.atPose3(k) for k in self.pose_keys]
+        affs = [np.asarray(values.atVector(k), dtype=float) for k in self.affine_keys]
+        return poses, affs
+
+    def _delta(self, poses: list[gtsam.Pose3], affs: list[FloatArray]) -> FloatArray:
+        lin = self._lin
+        assert lin is not None
+        dx = [lin.x_poses[i].localCoordinates(p) for i, p in enumerate(poses)]
+        dx += [a - lin.x_affines[i] for i, a in enumerate(affs)]
+        return np.concatenate(dx)
+
+    def _depths_at(self, poses: list[gtsam.Pose3], affs: list[FloatArray]) -> FloatArray:
+        """Inverse depths implied by the last linearisation's back-substitution at these values."""
+        lin = self._lin
+        if lin is None:
+            return self.depths
+        dx = self._delta(poses, affs)
+        step = np.zeros_like(lin.d)
+        a = lin.active
+        step[a] = -(lin.g_d[a] + lin.H_pd[a] @ dx) / lin.H_dd[a]
+        return np.maximum(lin.d + step, 0.1 * lin.d)  # keep d > 0: LM rejects such far steps anyway
+
+    def commit(self, values: gtsam.Values) -> FloatArray:
+        """Set the inverse depths to those implied at ``values`` (call after optimisation)."""
+        poses, affs = self._read(values)
+        self.depths = self._depths_at(poses, affs)
+        self._lin = None
+        self._W = None
+        self._cached = None
+        return self.depths
+
+    # --- residuals ---------------------------------------------------------------------------
+    def _target_terms(self, poses, affs, d, jac: bool):
+        """Per target: linearisation, whitening s = sqrt(W), Huber IRLS weights and loss."""
+        out = []
+        ah = affs[0] if self.with_affine else np.zeros(2)
+        for t, img in enumerate(self.target_images):
+            at = affs[1 + t] if self.with_affine else np.zeros(2)
+            lin = photometric_residuals(self.camera, self.host_intensity, self.host_valid, self.pixels, d,
+                                        poses[0], poses[1 + t], img, ah, at, self.pattern, jacobians=jac,
+                                        host_jacobians=jac)
+            W = variance_weight(lin.J_depth, self.variance, self.sigma) if self._W is None else self._W[t]
+            norm = np.sqrt(np.sum(W * lin.residual ** 2, axis=1))
+            if self.huber_k is None:
+                w, loss = np.ones_like(norm), 0.5 * norm ** 2
+            else:
+                w, loss = huber_weight(norm, self.huber_k), huber_loss(norm, self.huber_k)
+            out.append((lin, W, w, loss, norm))
+        return out
+
+    def _stereo_term(self, d: FloatArray):
+        """The stereo residuals of the host frame: (linearisation, lambda W, Huber weight, loss) or None."""
+        if self.right_image is None:
+            return None
+        lin = stereo_residuals(self.camera, self.baseline, self.host_intensity, self.host_valid, self.pixels, d,
+                               self.right_image, (0.0, 0.0), self.stereo_affine, self.pattern)
+        nt = len(self.target_images)
+        if self._W is None:
+            W = self.lambda_stereo * variance_weight(lin.J_depth, self.variance, self.sigma)
+        else:
+            W = self._W[nt]
+        norm = np.sqrt(np.sum(W * lin.residual ** 2, axis=1))
+        if self.huber_k is None:
+            w, loss = np.ones_like(norm), 0.5 * norm ** 2
+        else:
+            w, loss = huber_weight(norm, self.huber_k), huber_loss(norm, self.huber_k)
+        return lin, W, w, loss
+
+    def cost(self, values: gtsam.Values, inverse_depth: ArrayLike | None = None) -> float:
+        """The true nonlinear cost at ``values`` with the given (default: current) inverse depths."""
+        poses, affs = self._read(values)
+        d = self.depths if inverse_depth is None else np.asarray(inverse_depth, dtype=float)
+        return self._cost(poses, affs, d)
+
+    def _cost(self, poses, affs, d) -> float:
+        E = sum(float(t[3].sum()) for t in self._target_terms(poses, affs, d, False))
+        st = self._stereo_term(d)
+        if st is not None:
+            E += float(st[3].sum())
+        if self.depth_prior:
+            E += 0.5 * float(np.sum((d - self.d_prior) ** 2 / self.variance))
+        return E
+
+    def _columns(self, t: int) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+        """Reduced-state columns of (host pose, target pose[, host affine, target affine]) of target t."""
+        nt = len(self.target_keys)
+        cols = list(range(6)) + list(range(6 * (1 + t), 6 * (2 + t)))
+        if self.with_affine:
+            base = 6 * (1 + nt)
+            cols += [base, base + 1, base + 2 * (1 + t), base + 2 * (1 + t) + 1]
+        return np.array(cols, dtype=np.intp), np.arange(len(cols))
+
+    def _linearize(self, poses, affs) -> tuple[FloatArray, FloatArray, float]:
+        if self._lin is not None:
+            self.depths = self._depths_at(poses, affs)
+        d = self.depths
+        if self._W is None:  # freeze W for this optimisation run (see class docstring)
+            W_list = [t[1] for t in self._target_terms(poses, affs, d, False)]
+            st = self._stereo_term(d)
+            self._W = W_list + ([st[1]] if st is not None else [])
+        n, M = d.shape[0], self.dim
+        H_pp = np.zeros((M, M))
+        g_p = np.zeros(M)
+        H_pd = np.zeros((n, M))
+        H_dd = np.zeros(n)
+        g_d = np.zeros(n)
+        E = 0.0
+        for t, (lin, W, w, loss, _) in enumerate(self._target_terms(poses, affs, d, True)):
+            E += float(loss.sum())
+            ww = W * w[:, None]  # (N, P)
+            parts = [lin.J_host, lin.J_target]
+            if self.with_affine:
+                parts += [lin.J_affine_host, lin.J_affine_target]
+            Jp = np.concatenate(parts, axis=-1)  # (N, P, k)
+            cols, _ = self._columns(t)
+            Jw = Jp * ww[..., None]
+            k = Jp.shape[-1]
+            H_pp[np.ix_(cols, cols)] += Jw.reshape(-1, k).T @ Jp.reshape(-1, k)
+            g_p[cols] += Jw.reshape(-1, k).T @ lin.residual.reshape(-1)
+            H_pd[:, cols] += np.einsum("npk,np->nk", Jw, lin.J_depth)
+            H_dd += np.sum(ww * lin.J_depth ** 2, axis=1)
+            g_d += np.sum(ww * lin.J_depth * lin.residual, axis=1)
+        st = self._stereo_term(d)
+        if st is not None:
+            lin, W, w, loss = st
+            ww = W * w[:, None]
+            H_dd += np.sum(ww * lin.J_depth ** 2, axis=1)
+            g_d += np.sum(ww * lin.J_depth * lin.residual, axis=1)
+            E += float(loss.sum())
+        if self.depth_prior:
+            H_dd += 1.0 / self.variance
+            g_d += (d - self.d_prior) / self.variance
+            E += 0.5 * float(np.sum((d - self.d_prior) ** 2 / self.variance))
+        active = H_dd > 1e-12 * max(float(H_dd.max()), 1e-300)
+        Hdd_s = np.where(active, H_dd, 1.0)
+        L = H_pd[active] / Hdd_s[active, None]
+        H_red = H_pp - L.T @ H_pd[active]
+        g_red = g_p - L.T @ g_d[active]
+        self._lin = _Linearization(poses, affs, d.copy(), H_pd, Hdd_s, g_d, active)
+        depth_decrease = 0.5 * float(np.sum(g_d[active] ** 2 / Hdd_s[active]))
+        return 0.5 * (H_red + H_red.T), g_red, E - depth_decrease
+
+    def _evaluate(self, this: gtsam.CustomFactor, values: gtsam.Values, H: list | None) -> np.ndarray:
+        poses, affs = self._read(values)
+        if H is None:
+            E = self._cost(poses, affs, self._depths_at(poses, affs))
+            out = np.zeros(self.dim + 1)
+            out[-1] = np.sqrt(2.0 * max(E, 0.0))
+            return out
+        if self._lin is not None and self._cached is not None and np.abs(self._delta(poses, affs)).max() <= 1e-12:
+            out, blocks = self._cached  # same point again (iSAM2 linearises new factors twice): no new commit
+            for i, b in enumerate(blocks):
+                H[i] = b
+            return out.copy()
+        H_red, g_red, E = self._linearize(poses, affs)  # E: the model's value at dx = 0
+        M = self.dim
+        reg = 1e-9 * max(float(np.trace(H_red)) / M, 1e-12)
+        evals, evecs = np.linalg.eigh(H_red)
+        evals = np.maximum(evals, reg)  # PSD up to round-off; gauge directions get a tiny curvature
+        R = (evecs * np.sqrt(evals)).T  # R^T R = H_red (regularised)
+        e_red = (evecs.T @ g_red) / np.sqrt(evals)  # R^T e_red = g_red
+        c2 = max(2.0 * E - float(e_red @ e_red), 0.0)
+        out = np.concatenate([e_red, [np.sqrt(c2)]])
+        Rfull = np.vstack([R, np.zeros((1, M))])
+        nt = len(self.target_keys)
+        for i in range(1 + nt):
+            H[i] = Rfull[:, 6 * i:6 * (i + 1)]
+        if self.with_affine:
+            base = 6 * (1 + nt)
+            for i in range(1 + nt):
+                H[1 + nt + i] = Rfull[:, base + 2 * i:base + 2 * (i + 1)]
+        self._cached = (out.copy(), [np.array(H[i]) for i in range(len(self.pose_keys) + len(self.affine_keys))])
+        return out
