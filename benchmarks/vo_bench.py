@@ -65,13 +65,21 @@ def gtvo_config(solver: str, mode: str = "track", **overrides: Any):
         raise ModeUnavailable(str(exc)) from exc
 
 
-def run_gtvo(camera: Any, frames: list[Frame], config: Any) -> dict[str, Any]:
-    """Feed preloaded ``frames`` to a ``VisualOdometry``; its trajectory, timing and counters."""
+def run_gtvo(camera: Any, frames: list[Frame], config: Any, record_predictions: bool = False) -> dict[str, Any]:
+    """Feed preloaded ``frames`` to a ``VisualOdometry``; its trajectory, timing and counters.
+
+    With ``record_predictions``, the motion model's guess of each frame's pose (the tracker's
+    initial guess; ``VisualOdometry._predict``, a pure function of the state, called outside the
+    timed part) is kept too: ``"predictions"`` maps frame position -> 4x4 ``T_world_cam``.
+    """
     from gtvo.odometry import VisualOdometry  # noqa: PLC0415
 
     vo = VisualOdometry(camera, config)
     times = np.empty(len(frames))
+    predictions: dict[int, np.ndarray] = {}
     for k, frame in enumerate(frames):
+        if record_predictions and vo.estimates and hasattr(vo, "_predict"):
+            predictions[k] = np.asarray(vo._predict(frame.timestamp).matrix())
         t0 = time.perf_counter()
         vo.process(frame)
         times[k] = time.perf_counter() - t0
@@ -88,6 +96,7 @@ def run_gtvo(camera: Any, frames: list[Frame], config: Any) -> dict[str, Any]:
         "failures": int(vo.failures),
         "tracking_iterations_mean": float(np.mean(iters)) if iters else None,
         "failure_reasons": reasons,
+        "predictions": predictions,
         "vo": vo,
     }
 
