@@ -43,7 +43,7 @@ def _split(text: str) -> list[str]:
 
 
 def bench_sequence(path: Path, max_frames: int | None, solvers: list[str], modes: list[str], peers: list[str],
-                   motion_model: str, progress: bool) -> dict[str, Any]:
+                   motion_model: str, progress: bool, o3d_gates: list[float | None] | None = None) -> dict[str, Any]:
     """Every row on one sequence; returns ``{"sequence", "reference_ms", "rows", "notes"}``."""
     seq = open_sequence(path, max_frames=max_frames)
     frames = load_frames(seq, progress)
@@ -65,9 +65,17 @@ def bench_sequence(path: Path, max_frames: int | None, solvers: list[str], modes
                          "tracking_iterations_mean": g["tracking_iterations_mean"],
                          "failure_reasons": g["failure_reasons"], "failure_details": failure_details(g["vo"], seq),
                          **score(g["trajectory"], seq)})
+    runs: list[tuple[str, dict[str, Any]]] = []
     for name in peers:
-        peer = PEERS[name](seq.camera)
+        if name == "open3d":
+            runs += [(name, {"depth_diff_max": g}) for g in (o3d_gates or [None])]
+        else:
+            runs.append((name, {}))
+    for name, kwargs in runs:
+        peer = PEERS[name](seq.camera, **kwargs)
         label = peer.name if seq.kind == "stereo" else peer.name.replace("SGBM", "sensor depth")
+        if name == "open3d" and o3d_gates and len(o3d_gates) > 1:
+            label += f", gate {peer.depth_diff_max:g} m"
         print(f"  running {label} ...", file=sys.stderr, flush=True)
         r = run_peer(peer, frames, label)
         row = {"method": label, "kind": "peer", "peer": name, "frames": len(frames), "seconds": r.seconds,
@@ -122,6 +130,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--solvers", default="handrolled,gtsam", help="gtvo solvers (comma-separated)")
     ap.add_argument("--modes", default="track,window", help="gtvo modes (comma-separated; missing ones are skipped)")
     ap.add_argument("--peers", default="open3d,orb", help="peers to run: open3d, orb (comma-separated; '' for none)")
+    ap.add_argument("--o3d-depth-diff-max", default=None, metavar="LIST",
+                    help="Open3D peer's depth gate(s) in m, comma-separated: one row each (default: the "
+                         "peer's, 0.3 m for SGBM depth, 0.03 m for sensor depth)")
     ap.add_argument("--motion-model", default="constant-velocity", choices=("constant-velocity", "kalman"))
     ap.add_argument("--json", type=Path, default=None, metavar="OUT", help="also write all figures as JSON")
     ap.add_argument("--failure-detail", action="store_true", help="list gtvo's failed frames one by one")
@@ -134,8 +145,9 @@ def main(argv: list[str] | None = None) -> int:
     results = []
     for path in args.sequence or [KITTI_SEQUENCE_1]:
         print(f"{path}:", file=sys.stderr, flush=True)
+        gates = None if args.o3d_depth_diff_max is None else [float(g) for g in _split(args.o3d_depth_diff_max)]
         res = bench_sequence(path, args.max_frames, _split(args.solvers), _split(args.modes), peers,
-                             args.motion_model, not args.no_progress)
+                             args.motion_model, not args.no_progress, gates)
         results.append(res)
         print(f"\n### {res['name']} ({res['kind']}, {res['frames']} frames)\n")
         print(f"Reference: one StereoSGBM of frame 0 = {res['reference_ms']:.0f} ms "
