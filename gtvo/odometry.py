@@ -19,6 +19,7 @@ end lives here; the residual math in :mod:`factors`, the trackers in :mod:`gtvo.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass, field
 from typing import Literal
@@ -33,7 +34,7 @@ from gtvo.frontend import KeyframePoints, init_keyframe_points, select_points
 from gtvo.image import to_float_gray
 from gtvo.sequence import Frame, Sequence
 from gtvo.tracking import (TrackingConfig, TrackingKeyframe, TrackingResult, frame_pyramid, track_gtsam,
-                           track_handrolled)
+                           track_handrolled, track_with_guesses)
 from gtvo.trajectory import Trajectory
 
 SolverName = Literal["handrolled", "gtsam"]
@@ -58,18 +59,23 @@ class OdometryConfig:
         max_disparity: largest disparity (px) searched by the stereo initialisation.
         depth_sigma_model: for RGB-D: ``(s0, s2)`` of the depth noise ``sigma_z = s0 + s2 z^2``.
         motion_model: initial guess of each frame: ``"constant-velocity"`` or ``"kalman"``.
+        accept_rms_factor: tracking tries the motion-model guess first and accepts it at once
+            when its whitened RMS is below this factor times the previous frame's; otherwise it
+            also tries "no motion" and "keyframe pose" and keeps the lowest-cost success
+            (0 = always try all).
     """
 
     solver: SolverName = "handrolled"
     points_per_keyframe: int = 2000
     tracking: TrackingConfig = field(default_factory=TrackingConfig)
     keyframe_min_visible: float = 0.7
-    keyframe_max_motion: float = 0.12
+    keyframe_max_motion: float = 0.3
     keyframe_max_rotation_deg: float = 8.0
     keyframe_max_brightness: float = 0.3
     max_disparity: int = 128
     depth_sigma_model: tuple[float, float] = (0.0012, 0.0019)
     motion_model: MotionModelName = "constant-velocity"
+    accept_rms_factor: float = 1.1
 
     def __post_init__(self) -> None:
         if self.solver not in ("handrolled", "gtsam"):
@@ -92,6 +98,8 @@ class FrameEstimate:
             frame and re-initialisations).
         reinitialised: True when tracking failed and the frame was re-initialised.
         seconds: wall time spent on the frame.
+        keyframe_index: the frame index of the keyframe it was tracked against (its own index
+            when it was made a keyframe without tracking).
     """
 
     index: int
@@ -101,17 +109,22 @@ class FrameEstimate:
     tracking: TrackingResult | None
     reinitialised: bool
     seconds: float
+    keyframe_index: int = -1
 
 
 @dataclass
 class Keyframe:
-    """A keyframe: its pose, its points (hosted in it) and its tracking pyramid."""
+    """A keyframe: its pose, its points (hosted in it) and its tracking pyramid.
+
+    Each keyframe is its own brightness reference: the affine brightness ``(a, b)`` a tracked
+    frame gets is relative to its keyframe, so brightness errors do not chain from keyframe
+    to keyframe.
+    """
 
     index: int
     T_world_cam: gtsam.Pose3
     points: KeyframePoints
     tracker: TrackingKeyframe
-    affine: NDArray[np.float64]
 
 
 class VisualOdometry:
@@ -136,6 +149,7 @@ class VisualOdometry:
         self.estimates: list[FrameEstimate] = []
         self.keyframes: list[Keyframe] = []
         self.failures = 0
+        self._previous: tuple[Frame, NDArray[np.float32]] | None = None
         self._kalman = None
         if self.config.motion_model == "kalman":
             from gtvo.motion_model import ConstantAccelerationFilter  # noqa: PLC0415
@@ -150,31 +164,33 @@ class VisualOdometry:
             raise InputError(f"frame {frame.index}: timestamp {frame.timestamp} is not after the previous frame's")
         left = to_float_gray(frame.left, f"frame {frame.index} left image")
         if not self.keyframes:
-            kf = self._make_keyframe(frame, left, gtsam.Pose3(), np.zeros(2))
-            return self._record(frame, kf.T_world_cam, True, None, False, t0)
+            kf = self._make_keyframe(frame, left, gtsam.Pose3())
+            return self._finish(frame, left, kf.T_world_cam, True, None, False, t0)
 
         kf = self.keyframes[-1]
         T_pred = self._predict(frame.timestamp)
+        last = gtsam.Pose3(self.estimates[-1].T_world_cam)
         pyr = frame_pyramid(left, kf.tracker.levels)
-        init = kf.T_world_cam.between(T_pred)
-        prev_affine = self._last_affine()
-        result = self._track(kf, pyr, init, prev_affine)
+        result = self._track(kf, pyr, T_pred, last)
+        lost_view = result.n_valid < self.config.keyframe_min_visible * len(kf.points)
+        if (not result.success or lost_view) and self._previous is not None and self._previous[0].index != kf.index:
+            # the view has moved on (or tracking failed): the previous frame, whose pose is
+            # tracked, becomes the keyframe, and this frame is tracked against it
+            prev_frame, prev_left = self._previous
+            kf = self._make_keyframe(prev_frame, prev_left, last)
+            self._mark_last_as_keyframe()
+            result = self._track(kf, pyr, T_pred, last)
         if not result.success:
-            # second chance from the last pose (no motion model) before giving up
-            last = gtsam.Pose3(self.estimates[-1].T_world_cam)
-            retry = self._track(kf, pyr, kf.T_world_cam.between(last), prev_affine)
-            if retry.success:
-                result = retry
-        if not result.success:
+            # re-initialise: this frame becomes a keyframe at the motion model's prediction
             self.failures += 1
-            new_kf = self._make_keyframe(frame, left, T_pred, prev_affine)
-            return self._record(frame, new_kf.T_world_cam, True, result, True, t0)
+            new_kf = self._make_keyframe(frame, left, T_pred)
+            return self._finish(frame, left, new_kf.T_world_cam, True, result, True, t0)
 
         T_world = kf.T_world_cam.compose(result.T_keyframe_frame)
         if self._needs_keyframe(kf, result):
-            self._make_keyframe(frame, left, T_world, result.affine)
-            return self._record(frame, T_world, True, result, False, t0)
-        return self._record(frame, T_world, False, result, False, t0)
+            self._make_keyframe(frame, left, T_world)
+            return self._finish(frame, left, T_world, True, result, False, t0)
+        return self._finish(frame, left, T_world, False, result, False, t0)
 
     def run(self, sequence: Sequence, progress: bool = False) -> Trajectory:
         """Process every frame of ``sequence``; returns the estimated trajectory."""
@@ -211,15 +227,26 @@ class VisualOdometry:
         return np.concatenate(pts), np.concatenate(vals)
 
     # -- internals ------------------------------------------------------------------------------
-    def _track(self, kf: Keyframe, pyr, init: gtsam.Pose3, affine: NDArray) -> TrackingResult:
-        fn = track_handrolled if self.config.solver == "handrolled" else track_gtsam
-        return fn(kf.tracker, pyr, init, affine)
+    def _track(self, kf: Keyframe, pyr, T_pred: gtsam.Pose3, last: gtsam.Pose3) -> TrackingResult:
+        """Track against ``kf`` from several initial guesses (motion model, no motion, keyframe)."""
+        guesses = [kf.T_world_cam.between(T_pred), kf.T_world_cam.between(last), gtsam.Pose3()]
+        prev_rms = self._last_rms()
+        solver = track_handrolled if self.config.solver == "handrolled" else track_gtsam
+        return track_with_guesses(kf.tracker, pyr, guesses, self._affine_guess(kf), solver=solver,
+                                  accept_rms=0.0 if prev_rms is None else self.config.accept_rms_factor * prev_rms)
 
-    def _last_affine(self) -> NDArray[np.float64]:
+    def _last_rms(self) -> float | None:
         for e in reversed(self.estimates):
             if e.tracking is not None and e.tracking.success:
-                return e.tracking.affine.copy()
-        return self.keyframes[-1].affine.copy()
+                return e.tracking.rms
+        return None
+
+    def _affine_guess(self, kf: Keyframe) -> NDArray[np.float64]:
+        """The last frame's affine brightness if it was tracked against ``kf``, else (0, 0)."""
+        last = self.estimates[-1]
+        if last.keyframe_index == kf.index and last.tracking is not None and last.tracking.success:
+            return last.tracking.affine.copy()
+        return np.zeros(2)
 
     def _predict(self, timestamp: float) -> gtsam.Pose3:
         """Motion-model guess of ``T_world_cam`` at ``timestamp``."""
@@ -250,7 +277,7 @@ class VisualOdometry:
             return True
         if np.degrees(np.linalg.norm(gtsam.Rot3.Logmap(T.rotation()))) > cfg.keyframe_max_rotation_deg:
             return True
-        return abs(float(result.affine[0] - kf.affine[0])) > cfg.keyframe_max_brightness
+        return abs(float(result.affine[0])) > cfg.keyframe_max_brightness
 
     def _frame_points(self, frame: Frame, left: NDArray[np.float32]) -> KeyframePoints:
         cfg = self.config
@@ -263,23 +290,30 @@ class VisualOdometry:
             raise InputError(f"frame {frame.index}: RGB-D odometry needs a depth image")
         return rgbd_keyframe_points(left, frame.depth, cfg.points_per_keyframe, cfg.depth_sigma_model)
 
-    def _make_keyframe(self, frame: Frame, left: NDArray[np.float32], T_world_cam: gtsam.Pose3,
-                       affine: NDArray) -> Keyframe:
+    def _make_keyframe(self, frame: Frame, left: NDArray[np.float32], T_world_cam: gtsam.Pose3) -> Keyframe:
         pts = self._frame_points(frame, left)
         if len(pts) < self.config.tracking.min_valid_points:
             raise InputError(f"frame {frame.index}: only {len(pts)} points with a valid depth; "
                              "the images may be blank or the stereo calibration wrong")
-        tracker = TrackingKeyframe(self.pinhole, left, pts.pixels, pts.inverse_depth, pts.variance, affine,
+        tracker = TrackingKeyframe(self.pinhole, left, pts.pixels, pts.inverse_depth, pts.variance, (0.0, 0.0),
                                    self.config.tracking)
-        kf = Keyframe(frame.index, T_world_cam, pts, tracker, np.asarray(affine, dtype=float).copy())
+        kf = Keyframe(frame.index, T_world_cam, pts, tracker)
         self.keyframes.append(kf)
         return kf
 
-    def _record(self, frame: Frame, T_world_cam: gtsam.Pose3, is_kf: bool, result: TrackingResult | None,
-                reinit: bool, t0: float) -> FrameEstimate:
+    def _mark_last_as_keyframe(self) -> None:
+        """Record that the previous frame was promoted to a keyframe."""
+        self.estimates[-1] = dataclasses.replace(self.estimates[-1], is_keyframe=True)
+
+    def _finish(self, frame: Frame, left: NDArray[np.float32], T_world_cam: gtsam.Pose3, is_kf: bool,
+                result: TrackingResult | None, reinit: bool, t0: float) -> FrameEstimate:
+        kf_index = self.keyframes[-1].index if result is not None and not reinit else frame.index
+        if result is not None and not reinit and is_kf:  # tracked against the keyframe before this one
+            kf_index = self.keyframes[-2].index
         est = FrameEstimate(frame.index, float(frame.timestamp), T_world_cam.matrix(), is_kf, result, reinit,
-                            time.perf_counter() - t0)
+                            time.perf_counter() - t0, kf_index)
         self.estimates.append(est)
+        self._previous = (frame, left)
         if self._kalman is not None:
             from gtvo.motion_model import planar_pose_from_T_world_cam  # noqa: PLC0415
 

@@ -169,9 +169,8 @@ def test_joint_calibration_bad_input():
 # ---------------------------------------------------------------- CLI
 
 @pytest.fixture()
-def only_this_command(monkeypatch):
-    """Run gtvo.cli.main with just this command registered (other commands live on other branches)."""
-    monkeypatch.setattr(gtvo.cli, "COMMAND_MODULES", ("gtvo.commands.calibrate_odometry",))
+def only_this_command():
+    """The full ``gtvo`` CLI (every command registered)."""
 
 
 def test_cli_json_and_plot(tmp_path, capsys, only_this_command):

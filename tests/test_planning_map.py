@@ -109,9 +109,8 @@ def test_plan_bad_points():
 
 
 @pytest.fixture
-def plan_cli(monkeypatch):
-    """``gtvo`` main() with only the plan command registered (other commands live on other branches)."""
-    monkeypatch.setattr(cli, "COMMAND_MODULES", ("gtvo.commands.plan",))
+def plan_cli():
+    """``gtvo`` main() with every command registered."""
     return cli.main
 
 
