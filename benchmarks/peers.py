@@ -31,7 +31,7 @@ from numpy.typing import NDArray
 from gtvo._optional import require_open3d
 from gtvo.camera import PinholeCamera, StereoCamera
 from gtvo.errors import InputError
-from gtvo.sequence import Frame, Sequence
+from gtvo.sequence import Frame
 from gtvo.trajectory import Trajectory
 
 FloatArray = NDArray[np.float64]
@@ -331,7 +331,3 @@ def run_peer(peer: Open3DColorOdometryPeer | OrbPnPPeer, frames: list[Frame], na
     label = name or peer.name
     return PeerRun(label, peer.trajectory(label), float(times.sum()), times, peer.failures)
 
-
-def load_frames(seq: Sequence) -> list[Frame]:
-    """Every frame of ``seq`` with its images in memory (so the runs time computation, not PNG decoding)."""
-    return [seq.frame(i) for i in range(len(seq))]
