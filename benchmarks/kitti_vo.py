@@ -110,15 +110,16 @@ def failure_summary(row: dict[str, Any], detail: bool) -> str:
     lines += [f"  {n} x {reason}" for reason, n in row["failure_reasons"].items()]
     d = row["failure_details"]
     if d:
-        mean = {k: float(np.mean([x[k] for x in d])) for k in ("kept_t_m", "kept_r_deg", "tracked_t_m", "tracked_r_deg")}
+        keys = ("kept_t_m", "kept_r_deg", "tracked_t_m", "tracked_r_deg")
+        mean = {k: float(np.mean([x[k] for x in d])) for k in keys}
         lines.append(f"  frame-to-frame error vs GT, mean over failed frames: kept pose (motion-model prediction) "
                      f"{mean['kept_t_m']:.3f} m / {mean['kept_r_deg']:.3f} deg; rejected tracked pose "
                      f"{mean['tracked_t_m']:.3f} m / {mean['tracked_r_deg']:.3f} deg")
     if detail and d:
         lines.append("")
-        lines.append(markdown_table(["frame", "reason", "kept t (m)", "kept r (deg)", "tracked t (m)", "tracked r (deg)"],
-                                    [[str(x["frame"]), x["reason"], f"{x['kept_t_m']:.3f}", f"{x['kept_r_deg']:.3f}",
-                                      f"{x['tracked_t_m']:.3f}", f"{x['tracked_r_deg']:.3f}"] for x in d]))
+        header = ["frame", "reason", "kept t (m)", "kept r (deg)", "tracked t (m)", "tracked r (deg)"]
+        lines.append(markdown_table(header, [[str(x["frame"]), x["reason"]] + [f"{x[k]:.3f}" for k in keys]
+                                             for x in d]))
     return "\n".join(lines)
 
 

@@ -104,12 +104,17 @@ def se3_inverse(T: FloatArray) -> FloatArray:
 
 
 class Peer(Protocol):
-    """A frame-to-frame odometry peer."""
+    """A frame-to-frame odometry peer (what :func:`run_peer` drives)."""
 
     name: str
+    failures: int
 
     def process(self, frame: Frame) -> FloatArray:
         """``T_world_cam`` of ``frame``."""
+        ...
+
+    def trajectory(self, name: str) -> Trajectory:
+        """The estimated trajectory so far."""
         ...
 
 
@@ -319,7 +324,7 @@ class PeerRun:
     failures: int
 
 
-def run_peer(peer: Open3DColorOdometryPeer | OrbPnPPeer, frames: list[Frame], name: str | None = None) -> PeerRun:
+def run_peer(peer: Peer, frames: list[Frame], name: str | None = None) -> PeerRun:
     """Feed ``frames`` (already loaded, so reading is not timed) to ``peer`` and time each step."""
     if not frames:
         raise InputError("no frames to run the peer on")
