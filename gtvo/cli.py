@@ -23,6 +23,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "gtvo.commands.plan",
     "gtvo.commands.calibrate_odometry",
     "gtvo.commands.loops",
+    "gtvo.commands.posegraph",
 )
 
 

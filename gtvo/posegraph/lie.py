@@ -1,0 +1,270 @@
+"""Batched SO(2)/SE(2)/SO(3)/SE(3) maps in GTSAM's conventions (pure numpy, no I/O).
+
+Every function works on stacks: rotations ``(m, d, d)``, translations ``(m, d)``, tangents
+``(m, 3)`` (SE(2): ``[vx, vy, theta]``) or ``(m, 6)`` (SE(3): ``[omega, v]``, rotation first).
+Perturbations are on the RIGHT, ``T.retract(xi) = T * Exp(xi)``, as in GTSAM
+(``docs/conventions.md``). Names follow ``docs/posegraph.md``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+F64 = NDArray[np.float64]
+
+_SMALL = 1e-4  # below this angle the closed forms switch to their Taylor series
+
+
+def hat3(w: F64) -> F64:
+    """Skew-symmetric matrices ``w^`` of a stack of 3-vectors, ``(m, 3) -> (m, 3, 3)``."""
+    z = np.zeros(w.shape[:-1])
+    return np.stack([np.stack([z, -w[..., 2], w[..., 1]], -1),
+                     np.stack([w[..., 2], z, -w[..., 0]], -1),
+                     np.stack([-w[..., 1], w[..., 0], z], -1)], -2)
+
+
+def rot2(theta: F64) -> F64:
+    """2x2 rotation matrices of a stack of angles, ``(m,) -> (m, 2, 2)``."""
+    c, s = np.cos(theta), np.sin(theta)
+    return np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)
+
+
+def angle2(R: F64) -> F64:
+    """Angles of a stack of 2x2 rotations, in (-pi, pi]."""
+    return np.arctan2(R[..., 1, 0], R[..., 0, 0])
+
+
+def so3_exp(w: F64) -> F64:
+    """Rodrigues: ``Exp(w^)`` for a stack of rotation vectors."""
+    th2 = np.einsum("...i,...i->...", w, w)
+    th = np.sqrt(th2)
+    small = th < _SMALL
+    ths = np.where(small, 1.0, th)
+    a = np.where(small, 1.0 - th2 / 6.0, np.sin(ths) / ths)
+    b = np.where(small, 0.5 - th2 / 24.0, (1.0 - np.cos(ths)) / (ths * ths))
+    W = hat3(w)
+    return np.eye(3) + a[..., None, None] * W + b[..., None, None] * (W @ W)
+
+
+def so3_log(R: F64) -> F64:
+    """Rotation vectors of a stack of rotations (robust near 0 and near pi)."""
+    vee = np.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], -1)
+    s = 0.5 * np.linalg.norm(vee, axis=-1)
+    c = np.clip(0.5 * (np.trace(R, axis1=-2, axis2=-1) - 1.0), -1.0, 1.0)
+    th = np.arctan2(s, c)
+    small = th < _SMALL
+    scale = np.where(small, 0.5 + th * th / 12.0, th / (2.0 * np.where(small, 1.0, np.maximum(s, 1e-300))))
+    w = scale[..., None] * vee
+    near_pi = (c < 0) & (s < 1e-3)
+    if np.any(near_pi):
+        Rp = R[near_pi]
+        B = 0.5 * (Rp + np.swapaxes(Rp, -1, -2)) + np.eye(3)  # = (1 - cos) a a^T + 2 cos ... ~ 2 a a^T at pi
+        k = np.argmax(np.linalg.norm(B, axis=-1), axis=-1)
+        axis = B[np.arange(len(Rp)), k]
+        axis /= np.linalg.norm(axis, axis=-1, keepdims=True)
+        sign = np.sign(np.einsum("ij,ij->i", axis, vee[near_pi]))
+        sign[sign == 0] = 1.0
+        w[near_pi] = (sign * th[near_pi])[:, None] * axis
+    return w
+
+
+def so3_right_jacobian_inv(w: F64) -> F64:
+    """``Jr^-1(w) = I + 1/2 w^ + (1/th^2 - (1 + cos th) / (2 th sin th)) w^ w^``."""
+    th2 = np.einsum("...i,...i->...", w, w)
+    th = np.sqrt(th2)
+    small = th < _SMALL
+    ths = np.where(small, 1.0, th)
+    c = np.where(small, 1.0 / 12.0 + th2 / 720.0,
+                 1.0 / (ths * ths) - (1.0 + np.cos(ths)) / (2.0 * ths * np.sin(ths)))
+    W = hat3(w)
+    return np.eye(3) + 0.5 * W + c[..., None, None] * (W @ W)
+
+
+def so3_left_jacobian(w: F64) -> F64:
+    """``V(w) = Jl(w)``: maps the translation part of an SE(3) tangent to the translation."""
+    th2 = np.einsum("...i,...i->...", w, w)
+    th = np.sqrt(th2)
+    small = th < _SMALL
+    ths = np.where(small, 1.0, th)
+    b = np.where(small, 0.5 - th2 / 24.0, (1.0 - np.cos(ths)) / (ths * ths))
+    c = np.where(small, 1.0 / 6.0 - th2 / 120.0, (ths - np.sin(ths)) / (ths ** 3))
+    W = hat3(w)
+    return np.eye(3) + b[..., None, None] * W + c[..., None, None] * (W @ W)
+
+
+def _q_matrix(w: F64, v: F64) -> F64:
+    """Barfoot's ``Q(v, w)``, the off-diagonal block of the SE(3) LEFT Jacobian (tangent [v; w])."""
+    th2 = np.einsum("...i,...i->...", w, w)
+    th = np.sqrt(th2)
+    small = th < 1e-2
+    ths = np.where(small, 1.0, th)
+    s, c = np.sin(ths), np.cos(ths)
+    c1 = np.where(small, 1.0 / 6.0 - th2 / 120.0, (ths - s) / ths ** 3)
+    c2 = np.where(small, 1.0 / 24.0 - th2 / 720.0, (ths * ths + 2.0 * c - 2.0) / (2.0 * ths ** 4))
+    c3 = np.where(small, 1.0 / 120.0 - th2 / 2520.0, (2.0 * ths - 3.0 * s + ths * c) / (2.0 * ths ** 5))
+    W, V = hat3(w), hat3(v)
+    WV, VW = W @ V, V @ W
+    WVW = WV @ W
+    return (0.5 * V + c1[..., None, None] * (WV + VW + WVW)
+            + c2[..., None, None] * (W @ WV + VW @ W - 3.0 * WVW)
+            + c3[..., None, None] * (WVW @ W + W @ WVW))
+
+
+def se3_log(R: F64, t: F64) -> F64:
+    """``Log(T)`` of a stack of poses, tangent ``[omega, v]`` with ``t = V(omega) v``."""
+    w = so3_log(R)
+    v = np.linalg.solve(so3_left_jacobian(w), t[..., None])[..., 0]
+    return np.concatenate([w, v], -1)
+
+
+def se3_exp(xi: F64) -> tuple[F64, F64]:
+    """``Exp(xi)`` of a stack of tangents ``[omega, v]``: rotations and translations."""
+    w, v = xi[..., :3], xi[..., 3:]
+    return so3_exp(w), np.einsum("...ij,...j->...i", so3_left_jacobian(w), v)
+
+
+def se3_right_jacobian_inv(xi: F64) -> F64:
+    """Inverse right Jacobian of SE(3) (= ``gtsam.Pose3.LogmapDerivative``), GTSAM order [omega, v].
+
+    ``Jr(xi) = Jl(-xi)``; with ``J = Jr_SO3(omega)`` and ``Q = Q(-v, -omega)``,
+    ``Jr = [[J, 0], [Q, J]]`` and ``Jr^-1 = [[J^-1, 0], [-J^-1 Q J^-1, J^-1]]``.
+    """
+    w, v = xi[..., :3], xi[..., 3:]
+    Ji = so3_right_jacobian_inv(w)
+    Q = _q_matrix(-w, -v)
+    out = np.zeros(xi.shape[:-1] + (6, 6))
+    out[..., :3, :3] = Ji
+    out[..., 3:, 3:] = Ji
+    out[..., 3:, :3] = -Ji @ Q @ Ji
+    return out
+
+
+def se3_adjoint(R: F64, t: F64) -> F64:
+    """``Ad_T = [[R, 0], [t^ R, R]]`` in GTSAM order (``gtsam.Pose3.AdjointMap``)."""
+    out = np.zeros(R.shape[:-2] + (6, 6))
+    out[..., :3, :3] = R
+    out[..., 3:, 3:] = R
+    out[..., 3:, :3] = hat3(t) @ R
+    return out
+
+
+def se2_log(R: F64, t: F64) -> F64:
+    """``Log(T)`` of a stack of SE(2) poses, tangent ``[vx, vy, theta]`` (``gtsam.Pose2.Logmap``).
+
+    ``t = V(theta) v`` with ``V = [[a, -b], [b, a]]``, ``a = sin/theta``, ``b = (1 - cos)/theta``, so
+    ``v = [[al, h], [-h, al]] t`` with ``h = theta/2`` and ``al = h cot h``.
+    """
+    th = angle2(R)
+    h = 0.5 * th
+    small = np.abs(th) < _SMALL
+    hs = np.where(small, 1.0, h)
+    al = np.where(small, 1.0 - h * h / 3.0, hs * np.cos(hs) / np.sin(hs))
+    vx = al * t[..., 0] + h * t[..., 1]
+    vy = -h * t[..., 0] + al * t[..., 1]
+    return np.stack([vx, vy, th], -1)
+
+
+def se2_exp(xi: F64) -> tuple[F64, F64]:
+    """``Exp(xi)`` of a stack of SE(2) tangents ``[vx, vy, theta]``."""
+    th = xi[..., 2]
+    small = np.abs(th) < _SMALL
+    ths = np.where(small, 1.0, th)
+    a = np.where(small, 1.0 - th * th / 6.0, np.sin(ths) / ths)
+    b = np.where(small, th / 2.0 - th ** 3 / 24.0, (1.0 - np.cos(ths)) / ths)
+    tx = a * xi[..., 0] - b * xi[..., 1]
+    ty = b * xi[..., 0] + a * xi[..., 1]
+    return rot2(th), np.stack([tx, ty], -1)
+
+
+def se2_right_jacobian_inv(xi: F64) -> F64:
+    """Inverse right Jacobian of SE(2) (= ``gtsam.Pose2.LogmapDerivative``), order [vx, vy, theta].
+
+    ``Jr = [[M, m], [0, 1]]`` with ``M = R(theta)^T V(theta) = V(-theta)`` and
+    ``m = R(theta)^T V'(theta) v``; ``Jr^-1 = [[M^-1, -M^-1 m], [0, 1]]``.
+    """
+    th = xi[..., 2]
+    small = np.abs(th) < 1e-3
+    ths = np.where(small, 1.0, th)
+    s, c = np.sin(ths), np.cos(ths)
+    a = np.where(small, 1.0 - th * th / 6.0, s / ths)
+    b = np.where(small, th / 2.0 - th ** 3 / 24.0, (1.0 - c) / ths)
+    da = np.where(small, -th / 3.0 + th ** 3 / 30.0, (ths * c - s) / (ths * ths))
+    db = np.where(small, 0.5 - th * th / 8.0, (ths * s - 1.0 + c) / (ths * ths))
+    vx, vy = xi[..., 0], xi[..., 1]
+    # V'(theta) v
+    dvx = da * vx - db * vy
+    dvy = db * vx + da * vy
+    cth, sth = np.cos(th), np.sin(th)
+    mx = cth * dvx + sth * dvy
+    my = -sth * dvx + cth * dvy
+    # M = V(-theta) = [[a, b], [-b, a]]; M^-1 = [[a, -b], [b, a]] / (a^2 + b^2)
+    det = a * a + b * b
+    out = np.zeros(xi.shape[:-1] + (3, 3))
+    out[..., 0, 0] = a / det
+    out[..., 0, 1] = -b / det
+    out[..., 1, 0] = b / det
+    out[..., 1, 1] = a / det
+    out[..., 0, 2] = -(a * mx - b * my) / det
+    out[..., 1, 2] = -(b * mx + a * my) / det
+    out[..., 2, 2] = 1.0
+    return out
+
+
+def se2_adjoint(R: F64, t: F64) -> F64:
+    """``Ad_T = [[R, [t_y, -t_x]^T], [0, 1]]`` in GTSAM's Pose2 order (``gtsam.Pose2.AdjointMap``)."""
+    out = np.zeros(R.shape[:-2] + (3, 3))
+    out[..., :2, :2] = R
+    out[..., 0, 2] = t[..., 1]
+    out[..., 1, 2] = -t[..., 0]
+    out[..., 2, 2] = 1.0
+    return out
+
+
+def quat_to_rot(q: F64) -> F64:
+    """Rotation matrices of unit quaternions stored ``[qx, qy, qz, qw]`` (normalised here)."""
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    return np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
+        np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
+        np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1)], -2)
+
+
+def rot_to_quat(R: F64) -> F64:
+    """Unit quaternions ``[qx, qy, qz, qw]`` (``qw >= 0``) of rotation matrices (Shepperd's method)."""
+    R = np.asarray(R, dtype=np.float64)
+    m = R.shape[0]
+    tr = np.trace(R, axis1=-2, axis2=-1)
+    cand = np.stack([tr, R[:, 0, 0], R[:, 1, 1], R[:, 2, 2]], -1)
+    k = np.argmax(cand, axis=-1)
+    q = np.zeros((m, 4))
+    i0 = k == 0
+    s = np.sqrt(np.maximum(1.0 + tr[i0], 1e-300)) * 2.0
+    q[i0] = np.stack([(R[i0, 2, 1] - R[i0, 1, 2]) / s, (R[i0, 0, 2] - R[i0, 2, 0]) / s,
+                      (R[i0, 1, 0] - R[i0, 0, 1]) / s, 0.25 * s], -1)
+    for axis in range(3):
+        sel = k == axis + 1
+        if not np.any(sel):
+            continue
+        a, b, c = axis, (axis + 1) % 3, (axis + 2) % 3
+        Rs = R[sel]
+        s = np.sqrt(np.maximum(1.0 + Rs[:, a, a] - Rs[:, b, b] - Rs[:, c, c], 1e-300)) * 2.0
+        qq = np.zeros((len(Rs), 4))
+        qq[:, a] = 0.25 * s
+        qq[:, b] = (Rs[:, b, a] + Rs[:, a, b]) / s
+        qq[:, c] = (Rs[:, c, a] + Rs[:, a, c]) / s
+        qq[:, 3] = (Rs[:, c, b] - Rs[:, b, c]) / s
+        q[sel] = qq
+    q *= np.where(q[:, 3:4] < 0, -1.0, 1.0)
+    return q / np.linalg.norm(q, axis=-1, keepdims=True)
+
+
+def rpy_to_rot(rpy: F64) -> F64:
+    """``Rz(yaw) Ry(pitch) Rx(roll)`` of a stack ``[roll, pitch, yaw]`` (``gtsam.Rot3.Ypr(y, p, r)``)."""
+    r, p, y = rpy[..., 0], rpy[..., 1], rpy[..., 2]
+    cr, sr, cp, sp, cy, sy = np.cos(r), np.sin(r), np.cos(p), np.sin(p), np.cos(y), np.sin(y)
+    return np.stack([
+        np.stack([cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr], -1),
+        np.stack([sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr], -1),
+        np.stack([-sp, cp * sr, cp * cr], -1)], -2)
