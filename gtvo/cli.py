@@ -9,7 +9,14 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
+
+# gtvo's linear algebra is many small products (8x8 .. 6000x16); multithreaded BLAS on a busy
+# 2-core machine made them up to 300x slower (docs/benchmarks.md, sliding window). The CLI runs
+# BLAS single-threaded unless the user says otherwise; set before numpy is first imported.
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
 from typing import Sequence
 
 from gtvo import __version__

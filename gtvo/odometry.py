@@ -14,7 +14,12 @@ end lives here; the residual math in :mod:`factors`, the trackers in :mod:`gtvo.
   the keyframe grows large against the scene depth, or the brightness changes a lot (rule in
   :class:`OdometryConfig` and docs/architecture.md);
 * when tracking fails, the frame is re-initialised from stereo at the predicted pose and the run
-  goes on; the failures are counted.
+  goes on; the failures are counted;
+* with ``mode="window"`` every new keyframe joins a :class:`gtvo.window.SlidingWindowOptimizer`:
+  the window's keyframe poses, affine brightness and inverse depths are optimised jointly, the
+  optimised keyframes replace the tracked ones (later frames are tracked against them, with the
+  optimised depths) and every frame's pose is re-expressed relative to its keyframe's optimised
+  pose.
 """
 
 from __future__ import annotations
@@ -28,6 +33,7 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
+from factors.photometric import GradientImage
 from gtvo.camera import PinholeCamera, StereoCamera
 from gtvo.errors import InputError
 from gtvo.frontend import KeyframePoints, init_keyframe_points, select_points
@@ -36,9 +42,12 @@ from gtvo.sequence import Frame, Sequence
 from gtvo.tracking import (TrackingConfig, TrackingKeyframe, TrackingResult, frame_pyramid, track_gtsam,
                            track_handrolled, track_with_guesses)
 from gtvo.trajectory import Trajectory
+from gtvo.window import (SlidingWindowOptimizer, WindowConfig, WindowKeyframe, WindowResult,
+                         estimate_stereo_affine)
 
 SolverName = Literal["handrolled", "gtsam"]
 MotionModelName = Literal["constant-velocity", "kalman"]
+ModeName = Literal["track", "window"]
 
 
 @dataclass(frozen=True)
@@ -63,6 +72,12 @@ class OdometryConfig:
             when its whitened RMS is below this factor times the previous frame's; otherwise it
             also tries "no motion" and "keyframe pose" and keeps the lowest-cost success
             (0 = always try all).
+        mode: ``"track"`` (frame-to-keyframe tracking only) or ``"window"`` (every new keyframe
+            joins a sliding window of keyframes whose poses, affine brightness and inverse depths
+            are optimised jointly, :mod:`gtvo.window`; later frames are tracked against the
+            optimised keyframe with its optimised depths).
+        window_solver: the window's solver, ``"gtsam"`` (LM on smart factors) or ``"handrolled"``.
+        window: the window's settings (size, weights, priors, iterations).
     """
 
     solver: SolverName = "handrolled"
@@ -76,6 +91,9 @@ class OdometryConfig:
     depth_sigma_model: tuple[float, float] = (0.0012, 0.0019)
     motion_model: MotionModelName = "constant-velocity"
     accept_rms_factor: float = 1.1
+    mode: ModeName = "window"
+    window_solver: SolverName = "gtsam"
+    window: WindowConfig = field(default_factory=WindowConfig)
 
     def __post_init__(self) -> None:
         if self.solver not in ("handrolled", "gtsam"):
@@ -84,6 +102,10 @@ class OdometryConfig:
             raise InputError(f"points per keyframe must be >= 50, got {self.points_per_keyframe}")
         if self.motion_model not in ("constant-velocity", "kalman"):
             raise InputError(f"unknown motion model {self.motion_model!r}")
+        if self.mode not in ("track", "window"):
+            raise InputError(f"unknown mode {self.mode!r}: use 'track' or 'window'")
+        if self.window_solver not in ("handrolled", "gtsam"):
+            raise InputError(f"unknown window solver {self.window_solver!r}: use 'handrolled' or 'gtsam'")
 
 
 @dataclass(frozen=True)
@@ -92,7 +114,8 @@ class FrameEstimate:
 
     Attributes:
         index, timestamp: the frame's.
-        T_world_cam: the left camera's pose (4x4).
+        T_world_cam: the left camera's pose (4x4). In window mode it is rewritten whenever the
+            window moves the frame's keyframe (``T_world_keyframe * T_keyframe_frame``).
         is_keyframe: True when the frame became a keyframe.
         tracking: the tracker's result (None for keyframes made without tracking: the first
             frame and re-initialisations).
@@ -134,6 +157,12 @@ class VisualOdometry:
         camera: a :class:`StereoCamera` for stereo input, a :class:`PinholeCamera` for RGB-D.
         config: settings (defaults suit KITTI-like and indoor data alike).
 
+    Attributes:
+        estimates: one :class:`FrameEstimate` per processed frame.
+        keyframes: every keyframe made so far (window mode: with the last optimised pose and depths).
+        window: the :class:`gtvo.window.SlidingWindowOptimizer` (window mode), else None.
+        window_results: one :class:`gtvo.window.WindowResult` per window optimisation.
+
     Example::
 
         vo = VisualOdometry(seq.camera)
@@ -149,8 +178,15 @@ class VisualOdometry:
         self.estimates: list[FrameEstimate] = []
         self.keyframes: list[Keyframe] = []
         self.failures = 0
+        self.window_results: list[WindowResult] = []
         self._previous: tuple[Frame, NDArray[np.float32]] | None = None
         self._kalman = None
+        self._keyframe_by_index: dict[int, Keyframe] = {}
+        self._window_affine: dict[int, NDArray[np.float64]] = {}  # keyframe index -> (a, b) in the window
+        self.window: SlidingWindowOptimizer | None = None
+        if self.config.mode == "window":
+            baseline = camera.baseline if isinstance(camera, StereoCamera) else None
+            self.window = SlidingWindowOptimizer(self.pinhole, baseline, self.config.window)
         if self.config.motion_model == "kalman":
             from gtvo.motion_model import ConstantAccelerationFilter  # noqa: PLC0415
 
@@ -169,7 +205,7 @@ class VisualOdometry:
 
         kf = self.keyframes[-1]
         T_pred = self._predict(frame.timestamp)
-        last = gtsam.Pose3(self.estimates[-1].T_world_cam)
+        last = rigid_pose(self.estimates[-1].T_world_cam)
         pyr = frame_pyramid(left, kf.tracker.levels)
         result = self._track(kf, pyr, T_pred, last)
         lost_view = result.n_valid < self.config.keyframe_min_visible * len(kf.points)
@@ -177,8 +213,15 @@ class VisualOdometry:
             # the view has moved on (or tracking failed): the previous frame, whose pose is
             # tracked, becomes the keyframe, and this frame is tracked against it
             prev_frame, prev_left = self._previous
-            kf = self._make_keyframe(prev_frame, prev_left, last)
+            prev = self.estimates[-1]
+            tracked = None
+            if prev.tracking is not None and prev.keyframe_index in self._keyframe_by_index:
+                tracked = (prev.keyframe_index, prev.tracking.affine)
+            kf = self._make_keyframe(prev_frame, prev_left, last, tracked)
             self._mark_last_as_keyframe()
+            # the window may have moved the new keyframe: carry the guesses along with it
+            correction = kf.T_world_cam.compose(last.inverse())
+            T_pred, last = correction.compose(T_pred), kf.T_world_cam
             result = self._track(kf, pyr, T_pred, last)
         if not result.success:
             # re-initialise: this frame becomes a keyframe at the motion model's prediction
@@ -188,8 +231,8 @@ class VisualOdometry:
 
         T_world = kf.T_world_cam.compose(result.T_keyframe_frame)
         if self._needs_keyframe(kf, result):
-            self._make_keyframe(frame, left, T_world)
-            return self._finish(frame, left, T_world, True, result, False, t0)
+            new_kf = self._make_keyframe(frame, left, T_world, (kf.index, result.affine))
+            return self._finish(frame, left, new_kf.T_world_cam, True, result, False, t0)
         return self._finish(frame, left, T_world, False, result, False, t0)
 
     def run(self, sequence: Sequence, progress: bool = False) -> Trajectory:
@@ -250,10 +293,10 @@ class VisualOdometry:
 
     def _predict(self, timestamp: float) -> gtsam.Pose3:
         """Motion-model guess of ``T_world_cam`` at ``timestamp``."""
-        last = gtsam.Pose3(self.estimates[-1].T_world_cam)
+        last = rigid_pose(self.estimates[-1].T_world_cam)
         if len(self.estimates) < 2:
             return last
-        prev = gtsam.Pose3(self.estimates[-2].T_world_cam)
+        prev = rigid_pose(self.estimates[-2].T_world_cam)
         dt_prev = self.estimates[-1].timestamp - self.estimates[-2].timestamp
         dt = timestamp - self.estimates[-1].timestamp
         if self._kalman is not None and self._kalman.initialized:
@@ -261,7 +304,7 @@ class VisualOdometry:
 
             X, Z, theta = self._kalman.predict_pose(dt)
             planar = T_world_cam_from_planar_pose(X, Z, theta, last.matrix())
-            return gtsam.Pose3(planar)
+            return rigid_pose(planar)
         # constant velocity, scaled to the time step
         xi = gtsam.Pose3.Logmap(prev.between(last)) * (dt / dt_prev if dt_prev > 0 else 1.0)
         return last.compose(gtsam.Pose3.Expmap(xi))
@@ -290,16 +333,86 @@ class VisualOdometry:
             raise InputError(f"frame {frame.index}: RGB-D odometry needs a depth image")
         return rgbd_keyframe_points(left, frame.depth, cfg.points_per_keyframe, cfg.depth_sigma_model)
 
-    def _make_keyframe(self, frame: Frame, left: NDArray[np.float32], T_world_cam: gtsam.Pose3) -> Keyframe:
+    def _make_keyframe(self, frame: Frame, left: NDArray[np.float32], T_world_cam: gtsam.Pose3,
+                       tracked: tuple[int, NDArray[np.float64]] | None = None) -> Keyframe:
+        """Make ``frame`` a keyframe at ``T_world_cam``; in window mode, add it to the window and
+        optimise (``tracked``: the keyframe it was tracked against and its affine relative to it)."""
         pts = self._frame_points(frame, left)
         if len(pts) < self.config.tracking.min_valid_points:
             raise InputError(f"frame {frame.index}: only {len(pts)} points with a valid depth; "
                              "the images may be blank or the stereo calibration wrong")
+        if self.window is not None:
+            T_world_cam, pts = self._window_update(frame, left, T_world_cam, pts, tracked)
         tracker = TrackingKeyframe(self.pinhole, left, pts.pixels, pts.inverse_depth, pts.variance, (0.0, 0.0),
                                    self.config.tracking)
-        kf = Keyframe(frame.index, T_world_cam, pts, tracker)
+        kf = Keyframe(frame.index, rigid_pose(T_world_cam.matrix()), pts, tracker)
         self.keyframes.append(kf)
+        self._keyframe_by_index[kf.index] = kf
+        if self.window is not None:
+            self._refresh_estimates()
         return kf
+
+    def _window_update(self, frame: Frame, left: NDArray[np.float32], T_world_cam: gtsam.Pose3,
+                       pts: KeyframePoints, tracked: tuple[int, NDArray[np.float64]] | None
+                       ) -> tuple[gtsam.Pose3, KeyframePoints]:
+        """Add a new keyframe to the window, optimise it, write the results back to the keyframes.
+
+        The new keyframe's affine in the window's brightness reference: a frame tracked with
+        ``(a, b)`` against a keyframe at ``(a_h, b_h)`` sees ``exp(a) I_h + b``, i.e.
+        ``a_t = a_h + a``, ``b_t = b + exp(a) b_h``.
+        """
+        assert self.window is not None
+        affine = np.zeros(2)
+        if tracked is not None and tracked[0] in self._window_affine:
+            a_h, b_h = self._window_affine[tracked[0]]
+            a, b = np.asarray(tracked[1], dtype=float)
+            affine = np.array([a_h + a, b + np.exp(a) * b_h])
+        elif self.window.keyframes:
+            affine = self.window.keyframes[-1].affine.copy()
+        right = None
+        left_img = GradientImage(left)
+        stereo_affine = np.zeros(2)
+        if isinstance(self.camera, StereoCamera):
+            right = GradientImage(to_float_gray(frame.right, f"frame {frame.index} right image"))
+            stereo_affine = estimate_stereo_affine(self.pinhole, self.camera.baseline, left_img, right, pts.pixels,
+                                                   pts.inverse_depth, pts.variance,
+                                                   sigma_intensity=self.config.window.sigma_intensity)
+        wk = WindowKeyframe(frame.index, T_world_cam, affine, left_img, pts.pixels, pts.inverse_depth,
+                            pts.variance, right=right, depth_prior=right is None, stereo_affine=stereo_affine)
+        self.window.add_keyframe(wk)
+        res = self.window.optimize(self.config.window_solver)
+        self._window_affine = {w.index: w.affine.copy() for w in self.window.keyframes}
+        if res is None:
+            return T_world_cam, pts
+        self.window_results.append(res)
+        for w in self.window.keyframes:
+            old = self._keyframe_by_index.get(w.index)
+            if old is not None:
+                old.T_world_cam = w.pose
+                old.points = dataclasses.replace(old.points, inverse_depth=w.inverse_depth.copy())
+        return wk.pose, dataclasses.replace(pts, inverse_depth=wk.inverse_depth.copy())
+
+    def _refresh_estimates(self) -> None:
+        """Re-express the poses of frames whose keyframe the window moved.
+
+        A keyframe's pose is its (optimised) keyframe pose; a tracked frame's is
+        ``T_world_keyframe * T_keyframe_frame`` with its keyframe's current pose.
+        """
+        assert self.window is not None
+        if not self.window.keyframes:
+            return
+        first = self.window.keyframes[0].index
+        for i in range(len(self.estimates) - 1, -1, -1):
+            e = self.estimates[i]
+            if e.index < first:  # keyframe_index <= index: nothing older moved
+                break
+            if e.index in self._keyframe_by_index:
+                T = self._keyframe_by_index[e.index].T_world_cam
+            elif e.tracking is not None and not e.reinitialised and e.keyframe_index in self._keyframe_by_index:
+                T = self._keyframe_by_index[e.keyframe_index].T_world_cam.compose(e.tracking.T_keyframe_frame)
+            else:
+                continue
+            self.estimates[i] = dataclasses.replace(e, T_world_cam=T.matrix())
 
     def _mark_last_as_keyframe(self) -> None:
         """Record that the previous frame was promoted to a keyframe."""
@@ -323,6 +436,16 @@ class VisualOdometry:
             else:
                 self._kalman.step(z, est.timestamp - self.estimates[-2].timestamp)
         return est
+
+
+def rigid_pose(T: NDArray[np.float64]) -> gtsam.Pose3:
+    """A ``Pose3`` from a 4x4 matrix, its rotation projected onto SO(3).
+
+    ``gtsam.Pose3(matrix)`` keeps a slightly non-orthonormal rotation as it is, and chaining
+    ``between``/``compose`` over hundreds of frames amplifies the error (measured: x3 per frame);
+    projecting each pose read back from a matrix keeps every pose rigid.
+    """
+    return gtsam.Pose3(gtsam.Rot3.ClosestTo(np.asarray(T[:3, :3], dtype=np.float64)), np.asarray(T[:3, 3], dtype=np.float64))
 
 
 def rgbd_keyframe_points(image: NDArray[np.float32], depth: NDArray[np.float32], target: int,

@@ -52,12 +52,13 @@ def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progre
             continue
         vo.process(frame)
         if bar is not None:
-            bar.set_postfix(kf=len(vo.keyframes), fail=vo.failures)
+            bar.set_postfix(kf=len(vo.keyframes), fail=vo.failures,
+                            **({"win": len(vo.window_results)} if config.mode == "window" else {}))
     seconds = time.perf_counter() - t0
     traj = vo.trajectory(seq.name)
     n = len(vo.estimates)
     info: dict[str, Any] = {
-        "mode": "track",
+        "mode": config.mode,
         "solver": config.solver,
         "motion_model": config.motion_model,
         "frames": n,
@@ -69,12 +70,20 @@ def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progre
         "skipped_frames": skipped,
         "tracking_iterations_mean": _mean([e.tracking.iterations for e in vo.estimates if e.tracking is not None]),
     }
+    if config.mode == "window":
+        info.update({
+            "window_solver": config.window_solver,
+            "window_size": config.window.size,
+            "window_optimisations": len(vo.window_results),
+            "window_seconds_mean": _mean([r.seconds for r in vo.window_results]),
+            "window_iterations_mean": _mean([r.iterations for r in vo.window_results]),
+        })
     return vo, traj, info
 
 
 def run(path: str | Path | Sequence, out: str | Path | None = None, config: OdometryConfig | None = None,
         format: str = "auto", max_frames: int | None = None, progress: bool = False,
-        strict: bool = False, **open_options: Any) -> dict[str, Any]:
+        strict: bool = False, loop_closure: bool = False, **open_options: Any) -> dict[str, Any]:
     """Run gtvo on a sequence folder (or an opened :class:`Sequence`) and write its outputs.
 
     Args:
@@ -84,6 +93,9 @@ def run(path: str | Path | Sequence, out: str | Path | None = None, config: Odom
         format, max_frames, open_options: passed to :func:`gtvo.datasets.open_sequence`.
         progress: show a progress bar.
         strict: stop at the first unreadable frame instead of skipping it.
+        loop_closure: after the run, detect loops among the keyframes, optimise the keyframe
+            pose graph robustly (GNC) and write ``trajectory_loop_closed.tum`` as a second
+            output (:mod:`gtvo.loop_closing`).
 
     Returns:
         The report (also written to ``out/report.json``), with ``"out"`` added.
@@ -94,7 +106,16 @@ def run(path: str | Path | Sequence, out: str | Path | None = None, config: Odom
         seq = seq.truncated(max_frames)
     out_dir = Path(out) if out is not None else Path("gtvo_out") / seq.name
     vo, traj, info = process_sequence(seq, config, progress=progress, strict=strict)
-    report = write_run_outputs(out_dir, traj, seq, info, points=vo.point_cloud())
+    closed = None
+    if loop_closure:
+        from gtvo.loop_closing import close_loops_of_run  # noqa: PLC0415
+
+        keyframes = [p for p, e in enumerate(vo.estimates) if e.is_keyframe]
+        res = close_loops_of_run(seq, traj, [e.index for e in vo.estimates], keyframes, progress=progress)
+        closed = res.trajectory
+        info["loops_detected"] = len(res.candidates)
+        info["loops_accepted"] = int(sum(res.accepted))
+    report = write_run_outputs(out_dir, traj, seq, info, points=vo.point_cloud(), loop_closed=closed)
     report["out"] = str(out_dir)
     return report
 

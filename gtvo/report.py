@@ -80,11 +80,14 @@ def write_point_cloud(path: str | Path, points: NDArray[np.float64], intensity: 
 
 
 def write_run_outputs(out_dir: str | Path, est: Trajectory, seq: Sequence, run_info: dict[str, Any],
-                      points: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None) -> dict[str, Any]:
+                      points: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None,
+                      loop_closed: Trajectory | None = None) -> dict[str, Any]:
     """Write a run's outputs into ``out_dir`` and return the report written to ``report.json``.
 
     ``run_info`` holds the run's own figures (frames, keyframes, seconds, ...); metrics are added
-    when the sequence has ground truth. Every file is written atomically.
+    when the sequence has ground truth. ``loop_closed``, when given, is written as
+    ``trajectory_loop_closed.tum`` and evaluated as ``loop_closed_*``. Every file is written
+    atomically.
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -103,6 +106,13 @@ def write_run_outputs(out_dir: str | Path, est: Trajectory, seq: Sequence, run_i
     else:
         report["ground_truth"] = False
         plot_trajectory_top_view(est, None, out / "trajectory.png", title=f"{seq.name} (no ground truth)")
+    if loop_closed is not None:
+        write_tum(out / "trajectory_loop_closed.tum", loop_closed)
+        pair_lc = ground_truth(seq, loop_closed)
+        if pair_lc is not None:
+            m = evaluate(*pair_lc)
+            report["loop_closed_ate_rmse_m"] = m["ate_rmse_m"]
+            report["loop_closed_drift_percent"] = m["drift_percent"]
     if points is not None and len(points[0]):
         try:
             write_point_cloud(out / "points.ply", *points)

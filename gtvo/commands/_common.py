@@ -22,8 +22,12 @@ def parse_floats(text: str, n: int, what: str) -> tuple[float, ...]:
 
 def add_odometry_options(p: argparse.ArgumentParser) -> None:
     """Options of the odometry shared by ``run`` and ``demo``."""
+    p.add_argument("--mode", choices=("window", "track"), default="window",
+                   help="window (default): every new keyframe joins a sliding window of 7 keyframes whose poses, "
+                        "brightness and inverse depths are optimised jointly; track: each frame is only tracked "
+                        "against the latest keyframe (faster, less accurate)")
     p.add_argument("--solver", choices=("handrolled", "gtsam"), default="handrolled",
-                   help="frame tracking solver (default: handrolled)")
+                   help="solver of the frame tracker and of the window (default: handrolled)")
     p.add_argument("--points", type=int, default=2000, metavar="N", help="points per keyframe (default 2000)")
     p.add_argument("--motion-model", choices=("constant-velocity", "kalman"), default="constant-velocity",
                    help="initial guess of each frame's pose (default: constant-velocity)")
@@ -34,13 +38,15 @@ def odometry_config(args: Any):
     """An :class:`OdometryConfig` from parsed options."""
     from gtvo.odometry import OdometryConfig  # noqa: PLC0415
 
-    return OdometryConfig(solver=args.solver, points_per_keyframe=args.points, motion_model=args.motion_model)
+    return OdometryConfig(solver=args.solver, points_per_keyframe=args.points, motion_model=args.motion_model,
+                          mode=args.mode, window_solver=args.solver)
 
 
 def print_report(report: dict[str, Any]) -> None:
     """Print the headline figures of a run's report."""
-    keys = ("frames", "keyframes", "seconds", "frames_per_second", "tracking_failures", "ate_rmse_m",
-            "rpe_trans_rmse_m", "drift_percent", "points")
+    keys = ("frames", "keyframes", "seconds", "frames_per_second", "tracking_failures", "window_optimisations",
+            "window_seconds_mean", "ate_rmse_m", "rpe_trans_rmse_m", "drift_percent", "loops_detected",
+            "loops_accepted", "loop_closed_ate_rmse_m", "loop_closed_drift_percent", "points")
     for k in keys:
         if k in report and report[k] is not None:
             v = report[k]

@@ -19,11 +19,12 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="dataset layout (default: auto-detect)")
     p.add_argument("--out", metavar="DIR", default=None, help="output folder (default gtvo_out/<name>)")
     p.add_argument("--max-frames", type=int, metavar="N", default=None, help="use only the first N frames")
-    p.add_argument("--mode", choices=("track",), default="track",
-                   help="track: each frame against the latest stereo keyframe (the sliding window lands later)")
     p.add_argument("--camera", metavar="FX,FY,CX,CY", default=None, help="intrinsics for TUM folders")
     p.add_argument("--ground-truth", metavar="FILE", default=None, help="ground truth to use instead of the folder's")
     p.add_argument("--strict", action="store_true", help="stop at an unreadable frame instead of skipping it")
+    p.add_argument("--loop-closure", action="store_true",
+                   help="detect loops among the keyframes, optimise the keyframe pose graph robustly (GNC) and "
+                        "write DIR/trajectory_loop_closed.tum as a second output")
     add_odometry_options(p)
     p.set_defaults(func=main)
 
@@ -36,8 +37,10 @@ def main(args: argparse.Namespace) -> int:
         options["camera"] = parse_floats(args.camera, 4, "--camera")
     if args.ground_truth is not None:
         options["ground_truth"] = args.ground_truth
-    report = run(args.sequence, out=args.out, config=odometry_config(args), format=args.format,
-                 max_frames=args.max_frames, progress=not args.no_progress, strict=args.strict, **options)
+    config = odometry_config(args)
+    report = run(args.sequence, out=args.out, config=config, format=args.format,
+                 max_frames=args.max_frames, progress=not args.no_progress, strict=args.strict,
+                 loop_closure=args.loop_closure, **options)
     print(f"gtvo run: {report['sequence']} ({report['mode']}, {report['solver']} solver)", file=sys.stdout)
     print_report(report)
     return 0

@@ -1,0 +1,730 @@
+"""Sliding-window joint optimisation of keyframe poses, affine brightness and inverse depths.
+
+A window holds the last ``N`` keyframes (default 7). Each keyframe hosts its points (pixels,
+inverse depths ``d`` and variances ``V`` from stereo or an RGB-D sensor); the cost is
+
+    E = sum_h [ sum_{t in targets(h)} sum_n rho(|sqrt(W) r_{n,h->t}|)      (photometric, factors.photometric)
+                + sum_n rho(|sqrt(lambda W) r^stereo_n|)                   (stereo energy, right image)
+                + sum_n (d_n - d_n^0)^2 / (2 V_n) ]                         (depth prior: RGB-D only)
+        + sum_k |(a_k, b_k) - (a_k^0, b_k^0)|^2_Sigma_affine / 2            (weak affine priors)
+        + gauge prior on the oldest keyframe (pose and affine)  OR  the marginalisation prior
+
+over the keyframes' poses ``x_k`` (``T_world_cam``, GTSAM Pose3, right perturbation), affine
+brightness ``(a_k, b_k)`` and all inverse depths. ``targets(h)``: the other keyframes of the
+window into which at least ``min_visible_points`` / ``min_visible_fraction`` of the host's points
+project (checked by projection at the window's starting state). Two solvers minimise the same E:
+
+* :func:`solve_gtsam`: one :class:`factors.smart.HostPointsFactor` per host (depths
+  Schur-eliminated inside the factor), priors as GTSAM factors, the marginalisation prior as
+  ``gtsam.LinearContainerFactor``; solved by ``gtsam.LevenbergMarquardtOptimizer``.
+* :func:`solve_handrolled`: Levenberg-Marquardt on the reduced camera system (poses + affines)
+  assembled in numpy from the kernels of :mod:`factors.photometric`, inverse depths eliminated by
+  the Schur complement and recovered by back-substitution.
+
+:class:`SlidingWindowOptimizer` keeps the window: :meth:`~SlidingWindowOptimizer.add_keyframe`
+marginalises the oldest keyframe (and the points it hosts) when the window is full: the factors
+touching it are linearised at the current estimate, it is eliminated
+(``GaussianFactorGraph.eliminatePartialMultifrontal``) and the marginal on the remaining keyframes
+is kept as a prior with a fixed linearisation point. Residuals of other hosts' points in the
+leaving keyframe are dropped (as DSO does). Details and the consistency choice: docs/window.md.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Literal, Sequence
+
+import gtsam
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from factors.gtsam_factors import DEFAULT_HUBER_K, DEFAULT_SIGMA_INTENSITY
+from factors.photometric import (PATTERN_DSO8, PATTERN_SINGLE, GradientImage, huber_loss, huber_weight,
+                                 pattern_bearings, photometric_residuals,
+                                 sample_host, stereo_residuals, variance_weight)
+from factors.smart import HostPointsFactor
+from gtvo.camera import MIN_DEPTH, PinholeCamera
+from gtvo.errors import InputError
+
+FloatArray = NDArray[np.float64]
+WindowSolverName = Literal["gtsam", "handrolled"]
+
+
+def pose_key(frame_index: int) -> int:
+    """GTSAM key of a keyframe's pose (``x<frame index>``)."""
+    return gtsam.symbol("x", int(frame_index))
+
+
+def affine_key(frame_index: int) -> int:
+    """GTSAM key of a keyframe's affine brightness ``(a, b)`` (``a<frame index>``)."""
+    return gtsam.symbol("a", int(frame_index))
+
+
+@dataclass(frozen=True)
+class WindowConfig:
+    """Settings of the window (defaults follow DSO where DSO has one).
+
+    Attributes:
+        size: keyframes in the window (DSO: 7).
+        sigma_intensity, huber_k, pattern: the photometric weight ``W``, the Huber threshold on a
+            point's whitened pattern norm and the residual pattern (the factors' defaults: 8 grey
+            levels, k = 3, DSO's 8-pixel pattern).
+        lambda_stereo: weight of the host's stereo energy ``lambda E_s`` (the notes'
+            ``E = E_d + lambda E_s``); 1 treats a left-right residual like a temporal one: both
+            compare two images of the same sensor type with the same noise.
+        affine_sigma: ``(sigma_a, sigma_b)`` of the prior of each keyframe's affine brightness
+            around its tracked value. DSO without photometric calibration leaves ``(a, b)`` free;
+            (1.0 log gain, 100 grey levels) is a weak prior that only keeps the system regular.
+        gauge_sigma: sigma (rad, m; log gain, grey levels) of the gauge prior that fixes the oldest
+            keyframe's pose and affine while no marginalisation prior exists.
+        min_visible_points, min_visible_fraction: a keyframe is a target of a host when at least
+            this many (and this fraction) of the host's points project into it, in front of it.
+        max_iterations: LM iterations per window optimisation (DSO: 6 per new keyframe).
+        relative_tolerance: stop when an iteration lowers the cost by less than this fraction.
+        marginalize: keep leaving keyframes' information as a prior (False: simply drop them).
+    """
+
+    size: int = 7
+    sigma_intensity: float = DEFAULT_SIGMA_INTENSITY
+    huber_k: float | None = DEFAULT_HUBER_K
+    pattern: FloatArray = field(default_factory=lambda: PATTERN_DSO8.copy())
+    lambda_stereo: float = 1.0
+    affine_sigma: tuple[float, float] = (1.0, 100.0)
+    gauge_sigma: float = 1e-6
+    min_visible_points: int = 30
+    min_visible_fraction: float = 0.1
+    max_iterations: int = 6
+    relative_tolerance: float = 1e-4
+    marginalize: bool = True
+
+    def __post_init__(self) -> None:
+        if int(self.size) < 2:
+            raise InputError(f"window size must be >= 2, got {self.size}")
+        if not (self.lambda_stereo > 0 and np.isfinite(self.lambda_stereo)):
+            raise InputError(f"lambda_stereo must be positive, got {self.lambda_stereo!r}")
+        if not all(s > 0 and np.isfinite(s) for s in self.affine_sigma):
+            raise InputError(f"affine_sigma must be positive, got {self.affine_sigma!r}")
+        if self.max_iterations < 1:
+            raise InputError(f"max_iterations must be >= 1, got {self.max_iterations}")
+
+
+@dataclass
+class WindowKeyframe:
+    """One keyframe of the window: its state and its hosted points.
+
+    Attributes:
+        index: frame index (the keys are ``x<index>``, ``a<index>``).
+        pose: ``T_world_cam`` of the left camera.
+        affine: ``(a, b)`` of its left image (window-wide brightness reference).
+        image: left image with gradients.
+        pixels, inverse_depth, variance: its points (N, 2), (N,), (N,).
+        right: right image with gradients (stereo energy), or None.
+        depth_prior: keep ``(d - prior_inverse_depth)^2 / V`` (RGB-D: the sensor's depth).
+        prior_inverse_depth: the depth prior's mean (default: the initial inverse depths).
+        affine_prior: mean of the affine prior (default: the initial affine).
+        stereo_affine: the right image's ``(a, b)`` relative to the left one (held fixed).
+    """
+
+    index: int
+    pose: gtsam.Pose3
+    affine: FloatArray
+    image: GradientImage
+    pixels: FloatArray
+    inverse_depth: FloatArray
+    variance: FloatArray
+    right: GradientImage | None = None
+    depth_prior: bool = False
+    prior_inverse_depth: FloatArray | None = None
+    affine_prior: FloatArray | None = None
+    stereo_affine: FloatArray = field(default_factory=lambda: np.zeros(2))
+
+    def __post_init__(self) -> None:
+        self.pixels = np.asarray(self.pixels, dtype=float).reshape(-1, 2)
+        n = self.pixels.shape[0]
+        self.inverse_depth = np.asarray(self.inverse_depth, dtype=float).reshape(-1).copy()
+        self.variance = np.broadcast_to(np.asarray(self.variance, dtype=float), (n,)).copy()
+        self.affine = np.asarray(self.affine, dtype=float).reshape(2).copy()
+        if n == 0 or self.inverse_depth.shape[0] != n:
+            raise InputError(f"keyframe {self.index}: need N > 0 points with one inverse depth each")
+        if not (np.all(np.isfinite(self.inverse_depth)) and np.all(self.inverse_depth > 0)
+                and np.all(np.isfinite(self.variance)) and np.all(self.variance > 0)):
+            raise InputError(f"keyframe {self.index}: inverse depths and variances must be finite and > 0")
+        if self.right is None and not self.depth_prior:
+            raise InputError(f"keyframe {self.index}: without a right image the depths need a depth prior")
+        if self.prior_inverse_depth is None:
+            self.prior_inverse_depth = self.inverse_depth.copy()
+        if self.affine_prior is None:
+            self.affine_prior = self.affine.copy()
+        self.stereo_affine = np.asarray(self.stereo_affine, dtype=float).reshape(2)
+
+    def __len__(self) -> int:
+        return int(self.pixels.shape[0])
+
+
+@dataclass
+class MarginalPrior:
+    """The information of marginalised keyframes on the remaining ones, a quadratic in
+
+    ``delta = x_lin.localCoordinates(x)`` (per key) with a fixed linearisation point ``x_lin``::
+
+        E_m(x) = 0.5 delta^T H delta - eta^T delta + 0.5 f
+
+    (GTSAM's augmented-Hessian form). ``factors`` are the same quadratic as GTSAM linear factors.
+    """
+
+    keys: list[int]
+    dims: list[int]
+    H: FloatArray
+    eta: FloatArray
+    f: float
+    linearization_point: gtsam.Values
+    factors: gtsam.GaussianFactorGraph
+
+    def delta(self, values: gtsam.Values) -> FloatArray:
+        """``x_lin.localCoordinates(x)`` stacked over :attr:`keys`."""
+        return np.asarray(self.linearization_point.localCoordinates(_subset(values, self.keys)).vector(
+            list(self.keys)), dtype=float)
+
+    def cost(self, values: gtsam.Values) -> float:
+        """``E_m`` at ``values``."""
+        dl = self.delta(values)
+        return float(0.5 * dl @ self.H @ dl - self.eta @ dl + 0.5 * self.f)
+
+    def nonlinear_factors(self) -> list[gtsam.LinearContainerFactor]:
+        """The prior as ``gtsam.LinearContainerFactor`` s (fixed linearisation point)."""
+        return [gtsam.LinearContainerFactor(self.factors.at(i), self.linearization_point)
+                for i in range(self.factors.size())]
+
+
+@dataclass
+class WindowResult:
+    """Outcome of one window optimisation.
+
+    Attributes:
+        solver: which solver ran.
+        initial_cost, cost: E before and after.
+        iterations: LM iterations.
+        seconds: wall time.
+        n_residuals: point-target pairs in the photometric terms.
+    """
+
+    solver: str
+    initial_cost: float
+    cost: float
+    iterations: int
+    seconds: float
+    n_residuals: int
+
+
+# ----------------------------------------------------------------------------------------------
+# the problem shared by both solvers
+
+
+def _ordering(keys: Sequence[int]) -> gtsam.Ordering:
+    o = gtsam.Ordering()
+    for k in keys:
+        o.push_back(k)
+    return o
+
+
+def _subset(values: gtsam.Values, keys: Sequence[int]) -> gtsam.Values:
+    out = gtsam.Values()
+    for k in keys:
+        if gtsam.Symbol(k).chr() == ord("x"):
+            out.insert(k, values.atPose3(k))
+        else:
+            out.insert(k, values.atVector(k))
+    return out
+
+
+def window_values(keyframes: Sequence[WindowKeyframe]) -> gtsam.Values:
+    """The keyframes' poses and affines as GTSAM ``Values``."""
+    v = gtsam.Values()
+    for kf in keyframes:
+        v.insert(pose_key(kf.index), kf.pose)
+        v.insert(affine_key(kf.index), kf.affine)
+    return v
+
+
+def visible_targets(camera: PinholeCamera, keyframes: Sequence[WindowKeyframe], config: WindowConfig
+                    ) -> list[list[int]]:
+    """For each host (position in ``keyframes``), the positions of the keyframes that see its points.
+
+    A point counts as seen when it projects in front of the target and inside its image with a
+    2-pixel border; a target needs ``min_visible_points`` and ``min_visible_fraction`` of them.
+    """
+    out: list[list[int]] = []
+    for h, kh in enumerate(keyframes):
+        X = camera.backproject_inverse_depth(kh.pixels, kh.inverse_depth)
+        Th = kh.pose.matrix()
+        Xw = X @ Th[:3, :3].T + Th[:3, 3]
+        ts: list[int] = []
+        for t, kt in enumerate(keyframes):
+            if t == h:
+                continue
+            Tt = kt.pose.inverse().matrix()
+            Xt = Xw @ Tt[:3, :3].T + Tt[:3, 3]
+            front = Xt[:, 2] > MIN_DEPTH
+            z = np.where(front, Xt[:, 2], 1.0)
+            u = camera.fx * Xt[:, 0] / z + camera.cx
+            v = camera.fy * Xt[:, 1] / z + camera.cy
+            inside = front & (u >= 2) & (u <= camera.width - 3) & (v >= 2) & (v <= camera.height - 3)
+            n = int(np.count_nonzero(inside))
+            if n >= config.min_visible_points and n >= config.min_visible_fraction * len(kh):
+                ts.append(t)
+        out.append(ts)
+    return out
+
+
+def _gauge_noise(config: WindowConfig, dim: int) -> gtsam.noiseModel.Base:
+    return gtsam.noiseModel.Isotropic.Sigma(dim, config.gauge_sigma)
+
+
+def prior_factors(keyframes: Sequence[WindowKeyframe], config: WindowConfig, with_gauge: bool
+                  ) -> gtsam.NonlinearFactorGraph:
+    """Affine priors of every keyframe, and (``with_gauge``) the gauge prior on the oldest."""
+    g = gtsam.NonlinearFactorGraph()
+    aff_noise = gtsam.noiseModel.Diagonal.Sigmas(np.asarray(config.affine_sigma, dtype=float))
+    for kf in keyframes:
+        g.add(gtsam.PriorFactorVector(affine_key(kf.index), np.asarray(kf.affine_prior, dtype=float), aff_noise))
+    if with_gauge and keyframes:
+        k0 = keyframes[0]
+        g.add(gtsam.PriorFactorPose3(pose_key(k0.index), k0.pose, _gauge_noise(config, 6)))
+        g.add(gtsam.PriorFactorVector(affine_key(k0.index), k0.affine.copy(), _gauge_noise(config, 2)))
+    return g
+
+
+def host_factor(camera: PinholeCamera, baseline: float | None, keyframes: Sequence[WindowKeyframe], h: int,
+                targets: Sequence[int], config: WindowConfig) -> HostPointsFactor:
+    """The :class:`HostPointsFactor` of host ``keyframes[h]`` observed in ``targets`` (positions)."""
+    kh = keyframes[h]
+    return HostPointsFactor(
+        pose_key(kh.index), [pose_key(keyframes[t].index) for t in targets], camera, kh.pixels,
+        kh.inverse_depth, kh.image, [keyframes[t].image for t in targets], kh.variance,
+        sigma_intensity=config.sigma_intensity, huber_k=config.huber_k, affine_host_key=affine_key(kh.index),
+        affine_target_keys=[affine_key(keyframes[t].index) for t in targets], depth_prior=kh.depth_prior,
+        pattern=config.pattern, right_image=kh.right, baseline=baseline if kh.right is not None else None,
+        lambda_stereo=config.lambda_stereo, stereo_affine=kh.stereo_affine,
+        prior_inverse_depth=kh.prior_inverse_depth)
+
+
+def estimate_stereo_affine(camera: PinholeCamera, baseline: float, left: GradientImage, right: GradientImage,
+                           pixels: ArrayLike, inverse_depth: ArrayLike, inverse_depth_variance: ArrayLike,
+                           pattern: ArrayLike = PATTERN_SINGLE,
+                           sigma_intensity: float = DEFAULT_SIGMA_INTENSITY) -> FloatArray:
+    """The right image's brightness ``(a, b)`` relative to the left one: ``I_R ~ exp(a) I_L + b``.
+
+    Fitted by weighted least squares over the points' pattern pixels at their stereo matches,
+    weights ``W = (2 sigma_I^2 + (dr/dd)^2 V)^-1`` (a pixel on a strong horizontal gradient
+    carries the depth's uncertainty), twice, the second time without the pixels whose residual
+    exceeds 3 times the first fit's median absolute residual (occlusions, specularities). The two
+    cameras of a rig have their own gain (KITTI: about 0.96 with an offset of 2-3 grey levels); a
+    stereo term that ignores it pulls depths.
+    The default pattern is the point's own pixel, where its stereo match was found (on the
+    synthetic rig the 8-pixel pattern biases the log gain by 5e-3, the single pixel by 2e-3).
+    Returns ``(0, 0)`` when fewer than 50 pixels are usable.
+    """
+    pat = np.asarray(pattern, dtype=float).reshape(-1, 2)
+    I_L, ok_L = sample_host(left, pixels, pat)
+    lin = stereo_residuals(camera, baseline, I_L, ok_L, pixels, inverse_depth, right, (0.0, 0.0), (0.0, 0.0), pat)
+    ok = lin.valid
+    if np.count_nonzero(ok) < 50:
+        return np.zeros(2)
+    x = I_L[ok]
+    y = lin.residual[ok] + x  # I_R at the match
+    sw = np.sqrt(variance_weight(lin.J_depth, inverse_depth_variance, sigma_intensity)[ok])
+    keep = np.ones(x.shape[0], dtype=bool)
+    gain, offset = 1.0, 0.0
+    for _ in range(2):
+        A = np.c_[x[keep], np.ones(np.count_nonzero(keep))] * sw[keep, None]
+        gain, offset = np.linalg.lstsq(A, y[keep] * sw[keep], rcond=None)[0]
+        res = np.abs(y - gain * x - offset)
+        keep = res <= 3.0 * max(float(np.median(res)), 1e-6)
+    if not (np.isfinite(gain) and gain > 0 and np.isfinite(offset)):
+        return np.zeros(2)
+    return np.array([np.log(gain), offset])
+
+
+# ----------------------------------------------------------------------------------------------
+# GTSAM solver
+
+
+def build_graph(camera: PinholeCamera, baseline: float | None, keyframes: Sequence[WindowKeyframe],
+                config: WindowConfig, marginal: MarginalPrior | None,
+                targets: list[list[int]] | None = None
+                ) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values, dict[int, HostPointsFactor]]:
+    """The window's factor graph: one smart factor per host with targets, priors, marginal prior.
+
+    Returns ``(graph, values, host_factors)`` with ``host_factors[position] = factor``.
+    """
+    targets = visible_targets(camera, keyframes, config) if targets is None else targets
+    graph = prior_factors(keyframes, config, with_gauge=marginal is None)
+    hosts: dict[int, HostPointsFactor] = {}
+    for h, ts in enumerate(targets):
+        if ts:
+            f = host_factor(camera, baseline, keyframes, h, ts, config)
+            hosts[h] = f
+            graph.add(f)
+    if marginal is not None:
+        for f in marginal.nonlinear_factors():
+            graph.add(f)
+    return graph, window_values(keyframes), hosts
+
+
+def solve_gtsam(camera: PinholeCamera, baseline: float | None, keyframes: Sequence[WindowKeyframe],
+                config: WindowConfig, marginal: MarginalPrior | None = None,
+                targets: list[list[int]] | None = None) -> WindowResult:
+    """Optimise the window with ``gtsam.LevenbergMarquardtOptimizer``; updates ``keyframes`` in place."""
+    t0 = time.perf_counter()
+    targets = visible_targets(camera, keyframes, config) if targets is None else targets
+    graph, values, hosts = build_graph(camera, baseline, keyframes, config, marginal, targets)
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(config.max_iterations)
+    params.setRelativeErrorTol(config.relative_tolerance)
+    params.setAbsoluteErrorTol(0.0)
+    params.setDiagonalDamping(True)  # Marquardt: lambda scales diag(H), as the hand-rolled solver
+    params.setlambdaUpperBound(1e10)
+    opt = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
+    initial = opt.error()  # computed by the optimiser at construction: no extra pass
+    result = opt.optimize()
+    cost = opt.error()
+    for h, f in hosts.items():
+        keyframes[h].inverse_depth = f.commit(result).copy()
+    for kf in keyframes:
+        kf.pose = result.atPose3(pose_key(kf.index))
+        kf.affine = np.asarray(result.atVector(affine_key(kf.index)), dtype=float).copy()
+    n_res = sum(len(keyframes[h]) * len(ts) for h, ts in enumerate(targets))
+    return WindowResult("gtsam", float(initial), float(cost), int(opt.iterations()), time.perf_counter() - t0, n_res)
+
+
+# ----------------------------------------------------------------------------------------------
+# hand-rolled solver: reduced camera system
+
+
+class _HostTerms:
+    """Frozen per-host data of the hand-rolled solver: host samples and the weights W.
+
+    W is evaluated once, at the window's starting state, as :class:`HostPointsFactor` does at
+    its first linearisation, so both solvers minimise the same fixed cost.
+    """
+
+    def __init__(self, camera: PinholeCamera, baseline: float | None, keyframes: Sequence[WindowKeyframe],
+                 h: int, targets: Sequence[int], config: WindowConfig) -> None:
+        kh = keyframes[h]
+        self.h, self.targets, self.camera, self.baseline, self.config = h, list(targets), camera, baseline, config
+        self.host_I, self.host_valid = sample_host(kh.image, kh.pixels, config.pattern)
+        self.bearings = pattern_bearings(camera, kh.pixels, config.pattern)  # fixed per host
+        self.W: list[FloatArray] = []
+        for t in self.targets:
+            lin = self._target(keyframes, t, kh.inverse_depth, [k.pose for k in keyframes],
+                               [k.affine for k in keyframes], jac=False)
+            self.W.append(variance_weight(lin.J_depth, kh.variance, config.sigma_intensity))
+        self.W_stereo = None
+        if kh.right is not None:
+            st = self._stereo(kh, kh.inverse_depth)
+            self.W_stereo = config.lambda_stereo * variance_weight(st.J_depth, kh.variance, config.sigma_intensity)
+
+    def _target(self, keyframes, t, d, poses, affines, jac):
+        kh = keyframes[self.h]
+        return photometric_residuals(self.camera, self.host_I, self.host_valid, kh.pixels, d, poses[self.h],
+                                     poses[t], keyframes[t].image, affines[self.h], affines[t],
+                                     self.config.pattern, jacobians=jac, host_jacobians=jac,
+                                     bearings=self.bearings)
+
+    def _stereo(self, kh: WindowKeyframe, d: FloatArray):
+        return stereo_residuals(self.camera, self.baseline, self.host_I, self.host_valid, kh.pixels, d, kh.right,
+                                (0.0, 0.0), kh.stereo_affine, self.config.pattern)
+
+    def _robust(self, W: FloatArray, r: FloatArray) -> tuple[FloatArray, FloatArray]:
+        norm = np.sqrt(np.sum(W * r * r, axis=1))
+        k = self.config.huber_k
+        if k is None:
+            return np.ones_like(norm), 0.5 * norm ** 2
+        return huber_weight(norm, k), huber_loss(norm, k)
+
+    def cost(self, keyframes, poses, affines, d) -> float:
+        kh = keyframes[self.h]
+        E = 0.0
+        for j, t in enumerate(self.targets):
+            lin = self._target(keyframes, t, d, poses, affines, jac=False)
+            E += float(self._robust(self.W[j], lin.residual)[1].sum())
+        if self.W_stereo is not None:
+            E += float(self._robust(self.W_stereo, self._stereo(kh, d).residual)[1].sum())
+        if kh.depth_prior:
+            E += 0.5 * float(np.sum((d - kh.prior_inverse_depth) ** 2 / kh.variance))
+        return E
+
+    def linearize(self, keyframes, poses, affines, d, H: FloatArray, g: FloatArray):
+        """Add this host's Gauss-Newton terms to the full ``H``, ``g`` (8 per keyframe); return
+        ``(E, H_pd (N, 8K), H_dd (N,), g_d (N,))``."""
+        kh = keyframes[self.h]
+        n = d.shape[0]
+        H_pd = np.zeros((n, H.shape[0]))
+        H_dd = np.zeros(n)
+        g_d = np.zeros(n)
+        E = 0.0
+        for j, t in enumerate(self.targets):
+            lin = self._target(keyframes, t, d, poses, affines, jac=True)
+            w, loss = self._robust(self.W[j], lin.residual)
+            E += float(loss.sum())
+            ww = self.W[j] * w[:, None]
+            J = np.concatenate([lin.J_host, lin.J_affine_host, lin.J_target, lin.J_affine_target], axis=-1)
+            cols = np.r_[8 * self.h:8 * self.h + 8, 8 * t:8 * t + 8]
+            Jw = (J * ww[..., None]).reshape(-1, 16)
+            H[np.ix_(cols, cols)] += Jw.T @ J.reshape(-1, 16)
+            g[cols] += Jw.T @ lin.residual.reshape(-1)
+            H_pd[:, cols] += np.einsum("npk,np->nk", Jw.reshape(n, -1, 16), lin.J_depth)
+            H_dd += np.sum(ww * lin.J_depth ** 2, axis=1)
+            g_d += np.sum(ww * lin.J_depth * lin.residual, axis=1)
+        if self.W_stereo is not None:
+            st = self._stereo(kh, d)
+            w, loss = self._robust(self.W_stereo, st.residual)
+            ww = self.W_stereo * w[:, None]
+            H_dd += np.sum(ww * st.J_depth ** 2, axis=1)
+            g_d += np.sum(ww * st.J_depth * st.residual, axis=1)
+            E += float(loss.sum())
+        if kh.depth_prior:
+            H_dd += 1.0 / kh.variance
+            g_d += (d - kh.prior_inverse_depth) / kh.variance
+            E += 0.5 * float(np.sum((d - kh.prior_inverse_depth) ** 2 / kh.variance))
+        return E, H_pd, H_dd, g_d
+
+
+def _prior_terms(keyframes, poses, affines, config, with_gauge, H=None, g=None) -> float:
+    """Affine priors and gauge prior: cost, and (given H, g) their Gauss-Newton terms."""
+    E = 0.0
+    s_aff = np.asarray(config.affine_sigma, dtype=float)
+    for k, kf in enumerate(keyframes):
+        e = (affines[k] - kf.affine_prior) / s_aff
+        E += 0.5 * float(e @ e)
+        if H is not None:
+            idx = np.arange(8 * k + 6, 8 * k + 8)
+            H[idx, idx] += 1.0 / s_aff ** 2
+            g[idx] += e / s_aff
+    if with_gauge:
+        k0 = keyframes[0]
+        s2 = config.gauge_sigma ** 2
+        Jp = np.zeros((6, 6), order="F")
+        e = np.asarray(k0.pose.localCoordinates(poses[0], None, Jp), dtype=float)
+        ea = affines[0] - k0.affine
+        E += 0.5 * float(e @ e + ea @ ea) / s2
+        if H is not None:
+            H[:6, :6] += Jp.T @ Jp / s2
+            g[:6] += Jp.T @ e / s2
+            H[6:8, 6:8] += np.eye(2) / s2
+            g[6:8] += ea / s2
+    return E
+
+
+def _marginal_terms(marginal: MarginalPrior | None, keyframes, poses, affines, H=None, g=None) -> float:
+    """The marginalisation prior's cost, and (given H, g) its terms (Jacobian of delta taken as I,
+    as ``gtsam.LinearContainerFactor`` does)."""
+    if marginal is None:
+        return 0.0
+    values = gtsam.Values()
+    for k, kf in enumerate(keyframes):
+        values.insert(pose_key(kf.index), poses[k])
+        values.insert(affine_key(kf.index), affines[k])
+    dl = marginal.delta(values)
+    if H is not None:
+        pos = {pose_key(kf.index): 8 * k for k, kf in enumerate(keyframes)}
+        pos.update({affine_key(kf.index): 8 * k + 6 for k, kf in enumerate(keyframes)})
+        idx = np.concatenate([np.arange(pos[key], pos[key] + dim) for key, dim in zip(marginal.keys, marginal.dims)])
+        H[np.ix_(idx, idx)] += marginal.H
+        g[idx] += marginal.H @ dl - marginal.eta
+    return float(0.5 * dl @ marginal.H @ dl - marginal.eta @ dl + 0.5 * marginal.f)
+
+
+def window_cost(camera: PinholeCamera, baseline: float | None, keyframes: Sequence[WindowKeyframe],
+                config: WindowConfig, marginal: MarginalPrior | None = None,
+                targets: list[list[int]] | None = None, terms: list[_HostTerms] | None = None) -> float:
+    """The window cost E at the keyframes' current state, computed the hand-rolled way (W at this state)."""
+    targets = visible_targets(camera, keyframes, config) if targets is None else targets
+    if terms is None:
+        terms = [_HostTerms(camera, baseline, keyframes, h, ts, config) for h, ts in enumerate(targets)]
+    poses = [kf.pose for kf in keyframes]
+    affines = [kf.affine for kf in keyframes]
+    E = sum(t.cost(keyframes, poses, affines, keyframes[t.h].inverse_depth) for t in terms)
+    E += _prior_terms(keyframes, poses, affines, config, marginal is None)
+    return E + _marginal_terms(marginal, keyframes, poses, affines)
+
+
+def solve_handrolled(camera: PinholeCamera, baseline: float | None, keyframes: Sequence[WindowKeyframe],
+                     config: WindowConfig, marginal: MarginalPrior | None = None,
+                     targets: list[list[int]] | None = None) -> WindowResult:
+    """Levenberg-Marquardt on the reduced camera system; updates ``keyframes`` in place.
+
+    Per iteration: every host's Gauss-Newton blocks over (poses, affines) ``x`` (8 per keyframe)
+    and its inverse depths ``d`` (diagonal ``H_dd``), the Schur complement
+    ``H_red = H_xx - sum_n H_xd H_xd^T / H_dd``, ``g_red = g_x - sum_n H_xd g_d / H_dd``, the
+    damped step ``(H_red + lambda diag(H_red)) dx = -g_red`` and the back-substitution
+    ``dd = -(g_d + H_xd^T dx) / H_dd``; the step is kept when the true cost decreases.
+    """
+    t0 = time.perf_counter()
+    targets = visible_targets(camera, keyframes, config) if targets is None else targets
+    terms = [_HostTerms(camera, baseline, keyframes, h, ts, config) for h, ts in enumerate(targets) if ts]
+    K = len(keyframes)
+    with_gauge = marginal is None
+    poses = [kf.pose for kf in keyframes]
+    affines = [kf.affine.copy() for kf in keyframes]
+    depths = {t.h: keyframes[t.h].inverse_depth.copy() for t in terms}
+
+    def cost(P, A, D) -> float:
+        E = sum(t.cost(keyframes, P, A, D[t.h]) for t in terms)
+        E += _prior_terms(keyframes, P, A, config, with_gauge)
+        return E + _marginal_terms(marginal, keyframes, P, A)
+
+    E = initial = cost(poses, affines, depths)
+    lam = 1e-5
+    it = 0
+    for it in range(1, config.max_iterations + 1):
+        H = np.zeros((8 * K, 8 * K))
+        g = np.zeros(8 * K)
+        lins = {}
+        for t in terms:
+            _, H_pd, H_dd, g_d = t.linearize(keyframes, poses, affines, depths[t.h], H, g)
+            active = H_dd > 1e-12 * max(float(H_dd.max()), 1e-300)
+            Hdd = np.where(active, H_dd, 1.0)
+            L = H_pd[active] / Hdd[active, None]
+            H -= L.T @ H_pd[active]
+            g -= L.T @ g_d[active]
+            lins[t.h] = (H_pd, Hdd, g_d, active)
+        _prior_terms(keyframes, poses, affines, config, with_gauge, H, g)
+        _marginal_terms(marginal, keyframes, poses, affines, H, g)
+        H = 0.5 * (H + H.T)
+        diag = np.maximum(np.diag(H), 1e-12 * max(float(np.max(np.diag(H))), 1e-300))
+        accepted = False
+        for _ in range(10):
+            dx = np.linalg.solve(H + lam * np.diag(diag), -g)
+            P = [p.retract(dx[8 * k:8 * k + 6]) for k, p in enumerate(poses)]
+            A = [a + dx[8 * k + 6:8 * k + 8] for k, a in enumerate(affines)]
+            D = {}
+            for h, (H_pd, Hdd, g_d, active) in lins.items():
+                step = np.zeros_like(g_d)
+                step[active] = -(g_d[active] + H_pd[active] @ dx) / Hdd[active]
+                D[h] = np.maximum(depths[h] + step, 0.1 * depths[h])
+            E_new = cost(P, A, D)
+            if E_new < E:
+                accepted = True
+                break
+            lam *= 10.0
+        if not accepted:
+            break
+        decrease = E - E_new
+        poses, affines, depths, E = P, A, D, E_new
+        lam = max(lam / 10.0, 1e-7)
+        if decrease < config.relative_tolerance * max(E, 1e-300):
+            break
+    for k, kf in enumerate(keyframes):
+        kf.pose = poses[k]
+        kf.affine = np.asarray(affines[k], dtype=float).copy()
+        if k in depths:
+            kf.inverse_depth = depths[k].copy()
+    n_res = sum(len(keyframes[h]) * len(ts) for h, ts in enumerate(targets))
+    return WindowResult("handrolled", float(initial), float(E), it, time.perf_counter() - t0, n_res)
+
+
+# ----------------------------------------------------------------------------------------------
+# marginalisation and the window
+
+
+def marginalize(camera: PinholeCamera, baseline: float | None, keyframes: Sequence[WindowKeyframe],
+                config: WindowConfig, marginal: MarginalPrior | None, position: int = 0) -> MarginalPrior:
+    """Marginalise ``keyframes[position]`` and its points; return the prior on the others.
+
+    The factors touching it (its host factor into the keyframes that see its points, its affine
+    prior, the gauge prior or the previous marginal prior) are linearised at the current state;
+    its pose and affine are eliminated; what is left (a quadratic on the remaining keyframes) is
+    the new prior, with the current state as its fixed linearisation point. Residuals of other
+    hosts' points in the leaving keyframe are not part of it (they are dropped).
+    """
+    kf = keyframes[position]
+    targets = visible_targets(camera, keyframes, config)[position]
+    graph = gtsam.NonlinearFactorGraph()
+    if targets:
+        graph.add(host_factor(camera, baseline, keyframes, position, targets, config))
+    aff_noise = gtsam.noiseModel.Diagonal.Sigmas(np.asarray(config.affine_sigma, dtype=float))
+    graph.add(gtsam.PriorFactorVector(affine_key(kf.index), np.asarray(kf.affine_prior, dtype=float), aff_noise))
+    if marginal is None:
+        graph.add(gtsam.PriorFactorPose3(pose_key(kf.index), kf.pose, _gauge_noise(config, 6)))
+        graph.add(gtsam.PriorFactorVector(affine_key(kf.index), kf.affine.copy(), _gauge_noise(config, 2)))
+    else:
+        for f in marginal.nonlinear_factors():
+            graph.add(f)
+    values = window_values(keyframes)
+    linear = graph.linearize(values)
+    leaving = [pose_key(kf.index), affine_key(kf.index)]
+    _, remaining = linear.eliminatePartialMultifrontal(_ordering(leaving))
+    present = set(remaining.keyVector())
+    keys, dims = [], []
+    for other in keyframes:
+        for key, dim in ((pose_key(other.index), 6), (affine_key(other.index), 2)):
+            if key in present:
+                keys.append(key)
+                dims.append(dim)
+    aug = remaining.augmentedHessian(_ordering(keys))
+    n = aug.shape[0] - 1
+    H = 0.5 * (aug[:n, :n] + aug[:n, :n].T)
+    return MarginalPrior(keys, dims, H, aug[:n, n].copy(), float(aug[n, n]), _subset(values, keys), remaining)
+
+
+class SlidingWindowOptimizer:
+    """A window of keyframes optimised jointly, with marginalisation of the keyframes that leave.
+
+    Args:
+        camera: left-camera intrinsics (all keyframes share them).
+        baseline: stereo baseline (m), or None for RGB-D input.
+        config: window settings.
+
+    Example::
+
+        window = SlidingWindowOptimizer(camera, baseline)
+        window.add_keyframe(WindowKeyframe(...))   # marginalises the oldest when full
+        result = window.optimize("gtsam")          # keyframes updated in place
+    """
+
+    def __init__(self, camera: PinholeCamera, baseline: float | None, config: WindowConfig | None = None) -> None:
+        self.camera = camera
+        self.baseline = baseline
+        self.config = config or WindowConfig()
+        self.keyframes: list[WindowKeyframe] = []
+        self.marginal: MarginalPrior | None = None
+        self.n_removed = 0  # keyframes that left the window (not kept: they hold images)
+        self.results: list[WindowResult] = []
+
+    def add_keyframe(self, keyframe: WindowKeyframe) -> None:
+        """Append a keyframe; when the window is full, the oldest leaves first (marginalised)."""
+        if any(k.index == keyframe.index for k in self.keyframes):
+            raise InputError(f"keyframe {keyframe.index} is already in the window")
+        while len(self.keyframes) >= self.config.size:
+            self.remove_oldest()
+        self.keyframes.append(keyframe)
+
+    def remove_oldest(self) -> WindowKeyframe:
+        """Remove the oldest keyframe: marginalised into the prior (or dropped, per the config)."""
+        if self.config.marginalize:
+            self.marginal = marginalize(self.camera, self.baseline, self.keyframes, self.config, self.marginal, 0)
+        kf = self.keyframes.pop(0)
+        self.n_removed += 1
+        return kf
+
+    def cost(self) -> float:
+        """The window cost at the current state (W evaluated at this state)."""
+        return window_cost(self.camera, self.baseline, self.keyframes, self.config, self.marginal)
+
+    def optimize(self, solver: WindowSolverName = "gtsam") -> WindowResult | None:
+        """Optimise the window (None when fewer than two keyframes); keyframes are updated in place."""
+        if len(self.keyframes) < 2:
+            return None
+        targets = visible_targets(self.camera, self.keyframes, self.config)
+        if not any(targets):
+            return None
+        if solver == "gtsam":
+            res = solve_gtsam(self.camera, self.baseline, self.keyframes, self.config, self.marginal, targets)
+        elif solver == "handrolled":
+            res = solve_handrolled(self.camera, self.baseline, self.keyframes, self.config, self.marginal, targets)
+        else:
+            raise InputError(f"unknown window solver {solver!r}: use 'gtsam' or 'handrolled'")
+        self.results.append(res)
+        return res
