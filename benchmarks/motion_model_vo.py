@@ -4,7 +4,8 @@ VO on real KITTI frames, one run (issue 7, item 3).
     python benchmarks/motion_model_vo.py [--sequence DIR] [--max-frames N] [--solvers handrolled,gtsam]
                                          [--repeats R] [--json OUT]
 
-For each solver, gtvo runs with ``OdometryConfig(motion_model="constant-velocity")`` and with
+For each solver, gtvo runs in ``mode="track"`` (the tracker alone, no window) with
+``OdometryConfig(motion_model="constant-velocity")`` and with
 ``motion_model="kalman"`` on the same preloaded frames (interleaved, ``--repeats`` times; the
 figures except time are deterministic, the time is the median). Rows: mean tracking iterations
 per tracked frame (the tracker's LM iterations summed over pyramid levels, as
