@@ -1,9 +1,55 @@
 """gtvo: a factor-graph backend for direct stereo visual odometry on GTSAM.
 
 Data flows one way: readers (:mod:`gtvo.datasets`) -> frames and camera
-(:mod:`gtvo.camera`, :mod:`gtvo.image`) -> front end -> factors (:mod:`factors`) ->
-solvers -> outputs (:mod:`gtvo.trajectory`, plots, point clouds).
-Conventions (frames, pixel centres, Pose3 tangent order): ``docs/conventions.md``.
+(:mod:`gtvo.camera`, :mod:`gtvo.image`) -> front end (:mod:`gtvo.frontend`,
+:mod:`gtvo.odometry`) -> factors (:mod:`factors`) -> solvers (:mod:`gtvo.tracking`,
+:mod:`gtvo.window`, :mod:`gtvo.posegraph`) -> outputs (:mod:`gtvo.trajectory_io`,
+:mod:`gtvo.report`). Conventions (frames, pixel centres, Pose3 tangent order):
+``docs/conventions.md``.
+
+The top-level names are the small API most users need (imported on first use, so
+``import gtvo`` stays cheap)::
+
+    import gtvo
+    seq = gtvo.open_sequence("KITTI_sequence_1")
+    vo = gtvo.VisualOdometry(seq.camera, gtvo.OdometryConfig(mode="window"))
+    for frame in seq:
+        vo.process(frame)
+    report = gtvo.run("KITTI_sequence_1", out="out/")   # the whole `gtvo run` job
 """
 
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
 __version__ = "0.1.0"
+
+_EXPORTS = {
+    "open_sequence": "gtvo.datasets",
+    "Sequence": "gtvo.sequence",
+    "Frame": "gtvo.sequence",
+    "PinholeCamera": "gtvo.camera",
+    "StereoCamera": "gtvo.camera",
+    "VisualOdometry": "gtvo.odometry",
+    "OdometryConfig": "gtvo.odometry",
+    "SlidingWindowOptimizer": "gtvo.window",
+    "Trajectory": "gtvo.trajectory",
+    "run": "gtvo.pipeline",
+    "InputError": "gtvo.errors",
+}
+
+__all__ = ["__version__", *_EXPORTS]
+
+
+def __getattr__(name: str) -> Any:
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module 'gtvo' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(__all__)
