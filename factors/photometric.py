@@ -301,18 +301,22 @@ def stereo_residuals(camera: PinholeCamera, baseline: float, left_intensity: Arr
                      left_valid: ArrayLike | None, pixels: ArrayLike, inverse_depth: ArrayLike,
                      right: GradientSampler, affine_left: ArrayLike = (0.0, 0.0),
                      affine_right: ArrayLike = (0.0, 0.0),
-                     pattern: ArrayLike = PATTERN_DSO8) -> PhotometricLinearization:
+                     pattern: ArrayLike = PATTERN_DSO8, jacobians: bool = True,
+                     bearings: ArrayLike | None = None) -> PhotometricLinearization:
     """Left-right residual of points of a rectified stereo frame.
 
     ``p' = d^R K T_RL (d^L)^-1 K^-1 p`` with ``T_RL`` a translation ``(-b, 0, 0)``: the right
     pixel is ``(u - fx b d, v)``, so ``dp'/dd = (-fx b, 0)`` (not zero) and
     ``dr/dd = -fx b gx_R``. Returned as a :class:`PhotometricLinearization` whose "host" is
     the left image and "target" the right image (pose Jacobians are None).
+    ``jacobians=False``: residuals, masks and ``J_depth`` only (affine Jacobians None too);
+    ``bearings``: precomputed :func:`pattern_bearings` of the left pixels.
     """
     T_world_right = np.eye(4)
     T_world_right[0, 3] = float(baseline)  # right camera at +b along the left x axis
     lin = photometric_residuals(camera, left_intensity, left_valid, pixels, inverse_depth, np.eye(4),
-                                T_world_right, right, affine_left, affine_right, pattern, jacobians=True)
+                                T_world_right, right, affine_left, affine_right, pattern, jacobians=jacobians,
+                                host_jacobians=jacobians, bearings=bearings)
     lin.J_host = None
     lin.J_target = None
     return lin

@@ -201,7 +201,8 @@ class HostPointsFactor(gtsam.CustomFactor):
                                              host_jacobians=True, bearings=self.bearings))
         out.append(None if self.right_image is None else
                    stereo_residuals(self.camera, self.baseline, self.host_intensity, self.host_valid, self.pixels,
-                                    d, self.right_image, (0.0, 0.0), self.stereo_affine, self.pattern))
+                                    d, self.right_image, (0.0, 0.0), self.stereo_affine, self.pattern, jacobians=False,
+                                    bearings=self.bearings))
         self._state_lins = (state, out)
         return out
 

@@ -459,7 +459,8 @@ class _HostTerms:
 
     def _stereo(self, kh: WindowKeyframe, d: FloatArray):
         return stereo_residuals(self.camera, self.baseline, self.host_I, self.host_valid, kh.pixels, d, kh.right,
-                                (0.0, 0.0), kh.stereo_affine, self.config.pattern)
+                                (0.0, 0.0), kh.stereo_affine, self.config.pattern, jacobians=False,
+                                bearings=self.bearings)
 
     def _robust(self, W: FloatArray, r: FloatArray) -> tuple[FloatArray, FloatArray]:
         norm = np.sqrt(np.sum(W * r * r, axis=1))
