@@ -59,7 +59,8 @@ def accuracy(path: Path) -> None:
     ref = Trajectory(np.asarray(seq.timestamps, dtype=float), np.asarray(seq.gt_poses), name="gt")
     rows = [("track", OdometryConfig(mode="track")),
             ("window gtsam", OdometryConfig(mode="window", window_solver="gtsam")),
-            ("window handrolled", OdometryConfig(mode="window", window_solver="handrolled"))]
+            ("window handrolled", OdometryConfig(mode="window", window_solver="handrolled")),
+            ("window fixed_lag", OdometryConfig(mode="window", window=WindowConfig(backend="fixed_lag")))]
     print(f"{'mode':<20} {'ATE m':>7} {'drift %':>8} {'RPE m':>7} {'s/frame':>8} {'kf':>4} {'windows':>8} "
           f"{'s/window':>9} {'it/window':>9}")
     for name, cfg in rows:

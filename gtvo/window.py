@@ -83,6 +83,11 @@ class WindowConfig:
         max_iterations: LM iterations per window optimisation (DSO: 6 per new keyframe).
         relative_tolerance: stop when an iteration lowers the cost by less than this fraction.
         marginalize: keep leaving keyframes' information as a prior (False: simply drop them).
+        backend: ``"lm"``: each window optimised by a solver (:func:`solve_gtsam` or
+            :func:`solve_handrolled`) and leaving keyframes marginalised by :func:`marginalize`;
+            ``"fixed_lag"``: a ``gtsam.IncrementalFixedLagSmoother`` (iSAM2) holds the window,
+            the keyframe's sequence number as timestamp and lag ``size - 0.5``, and marginalises
+            leaving keyframes itself (docs/window.md, "Fixed-lag backend").
     """
 
     size: int = 7
@@ -97,8 +102,11 @@ class WindowConfig:
     max_iterations: int = 6
     relative_tolerance: float = 1e-4
     marginalize: bool = True
+    backend: Literal["lm", "fixed_lag"] = "lm"
 
     def __post_init__(self) -> None:
+        if self.backend not in ("lm", "fixed_lag"):
+            raise InputError(f"unknown window backend {self.backend!r}: use 'lm' or 'fixed_lag'")
         if int(self.size) < 2:
             raise InputError(f"window size must be >= 2, got {self.size}")
         if not (self.lambda_stereo > 0 and np.isfinite(self.lambda_stereo)):
@@ -716,6 +724,11 @@ class SlidingWindowOptimizer:
         self.marginal: MarginalPrior | None = None
         self.n_removed = 0  # keyframes that left the window (not kept: they hold images)
         self.results: list[WindowResult] = []
+        # fixed-lag backend: the smoother, sequence numbers (timestamps) and host factors in it
+        self._smoother: gtsam.IncrementalFixedLagSmoother | None = None
+        self._stamp: dict[int, float] = {}
+        self._next_stamp = 0
+        self._host_slots: dict[int, tuple[int, HostPointsFactor]] = {}  # kf index -> (factor index, factor)
 
     def add_keyframe(self, keyframe: WindowKeyframe) -> None:
         """Append a keyframe; when the window is full, the oldest leaves first (marginalised)."""
@@ -726,7 +739,14 @@ class SlidingWindowOptimizer:
         self.keyframes.append(keyframe)
 
     def remove_oldest(self) -> WindowKeyframe:
-        """Remove the oldest keyframe: marginalised into the prior (or dropped, per the config)."""
+        """Remove the oldest keyframe: marginalised into the prior (or dropped, per the config).
+
+        With the fixed-lag backend the smoother marginalises it at the next :meth:`optimize`.
+        """
+        if self.config.backend == "fixed_lag":
+            kf = self.keyframes.pop(0)
+            self.n_removed += 1
+            return kf
         if self.config.marginalize:
             self.marginal = marginalize(self.camera, self.baseline, self.keyframes, self.config, self.marginal, 0)
         kf = self.keyframes.pop(0)
@@ -738,13 +758,18 @@ class SlidingWindowOptimizer:
         return window_cost(self.camera, self.baseline, self.keyframes, self.config, self.marginal)
 
     def optimize(self, solver: WindowSolverName = "gtsam") -> WindowResult | None:
-        """Optimise the window (None when fewer than two keyframes); keyframes are updated in place."""
+        """Optimise the window (None when fewer than two keyframes); keyframes are updated in place.
+
+        ``solver`` chooses the LM path's solver; the fixed-lag backend ignores it (GTSAM's smoother).
+        """
         if len(self.keyframes) < 2:
             return None
         targets = visible_targets(self.camera, self.keyframes, self.config)
         if not any(targets):
             return None
-        if solver == "gtsam":
+        if self.config.backend == "fixed_lag":
+            res = self._optimize_fixed_lag(targets)
+        elif solver == "gtsam":
             res = solve_gtsam(self.camera, self.baseline, self.keyframes, self.config, self.marginal, targets)
         elif solver == "handrolled":
             res = solve_handrolled(self.camera, self.baseline, self.keyframes, self.config, self.marginal, targets)
@@ -752,3 +777,69 @@ class SlidingWindowOptimizer:
             raise InputError(f"unknown window solver {solver!r}: use 'gtsam' or 'handrolled'")
         self.results.append(res)
         return res
+
+    def _optimize_fixed_lag(self, targets: list[list[int]]) -> WindowResult:
+        """One update of the fixed-lag smoother, then ``max_iterations - 1`` more (iSAM2 takes one
+        Gauss-Newton step per update, relinearising every variable).
+
+        Each call removes the host factors of the keyframes still in the window and adds them again
+        with the current targets and depths (a host gains the new keyframe as a target); the host
+        factor of a keyframe that has left stays and is marginalised with its pose and affine by
+        the smoother (its depths frozen inside the marginal, as :func:`marginalize` does).
+        Residuals of remaining hosts' points in the leaving keyframe are dropped (as in the LM path).
+        """
+        t0 = time.perf_counter()
+        cfg = self.config
+        if self._smoother is None:
+            params = gtsam.ISAM2Params()
+            params.setRelinearizeThreshold(0.0)
+            params.relinearizeSkip = 1
+            self._smoother = gtsam.IncrementalFixedLagSmoother(float(cfg.size) - 0.5, params)
+        graph = gtsam.NonlinearFactorGraph()
+        values = gtsam.Values()
+        stamps: dict[int, float] = {}
+        new = [kf for kf in self.keyframes if kf.index not in self._stamp]
+        for kf in new:
+            self._stamp[kf.index] = float(self._next_stamp)
+            self._next_stamp += 1
+            for key, val in ((pose_key(kf.index), kf.pose), (affine_key(kf.index), kf.affine)):
+                values.insert(key, val)
+                stamps[key] = self._stamp[kf.index]
+        first = len(self._stamp) == len(new)
+        priors = prior_factors(new, cfg, with_gauge=False)
+        for i in range(priors.size()):
+            graph.add(priors.at(i))
+        if first:  # gauge prior on the oldest keyframe, once (later the marginal fixes the gauge)
+            gauge = prior_factors(self.keyframes[:1], cfg, with_gauge=True)
+            for i in range(1, gauge.size()):
+                graph.add(gauge.at(i))
+        in_window = {kf.index for kf in self.keyframes}
+        remove = [slot for idx, (slot, _) in self._host_slots.items() if idx in in_window]
+        for idx in [i for i in self._host_slots if i in in_window]:
+            del self._host_slots[idx]
+        added: list[tuple[int, HostPointsFactor]] = []
+        for h, ts in enumerate(targets):
+            if ts:
+                f = host_factor(self.camera, self.baseline, self.keyframes, h, ts, cfg)
+                graph.add(f)
+                added.append((self.keyframes[h].index, f))
+        for idx in [i for i in self._host_slots if i not in in_window]:
+            del self._host_slots[idx]  # marginalised by this update
+        n_prior = graph.size() - len(added)
+        self._smoother.update(graph, values, stamps, remove)
+        ind = list(self._smoother.getISAM2Result().getNewFactorsIndices())
+        for (idx, f), slot in zip(added, ind[n_prior:]):
+            self._host_slots[idx] = (int(slot), f)
+        for _ in range(cfg.max_iterations - 1):
+            self._smoother.update()
+        est = self._smoother.calculateEstimate()
+        pos = {kf.index: h for h, kf in enumerate(self.keyframes)}
+        for idx, (_, f) in self._host_slots.items():
+            self.keyframes[pos[idx]].inverse_depth = f.commit(est).copy()
+        for kf in self.keyframes:
+            kf.pose = est.atPose3(pose_key(kf.index))
+            kf.affine = np.asarray(est.atVector(affine_key(kf.index)), dtype=float).copy()
+        n_res = sum(len(self.keyframes[h]) * len(ts) for h, ts in enumerate(targets))
+        return WindowResult("fixed_lag", float("nan"), float("nan"), cfg.max_iterations,
+                            time.perf_counter() - t0, n_res)
+
