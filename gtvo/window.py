@@ -27,6 +27,10 @@ touching it are linearised at the current estimate, it is eliminated
 (``GaussianFactorGraph.eliminatePartialMultifrontal``) and the marginal on the remaining keyframes
 is kept as a prior with a fixed linearisation point. Residuals of other hosts' points in the
 leaving keyframe are dropped (as DSO does). Details and the consistency choice: docs/window.md.
+
+``WindowConfig(backend="fixed_lag")`` hands the window to ``gtsam.IncrementalFixedLagSmoother``
+instead (keyframe sequence number as timestamp, lag ``size - 0.5``): the smoother marginalises
+leaving keyframes with their host factor (depths frozen in the marginal); docs/window.md.
 """
 
 from __future__ import annotations

@@ -302,3 +302,27 @@ def test_fixed_lag_backend_matches_lm_and_keeps_the_marginal(seq):
     assert all(np.all(k.inverse_depth > 0) for k in fl.keyframes)
     with pytest.raises(InputError):
         WindowConfig(backend="isam")
+
+
+def test_smart_factor_evaluates_each_state_once(seq, monkeypatch):
+    """LM's cost pass at a state and the linearisation at the same state share one evaluation of
+    the photometric residuals (one call per target); a new state costs a new evaluation."""
+    import factors.smart as smart
+
+    cam = seq.camera
+    kfs = _keyframes(seq, [0, 2, 4], points=150)
+    graph, values, hosts = build_graph(cam.left, cam.baseline, kfs, WindowConfig(), None)
+    calls = []
+    real = smart.photometric_residuals
+    monkeypatch.setattr(smart, "photometric_residuals", lambda *a, **k: calls.append(1) or real(*a, **k))
+    f = hosts[0]
+    n_t = len(f.target_keys)
+    e0 = f.error(values)
+    assert len(calls) == n_t
+    f.linearize(values)  # same state: no new evaluation
+    assert len(calls) == n_t
+    assert np.isfinite(e0) and e0 > 0
+    moved = gtsam.Values(values)
+    moved.update(pose_key(kfs[1].index), kfs[1].pose.retract(np.r_[0, 0, 0, 0.01, 0, 0]))
+    f.error(moved)
+    assert len(calls) == 2 * n_t
