@@ -14,6 +14,13 @@ per iteration, and the ratio to 500 points (linear growth: ratio ~ points / 500)
 
     OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 python benchmarks/window_kitti.py \
         [accuracy|speed|synthetic|all] [KITTI_DIR]
+
+Before/after (``compare``): the ``speed`` and ``accuracy`` parts of this script run as
+subprocesses in another checkout of gtvo (e.g. ``git worktree add /tmp/gtvo-old <commit>``)
+and in this one, alternately (old, new, old, new for ``speed``), so that both are measured under
+the same machine load:
+
+    python benchmarks/window_kitti.py compare /tmp/gtvo-old [KITTI_DIR] [speed,speed,accuracy]
 """
 
 from __future__ import annotations
@@ -27,6 +34,7 @@ import copy  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
+from typing import Sequence  # noqa: E402
 
 import gtsam  # noqa: E402
 import numpy as np  # noqa: E402
@@ -51,16 +59,18 @@ def accuracy(path: Path) -> None:
     ref = Trajectory(np.asarray(seq.timestamps, dtype=float), np.asarray(seq.gt_poses), name="gt")
     rows = [("track", OdometryConfig(mode="track")),
             ("window gtsam", OdometryConfig(mode="window", window_solver="gtsam")),
-            ("window handrolled", OdometryConfig(mode="window", window_solver="handrolled"))]
+            ("window handrolled", OdometryConfig(mode="window", window_solver="handrolled")),
+            ("window fixed_lag", OdometryConfig(mode="window", window=WindowConfig(backend="fixed_lag")))]
     print(f"{'mode':<20} {'ATE m':>7} {'drift %':>8} {'RPE m':>7} {'s/frame':>8} {'kf':>4} {'windows':>8} "
-          f"{'s/window':>9}")
+          f"{'s/window':>9} {'it/window':>9}")
     for name, cfg in rows:
         vo, traj, info = process_sequence(seq, cfg)
         m = evaluate(traj, ref)
         sw = info.get("window_seconds_mean")
         print(f"{name:<20} {m['ate_rmse_m']:7.4f} {m['drift_percent']:8.3f} {m['rpe_trans_rmse_m']:7.4f} "
               f"{info['seconds'] / info['frames']:8.3f} {info['keyframes']:4d} "
-              f"{info.get('window_optimisations', 0):8d} {sw if sw is not None else float('nan'):9.3f}")
+              f"{info.get('window_optimisations', 0):8d} {sw if sw is not None else float('nan'):9.3f} "
+              f"{info.get('window_iterations_mean') or float('nan'):9.2f}")
 
 
 def synthetic() -> None:
@@ -120,8 +130,24 @@ def speed(path: Path) -> None:
               f"{per[0] / base[0]:6.2f} {th:7.3f} {rb.iterations:3d} {per[1]:6.3f} {per[1] / base[1]:6.2f}")
 
 
+def compare(old_tree: Path, path: Path, parts: Sequence[str] = ("speed", "speed", "accuracy")) -> None:
+    """Run each of ``parts`` in ``old_tree``, then in this checkout (default: ``speed`` twice, ``accuracy``)."""
+    import subprocess  # noqa: PLC0415
+
+    here = Path(__file__).resolve().parents[1]
+    for what in parts:
+        for name, tree in (("old", Path(old_tree).resolve()), ("new", here)):
+            out = subprocess.run([sys.executable, str(tree / "benchmarks" / "window_kitti.py"), what, str(path)],
+                                 cwd=tree, capture_output=True, text=True, check=True).stdout
+            print(f"--- {what}, {name} ({tree})\n{out}", flush=True)
+
+
 if __name__ == "__main__":
     what = sys.argv[1] if len(sys.argv) > 1 else "all"
+    if what == "compare":
+        compare(Path(sys.argv[2]), Path(sys.argv[3]) if len(sys.argv) > 3 else DEFAULT,
+                sys.argv[4].split(",") if len(sys.argv) > 4 else ("speed", "speed", "accuracy"))
+        sys.exit(0)
     data = Path(sys.argv[2]) if len(sys.argv) > 2 else DEFAULT
     if what in ("speed", "all"):
         speed(data)

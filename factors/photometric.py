@@ -226,7 +226,8 @@ def photometric_residuals(camera: PinholeCamera, host_intensity: ArrayLike, host
     good_d = np.isfinite(d) & (d > 0)
     ds = np.where(good_d, d, 1.0)
     f = pattern_bearings(camera, px, pat) if bearings is None else np.asarray(bearings, dtype=float)
-    q = f @ R.T + ds[:, None, None] * t
+    # (N*P, 3) products: numpy runs (N, P, 3) @ (3, 3) as N small products, 2.5-5x slower
+    q = (f.reshape(-1, 3) @ R.T).reshape(n, p, 3) + ds[:, None, None] * t
     qz = q[..., 2]
     front = qz > MIN_DEPTH * ds[:, None]
     qzs = np.where(front, qz, 1.0)
@@ -251,7 +252,7 @@ def photometric_residuals(camera: PinholeCamera, host_intensity: ArrayLike, host
     a[..., 0] = gx * camera.fx * iz
     a[..., 1] = gy * camera.fy * iz
     a[..., 2] = -(a[..., 0] * q[..., 0] + a[..., 1] * q[..., 1]) * iz
-    J_depth = a @ t
+    J_depth = (a.reshape(-1, 3) @ t).reshape(n, p)
     if not jacobians:
         return PhotometricLinearization(r, valid, J_depth, None, None, None, None, uv, n_bad, n_behind, n_out)
     dd = ds[:, None, None]
@@ -263,7 +264,7 @@ def photometric_residuals(camera: PinholeCamera, host_intensity: ArrayLike, host
     J_aff_t = np.stack([-hb, -vf], axis=-1)
     J_host = J_aff_h = None
     if host_jacobians:
-        ap = a @ R  # R^T a, row form
+        ap = (a.reshape(-1, 3) @ R).reshape(n, p, 3)  # R^T a, row form
         J_host = np.empty((n, p, 6))
         _cross_into(J_host, f, ap)
         J_host[..., 3:] = dd * ap
@@ -301,18 +302,22 @@ def stereo_residuals(camera: PinholeCamera, baseline: float, left_intensity: Arr
                      left_valid: ArrayLike | None, pixels: ArrayLike, inverse_depth: ArrayLike,
                      right: GradientSampler, affine_left: ArrayLike = (0.0, 0.0),
                      affine_right: ArrayLike = (0.0, 0.0),
-                     pattern: ArrayLike = PATTERN_DSO8) -> PhotometricLinearization:
+                     pattern: ArrayLike = PATTERN_DSO8, jacobians: bool = True,
+                     bearings: ArrayLike | None = None) -> PhotometricLinearization:
     """Left-right residual of points of a rectified stereo frame.
 
     ``p' = d^R K T_RL (d^L)^-1 K^-1 p`` with ``T_RL`` a translation ``(-b, 0, 0)``: the right
     pixel is ``(u - fx b d, v)``, so ``dp'/dd = (-fx b, 0)`` (not zero) and
     ``dr/dd = -fx b gx_R``. Returned as a :class:`PhotometricLinearization` whose "host" is
     the left image and "target" the right image (pose Jacobians are None).
+    ``jacobians=False``: residuals, masks and ``J_depth`` only (affine Jacobians None too);
+    ``bearings``: precomputed :func:`pattern_bearings` of the left pixels.
     """
     T_world_right = np.eye(4)
     T_world_right[0, 3] = float(baseline)  # right camera at +b along the left x axis
     lin = photometric_residuals(camera, left_intensity, left_valid, pixels, inverse_depth, np.eye(4),
-                                T_world_right, right, affine_left, affine_right, pattern, jacobians=True)
+                                T_world_right, right, affine_left, affine_right, pattern, jacobians=jacobians,
+                                host_jacobians=jacobians, bearings=bearings)
     lin.J_host = None
     lin.J_target = None
     return lin

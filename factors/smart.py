@@ -35,8 +35,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from factors.gtsam_factors import DEFAULT_HUBER_K, DEFAULT_SIGMA_INTENSITY
-from factors.photometric import (PATTERN_DSO8, GradientSampler, huber_loss, huber_weight, photometric_residuals,
-                                 sample_host, stereo_residuals, variance_weight)
+from factors.photometric import (PATTERN_DSO8, GradientSampler, huber_loss, huber_weight, pattern_bearings,
+                                 photometric_residuals, sample_host, stereo_residuals, variance_weight)
 from gtvo.camera import PinholeCamera
 from gtvo.errors import InputError
 
@@ -116,6 +116,7 @@ class HostPointsFactor(gtsam.CustomFactor):
             raise InputError("HostPointsFactor: a depth prior needs positive inverse-depth variances")
         self.pattern = np.asarray(pattern, dtype=float).reshape(-1, 2)
         self.host_intensity, self.host_valid = sample_host(host_image, self.pixels, self.pattern)
+        self.bearings = pattern_bearings(camera, self.pixels, self.pattern)  # fixed: host pixels only
         self.target_images = list(target_images)
         self.sigma = float(sigma_intensity)
         self.huber_k = huber_k
@@ -141,6 +142,7 @@ class HostPointsFactor(gtsam.CustomFactor):
         self._lin: _Linearization | None = None
         self._W: list[FloatArray] | None = None
         self._cached: tuple[FloatArray, list[FloatArray]] | None = None
+        self._state_lins: tuple[FloatArray, list] | None = None  # (state, lins) of the last evaluation
         super().__init__(gtsam.noiseModel.Unit.Create(self.dim + 1), self.pose_keys + self.affine_keys,
                          self._evaluate)
 
@@ -175,44 +177,68 @@ class HostPointsFactor(gtsam.CustomFactor):
         self._lin = None
         self._W = None
         self._cached = None
+        self._state_lins = None
         return self.depths
 
     # --- residuals ---------------------------------------------------------------------------
-    def _target_terms(self, poses, affs, d, jac: bool):
-        """Per target: linearisation, whitening s = sqrt(W), Huber IRLS weights and loss."""
-        out = []
+    def _lins(self, poses, affs, d) -> list:
+        """Linearisations (with Jacobians) of every target, then the stereo term (or None), at a state.
+
+        One evaluation per state: LM evaluates the cost at a trial state and, when it accepts it,
+        linearises at the same state; the cost pass already computes the Jacobians (about a third
+        of a pass's time, the bilinear gathers being the rest) so that the linearisation reuses it.
+        """
+        state = np.concatenate([np.concatenate([p.matrix().ravel() for p in poses])]
+                               + [np.asarray(a, dtype=float) for a in affs] + [d])
+        if self._state_lins is not None and np.array_equal(self._state_lins[0], state):
+            return self._state_lins[1]
         ah = affs[0] if self.with_affine else np.zeros(2)
+        out: list = []
         for t, img in enumerate(self.target_images):
             at = affs[1 + t] if self.with_affine else np.zeros(2)
-            lin = photometric_residuals(self.camera, self.host_intensity, self.host_valid, self.pixels, d,
-                                        poses[0], poses[1 + t], img, ah, at, self.pattern, jacobians=jac,
-                                        host_jacobians=jac)
-            W = variance_weight(lin.J_depth, self.variance, self.sigma) if self._W is None else self._W[t]
-            norm = np.sqrt(np.sum(W * lin.residual ** 2, axis=1))
-            if self.huber_k is None:
-                w, loss = np.ones_like(norm), 0.5 * norm ** 2
-            else:
-                w, loss = huber_weight(norm, self.huber_k), huber_loss(norm, self.huber_k)
-            out.append((lin, W, w, loss, norm))
+            out.append(photometric_residuals(self.camera, self.host_intensity, self.host_valid, self.pixels, d,
+                                             poses[0], poses[1 + t], img, ah, at, self.pattern, jacobians=True,
+                                             host_jacobians=True, bearings=self.bearings))
+        out.append(None if self.right_image is None else
+                   stereo_residuals(self.camera, self.baseline, self.host_intensity, self.host_valid, self.pixels,
+                                    d, self.right_image, (0.0, 0.0), self.stereo_affine, self.pattern, jacobians=False,
+                                    bearings=self.bearings))
+        self._state_lins = (state, out)
         return out
 
-    def _stereo_term(self, d: FloatArray):
+    def _robust(self, W: FloatArray, r: FloatArray) -> tuple[FloatArray, FloatArray]:
+        norm = np.sqrt(np.sum(W * r ** 2, axis=1))
+        if self.huber_k is None:
+            return np.ones_like(norm), 0.5 * norm ** 2
+        return huber_weight(norm, self.huber_k), huber_loss(norm, self.huber_k)
+
+    def _weights(self, lins: list) -> list[FloatArray]:
+        """W per target (then stereo): frozen at the first evaluation of a run (class docstring)."""
+        if self._W is None:
+            W = [variance_weight(lin.J_depth, self.variance, self.sigma) for lin in lins[:-1]]
+            if lins[-1] is not None:
+                W.append(self.lambda_stereo * variance_weight(lins[-1].J_depth, self.variance, self.sigma))
+            self._W = W
+        return self._W
+
+    def _target_terms(self, poses, affs, d, jac: bool = True):
+        """Per target: linearisation, whitening s = sqrt(W), Huber IRLS weights and loss."""
+        lins = self._lins(poses, affs, d)
+        Ws = self._weights(lins)
+        out = []
+        for t, lin in enumerate(lins[:-1]):
+            w, loss = self._robust(Ws[t], lin.residual)
+            out.append((lin, Ws[t], w, loss, None))
+        return out
+
+    def _stereo_term(self, d: FloatArray, poses=None, affs=None):
         """The stereo residuals of the host frame: (linearisation, lambda W, Huber weight, loss) or None."""
         if self.right_image is None:
             return None
-        lin = stereo_residuals(self.camera, self.baseline, self.host_intensity, self.host_valid, self.pixels, d,
-                               self.right_image, (0.0, 0.0), self.stereo_affine, self.pattern)
-        nt = len(self.target_images)
-        if self._W is None:
-            W = self.lambda_stereo * variance_weight(lin.J_depth, self.variance, self.sigma)
-        else:
-            W = self._W[nt]
-        norm = np.sqrt(np.sum(W * lin.residual ** 2, axis=1))
-        if self.huber_k is None:
-            w, loss = np.ones_like(norm), 0.5 * norm ** 2
-        else:
-            w, loss = huber_weight(norm, self.huber_k), huber_loss(norm, self.huber_k)
-        return lin, W, w, loss
+        lins = self._lins(poses, affs, d)
+        Ws = self._weights(lins)
+        w, loss = self._robust(Ws[-1], lins[-1].residual)
+        return lins[-1], Ws[-1], w, loss
 
     def cost(self, values: gtsam.Values, inverse_depth: ArrayLike | None = None) -> float:
         """The true nonlinear cost at ``values`` with the given (default: current) inverse depths."""
@@ -221,8 +247,8 @@ class HostPointsFactor(gtsam.CustomFactor):
         return self._cost(poses, affs, d)
 
     def _cost(self, poses, affs, d) -> float:
-        E = sum(float(t[3].sum()) for t in self._target_terms(poses, affs, d, False))
-        st = self._stereo_term(d)
+        E = sum(float(t[3].sum()) for t in self._target_terms(poses, affs, d))
+        st = self._stereo_term(d, poses, affs)
         if st is not None:
             E += float(st[3].sum())
         if self.depth_prior:
@@ -242,10 +268,6 @@ class HostPointsFactor(gtsam.CustomFactor):
         if self._lin is not None:
             self.depths = self._depths_at(poses, affs)
         d = self.depths
-        if self._W is None:  # freeze W for this optimisation run (see class docstring)
-            W_list = [t[1] for t in self._target_terms(poses, affs, d, False)]
-            st = self._stereo_term(d)
-            self._W = W_list + ([st[1]] if st is not None else [])
         n, M = d.shape[0], self.dim
         H_pp = np.zeros((M, M))
         g_p = np.zeros(M)
@@ -268,7 +290,7 @@ class HostPointsFactor(gtsam.CustomFactor):
             H_pd[:, cols] += np.einsum("npk,np->nk", Jw, lin.J_depth)
             H_dd += np.sum(ww * lin.J_depth ** 2, axis=1)
             g_d += np.sum(ww * lin.J_depth * lin.residual, axis=1)
-        st = self._stereo_term(d)
+        st = self._stereo_term(d, poses, affs)
         if st is not None:
             lin, W, w, loss = st
             ww = W * w[:, None]

@@ -27,6 +27,10 @@ touching it are linearised at the current estimate, it is eliminated
 (``GaussianFactorGraph.eliminatePartialMultifrontal``) and the marginal on the remaining keyframes
 is kept as a prior with a fixed linearisation point. Residuals of other hosts' points in the
 leaving keyframe are dropped (as DSO does). Details and the consistency choice: docs/window.md.
+
+``WindowConfig(backend="fixed_lag")`` hands the window to ``gtsam.IncrementalFixedLagSmoother``
+instead (keyframe sequence number as timestamp, lag ``size - 0.5``): the smoother marginalises
+leaving keyframes with their host factor (depths frozen in the marginal); docs/window.md.
 """
 
 from __future__ import annotations
@@ -83,6 +87,11 @@ class WindowConfig:
         max_iterations: LM iterations per window optimisation (DSO: 6 per new keyframe).
         relative_tolerance: stop when an iteration lowers the cost by less than this fraction.
         marginalize: keep leaving keyframes' information as a prior (False: simply drop them).
+        backend: ``"lm"``: each window optimised by a solver (:func:`solve_gtsam` or
+            :func:`solve_handrolled`) and leaving keyframes marginalised by :func:`marginalize`;
+            ``"fixed_lag"``: a ``gtsam.IncrementalFixedLagSmoother`` (iSAM2) holds the window,
+            the keyframe's sequence number as timestamp and lag ``size - 0.5``, and marginalises
+            leaving keyframes itself (docs/window.md, "Fixed-lag backend").
     """
 
     size: int = 7
@@ -97,8 +106,11 @@ class WindowConfig:
     max_iterations: int = 6
     relative_tolerance: float = 1e-4
     marginalize: bool = True
+    backend: Literal["lm", "fixed_lag"] = "lm"
 
     def __post_init__(self) -> None:
+        if self.backend not in ("lm", "fixed_lag"):
+            raise InputError(f"unknown window backend {self.backend!r}: use 'lm' or 'fixed_lag'")
         if int(self.size) < 2:
             raise InputError(f"window size must be >= 2, got {self.size}")
         if not (self.lambda_stereo > 0 and np.isfinite(self.lambda_stereo)):
@@ -415,15 +427,40 @@ class _HostTerms:
         self.h, self.targets, self.camera, self.baseline, self.config = h, list(targets), camera, baseline, config
         self.host_I, self.host_valid = sample_host(kh.image, kh.pixels, config.pattern)
         self.bearings = pattern_bearings(camera, kh.pixels, config.pattern)  # fixed per host
-        self.W: list[FloatArray] = []
-        for t in self.targets:
-            lin = self._target(keyframes, t, kh.inverse_depth, [k.pose for k in keyframes],
-                               [k.affine for k in keyframes], jac=False)
-            self.W.append(variance_weight(lin.J_depth, kh.variance, config.sigma_intensity))
+        lins = self._lins(keyframes, kh.inverse_depth, [k.pose for k in keyframes], [k.affine for k in keyframes])
+        self.W: list[FloatArray] = [variance_weight(lin.J_depth, kh.variance, config.sigma_intensity)
+                                    for lin in lins[:-1]]
         self.W_stereo = None
-        if kh.right is not None:
-            st = self._stereo(kh, kh.inverse_depth)
-            self.W_stereo = config.lambda_stereo * variance_weight(st.J_depth, kh.variance, config.sigma_intensity)
+        if lins[-1] is not None:
+            self.W_stereo = config.lambda_stereo * variance_weight(lins[-1].J_depth, kh.variance,
+                                                                   config.sigma_intensity)
+        #: (E, lins) at the window's starting state: the initial cost and the first linearisation
+        self.start = (self._cost_from(kh, kh.inverse_depth, lins), lins)
+
+    def _lins(self, keyframes, d, poses, affines) -> list:
+        """Linearisations (with Jacobians) into every target, then the stereo term (or None).
+
+        LM evaluates the cost at a trial state and, when it accepts the step, linearises there:
+        the Jacobians are computed in the cost pass (about a third of its time, the bilinear
+        gathers being the rest) so that the accepted state is not evaluated twice.
+        """
+        kh = keyframes[self.h]
+        out: list = [self._target(keyframes, t, d, poses, affines, jac=True) for t in self.targets]
+        out.append(self._stereo(kh, d) if kh.right is not None else None)
+        return out
+
+    def _cost_from(self, kh: WindowKeyframe, d: FloatArray, lins: list) -> float:
+        E = sum(float(self._robust(self.W[j], lin.residual)[1].sum()) for j, lin in enumerate(lins[:-1]))
+        if lins[-1] is not None:
+            E += float(self._robust(self.W_stereo, lins[-1].residual)[1].sum())
+        if kh.depth_prior:
+            E += 0.5 * float(np.sum((d - kh.prior_inverse_depth) ** 2 / kh.variance))
+        return E
+
+    def evaluate(self, keyframes, poses, affines, d) -> tuple[float, list]:
+        """This host's cost at a state and the linearisations it was computed from."""
+        lins = self._lins(keyframes, d, poses, affines)
+        return self._cost_from(keyframes[self.h], d, lins), lins
 
     def _target(self, keyframes, t, d, poses, affines, jac):
         kh = keyframes[self.h]
@@ -434,7 +471,8 @@ class _HostTerms:
 
     def _stereo(self, kh: WindowKeyframe, d: FloatArray):
         return stereo_residuals(self.camera, self.baseline, self.host_I, self.host_valid, kh.pixels, d, kh.right,
-                                (0.0, 0.0), kh.stereo_affine, self.config.pattern)
+                                (0.0, 0.0), kh.stereo_affine, self.config.pattern, jacobians=False,
+                                bearings=self.bearings)
 
     def _robust(self, W: FloatArray, r: FloatArray) -> tuple[FloatArray, FloatArray]:
         norm = np.sqrt(np.sum(W * r * r, axis=1))
@@ -444,28 +482,20 @@ class _HostTerms:
         return huber_weight(norm, k), huber_loss(norm, k)
 
     def cost(self, keyframes, poses, affines, d) -> float:
-        kh = keyframes[self.h]
-        E = 0.0
-        for j, t in enumerate(self.targets):
-            lin = self._target(keyframes, t, d, poses, affines, jac=False)
-            E += float(self._robust(self.W[j], lin.residual)[1].sum())
-        if self.W_stereo is not None:
-            E += float(self._robust(self.W_stereo, self._stereo(kh, d).residual)[1].sum())
-        if kh.depth_prior:
-            E += 0.5 * float(np.sum((d - kh.prior_inverse_depth) ** 2 / kh.variance))
-        return E
+        return self.evaluate(keyframes, poses, affines, d)[0]
 
-    def linearize(self, keyframes, poses, affines, d, H: FloatArray, g: FloatArray):
+    def linearize(self, keyframes, poses, affines, d, H: FloatArray, g: FloatArray, lins: list | None = None):
         """Add this host's Gauss-Newton terms to the full ``H``, ``g`` (8 per keyframe); return
-        ``(E, H_pd (N, 8K), H_dd (N,), g_d (N,))``."""
+        ``(E, H_pd (N, 8K), H_dd (N,), g_d (N,))``. ``lins``: :meth:`evaluate`'s at this state."""
         kh = keyframes[self.h]
+        lins = self._lins(keyframes, d, poses, affines) if lins is None else lins
         n = d.shape[0]
         H_pd = np.zeros((n, H.shape[0]))
         H_dd = np.zeros(n)
         g_d = np.zeros(n)
         E = 0.0
         for j, t in enumerate(self.targets):
-            lin = self._target(keyframes, t, d, poses, affines, jac=True)
+            lin = lins[j]
             w, loss = self._robust(self.W[j], lin.residual)
             E += float(loss.sum())
             ww = self.W[j] * w[:, None]
@@ -478,7 +508,7 @@ class _HostTerms:
             H_dd += np.sum(ww * lin.J_depth ** 2, axis=1)
             g_d += np.sum(ww * lin.J_depth * lin.residual, axis=1)
         if self.W_stereo is not None:
-            st = self._stereo(kh, d)
+            st = lins[-1]
             w, loss = self._robust(self.W_stereo, st.residual)
             ww = self.W_stereo * w[:, None]
             H_dd += np.sum(ww * st.J_depth ** 2, axis=1)
@@ -570,12 +600,18 @@ def solve_handrolled(camera: PinholeCamera, baseline: float | None, keyframes: S
     affines = [kf.affine.copy() for kf in keyframes]
     depths = {t.h: keyframes[t.h].inverse_depth.copy() for t in terms}
 
-    def cost(P, A, D) -> float:
-        E = sum(t.cost(keyframes, P, A, D[t.h]) for t in terms)
+    def cost(P, A, D) -> tuple[float, dict[int, list]]:
+        E, L = 0.0, {}
+        for t in terms:
+            e, L[t.h] = t.evaluate(keyframes, P, A, D[t.h])
+            E += e
         E += _prior_terms(keyframes, P, A, config, with_gauge)
-        return E + _marginal_terms(marginal, keyframes, P, A)
+        return E + _marginal_terms(marginal, keyframes, P, A), L
 
-    E = initial = cost(poses, affines, depths)
+    E = sum(t.start[0] for t in terms) + _prior_terms(keyframes, poses, affines, config, with_gauge) \
+        + _marginal_terms(marginal, keyframes, poses, affines)
+    state_lins = {t.h: t.start[1] for t in terms}
+    initial = E
     lam = 1e-5
     it = 0
     for it in range(1, config.max_iterations + 1):
@@ -583,7 +619,7 @@ def solve_handrolled(camera: PinholeCamera, baseline: float | None, keyframes: S
         g = np.zeros(8 * K)
         lins = {}
         for t in terms:
-            _, H_pd, H_dd, g_d = t.linearize(keyframes, poses, affines, depths[t.h], H, g)
+            _, H_pd, H_dd, g_d = t.linearize(keyframes, poses, affines, depths[t.h], H, g, state_lins[t.h])
             active = H_dd > 1e-12 * max(float(H_dd.max()), 1e-300)
             Hdd = np.where(active, H_dd, 1.0)
             L = H_pd[active] / Hdd[active, None]
@@ -604,7 +640,7 @@ def solve_handrolled(camera: PinholeCamera, baseline: float | None, keyframes: S
                 step = np.zeros_like(g_d)
                 step[active] = -(g_d[active] + H_pd[active] @ dx) / Hdd[active]
                 D[h] = np.maximum(depths[h] + step, 0.1 * depths[h])
-            E_new = cost(P, A, D)
+            E_new, L_new = cost(P, A, D)
             if E_new < E:
                 accepted = True
                 break
@@ -612,7 +648,7 @@ def solve_handrolled(camera: PinholeCamera, baseline: float | None, keyframes: S
         if not accepted:
             break
         decrease = E - E_new
-        poses, affines, depths, E = P, A, D, E_new
+        poses, affines, depths, E, state_lins = P, A, D, E_new, L_new
         lam = max(lam / 10.0, 1e-7)
         if decrease < config.relative_tolerance * max(E, 1e-300):
             break
@@ -692,6 +728,11 @@ class SlidingWindowOptimizer:
         self.marginal: MarginalPrior | None = None
         self.n_removed = 0  # keyframes that left the window (not kept: they hold images)
         self.results: list[WindowResult] = []
+        # fixed-lag backend: the smoother, sequence numbers (timestamps) and host factors in it
+        self._smoother: gtsam.IncrementalFixedLagSmoother | None = None
+        self._stamp: dict[int, float] = {}
+        self._next_stamp = 0
+        self._host_slots: dict[int, tuple[int, HostPointsFactor]] = {}  # kf index -> (factor index, factor)
 
     def add_keyframe(self, keyframe: WindowKeyframe) -> None:
         """Append a keyframe; when the window is full, the oldest leaves first (marginalised)."""
@@ -702,7 +743,14 @@ class SlidingWindowOptimizer:
         self.keyframes.append(keyframe)
 
     def remove_oldest(self) -> WindowKeyframe:
-        """Remove the oldest keyframe: marginalised into the prior (or dropped, per the config)."""
+        """Remove the oldest keyframe: marginalised into the prior (or dropped, per the config).
+
+        With the fixed-lag backend the smoother marginalises it at the next :meth:`optimize`.
+        """
+        if self.config.backend == "fixed_lag":
+            kf = self.keyframes.pop(0)
+            self.n_removed += 1
+            return kf
         if self.config.marginalize:
             self.marginal = marginalize(self.camera, self.baseline, self.keyframes, self.config, self.marginal, 0)
         kf = self.keyframes.pop(0)
@@ -714,13 +762,18 @@ class SlidingWindowOptimizer:
         return window_cost(self.camera, self.baseline, self.keyframes, self.config, self.marginal)
 
     def optimize(self, solver: WindowSolverName = "gtsam") -> WindowResult | None:
-        """Optimise the window (None when fewer than two keyframes); keyframes are updated in place."""
+        """Optimise the window (None when fewer than two keyframes); keyframes are updated in place.
+
+        ``solver`` chooses the LM path's solver; the fixed-lag backend ignores it (GTSAM's smoother).
+        """
         if len(self.keyframes) < 2:
             return None
         targets = visible_targets(self.camera, self.keyframes, self.config)
         if not any(targets):
             return None
-        if solver == "gtsam":
+        if self.config.backend == "fixed_lag":
+            res = self._optimize_fixed_lag(targets)
+        elif solver == "gtsam":
             res = solve_gtsam(self.camera, self.baseline, self.keyframes, self.config, self.marginal, targets)
         elif solver == "handrolled":
             res = solve_handrolled(self.camera, self.baseline, self.keyframes, self.config, self.marginal, targets)
@@ -728,3 +781,69 @@ class SlidingWindowOptimizer:
             raise InputError(f"unknown window solver {solver!r}: use 'gtsam' or 'handrolled'")
         self.results.append(res)
         return res
+
+    def _optimize_fixed_lag(self, targets: list[list[int]]) -> WindowResult:
+        """One update of the fixed-lag smoother, then ``max_iterations - 1`` more (iSAM2 takes one
+        Gauss-Newton step per update, relinearising every variable).
+
+        Each call removes the host factors of the keyframes still in the window and adds them again
+        with the current targets and depths (a host gains the new keyframe as a target); the host
+        factor of a keyframe that has left stays and is marginalised with its pose and affine by
+        the smoother (its depths frozen inside the marginal, as :func:`marginalize` does).
+        Residuals of remaining hosts' points in the leaving keyframe are dropped (as in the LM path).
+        """
+        t0 = time.perf_counter()
+        cfg = self.config
+        if self._smoother is None:
+            params = gtsam.ISAM2Params()
+            params.setRelinearizeThreshold(0.0)
+            params.relinearizeSkip = 1
+            self._smoother = gtsam.IncrementalFixedLagSmoother(float(cfg.size) - 0.5, params)
+        graph = gtsam.NonlinearFactorGraph()
+        values = gtsam.Values()
+        stamps: dict[int, float] = {}
+        new = [kf for kf in self.keyframes if kf.index not in self._stamp]
+        for kf in new:
+            self._stamp[kf.index] = float(self._next_stamp)
+            self._next_stamp += 1
+            for key, val in ((pose_key(kf.index), kf.pose), (affine_key(kf.index), kf.affine)):
+                values.insert(key, val)
+                stamps[key] = self._stamp[kf.index]
+        first = len(self._stamp) == len(new)
+        priors = prior_factors(new, cfg, with_gauge=False)
+        for i in range(priors.size()):
+            graph.add(priors.at(i))
+        if first:  # gauge prior on the oldest keyframe, once (later the marginal fixes the gauge)
+            gauge = prior_factors(self.keyframes[:1], cfg, with_gauge=True)
+            for i in range(1, gauge.size()):
+                graph.add(gauge.at(i))
+        in_window = {kf.index for kf in self.keyframes}
+        remove = [slot for idx, (slot, _) in self._host_slots.items() if idx in in_window]
+        for idx in [i for i in self._host_slots if i in in_window]:
+            del self._host_slots[idx]
+        added: list[tuple[int, HostPointsFactor]] = []
+        for h, ts in enumerate(targets):
+            if ts:
+                f = host_factor(self.camera, self.baseline, self.keyframes, h, ts, cfg)
+                graph.add(f)
+                added.append((self.keyframes[h].index, f))
+        for idx in [i for i in self._host_slots if i not in in_window]:
+            del self._host_slots[idx]  # marginalised by this update
+        n_prior = graph.size() - len(added)
+        self._smoother.update(graph, values, stamps, remove)
+        ind = list(self._smoother.getISAM2Result().getNewFactorsIndices())
+        for (idx, f), slot in zip(added, ind[n_prior:]):
+            self._host_slots[idx] = (int(slot), f)
+        for _ in range(cfg.max_iterations - 1):
+            self._smoother.update()
+        est = self._smoother.calculateEstimate()
+        pos = {kf.index: h for h, kf in enumerate(self.keyframes)}
+        for idx, (_, f) in self._host_slots.items():
+            self.keyframes[pos[idx]].inverse_depth = f.commit(est).copy()
+        for kf in self.keyframes:
+            kf.pose = est.atPose3(pose_key(kf.index))
+            kf.affine = np.asarray(est.atVector(affine_key(kf.index)), dtype=float).copy()
+        n_res = sum(len(self.keyframes[h]) * len(ts) for h, ts in enumerate(targets))
+        return WindowResult("fixed_lag", float("nan"), float("nan"), cfg.max_iterations,
+                            time.perf_counter() - t0, n_res)
+
