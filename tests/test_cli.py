@@ -120,3 +120,11 @@ def test_run_on_kitti_snippet(shared_data, tmp_path):
     assert rep["frames"] == 5
     # 4 steps of ~1.2 m: frame-to-keyframe tracking measured at ~1 cm per step
     assert rep["ate_rmse_m"] < 0.05
+
+
+def test_demo_with_fixed_lag_backend(tmp_path):
+    out = tmp_path / "demo_fl"
+    r = run_cli("demo", "--out", out, "--frames", "12", "--no-progress", "--window-backend", "fixed-lag")
+    assert r.returncode == 0, r.stderr
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["mode"] == "window" and rep["window_optimisations"] >= 1 and rep["ate_rmse_m"] < 0.01

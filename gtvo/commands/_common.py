@@ -26,6 +26,10 @@ def add_odometry_options(p: argparse.ArgumentParser) -> None:
                    help="window (default): every new keyframe joins a sliding window of 7 keyframes whose poses, "
                         "brightness and inverse depths are optimised jointly; track: each frame is only tracked "
                         "against the latest keyframe (faster, less accurate)")
+    p.add_argument("--window-backend", choices=("lm", "fixed-lag"), default="lm",
+                   help="lm (default): each window solved by --solver's Levenberg-Marquardt with a hand-made "
+                        "marginalisation prior; fixed-lag: gtsam.IncrementalFixedLagSmoother (iSAM2) keeps the "
+                        "window and marginalises the keyframes that leave it")
     p.add_argument("--solver", choices=("handrolled", "gtsam"), default="handrolled",
                    help="solver of the frame tracker and of the window (default: handrolled)")
     p.add_argument("--points", type=int, default=2000, metavar="N", help="points per keyframe (default 2000)")
@@ -37,9 +41,11 @@ def add_odometry_options(p: argparse.ArgumentParser) -> None:
 def odometry_config(args: Any):
     """An :class:`OdometryConfig` from parsed options."""
     from gtvo.odometry import OdometryConfig  # noqa: PLC0415
+    from gtvo.window import WindowConfig  # noqa: PLC0415
 
+    backend = "fixed_lag" if args.window_backend == "fixed-lag" else "lm"
     return OdometryConfig(solver=args.solver, points_per_keyframe=args.points, motion_model=args.motion_model,
-                          mode=args.mode, window_solver=args.solver)
+                          mode=args.mode, window_solver=args.solver, window=WindowConfig(backend=backend))
 
 
 def print_report(report: dict[str, Any]) -> None:
