@@ -34,14 +34,7 @@ F64 = NDArray[np.float64]
 
 def edge_errors(graph: PoseGraph, R: F64, t: F64) -> F64:
     """Unwhitened ``e_ij = Log(Z_ij^-1 X_i^-1 X_j)`` for all edges, ``(m, p)``."""
-    i, j = graph.edge_i, graph.edge_j
-    RiT = np.swapaxes(R[i], 1, 2)
-    RmT = np.swapaxes(graph.meas_rotations, 1, 2)
-    Rrel = RiT @ R[j]
-    trel = np.einsum("mab,mb->ma", RiT, t[j] - t[i])
-    RE = RmT @ Rrel
-    tE = np.einsum("mab,mb->ma", RmT, trel - graph.meas_translations)
-    return lie.se2_log(RE, tE) if graph.dim == 2 else lie.se3_log(RE, tE)
+    return geodesic_parts(graph, R, t)[0]
 
 
 def gtsam_error(graph: PoseGraph, R: F64, t: F64) -> float:
