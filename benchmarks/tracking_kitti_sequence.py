@@ -28,6 +28,7 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from benchmarks._kitti_sgbm import load_kitti, read_gray, sgbm_keyframe_points  # noqa: E402
+from gtvo.metrics import umeyama_alignment  # noqa: E402
 from gtvo.tracking import (TrackingConfig, TrackingKeyframe, frame_pyramid, track_gtsam, track_handrolled,  # noqa: E402
                            track_with_guesses)
 
@@ -39,14 +40,8 @@ KEYFRAME_VALID = float(os.environ.get("GTVO_KEYFRAME_VALID", "1.01"))
 
 def umeyama_ate(est: np.ndarray, gt: np.ndarray) -> float:
     """RMSE of positions after the best rigid (no scale) alignment of est onto gt."""
-    mu_e, mu_g = est.mean(0), gt.mean(0)
-    C = (gt - mu_g).T @ (est - mu_e) / len(est)
-    U, _, Vt = np.linalg.svd(C)
-    S = np.eye(3)
-    S[2, 2] = np.sign(np.linalg.det(U @ Vt))
-    R = U @ S @ Vt
-    aligned = (est - mu_e) @ R.T + mu_g
-    return float(np.sqrt(np.mean(np.sum((aligned - gt) ** 2, axis=1))))
+    S = umeyama_alignment(est, gt, with_scale=False)
+    return float(np.sqrt(np.mean(np.sum((S.apply(est) - gt) ** 2, axis=1))))
 
 
 def run(folder: Path, solver, n_points: int = 2000) -> None:

@@ -38,7 +38,7 @@ from gtvo.camera import PinholeCamera, StereoCamera
 from gtvo.errors import InputError
 from gtvo.frontend import KeyframePoints, init_keyframe_points, select_points
 from gtvo.image import to_float_gray
-from gtvo.sequence import Frame, Sequence
+from gtvo.sequence import Frame
 from gtvo.tracking import (TrackingConfig, TrackingKeyframe, TrackingResult, frame_pyramid, track_gtsam,
                            track_handrolled, track_with_guesses)
 from gtvo.trajectory import Trajectory
@@ -246,21 +246,6 @@ class VisualOdometry:
             new_kf = self._make_keyframe(frame, left, T_world, (kf.index, result.affine))
             return self._finish(frame, left, new_kf.T_world_cam, True, result, False, t0)
         return self._finish(frame, left, T_world, False, result, False, t0)
-
-    def run(self, sequence: Sequence, progress: bool = False) -> Trajectory:
-        """Process every frame of ``sequence``; returns the estimated trajectory."""
-        frames = range(len(sequence))
-        bar = None
-        if progress:
-            from tqdm import tqdm  # noqa: PLC0415
-
-            bar = tqdm(frames, desc=f"gtvo {sequence.name}", unit="frame", dynamic_ncols=True)
-            frames = bar
-        for i in frames:
-            self.process(sequence.frame(i))
-            if bar is not None:
-                bar.set_postfix(kf=len(self.keyframes), fail=self.failures)
-        return self.trajectory(sequence.name)
 
     def trajectory(self, name: str = "gtvo") -> Trajectory:
         """The estimated left-camera trajectory so far (every frame)."""
