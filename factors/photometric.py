@@ -183,6 +183,29 @@ class PhotometricLinearization:
     n_outside: int  #: pattern pixels outside the target or host image (in front, good depth)
 
 
+def replace_rows(lin: PhotometricLinearization, rows: NDArray[np.intp], other: PhotometricLinearization,
+                 other_rows: NDArray[np.intp] | None = None) -> PhotometricLinearization:
+    """A copy of ``lin`` whose points ``rows`` are ``other``'s points ``other_rows`` (default: all
+    of them, in order): the same points evaluated elsewhere, e.g. at other inverse depths.
+    The counters (``n_bad_depth``, ...) are ``lin``'s."""
+    sel = slice(None) if other_rows is None else other_rows
+
+    def put(a, b):
+        if a is None or b is None:
+            return None
+        out = a.copy()
+        out[rows] = b[sel]
+        return out
+
+    return PhotometricLinearization(put(lin.residual, other.residual), put(lin.valid, other.valid),
+                                    put(lin.J_depth, other.J_depth), put(lin.J_host, other.J_host),
+                                    put(lin.J_target, other.J_target),
+                                    put(lin.J_affine_host, other.J_affine_host),
+                                    put(lin.J_affine_target, other.J_affine_target),
+                                    put(lin.uv_target, other.uv_target), lin.n_bad_depth, lin.n_behind,
+                                    lin.n_outside)
+
+
 def photometric_residuals(camera: PinholeCamera, host_intensity: ArrayLike, host_valid: ArrayLike | None,
                           pixels: ArrayLike, inverse_depth: ArrayLike, T_world_host: object,
                           T_world_target: object, target: GradientSampler,

@@ -17,9 +17,13 @@ IRLS weights ``w_n`` (Huber on each point-target pattern norm) and variance weig
 and the factor's linear part is ``|R dx + e'|^2`` with ``R^T R = H_red``, ``R^T e' = g_red``.
 An extra error entry ``c`` with zero Jacobian, ``c^2 = 2E - sum_n g_d^2/H_dd - |e'|^2 >= 0``,
 makes the linear model at ``dx`` equal the Gauss-Newton model of the cost with the depths at
-their conditional optimum (at ``dx = 0``: E minus the depth-only Newton decrease). ``error(x)`` is the true nonlinear cost at ``x``
-with the depths GTSAM's step implies, ``d(x) = d_lin + dd(x)``, the back-substitution
-``dd = -(g_d + H_pd^T (x - x_lin)) / H_dd``; the next linearisation at a *different* point
+their conditional optimum (at ``dx = 0``: E minus the depth-only Newton decrease). ``error(x)``
+is the true nonlinear cost at ``x`` with the depths GTSAM's step implies, ``d(x) = d_lin + dd(x)``,
+the back-substitution ``dd = -(g_d + H_pd^T (x - x_lin)) / H_dd``, safeguarded per point: a point
+whose cost rose above its cost at the linearisation point keeps ``d_lin`` if that costs less at
+``x`` (LM's lambda damps only the poses and affines; the undamped depth step raised the cost of
+many points near the optimum, so that even ``dx -> 0`` raised the cost and LM ran lambda up to its
+bound). The next linearisation at a *different* point
 commits ``d(x)``, so the depths follow every accepted step (a linearisation at the same point
 again returns the cached system: iSAM2 linearises new factors twice). :meth:`HostPointsFactor.commit` commits them at the final
 values after optimisation. Details: docs/factors.md.
@@ -36,7 +40,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from factors.gtsam_factors import DEFAULT_HUBER_K, DEFAULT_SIGMA_INTENSITY
 from factors.photometric import (PATTERN_DSO8, GradientSampler, huber_loss, huber_weight, pattern_bearings,
-                                 photometric_residuals, sample_host, stereo_residuals, variance_weight)
+                                 photometric_residuals, replace_rows, sample_host, stereo_residuals,
+                                 variance_weight)
 from gtvo.camera import PinholeCamera
 from gtvo.errors import InputError
 
@@ -52,6 +57,7 @@ class _Linearization:
     H_dd: FloatArray  # (N,)
     g_d: FloatArray  # (N,)
     active: NDArray[np.bool_]  # (N,) points with curvature
+    point_cost: FloatArray  # (N,) each point's cost at the linearisation point
 
 
 class HostPointsFactor(gtsam.CustomFactor):
@@ -143,6 +149,7 @@ class HostPointsFactor(gtsam.CustomFactor):
         self._W: list[FloatArray] | None = None
         self._cached: tuple[FloatArray, list[FloatArray]] | None = None
         self._state_lins: tuple[FloatArray, list] | None = None  # (state, lins) of the last evaluation
+        self._trial: tuple[FloatArray, FloatArray, float] | None = None  # (values, depths, cost) of _safeguarded
         super().__init__(gtsam.noiseModel.Unit.Create(self.dim + 1), self.pose_keys + self.affine_keys,
                          self._evaluate)
 
@@ -159,16 +166,71 @@ class HostPointsFactor(gtsam.CustomFactor):
         dx += [a - lin.x_affines[i] for i, a in enumerate(affs)]
         return np.concatenate(dx)
 
-    def _depths_at(self, poses: list[gtsam.Pose3], affs: list[FloatArray]) -> FloatArray:
+    def _back_substitution(self, poses: list[gtsam.Pose3], affs: list[FloatArray]) -> FloatArray:
         """Inverse depths implied by the last linearisation's back-substitution at these values."""
         lin = self._lin
-        if lin is None:
-            return self.depths
+        assert lin is not None
         dx = self._delta(poses, affs)
         step = np.zeros_like(lin.d)
         a = lin.active
         step[a] = -(lin.g_d[a] + lin.H_pd[a] @ dx) / lin.H_dd[a]
         return np.maximum(lin.d + step, 0.1 * lin.d)  # keep d > 0: LM rejects such far steps anyway
+
+    def _depths_at(self, poses: list[gtsam.Pose3], affs: list[FloatArray]) -> FloatArray:
+        """The inverse depths that go with these values (:meth:`_safeguarded`)."""
+        if self._lin is None:
+            return self.depths
+        return self._safeguarded(poses, affs)[0]
+
+    def _safeguarded(self, poses: list[gtsam.Pose3], affs: list[FloatArray]) -> tuple[FloatArray, float]:
+        """The inverse depths that go with these values and the cost there: the back-substitution
+        ``d(x)``, except for points whose cost rose above their cost at the linearisation point and
+        that cost less at their linearisation depth, which keep it (module docstring)."""
+        lin = self._lin
+        assert lin is not None
+        key = self._state(poses, affs, None)
+        if self._trial is not None and np.array_equal(self._trial[0], key):
+            return self._trial[1], self._trial[2]
+        d = self._back_substitution(poses, affs)
+        c, lins = self._point_costs(poses, affs, d)
+        rows = np.flatnonzero(c > lin.point_cost)
+        if rows.size:
+            c_old, lins_old = self._rows_at(poses, affs, lin.d[rows], rows)
+            keep = np.flatnonzero(c_old < c[rows])
+            if keep.size:
+                r = rows[keep]
+                d, c = d.copy(), c.copy()
+                d[r], c[r] = lin.d[r], c_old[keep]
+                lins = [None if a is None else replace_rows(a, r, b, keep) for a, b in zip(lins, lins_old)]
+                self._state_lins = (self._state(poses, affs, d), lins)
+        E = float(c.sum())
+        self._trial = (key, d, E)
+        return d, E
+
+    def _rows_at(self, poses, affs, d_rows: FloatArray, rows: NDArray[np.intp]) -> tuple[FloatArray, list]:
+        """Costs (len(rows),) and linearisations of the points ``rows`` at inverse depths ``d_rows``
+        (W frozen: only called after a linearisation)."""
+        assert self._W is not None
+        ah = affs[0] if self.with_affine else np.zeros(2)
+        Ih, hv, px, f = self.host_intensity[rows], self.host_valid[rows], self.pixels[rows], self.bearings[rows]
+        c = np.zeros(rows.size)
+        lins: list = []
+        for t, img in enumerate(self.target_images):
+            at = affs[1 + t] if self.with_affine else np.zeros(2)
+            lin = photometric_residuals(self.camera, Ih, hv, px, d_rows, poses[0], poses[1 + t], img, ah, at,
+                                        self.pattern, jacobians=True, host_jacobians=True, bearings=f)
+            c += self._robust(self._W[t][rows], lin.residual)[1]
+            lins.append(lin)
+        if self.right_image is None:
+            lins.append(None)
+        else:
+            lin = stereo_residuals(self.camera, self.baseline, Ih, hv, px, d_rows, self.right_image, (0.0, 0.0),
+                                   self.stereo_affine, self.pattern, jacobians=False, bearings=f)
+            c += self._robust(self._W[-1][rows], lin.residual)[1]
+            lins.append(lin)
+        if self.depth_prior:
+            c += 0.5 * (d_rows - self.d_prior[rows]) ** 2 / self.variance[rows]
+        return c, lins
 
     def commit(self, values: gtsam.Values) -> FloatArray:
         """Set the inverse depths to those implied at ``values`` (call after optimisation)."""
@@ -178,9 +240,16 @@ class HostPointsFactor(gtsam.CustomFactor):
         self._W = None
         self._cached = None
         self._state_lins = None
+        self._trial = None
         return self.depths
 
     # --- residuals ---------------------------------------------------------------------------
+    @staticmethod
+    def _state(poses, affs, d) -> FloatArray:
+        """The state as one vector (cache key)."""
+        parts = [np.concatenate([p.matrix().ravel() for p in poses])] + [np.asarray(a, dtype=float) for a in affs]
+        return np.concatenate(parts + ([] if d is None else [d]))
+
     def _lins(self, poses, affs, d) -> list:
         """Linearisations (with Jacobians) of every target, then the stereo term (or None), at a state.
 
@@ -188,8 +257,7 @@ class HostPointsFactor(gtsam.CustomFactor):
         linearises at the same state; the cost pass already computes the Jacobians (about a third
         of a pass's time, the bilinear gathers being the rest) so that the linearisation reuses it.
         """
-        state = np.concatenate([np.concatenate([p.matrix().ravel() for p in poses])]
-                               + [np.asarray(a, dtype=float) for a in affs] + [d])
+        state = self._state(poses, affs, d)
         if self._state_lins is not None and np.array_equal(self._state_lins[0], state):
             return self._state_lins[1]
         ah = affs[0] if self.with_affine else np.zeros(2)
@@ -247,13 +315,20 @@ class HostPointsFactor(gtsam.CustomFactor):
         return self._cost(poses, affs, d)
 
     def _cost(self, poses, affs, d) -> float:
-        E = sum(float(t[3].sum()) for t in self._target_terms(poses, affs, d))
+        return float(self._point_costs(poses, affs, d)[0].sum())
+
+    def _point_costs(self, poses, affs, d) -> tuple[FloatArray, list]:
+        """Each point's cost (N,): its robust photometric and stereo losses and its depth prior;
+        and the linearisations it came from."""
+        c = np.zeros(d.shape[0])
+        for t in self._target_terms(poses, affs, d):
+            c += t[3]
         st = self._stereo_term(d, poses, affs)
         if st is not None:
-            E += float(st[3].sum())
+            c += st[3]
         if self.depth_prior:
-            E += 0.5 * float(np.sum((d - self.d_prior) ** 2 / self.variance))
-        return E
+            c += 0.5 * (d - self.d_prior) ** 2 / self.variance
+        return c, self._state_lins[1]
 
     def _columns(self, t: int) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
         """Reduced-state columns of (host pose, target pose[, host affine, target affine]) of target t."""
@@ -266,7 +341,7 @@ class HostPointsFactor(gtsam.CustomFactor):
 
     def _linearize(self, poses, affs) -> tuple[FloatArray, FloatArray, float]:
         if self._lin is not None:
-            self.depths = self._depths_at(poses, affs)
+            self.depths = self._safeguarded(poses, affs)[0]
         d = self.depths
         n, M = d.shape[0], self.dim
         H_pp = np.zeros((M, M))
@@ -274,9 +349,9 @@ class HostPointsFactor(gtsam.CustomFactor):
         H_pd = np.zeros((n, M))
         H_dd = np.zeros(n)
         g_d = np.zeros(n)
-        E = 0.0
+        c_pt = np.zeros(n)
         for t, (lin, W, w, loss, _) in enumerate(self._target_terms(poses, affs, d, True)):
-            E += float(loss.sum())
+            c_pt += loss
             ww = W * w[:, None]  # (N, P)
             parts = [lin.J_host, lin.J_target]
             if self.with_affine:
@@ -296,24 +371,26 @@ class HostPointsFactor(gtsam.CustomFactor):
             ww = W * w[:, None]
             H_dd += np.sum(ww * lin.J_depth ** 2, axis=1)
             g_d += np.sum(ww * lin.J_depth * lin.residual, axis=1)
-            E += float(loss.sum())
+            c_pt += loss
         if self.depth_prior:
             H_dd += 1.0 / self.variance
             g_d += (d - self.d_prior) / self.variance
-            E += 0.5 * float(np.sum((d - self.d_prior) ** 2 / self.variance))
+            c_pt += 0.5 * (d - self.d_prior) ** 2 / self.variance
+        E = float(c_pt.sum())
         active = H_dd > 1e-12 * max(float(H_dd.max()), 1e-300)
         Hdd_s = np.where(active, H_dd, 1.0)
         L = H_pd[active] / Hdd_s[active, None]
         H_red = H_pp - L.T @ H_pd[active]
         g_red = g_p - L.T @ g_d[active]
-        self._lin = _Linearization(poses, affs, d.copy(), H_pd, Hdd_s, g_d, active)
+        self._lin = _Linearization(poses, affs, d.copy(), H_pd, Hdd_s, g_d, active, c_pt)
+        self._trial = None  # the safeguard compares against this linearisation's depths now
         depth_decrease = 0.5 * float(np.sum(g_d[active] ** 2 / Hdd_s[active]))
         return 0.5 * (H_red + H_red.T), g_red, E - depth_decrease
 
     def _evaluate(self, this: gtsam.CustomFactor, values: gtsam.Values, H: list | None) -> np.ndarray:
         poses, affs = self._read(values)
         if H is None:
-            E = self._cost(poses, affs, self._depths_at(poses, affs))
+            E = self._safeguarded(poses, affs)[1] if self._lin is not None else self._cost(poses, affs, self.depths)
             out = np.zeros(self.dim + 1)
             out[-1] = np.sqrt(2.0 * max(E, 0.0))
             return out

@@ -46,7 +46,7 @@ from numpy.typing import ArrayLike, NDArray
 from factors.gtsam_factors import DEFAULT_HUBER_K, DEFAULT_SIGMA_INTENSITY
 from factors.photometric import (PATTERN_DSO8, PATTERN_SINGLE, GradientImage, huber_loss, huber_weight,
                                  pattern_bearings, photometric_residuals,
-                                 sample_host, stereo_residuals, variance_weight)
+                                 replace_rows, sample_host, stereo_residuals, variance_weight)
 from factors.smart import HostPointsFactor
 from gtvo.camera import MIN_DEPTH, PinholeCamera
 from gtvo.errors import InputError
@@ -450,29 +450,63 @@ class _HostTerms:
         return out
 
     def _cost_from(self, kh: WindowKeyframe, d: FloatArray, lins: list) -> float:
-        E = sum(float(self._robust(self.W[j], lin.residual)[1].sum()) for j, lin in enumerate(lins[:-1]))
+        return float(self._point_costs_from(kh, d, lins).sum())
+
+    def _point_costs_from(self, kh: WindowKeyframe, d: FloatArray, lins: list,
+                          rows: NDArray[np.intp] | None = None) -> FloatArray:
+        """Each point's cost: robust photometric and stereo losses and depth prior (``rows``: ``d``
+        and ``lins`` hold only these points)."""
+        sel = slice(None) if rows is None else rows
+        c = np.zeros(d.shape[0] if rows is None else rows.size)
+        for j, lin in enumerate(lins[:-1]):
+            c += self._robust(self.W[j][sel], lin.residual)[1]
         if lins[-1] is not None:
-            E += float(self._robust(self.W_stereo, lins[-1].residual)[1].sum())
+            c += self._robust(self.W_stereo[sel], lins[-1].residual)[1]
         if kh.depth_prior:
-            E += 0.5 * float(np.sum((d - kh.prior_inverse_depth) ** 2 / kh.variance))
-        return E
+            c += 0.5 * (d[sel] - kh.prior_inverse_depth[sel]) ** 2 / kh.variance[sel]
+        return c
 
     def evaluate(self, keyframes, poses, affines, d) -> tuple[float, list]:
         """This host's cost at a state and the linearisations it was computed from."""
         lins = self._lins(keyframes, d, poses, affines)
         return self._cost_from(keyframes[self.h], d, lins), lins
 
-    def _target(self, keyframes, t, d, poses, affines, jac):
+    def evaluate_safeguarded(self, keyframes, poses, affines, d_new, d_old, c_old_lin
+                             ) -> tuple[float, FloatArray, list]:
+        """The cost at a trial state with the back-substituted inverse depths ``d_new``, except for
+        points whose cost rose above their cost at the linearisation point (``c_old_lin``) and that
+        cost less at their linearisation depth ``d_old``, which keep it (the safeguarded depth
+        step of :class:`factors.smart.HostPointsFactor`): ``(cost, depths, linearisations)``."""
         kh = keyframes[self.h]
-        return photometric_residuals(self.camera, self.host_I, self.host_valid, kh.pixels, d, poses[self.h],
-                                     poses[t], keyframes[t].image, affines[self.h], affines[t],
-                                     self.config.pattern, jacobians=jac, host_jacobians=jac,
-                                     bearings=self.bearings)
+        lins = self._lins(keyframes, d_new, poses, affines)
+        c = self._point_costs_from(kh, d_new, lins)
+        d = d_new
+        rows = np.flatnonzero(c > c_old_lin)
+        if rows.size:
+            lins_old = [self._target(keyframes, t, d_old, poses, affines, jac=True, rows=rows) for t in self.targets]
+            lins_old.append(self._stereo(kh, d_old, rows) if kh.right is not None else None)
+            c_old = self._point_costs_from(kh, d_old, lins_old, rows)
+            keep = np.flatnonzero(c_old < c[rows])
+            if keep.size:
+                r = rows[keep]
+                d, c = d_new.copy(), c.copy()
+                d[r], c[r] = d_old[r], c_old[keep]
+                lins = [None if a is None else replace_rows(a, r, b, keep) for a, b in zip(lins, lins_old)]
+        return float(c.sum()), d, lins
 
-    def _stereo(self, kh: WindowKeyframe, d: FloatArray):
-        return stereo_residuals(self.camera, self.baseline, self.host_I, self.host_valid, kh.pixels, d, kh.right,
-                                (0.0, 0.0), kh.stereo_affine, self.config.pattern, jacobians=False,
-                                bearings=self.bearings)
+    def _target(self, keyframes, t, d, poses, affines, jac, rows=None):
+        kh = keyframes[self.h]
+        sel = slice(None) if rows is None else rows
+        return photometric_residuals(self.camera, self.host_I[sel], self.host_valid[sel], kh.pixels[sel], d[sel],
+                                     poses[self.h], poses[t], keyframes[t].image, affines[self.h], affines[t],
+                                     self.config.pattern, jacobians=jac, host_jacobians=jac,
+                                     bearings=self.bearings[sel])
+
+    def _stereo(self, kh: WindowKeyframe, d: FloatArray, rows=None):
+        sel = slice(None) if rows is None else rows
+        return stereo_residuals(self.camera, self.baseline, self.host_I[sel], self.host_valid[sel], kh.pixels[sel],
+                                d[sel], kh.right, (0.0, 0.0), kh.stereo_affine, self.config.pattern,
+                                jacobians=False, bearings=self.bearings[sel])
 
     def _robust(self, W: FloatArray, r: FloatArray) -> tuple[FloatArray, FloatArray]:
         norm = np.sqrt(np.sum(W * r * r, axis=1))
@@ -486,18 +520,19 @@ class _HostTerms:
 
     def linearize(self, keyframes, poses, affines, d, H: FloatArray, g: FloatArray, lins: list | None = None):
         """Add this host's Gauss-Newton terms to the full ``H``, ``g`` (8 per keyframe); return
-        ``(E, H_pd (N, 8K), H_dd (N,), g_d (N,))``. ``lins``: :meth:`evaluate`'s at this state."""
+        ``(c (N,), H_pd (N, 8K), H_dd (N,), g_d (N,))`` with ``c`` each point's cost.
+        ``lins``: :meth:`evaluate`'s at this state."""
         kh = keyframes[self.h]
         lins = self._lins(keyframes, d, poses, affines) if lins is None else lins
         n = d.shape[0]
         H_pd = np.zeros((n, H.shape[0]))
         H_dd = np.zeros(n)
         g_d = np.zeros(n)
-        E = 0.0
+        c = np.zeros(n)
         for j, t in enumerate(self.targets):
             lin = lins[j]
             w, loss = self._robust(self.W[j], lin.residual)
-            E += float(loss.sum())
+            c += loss
             ww = self.W[j] * w[:, None]
             J = np.concatenate([lin.J_host, lin.J_affine_host, lin.J_target, lin.J_affine_target], axis=-1)
             cols = np.r_[8 * self.h:8 * self.h + 8, 8 * t:8 * t + 8]
@@ -513,12 +548,12 @@ class _HostTerms:
             ww = self.W_stereo * w[:, None]
             H_dd += np.sum(ww * st.J_depth ** 2, axis=1)
             g_d += np.sum(ww * st.J_depth * st.residual, axis=1)
-            E += float(loss.sum())
+            c += loss
         if kh.depth_prior:
             H_dd += 1.0 / kh.variance
             g_d += (d - kh.prior_inverse_depth) / kh.variance
-            E += 0.5 * float(np.sum((d - kh.prior_inverse_depth) ** 2 / kh.variance))
-        return E, H_pd, H_dd, g_d
+            c += 0.5 * (d - kh.prior_inverse_depth) ** 2 / kh.variance
+        return c, H_pd, H_dd, g_d
 
 
 def _prior_terms(keyframes, poses, affines, config, with_gauge, H=None, g=None) -> float:
@@ -600,13 +635,13 @@ def solve_handrolled(camera: PinholeCamera, baseline: float | None, keyframes: S
     affines = [kf.affine.copy() for kf in keyframes]
     depths = {t.h: keyframes[t.h].inverse_depth.copy() for t in terms}
 
-    def cost(P, A, D) -> tuple[float, dict[int, list]]:
-        E, L = 0.0, {}
+    def cost(P, A, D_new, D_old, C_old) -> tuple[float, dict[int, FloatArray], dict[int, list]]:
+        E, D, L = 0.0, {}, {}
         for t in terms:
-            e, L[t.h] = t.evaluate(keyframes, P, A, D[t.h])
+            e, D[t.h], L[t.h] = t.evaluate_safeguarded(keyframes, P, A, D_new[t.h], D_old[t.h], C_old[t.h])
             E += e
         E += _prior_terms(keyframes, P, A, config, with_gauge)
-        return E + _marginal_terms(marginal, keyframes, P, A), L
+        return E + _marginal_terms(marginal, keyframes, P, A), D, L
 
     E = sum(t.start[0] for t in terms) + _prior_terms(keyframes, poses, affines, config, with_gauge) \
         + _marginal_terms(marginal, keyframes, poses, affines)
@@ -617,9 +652,10 @@ def solve_handrolled(camera: PinholeCamera, baseline: float | None, keyframes: S
     for it in range(1, config.max_iterations + 1):
         H = np.zeros((8 * K, 8 * K))
         g = np.zeros(8 * K)
-        lins = {}
+        lins, point_costs = {}, {}
         for t in terms:
-            _, H_pd, H_dd, g_d = t.linearize(keyframes, poses, affines, depths[t.h], H, g, state_lins[t.h])
+            point_costs[t.h], H_pd, H_dd, g_d = t.linearize(keyframes, poses, affines, depths[t.h], H, g,
+                                                            state_lins[t.h])
             active = H_dd > 1e-12 * max(float(H_dd.max()), 1e-300)
             Hdd = np.where(active, H_dd, 1.0)
             L = H_pd[active] / Hdd[active, None]
@@ -640,7 +676,7 @@ def solve_handrolled(camera: PinholeCamera, baseline: float | None, keyframes: S
                 step = np.zeros_like(g_d)
                 step[active] = -(g_d[active] + H_pd[active] @ dx) / Hdd[active]
                 D[h] = np.maximum(depths[h] + step, 0.1 * depths[h])
-            E_new, L_new = cost(P, A, D)
+            E_new, D, L_new = cost(P, A, D, depths, point_costs)
             if E_new < E:
                 accepted = True
                 break
