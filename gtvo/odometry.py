@@ -56,7 +56,10 @@ class OdometryConfig:
 
     Attributes:
         solver: ``"handrolled"`` (vectorised LM, the notes' Algorithm 3) or ``"gtsam"``.
-        points_per_keyframe: target number of selected points per keyframe.
+        points_per_keyframe: target number of selected points per keyframe (300: DSO's density
+            of 2000 active points in a 7-keyframe window; stereo keeps about 60 % of them on KITTI).
+            The tracker and the window use the same points; more points were measured to be
+            slower and no more accurate (docs/benchmarks.md, "Point density").
         tracking: the tracker's settings.
         keyframe_min_visible: make a new keyframe when fewer than this fraction of the keyframe's
             points are still tracked (valid residuals).
@@ -84,7 +87,7 @@ class OdometryConfig:
     """
 
     solver: SolverName = "handrolled"
-    points_per_keyframe: int = 2000
+    points_per_keyframe: int = 300
     tracking: TrackingConfig = field(default_factory=TrackingConfig)
     keyframe_min_visible: float = 0.7
     keyframe_max_motion: float = 0.3

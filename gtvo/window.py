@@ -84,7 +84,8 @@ class WindowConfig:
             keyframe's pose and affine while no marginalisation prior exists.
         min_visible_points, min_visible_fraction: a keyframe is a target of a host when at least
             this many (and this fraction) of the host's points project into it, in front of it.
-        max_iterations: LM iterations per window optimisation (DSO: 6 per new keyframe).
+        max_iterations: LM iterations per window optimisation (DSO allows up to 6 per new keyframe;
+            on KITTI 4-6 moved the ATE by < 1 mm for 25-45 % more time: docs/benchmarks.md).
         relative_tolerance: stop when an iteration lowers the cost by less than this fraction.
         marginalize: keep leaving keyframes' information as a prior (False: simply drop them).
         backend: ``"lm"``: each window optimised by a solver (:func:`solve_gtsam` or
@@ -103,7 +104,7 @@ class WindowConfig:
     gauge_sigma: float = 1e-6
     min_visible_points: int = 30
     min_visible_fraction: float = 0.1
-    max_iterations: int = 6
+    max_iterations: int = 3
     relative_tolerance: float = 1e-4
     marginalize: bool = True
     backend: Literal["lm", "fixed_lag"] = "lm"

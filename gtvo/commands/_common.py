@@ -32,7 +32,7 @@ def add_odometry_options(p: argparse.ArgumentParser) -> None:
                         "window and marginalises the keyframes that leave it")
     p.add_argument("--solver", choices=("handrolled", "gtsam"), default="handrolled",
                    help="solver of the frame tracker and of the window (default: handrolled)")
-    p.add_argument("--points", type=int, default=2000, metavar="N", help="points per keyframe (default 2000)")
+    p.add_argument("--points", type=int, default=300, metavar="N", help="points per keyframe (default 300)")
     p.add_argument("--motion-model", choices=("constant-velocity", "kalman"), default="constant-velocity",
                    help="initial guess of each frame's pose (default: constant-velocity)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
