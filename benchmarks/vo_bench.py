@@ -48,6 +48,7 @@ class ModeUnavailable(Exception):
 def gtvo_config(solver: str, mode: str = "track", **overrides: Any):
     """An ``OdometryConfig`` for ``solver`` and ``mode``.
 
+    ``solver`` is the tracker's and the window's solver, as the CLI's ``--solver``.
     ``mode`` goes to the config's ``mode`` field when gtvo has one; without it only ``"track"``
     (frame-to-keyframe tracking) exists and any other mode raises :class:`ModeUnavailable`.
     """
@@ -55,6 +56,8 @@ def gtvo_config(solver: str, mode: str = "track", **overrides: Any):
 
     names = {f.name for f in dataclasses.fields(OdometryConfig)}
     kwargs: dict[str, Any] = {"solver": solver, **overrides}
+    if "window_solver" in names:
+        kwargs.setdefault("window_solver", solver)
     if "mode" in names:
         kwargs["mode"] = mode
     elif mode != "track":
