@@ -25,8 +25,8 @@ whose cost rose above its cost at the linearisation point keeps ``d_lin`` if tha
 many points near the optimum, so that even ``dx -> 0`` raised the cost and LM ran lambda up to its
 bound). The next linearisation at a *different* point
 commits ``d(x)``, so the depths follow every accepted step (a linearisation at the same point
-again returns the cached system: iSAM2 linearises new factors twice). :meth:`HostPointsFactor.commit` commits them at the final
-values after optimisation. Details: docs/factors.md.
+again returns the cached system: iSAM2 linearises new factors twice).
+:meth:`HostPointsFactor.commit` commits them at the final values after optimisation. Details: docs/factors.md.
 """
 
 from __future__ import annotations
@@ -58,6 +58,21 @@ class _Linearization:
     g_d: FloatArray  # (N,)
     active: NDArray[np.bool_]  # (N,) points with curvature
     point_cost: FloatArray  # (N,) each point's cost at the linearisation point
+
+
+def keep_cheaper_depths(d: FloatArray, c: FloatArray, lins: list, rows: NDArray[np.intp], d_old: FloatArray,
+                        c_old: FloatArray, lins_old: list) -> tuple[FloatArray, FloatArray, list]:
+    """The safeguarded depth step's merge: of the points ``rows`` (whose cost at the new depths
+    ``d`` rose), those that cost less at their old depth (``c_old``, ``lins_old``: evaluated for
+    ``rows`` only) take it back. Returns ``(depths, point costs, linearisations)``; the inputs
+    are not modified."""
+    keep = np.flatnonzero(c_old < c[rows])
+    if not keep.size:
+        return d, c, lins
+    r = rows[keep]
+    d, c = d.copy(), c.copy()
+    d[r], c[r] = d_old[r], c_old[keep]
+    return d, c, [None if a is None else replace_rows(a, r, b, keep) for a, b in zip(lins, lins_old)]
 
 
 class HostPointsFactor(gtsam.CustomFactor):
@@ -195,42 +210,14 @@ class HostPointsFactor(gtsam.CustomFactor):
         c, lins = self._point_costs(poses, affs, d)
         rows = np.flatnonzero(c > lin.point_cost)
         if rows.size:
-            c_old, lins_old = self._rows_at(poses, affs, lin.d[rows], rows)
-            keep = np.flatnonzero(c_old < c[rows])
-            if keep.size:
-                r = rows[keep]
-                d, c = d.copy(), c.copy()
-                d[r], c[r] = lin.d[r], c_old[keep]
-                lins = [None if a is None else replace_rows(a, r, b, keep) for a, b in zip(lins, lins_old)]
+            lins_old = self._residuals(poses, affs, lin.d, rows)
+            d_new = d
+            d, c, lins = keep_cheaper_depths(d, c, lins, rows, lin.d, self._losses(lins_old, lin.d, rows), lins_old)
+            if d is not d_new:
                 self._state_lins = (self._state(poses, affs, d), lins)
         E = float(c.sum())
         self._trial = (key, d, E)
         return d, E
-
-    def _rows_at(self, poses, affs, d_rows: FloatArray, rows: NDArray[np.intp]) -> tuple[FloatArray, list]:
-        """Costs (len(rows),) and linearisations of the points ``rows`` at inverse depths ``d_rows``
-        (W frozen: only called after a linearisation)."""
-        assert self._W is not None
-        ah = affs[0] if self.with_affine else np.zeros(2)
-        Ih, hv, px, f = self.host_intensity[rows], self.host_valid[rows], self.pixels[rows], self.bearings[rows]
-        c = np.zeros(rows.size)
-        lins: list = []
-        for t, img in enumerate(self.target_images):
-            at = affs[1 + t] if self.with_affine else np.zeros(2)
-            lin = photometric_residuals(self.camera, Ih, hv, px, d_rows, poses[0], poses[1 + t], img, ah, at,
-                                        self.pattern, jacobians=True, host_jacobians=True, bearings=f)
-            c += self._robust(self._W[t][rows], lin.residual)[1]
-            lins.append(lin)
-        if self.right_image is None:
-            lins.append(None)
-        else:
-            lin = stereo_residuals(self.camera, self.baseline, Ih, hv, px, d_rows, self.right_image, (0.0, 0.0),
-                                   self.stereo_affine, self.pattern, jacobians=False, bearings=f)
-            c += self._robust(self._W[-1][rows], lin.residual)[1]
-            lins.append(lin)
-        if self.depth_prior:
-            c += 0.5 * (d_rows - self.d_prior[rows]) ** 2 / self.variance[rows]
-        return c, lins
 
     def commit(self, values: gtsam.Values) -> FloatArray:
         """Set the inverse depths to those implied at ``values`` (call after optimisation)."""
@@ -260,18 +247,24 @@ class HostPointsFactor(gtsam.CustomFactor):
         state = self._state(poses, affs, d)
         if self._state_lins is not None and np.array_equal(self._state_lins[0], state):
             return self._state_lins[1]
+        out = self._residuals(poses, affs, d)
+        self._state_lins = (state, out)
+        return out
+
+    def _residuals(self, poses, affs, d, rows: NDArray[np.intp] | None = None) -> list:
+        """Linearisations of every target, then the stereo term (or None), of all points or of the
+        points ``rows`` (``d`` is always the full (N,) vector); not cached."""
+        sel = slice(None) if rows is None else rows
+        Ih, hv, px, f, ds = self.host_intensity[sel], self.host_valid[sel], self.pixels[sel], self.bearings[sel], d[sel]
         ah = affs[0] if self.with_affine else np.zeros(2)
         out: list = []
         for t, img in enumerate(self.target_images):
             at = affs[1 + t] if self.with_affine else np.zeros(2)
-            out.append(photometric_residuals(self.camera, self.host_intensity, self.host_valid, self.pixels, d,
-                                             poses[0], poses[1 + t], img, ah, at, self.pattern, jacobians=True,
-                                             host_jacobians=True, bearings=self.bearings))
+            out.append(photometric_residuals(self.camera, Ih, hv, px, ds, poses[0], poses[1 + t], img, ah, at,
+                                             self.pattern, jacobians=True, host_jacobians=True, bearings=f))
         out.append(None if self.right_image is None else
-                   stereo_residuals(self.camera, self.baseline, self.host_intensity, self.host_valid, self.pixels,
-                                    d, self.right_image, (0.0, 0.0), self.stereo_affine, self.pattern, jacobians=False,
-                                    bearings=self.bearings))
-        self._state_lins = (state, out)
+                   stereo_residuals(self.camera, self.baseline, Ih, hv, px, ds, self.right_image, (0.0, 0.0),
+                                    self.stereo_affine, self.pattern, jacobians=False, bearings=f))
         return out
 
     def _robust(self, W: FloatArray, r: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -318,17 +311,22 @@ class HostPointsFactor(gtsam.CustomFactor):
         return float(self._point_costs(poses, affs, d)[0].sum())
 
     def _point_costs(self, poses, affs, d) -> tuple[FloatArray, list]:
-        """Each point's cost (N,): its robust photometric and stereo losses and its depth prior;
-        and the linearisations it came from."""
-        c = np.zeros(d.shape[0])
-        for t in self._target_terms(poses, affs, d):
-            c += t[3]
-        st = self._stereo_term(d, poses, affs)
-        if st is not None:
-            c += st[3]
+        """Each point's cost (N,) at a state, and the linearisations it came from."""
+        lins = self._lins(poses, affs, d)
+        return self._losses(lins, d), lins
+
+    def _losses(self, lins: list, d: FloatArray, rows: NDArray[np.intp] | None = None) -> FloatArray:
+        """Each point's cost from its linearisations: robust photometric and stereo losses and the
+        depth prior (``rows``: ``lins`` hold only these points; W must be frozen already)."""
+        sel = slice(None) if rows is None else rows
+        assert rows is None or self._W is not None
+        Ws = self._weights(lins)
+        c = np.zeros(d.shape[0] if rows is None else rows.size)
+        for W, lin in zip(Ws, lins):
+            c += self._robust(W[sel], lin.residual)[1]
         if self.depth_prior:
-            c += 0.5 * (d - self.d_prior) ** 2 / self.variance
-        return c, self._state_lins[1]
+            c += 0.5 * (d[sel] - self.d_prior[sel]) ** 2 / self.variance[sel]
+        return c
 
     def _columns(self, t: int) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
         """Reduced-state columns of (host pose, target pose[, host affine, target affine]) of target t."""

@@ -46,8 +46,8 @@ from numpy.typing import ArrayLike, NDArray
 from factors.gtsam_factors import DEFAULT_HUBER_K, DEFAULT_SIGMA_INTENSITY
 from factors.photometric import (PATTERN_DSO8, PATTERN_SINGLE, GradientImage, huber_loss, huber_weight,
                                  pattern_bearings, photometric_residuals,
-                                 replace_rows, sample_host, stereo_residuals, variance_weight)
-from factors.smart import HostPointsFactor
+                                 sample_host, stereo_residuals, variance_weight)
+from factors.smart import HostPointsFactor, keep_cheaper_depths
 from gtvo.camera import MIN_DEPTH, PinholeCamera
 from gtvo.errors import InputError
 
@@ -487,12 +487,7 @@ class _HostTerms:
             lins_old = [self._target(keyframes, t, d_old, poses, affines, jac=True, rows=rows) for t in self.targets]
             lins_old.append(self._stereo(kh, d_old, rows) if kh.right is not None else None)
             c_old = self._point_costs_from(kh, d_old, lins_old, rows)
-            keep = np.flatnonzero(c_old < c[rows])
-            if keep.size:
-                r = rows[keep]
-                d, c = d_new.copy(), c.copy()
-                d[r], c[r] = d_old[r], c_old[keep]
-                lins = [None if a is None else replace_rows(a, r, b, keep) for a, b in zip(lins, lins_old)]
+            d, c, lins = keep_cheaper_depths(d, c, lins, rows, d_old, c_old, lins_old)
         return float(c.sum()), d, lins
 
     def _target(self, keyframes, t, d, poses, affines, jac, rows=None):
