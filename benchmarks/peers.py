@@ -31,6 +31,7 @@ from numpy.typing import NDArray
 from gtvo._optional import require_open3d
 from gtvo.camera import PinholeCamera, StereoCamera
 from gtvo.errors import InputError
+from gtvo.image import to_uint8
 from gtvo.sequence import Frame
 from gtvo.trajectory import Trajectory
 
@@ -48,14 +49,6 @@ DEPTH_MAX_M = 40.0
 STEREO_DEPTH_DIFF_MAX_M = 0.3
 #: ... and for a sensor's depth (RGB-D): Open3D's default.
 RGBD_DEPTH_DIFF_MAX_M = 0.03
-
-
-def to_uint8(image: NDArray) -> NDArray[np.uint8]:
-    """A gray image in [0, 255] (float or integer) as 8-bit, rounded and clipped."""
-    img = np.asarray(image)
-    if img.dtype == np.uint8:
-        return img
-    return np.clip(np.rint(img), 0, 255).astype(np.uint8)
 
 
 def make_sgbm() -> cv2.StereoSGBM:

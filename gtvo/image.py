@@ -32,6 +32,21 @@ def to_float_gray(image: NDArray, name: str = "image") -> FloatImage:
     return out
 
 
+def to_uint8(image: NDArray, name: str = "image") -> NDArray[np.uint8]:
+    """A gray image (float in 8-bit units, uint8 or uint16) as uint8, for OpenCV's 8-bit routines."""
+    img = np.asarray(image)
+    if img.ndim != 2:
+        raise InputError(f"{name} must be a 2-D gray image, got shape {img.shape}")
+    if img.dtype == np.uint8:
+        return img
+    if img.dtype == np.uint16:
+        return (img >> 8).astype(np.uint8)
+    f = img.astype(np.float32, copy=False)
+    if not np.all(np.isfinite(f)):
+        raise InputError(f"{name} contains NaN or infinite values")
+    return np.clip(np.rint(f), 0, 255).astype(np.uint8)
+
+
 def downsample(image: NDArray) -> FloatImage:
     """Halve an image by 2x2 block averaging (DSO's pyramid); odd last rows/columns are dropped."""
     img = np.asarray(image, dtype=np.float32)

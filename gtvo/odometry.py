@@ -37,7 +37,8 @@ from factors.photometric import GradientImage
 from gtvo.camera import PinholeCamera, StereoCamera
 from gtvo.errors import InputError
 from gtvo.frontend import KeyframePoints, init_keyframe_points, select_points
-from gtvo.image import to_float_gray
+from gtvo.frontend import FlowPoseConfig, optical_flow_pose
+from gtvo.image import to_float_gray, to_uint8
 from gtvo.sequence import Frame
 from gtvo.tracking import (TrackingConfig, TrackingKeyframe, TrackingResult, frame_pyramid, track_gtsam,
                            track_handrolled, track_with_guesses)
@@ -84,6 +85,10 @@ class OdometryConfig:
             optimised keyframe with its optimised depths).
         window_solver: the window's solver, ``"gtsam"`` (LM on smart factors) or ``"handrolled"``.
         window: the window's settings (size, weights, priors, iterations).
+        flow_fallback: when tracking fails from every motion-model guess (first frames, after a
+            re-initialisation, an abrupt change of speed), try once more from a guess of sparse
+            optical flow + PnP (:func:`gtvo.frontend.flow_pose.optical_flow_pose`) before
+            declaring the frame lost; None turns it off.
     """
 
     solver: SolverName = "handrolled"
@@ -101,6 +106,7 @@ class OdometryConfig:
     mode: ModeName = "window"
     window_solver: SolverName = "gtsam"
     window: WindowConfig = field(default_factory=WindowConfig)
+    flow_fallback: FlowPoseConfig | None = field(default_factory=FlowPoseConfig)
 
     def __post_init__(self) -> None:
         if self.solver not in ("handrolled", "gtsam"):
@@ -155,6 +161,9 @@ class Keyframe:
     T_world_cam: gtsam.Pose3
     points: KeyframePoints
     tracker: TrackingKeyframe
+    #: the left image (8-bit) while this is the latest keyframe (the flow fallback's reference);
+    #: dropped when the next keyframe is made, so old keyframes hold no image
+    image: NDArray[np.uint8] | None = None
 
 
 class VisualOdometry:
@@ -222,7 +231,7 @@ class VisualOdometry:
         T_pred = self._predict(frame.timestamp)
         last = rigid_pose(self.estimates[-1].T_world_cam)
         pyr = frame_pyramid(left, kf.tracker.levels)
-        result = self._track(kf, pyr, T_pred, last)
+        result = self._track(kf, pyr, T_pred, last, left)
         lost_view = result.n_valid < self.config.keyframe_min_visible * len(kf.points)
         if (not result.success or lost_view) and self._previous is not None and self._previous[0].index != kf.index:
             # the view has moved on (or tracking failed): the previous frame, whose pose is
@@ -237,7 +246,7 @@ class VisualOdometry:
             # the window may have moved the new keyframe: carry the guesses along with it
             correction = kf.T_world_cam.compose(last.inverse())
             T_pred, last = correction.compose(T_pred), kf.T_world_cam
-            result = self._track(kf, pyr, T_pred, last)
+            result = self._track(kf, pyr, T_pred, last, left)
         if not result.success:
             # re-initialise: this frame becomes a keyframe at the motion model's prediction
             self.failures += 1
@@ -270,13 +279,28 @@ class VisualOdometry:
         return np.concatenate(pts), np.concatenate(vals)
 
     # -- internals ------------------------------------------------------------------------------
-    def _track(self, kf: Keyframe, pyr, T_pred: gtsam.Pose3, last: gtsam.Pose3) -> TrackingResult:
-        """Track against ``kf`` from several initial guesses (motion model, no motion, keyframe)."""
+    def _track(self, kf: Keyframe, pyr, T_pred: gtsam.Pose3, last: gtsam.Pose3,
+               left: NDArray[np.float32]) -> TrackingResult:
+        """Track against ``kf`` from several initial guesses (motion model, no motion, keyframe);
+        when all fail, from the optical-flow guess (``config.flow_fallback``)."""
         guesses = [kf.T_world_cam.between(T_pred), kf.T_world_cam.between(last), gtsam.Pose3()]
         prev_rms = self._last_rms()
         solver = track_handrolled if self.config.solver == "handrolled" else track_gtsam
-        return track_with_guesses(kf.tracker, pyr, guesses, self._affine_guess(kf), solver=solver,
-                                  accept_rms=0.0 if prev_rms is None else self.config.accept_rms_factor * prev_rms)
+        affine = self._affine_guess(kf)
+        result = track_with_guesses(kf.tracker, pyr, guesses, affine, solver=solver,
+                                    accept_rms=0.0 if prev_rms is None else self.config.accept_rms_factor * prev_rms)
+        if result.success or self.config.flow_fallback is None or kf.image is None:
+            return result
+        flow = optical_flow_pose(self.pinhole, kf.image, kf.points.pixels, kf.points.inverse_depth, left,
+                                 self.config.flow_fallback)
+        if flow is None:
+            result.reason = f"{result.reason}; no optical-flow guess"
+            return result
+        retry = solver(kf.tracker, pyr, rigid_pose(flow.T_keyframe_frame), affine)
+        if retry.success:
+            return retry
+        result.reason = f"{result.reason}; from the optical-flow guess: {retry.reason}"
+        return result
 
     def _last_rms(self) -> float | None:
         for e in reversed(self.estimates):
@@ -348,7 +372,10 @@ class VisualOdometry:
             T_world_cam, pts = self._window_update(frame, left, T_world_cam, pts, tracked)
         tracker = TrackingKeyframe(self.pinhole, left, pts.pixels, pts.inverse_depth, pts.variance, (0.0, 0.0),
                                    self.config.tracking)
-        kf = Keyframe(frame.index, rigid_pose(T_world_cam.matrix()), pts, tracker)
+        image = to_uint8(left) if self.config.flow_fallback is not None else None
+        kf = Keyframe(frame.index, rigid_pose(T_world_cam.matrix()), pts, tracker, image)
+        if self.keyframes:
+            self.keyframes[-1].image = None
         self.keyframes.append(kf)
         self._keyframe_by_index[kf.index] = kf
         if self.window is not None:

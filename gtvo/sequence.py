@@ -140,6 +140,22 @@ class Sequence:
                         self.load_depth, None if self.gt_poses is None else self.gt_poses[:n], self.source,
                         self.frame_names[:n])
 
+    def subsampled(self, step: int) -> "Sequence":
+        """Every ``step``-th frame (0, step, 2 step, ...): the same log at a lower frame rate."""
+        if step < 1:
+            raise InputError(f"frame step must be >= 1, got {step}")
+        if step == 1:
+            return self
+        idx = list(range(0, len(self), int(step)))
+
+        def pick(loader: ImageLoader | None) -> ImageLoader | None:
+            return None if loader is None else (lambda i: loader(idx[i]))
+
+        return Sequence(self.name, self.kind, self.camera, self.timestamps[idx], pick(self.load_left),
+                        pick(self.load_right), pick(self.load_depth),
+                        None if self.gt_poses is None else self.gt_poses[idx], self.source,
+                        [self.frame_names[i] for i in idx])
+
     def _checked(self, img: NDArray, i: int, which: str) -> NDArray[np.float32]:
         h, w = self.pinhole.height, self.pinhole.width
         if img.shape[:2] != (h, w):

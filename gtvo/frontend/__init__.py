@@ -4,10 +4,13 @@
 * :func:`stereo_inverse_depth` finds their inverse depth and variance ``V`` by an epipolar
   search in the right image of a rectified pair (LSD-SLAM-style variance).
 * :func:`init_keyframe_points` does both and keeps the points that pass every check.
+* :func:`optical_flow_pose` guesses a frame's pose relative to a keyframe from its points'
+  sparse optical flow and PnP, for the tracker when the motion model has no guess.
 
 The math, with the names used here, is in ``docs/frontend.md``.
 """
 
+from gtvo.frontend.flow_pose import FlowPose, FlowPoseConfig, optical_flow_pose
 from gtvo.frontend.point_selection import (
     DEFAULT_BORDER,
     block_gradient_thresholds,
@@ -29,6 +32,8 @@ from gtvo.frontend.stereo_depth import (
 __all__ = [
     "DEFAULT_BORDER",
     "DSO_PATTERN_8",
+    "FlowPose",
+    "FlowPoseConfig",
     "PATCH_5X5",
     "KeyframePoints",
     "Rejection",
@@ -38,6 +43,7 @@ __all__ = [
     "epipolar_direction",
     "gradient_magnitude",
     "init_keyframe_points",
+    "optical_flow_pose",
     "select_points",
     "stereo_inverse_depth",
 ]

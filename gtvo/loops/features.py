@@ -21,6 +21,7 @@ from numpy.typing import NDArray
 
 from gtvo.camera import PinholeCamera, StereoCamera
 from gtvo.errors import InputError
+from gtvo.image import to_uint8
 
 FloatArray = NDArray[np.float64]
 #: Bits in an ORB descriptor (32 bytes).
@@ -92,21 +93,6 @@ class KeypointPoints:
     valid: NDArray[np.bool_]
     points: FloatArray
     covariances: FloatArray
-
-
-def to_uint8(image: NDArray, name: str = "image") -> NDArray[np.uint8]:
-    """A gray image (float in 8-bit units, uint8 or uint16) as uint8 for OpenCV's ORB."""
-    img = np.asarray(image)
-    if img.ndim != 2:
-        raise InputError(f"{name} must be a 2-D gray image, got shape {img.shape}")
-    if img.dtype == np.uint8:
-        return img
-    if img.dtype == np.uint16:
-        return (img >> 8).astype(np.uint8)
-    f = img.astype(np.float32, copy=False)
-    if not np.all(np.isfinite(f)):
-        raise InputError(f"{name} contains NaN or infinite values")
-    return np.clip(np.rint(f), 0, 255).astype(np.uint8)
 
 
 def extract_orb(image: NDArray, params: OrbParams = OrbParams(), detector: cv2.ORB | None = None) -> OrbFeatures:
