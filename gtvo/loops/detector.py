@@ -29,9 +29,9 @@ from tqdm import tqdm
 
 from gtvo.camera import PinholeCamera, StereoCamera
 from gtvo.errors import InputError
+from gtvo.image import to_uint8
 from gtvo.loops.features import (KeypointPoints, OrbFeatures, OrbParams, depth_image_points, extract_orb,
                                  stereo_points)
-from gtvo.image import to_uint8
 from gtvo.loops.verification import VerificationParams, match_descriptors, verify_pnp
 from gtvo.loops.vocabulary import BinaryVocabulary, idf_weights, l1_scores, tfidf_vectors
 from gtvo.sequence import Sequence
