@@ -1,6 +1,7 @@
 """GTSAM factors built on the vectorised kernels of :mod:`factors.photometric`.
 
-Every factor here is a ``gtsam.CustomFactor`` subclass with analytic Jacobians and works in a
+Every factor here is a ``gtsam.CustomFactor`` subclass (through :class:`PythonFactor`, which
+lets GTSAM free it) with analytic Jacobians and works in a
 plain ``gtsam.NonlinearFactorGraph`` with ``gtsam.LevenbergMarquardtOptimizer``. Keys follow
 docs/conventions.md: poses ``gtsam.symbol('x', i)`` (Pose3 ``T_world_cam``), inverse depths
 ``gtsam.symbol('d', j)`` (double), left affine brightness ``gtsam.symbol('a', i)`` and right
@@ -44,11 +45,58 @@ def robust_unit_noise(dim: int, huber_k: float | None) -> gtsam.noiseModel.Base:
     return gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(float(huber_k)), unit)
 
 
+class PythonFactor(gtsam.CustomFactor):
+    """Base of the factors written in Python: a ``CustomFactor`` that can be freed.
+
+    GTSAM keeps the error function a ``CustomFactor`` is built with for as long as the C++
+    factor lives. Given a bound method of the factor itself (``self._evaluate``), the C++ object
+    refers to the Python object and the Python object to the C++ object, a cycle that Python's
+    garbage collector cannot see through C++: every such factor, with the images it holds, stays
+    in memory until the process ends (measured: 11-20 MB per KITTI keyframe, 1 GB per 51 frames).
+
+    Here the error function is bound to a plain Python *twin* of the factor instead: an
+    instance of a class with the same Python methods (those of every class between the factor's
+    class and this one) that shares the factor's attribute dictionary. The twin refers to the
+    attributes, not to the factor, so the C++ object keeps only what the error needs alive; once
+    neither Python nor a graph refers to the factor, everything is freed. A factor added to a
+    graph and dropped by Python still evaluates (the twin lives in the graph's C++ factor).
+
+    Subclasses set their attributes, then call ``super().__init__(noise_model, keys)``; their
+    ``_evaluate(this, values, H)`` (and whatever it calls) must use only Python attributes and
+    methods of the factor, not the C++ ``CustomFactor`` API (the twin has none).
+    """
+
+    def __init__(self, noise_model: gtsam.noiseModel.Base, keys: Sequence[int]) -> None:
+        twin = _twin_class(type(self))()
+        twin.__dict__ = self.__dict__
+        super().__init__(noise_model, list(keys), twin._evaluate)
+
+    def _evaluate(self, this: gtsam.CustomFactor, values: gtsam.Values, H: list | None) -> np.ndarray:
+        raise NotImplementedError
+
+
+_TWIN_CLASSES: dict[type, type] = {}
+
+
+def _twin_class(cls: type) -> type:
+    """A plain class with the Python methods of ``cls`` up to :class:`PythonFactor` (cached)."""
+    twin = _TWIN_CLASSES.get(cls)
+    if twin is None:
+        namespace: dict[str, object] = {}
+        for klass in reversed(cls.__mro__):
+            if issubclass(klass, PythonFactor):
+                namespace.update({k: v for k, v in vars(klass).items()
+                                  if not (k.startswith("__") and k.endswith("__"))})
+        twin = type(f"{cls.__name__}Evaluator", (), namespace)
+        _TWIN_CLASSES[cls] = twin
+    return twin
+
+
 def _affine(values: gtsam.Values, key: int | None, fixed: np.ndarray) -> np.ndarray:
     return fixed if key is None else np.asarray(values.atVector(key), dtype=float)
 
 
-class PhotometricFactor(gtsam.CustomFactor):
+class PhotometricFactor(PythonFactor):
     """Photometric residual of one point (its pattern) between its host keyframe and a target.
 
     Variables: host pose, target pose (``Pose3 T_world_cam``), inverse depth (double), and
@@ -93,7 +141,7 @@ class PhotometricFactor(gtsam.CustomFactor):
         keys = [host_key, target_key, depth_key]
         keys += [k for k in (affine_host_key, affine_target_key) if k is not None]
         self._pose_keys = (host_key, target_key, depth_key)
-        super().__init__(robust_unit_noise(self.pattern.shape[0], huber_k), keys, self._evaluate)
+        super().__init__(robust_unit_noise(self.pattern.shape[0], huber_k), keys)
 
     def _evaluate(self, this: gtsam.CustomFactor, values: gtsam.Values, H: list | None) -> np.ndarray:
         hk, tk, dk = self._pose_keys
@@ -121,7 +169,7 @@ class PhotometricFactor(gtsam.CustomFactor):
         return s * lin.residual[0]
 
 
-class StereoFactor(gtsam.CustomFactor):
+class StereoFactor(PythonFactor):
     """Left-right photometric residual of one point of a rectified stereo frame (the notes' E_s).
 
     The point's pixel ``p`` in the left image and its inverse depth ``d`` (hosted in that left
@@ -170,7 +218,7 @@ class StereoFactor(gtsam.CustomFactor):
         self.affine_left = np.asarray(affine_left, dtype=float).reshape(2)
         self.affine_right = np.asarray(affine_right, dtype=float).reshape(2)
         keys = [depth_key] + [k for k in (right_affine_key, left_affine_key) if k is not None]
-        super().__init__(robust_unit_noise(self.pattern.shape[0], huber_k), keys, self._evaluate)
+        super().__init__(robust_unit_noise(self.pattern.shape[0], huber_k), keys)
 
     def _evaluate(self, this: gtsam.CustomFactor, values: gtsam.Values, H: list | None) -> np.ndarray:
         d = values.atDouble(self.depth_key)
@@ -202,7 +250,7 @@ def edge_aware_weight(intensity_i: ArrayLike, intensity_j: ArrayLike, edge_scale
     return np.exp(-diff * diff)
 
 
-class InverseDepthSmoothnessFactor(gtsam.CustomFactor):
+class InverseDepthSmoothnessFactor(PythonFactor):
     """Smoothness between the inverse depths of two neighbouring points of one keyframe.
 
     Error ``sqrt(weight) * (d_j - d_i) / sigma_d`` (a scalar); ``dError/dd_i = -sqrt(weight)/sigma_d``,
@@ -224,7 +272,7 @@ class InverseDepthSmoothnessFactor(gtsam.CustomFactor):
             raise InputError(f"smoothness weight must be >= 0, got {weight!r}")
         self.scale = np.sqrt(float(weight)) / float(sigma_d)
         self.key_i, self.key_j = key_i, key_j
-        super().__init__(robust_unit_noise(1, huber_k), [key_i, key_j], self._evaluate)
+        super().__init__(robust_unit_noise(1, huber_k), [key_i, key_j])
 
     def _evaluate(self, this: gtsam.CustomFactor, values: gtsam.Values, H: list | None) -> np.ndarray:
         di = values.atDouble(self.key_i)
@@ -255,7 +303,7 @@ def motion_smoothness_error(T_prev: gtsam.Pose3, T_cur: gtsam.Pose3, T_next: gts
     return e, [Jri @ AdD2i, -Jri @ (AdEi + AdD2i), Jri]
 
 
-class MotionSmoothnessFactor(gtsam.CustomFactor):
+class MotionSmoothnessFactor(PythonFactor):
     """Constant-velocity prior on three consecutive poses ``x_{k-1}, x_k, x_{k+1}``.
 
     Error ``Log((x_{k-1}^-1 x_k)^-1 (x_k^-1 x_{k+1}))`` (6, [rotation, translation]): zero when
@@ -275,7 +323,7 @@ class MotionSmoothnessFactor(gtsam.CustomFactor):
         if not (np.all(np.isfinite(sig)) and np.all(sig > 0)):
             raise InputError(f"motion smoothness sigmas must be positive, got {sig.tolist()}")
         self.pose_keys = (key_prev, key_cur, key_next)
-        super().__init__(gtsam.noiseModel.Diagonal.Sigmas(sig), [key_prev, key_cur, key_next], self._evaluate)
+        super().__init__(gtsam.noiseModel.Diagonal.Sigmas(sig), [key_prev, key_cur, key_next])
 
     def _evaluate(self, this: gtsam.CustomFactor, values: gtsam.Values, H: list | None) -> np.ndarray:
         Ts = [values.atPose3(k) for k in self.pose_keys]
@@ -285,7 +333,7 @@ class MotionSmoothnessFactor(gtsam.CustomFactor):
         return e
 
 
-class PhotometricBatchFactor(gtsam.CustomFactor):
+class PhotometricBatchFactor(PythonFactor):
     """Photometric residuals of many points with FIXED inverse depths in one target (tracking).
 
     One Python call evaluates all N x P residuals vectorised, so GTSAM's optimiser pays the
@@ -350,7 +398,7 @@ class PhotometricBatchFactor(gtsam.CustomFactor):
         self.last_valid_points = 0
         self.lost_pixel_loss = float(lost_pixel_loss)
         self._trackable = self.host_valid & (self.inverse_depth > 0)[:, None]
-        super().__init__(gtsam.noiseModel.Unit.Create(n * self.pattern.shape[0] + 1), keys, self._evaluate)
+        super().__init__(gtsam.noiseModel.Unit.Create(n * self.pattern.shape[0] + 1), keys)
 
     def _evaluate(self, this: gtsam.CustomFactor, values: gtsam.Values, H: list | None) -> np.ndarray:
         Twt = values.atPose3(self.target_key)

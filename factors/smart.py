@@ -38,7 +38,7 @@ import gtsam
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from factors.gtsam_factors import DEFAULT_HUBER_K, DEFAULT_SIGMA_INTENSITY
+from factors.gtsam_factors import DEFAULT_HUBER_K, DEFAULT_SIGMA_INTENSITY, PythonFactor
 from factors.photometric import (PATTERN_DSO8, GradientSampler, huber_loss, huber_weight, pattern_bearings,
                                  photometric_residuals, replace_rows, sample_host, stereo_residuals,
                                  variance_weight)
@@ -75,7 +75,7 @@ def keep_cheaper_depths(d: FloatArray, c: FloatArray, lins: list, rows: NDArray[
     return d, c, [None if a is None else replace_rows(a, r, b, keep) for a, b in zip(lins, lins_old)]
 
 
-class HostPointsFactor(gtsam.CustomFactor):
+class HostPointsFactor(PythonFactor):
     """All points hosted in one keyframe, observed in several targets; inverse depths Schur-eliminated.
 
     Keys, in this order: ``host_key``, ``target_keys...``, then (if given) ``affine_host_key`` and
@@ -165,8 +165,7 @@ class HostPointsFactor(gtsam.CustomFactor):
         self._cached: tuple[FloatArray, list[FloatArray]] | None = None
         self._state_lins: tuple[FloatArray, list] | None = None  # (state, lins) of the last evaluation
         self._trial: tuple[FloatArray, FloatArray, float] | None = None  # (values, depths, cost) of _safeguarded
-        super().__init__(gtsam.noiseModel.Unit.Create(self.dim + 1), self.pose_keys + self.affine_keys,
-                         self._evaluate)
+        super().__init__(gtsam.noiseModel.Unit.Create(self.dim + 1), self.pose_keys + self.affine_keys)
 
     # --- state -----------------------------------------------------------------------------
     def _read(self, values: gtsam.Values) -> tuple[list[gtsam.Pose3], list[FloatArray]]:

@@ -160,3 +160,50 @@ def test_kernel_rejects_mismatched_input():
         photometric_residuals(cam, Ih, hv, [[50, 50], [60, 60]], [0.5], gtsam.Pose3(), gtsam.Pose3(), img)
     with pytest.raises(InputError):
         photometric_residuals(cam, Ih, hv, [[50, 50], [60, 60]], [0.5, 0.5], np.eye(3), gtsam.Pose3(), img)
+
+
+def _photometric_graph(target: GradientImage) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
+    cam = small_camera()
+    graph = gtsam.NonlinearFactorGraph()
+    graph.add(PhotometricFactor(X(0), X(1), D(0), cam, [80, 60], SinusoidImage(seed=1), target))
+    v = gtsam.Values()
+    v.insert(X(0), gtsam.Pose3())
+    v.insert(X(1), gtsam.Pose3(gtsam.Rot3(), np.array([0.01, 0.0, 0.0])))
+    v.insert(D(0), 0.5)
+    return graph, v
+
+
+def test_python_factors_are_freed_with_their_graph():
+    """GTSAM holds a factor's error function; bound to the factor itself it would form a cycle
+    through C++ that Python never frees (with the images: 1 GB per 51 KITTI frames). A factor
+    that only a graph holds must still evaluate, and be freed, images included, with the graph."""
+    import gc  # noqa: PLC0415
+    import weakref  # noqa: PLC0415
+
+    target = GradientImage(np.random.default_rng(0).uniform(0, 255, (120, 160)))
+    image_ref = weakref.ref(target)
+    graph, v = _photometric_graph(target)
+    del target
+    gc.collect()
+    assert image_ref() is not None  # the graph's factor keeps what its error needs
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(2)
+    gtsam.LevenbergMarquardtOptimizer(graph, v, params).optimize()  # called from inside GTSAM
+    assert np.isfinite(graph.error(v))
+    del graph
+    gc.collect()
+    assert image_ref() is None
+
+
+def test_python_factor_attributes_are_shared_with_its_error_function():
+    """The error function runs on a twin sharing the factor's attributes: a change made through
+    the factor (here fixed weights) is seen by GTSAM's next evaluation."""
+    graph, v = _photometric_graph(SinusoidImage(seed=2))
+    e0 = graph.error(v)
+    assert e0 > 0
+    fac = PhotometricFactor(X(0), X(1), D(0), small_camera(), [80, 60], SinusoidImage(seed=1), SinusoidImage(seed=2))
+    g2 = gtsam.NonlinearFactorGraph()
+    g2.add(fac)
+    assert g2.error(v) == pytest.approx(e0)
+    fac.weights = np.zeros((1, 8))
+    assert g2.error(v) == 0.0

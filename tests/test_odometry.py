@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from gtvo.odometry import OdometryConfig, VisualOdometry
+from gtvo.window import WindowConfig
 
-pytestmark = pytest.mark.realdata
 
 
 @pytest.fixture(scope="module")
@@ -34,6 +34,7 @@ def _run(seq, config: OdometryConfig) -> VisualOdometry:
     return vo
 
 
+@pytest.mark.realdata
 def test_flow_fallback_tracks_large_steps_from_rest(kitti_5hz):
     vo = _run(kitti_5hz, OdometryConfig(mode="track"))
     assert vo.failures == 0
@@ -45,7 +46,26 @@ def test_flow_fallback_tracks_large_steps_from_rest(kitti_5hz):
     assert np.linalg.norm(P[-1, :3, 3] - G[-1, :3, 3]) < 0.15
 
 
+@pytest.mark.realdata
 def test_without_the_fallback_the_first_large_step_is_lost(kitti_5hz):
     vo = _run(kitti_5hz, OdometryConfig(mode="track", flow_fallback=None))
     assert vo.failures >= 1
     assert vo.estimates[1].reinitialised
+
+
+def test_memory_stays_bounded_over_a_run():
+    """Only the window's keyframes keep their images (left and right with gradients): a run of
+    many keyframes must not accumulate them (the factors' cycle through GTSAM once kept every
+    keyframe's images alive: 11-20 MB per KITTI keyframe)."""
+    import gc  # noqa: PLC0415
+
+    from factors.photometric import GradientImage  # noqa: PLC0415
+    from gtvo.synthetic import make_synthetic_sequence  # noqa: PLC0415
+
+    seq = make_synthetic_sequence(n_frames=16, step_m=0.3)
+    vo = _run(seq, OdometryConfig(mode="window", points_per_keyframe=150, window=WindowConfig(size=3)))
+    gc.collect()
+    assert len(vo.keyframes) > vo.config.window.size + 2
+    alive = sum(isinstance(o, GradientImage) for o in gc.get_objects())
+    assert alive <= 2 * vo.config.window.size + 2
+    assert sum(k.image is not None for k in vo.keyframes) == 1
