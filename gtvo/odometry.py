@@ -160,9 +160,11 @@ class Keyframe:
     index: int
     T_world_cam: gtsam.Pose3
     points: KeyframePoints
-    tracker: TrackingKeyframe
-    #: the left image (8-bit) while this is the latest keyframe (the flow fallback's reference);
-    #: dropped when the next keyframe is made, so old keyframes hold no image
+    #: the tracker's data (pyramid samples of the points) and the left image (8-bit, the
+    #: optical-flow fallback's reference) while this is the latest keyframe, the only one frames
+    #: are tracked against; both are dropped when the next keyframe is made, so a long run keeps
+    #: only each keyframe's pose and points
+    tracker: TrackingKeyframe | None
     image: NDArray[np.uint8] | None = None
 
 
@@ -228,6 +230,7 @@ class VisualOdometry:
             return self._finish(frame, left, kf.T_world_cam, True, None, False, t0)
 
         kf = self.keyframes[-1]
+        assert kf.tracker is not None  # the latest keyframe keeps its tracker
         T_pred = self._predict(frame.timestamp)
         last = rigid_pose(self.estimates[-1].T_world_cam)
         pyr = frame_pyramid(left, kf.tracker.levels)
@@ -283,6 +286,7 @@ class VisualOdometry:
                left: NDArray[np.float32]) -> TrackingResult:
         """Track against ``kf`` from several initial guesses (motion model, no motion, keyframe);
         when all fail, from the optical-flow guess (``config.flow_fallback``)."""
+        assert kf.tracker is not None
         guesses = [kf.T_world_cam.between(T_pred), kf.T_world_cam.between(last), gtsam.Pose3()]
         prev_rms = self._last_rms()
         solver = track_handrolled if self.config.solver == "handrolled" else track_gtsam
@@ -375,7 +379,7 @@ class VisualOdometry:
         image = to_uint8(left) if self.config.flow_fallback is not None else None
         kf = Keyframe(frame.index, rigid_pose(T_world_cam.matrix()), pts, tracker, image)
         if self.keyframes:
-            self.keyframes[-1].image = None
+            self.keyframes[-1].tracker = self.keyframes[-1].image = None
         self.keyframes.append(kf)
         self._keyframe_by_index[kf.index] = kf
         if self.window is not None:

@@ -69,3 +69,4 @@ def test_memory_stays_bounded_over_a_run():
     alive = sum(isinstance(o, GradientImage) for o in gc.get_objects())
     assert alive <= 2 * vo.config.window.size + 2
     assert sum(k.image is not None for k in vo.keyframes) == 1
+    assert sum(k.tracker is not None for k in vo.keyframes) == 1 and vo.keyframes[-1].tracker is not None
