@@ -180,6 +180,8 @@ class VisualOdometry:
         keyframes: every keyframe made so far (window mode: with the last optimised pose and depths).
         window: the :class:`gtvo.window.SlidingWindowOptimizer` (window mode), else None.
         window_results: one :class:`gtvo.window.WindowResult` per window optimisation.
+        flow_recoveries: frames that failed from every motion-model guess and were tracked from
+            the optical-flow guess (``config.flow_fallback``) instead of being lost.
 
     Example::
 
@@ -196,6 +198,7 @@ class VisualOdometry:
         self.estimates: list[FrameEstimate] = []
         self.keyframes: list[Keyframe] = []
         self.failures = 0
+        self.flow_recoveries = 0
         self.window_results: list[WindowResult] = []
         self._previous: tuple[Frame, NDArray[np.float32]] | None = None
         self._kalman = None
@@ -302,6 +305,7 @@ class VisualOdometry:
             return result
         retry = solver(kf.tracker, pyr, rigid_pose(flow.T_keyframe_frame), affine)
         if retry.success:
+            self.flow_recoveries += 1
             return retry
         result.reason = f"{result.reason}; from the optical-flow guess: {retry.reason}"
         return result

@@ -67,6 +67,7 @@ def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progre
         "frames_per_second": n / seconds if seconds > 0 else None,
         "tracking_failures": vo.failures,
         "reinitialisations": sum(1 for e in vo.estimates if e.reinitialised),
+        "flow_recoveries": vo.flow_recoveries,
         "skipped_frames": skipped,
         "tracking_iterations_mean": _mean([e.tracking.iterations for e in vo.estimates if e.tracking is not None]),
     }
