@@ -36,8 +36,7 @@ from numpy.typing import NDArray
 from factors.photometric import GradientImage
 from gtvo.camera import PinholeCamera, StereoCamera
 from gtvo.errors import InputError
-from gtvo.frontend import KeyframePoints, init_keyframe_points, select_points
-from gtvo.frontend import FlowPoseConfig, optical_flow_pose
+from gtvo.frontend import FlowPoseConfig, KeyframePoints, init_keyframe_points, optical_flow_pose, select_points
 from gtvo.image import to_float_gray, to_uint8
 from gtvo.sequence import Frame
 from gtvo.tracking import (TrackingConfig, TrackingKeyframe, TrackingResult, frame_pyramid, track_gtsam,
