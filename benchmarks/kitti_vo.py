@@ -2,7 +2,7 @@
 
     python benchmarks/kitti_vo.py [--sequence DIR ...] [--max-frames N] [--frame-step K]
                                   [--solvers handrolled,gtsam] [--modes track,...] [--peers open3d,orb]
-                                  [--json OUT] [--failure-detail]
+                                  [--no-flow-fallback] [--json OUT] [--failure-detail]
 
 Rows: gtvo for every requested solver x mode (a mode the installed gtvo lacks is skipped with a
 note), then the peers of ``benchmarks/peers.py``: (a) SGBM + Open3D RGB-D odometry with the
@@ -49,7 +49,7 @@ def _split(text: str) -> list[str]:
 
 def bench_sequence(path: Path, max_frames: int | None, solvers: list[str], modes: list[str], peers: list[str],
                    motion_model: str, progress: bool, o3d_gates: list[float | None] | None = None,
-                   frame_step: int = 1) -> dict[str, Any]:
+                   frame_step: int = 1, gtvo_overrides: dict[str, Any] | None = None) -> dict[str, Any]:
     """Every row on one sequence; returns ``{"sequence", "reference_ms", "rows", "notes"}``."""
     seq = open_sequence(path, max_frames=max_frames).subsampled(frame_step)
     frames = load_frames(seq, progress)
@@ -60,7 +60,7 @@ def bench_sequence(path: Path, max_frames: int | None, solvers: list[str], modes
         for solver in solvers:
             label = f"gtvo {mode}, {solver}"
             try:
-                config = gtvo_config(solver, mode, motion_model=motion_model)
+                config = gtvo_config(solver, mode, motion_model=motion_model, **(gtvo_overrides or {}))
             except ModeUnavailable as exc:
                 notes.append(f"{label}: skipped ({exc})")
                 continue
@@ -143,6 +143,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="Open3D peer's depth gate(s) in m, comma-separated: one row each (default: the "
                          "peer's, 0.3 m for SGBM depth, 0.03 m for sensor depth)")
     ap.add_argument("--motion-model", default="constant-velocity", choices=("constant-velocity", "kalman"))
+    ap.add_argument("--no-flow-fallback", action="store_true",
+                    help="gtvo without the optical-flow fallback (OdometryConfig(flow_fallback=None))")
     ap.add_argument("--json", type=Path, default=None, metavar="OUT", help="also write all figures as JSON")
     ap.add_argument("--failure-detail", action="store_true", help="list gtvo's failed frames one by one")
     ap.add_argument("--no-progress", action="store_true")
@@ -156,7 +158,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{path}:", file=sys.stderr, flush=True)
         gates = None if args.o3d_depth_diff_max is None else [float(g) for g in _split(args.o3d_depth_diff_max)]
         res = bench_sequence(path, args.max_frames, _split(args.solvers), _split(args.modes), peers,
-                             args.motion_model, not args.no_progress, gates, args.frame_step)
+                             args.motion_model, not args.no_progress, gates, args.frame_step,
+                             {"flow_fallback": None} if args.no_flow_fallback else None)
         results.append(res)
         step = f", every {args.frame_step}th frame" if args.frame_step > 1 else ""
         print(f"\n### {res['name']} ({res['kind']}, {res['frames']} frames{step})\n")
