@@ -37,7 +37,7 @@ from factors.photometric import GradientImage
 from gtvo.camera import PinholeCamera, StereoCamera
 from gtvo.errors import InputError
 from gtvo.frontend import FlowPoseConfig, KeyframePoints, init_keyframe_points, optical_flow_pose, select_points
-from gtvo.image import to_float_gray, to_uint8
+from gtvo.image import to_float_gray
 from gtvo.sequence import Frame
 from gtvo.tracking import (TrackingConfig, TrackingKeyframe, TrackingResult, frame_pyramid, track_gtsam,
                            track_handrolled, track_with_guesses)
@@ -159,12 +159,12 @@ class Keyframe:
     index: int
     T_world_cam: gtsam.Pose3
     points: KeyframePoints
-    #: the tracker's data (pyramid samples of the points) and the left image (8-bit, the
+    #: the tracker's data (pyramid samples of the points) and the left image (grey levels, the
     #: optical-flow fallback's reference) while this is the latest keyframe, the only one frames
     #: are tracked against; both are dropped when the next keyframe is made, so a long run keeps
     #: only each keyframe's pose and points
     tracker: TrackingKeyframe | None
-    image: NDArray[np.uint8] | None = None
+    image: NDArray[np.float32] | None = None
 
 
 class VisualOdometry:
@@ -379,7 +379,7 @@ class VisualOdometry:
             T_world_cam, pts = self._window_update(frame, left, T_world_cam, pts, tracked)
         tracker = TrackingKeyframe(self.pinhole, left, pts.pixels, pts.inverse_depth, pts.variance, (0.0, 0.0),
                                    self.config.tracking)
-        image = to_uint8(left) if self.config.flow_fallback is not None else None
+        image = left if self.config.flow_fallback is not None else None  # converted only if the fallback runs
         kf = Keyframe(frame.index, rigid_pose(T_world_cam.matrix()), pts, tracker, image)
         if self.keyframes:
             self.keyframes[-1].tracker = self.keyframes[-1].image = None
