@@ -29,8 +29,8 @@ if str(REPO_ROOT) not in sys.path:  # run as `python benchmarks/<script>.py`
     sys.path.insert(0, str(REPO_ROOT))
 
 from benchmarks.peers import make_sgbm  # noqa: E402
-from gtvo.image import to_uint8  # noqa: E402
 from gtvo.errors import InputError  # noqa: E402
+from gtvo.image import to_uint8  # noqa: E402
 from gtvo.metrics import ate, drift_percent, rpe  # noqa: E402
 from gtvo.sequence import Frame, Sequence  # noqa: E402
 from gtvo.trajectory import Trajectory  # noqa: E402

@@ -135,10 +135,7 @@ class Sequence:
             return self
         if max_frames < 1:
             raise InputError(f"--max-frames must be >= 1, got {max_frames}")
-        n = int(max_frames)
-        return Sequence(self.name, self.kind, self.camera, self.timestamps[:n], self.load_left, self.load_right,
-                        self.load_depth, None if self.gt_poses is None else self.gt_poses[:n], self.source,
-                        self.frame_names[:n])
+        return self._select(list(range(int(max_frames))))
 
     def subsampled(self, step: int) -> "Sequence":
         """Every ``step``-th frame (0, step, 2 step, ...): the same log at a lower frame rate."""
@@ -146,7 +143,10 @@ class Sequence:
             raise InputError(f"frame step must be >= 1, got {step}")
         if step == 1:
             return self
-        idx = list(range(0, len(self), int(step)))
+        return self._select(list(range(0, len(self), int(step))))
+
+    def _select(self, idx: list[int]) -> "Sequence":
+        """The frames ``idx`` (increasing) as a sequence of their own."""
 
         def pick(loader: ImageLoader | None) -> ImageLoader | None:
             return None if loader is None else (lambda i: loader(idx[i]))

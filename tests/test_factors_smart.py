@@ -84,21 +84,28 @@ def plane_problem(n=150, seed=0):
     return cam, [gtsam.Pose3(), T1, T2], imgs, px, d, rng
 
 
-def test_lm_with_smart_factor_recovers_poses_and_depths():
-    """Exact rendered scene, depths 3 % off, second target perturbed: GTSAM's LM on one smart
-    factor recovers poses and depths to 1e-8 (measured 1e-14); the depths follow by back-substitution."""
+def _perturbed_smart_graph():
+    """One smart factor (host + 2 targets, exact rendered plane, depths 3 % off), host pose and
+    the first target's translation (the scale gauge) fixed by priors, both targets perturbed:
+    ``(factor, graph, initial values, true poses, true depths, initial depths)``."""
     cam, poses, imgs, px, d, rng = plane_problem()
     d0 = d * (1 + 0.03 * rng.normal(size=d.shape))
     f = HostPointsFactor(X(0), [X(1), X(2)], cam, px, d0, imgs[0], imgs[1:], 1e-2, huber_k=3.0, depth_prior=False)
     g = gtsam.NonlinearFactorGraph()
     g.add(f)
     g.add(gtsam.PriorFactorPose3(X(0), gtsam.Pose3(), gtsam.noiseModel.Isotropic.Sigma(6, 1e-8)))
-    # scale gauge: the first target's translation is known
     g.add(gtsam.PriorFactorPose3(X(1), poses[1], gtsam.noiseModel.Diagonal.Sigmas(np.r_[np.full(3, 1.0), np.full(3, 1e-6)])))
     v = gtsam.Values()
     v.insert(X(0), gtsam.Pose3())
     v.insert(X(1), poses[1].retract(np.r_[0.005, -0.005, 0.003, 0.0, 0.0, 0.0]))
     v.insert(X(2), poses[2].retract(np.r_[0.004, 0.006, -0.004, 0.02, -0.02, 0.03]))
+    return f, g, v, poses, d, d0
+
+
+def test_lm_with_smart_factor_recovers_poses_and_depths():
+    """Exact rendered scene, depths 3 % off, second target perturbed: GTSAM's LM on one smart
+    factor recovers poses and depths to 1e-8 (measured 1e-14); the depths follow by back-substitution."""
+    f, g, v, poses, d, d0 = _perturbed_smart_graph()
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(50)
     params.setRelativeErrorTol(1e-14)
@@ -127,17 +134,7 @@ def test_smart_factor_rejects_bad_input():
 def test_isam2_with_smart_factor_converges():
     """iSAM2 (Gauss-Newton, relinearising every update) on one smart factor: it linearises new
     factors twice at the same point, which must not commit a second depth step."""
-    cam, poses, imgs, px, d, rng = plane_problem()
-    d0 = d * (1 + 0.03 * rng.normal(size=d.shape))
-    f = HostPointsFactor(X(0), [X(1), X(2)], cam, px, d0, imgs[0], imgs[1:], 1e-2, huber_k=3.0, depth_prior=False)
-    g = gtsam.NonlinearFactorGraph()
-    g.add(f)
-    g.add(gtsam.PriorFactorPose3(X(0), gtsam.Pose3(), gtsam.noiseModel.Isotropic.Sigma(6, 1e-8)))
-    g.add(gtsam.PriorFactorPose3(X(1), poses[1], gtsam.noiseModel.Diagonal.Sigmas(np.r_[np.full(3, 1.0), np.full(3, 1e-6)])))
-    v = gtsam.Values()
-    v.insert(X(0), gtsam.Pose3())
-    v.insert(X(1), poses[1].retract(np.r_[0.005, -0.005, 0.003, 0.0, 0.0, 0.0]))
-    v.insert(X(2), poses[2].retract(np.r_[0.004, 0.006, -0.004, 0.02, -0.02, 0.03]))
+    f, g, v, poses, d, d0 = _perturbed_smart_graph()
     params = gtsam.ISAM2Params()
     params.relinearizeSkip = 1
     params.setRelinearizeThreshold(0.0)
