@@ -84,7 +84,8 @@ def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progre
 
 def run(path: str | Path | Sequence, out: str | Path | None = None, config: OdometryConfig | None = None,
         format: str = "auto", max_frames: int | None = None, progress: bool = False,
-        strict: bool = False, loop_closure: bool = False, **open_options: Any) -> dict[str, Any]:
+        strict: bool = False, loop_closure: bool = False, frame_step: int = 1,
+        **open_options: Any) -> dict[str, Any]:
     """Run gtvo on a sequence folder (or an opened :class:`Sequence`) and write its outputs.
 
     Args:
@@ -97,16 +98,23 @@ def run(path: str | Path | Sequence, out: str | Path | None = None, config: Odom
         loop_closure: after the run, detect loops among the keyframes, optimise the keyframe
             pose graph robustly (GNC) and write ``trajectory_loop_closed.tum`` as a second
             output (:mod:`gtvo.loop_closing`).
+        frame_step: use every ``frame_step``-th frame (after ``max_frames``): the log at a lower
+            frame rate (:meth:`Sequence.subsampled`).
 
     Returns:
         The report (also written to ``out/report.json``), with ``"out"`` added.
+
+    Raises:
+        InputError: bad input (unreadable folder, ``frame_step < 1``, ...).
     """
     seq = path if isinstance(path, Sequence) else open_sequence(path, format=format, max_frames=max_frames,  # type: ignore[arg-type]
                                                                **open_options)
     if isinstance(path, Sequence) and max_frames is not None:
         seq = seq.truncated(max_frames)
+    seq = seq.subsampled(frame_step)
     out_dir = Path(out) if out is not None else Path("gtvo_out") / seq.name
     vo, traj, info = process_sequence(seq, config, progress=progress, strict=strict)
+    info["frame_step"] = int(frame_step)
     closed = None
     if loop_closure:
         from gtvo.loop_closing import close_loops_of_run  # noqa: PLC0415

@@ -56,6 +56,24 @@ def test_run_writes_outputs_and_metrics(kitti_like, tmp_path):
     assert not [p.name for p in out.iterdir() if p.name.startswith(".")]  # no temp files
 
 
+def test_run_with_frame_step_uses_every_kth_frame(kitti_like, tmp_path):
+    out = tmp_path / "step2"
+    r = run_cli("run", kitti_like, "--out", out, "--no-progress", "--frame-step", "2")
+    assert r.returncode == 0, r.stderr
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["frames"] == 4 and rep["frame_step"] == 2
+    traj = read_tum(out / "trajectory.tum")
+    np.testing.assert_allclose(traj.timestamps, np.loadtxt(kitti_like / "times.txt")[::2], atol=1e-6)
+    assert rep["ate_rmse_m"] < 0.01  # 30 cm steps on exact data
+
+
+def test_run_bad_frame_step_exit_2(kitti_like, tmp_path):
+    r = run_cli("run", kitti_like, "--out", tmp_path / "o", "--frame-step", "0")
+    assert r.returncode == 2
+    assert "frame step" in r.stderr and len(r.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "o").exists()
+
+
 def test_run_missing_folder_exit_2(tmp_path):
     r = run_cli("run", tmp_path / "nope", "--out", tmp_path / "o")
     assert r.returncode == 2

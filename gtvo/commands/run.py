@@ -19,6 +19,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="dataset layout (default: auto-detect)")
     p.add_argument("--out", metavar="DIR", default=None, help="output folder (default gtvo_out/<name>)")
     p.add_argument("--max-frames", type=int, metavar="N", default=None, help="use only the first N frames")
+    p.add_argument("--frame-step", type=int, metavar="K", default=1,
+                   help="use every K-th frame (after --max-frames): the log at 1/K of its frame rate")
     p.add_argument("--camera", metavar="FX,FY,CX,CY", default=None, help="intrinsics for TUM folders")
     p.add_argument("--ground-truth", metavar="FILE", default=None, help="ground truth to use instead of the folder's")
     p.add_argument("--strict", action="store_true", help="stop at an unreadable frame instead of skipping it")
@@ -40,7 +42,7 @@ def main(args: argparse.Namespace) -> int:
     config = odometry_config(args)
     report = run(args.sequence, out=args.out, config=config, format=args.format,
                  max_frames=args.max_frames, progress=not args.no_progress, strict=args.strict,
-                 loop_closure=args.loop_closure, **options)
+                 loop_closure=args.loop_closure, frame_step=args.frame_step, **options)
     print(f"gtvo run: {report['sequence']} ({report['mode']}, {report['solver']} solver)", file=sys.stdout)
     print_report(report)
     return 0
