@@ -12,7 +12,8 @@ timings count computation only; they are also given as multiples of a reference 
 same run (one OpenCV StereoSGBM of the first frame, median of 5, taken before and after the rows).
 
 Columns (benchmarks/vo_bench.py): ATE RMSE after SE(3) alignment, drift % (first pose aligned;
-'-' on a clip that does not move), RPE over 1-frame pairs, max displacement from the first
+'-' on a clip that does not move), the KITTI devkit's segment errors over 10-40 m segments from
+every frame (translation %, rotation deg per 100 m), RPE over 1-frame pairs, max displacement from the first
 position (must stay below 1 cm on the static EuRoC clip), ms/frame, its ratio to the reference,
 frames/s, and for gtvo keyframes / tracking failures (peers: steps where their estimate failed).
 
@@ -39,7 +40,7 @@ from gtvo.atomic import write_json  # noqa: E402
 from gtvo.datasets import open_sequence  # noqa: E402
 
 PEERS = {"open3d": Open3DColorOdometryPeer, "orb": OrbPnPPeer}
-HEADER = ["method", "frames", "ATE RMSE (m)", "drift %", "RPE t (m)", "RPE r (deg)", "max disp (m)",
+HEADER = ["method", "frames", "ATE RMSE (m)", "drift %", "seg t %", "seg r (deg/100 m)", "RPE t (m)", "RPE r (deg)", "max disp (m)",
           "ms/frame", "x ref", "frames/s", "keyframes", "failures"]
 
 
@@ -103,6 +104,7 @@ def bench_sequence(path: Path, max_frames: int | None, solvers: list[str], modes
 def table(result: dict[str, Any]) -> str:
     """The markdown table of one sequence's rows."""
     rows = [[r["method"], str(r["frames"]), fmt(r["ate_m"], ".3f"), fmt(r["drift_pct"], ".2f"),
+             fmt(r["seg_t_pct"], ".2f"), fmt(r["seg_r_deg_per_100m"], ".2f"),
              fmt(r["rpe_t_m"], ".3f"), fmt(r["rpe_r_deg"], ".3f"), fmt(r["max_disp_m"], ".4f"),
              fmt(r["ms_per_frame"], ".0f"), fmt(r["x_ref"], ".2f"), fmt(r["frames_per_second"], ".2f"),
              fmt(r["keyframes"], "d"), fmt(r["failures"], "d")] for r in result["rows"]]

@@ -226,7 +226,8 @@ class OrbPnPPeer(_FrameToFrame):
                  reprojection_error: float = 1.5, min_inliers: int = 15, depth_max: float = DEPTH_MAX_M) -> None:
         super().__init__(camera)
         self._matcher = make_sgbm() if isinstance(camera, StereoCamera) else None
-        self._orb = cv2.ORB_create(nfeatures=int(n_features))
+        self.n_features = int(n_features)
+        self._orb = cv2.ORB_create(nfeatures=self.n_features)
         self._bf = cv2.BFMatcher(cv2.NORM_HAMMING)
         self.ratio = float(ratio)
         self.reprojection_error = float(reprojection_error)

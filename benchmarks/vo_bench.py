@@ -8,6 +8,10 @@ Scores (``gtvo.metrics``, on the frames that have a ground-truth pose):
 * ``drift_pct``: final position error after aligning the first pose, % of the GT path length
   (None when the GT path is shorter than :data:`MIN_DRIFT_PATH_M`: a static clip has no drift %);
 * ``rpe_t_m``, ``rpe_r_deg``: RPE RMSE over 1-frame pairs, translation (m) and rotation (deg);
+* ``seg_t_pct``, ``seg_r_deg_per_100m``: the KITTI devkit's segment errors
+  (:func:`gtvo.metrics.kitti_segment_errors`) over the short lengths :data:`SEGMENT_LENGTHS_M`
+  from every frame: the drift measured from every start, not from frame 0 only (None when no
+  segment fits);
 * ``max_disp_m``: the largest distance of an estimated camera position from the first one (the
   figure for a static clip, where it must stay below 1 cm).
 """
@@ -31,12 +35,14 @@ if str(REPO_ROOT) not in sys.path:  # run as `python benchmarks/<script>.py`
 from benchmarks.peers import make_sgbm  # noqa: E402
 from gtvo.errors import InputError  # noqa: E402
 from gtvo.image import to_uint8  # noqa: E402
-from gtvo.metrics import ate, drift_percent, rpe  # noqa: E402
+from gtvo.metrics import ate, drift_percent, kitti_segment_errors, rpe  # noqa: E402
 from gtvo.sequence import Frame, Sequence  # noqa: E402
 from gtvo.trajectory import Trajectory  # noqa: E402
 
 #: Below this GT path length (m) the drift in % is not reported.
 MIN_DRIFT_PATH_M = 0.1
+#: Segment lengths (m) of the short-snippet KITTI segment metric (the devkit's are 100..800 m).
+SEGMENT_LENGTHS_M = (10.0, 20.0, 30.0, 40.0)
 #: The real data: ``$GTVO_SHARED_DATA`` or ``../shared/data`` beside the checkout (as tests/conftest.py).
 SHARED_DATA = Path(os.environ.get("GTVO_SHARED_DATA") or REPO_ROOT.parent / "shared" / "data")
 KITTI_SEQUENCE_1 = SHARED_DATA / "kitti_stereo_sample" / "KITTI_sequence_1"
@@ -135,7 +141,7 @@ def score(est: Trajectory, seq: Sequence) -> dict[str, float | None]:
     """ATE, drift, RPE and max displacement of ``est`` (one pose per frame of ``seq``)."""
     out: dict[str, float | None] = {
         "max_disp_m": float(np.max(np.linalg.norm(est.positions - est.positions[0], axis=1)))}
-    out.update(ate_m=None, drift_pct=None, rpe_t_m=None, rpe_r_deg=None)
+    out.update(ate_m=None, drift_pct=None, rpe_t_m=None, rpe_r_deg=None, seg_t_pct=None, seg_r_deg_per_100m=None)
     if seq.gt_poses is None:
         return out
     has = np.isfinite(seq.gt_poses[:, 0, 0])[: len(est)]
@@ -151,6 +157,9 @@ def score(est: Trajectory, seq: Sequence) -> dict[str, float | None]:
     out["rpe_t_m"], out["rpe_r_deg"] = r.translation.rmse, r.rotation_deg.rmse
     if g.path_length() >= MIN_DRIFT_PATH_M:
         out["drift_pct"] = drift_percent(e, g)
+        seg = kitti_segment_errors(e, g, SEGMENT_LENGTHS_M, step=1)
+        if seg is not None:
+            out["seg_t_pct"], out["seg_r_deg_per_100m"] = seg.translation_percent, seg.rotation_deg_per_100m
     out["gt_path_m"] = float(g.path_length())
     return out
 
