@@ -135,6 +135,10 @@ class FrameEstimate:
         seconds: wall time spent on the frame.
         keyframe_index: the frame index of the keyframe it was tracked against (its own index
             when it was made a keyframe without tracking).
+        lost: True when tracking failed and the frame could not be re-initialised either (too few
+            points with a depth: a blank, covered or textureless view). Its pose is the motion
+            model's prediction, ``tracking`` holds the failed attempt, and the keyframe is kept, so
+            the next frames are tracked against it again.
     """
 
     index: int
@@ -145,6 +149,7 @@ class FrameEstimate:
     reinitialised: bool
     seconds: float
     keyframe_index: int = -1
+    lost: bool = False
 
 
 @dataclass
@@ -181,6 +186,8 @@ class VisualOdometry:
         window_results: one :class:`gtvo.window.WindowResult` per window optimisation.
         flow_recoveries: frames that failed from every motion-model guess and were tracked from
             the optical-flow guess (``config.flow_fallback``) instead of being lost.
+        lost_frames: frames whose tracking failed and that had too few points to become a
+            keyframe (:attr:`FrameEstimate.lost`); also counted in ``failures``.
 
     Example::
 
@@ -198,6 +205,7 @@ class VisualOdometry:
         self.keyframes: list[Keyframe] = []
         self.failures = 0
         self.flow_recoveries = 0
+        self.lost_frames = 0
         self.window_results: list[WindowResult] = []
         self._previous: tuple[Frame, NDArray[np.float32]] | None = None
         self._kalman = None
@@ -246,22 +254,28 @@ class VisualOdometry:
             tracked = None
             if prev.tracking is not None and prev.keyframe_index in self._keyframe_by_index:
                 tracked = (prev.keyframe_index, prev.tracking.affine)
-            kf = self._make_keyframe(prev_frame, prev_left, last, tracked)
-            self._mark_last_as_keyframe()
-            # the window may have moved the new keyframe: carry the guesses along with it
-            correction = kf.T_world_cam.compose(last.inverse())
-            T_pred, last = correction.compose(T_pred), kf.T_world_cam
-            result = self._track(kf, pyr, T_pred, last, left)
+            promoted = self._make_keyframe_if_possible(prev_frame, prev_left, last, tracked)
+            if promoted is not None:  # else: keep tracking against the current keyframe
+                kf = promoted
+                self._mark_last_as_keyframe()
+                # the window may have moved the new keyframe: carry the guesses along with it
+                correction = kf.T_world_cam.compose(last.inverse())
+                T_pred, last = correction.compose(T_pred), kf.T_world_cam
+                result = self._track(kf, pyr, T_pred, last, left)
         if not result.success:
             # re-initialise: this frame becomes a keyframe at the motion model's prediction
             self.failures += 1
-            new_kf = self._make_keyframe(frame, left, T_pred)
+            new_kf = self._make_keyframe_if_possible(frame, left, T_pred)
+            if new_kf is None:  # nothing to re-initialise from: the frame is lost
+                self.lost_frames += 1
+                return self._finish(frame, left, T_pred, False, result, False, t0, lost=True)
             return self._finish(frame, left, new_kf.T_world_cam, True, result, True, t0)
 
         T_world = kf.T_world_cam.compose(result.T_keyframe_frame)
         if self._needs_keyframe(kf, result):
-            new_kf = self._make_keyframe(frame, left, T_world, (kf.index, result.affine))
-            return self._finish(frame, left, new_kf.T_world_cam, True, result, False, t0)
+            new_kf = self._make_keyframe_if_possible(frame, left, T_world, (kf.index, result.affine))
+            if new_kf is not None:
+                return self._finish(frame, left, new_kf.T_world_cam, True, result, False, t0)
         return self._finish(frame, left, T_world, False, result, False, t0)
 
     def trajectory(self, name: str = "gtvo") -> Trajectory:
@@ -370,11 +384,17 @@ class VisualOdometry:
     def _make_keyframe(self, frame: Frame, left: NDArray[np.float32], T_world_cam: gtsam.Pose3,
                        tracked: tuple[int, NDArray[np.float64]] | None = None) -> Keyframe:
         """Make ``frame`` a keyframe at ``T_world_cam``; in window mode, add it to the window and
-        optimise (``tracked``: the keyframe it was tracked against and its affine relative to it)."""
+        optimise (``tracked``: the keyframe it was tracked against and its affine relative to it).
+
+        Raises:
+            InputError: the frame has fewer than ``tracking.min_valid_points`` points with a depth
+                (the first frame: nothing can start; later frames go through
+                :meth:`_make_keyframe_if_possible`).
+        """
         pts = self._frame_points(frame, left)
         if len(pts) < self.config.tracking.min_valid_points:
-            raise InputError(f"frame {frame.index}: only {len(pts)} points with a valid depth; "
-                             "the images may be blank or the stereo calibration wrong")
+            raise _TooFewPoints(f"frame {frame.index}: only {len(pts)} points with a valid depth; "
+                                "the images may be blank or the stereo calibration wrong")
         if self.window is not None:
             T_world_cam, pts = self._window_update(frame, left, T_world_cam, pts, tracked)
         tracker = TrackingKeyframe(self.pinhole, left, pts.pixels, pts.inverse_depth, pts.variance, (0.0, 0.0),
@@ -388,6 +408,14 @@ class VisualOdometry:
         if self.window is not None:
             self._refresh_estimates()
         return kf
+
+    def _make_keyframe_if_possible(self, frame: Frame, left: NDArray[np.float32], T_world_cam: gtsam.Pose3,
+                                   tracked: tuple[int, NDArray[np.float64]] | None = None) -> Keyframe | None:
+        """:meth:`_make_keyframe`, or None (nothing changed) when the frame has too few points."""
+        try:
+            return self._make_keyframe(frame, left, T_world_cam, tracked)
+        except _TooFewPoints:
+            return None
 
     def _window_update(self, frame: Frame, left: NDArray[np.float32], T_world_cam: gtsam.Pose3,
                        pts: KeyframePoints, tracked: tuple[int, NDArray[np.float64]] | None
@@ -445,7 +473,8 @@ class VisualOdometry:
                 break
             if e.index in self._keyframe_by_index:
                 T = self._keyframe_by_index[e.index].T_world_cam
-            elif e.tracking is not None and not e.reinitialised and e.keyframe_index in self._keyframe_by_index:
+            elif (e.tracking is not None and not e.reinitialised and not e.lost
+                  and e.keyframe_index in self._keyframe_by_index):
                 T = self._keyframe_by_index[e.keyframe_index].T_world_cam.compose(e.tracking.T_keyframe_frame)
             else:
                 continue
@@ -456,14 +485,15 @@ class VisualOdometry:
         self.estimates[-1] = dataclasses.replace(self.estimates[-1], is_keyframe=True)
 
     def _finish(self, frame: Frame, left: NDArray[np.float32], T_world_cam: gtsam.Pose3, is_kf: bool,
-                result: TrackingResult | None, reinit: bool, t0: float) -> FrameEstimate:
+                result: TrackingResult | None, reinit: bool, t0: float, lost: bool = False) -> FrameEstimate:
         kf_index = self.keyframes[-1].index if result is not None and not reinit else frame.index
         if result is not None and not reinit and is_kf:  # tracked against the keyframe before this one
             kf_index = self.keyframes[-2].index
         est = FrameEstimate(frame.index, float(frame.timestamp), T_world_cam.matrix(), is_kf, result, reinit,
-                            time.perf_counter() - t0, kf_index)
+                            time.perf_counter() - t0, kf_index, lost)
         self.estimates.append(est)
-        self._previous = (frame, left)
+        # a lost frame is no keyframe candidate: the next frame does not promote it
+        self._previous = None if lost else (frame, left)
         if self._kalman is not None:
             from gtvo.motion_model import planar_pose_from_T_world_cam  # noqa: PLC0415
 
@@ -473,6 +503,10 @@ class VisualOdometry:
             else:
                 self._kalman.step(z, est.timestamp - self.estimates[-2].timestamp)
         return est
+
+
+class _TooFewPoints(InputError):
+    """A frame cannot host a keyframe: too few points with a depth."""
 
 
 _BLAS_CONTROLLER = None

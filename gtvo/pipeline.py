@@ -68,6 +68,7 @@ def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progre
         "tracking_failures": vo.failures,
         "reinitialisations": sum(1 for e in vo.estimates if e.reinitialised),
         "flow_recoveries": vo.flow_recoveries,
+        "lost_frames": vo.lost_frames,
         "skipped_frames": skipped,
         "tracking_iterations_mean": _mean([e.tracking.iterations for e in vo.estimates if e.tracking is not None]),
     }

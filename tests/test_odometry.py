@@ -1,4 +1,5 @@
-"""VisualOdometry's recovery paths (gtvo/odometry.py) on real data.
+"""VisualOdometry's recovery paths (gtvo/odometry.py): large steps on real data, blank frames and
+brightness jumps on the synthetic room.
 
 KITTI_sequence_1 played at 5 Hz (every second frame: 2.4 m steps, up to ~100 px of flow near the
 border) starts from rest, so the constant-velocity guess of the first tracked frame is 2.4 m off
@@ -12,7 +13,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from gtvo.errors import InputError
 from gtvo.odometry import OdometryConfig, VisualOdometry
+from gtvo.sequence import Sequence
+from gtvo.synthetic import make_synthetic_sequence
 from gtvo.window import WindowConfig
 
 
@@ -71,3 +75,55 @@ def test_memory_stays_bounded_over_a_run():
     assert alive <= 2 * vo.config.window.size + 2
     assert sum(k.image is not None for k in vo.keyframes) == 1
     assert sum(k.tracker is not None for k in vo.keyframes) == 1 and vo.keyframes[-1].tracker is not None
+
+
+@pytest.fixture(scope="module")
+def room():
+    return make_synthetic_sequence(n_frames=12, noise_sigma=1.0)
+
+
+def _edited(seq, edit) -> Sequence:
+    """``seq`` with ``edit(i, image)`` applied to both images of every frame."""
+    def wrap(load):
+        return lambda i: edit(i, load(i))
+
+    return Sequence(seq.name, seq.kind, seq.camera, seq.timestamps, wrap(seq.load_left), wrap(seq.load_right),
+                    None, seq.gt_poses, None, [])
+
+
+def _position_errors(vo, seq) -> np.ndarray:
+    return np.linalg.norm(vo.trajectory().poses[:, :3, 3] - seq.gt_poses[:, :3, 3], axis=1)
+
+
+@pytest.mark.parametrize("mode", ["track", "window"])
+def test_a_blank_frame_mid_run_is_lost_and_the_run_goes_on(room, mode):
+    """A covered lens (uniform images) cannot be tracked nor host a keyframe: the frame keeps the
+    motion model's pose, the keyframe stays, and the next frames are tracked against it."""
+    seq = _edited(room, lambda i, img: np.full_like(img, 128.0) if i == 6 else img)
+    vo = _run(seq, OdometryConfig(mode=mode))
+    lost = [e.index for e in vo.estimates if e.lost]
+    assert lost == [6] and vo.lost_frames == 1 and vo.failures == 1
+    e6 = vo.estimates[6]
+    assert not e6.is_keyframe and not e6.reinitialised and e6.tracking is not None and not e6.tracking.success
+    assert all(e.tracking.success for e in vo.estimates[7:] if e.tracking is not None)
+    err = _position_errors(vo, seq)
+    assert err[6] < 0.05  # constant-velocity guess over one 15 cm step
+    assert np.max(np.delete(err, 6)) < 0.03  # the rest as on the clean sequence (measured 10-20 mm)
+
+
+def test_a_blank_first_frame_is_an_input_error(room):
+    seq = _edited(room, lambda i, img: np.full_like(img, 128.0) if i == 0 else img)
+    with pytest.raises(InputError, match="frame 0: only 0 points"):
+        _run(seq.truncated(2), OdometryConfig(mode="track"))
+
+
+def test_a_brightness_jump_makes_a_keyframe_not_a_failure(room):
+    """Exposure drops (gain 0.6, offset 5 from frame 6 on; no pixel saturates): the affine brightness
+    model tracks through it and the keyframe rule on the log-gain (|log 0.6| = 0.51 > 0.3) starts a
+    new keyframe."""
+    seq = _edited(room, lambda i, img: (0.6 * img + 5.0).astype(np.float32) if i >= 6 else img)
+    vo = _run(seq, OdometryConfig(mode="window"))
+    assert vo.failures == 0 and vo.lost_frames == 0
+    assert vo.estimates[6].is_keyframe
+    assert abs(vo.estimates[6].tracking.affine[0] - np.log(0.6)) < 0.05
+    assert np.max(_position_errors(vo, seq)) < 0.03
