@@ -473,12 +473,19 @@ class SyntheticSequence(Sequence):
     affine_right: FloatArray | None = None
     noise_sigma: float = 0.0
     _renderer: _FrameRenderer | None = field(default=None, repr=False)
+    #: the renderer's frame of each of this sequence's frames (None: the same index), so that
+    #: ``truncated`` / ``subsampled`` sub-sequences keep the exact depth and faces of their frames
+    _frames: tuple[int, ...] | None = field(default=None, repr=False)
 
     def _rendering(self, i: int, side: str) -> Rendering:
         if side not in _SIDES:
             raise InputError(f"side must be 'left' or 'right', got {side!r}")
         if self._renderer is None:
             raise InputError(f"sequence {self.name} has no renderer; build it with make_synthetic_sequence")
+        if self._frames is not None:
+            if not 0 <= int(i) < len(self._frames):
+                raise IndexError(f"frame {i} out of range 0..{len(self._frames) - 1}")
+            i = self._frames[int(i)]
         return self._renderer.get(i, _SIDES[side])
 
     def true_depth(self, i: int, side: Literal["left", "right"] = "left") -> NDArray[np.float32]:
@@ -505,19 +512,19 @@ class SyntheticSequence(Sequence):
             same[:, :m] = same[:, -m:] = False
         return same
 
-    def truncated(self, max_frames: int | None) -> "SyntheticSequence":
-        """The first ``max_frames`` frames, still a :class:`SyntheticSequence` (sharing the cache)."""
-        if max_frames is None or max_frames >= len(self):
-            return self
-        if max_frames < 1:
-            raise InputError(f"--max-frames must be >= 1, got {max_frames}")
-        n = int(max_frames)
+    def _select(self, idx: list[int]) -> "SyntheticSequence":
+        """The frames ``idx`` as a :class:`SyntheticSequence` of their own (sharing the renderer and
+        its cache): what :meth:`truncated` and :meth:`subsampled` return."""
+        base = self._frames if self._frames is not None else range(len(self))
+        frames = tuple(int(base[i]) for i in idx)
         assert self.gt_poses is not None and self.affine_left is not None and self.affine_right is not None
-        return SyntheticSequence(self.name, self.kind, self.camera, self.timestamps[:n], self.load_left,
-                                 self.load_right, None, self.gt_poses[:n], None, self.frame_names[:n],
-                                 scene=self.scene, affine_left=self.affine_left[:n],
-                                 affine_right=self.affine_right[:n], noise_sigma=self.noise_sigma,
-                                 _renderer=self._renderer)
+        left, right = self.load_left, self.load_right
+        assert right is not None
+        return SyntheticSequence(self.name, self.kind, self.camera, self.timestamps[idx],
+                                 lambda i: left(idx[i]), lambda i: right(idx[i]), None, self.gt_poses[idx], None,
+                                 [self.frame_names[i] for i in idx], scene=self.scene,
+                                 affine_left=self.affine_left[idx], affine_right=self.affine_right[idx],
+                                 noise_sigma=self.noise_sigma, _renderer=self._renderer, _frames=frames)
 
 
 def synthetic_camera(width: int = 320, height: int = 240, baseline: float = DEFAULT_BASELINE) -> StereoCamera:
