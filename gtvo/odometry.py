@@ -14,7 +14,8 @@ end lives here; the residual math in :mod:`factors`, the trackers in :mod:`gtvo.
   the keyframe grows large against the scene depth, or the brightness changes a lot (rule in
   :class:`OdometryConfig` and docs/architecture.md);
 * when tracking fails, the frame is re-initialised from stereo at the predicted pose and the run
-  goes on; the failures are counted;
+  goes on; a frame with too few points for that (a blank or covered view) is *lost*: it keeps the
+  predicted pose and the next frames are tracked against the keyframe again; both are counted;
 * with ``mode="window"`` every new keyframe joins a :class:`gtvo.window.SlidingWindowOptimizer`:
   the window's keyframe poses, affine brightness and inverse depths are optimised jointly, the
   optimised keyframes replace the tracked ones (later frames are tracked against them, with the
@@ -137,8 +138,10 @@ class FrameEstimate:
             when it was made a keyframe without tracking).
         lost: True when tracking failed and the frame could not be re-initialised either (too few
             points with a depth: a blank, covered or textureless view). Its pose is the motion
-            model's prediction, ``tracking`` holds the failed attempt, and the keyframe is kept, so
-            the next frames are tracked against it again.
+            model's prediction (relative to ``keyframe_index``, re-expressed when the window moves
+            that keyframe), ``tracking`` holds the failed attempt, and no keyframe is made from it:
+            the next frames are tracked against the latest keyframe (which may be the frame before
+            it, promoted when it failed) again.
     """
 
     index: int
@@ -211,6 +214,7 @@ class VisualOdometry:
         self._kalman = None
         self._keyframe_by_index: dict[int, Keyframe] = {}
         self._window_affine: dict[int, NDArray[np.float64]] = {}  # keyframe index -> (a, b) in the window
+        self._lost_relative: dict[int, gtsam.Pose3] = {}  # lost frame index -> T_keyframe_frame (predicted)
         self.window: SlidingWindowOptimizer | None = None
         if self.config.mode == "window":
             baseline = camera.baseline if isinstance(camera, StereoCamera) else None
@@ -255,7 +259,9 @@ class VisualOdometry:
             if prev.tracking is not None and prev.keyframe_index in self._keyframe_by_index:
                 tracked = (prev.keyframe_index, prev.tracking.affine)
             promoted = self._make_keyframe_if_possible(prev_frame, prev_left, last, tracked)
-            if promoted is not None:  # else: keep tracking against the current keyframe
+            if promoted is None:  # keep tracking against the current keyframe; do not retry that frame
+                self._previous = None
+            else:
                 kf = promoted
                 self._mark_last_as_keyframe()
                 # the window may have moved the new keyframe: carry the guesses along with it
@@ -268,6 +274,7 @@ class VisualOdometry:
             new_kf = self._make_keyframe_if_possible(frame, left, T_pred)
             if new_kf is None:  # nothing to re-initialise from: the frame is lost
                 self.lost_frames += 1
+                self._lost_relative[frame.index] = kf.T_world_cam.between(T_pred)
                 return self._finish(frame, left, T_pred, False, result, False, t0, lost=True)
             return self._finish(frame, left, new_kf.T_world_cam, True, result, True, t0)
 
@@ -276,6 +283,7 @@ class VisualOdometry:
             new_kf = self._make_keyframe_if_possible(frame, left, T_world, (kf.index, result.affine))
             if new_kf is not None:
                 return self._finish(frame, left, new_kf.T_world_cam, True, result, False, t0)
+            return self._finish(frame, left, T_world, False, result, False, t0, candidate=False)
         return self._finish(frame, left, T_world, False, result, False, t0)
 
     def trajectory(self, name: str = "gtvo") -> Trajectory:
@@ -461,7 +469,8 @@ class VisualOdometry:
         """Re-express the poses of frames whose keyframe the window moved.
 
         A keyframe's pose is its (optimised) keyframe pose; a tracked frame's is
-        ``T_world_keyframe * T_keyframe_frame`` with its keyframe's current pose.
+        ``T_world_keyframe * T_keyframe_frame`` with its keyframe's current pose (a lost frame's
+        ``T_keyframe_frame`` is the predicted one it was given).
         """
         assert self.window is not None
         if not self.window.keyframes:
@@ -473,8 +482,11 @@ class VisualOdometry:
                 break
             if e.index in self._keyframe_by_index:
                 T = self._keyframe_by_index[e.index].T_world_cam
-            elif (e.tracking is not None and not e.reinitialised and not e.lost
-                  and e.keyframe_index in self._keyframe_by_index):
+            elif e.keyframe_index not in self._keyframe_by_index:
+                continue
+            elif e.lost:
+                T = self._keyframe_by_index[e.keyframe_index].T_world_cam.compose(self._lost_relative[e.index])
+            elif e.tracking is not None and not e.reinitialised:
                 T = self._keyframe_by_index[e.keyframe_index].T_world_cam.compose(e.tracking.T_keyframe_frame)
             else:
                 continue
@@ -485,21 +497,25 @@ class VisualOdometry:
         self.estimates[-1] = dataclasses.replace(self.estimates[-1], is_keyframe=True)
 
     def _finish(self, frame: Frame, left: NDArray[np.float32], T_world_cam: gtsam.Pose3, is_kf: bool,
-                result: TrackingResult | None, reinit: bool, t0: float, lost: bool = False) -> FrameEstimate:
+                result: TrackingResult | None, reinit: bool, t0: float, lost: bool = False,
+                candidate: bool = True) -> FrameEstimate:
+        """Record the frame's estimate. ``candidate``: the frame may be promoted to a keyframe by
+        the next frame (not when it is lost or just failed to become one)."""
         kf_index = self.keyframes[-1].index if result is not None and not reinit else frame.index
         if result is not None and not reinit and is_kf:  # tracked against the keyframe before this one
             kf_index = self.keyframes[-2].index
         est = FrameEstimate(frame.index, float(frame.timestamp), T_world_cam.matrix(), is_kf, result, reinit,
                             time.perf_counter() - t0, kf_index, lost)
         self.estimates.append(est)
-        # a lost frame is no keyframe candidate: the next frame does not promote it
-        self._previous = None if lost else (frame, left)
+        self._previous = (frame, left) if candidate and not lost else None
         if self._kalman is not None:
             from gtvo.motion_model import planar_pose_from_T_world_cam  # noqa: PLC0415
 
             z = planar_pose_from_T_world_cam(est.T_world_cam)
             if not self._kalman.initialized:
                 self._kalman.initialize(z)
+            elif lost:  # the pose is the filter's own prediction: no measurement to fuse
+                self._kalman.predict(est.timestamp - self.estimates[-2].timestamp)
             else:
                 self._kalman.step(z, est.timestamp - self.estimates[-2].timestamp)
         return est

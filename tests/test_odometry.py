@@ -111,6 +111,32 @@ def test_a_blank_frame_mid_run_is_lost_and_the_run_goes_on(room, mode):
     assert np.max(np.delete(err, 6)) < 0.03  # the rest as on the clean sequence (measured 10-20 mm)
 
 
+def test_blank_right_images_track_on_without_new_keyframes(room):
+    """Left images fine, right images blank (a failed second camera): frames 6-8 track against the
+    keyframe but cannot become keyframes (no stereo depth); neither the keyframe rule nor the
+    next frame's promotion of the previous frame may stop the run."""
+    def right(i):
+        img = room.load_right(i)
+        return np.full_like(img, 128.0) if 6 <= i <= 8 else img
+
+    seq = Sequence(room.name, room.kind, room.camera, room.timestamps, room.load_left, right, None, room.gt_poses,
+                   None, [])
+    vo = _run(seq, OdometryConfig(mode="window"))
+    assert vo.lost_frames == 0 and vo.failures == 0
+    assert not any(e.is_keyframe for e in vo.estimates[6:9])
+    assert np.max(_position_errors(vo, seq)) < 0.03
+
+
+@pytest.mark.parametrize("motion_model", ["constant-velocity", "kalman"])
+def test_consecutive_blank_frames_in_window_mode(room, motion_model):
+    seq = _edited(room, lambda i, img: np.full_like(img, 128.0) if 5 <= i <= 7 else img)
+    vo = _run(seq, OdometryConfig(mode="window", motion_model=motion_model))
+    assert [e.index for e in vo.estimates if e.lost] == [5, 6, 7]
+    err = _position_errors(vo, seq)
+    assert np.max(err[5:8]) < 0.1  # three 15 cm steps extrapolated
+    assert np.max(err[8:]) < 0.03 and vo.estimates[-1].tracking.success
+
+
 def test_a_blank_first_frame_is_an_input_error(room):
     seq = _edited(room, lambda i, img: np.full_like(img, 128.0) if i == 0 else img)
     with pytest.raises(InputError, match="frame 0: only 0 points"):
