@@ -6,7 +6,7 @@ images only when asked (``seq.left(i)``), so a 4000-frame log costs nothing to o
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable, Iterator, Literal
 
@@ -146,15 +146,16 @@ class Sequence:
         return self._select(list(range(0, len(self), int(step))))
 
     def _select(self, idx: list[int]) -> "Sequence":
-        """The frames ``idx`` (increasing) as a sequence of their own."""
+        """The frames ``idx`` (increasing) as a sequence of their own, of the same class (a subclass
+        slices its own per-frame fields on top of this)."""
 
         def pick(loader: ImageLoader | None) -> ImageLoader | None:
             return None if loader is None else (lambda i: loader(idx[i]))
 
-        return Sequence(self.name, self.kind, self.camera, self.timestamps[idx], pick(self.load_left),
-                        pick(self.load_right), pick(self.load_depth),
-                        None if self.gt_poses is None else self.gt_poses[idx], self.source,
-                        [self.frame_names[i] for i in idx])
+        return replace(self, timestamps=self.timestamps[idx], load_left=pick(self.load_left),
+                       load_right=pick(self.load_right), load_depth=pick(self.load_depth),
+                       gt_poses=None if self.gt_poses is None else self.gt_poses[idx],
+                       frame_names=[self.frame_names[i] for i in idx])
 
     def _checked(self, img: NDArray, i: int, which: str) -> NDArray[np.float32]:
         h, w = self.pinhole.height, self.pinhole.width

@@ -24,7 +24,7 @@ The maths and the measured limits of exactness: docs/synthetic.md.
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Literal, NamedTuple
 
@@ -513,18 +513,12 @@ class SyntheticSequence(Sequence):
         return same
 
     def _select(self, idx: list[int]) -> "SyntheticSequence":
-        """The frames ``idx`` as a :class:`SyntheticSequence` of their own (sharing the renderer and
-        its cache): what :meth:`truncated` and :meth:`subsampled` return."""
+        """:meth:`Sequence._select`, with the affines and the renderer's frame map sliced too, so that
+        :meth:`truncated` and :meth:`subsampled` keep the exact depth of their frames."""
         base = self._frames if self._frames is not None else range(len(self))
-        frames = tuple(int(base[i]) for i in idx)
-        assert self.gt_poses is not None and self.affine_left is not None and self.affine_right is not None
-        left, right = self.load_left, self.load_right
-        assert right is not None
-        return SyntheticSequence(self.name, self.kind, self.camera, self.timestamps[idx],
-                                 lambda i: left(idx[i]), lambda i: right(idx[i]), None, self.gt_poses[idx], None,
-                                 [self.frame_names[i] for i in idx], scene=self.scene,
-                                 affine_left=self.affine_left[idx], affine_right=self.affine_right[idx],
-                                 noise_sigma=self.noise_sigma, _renderer=self._renderer, _frames=frames)
+        assert self.affine_left is not None and self.affine_right is not None
+        return replace(super()._select(idx), affine_left=self.affine_left[idx],
+                       affine_right=self.affine_right[idx], _frames=tuple(int(base[i]) for i in idx))
 
 
 def synthetic_camera(width: int = 320, height: int = 240, baseline: float = DEFAULT_BASELINE) -> StereoCamera:
