@@ -13,8 +13,8 @@ same run (one OpenCV StereoSGBM of the first frame, median of 5, taken before an
 
 Columns (benchmarks/vo_bench.py): ATE RMSE after SE(3) alignment, drift % (first pose aligned;
 '-' on a clip that does not move), the KITTI devkit's segment errors over 10-40 m segments from
-every frame (translation %, rotation deg per 100 m), RPE over 1-frame pairs, max displacement from the first
-position (must stay below 1 cm on the static EuRoC clip), ms/frame, its ratio to the reference,
+every frame (translation %, rotation deg per 100 m), RPE over 1-frame pairs, max displacement
+from the first position (must stay below 1 cm on the static EuRoC clip), ms/frame, its ratio to the reference,
 frames/s, and for gtvo keyframes / tracking failures (peers: steps where their estimate failed).
 
 ``--frame-step K`` plays the log at 1/K of its frame rate (every K-th frame, the first one
@@ -40,8 +40,8 @@ from gtvo.atomic import write_json  # noqa: E402
 from gtvo.datasets import open_sequence  # noqa: E402
 
 PEERS = {"open3d": Open3DColorOdometryPeer, "orb": OrbPnPPeer}
-HEADER = ["method", "frames", "ATE RMSE (m)", "drift %", "seg t %", "seg r (deg/100 m)", "RPE t (m)", "RPE r (deg)", "max disp (m)",
-          "ms/frame", "x ref", "frames/s", "keyframes", "failures"]
+HEADER = ["method", "frames", "ATE RMSE (m)", "drift %", "seg t %", "seg r (deg/100 m)", "RPE t (m)", "RPE r (deg)",
+          "max disp (m)", "ms/frame", "x ref", "frames/s", "keyframes", "failures"]
 
 
 def _split(text: str) -> list[str]:

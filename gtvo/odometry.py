@@ -142,6 +142,8 @@ class FrameEstimate:
             that keyframe), ``tracking`` holds the failed attempt, and no keyframe is made from it:
             the next frames are tracked against the latest keyframe (which may be the frame before
             it, promoted when it failed) again.
+        T_keyframe_frame: a frame that is not a keyframe: its pose relative to ``keyframe_index``
+            (tracked, or predicted when it is lost), from which ``T_world_cam`` is re-expressed.
     """
 
     index: int
@@ -153,6 +155,7 @@ class FrameEstimate:
     seconds: float
     keyframe_index: int = -1
     lost: bool = False
+    T_keyframe_frame: gtsam.Pose3 | None = None
 
 
 @dataclass
@@ -214,7 +217,6 @@ class VisualOdometry:
         self._kalman = None
         self._keyframe_by_index: dict[int, Keyframe] = {}
         self._window_affine: dict[int, NDArray[np.float64]] = {}  # keyframe index -> (a, b) in the window
-        self._lost_relative: dict[int, gtsam.Pose3] = {}  # lost frame index -> T_keyframe_frame (predicted)
         self.window: SlidingWindowOptimizer | None = None
         if self.config.mode == "window":
             baseline = camera.baseline if isinstance(camera, StereoCamera) else None
@@ -274,8 +276,8 @@ class VisualOdometry:
             new_kf = self._make_keyframe_if_possible(frame, left, T_pred)
             if new_kf is None:  # nothing to re-initialise from: the frame is lost
                 self.lost_frames += 1
-                self._lost_relative[frame.index] = kf.T_world_cam.between(T_pred)
-                return self._finish(frame, left, T_pred, False, result, False, t0, lost=True)
+                return self._finish(frame, left, T_pred, False, result, False, t0, lost=True,
+                                    T_keyframe_frame=kf.T_world_cam.between(T_pred))
             return self._finish(frame, left, new_kf.T_world_cam, True, result, True, t0)
 
         T_world = kf.T_world_cam.compose(result.T_keyframe_frame)
@@ -283,8 +285,9 @@ class VisualOdometry:
             new_kf = self._make_keyframe_if_possible(frame, left, T_world, (kf.index, result.affine))
             if new_kf is not None:
                 return self._finish(frame, left, new_kf.T_world_cam, True, result, False, t0)
-            return self._finish(frame, left, T_world, False, result, False, t0, candidate=False)
-        return self._finish(frame, left, T_world, False, result, False, t0)
+            return self._finish(frame, left, T_world, False, result, False, t0, candidate=False,
+                                T_keyframe_frame=result.T_keyframe_frame)
+        return self._finish(frame, left, T_world, False, result, False, t0, T_keyframe_frame=result.T_keyframe_frame)
 
     def trajectory(self, name: str = "gtvo") -> Trajectory:
         """The estimated left-camera trajectory so far (every frame)."""
@@ -468,9 +471,8 @@ class VisualOdometry:
     def _refresh_estimates(self) -> None:
         """Re-express the poses of frames whose keyframe the window moved.
 
-        A keyframe's pose is its (optimised) keyframe pose; a tracked frame's is
-        ``T_world_keyframe * T_keyframe_frame`` with its keyframe's current pose (a lost frame's
-        ``T_keyframe_frame`` is the predicted one it was given).
+        A keyframe's pose is its (optimised) keyframe pose; any other frame's is
+        ``T_world_keyframe * T_keyframe_frame`` with its keyframe's current pose.
         """
         assert self.window is not None
         if not self.window.keyframes:
@@ -482,12 +484,8 @@ class VisualOdometry:
                 break
             if e.index in self._keyframe_by_index:
                 T = self._keyframe_by_index[e.index].T_world_cam
-            elif e.keyframe_index not in self._keyframe_by_index:
-                continue
-            elif e.lost:
-                T = self._keyframe_by_index[e.keyframe_index].T_world_cam.compose(self._lost_relative[e.index])
-            elif e.tracking is not None and not e.reinitialised:
-                T = self._keyframe_by_index[e.keyframe_index].T_world_cam.compose(e.tracking.T_keyframe_frame)
+            elif e.T_keyframe_frame is not None and e.keyframe_index in self._keyframe_by_index:
+                T = self._keyframe_by_index[e.keyframe_index].T_world_cam.compose(e.T_keyframe_frame)
             else:
                 continue
             self.estimates[i] = dataclasses.replace(e, T_world_cam=T.matrix())
@@ -498,14 +496,15 @@ class VisualOdometry:
 
     def _finish(self, frame: Frame, left: NDArray[np.float32], T_world_cam: gtsam.Pose3, is_kf: bool,
                 result: TrackingResult | None, reinit: bool, t0: float, lost: bool = False,
-                candidate: bool = True) -> FrameEstimate:
+                candidate: bool = True, T_keyframe_frame: gtsam.Pose3 | None = None) -> FrameEstimate:
         """Record the frame's estimate. ``candidate``: the frame may be promoted to a keyframe by
-        the next frame (not when it is lost or just failed to become one)."""
+        the next frame (not when it is lost or just failed to become one); ``T_keyframe_frame``:
+        a non-keyframe's pose relative to its keyframe."""
         kf_index = self.keyframes[-1].index if result is not None and not reinit else frame.index
         if result is not None and not reinit and is_kf:  # tracked against the keyframe before this one
             kf_index = self.keyframes[-2].index
         est = FrameEstimate(frame.index, float(frame.timestamp), T_world_cam.matrix(), is_kf, result, reinit,
-                            time.perf_counter() - t0, kf_index, lost)
+                            time.perf_counter() - t0, kf_index, lost, T_keyframe_frame)
         self.estimates.append(est)
         self._previous = (frame, left) if candidate and not lost else None
         if self._kalman is not None:
