@@ -4,6 +4,7 @@ and by Python users (:func:`run`).
 
 from __future__ import annotations
 
+import statistics
 import sys
 import time
 from pathlib import Path
@@ -57,6 +58,7 @@ def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progre
     seconds = time.perf_counter() - t0
     traj = vo.trajectory(seq.name)
     n = len(vo.estimates)
+    sigmas = [e.tracking.rotation_sigma_deg for e in vo.estimates if e.tracking is not None and e.tracking.success]
     info: dict[str, Any] = {
         "mode": config.mode,
         "solver": config.solver,
@@ -71,6 +73,9 @@ def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progre
         "lost_frames": vo.lost_frames,
         "skipped_frames": skipped,
         "tracking_iterations_mean": _mean([e.tracking.iterations for e in vo.estimates if e.tracking is not None]),
+        # how well the images determined each tracked frame's rotation (TrackingResult.rotation_sigma_deg)
+        "tracking_rotation_sigma_deg_median": _median(sigmas),
+        "tracking_rotation_sigma_deg_max": max(sigmas) if sigmas else None,
     }
     if config.mode == "window":
         info.update({
@@ -132,3 +137,7 @@ def run(path: str | Path | Sequence, out: str | Path | None = None, config: Odom
 
 def _mean(xs: list[float]) -> float | None:
     return float(sum(xs) / len(xs)) if xs else None
+
+
+def _median(xs: list[float]) -> float | None:
+    return float(statistics.median(xs)) if xs else None

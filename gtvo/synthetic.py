@@ -39,7 +39,7 @@ from gtvo.errors import InputError
 from gtvo.sequence import Sequence
 
 FloatArray = NDArray[np.float64]
-Motion = Literal["forward", "loop"]
+Motion = Literal["forward", "loop", "turn"]
 
 #: Frame rate of the generated sequences (Hz), KITTI's.
 FRAME_RATE_HZ = 10.0
@@ -60,6 +60,10 @@ Z_STRETCH: dict[int, float] = {0: 2.0, 1: 3.0, 2: 1.0}
 #: The texture is squashed smoothly into ``MEAN +- HALF_RANGE`` (gray): headroom for exposure changes.
 TEXTURE_MEAN = 118.0
 TEXTURE_HALF_RANGE = 82.0
+#: The ``"turn"`` motion: straight for this many frames, then a constant yaw rate (deg per frame,
+#: to the right; 30 deg/s at 10 Hz, a car's tight urban turn).
+TURN_START_FRAME = 8
+TURN_DEG_PER_FRAME = 3.0
 #: Camera height above the ground (m) and the room's height (m); the world y axis points down.
 CAMERA_HEIGHT_M = 1.4
 ROOM_HEIGHT_M = 3.4
@@ -351,6 +355,10 @@ def synthetic_trajectory(n_frames: int, motion: Motion = "forward", step_m: floa
     1.5 deg/s). ``"loop"``: an ellipse in the x-z plane (semi-axes ``A_z`` forward, ``A_z/2``
     sideways, perimeter ``n_frames * step_m``) run once over the sequence with periodic wobbles, so
     frame ``n_frames`` would coincide with frame 0: the last frame is one step before the start.
+    ``"turn"``: a car's turn, heading along the path: straight for :data:`TURN_START_FRAME` frames,
+    then yawing right by :data:`TURN_DEG_PER_FRAME` per frame (an arc of radius
+    ``step_m / TURN_DEG_PER_FRAME`` in radians), no wobbles; past about 80 deg the camera faces the
+    room's side wall, close and with little texture at that range (a conditioning test).
     """
     n = int(n_frames)
     if n < 1:
@@ -378,8 +386,13 @@ def synthetic_trajectory(n_frames: int, motion: Motion = "forward", step_m: floa
         yaw = min(4.0 * deg, rate_cap) * np.sin(k * s)
         pitch = min(1.5 * deg, rate_cap) * np.sin(2 * k * s) / 2
         roll = min(1.0 * deg, rate_cap) * np.sin(k * s + np.sin(s))
+    elif motion == "turn":
+        yaw = TURN_DEG_PER_FRAME * deg * np.maximum(np.arange(n) - TURN_START_FRAME, 0)
+        heading = np.stack([np.sin(yaw), np.zeros(n), np.cos(yaw)], axis=1)
+        pos = np.concatenate([np.zeros((1, 3)), np.cumsum(step_m * heading[1:], axis=0)])
+        pitch = roll = np.zeros(n)
     else:
-        raise InputError(f"motion must be 'forward' or 'loop', got {motion!r}")
+        raise InputError(f"motion must be 'forward', 'loop' or 'turn', got {motion!r}")
     T = np.tile(np.eye(4), (n, 1, 1))
     for i in range(n):
         T[i, :3, :3] = _rotation_ypr(yaw[i], pitch[i], roll[i])
@@ -544,7 +557,7 @@ def make_synthetic_sequence(n_frames: int = 30, width: int = 320, height: int = 
         noise_sigma: i.i.d. Gaussian image noise (gray levels), deterministic per (seed, frame, side).
         exposure_change: apply the known per-frame affine brightness of :func:`synthetic_exposures`.
         seed: seeds textures, box layout and noise; the same arguments give byte-identical images.
-        motion: ``"forward"`` or ``"loop"`` (see :func:`synthetic_trajectory`).
+        motion: ``"forward"``, ``"loop"`` or ``"turn"`` (see :func:`synthetic_trajectory`).
         supersample: rays per pixel side (1 = point sampling, the exact model; see docs/synthetic.md).
         cache_size: rendered frames kept (LRU; about 1.5 MB each at 320x240).
     """

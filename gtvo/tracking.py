@@ -68,6 +68,10 @@ class TrackingConfig:
             level 0 is a failure.
         max_abs_log_gain: a brightness gain ``|a| = |log(gain)|`` above this is a failure (a
             solver that explains an unrelated image by fading the keyframe out).
+        max_rotation_sigma_deg: a rotation standard deviation (largest axis, from
+            :attr:`TrackingResult.covariance`) above this is a failure: the images do not determine
+            the rotation (few points, texture along one direction); the converged pose can then be
+            tens of degrees off at a low residual.
         lost_point_norm: a point whose pattern leaves the frame (or goes behind it) costs
             ``rho(lost_point_norm)`` (spread over its pattern pixels), like a strong outlier;
             without it a solver lowers the cost by pushing points out of the image (seen on
@@ -92,6 +96,7 @@ class TrackingConfig:
     max_rms: float = 2.0
     max_outlier_fraction: float = 0.6
     max_abs_log_gain: float = 1.0
+    max_rotation_sigma_deg: float = 1.0
     lost_point_norm: float = 6.0
     coarse_decay: float = 2.0
     min_coarse_points: int = 300
@@ -113,6 +118,12 @@ class TrackingResult:
         rms: whitened RMS residual per valid pixel at level 0 (``sqrt(2 E_valid / n)``, the robust
             cost of the valid pixels only).
         success: False when tracking failed; ``reason`` says why.
+        covariance: (6, 6) covariance of ``T_keyframe_frame`` in GTSAM's tangent order [rotation
+            (rad), translation (m)], right perturbation, the affine brightness marginalised: the
+            inverse Gauss-Newton Hessian of E at level 0 at the solution (with the weights W that
+            level's optimisation froze and Huber's at the solution; residuals whitened by
+            ``sigma_intensity``, so it is as good as that noise model). Infinite on the diagonal where the
+            Hessian is singular.
     """
 
     T_keyframe_frame: gtsam.Pose3
@@ -125,12 +136,41 @@ class TrackingResult:
     rms: float
     success: bool
     reason: str = ""
+    covariance: NDArray[np.float64] = field(default_factory=lambda: np.full((6, 6), np.inf))
+
+    @property
+    def rotation_sigma_deg(self) -> float:
+        """Standard deviation of the rotation along its worst-determined axis (degrees)."""
+        return _largest_sigma(self.covariance[:3, :3], np.degrees(1.0))
+
+    @property
+    def translation_sigma_m(self) -> float:
+        """Standard deviation of the translation along its worst-determined axis (metres)."""
+        return _largest_sigma(self.covariance[3:, 3:], 1.0)
 
     def raise_if_failed(self) -> "TrackingResult":
         """Return self, or raise :class:`TrackingFailure` with the reason."""
         if not self.success:
             raise TrackingFailure(self.reason)
         return self
+
+
+def _largest_sigma(cov: NDArray[np.float64], scale: float) -> float:
+    """``scale * sqrt(largest eigenvalue)`` of a covariance block; inf when it is not finite."""
+    if not np.all(np.isfinite(cov)):
+        return float("inf")
+    return scale * float(np.sqrt(max(float(np.linalg.eigvalsh(0.5 * (cov + cov.T))[-1]), 0.0)))
+
+
+def pose_covariance(A: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Covariance (6, 6) of the pose from the tracker's Gauss-Newton Hessian ``A`` (6x6, or 8x8 with
+    the affine brightness last, which is marginalised): ``(A^-1)[:6, :6]``. A Hessian singular in
+    some direction (relative to its largest eigenvalue, 1e-12) gives an all-infinite covariance."""
+    A = 0.5 * (A + A.T)
+    evals, evecs = np.linalg.eigh(A)
+    if not np.all(np.isfinite(evals)) or evals[0] <= 1e-12 * max(float(evals[-1]), 1e-300):
+        return np.full((6, 6), np.inf)
+    return ((evecs / evals) @ evecs.T)[:6, :6]
 
 
 class TrackingKeyframe:
@@ -321,8 +361,9 @@ def _lm_level(kf: TrackingKeyframe, level: int, target: GradientImage, T: gtsam.
 def _finish(kf: TrackingKeyframe, target0: GradientImage, T: gtsam.Pose3, affine: NDArray, initial_cost: float,
             iterations: int, W0: NDArray | None) -> TrackingResult:
     cfg = kf.config
-    ev = _evaluate(kf, 0, target0, T, affine, False, W0)
+    ev = _evaluate(kf, 0, target0, T, affine, True, W0)
     rms = float(np.sqrt(2.0 * ev.data_cost / ev.n_pixels)) if ev.n_pixels else float("inf")
+    cov = pose_covariance(ev.A) if ev.A is not None and ev.n_pixels else np.full((6, 6), np.inf)
     n = kf.pixels.shape[0]
     reason = ""
     if not (np.all(np.isfinite(T.matrix())) and np.all(np.isfinite(affine)) and np.isfinite(ev.cost)):
@@ -339,8 +380,13 @@ def _finish(kf: TrackingKeyframe, target0: GradientImage, T: gtsam.Pose3, affine
     elif abs(float(affine[0]) - float(kf.affine[0])) > cfg.max_abs_log_gain:
         reason = (f"implausible brightness change: log gain {float(affine[0]) - float(kf.affine[0]):.3g} "
                   f"(limit {cfg.max_abs_log_gain})")
-    return TrackingResult(T, np.asarray(affine, dtype=float).copy(), ev.cost, initial_cost, iterations, ev.n_valid,
-                          ev.n_outliers, rms, reason == "", reason)
+    result = TrackingResult(T, np.asarray(affine, dtype=float).copy(), ev.cost, initial_cost, iterations, ev.n_valid,
+                            ev.n_outliers, rms, reason == "", reason, cov)
+    if result.success and not result.rotation_sigma_deg <= cfg.max_rotation_sigma_deg:
+        result.success = False
+        result.reason = (f"pose poorly constrained: rotation sigma {result.rotation_sigma_deg:.3g} deg "
+                         f"> {cfg.max_rotation_sigma_deg} (the images do not determine the rotation)")
+    return result
 
 
 def _prepare(kf: TrackingKeyframe, frame: ArrayLike | list[GradientImage],

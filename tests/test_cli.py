@@ -50,6 +50,8 @@ def test_run_writes_outputs_and_metrics(kitti_like, tmp_path):
     # (points on the scene's occlusion edges bias frame-to-keyframe tracking a little)
     assert rep["ate_rmse_m"] < 0.01
     assert rep["drift_percent"] is not None and rep["rpe_trans_rmse_m"] < 0.015
+    # every tracked frame's rotation determined well within the tracker's 1 deg bound
+    assert 0 < rep["tracking_rotation_sigma_deg_median"] <= rep["tracking_rotation_sigma_deg_max"] < 0.5
     traj = read_tum(out / "trajectory.tum")
     assert len(traj) == 8
     np.testing.assert_allclose(traj.poses[0], np.eye(4), atol=1e-12)

@@ -113,6 +113,21 @@ def test_loop_returns_to_the_start():
     assert np.mean(np.abs(seq.left(0) - seq.left(39))) < np.mean(np.abs(seq.left(0) - seq.left(20)))
 
 
+def test_turn_drives_straight_then_yaws_along_its_heading():
+    from gtvo.synthetic import TURN_DEG_PER_FRAME, TURN_START_FRAME
+
+    T = synthetic_trajectory(30, "turn", step_m=0.3)
+    rel = np.linalg.inv(T[:-1]) @ T[1:]
+    np.testing.assert_allclose(np.linalg.norm(rel[:, :3, 3], axis=1), 0.3, rtol=1e-12)
+    yaw = np.degrees(np.arctan2(rel[:, 0, 2], rel[:, 2, 2]))  # rotation about the camera's y (down) axis
+    np.testing.assert_allclose(yaw[:TURN_START_FRAME], 0.0, atol=1e-12)
+    np.testing.assert_allclose(yaw[TURN_START_FRAME:], TURN_DEG_PER_FRAME, rtol=1e-9)
+    np.testing.assert_allclose(rel[:, 1, :], np.broadcast_to([0, 1, 0, 0], (29, 4)), atol=1e-12)  # no pitch/roll/bob
+    # each step goes along the new frame's optical axis: the path's heading is the camera's
+    np.testing.assert_allclose(rel[:, :3, 3] / 0.3, rel[:, :3, 2], atol=1e-12)
+    assert T[-1, 0, 3] > 2.0  # turned right (+x)
+
+
 @pytest.mark.parametrize("kwargs", [dict(n_frames=0), dict(motion="circle"), dict(noise_sigma=-1.0),
                                     dict(noise_sigma=float("nan")), dict(width=8), dict(supersample=0),
                                     dict(baseline=0.0), dict(step_m=float("inf"))])

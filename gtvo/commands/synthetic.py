@@ -17,7 +17,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--frames", type=int, default=30, help="number of stereo pairs at 10 Hz (default 30)")
     p.add_argument("--width", type=int, default=320)
     p.add_argument("--height", type=int, default=240)
-    p.add_argument("--motion", choices=("forward", "loop"), default="forward")
+    p.add_argument("--motion", choices=("forward", "loop", "turn"), default="forward")
     p.add_argument("--noise-sigma", type=float, default=0.0, help="Gaussian image noise in gray levels")
     p.add_argument("--exposure-change", action="store_true", help="apply the known per-frame affine brightness")
     p.add_argument("--seed", type=int, default=0)
