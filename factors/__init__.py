@@ -5,20 +5,22 @@ pipeline state. Every factor works in a plain ``gtsam.NonlinearFactorGraph``.
 
 * :mod:`factors.photometric`: the vectorised kernel (warp, residuals, Jacobians, masks, weights).
 * :mod:`factors.gtsam_factors`: ``PhotometricFactor``, ``StereoFactor``,
-  ``InverseDepthSmoothnessFactor``, ``MotionSmoothnessFactor``, ``PhotometricBatchFactor``, and
+  ``InverseDepthSmoothnessFactor``, ``MotionSmoothnessFactor``, ``ConstantVelocityFactor``,
+  ``PhotometricBatchFactor``, and
   ``PythonFactor``, their base (a ``CustomFactor`` that GTSAM can free; docs/factors.md §8).
 * :mod:`factors.smart`: ``HostPointsFactor``, the per-host factor with Schur-eliminated depths.
 
 Derivations: docs/factors.md.
 """
 
-from factors.gtsam_factors import (InverseDepthSmoothnessFactor, MotionSmoothnessFactor, PhotometricBatchFactor,
-                                   PhotometricFactor, PythonFactor, StereoFactor, edge_aware_weight)
+from factors.gtsam_factors import (ConstantVelocityFactor, InverseDepthSmoothnessFactor, MotionSmoothnessFactor,
+                                   PhotometricBatchFactor, PhotometricFactor, PythonFactor, StereoFactor,
+                                   edge_aware_weight)
 from factors.photometric import PATTERN_DSO8, GradientImage, photometric_residuals, stereo_residuals
 from factors.smart import HostPointsFactor
 
 __all__ = [
-    "PATTERN_DSO8", "GradientImage", "HostPointsFactor", "InverseDepthSmoothnessFactor", "MotionSmoothnessFactor",
+    "ConstantVelocityFactor", "PATTERN_DSO8", "GradientImage", "HostPointsFactor", "InverseDepthSmoothnessFactor", "MotionSmoothnessFactor",
     "PhotometricBatchFactor", "PhotometricFactor", "PythonFactor", "StereoFactor", "edge_aware_weight", "photometric_residuals",
     "stereo_residuals",
 ]

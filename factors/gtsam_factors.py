@@ -333,6 +333,73 @@ class MotionSmoothnessFactor(PythonFactor):
         return e
 
 
+def velocity_change_error(T_prev: gtsam.Pose3, T_cur: gtsam.Pose3, T_next: gtsam.Pose3, dt_prev: float,
+                          dt_next: float, jacobians: bool = False) -> tuple[np.ndarray, list[np.ndarray] | None]:
+    """Change of the body-frame velocity over three poses at irregular times.
+
+    ``e = Log(D2) / dt_next - Log(D1) / dt_prev`` ([rad/s, m/s], GTSAM's [rotation, translation]
+    order), ``D1 = T_prev^-1 T_cur``, ``D2 = T_cur^-1 T_next``; zero for a constant body twist
+    ``T(t) = T_0 Exp(t xi)`` whatever the time steps. With ``Jr^-1(D) = Pose3.LogmapDerivative(D)``
+    (right perturbations): ``de/dxi_prev = Jr^-1(D1) Ad(D1^-1) / dt_prev``,
+    ``de/dxi_cur = -Jr^-1(D1) / dt_prev - Jr^-1(D2) Ad(D2^-1) / dt_next``,
+    ``de/dxi_next = Jr^-1(D2) / dt_next`` (derivation: docs/factors.md §6).
+    """
+    D1 = T_prev.between(T_cur)
+    D2 = T_cur.between(T_next)
+    e = gtsam.Pose3.Logmap(D2) / dt_next - gtsam.Pose3.Logmap(D1) / dt_prev
+    if not jacobians:
+        return e, None
+    J1 = gtsam.Pose3.LogmapDerivative(D1)
+    J2 = gtsam.Pose3.LogmapDerivative(D2)
+    J2Ad = J2 @ D2.inverse().AdjointMap()
+    return e, [J1 @ D1.inverse().AdjointMap() / dt_prev, -J1 / dt_prev - J2Ad / dt_next, J2 / dt_next]
+
+
+class ConstantVelocityFactor(PythonFactor):
+    """Constant-velocity prior on three poses taken at irregular times (e.g. keyframes).
+
+    Error :func:`velocity_change_error` (6, rad/s and m/s) with sigmas ``acceleration_sigma * tau``,
+    ``tau = (dt_prev + dt_next) / 2`` the time between the two velocity estimates: the sigmas are
+    those of the acceleration (rad/s^2, m/s^2). :class:`MotionSmoothnessFactor` is the same prior
+    for equally spaced frames in per-frame units.
+
+    Args:
+        key_prev, key_cur, key_next: Pose3 keys, in time order.
+        dt_prev, dt_next: times (s) from prev to cur and from cur to next (> 0).
+        angular_acceleration_sigma: rad/s^2 (scalar or 3-vector, body axes).
+        linear_acceleration_sigma: m/s^2 (scalar or 3-vector, body axes).
+    """
+
+    def __init__(self, key_prev: int, key_cur: int, key_next: int, dt_prev: float, dt_next: float,
+                 angular_acceleration_sigma: float | Sequence[float] = 1.0,
+                 linear_acceleration_sigma: float | Sequence[float] = 2.0) -> None:
+        self.dt = (float(dt_prev), float(dt_next))
+        if not all(np.isfinite(t) and t > 0 for t in self.dt):
+            raise InputError(f"ConstantVelocityFactor needs positive time steps, got {dt_prev!r}, {dt_next!r}")
+        acc = np.concatenate([np.broadcast_to(np.asarray(angular_acceleration_sigma, dtype=float), (3,)),
+                              np.broadcast_to(np.asarray(linear_acceleration_sigma, dtype=float), (3,))])
+        if not (np.all(np.isfinite(acc)) and np.all(acc > 0)):
+            raise InputError(f"acceleration sigmas must be positive, got {acc.tolist()}")
+        self.sigmas = acc * 0.5 * (self.dt[0] + self.dt[1])
+        self.pose_keys = (key_prev, key_cur, key_next)
+        super().__init__(gtsam.noiseModel.Diagonal.Sigmas(self.sigmas), [key_prev, key_cur, key_next])
+
+    def whitened(self, T_prev: gtsam.Pose3, T_cur: gtsam.Pose3, T_next: gtsam.Pose3
+                 ) -> tuple[np.ndarray, list[np.ndarray]]:
+        """The whitened error ``e / sigmas`` and its three Jacobians at these poses (for solvers
+        that assemble their own normal equations); the cost is ``|e / sigmas|^2 / 2``."""
+        e, J = velocity_change_error(T_prev, T_cur, T_next, *self.dt, jacobians=True)
+        assert J is not None
+        return e / self.sigmas, [Ji / self.sigmas[:, None] for Ji in J]
+
+    def _evaluate(self, this: gtsam.CustomFactor, values: gtsam.Values, H: list | None) -> np.ndarray:
+        Ts = [values.atPose3(k) for k in self.pose_keys]
+        e, J = velocity_change_error(*Ts, *self.dt, jacobians=H is not None)
+        if H is not None:
+            H[0], H[1], H[2] = J
+        return e
+
+
 class PhotometricBatchFactor(PythonFactor):
     """Photometric residuals of many points with FIXED inverse depths in one target (tracking).
 

@@ -454,7 +454,8 @@ class VisualOdometry:
                                                    pts.inverse_depth, pts.variance,
                                                    sigma_intensity=self.config.window.sigma_intensity)
         wk = WindowKeyframe(frame.index, T_world_cam, affine, left_img, pts.pixels, pts.inverse_depth,
-                            pts.variance, right=right, depth_prior=right is None, stereo_affine=stereo_affine)
+                            pts.variance, right=right, depth_prior=right is None, stereo_affine=stereo_affine,
+                            timestamp=float(frame.timestamp) if np.isfinite(frame.timestamp) else None)
         self.window.add_keyframe(wk)
         res = self.window.optimize(self.config.window_solver)
         self._window_affine = {w.index: w.affine.copy() for w in self.window.keyframes}

@@ -7,9 +7,13 @@ inverse depths ``d`` and variances ``V`` from stereo or an RGB-D sensor); the co
                 + sum_n rho(|sqrt(lambda W) r^stereo_n|)                   (stereo energy, right image)
                 + sum_n (d_n - d_n^0)^2 / (2 V_n) ]                         (depth prior: RGB-D only)
         + sum_k |(a_k, b_k) - (a_k^0, b_k^0)|^2_Sigma_affine / 2            (weak affine priors)
+        + sum_k |v_{k+1,k+2} - v_{k,k+1}|^2_Sigma_acc / 2                  (motion smoothness)
         + gauge prior on the oldest keyframe (pose and affine)  OR  the marginalisation prior
 
-over the keyframes' poses ``x_k`` (``T_world_cam``, GTSAM Pose3, right perturbation), affine
+(the motion term: a :class:`factors.gtsam_factors.ConstantVelocityFactor` on every three
+consecutive keyframes with timestamps, ``v`` their body-frame velocity twists, sigmas the
+``acceleration_sigma`` times the time between the two velocities) over the keyframes' poses
+``x_k`` (``T_world_cam``, GTSAM Pose3, right perturbation), affine
 brightness ``(a_k, b_k)`` and all inverse depths. ``targets(h)``: the other keyframes of the
 window into which at least ``min_visible_points`` / ``min_visible_fraction`` of the host's points
 project (checked by projection at the window's starting state). Two solvers minimise the same E:
@@ -43,7 +47,7 @@ import gtsam
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from factors.gtsam_factors import DEFAULT_HUBER_K, DEFAULT_SIGMA_INTENSITY
+from factors.gtsam_factors import DEFAULT_HUBER_K, DEFAULT_SIGMA_INTENSITY, ConstantVelocityFactor
 from factors.photometric import (PATTERN_DSO8, PATTERN_SINGLE, GradientImage, huber_loss, huber_weight,
                                  pattern_bearings, photometric_residuals,
                                  sample_host, stereo_residuals, variance_weight)
@@ -80,6 +84,11 @@ class WindowConfig:
         affine_sigma: ``(sigma_a, sigma_b)`` of the prior of each keyframe's affine brightness
             around its tracked value. DSO without photometric calibration leaves ``(a, b)`` free;
             (1.0 log gain, 100 grey levels) is a weak prior that only keeps the system regular.
+        acceleration_sigma: ``(angular rad/s^2, linear m/s^2)`` of the motion-smoothness prior, a
+            :class:`factors.gtsam_factors.ConstantVelocityFactor` on every three consecutive
+            keyframes that have timestamps; None: no motion prior. The defaults are weak (a car
+            brakes at up to ~8 m/s^2, a hand-held camera turns faster): with images that fix the
+            poses the prior moves nothing; it keeps a window defined when they do not.
         gauge_sigma: sigma (rad, m; log gain, grey levels) of the gauge prior that fixes the oldest
             keyframe's pose and affine while no marginalisation prior exists.
         min_visible_points, min_visible_fraction: a keyframe is a target of a host when at least
@@ -101,6 +110,7 @@ class WindowConfig:
     pattern: FloatArray = field(default_factory=lambda: PATTERN_DSO8.copy())
     lambda_stereo: float = 1.0
     affine_sigma: tuple[float, float] = (1.0, 100.0)
+    acceleration_sigma: tuple[float, float] | None = (1.0, 2.0)
     gauge_sigma: float = 1e-6
     min_visible_points: int = 30
     min_visible_fraction: float = 0.1
@@ -118,6 +128,9 @@ class WindowConfig:
             raise InputError(f"lambda_stereo must be positive, got {self.lambda_stereo!r}")
         if not all(s > 0 and np.isfinite(s) for s in self.affine_sigma):
             raise InputError(f"affine_sigma must be positive, got {self.affine_sigma!r}")
+        acc = self.acceleration_sigma
+        if acc is not None and (len(acc) != 2 or not all(s > 0 and np.isfinite(s) for s in acc)):
+            raise InputError(f"acceleration_sigma must be two positive numbers or None, got {acc!r}")
         if self.max_iterations < 1:
             raise InputError(f"max_iterations must be >= 1, got {self.max_iterations}")
 
@@ -137,6 +150,7 @@ class WindowKeyframe:
         prior_inverse_depth: the depth prior's mean (default: the initial inverse depths).
         affine_prior: mean of the affine prior (default: the initial affine).
         stereo_affine: the right image's ``(a, b)`` relative to the left one (held fixed).
+        timestamp: capture time (s); keyframes without one get no motion-smoothness prior.
     """
 
     index: int
@@ -151,6 +165,7 @@ class WindowKeyframe:
     prior_inverse_depth: FloatArray | None = None
     affine_prior: FloatArray | None = None
     stereo_affine: FloatArray = field(default_factory=lambda: np.zeros(2))
+    timestamp: float | None = None
 
     def __post_init__(self) -> None:
         self.pixels = np.asarray(self.pixels, dtype=float).reshape(-1, 2)
@@ -294,6 +309,24 @@ def _gauge_noise(config: WindowConfig, dim: int) -> gtsam.noiseModel.Base:
     return gtsam.noiseModel.Isotropic.Sigma(dim, config.gauge_sigma)
 
 
+def motion_factors(keyframes: Sequence[WindowKeyframe], config: WindowConfig
+                   ) -> list[tuple[int, ConstantVelocityFactor]]:
+    """The motion-smoothness prior: ``(k, factor)`` for every three consecutive keyframes
+    ``k, k+1, k+2`` (positions) with increasing timestamps (none when ``acceleration_sigma`` is None)."""
+    if config.acceleration_sigma is None:
+        return []
+    out = []
+    for k in range(len(keyframes) - 2):
+        a, b, c = keyframes[k], keyframes[k + 1], keyframes[k + 2]
+        if a.timestamp is None or b.timestamp is None or c.timestamp is None:
+            continue
+        dt_prev, dt_next = b.timestamp - a.timestamp, c.timestamp - b.timestamp
+        if dt_prev > 0 and dt_next > 0:
+            out.append((k, ConstantVelocityFactor(pose_key(a.index), pose_key(b.index), pose_key(c.index),
+                                                  dt_prev, dt_next, *config.acceleration_sigma)))
+    return out
+
+
 def prior_factors(keyframes: Sequence[WindowKeyframe], config: WindowConfig, with_gauge: bool
                   ) -> gtsam.NonlinearFactorGraph:
     """Affine priors of every keyframe, and (``with_gauge``) the gauge prior on the oldest."""
@@ -367,12 +400,15 @@ def build_graph(camera: PinholeCamera, baseline: float | None, keyframes: Sequen
                 config: WindowConfig, marginal: MarginalPrior | None,
                 targets: list[list[int]] | None = None
                 ) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values, dict[int, HostPointsFactor]]:
-    """The window's factor graph: one smart factor per host with targets, priors, marginal prior.
+    """The window's factor graph: one smart factor per host with targets, priors, motion prior,
+    marginal prior.
 
     Returns ``(graph, values, host_factors)`` with ``host_factors[position] = factor``.
     """
     targets = visible_targets(camera, keyframes, config) if targets is None else targets
     graph = prior_factors(keyframes, config, with_gauge=marginal is None)
+    for _, f in motion_factors(keyframes, config):
+        graph.add(f)
     hosts: dict[int, HostPointsFactor] = {}
     for h, ts in enumerate(targets):
         if ts:
@@ -552,9 +588,19 @@ class _HostTerms:
         return c, H_pd, H_dd, g_d
 
 
-def _prior_terms(keyframes, poses, affines, config, with_gauge, H=None, g=None) -> float:
-    """Affine priors and gauge prior: cost, and (given H, g) their Gauss-Newton terms."""
+def _prior_terms(keyframes, poses, affines, config, with_gauge, H=None, g=None, motion=None) -> float:
+    """Affine priors, motion prior and gauge prior: cost, and (given H, g) their Gauss-Newton terms
+    (``motion``: :func:`motion_factors` of these keyframes, if already built)."""
     E = 0.0
+    for k, f in (motion_factors(keyframes, config) if motion is None else motion):
+        e, J = f.whitened(poses[k], poses[k + 1], poses[k + 2])
+        E += 0.5 * float(e @ e)
+        if H is not None:
+            for i in range(3):
+                ri = slice(8 * (k + i), 8 * (k + i) + 6)
+                g[ri] += J[i].T @ e
+                for j in range(3):
+                    H[ri, 8 * (k + j):8 * (k + j) + 6] += J[i].T @ J[j]
     s_aff = np.asarray(config.affine_sigma, dtype=float)
     for k, kf in enumerate(keyframes):
         e = (affines[k] - kf.affine_prior) / s_aff
@@ -630,16 +676,17 @@ def solve_handrolled(camera: PinholeCamera, baseline: float | None, keyframes: S
     poses = [kf.pose for kf in keyframes]
     affines = [kf.affine.copy() for kf in keyframes]
     depths = {t.h: keyframes[t.h].inverse_depth.copy() for t in terms}
+    motion = motion_factors(keyframes, config)
 
     def cost(P, A, D_new, D_old, C_old) -> tuple[float, dict[int, FloatArray], dict[int, list]]:
         E, D, L = 0.0, {}, {}
         for t in terms:
             e, D[t.h], L[t.h] = t.evaluate_safeguarded(keyframes, P, A, D_new[t.h], D_old[t.h], C_old[t.h])
             E += e
-        E += _prior_terms(keyframes, P, A, config, with_gauge)
+        E += _prior_terms(keyframes, P, A, config, with_gauge, motion=motion)
         return E + _marginal_terms(marginal, keyframes, P, A), D, L
 
-    E = sum(t.start[0] for t in terms) + _prior_terms(keyframes, poses, affines, config, with_gauge) \
+    E = sum(t.start[0] for t in terms) + _prior_terms(keyframes, poses, affines, config, with_gauge, motion=motion) \
         + _marginal_terms(marginal, keyframes, poses, affines)
     state_lins = {t.h: t.start[1] for t in terms}
     initial = E
@@ -658,7 +705,7 @@ def solve_handrolled(camera: PinholeCamera, baseline: float | None, keyframes: S
             H -= L.T @ H_pd[active]
             g -= L.T @ g_d[active]
             lins[t.h] = (H_pd, Hdd, g_d, active)
-        _prior_terms(keyframes, poses, affines, config, with_gauge, H, g)
+        _prior_terms(keyframes, poses, affines, config, with_gauge, H, g, motion)
         _marginal_terms(marginal, keyframes, poses, affines, H, g)
         H = 0.5 * (H + H.T)
         diag = np.maximum(np.diag(H), 1e-12 * max(float(np.max(np.diag(H))), 1e-300))
@@ -702,7 +749,8 @@ def marginalize(camera: PinholeCamera, baseline: float | None, keyframes: Sequen
     """Marginalise ``keyframes[position]`` and its points; return the prior on the others.
 
     The factors touching it (its host factor into the keyframes that see its points, its affine
-    prior, the gauge prior or the previous marginal prior) are linearised at the current state;
+    prior, the motion priors it is part of, the gauge prior or the previous marginal prior) are
+    linearised at the current state;
     its pose and affine are eliminated; what is left (a quadratic on the remaining keyframes) is
     the new prior, with the current state as its fixed linearisation point. Residuals of other
     hosts' points in the leaving keyframe are not part of it (they are dropped).
@@ -714,6 +762,9 @@ def marginalize(camera: PinholeCamera, baseline: float | None, keyframes: Sequen
         graph.add(host_factor(camera, baseline, keyframes, position, targets, config))
     aff_noise = gtsam.noiseModel.Diagonal.Sigmas(np.asarray(config.affine_sigma, dtype=float))
     graph.add(gtsam.PriorFactorVector(affine_key(kf.index), np.asarray(kf.affine_prior, dtype=float), aff_noise))
+    for k, f in motion_factors(keyframes, config):
+        if k <= position <= k + 2:
+            graph.add(f)
     if marginal is None:
         graph.add(gtsam.PriorFactorPose3(pose_key(kf.index), kf.pose, _gauge_noise(config, 6)))
         graph.add(gtsam.PriorFactorVector(affine_key(kf.index), kf.affine.copy(), _gauge_noise(config, 2)))
@@ -765,6 +816,7 @@ class SlidingWindowOptimizer:
         self._stamp: dict[int, float] = {}
         self._next_stamp = 0
         self._host_slots: dict[int, tuple[int, HostPointsFactor]] = {}  # kf index -> (factor index, factor)
+        self._motion_added: set[tuple[int, ...]] = set()  # keyframe triples whose motion prior is in the smoother
 
     def add_keyframe(self, keyframe: WindowKeyframe) -> None:
         """Append a keyframe; when the window is full, the oldest leaves first (marginalised)."""
@@ -843,6 +895,11 @@ class SlidingWindowOptimizer:
                 stamps[key] = self._stamp[kf.index]
         first = len(self._stamp) == len(new)
         priors = prior_factors(new, cfg, with_gauge=False)
+        for k, f in motion_factors(self.keyframes, cfg):
+            triple = tuple(kf.index for kf in self.keyframes[k:k + 3])
+            if triple not in self._motion_added:  # each prior once; marginalised with its oldest keyframe
+                self._motion_added.add(triple)
+                priors.add(f)
         for i in range(priors.size()):
             graph.add(priors.at(i))
         if first:  # gauge prior on the oldest keyframe, once (later the marginal fixes the gauge)

@@ -11,9 +11,11 @@ import gtsam
 import numpy as np
 import pytest
 
-from factors.gtsam_factors import (InverseDepthSmoothnessFactor, MotionSmoothnessFactor, PhotometricBatchFactor,
-                                   PhotometricFactor, StereoFactor, edge_aware_weight, huber_loss)
+from factors.gtsam_factors import (ConstantVelocityFactor, InverseDepthSmoothnessFactor, MotionSmoothnessFactor,
+                                   PhotometricBatchFactor, PhotometricFactor, StereoFactor, edge_aware_weight,
+                                   huber_loss)
 from factors.photometric import PATTERN_DSO8, photometric_residuals, sample_host, variance_weight
+from gtvo.errors import InputError
 from tests._factors_synthetic import SinusoidImage, numeric_jacobians, small_camera
 
 X, D, A, RA = (lambda i: gtsam.symbol("x", i)), (lambda i: gtsam.symbol("d", i)), \
@@ -164,22 +166,52 @@ def test_smoothness_factor_and_edge_weight():
     assert w[0] > 0.99 and w[1] < 1e-10
 
 
-@pytest.mark.parametrize("seed", range(10))
-def test_motion_smoothness_jacobians(seed):
-    rng = np.random.default_rng(seed)
-    f = MotionSmoothnessFactor(X(0), X(1), X(2), 0.01, 0.05)
+def _check_three_pose_factor(f, rng):
+    """Random poses x0, x1, x2 in a Values; ``f``'s Jacobians there against central differences."""
     T0 = rand_pose(rng, 0.5, 2.0)
     T1 = rand_pose(rng, 0.2, 1.0, T0)
     T2 = rand_pose(rng, 0.2, 1.0, T1)
     v = gtsam.Values()
     for i, T in enumerate((T0, T1, T2)):
         v.insert(X(i), T)
-    e, H = evaluate(f, v)
+    _, H = evaluate(f, v)
     for Ha, Hn in zip(H, numeric_jacobians(lambda vv: evaluate(f, vv)[0], v, [X(0), X(1), X(2)])):
         assert_close(Ha, Hn, 1e-6)
+    return v, (T0, T1, T2)
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_motion_smoothness_jacobians(seed):
+    rng = np.random.default_rng(seed)
+    f = MotionSmoothnessFactor(X(0), X(1), X(2), 0.01, 0.05)
+    v, (T0, T1, T2) = _check_three_pose_factor(f, rng)
     # constant velocity -> zero residual
     v.update(X(2), T1.compose(T0.between(T1)))
     assert np.abs(evaluate(f, v)[0]).max() < 1e-9
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_constant_velocity_jacobians_and_irregular_times(seed):
+    rng = np.random.default_rng(seed)
+    dt_prev, dt_next = rng.uniform(0.05, 0.5, 2)
+    f = ConstantVelocityFactor(X(0), X(1), X(2), dt_prev, dt_next, 0.5, [1.0, 2.0, 3.0])
+    v, (T0, T1, T2) = _check_three_pose_factor(f, rng)
+    e, _ = evaluate(f, v)
+    # whitened by the acceleration sigmas times the time between the two velocity estimates
+    tau = 0.5 * (dt_prev + dt_next)
+    raw = gtsam.Pose3.Logmap(T1.between(T2)) / dt_next - gtsam.Pose3.Logmap(T0.between(T1)) / dt_prev
+    np.testing.assert_allclose(e, raw, rtol=1e-9)
+    sigmas = np.array([0.5, 0.5, 0.5, 1.0, 2.0, 3.0]) * tau
+    assert f.error(v) == pytest.approx(0.5 * np.sum((raw / sigmas) ** 2), rel=1e-9)
+    # a constant body twist at irregular times -> zero residual
+    xi = rng.normal(0, 0.5, 6)
+    v.update(X(1), T0.compose(gtsam.Pose3.Expmap(xi * dt_prev)))
+    v.update(X(2), T0.compose(gtsam.Pose3.Expmap(xi * (dt_prev + dt_next))))
+    assert np.abs(evaluate(f, v)[0]).max() < 1e-9
+    with pytest.raises(InputError):
+        ConstantVelocityFactor(X(0), X(1), X(2), 0.0, 0.1)
+    with pytest.raises(InputError):
+        ConstantVelocityFactor(X(0), X(1), X(2), 0.1, 0.1, -1.0)
 
 
 @pytest.mark.parametrize("with_host", [False, True])
