@@ -20,7 +20,7 @@ from factors.photometric import PATTERN_DSO8, GradientImage, photometric_residua
 from factors.smart import HostPointsFactor
 
 __all__ = [
-    "ConstantVelocityFactor", "PATTERN_DSO8", "GradientImage", "HostPointsFactor", "InverseDepthSmoothnessFactor", "MotionSmoothnessFactor",
-    "PhotometricBatchFactor", "PhotometricFactor", "PythonFactor", "StereoFactor", "edge_aware_weight", "photometric_residuals",
-    "stereo_residuals",
+    "ConstantVelocityFactor", "GradientImage", "HostPointsFactor", "InverseDepthSmoothnessFactor",
+    "MotionSmoothnessFactor", "PATTERN_DSO8", "PhotometricBatchFactor", "PhotometricFactor", "PythonFactor",
+    "StereoFactor", "edge_aware_weight", "photometric_residuals", "stereo_residuals",
 ]

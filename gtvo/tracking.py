@@ -122,7 +122,7 @@ class TrackingResult:
             (rad), translation (m)], right perturbation, the affine brightness marginalised: the
             inverse Gauss-Newton Hessian of E at level 0 at the solution (with the weights W that
             level's optimisation froze and Huber's at the solution; residuals whitened by
-            ``sigma_intensity``, so it is as good as that noise model). Infinite on the diagonal where the
+            ``sigma_intensity``, so it is as good as that noise model). All infinite where the
             Hessian is singular.
     """
 
@@ -363,7 +363,9 @@ def _finish(kf: TrackingKeyframe, target0: GradientImage, T: gtsam.Pose3, affine
     cfg = kf.config
     ev = _evaluate(kf, 0, target0, T, affine, True, W0)
     rms = float(np.sqrt(2.0 * ev.data_cost / ev.n_pixels)) if ev.n_pixels else float("inf")
-    cov = pose_covariance(ev.A) if ev.A is not None and ev.n_pixels else np.full((6, 6), np.inf)
+    assert ev.A is not None
+    cov = pose_covariance(ev.A) if ev.n_pixels else np.full((6, 6), np.inf)
+    sigma_rot = _largest_sigma(cov[:3, :3], np.degrees(1.0))
     n = kf.pixels.shape[0]
     reason = ""
     if not (np.all(np.isfinite(T.matrix())) and np.all(np.isfinite(affine)) and np.isfinite(ev.cost)):
@@ -380,13 +382,11 @@ def _finish(kf: TrackingKeyframe, target0: GradientImage, T: gtsam.Pose3, affine
     elif abs(float(affine[0]) - float(kf.affine[0])) > cfg.max_abs_log_gain:
         reason = (f"implausible brightness change: log gain {float(affine[0]) - float(kf.affine[0]):.3g} "
                   f"(limit {cfg.max_abs_log_gain})")
-    result = TrackingResult(T, np.asarray(affine, dtype=float).copy(), ev.cost, initial_cost, iterations, ev.n_valid,
-                            ev.n_outliers, rms, reason == "", reason, cov)
-    if result.success and not result.rotation_sigma_deg <= cfg.max_rotation_sigma_deg:
-        result.success = False
-        result.reason = (f"pose poorly constrained: rotation sigma {result.rotation_sigma_deg:.3g} deg "
-                         f"> {cfg.max_rotation_sigma_deg} (the images do not determine the rotation)")
-    return result
+    elif not sigma_rot <= cfg.max_rotation_sigma_deg:
+        reason = (f"pose poorly constrained: rotation sigma {sigma_rot:.3g} deg > {cfg.max_rotation_sigma_deg} "
+                  "(the images do not determine the rotation)")
+    return TrackingResult(T, np.asarray(affine, dtype=float).copy(), ev.cost, initial_cost, iterations, ev.n_valid,
+                          ev.n_outliers, rms, reason == "", reason, cov)
 
 
 def _prepare(kf: TrackingKeyframe, frame: ArrayLike | list[GradientImage],
