@@ -22,7 +22,8 @@ Jacobians are with respect to GTSAM's right perturbations ``T <- T Exp(xi)``, ``
 
 Derivations with these names: docs/factors.md. Residuals that are invalid (inverse depth
 <= 0, behind the target camera, outside the target image, host sample outside the host image)
-are 0 with zero Jacobian rows, flagged in ``valid`` and counted; never NaN.
+are 0 with zero Jacobian rows, flagged in ``valid`` and counted; never NaN. A sample next to a
+pixel the sensor clipped (:class:`GradientImage`'s ``clip_range``) is invalid too.
 """
 
 from __future__ import annotations
@@ -43,6 +44,11 @@ BoolArray = NDArray[np.bool_]
 #: DSO's 8-pixel residual pattern (offsets (du, dv) in pixels of the pyramid level used).
 PATTERN_DSO8: FloatArray = np.array(
     [[0, -2], [-1, -1], [1, -1], [-2, 0], [0, 0], [2, 0], [-1, 1], [0, 2]], dtype=np.float64)
+
+#: Grey levels at or beyond which a sensor clipped, in 8-bit units: the default of every
+#: :class:`GradientImage` (None: no image is checked; benchmarks/exposure_kitti.py switches it off
+#: to measure what the check is worth).
+CLIP_RANGE: tuple[float, float] = (0.0, 255.0)
 
 #: A single pixel (no pattern), e.g. for fast coarse levels or tests.
 PATTERN_SINGLE: FloatArray = np.zeros((1, 2))
@@ -65,9 +71,15 @@ class GradientImage:
     Args:
         image: 2-D float image in 8-bit units.
         border: pixels kept free at each side for a sample to count as valid.
+        clip_range: ``(lo, hi)`` grey levels at which the sensor clipped; default the module's
+            :data:`CLIP_RANGE` (0 and 255, the ends of 8-bit units) at construction time. A
+            sample whose bilinear cell touches a pixel at or beyond them is invalid: a clipped
+            intensity says nothing about the scene's radiance, and under a brightness change (auto
+            exposure) the affine model cannot explain it. None: no check.
     """
 
-    def __init__(self, image: ArrayLike, border: float = 1.0) -> None:
+    def __init__(self, image: ArrayLike, border: float = 1.0,
+                 clip_range: tuple[float, float] | None | str = "default") -> None:
         img = np.asarray(image, dtype=np.float32)
         if img.ndim != 2 or img.shape[0] < 2 or img.shape[1] < 2:
             raise InputError(f"GradientImage needs a 2-D image of at least 2x2, got shape {img.shape}")
@@ -79,13 +91,30 @@ class GradientImage:
         self._flat = self.stack.reshape(-1, 3)
         self.height, self.width = img.shape
         self.border = float(border)
+        if isinstance(clip_range, str):
+            if clip_range != "default":
+                raise InputError(f"GradientImage: clip_range must be (lo, hi), None or 'default', "
+                                 f"got {clip_range!r}")
+            clip_range = CLIP_RANGE
+        self.clip_range = clip_range
+        #: per pixel (flat): the bilinear cell with this top-left corner touches a clipped pixel;
+        #: None when the image has no clipped pixel (then sampling costs nothing extra). Only the
+        #: intensity's cell is checked; the gradients of its pixels reach one pixel further.
+        self._clipped_cell: NDArray[np.bool_] | None = None
+        if clip_range is not None:
+            clipped = (img <= clip_range[0]) | (img >= clip_range[1])
+            if clipped.any():
+                cell = np.zeros_like(clipped)
+                cell[:-1, :-1] = clipped[:-1, :-1] | clipped[1:, :-1] | clipped[:-1, 1:] | clipped[1:, 1:]
+                self._clipped_cell = cell.reshape(-1)
 
     def sample(self, u: NDArray, v: NDArray) -> tuple[FloatArray, BoolArray]:
         """Bilinear (I, gx, gy) at ``(u, v)``; 0 and False where invalid, never NaN.
 
         Same result and validity rule as :func:`gtvo.image.bilinear_sample` on :attr:`stack`
         up to float32 rounding (tested to 1e-4 grey levels), about 3x faster: ``np.take`` gathers,
-        float32 arithmetic and no per-channel masking (the hot path of tracking).
+        float32 arithmetic and no per-channel masking (the hot path of tracking). In addition, a
+        sample next to a clipped pixel is invalid (``clip_range``).
         """
         u = np.asarray(u, dtype=np.float64)
         v = np.asarray(v, dtype=np.float64)
@@ -100,6 +129,8 @@ class GradientImage:
         ax = (us - x0).astype(np.float32)[..., None]
         ay = (vs - y0).astype(np.float32)[..., None]
         i = (y0 * w + x0).reshape(-1)
+        if self._clipped_cell is not None:
+            valid = valid & ~self._clipped_cell.take(i).reshape(u.shape)
         shape = u.shape + (3,)
         f = self._flat
         v00 = f.take(i, axis=0).reshape(shape)
@@ -180,7 +211,8 @@ class PhotometricLinearization:
     uv_target: FloatArray  #: (N, P, 2) warped pixels (meaningless where invalid)
     n_bad_depth: int  #: points with inverse depth <= 0 (or not finite)
     n_behind: int  #: pattern pixels behind the target camera (of points with good depth)
-    n_outside: int  #: pattern pixels outside the target or host image (in front, good depth)
+    #: pattern pixels outside the target or host image or next to a clipped pixel (in front, good depth)
+    n_outside: int
 
 
 def replace_rows(lin: PhotometricLinearization, rows: NDArray[np.intp], other: PhotometricLinearization,

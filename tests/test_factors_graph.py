@@ -207,3 +207,30 @@ def test_python_factor_attributes_are_shared_with_its_error_function():
     assert g2.error(v) == pytest.approx(e0)
     fac.weights = np.zeros((1, 8))
     assert g2.error(v) == 0.0
+
+
+def test_gradient_image_samples_next_to_clipped_pixels_are_invalid():
+    rng = np.random.default_rng(3)
+    img = rng.uniform(20, 200, (30, 40))
+    img[10, 20] = 255.0  # saturated
+    img[20, 5] = 0.0  # black-clipped
+    g, plain = GradientImage(img), GradientImage(img, clip_range=None)
+    assert g.clip_range == (0.0, 255.0) and plain.clip_range is None
+    # every sample whose bilinear cell holds a clipped pixel, and a few that do not
+    u = np.array([19.5, 20.0, 20.9, 19.01, 4.5, 5.5, 21.2, 18.9, 6.1, 30.0])
+    v = np.array([9.5, 10.0, 10.9, 9.01, 19.5, 20.5, 10.0, 10.0, 20.0, 25.0])
+    a, va = g.sample(u, v)
+    b, vb = plain.sample(u, v)
+    np.testing.assert_array_equal(va, [False] * 6 + [True] * 4)
+    assert vb.all()
+    np.testing.assert_array_equal(a[va], b[va])
+    assert np.all(a[~va] == 0)
+    # an image without clipped pixels keeps no mask; the kernel counts clipped samples as outside
+    assert GradientImage(rng.uniform(1, 254, (8, 8)))._clipped_cell is None
+    cam = small_camera()
+    px = np.array([[20.0, 10.0], [30.0, 25.0]])
+    Ih, hv = sample_host(plain, px)
+    L = photometric_residuals(cam, Ih, hv, px, [0.5, 0.5], gtsam.Pose3(), gtsam.Pose3(), g)
+    assert not L.valid[0, 4] and L.valid[1].all() and L.n_outside == np.count_nonzero(~L.valid)
+    with pytest.raises(InputError):
+        GradientImage(img, clip_range="auto")
