@@ -20,6 +20,9 @@ For each selected left pixel ``p = (u, v)`` of a rectified pair (docs/frontend.m
    and ``g2 = mean(|g|^2)`` of the left gradients ``g`` and ``l`` the unit epipolar direction,
    ``sigma_disp^2 = sigma_line^2 * g2 / g_ll + 2 sigma_intensity^2 / g_ll`` (geometric +
    photometric disparity error), and ``V = sigma_disp^2 / (fx b)^2`` since ``d = disp / (fx b)``.
+5. **Gain equalisation** (``equalize_gain``): when the accepted points' patch contrast says the
+   right camera's gain differs from the left's by more than 10 %, the search runs once more on
+   the right image divided by that gain (:func:`matched_gain`); ZSSD absorbs offsets, not gains.
 """
 
 from __future__ import annotations
@@ -263,9 +266,9 @@ def stereo_inverse_depth(left: NDArray, right: NDArray, stereo_camera: StereoCam
         max_disparity_std: reject when ``sigma_disp`` exceeds this (px); ``inf`` keeps all.
         equalize_gain: when the matched points say the right camera's gain against the left
             (:func:`matched_gain`) differs from 1 by more than :data:`EQUALIZE_MIN_LOG_GAIN` in
-            log, match once more against the right image divided by that gain: the zero-mean
-            SSD absorbs an offset between the two cameras but not a gain, which two cameras with
-            their own auto exposure can have.
+            log, match once more against the right image divided by that gain and keep the
+            search that accepts more points: the zero-mean SSD absorbs an offset between the two
+            cameras but not a gain, which two cameras with their own auto exposure can have.
 
     Returns:
         A :class:`StereoDepthResult`; never NaN.
@@ -392,13 +395,15 @@ def stereo_inverse_depth(left: NDArray, right: NDArray, stereo_camera: StereoCam
     gain = matched_gain(left_f, right_f, px, result, pat) if equalize_gain else None
     if gain is None or abs(np.log(gain)) <= EQUALIZE_MIN_LOG_GAIN:
         return result
-    return stereo_inverse_depth(
+    again = stereo_inverse_depth(
         left_f, right_f / np.float32(gain), stereo_camera, px, min_disparity=min_disparity,
         max_disparity=max_disparity, pattern=pat, disparity_offset=disparity_offset,
         uniqueness_ratio=uniqueness_ratio, max_relative_cost=max_relative_cost,
         gauss_newton_iterations=gauss_newton_iterations, left_right_check=left_right_check,
         lr_tolerance=lr_tolerance, sigma_intensity=sigma_intensity, sigma_line=sigma_line,
         max_disparity_std=max_disparity_std, equalize_gain=False)
+    # a contrast ratio can also be a difference in sharpness: keep the search that accepts more
+    return again if np.count_nonzero(again.valid) >= np.count_nonzero(result.valid) else result
 
 
 def matched_gain(left: NDArray, right: NDArray, pixels: ArrayLike, result: StereoDepthResult,
