@@ -9,9 +9,9 @@ every single image (``--per image``: left and right drawn separately, as two cam
 own auto exposure) ``I`` becomes ``clip(g I + o, 0, 255)`` with ``log g ~ U(-A, A)`` and
 ``o ~ U(-10, 10)`` grey levels (``A = 0``: the log as it is), so the gain between two frames jumps
 by up to ``2A`` in log: what auto exposure does at its worst, and beyond (``A = 0.5``: up to
-2.7x). Bright gains saturate KITTI's sky and road. Each amplitude and seed runs in window mode with the CLI defaults twice:
-with the clipped-pixel check (``CLIP_RANGE = (0, 255)``, the default) and without it
-(``CLIP_RANGE = None``). Prints ATE (SE(3)-aligned), end-point drift, segment drift, failures
+2.7x). Bright gains saturate KITTI's sky and road. Each amplitude and seed runs in window mode
+with the CLI defaults twice: with the clipped-pixel check (``CLIP_RANGE = (0, 255)``, the default)
+and without it (``CLIP_RANGE = None``). Prints ATE (SE(3)-aligned), end-point drift, segment drift, failures
 (frames re-initialised) and the failures' reasons. Deterministic (no timing).
 """
 

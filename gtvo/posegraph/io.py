@@ -159,9 +159,7 @@ class _Parser:
     def g2o_line(self, parts: list[str]) -> None:
         tag = parts[0]
         if tag == "VERTEX_SE2":
-            v = self.numbers(parts, 4)
-            self.set_dim(2)
-            self.add_vertex(self.node_ids(v, 1)[0], lie.rot2(np.array(v[3])), np.array(v[1:3]))
+            self.vertex_se2(parts)
         elif tag == "EDGE_SE2":
             v = self.numbers(parts, 11)
             self.set_dim(2)
@@ -183,9 +181,7 @@ class _Parser:
     def toro_line(self, parts: list[str]) -> None:
         tag = parts[0]
         if tag == "VERTEX2":
-            v = self.numbers(parts, 4)
-            self.set_dim(2)
-            self.add_vertex(self.node_ids(v, 1)[0], lie.rot2(np.array(v[3])), np.array(v[1:3]))
+            self.vertex_se2(parts)
         elif tag == "EDGE2":
             v = self.numbers(parts, (5, 11))
             self.set_dim(2)
@@ -218,6 +214,12 @@ class _Parser:
         n = float(np.linalg.norm(q))
         if not 0.5 < n < 2.0:
             raise self.fail(f"quaternion norm {n:.3g} is not close to 1")
+
+    def vertex_se2(self, parts: list[str]) -> None:
+        """``TAG id x y theta``: g2o's ``VERTEX_SE2`` and TORO's ``VERTEX2`` read the same."""
+        v = self.numbers(parts, 4)
+        self.set_dim(2)
+        self.add_vertex(self.node_ids(v, 1)[0], lie.rot2(np.array(v[3])), np.array(v[1:3]))
 
     def add_vertex(self, i: int, R: np.ndarray, t: np.ndarray) -> None:
         if i in self.vertices:
