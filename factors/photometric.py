@@ -34,6 +34,7 @@ from typing import Protocol
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from factors import _compiled
 from gtvo.camera import MIN_DEPTH, PinholeCamera
 from gtvo.errors import InputError
 from gtvo.image import bilinear_sample, image_gradients
@@ -87,8 +88,6 @@ class GradientImage:
             raise InputError("GradientImage: image contains NaN or infinite values")
         gx, gy = image_gradients(img)
         self.image = img
-        self.stack = np.ascontiguousarray(np.stack([img, gx, gy], axis=-1))
-        self._flat = self.stack.reshape(-1, 3)
         self.height, self.width = img.shape
         self.border = float(border)
         if isinstance(clip_range, str):
@@ -97,51 +96,43 @@ class GradientImage:
                                  f"got {clip_range!r}")
             clip_range = CLIP_RANGE
         self.clip_range = clip_range
-        #: per pixel (flat): the bilinear cell with this top-left corner touches a clipped pixel;
-        #: None when the image has no clipped pixel (then sampling costs nothing extra). Only the
-        #: intensity's cell is checked; the gradients of its pixels reach one pixel further.
-        self._clipped_cell: NDArray[np.bool_] | None = None
+        # per pixel: I, gx, gy and whether the bilinear cell with this top-left corner touches a
+        # clipped pixel (1.0) or not (0.0), one 16-byte record (the compiled sampler reads one
+        # cache line per corner; a separate mask array made it 3x slower). Only the intensity's
+        # cell is checked; the gradients of its pixels reach one pixel further.
+        packed = np.zeros(img.shape + (4,), dtype=np.float32)
+        packed[..., 0] = img
+        packed[..., 1] = gx
+        packed[..., 2] = gy
+        self.has_clipped = False
         if clip_range is not None:
             clipped = (img <= clip_range[0]) | (img >= clip_range[1])
             if clipped.any():
-                cell = np.zeros_like(clipped)
-                cell[:-1, :-1] = clipped[:-1, :-1] | clipped[1:, :-1] | clipped[:-1, 1:] | clipped[1:, 1:]
-                self._clipped_cell = cell.reshape(-1)
+                packed[:-1, :-1, 3] = clipped[:-1, :-1] | clipped[1:, :-1] | clipped[:-1, 1:] | clipped[1:, 1:]
+                self.has_clipped = True
+        self._packed = packed.reshape(-1, 4)
+        #: (H, W, 3) float32: intensity and its central-difference gradients (a view)
+        self.stack = packed[..., :3]
+
+    def _sampler_args(self) -> tuple:
+        """The leading arguments of :mod:`factors._compiled`'s functions for this image."""
+        return (self._packed, self.has_clipped, self.width, self.height, self.border)
 
     def sample(self, u: NDArray, v: NDArray) -> tuple[FloatArray, BoolArray]:
         """Bilinear (I, gx, gy) at ``(u, v)``; 0 and False where invalid, never NaN.
 
         Same result and validity rule as :func:`gtvo.image.bilinear_sample` on :attr:`stack`
-        up to float32 rounding (tested to 1e-4 grey levels), about 3x faster: ``np.take`` gathers,
-        float32 arithmetic and no per-channel masking (the hot path of tracking). In addition, a
+        up to float32 rounding of the stored image (tested to 1e-4 grey levels), in one compiled
+        pass (:func:`factors._compiled.sample_stack`; the hot path of tracking). In addition, a
         sample next to a clipped pixel is invalid (``clip_range``).
         """
         u = np.asarray(u, dtype=np.float64)
         v = np.asarray(v, dtype=np.float64)
-        h, w, b = self.height, self.width, self.border
-        with np.errstate(invalid="ignore"):
-            valid = (u >= b) & (u <= w - 1 - b) & (v >= b) & (v <= h - 1 - b)  # False for NaN
-        us = np.where(valid, u, 0.0)
-        vs = np.where(valid, v, 0.0)
-        x0 = np.minimum(us.astype(np.intp), w - 2)
-        y0 = np.minimum(vs.astype(np.intp), h - 2)
-        # float32 interpolation weights: 6e-8 px resolution, ~1e-5 grey levels; 1.5x faster
-        ax = (us - x0).astype(np.float32)[..., None]
-        ay = (vs - y0).astype(np.float32)[..., None]
-        i = (y0 * w + x0).reshape(-1)
-        if self._clipped_cell is not None:
-            valid = valid & ~self._clipped_cell.take(i).reshape(u.shape)
-        shape = u.shape + (3,)
-        f = self._flat
-        v00 = f.take(i, axis=0).reshape(shape)
-        v01 = f.take(i + 1, axis=0).reshape(shape)
-        v10 = f.take(i + w, axis=0).reshape(shape)
-        v11 = f.take(i + w + 1, axis=0).reshape(shape)
-        top = v00 + ax * (v01 - v00)
-        bot = v10 + ax * (v11 - v10)
-        out = top + ay * (bot - top)
-        out *= valid[..., None]
-        return out.astype(np.float64), valid
+        if u.shape != v.shape:
+            raise InputError(f"GradientImage.sample: u has shape {u.shape}, v {v.shape}")
+        values, valid = _compiled.sample_stack(*self._sampler_args(), np.ascontiguousarray(u).reshape(-1),
+                                               np.ascontiguousarray(v).reshape(-1))
+        return values.reshape(u.shape + (3,)), valid.reshape(u.shape)
 
     def sample_intensity(self, u: NDArray, v: NDArray) -> tuple[FloatArray, BoolArray]:
         """Bilinear intensity only."""
@@ -278,9 +269,27 @@ def photometric_residuals(camera: PinholeCamera, host_intensity: ArrayLike, host
     a_h, b_h = (float(x) for x in np.asarray(affine_host, dtype=float).reshape(2))
     a_t, b_t = (float(x) for x in np.asarray(affine_target, dtype=float).reshape(2))
 
+    f = pattern_bearings(camera, px, pat) if bearings is None else np.asarray(bearings, dtype=float)
+    if f.size != n * p * 3:
+        raise InputError(f"photometric_residuals: bearings have shape {f.shape}, expected {(n, p, 3)}")
+    f = f.reshape(n, p, 3)
+    if isinstance(target, GradientImage):
+        # the fused compiled loop (same outputs as the numpy form below, which other samplers use)
+        r, valid, J_depth, uv, J_t, J_h, J_at, J_ah, counts = _compiled.warp_residuals(
+            *target._sampler_args(), float(camera.fx), float(camera.fy), float(camera.cx), float(camera.cy),
+            float(MIN_DEPTH),
+            np.ascontiguousarray(R), np.ascontiguousarray(t), np.ascontiguousarray(f), np.ascontiguousarray(d),
+            np.ascontiguousarray(Ih), np.ascontiguousarray(hv), float(np.exp(a_t - a_h)), b_h, b_t,
+            bool(jacobians), bool(host_jacobians))
+        n_bad, n_behind, n_out = (int(c) for c in counts)
+        if not jacobians:
+            return PhotometricLinearization(r, valid, J_depth, None, None, None, None, uv, n_bad, n_behind, n_out)
+        if not host_jacobians:
+            J_h = J_ah = None
+        return PhotometricLinearization(r, valid, J_depth, J_h, J_t, J_ah, J_at, uv, n_bad, n_behind, n_out)
+
     good_d = np.isfinite(d) & (d > 0)
     ds = np.where(good_d, d, 1.0)
-    f = pattern_bearings(camera, px, pat) if bearings is None else np.asarray(bearings, dtype=float)
     # (N*P, 3) products: numpy runs (N, P, 3) @ (3, 3) as N small products, 2.5-5x slower
     q = (f.reshape(-1, 3) @ R.T).reshape(n, p, 3) + ds[:, None, None] * t
     qz = q[..., 2]

@@ -59,8 +59,11 @@ def test_both_solvers_reach_the_same_pose(seed, variance):
 
     On one level (same start, so the same frozen W) the poses agree to 1e-6 (rad, m) and the
     costs to 1e-7 relative (measured: 1e-11 without outliers; 2e-7 with Huber outliers, where
-    both stop on their own convergence tests). Over the pyramid the level-0 W is frozen at
-    each solver's own level-1 result: agreement 1e-5 (measured 2e-7 .. 1.4e-6).
+    both stop on their own convergence tests). Over the pyramid each level's W is frozen at
+    each solver's own result of the level above, so the two solve slightly different problems
+    and the gap depends on where the coarse levels stop: agreement 5e-5 (measured 2e-13 .. 1.9e-5;
+    the same scene at 3 levels gave 1.9e-5 with the numpy sampler and 2e-13 with the compiled
+    one, and at 4 levels the other way round).
     """
     rng = np.random.default_rng(seed)
     T_true, Ih, It, px, d = scene(seed, rot=rng.normal(0, 0.01, 3), trans=rng.normal(0, 0.05, 3))
@@ -80,7 +83,7 @@ def test_both_solvers_reach_the_same_pose(seed, variance):
     a = track_handrolled(kf, It)
     b = track_gtsam(kf, It)
     assert a.success and b.success
-    assert pose_error(a.T_keyframe_frame, b.T_keyframe_frame) < 1e-5
+    assert pose_error(a.T_keyframe_frame, b.T_keyframe_frame) < 5e-5
 
 
 def test_without_affine_and_with_motion_model_guess():

@@ -1,0 +1,164 @@
+"""Compiled loops (numba) for the hot path of :mod:`factors.photometric`.
+
+Two functions, each the loop form of vectorised numpy code in :mod:`factors.photometric` that
+stays the reference (tests compare them to it, and to numerical derivatives through it):
+
+* :func:`sample_stack`: :meth:`GradientImage.sample` (bilinear intensity and gradients, the
+  border and clipped-cell validity rule);
+* :func:`warp_residuals`: :func:`photometric_residuals` for a :class:`GradientImage` target, fused
+  (warp, sample, residual, Jacobians in one pass per residual, no temporaries).
+
+Why compiled: the numpy form makes about 40 passes over (N, P) arrays per call, each a
+temporary array; for a window's few hundred points per call the per-pass overhead dominates and
+the kernel was about half of a whole VO run (docs/benchmarks.md, "Compiled kernel"). The
+arithmetic here is float64 throughout (the numpy sampler interpolates in float32), so results
+agree with the reference to float32 rounding of the interpolation (about 1e-5 grey levels).
+
+Compiled on first use and cached on disk (``cache=True``: ``__pycache__`` beside this file, or
+numba's user cache directory when that is not writable).
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+
+@numba.njit(cache=True)
+def _bilinear(packed, has_clip, width, height, border, u, v):
+    """Bilinear ``(valid, I, gx, gy)`` at ``(u, v)`` of ``packed`` ((H*W, 4) float32 records
+    ``I, gx, gy, clipped cell``, ``GradientImage._packed``).
+
+    Not valid (and zeros) when the sample is within ``border`` of the image edge, not finite, or
+    its 2x2 cell touches a clipped pixel (the cell's top-left record says so, checked when
+    ``has_clip``): the rule of ``GradientImage.sample``. (A tuple, not an output array: numba
+    keeps it in registers, 4x faster.)
+    """
+    if not (u >= border and u <= width - 1 - border and v >= border and v <= height - 1 - border):
+        return False, 0.0, 0.0, 0.0
+    x0 = min(int(u), width - 2)
+    y0 = min(int(v), height - 2)
+    i = y0 * width + x0
+    if has_clip and packed[i, 3] != 0.0:
+        return False, 0.0, 0.0, 0.0
+    ax = u - x0
+    ay = v - y0
+    j = i + width
+    top = packed[i, 0] + ax * (packed[i + 1, 0] - packed[i, 0])
+    bot = packed[j, 0] + ax * (packed[j + 1, 0] - packed[j, 0])
+    intensity = top + ay * (bot - top)
+    top = packed[i, 1] + ax * (packed[i + 1, 1] - packed[i, 1])
+    bot = packed[j, 1] + ax * (packed[j + 1, 1] - packed[j, 1])
+    gx = top + ay * (bot - top)
+    top = packed[i, 2] + ax * (packed[i + 1, 2] - packed[i, 2])
+    bot = packed[j, 2] + ax * (packed[j + 1, 2] - packed[j, 2])
+    gy = top + ay * (bot - top)
+    return True, intensity, gx, gy
+
+
+@numba.njit(cache=True)
+def sample_stack(packed, has_clip, width, height, border, u, v):
+    """:func:`_bilinear` at every ``(u[k], v[k])`` (1-D float64): ``(values (M, 3), valid (M,))``,
+    values 0 where invalid."""
+    m = u.shape[0]
+    values = np.zeros((m, 3))
+    valid = np.zeros(m, dtype=np.bool_)
+    for k in range(m):
+        ok, intensity, gx, gy = _bilinear(packed, has_clip, width, height, border, u[k], v[k])
+        if ok:
+            valid[k] = True
+            values[k, 0] = intensity
+            values[k, 1] = gx
+            values[k, 2] = gy
+    return values, valid
+
+
+@numba.njit(cache=True)
+def warp_residuals(packed, has_clip, width, height, border, fx, fy, cx, cy, min_depth, R, t, f, d,
+                   host_intensity, host_valid, e, b_h, b_t, jacobians, host_jacobians):
+    """The loop form of ``photometric_residuals`` (same names, same outputs, same zeros).
+
+    Args: the target's sampler arrays (see :func:`_bilinear`), the target camera's intrinsics,
+    ``MIN_DEPTH``, ``R, t`` of ``T_th`` (float64), bearings ``f`` (N, P, 3), inverse depths
+    ``d`` (N,), host intensities and validity (N, P), ``e = exp(a_t - a_h)``, ``b_h``, ``b_t``.
+
+    Returns:
+        ``(r, valid, J_depth, uv, J_target, J_host, J_affine_target, J_affine_host, counts)``;
+        the Jacobian arrays have 0 rows when not asked for; ``counts`` = (n_bad_depth, n_behind,
+        n_outside).
+    """
+    n, p = host_intensity.shape
+    r = np.zeros((n, p))
+    valid = np.zeros((n, p), dtype=np.bool_)
+    J_depth = np.zeros((n, p))
+    uv = np.empty((n, p, 2))
+    nj = n if jacobians else 0
+    nh = n if (jacobians and host_jacobians) else 0
+    J_target = np.zeros((nj, p, 6))
+    J_aff_t = np.zeros((nj, p, 2))
+    J_host = np.zeros((nh, p, 6))
+    J_aff_h = np.zeros((nh, p, 2))
+    counts = np.zeros(3, dtype=np.int64)
+    R00, R01, R02 = R[0, 0], R[0, 1], R[0, 2]
+    R10, R11, R12 = R[1, 0], R[1, 1], R[1, 2]
+    R20, R21, R22 = R[2, 0], R[2, 1], R[2, 2]
+    t0, t1, t2 = t[0], t[1], t[2]
+    for i in range(n):
+        di = d[i]
+        good = np.isfinite(di) and di > 0.0
+        ds = di if good else 1.0
+        if not good:
+            counts[0] += 1
+        for k in range(p):
+            f0, f1, f2 = f[i, k, 0], f[i, k, 1], f[i, k, 2]
+            q0 = R00 * f0 + R01 * f1 + R02 * f2 + ds * t0
+            q1 = R10 * f0 + R11 * f1 + R12 * f2 + ds * t1
+            q2 = R20 * f0 + R21 * f1 + R22 * f2 + ds * t2
+            front = q2 > min_depth * ds
+            iz = 1.0 / q2 if front else 1.0
+            u = fx * q0 * iz + cx
+            v = fy * q1 * iz + cy
+            uv[i, k, 0] = u
+            uv[i, k, 1] = v
+            if not good:
+                continue
+            if not front:
+                counts[1] += 1
+                continue
+            inside, intensity, gx, gy = _bilinear(packed, has_clip, width, height, border, u, v)
+            if not (inside and host_valid[i, k]):
+                counts[2] += 1
+                continue
+            valid[i, k] = True
+            hb = e * (host_intensity[i, k] - b_h)
+            r[i, k] = intensity - b_t - hb
+            # a = dr/dq = g^T dw/dq
+            a0 = gx * fx * iz
+            a1 = gy * fy * iz
+            a2 = -(a0 * q0 + a1 * q1) * iz
+            J_depth[i, k] = a0 * t0 + a1 * t1 + a2 * t2
+            if not jacobians:
+                continue
+            J_target[i, k, 0] = a1 * q2 - a2 * q1
+            J_target[i, k, 1] = a2 * q0 - a0 * q2
+            J_target[i, k, 2] = a0 * q1 - a1 * q0
+            J_target[i, k, 3] = -ds * a0
+            J_target[i, k, 4] = -ds * a1
+            J_target[i, k, 5] = -ds * a2
+            J_aff_t[i, k, 0] = -hb
+            J_aff_t[i, k, 1] = -1.0
+            if not host_jacobians:
+                continue
+            # a' = R^T a
+            p0 = R00 * a0 + R10 * a1 + R20 * a2
+            p1 = R01 * a0 + R11 * a1 + R21 * a2
+            p2 = R02 * a0 + R12 * a1 + R22 * a2
+            J_host[i, k, 0] = f1 * p2 - f2 * p1
+            J_host[i, k, 1] = f2 * p0 - f0 * p2
+            J_host[i, k, 2] = f0 * p1 - f1 * p0
+            J_host[i, k, 3] = ds * p0
+            J_host[i, k, 4] = ds * p1
+            J_host[i, k, 5] = ds * p2
+            J_aff_h[i, k, 0] = hb
+            J_aff_h[i, k, 1] = e
+    return r, valid, J_depth, uv, J_target, J_host, J_aff_t, J_aff_h, counts
