@@ -3,7 +3,8 @@
 This package holds the residuals and their Jacobians and nothing else: no file I/O, no
 pipeline state. Every factor works in a plain ``gtsam.NonlinearFactorGraph``.
 
-* :mod:`factors.photometric`: the vectorised kernel (warp, residuals, Jacobians, masks, weights).
+* :mod:`factors.photometric`: the kernel (warp, residuals, Jacobians, masks, weights, Gauss-Newton
+  sums); its hot loops are compiled in :mod:`factors._compiled` (numba).
 * :mod:`factors.gtsam_factors`: ``PhotometricFactor``, ``StereoFactor``,
   ``InverseDepthSmoothnessFactor``, ``MotionSmoothnessFactor``, ``ConstantVelocityFactor``,
   ``PhotometricBatchFactor``, and

@@ -337,6 +337,41 @@ def photometric_residuals(camera: PinholeCamera, host_intensity: ArrayLike, host
                                     n_bad, n_behind, n_out)
 
 
+def gauss_newton_sums(lin: PhotometricLinearization, weight: ArrayLike, with_affine: bool = True
+                      ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
+    """Gauss-Newton sums of one host-target linearisation (the window's Hessian accumulation).
+
+    With ``J = [J_host, J_affine_host, J_target, J_affine_target]`` per residual (this block
+    order; without ``with_affine`` the two pose blocks only), ``w = weight`` (N, P) (the
+    variance weight W times the point's robust weight), ``r`` the residual and ``j`` its
+    ``J_depth``:
+
+        H = sum w J^T J   (16, 16 or 12, 12)      g = sum w J^T r
+        H_pd[n] = sum_P w j J   (N, k)            H_dd[n] = sum_P w j^2    g_d[n] = sum_P w j r
+
+    The pose-depth blocks stay per point for the Schur complement. One compiled loop
+    (:func:`factors._compiled.accumulate_target`); tested against the numpy sums.
+
+    Raises:
+        InputError: the linearisation has no pose Jacobians (``jacobians=False`` or
+            ``host_jacobians=False``), or ``weight`` has the wrong shape.
+    """
+    if lin.J_host is None or lin.J_target is None:
+        raise InputError("gauss_newton_sums needs a linearisation with host and target Jacobians")
+    w = np.ascontiguousarray(weight, dtype=float)
+    if w.shape != lin.residual.shape:
+        raise InputError(f"gauss_newton_sums: weight has shape {w.shape}, residuals {lin.residual.shape}")
+    p = lin.residual.shape[1]
+    if with_affine:
+        if lin.J_affine_host is None or lin.J_affine_target is None:
+            raise InputError("gauss_newton_sums: with_affine needs the affine Jacobians")
+        ah, at = np.ascontiguousarray(lin.J_affine_host), np.ascontiguousarray(lin.J_affine_target)
+    else:
+        ah = at = np.zeros((0, p, 2))
+    return _compiled.accumulate_target(np.ascontiguousarray(lin.J_host), ah, np.ascontiguousarray(lin.J_target), at,
+                                       w, np.ascontiguousarray(lin.residual), np.ascontiguousarray(lin.J_depth))
+
+
 def variance_weight(J_depth: ArrayLike, inverse_depth_variance: ArrayLike, sigma_intensity: float) -> FloatArray:
     """The notes' weight ``W = (2 sigma_I^2 + (dr/dd)^2 V)^-1`` per residual.
 

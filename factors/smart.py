@@ -39,8 +39,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from factors.gtsam_factors import DEFAULT_HUBER_K, DEFAULT_SIGMA_INTENSITY, PythonFactor
-from factors.photometric import (PATTERN_DSO8, GradientSampler, huber_loss, huber_weight, pattern_bearings,
-                                 photometric_residuals, replace_rows, sample_host, stereo_residuals,
+from factors.photometric import (PATTERN_DSO8, GradientSampler, gauss_newton_sums, huber_loss, huber_weight,
+                                 pattern_bearings, photometric_residuals, replace_rows, sample_host, stereo_residuals,
                                  variance_weight)
 from gtvo.camera import PinholeCamera
 from gtvo.errors import InputError
@@ -349,19 +349,15 @@ class HostPointsFactor(PythonFactor):
         c_pt = np.zeros(n)
         for t, (lin, W, w, loss, _) in enumerate(self._target_terms(poses, affs, d, True)):
             c_pt += loss
-            ww = W * w[:, None]  # (N, P)
-            parts = [lin.J_host, lin.J_target]
-            if self.with_affine:
-                parts += [lin.J_affine_host, lin.J_affine_target]
-            Jp = np.concatenate(parts, axis=-1)  # (N, P, k)
-            cols, _ = self._columns(t)
-            Jw = Jp * ww[..., None]
-            k = Jp.shape[-1]
-            H_pp[np.ix_(cols, cols)] += Jw.reshape(-1, k).T @ Jp.reshape(-1, k)
-            g_p[cols] += Jw.reshape(-1, k).T @ lin.residual.reshape(-1)
-            H_pd[:, cols] += np.einsum("npk,np->nk", Jw, lin.J_depth)
-            H_dd += np.sum(ww * lin.J_depth ** 2, axis=1)
-            g_d += np.sum(ww * lin.J_depth * lin.residual, axis=1)
+            H_t, g_t, H_pd_t, H_dd_t, g_d_t = gauss_newton_sums(lin, W * w[:, None], self.with_affine)
+            cols, _ = self._columns(t)  # host pose, target pose[, host affine, target affine]
+            if self.with_affine:  # gauss_newton_sums' order: host pose, host affine, target pose, target affine
+                cols = np.r_[cols[0:6], cols[12:14], cols[6:12], cols[14:16]]
+            H_pp[np.ix_(cols, cols)] += H_t
+            g_p[cols] += g_t
+            H_pd[:, cols] += H_pd_t
+            H_dd += H_dd_t
+            g_d += g_d_t
         st = self._stereo_term(d, poses, affs)
         if st is not None:
             lin, W, w, loss = st

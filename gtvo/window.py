@@ -48,8 +48,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from factors.gtsam_factors import DEFAULT_HUBER_K, DEFAULT_SIGMA_INTENSITY, ConstantVelocityFactor
-from factors.photometric import (PATTERN_DSO8, PATTERN_SINGLE, GradientImage, huber_loss, huber_weight,
-                                 pattern_bearings, photometric_residuals,
+from factors.photometric import (PATTERN_DSO8, PATTERN_SINGLE, GradientImage, gauss_newton_sums, huber_loss,
+                                 huber_weight, pattern_bearings, photometric_residuals,
                                  sample_host, stereo_residuals, variance_weight)
 from factors.smart import HostPointsFactor, keep_cheaper_depths
 from gtvo.camera import MIN_DEPTH, PinholeCamera
@@ -565,15 +565,14 @@ class _HostTerms:
             lin = lins[j]
             w, loss = self._robust(self.W[j], lin.residual)
             c += loss
-            ww = self.W[j] * w[:, None]
-            J = np.concatenate([lin.J_host, lin.J_affine_host, lin.J_target, lin.J_affine_target], axis=-1)
+            # blocks [host pose, host affine, target pose, target affine]: 8 per keyframe
+            H_t, g_t, H_pd_t, H_dd_t, g_d_t = gauss_newton_sums(lin, self.W[j] * w[:, None])
             cols = np.r_[8 * self.h:8 * self.h + 8, 8 * t:8 * t + 8]
-            Jw = (J * ww[..., None]).reshape(-1, 16)
-            H[np.ix_(cols, cols)] += Jw.T @ J.reshape(-1, 16)
-            g[cols] += Jw.T @ lin.residual.reshape(-1)
-            H_pd[:, cols] += np.einsum("npk,np->nk", Jw.reshape(n, -1, 16), lin.J_depth)
-            H_dd += np.sum(ww * lin.J_depth ** 2, axis=1)
-            g_d += np.sum(ww * lin.J_depth * lin.residual, axis=1)
+            H[np.ix_(cols, cols)] += H_t
+            g[cols] += g_t
+            H_pd[:, cols] += H_pd_t
+            H_dd += H_dd_t
+            g_d += g_d_t
         if self.W_stereo is not None:
             st = lins[-1]
             w, loss = self._robust(self.W_stereo, st.residual)

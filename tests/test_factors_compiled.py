@@ -1,10 +1,11 @@
-"""The compiled photometric kernel (factors/_compiled.py) against the numpy form it replaces.
+"""The compiled loops (factors/_compiled.py) against the numpy forms they replace.
 
 ``photometric_residuals`` takes the compiled path for a :class:`GradientImage` target and the
 numpy path for any other sampler; wrapping the same image in a plain sampler object runs the
 numpy path on identical samples, so every output must agree to rounding. The numpy path's
 Jacobians are checked against numerical derivatives in test_factors_jacobians.py; here the
-compiled path's are checked against them too, on a smooth raster.
+compiled path's are checked against them too, on a smooth raster. ``gauss_newton_sums`` (the
+window's Hessian accumulation) is checked against the numpy sums it replaced.
 """
 
 from __future__ import annotations
@@ -13,8 +14,9 @@ import gtsam
 import numpy as np
 import pytest
 
-from factors.photometric import (GradientImage, PhotometricLinearization, pattern_bearings, photometric_residuals,
-                                 sample_host, stereo_residuals)
+from factors.photometric import (GradientImage, PhotometricLinearization, gauss_newton_sums, pattern_bearings,
+                                 photometric_residuals, sample_host, stereo_residuals)
+from gtvo.errors import InputError
 from tests._factors_synthetic import SinusoidImage, small_camera
 
 FIELDS = ("residual", "valid", "J_depth", "J_host", "J_target", "J_affine_host", "J_affine_target", "uv_target")
@@ -136,3 +138,45 @@ def test_sample_keeps_the_shape_and_rejects_mismatched_coordinates():
     assert vals.shape == (3,) and ok.shape == () and bool(ok)
     with pytest.raises(Exception, match="shape"):
         g.sample(np.zeros(3), np.zeros(4))
+
+
+@pytest.mark.parametrize("with_affine", [True, False])
+def test_gauss_newton_sums_equal_the_numpy_sums(with_affine):
+    rng = np.random.default_rng(11)
+    cam = small_camera()
+    host, target = GradientImage(textured(rng)), GradientImage(textured(rng))
+    px = np.c_[rng.uniform(3, 157, 150), rng.uniform(3, 117, 150)]
+    d = rng.uniform(0.1, 1.5, 150)
+    Tt = gtsam.Pose3(gtsam.Rot3.Expmap([0.01, 0.02, -0.01]), np.array([0.1, 0.0, 0.2]))
+    Ih, hv = sample_host(host, px)
+    lin = photometric_residuals(cam, Ih, hv, px, d, gtsam.Pose3(), Tt, target, (0.1, 1.0), (-0.2, 3.0))
+    weight = rng.uniform(0.0, 2.0, lin.residual.shape) * lin.valid
+    weight[:10] = 0.0
+    H, g, H_pd, H_dd, g_d = gauss_newton_sums(lin, weight, with_affine)
+    parts = [lin.J_host, lin.J_affine_host, lin.J_target, lin.J_affine_target] if with_affine \
+        else [lin.J_host, lin.J_target]
+    J = np.concatenate(parts, axis=-1)
+    k = J.shape[-1]
+    assert H.shape == (k, k) and H_pd.shape == (150, k)
+    Jw = J * weight[..., None]
+    np.testing.assert_allclose(H, Jw.reshape(-1, k).T @ J.reshape(-1, k), rtol=1e-10, atol=1e-6)
+    np.testing.assert_allclose(g, Jw.reshape(-1, k).T @ lin.residual.reshape(-1), rtol=1e-10, atol=1e-6)
+    np.testing.assert_allclose(H_pd, np.einsum("npk,np->nk", Jw, lin.J_depth), rtol=1e-10, atol=1e-6)
+    np.testing.assert_allclose(H_dd, np.sum(weight * lin.J_depth ** 2, axis=1), rtol=1e-10, atol=1e-9)
+    np.testing.assert_allclose(g_d, np.sum(weight * lin.J_depth * lin.residual, axis=1), rtol=1e-10, atol=1e-9)
+    assert np.all(H_pd[:10] == 0) and np.all(H_dd[:10] == 0)
+    assert np.linalg.eigvalsh(H).min() > -1e-6 * np.abs(H).max()
+
+
+def test_gauss_newton_sums_reject_missing_jacobians_and_bad_weights():
+    rng = np.random.default_rng(1)
+    cam = small_camera()
+    img = GradientImage(textured(rng))
+    px = np.array([[50.0, 50.0], [70.0, 60.0]])
+    Ih, hv = sample_host(img, px)
+    lin = photometric_residuals(cam, Ih, hv, px, [0.5, 0.5], gtsam.Pose3(), gtsam.Pose3(), img, jacobians=False)
+    with pytest.raises(InputError, match="Jacobians"):
+        gauss_newton_sums(lin, np.ones((2, 8)))
+    lin = photometric_residuals(cam, Ih, hv, px, [0.5, 0.5], gtsam.Pose3(), gtsam.Pose3(), img)
+    with pytest.raises(InputError, match="shape"):
+        gauss_newton_sums(lin, np.ones((2, 7)))
