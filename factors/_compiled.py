@@ -15,17 +15,28 @@ temporary array, and the kernel was about half of a whole VO run (docs/benchmark
 photometric kernel"). The arithmetic here is float64 throughout (the numpy sampler it replaced
 interpolated in float32: results moved by about 1e-5 grey levels, the KITTI figures not at all).
 
-Compiled on first use and cached on disk (``cache=True``: ``__pycache__`` beside this file, or
-numba's user cache directory when that is not writable).
+Compiled on first use and cached on disk (``__pycache__`` beside this file, or numba's user cache
+directory when that is not writable; with neither, e.g. a read-only install without a home
+directory, :func:`jit` compiles in every process instead of failing at import).
 """
 
 from __future__ import annotations
+
+from typing import Callable
 
 import numba
 import numpy as np
 
 
-@numba.njit(cache=True)
+def jit(fn: Callable) -> Callable:
+    """``numba.njit`` with an on-disk cache when numba finds a writable place for one."""
+    try:
+        return numba.njit(cache=True)(fn)
+    except RuntimeError:  # "cannot cache function ...: no locator available"
+        return numba.njit(cache=False)(fn)
+
+
+@jit
 def _bilinear(packed, has_clip, width, height, border, u, v):
     """Bilinear ``(valid, I, gx, gy)`` at ``(u, v)`` of ``packed`` ((H*W, 4) float32 records
     ``I, gx, gy, clipped cell``, ``GradientImage._packed``).
@@ -57,7 +68,7 @@ def _bilinear(packed, has_clip, width, height, border, u, v):
     return True, intensity, gx, gy
 
 
-@numba.njit(cache=True)
+@jit
 def sample_stack(packed, has_clip, width, height, border, u, v):
     """:func:`_bilinear` at every ``(u[k], v[k])`` (1-D float64): ``(values (M, 3), valid (M,))``,
     values 0 where invalid."""
@@ -74,7 +85,7 @@ def sample_stack(packed, has_clip, width, height, border, u, v):
     return values, valid
 
 
-@numba.njit(cache=True)
+@jit
 def warp_residuals(packed, has_clip, width, height, border, fx, fy, cx, cy, min_depth, R, t, f, d,
                    host_intensity, host_valid, e, b_h, b_t, jacobians, host_jacobians):
     """The loop form of ``photometric_residuals`` (same names, same outputs, same zeros).
@@ -197,7 +208,7 @@ def warp_residuals(packed, has_clip, width, height, border, fx, fy, cx, cy, min_
     return r, valid, J_depth, uv, J_target, J_host, J_aff_t, J_aff_h, counts
 
 
-@numba.njit(cache=True)
+@jit
 def accumulate_target(J_host, J_affine_host, J_target, J_affine_target, weight, residual, J_depth):
     """Gauss-Newton sums of one host-target pair, the block order ``[host pose, host affine,
     target pose, target affine]`` (6 + 2 + 6 + 2 = 16 columns; without affine Jacobians, i.e.

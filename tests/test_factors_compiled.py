@@ -180,3 +180,13 @@ def test_gauss_newton_sums_reject_missing_jacobians_and_bad_weights():
     lin = photometric_residuals(cam, Ih, hv, px, [0.5, 0.5], gtsam.Pose3(), gtsam.Pose3(), img)
     with pytest.raises(InputError, match="shape"):
         gauss_newton_sums(lin, np.ones((2, 7)))
+
+
+def test_jit_compiles_without_a_cache_location():
+    """numba cannot cache a function whose source is not a file (as with a read-only install and
+    no home directory); ``jit`` then compiles without a cache instead of raising at import."""
+    from factors._compiled import jit
+    namespace: dict = {}
+    exec(compile("def twice(x):\n    return 2.0 * x\n", "<no file>", "exec"), namespace)
+    fn = jit(namespace["twice"])
+    assert fn(1.5) == 3.0
