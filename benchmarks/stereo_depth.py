@@ -6,9 +6,12 @@ Prints (markdown tables, for docs/benchmarks.md):
   ratios to OpenCV StereoSGBM's full-frame time measured in the same run;
 * agreement with StereoSGBM on the points both accept, over all 51 KITTI_sequence_1 frames;
 * accuracy against Middlebury 2014 (quarter) ground-truth disparity at the selected points, for
-  us and for SGBM, and how well ``V`` predicts our errors.
+  us and for SGBM, and how well ``V`` predicts our errors;
+* (``exposure``) the same Middlebury accuracy when the right camera's exposure differs, as with
+  two cameras on their own auto exposure: right image ``clip(g I, 0, 255)`` for gains ``g`` from
+  0.5 to 2.5, with the gain equalisation (``equalize_gain``, default) and without it.
 
-Usage: ``python benchmarks/stereo_depth.py [--data ../shared/data] [--frames N]``
+Usage: ``python benchmarks/stereo_depth.py [--data ../shared/data] [--frames N] [--parts kitti,middlebury,exposure]``
 """
 
 from __future__ import annotations
@@ -120,6 +123,49 @@ def kitti(data: Path, frames: int | None) -> None:
     print("\nrejections: " + ", ".join(f"{k} {v / n_pts:.3f}" for k, v in counts.items()))
 
 
+def middlebury_scenes(data: Path):
+    """(name, left, right, ground truth, non-occluded mask, camera, max disparity, doffs) per scene."""
+    root = data / "stereo_disparity_gt" / "middlebury2014_quarter"
+    for sc in sorted(p for p in root.iterdir() if (p / "calib.txt").is_file()):
+        cal = read_middlebury_calib(sc / "calib.txt")
+        left = to_float_gray(cv2.imread(str(sc / "im0.png"), cv2.IMREAD_COLOR))
+        right = to_float_gray(cv2.imread(str(sc / "im1.png"), cv2.IMREAD_COLOR))
+        gt = read_pfm(sc / "disp0GT.pfm")
+        nocc = cv2.imread(str(sc / "mask0nocc.png"), cv2.IMREAD_GRAYSCALE) == 255
+        h, w = left.shape
+        cam = StereoCamera(PinholeCamera(cal["f"], cal["f"], cal["cx"], cal["cy"], w, h), cal["baseline"] / 1000.0)
+        yield sc.name, left, right, gt, nocc, cam, int(np.ceil(cal["vmax"])) + 2, cal["doffs"]
+
+
+def exposure(data: Path, gains: tuple[float, ...] = (0.5, 0.7, 1.0, 1.4, 2.0, 2.5)) -> None:
+    scenes = list(middlebury_scenes(data))
+    print(f"\n### Right camera exposed differently: Middlebury 2014 quarter, {len(scenes)} scenes, "
+          f"target {TARGET}; errors against ground truth at the selected non-occluded points\n")
+    print("| right gain | right pixels clipped | gain equalisation | accepted | median abs err (px) | bad-1.0 | "
+          "bad-2.0 | accepted and within 1 px |")
+    print("|---|---|---|---|---|---|---|---|")
+    for gain in gains:
+        for handling in ("on", "off"):
+            errs, n_acc, n_good, n_ok, clipped = [], 0, 0, 0, []
+            for _, left, right, gt, nocc, cam, max_disp, doffs in scenes:
+                right_g = np.clip(gain * right, 0.0, 255.0)
+                clipped.append(np.mean((right_g <= 0) | (right_g >= 255)))
+                px = select_points(left, TARGET)
+                res = stereo_inverse_depth(left, right_g, cam, px, max_disparity=max_disp, disparity_offset=doffs,
+                                           sigma_line=0.5, equalize_gain=handling == "on")
+                g = at(gt, px)
+                good = at(nocc, px) & np.isfinite(g)
+                ours = res.valid & good
+                e = np.abs(res.disparity - g)[ours]
+                errs.append(e)
+                n_acc += int(ours.sum())
+                n_good += int(good.sum())
+                n_ok += int(np.sum(e <= 1.0))
+            e = np.concatenate(errs)
+            print(f"| {gain:.1f} | {np.mean(clipped):.3f} | {handling} | {n_acc / n_good:.2f} | {np.median(e):.3f} | "
+                  f"{np.mean(e > 1):.3f} | {np.mean(e > 2):.3f} | {n_ok / n_good:.2f} |")
+
+
 def middlebury(data: Path) -> None:
     root = data / "stereo_disparity_gt" / "middlebury2014_quarter"
     scenes = sorted(p for p in root.iterdir() if (p / "calib.txt").is_file())
@@ -174,9 +220,15 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, default=Path(__file__).resolve().parents[2] / "shared" / "data")
     ap.add_argument("--frames", type=int, default=None, help="KITTI frames to use (default all 51)")
+    ap.add_argument("--parts", default="kitti,middlebury,exposure")
     args = ap.parse_args()
-    kitti(args.data, args.frames)
-    middlebury(args.data)
+    parts = set(args.parts.split(","))
+    if "kitti" in parts:
+        kitti(args.data, args.frames)
+    if "middlebury" in parts:
+        middlebury(args.data)
+    if "exposure" in parts:
+        exposure(args.data)
     return 0
 
 
