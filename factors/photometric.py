@@ -237,6 +237,9 @@ def photometric_residuals(camera: PinholeCamera, host_intensity: ArrayLike, host
                           host_jacobians: bool = True, bearings: ArrayLike | None = None) -> PhotometricLinearization:
     """Photometric residuals of hosted points in one target image, with analytic Jacobians.
 
+    A :class:`GradientImage` target runs the compiled loops of :mod:`factors._compiled`; any other
+    :class:`GradientSampler` runs the numpy form below. Both give the same outputs (tested).
+
     Args:
         camera: intrinsics of the pyramid level (host and target share them).
         host_intensity: (N, P) host intensities at the pattern (:func:`sample_host`).
@@ -274,7 +277,7 @@ def photometric_residuals(camera: PinholeCamera, host_intensity: ArrayLike, host
         raise InputError(f"photometric_residuals: bearings have shape {f.shape}, expected {(n, p, 3)}")
     f = f.reshape(n, p, 3)
     if isinstance(target, GradientImage):
-        # the fused compiled loop (same outputs as the numpy form below, which other samplers use)
+        # the compiled loops (same outputs as the numpy form below, which other samplers take)
         r, valid, J_depth, uv, J_t, J_h, J_at, J_ah, counts = _compiled.warp_residuals(
             *target._sampler_args(), float(camera.fx), float(camera.fy), float(camera.cx), float(camera.cy),
             float(MIN_DEPTH),
