@@ -167,25 +167,16 @@ def exposure(data: Path, gains: tuple[float, ...] = (0.5, 0.7, 1.0, 1.4, 2.0, 2.
 
 
 def middlebury(data: Path) -> None:
-    root = data / "stereo_disparity_gt" / "middlebury2014_quarter"
-    scenes = sorted(p for p in root.iterdir() if (p / "calib.txt").is_file())
+    scenes = list(middlebury_scenes(data))
     print(f"\n### Middlebury 2014 quarter, {len(scenes)} scenes, target {TARGET}; errors at the selected "
           "non-occluded points\n")
     print("| scene | ours: accepted | ours: median abs err (px) | ours: bad-1.0 | ours: bad-2.0 | "
           "SGBM at same points: valid | SGBM: median | SGBM: bad-1.0 | SGBM: bad-2.0 | ours within 2 sigma |")
     print("|---|---|---|---|---|---|---|---|---|---|")
     all_ours, all_sg, all_z, acc = [], [], [], []
-    for sc in scenes:
-        cal = read_middlebury_calib(sc / "calib.txt")
-        left = to_float_gray(cv2.imread(str(sc / "im0.png"), cv2.IMREAD_COLOR))
-        right = to_float_gray(cv2.imread(str(sc / "im1.png"), cv2.IMREAD_COLOR))
-        gt = read_pfm(sc / "disp0GT.pfm")
-        nocc = cv2.imread(str(sc / "mask0nocc.png"), cv2.IMREAD_GRAYSCALE) == 255
-        h, w = left.shape
-        cam = StereoCamera(PinholeCamera(cal["f"], cal["f"], cal["cx"], cal["cy"], w, h), cal["baseline"] / 1000.0)
-        max_disp = int(np.ceil(cal["vmax"])) + 2
+    for name, left, right, gt, nocc, cam, max_disp, doffs in scenes:
         px = select_points(left, TARGET)
-        res = stereo_inverse_depth(left, right, cam, px, max_disparity=max_disp, disparity_offset=cal["doffs"],
+        res = stereo_inverse_depth(left, right, cam, px, max_disparity=max_disp, disparity_offset=doffs,
                                    sigma_line=0.5)
         nd = int(np.ceil((max_disp + 1) / 16.0)) * 16
         l8 = np.clip(left, 0, 255).astype(np.uint8)
@@ -200,12 +191,12 @@ def middlebury(data: Path) -> None:
         es = np.abs(s - g)[sv]
         within2 = np.mean(e < 2 * res.disparity_std[ours])
         # inverse-depth error (1/m) against GT: d = (disp + doffs) / (f b)
-        d_gt = (g[ours] + cal["doffs"]) / (cal["f"] * cal["baseline"] / 1000.0)
+        d_gt = (g[ours] + doffs) / (cam.left.fx * cam.baseline)
         all_z.append(np.abs(res.inverse_depth[ours] - d_gt) / d_gt)
         all_ours.append(e)
         all_sg.append(es)
         acc.append((ours.sum(), good.sum(), sv.sum(), within2))
-        print(f"| {sc.name} | {ours.sum() / max(good.sum(), 1):.2f} | {np.median(e):.3f} | {np.mean(e > 1):.3f} | "
+        print(f"| {name} | {ours.sum() / max(good.sum(), 1):.2f} | {np.median(e):.3f} | {np.mean(e > 1):.3f} | "
               f"{np.mean(e > 2):.3f} | {sv.sum() / max(good.sum(), 1):.2f} | {np.median(es):.3f} | "
               f"{np.mean(es > 1):.3f} | {np.mean(es > 2):.3f} | {within2:.2f} |")
     e, es, z = np.concatenate(all_ours), np.concatenate(all_sg), np.concatenate(all_z)
