@@ -327,14 +327,16 @@ class HostPointsFactor(PythonFactor):
             c += 0.5 * (d[sel] - self.d_prior[sel]) ** 2 / self.variance[sel]
         return c
 
-    def _columns(self, t: int) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
-        """Reduced-state columns of (host pose, target pose[, host affine, target affine]) of target t."""
-        nt = len(self.target_keys)
-        cols = list(range(6)) + list(range(6 * (1 + t), 6 * (2 + t)))
-        if self.with_affine:
-            base = 6 * (1 + nt)
-            cols += [base, base + 1, base + 2 * (1 + t), base + 2 * (1 + t) + 1]
-        return np.array(cols, dtype=np.intp), np.arange(len(cols))
+    def _columns(self, t: int) -> NDArray[np.intp]:
+        """Reduced-state columns of target t's Gauss-Newton block, in :func:`gauss_newton_sums`'
+        order: host pose, [host affine,] target pose[, target affine] (the reduced state holds all
+        poses first, then all affines)."""
+        host_pose, target_pose = list(range(6)), list(range(6 * (1 + t), 6 * (2 + t)))
+        if not self.with_affine:
+            return np.array(host_pose + target_pose, dtype=np.intp)
+        base = 6 * (1 + len(self.target_keys))
+        host_aff, target_aff = [base, base + 1], [base + 2 * (1 + t), base + 2 * (1 + t) + 1]
+        return np.array(host_pose + host_aff + target_pose + target_aff, dtype=np.intp)
 
     def _linearize(self, poses, affs) -> tuple[FloatArray, FloatArray, float]:
         if self._lin is not None:
@@ -350,9 +352,7 @@ class HostPointsFactor(PythonFactor):
         for t, (lin, W, w, loss, _) in enumerate(self._target_terms(poses, affs, d, True)):
             c_pt += loss
             H_t, g_t, H_pd_t, H_dd_t, g_d_t = gauss_newton_sums(lin, W * w[:, None], self.with_affine)
-            cols, _ = self._columns(t)  # host pose, target pose[, host affine, target affine]
-            if self.with_affine:  # gauss_newton_sums' order: host pose, host affine, target pose, target affine
-                cols = np.r_[cols[0:6], cols[12:14], cols[6:12], cols[14:16]]
+            cols = self._columns(t)
             H_pp[np.ix_(cols, cols)] += H_t
             g_p[cols] += g_t
             H_pd[:, cols] += H_pd_t
