@@ -122,13 +122,16 @@ def warp_residuals(packed, has_clip, width, height, border, fx, fy, cx, cy, min_
     # phase A: warp every residual (arithmetic only)
     q = np.empty((n, p, 3))
     izs = np.empty((n, p))
+    d_safe = np.ones(n)  # the inverse depth, 1 where it is not usable
     state = np.zeros((n, p), dtype=np.int8)  # 0 bad depth, 1 behind, 2 in front
     for i in range(n):
         di = d[i]
         good = np.isfinite(di) and di > 0.0
-        ds = di if good else 1.0
-        if not good:
+        if good:
+            d_safe[i] = di
+        else:
             counts[0] += 1
+        ds = d_safe[i]
         for k in range(p):
             f0, f1, f2 = f[i, k, 0], f[i, k, 1], f[i, k, 2]
             q0 = R00 * f0 + R01 * f1 + R02 * f2 + ds * t0
@@ -148,12 +151,12 @@ def warp_residuals(packed, has_clip, width, height, border, fx, fy, cx, cy, min_
                 else:
                     state[i, k] = 1
                     counts[1] += 1
-    # phase B: gather (a tight loop: many loads in flight)
+    # phase B: gather (a tight loop: many loads in flight), only what can become a residual
     S = np.empty((n, p, 3))
     inside = np.zeros((n, p), dtype=np.bool_)
     for i in range(n):
         for k in range(p):
-            if state[i, k] == 2:
+            if state[i, k] == 2 and host_valid[i, k]:
                 ok, intensity, gx, gy = _bilinear(packed, has_clip, width, height, border, uv[i, k, 0], uv[i, k, 1])
                 inside[i, k] = ok
                 S[i, k, 0] = intensity
@@ -161,8 +164,7 @@ def warp_residuals(packed, has_clip, width, height, border, fx, fy, cx, cy, min_
                 S[i, k, 2] = gy
     # phase C: residuals and Jacobians
     for i in range(n):
-        di = d[i]
-        ds = di if (np.isfinite(di) and di > 0.0) else 1.0
+        ds = d_safe[i]
         for k in range(p):
             if state[i, k] != 2:
                 continue
