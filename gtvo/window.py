@@ -907,16 +907,15 @@ class SlidingWindowOptimizer:
                 graph.add(gauge.at(i))
         in_window = {kf.index for kf in self.keyframes}
         remove = [slot for idx, (slot, _) in self._host_slots.items() if idx in in_window]
-        for idx in [i for i in self._host_slots if i in in_window]:
-            del self._host_slots[idx]
+        # the window's hosts are removed and added again below; a leaving keyframe's host factor
+        # stays in the smoother and is marginalised by this update: either way no slot survives
+        self._host_slots = {}
         added: list[tuple[int, HostPointsFactor]] = []
         for h, ts in enumerate(targets):
             if ts:
                 f = host_factor(self.camera, self.baseline, self.keyframes, h, ts, cfg)
                 graph.add(f)
                 added.append((self.keyframes[h].index, f))
-        for idx in [i for i in self._host_slots if i not in in_window]:
-            del self._host_slots[idx]  # marginalised by this update
         n_prior = graph.size() - len(added)
         self._smoother.update(graph, values, stamps, remove)
         ind = list(self._smoother.getISAM2Result().getNewFactorsIndices())
