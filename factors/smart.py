@@ -281,15 +281,11 @@ class HostPointsFactor(PythonFactor):
             self._W = W
         return self._W
 
-    def _target_terms(self, poses, affs, d, jac: bool = True):
-        """Per target: linearisation, whitening s = sqrt(W), Huber IRLS weights and loss."""
+    def _target_terms(self, poses, affs, d) -> list[tuple]:
+        """Per target: ``(linearisation, W, Huber IRLS weights, loss)``."""
         lins = self._lins(poses, affs, d)
         Ws = self._weights(lins)
-        out = []
-        for t, lin in enumerate(lins[:-1]):
-            w, loss = self._robust(Ws[t], lin.residual)
-            out.append((lin, Ws[t], w, loss, None))
-        return out
+        return [(lin, Ws[t], *self._robust(Ws[t], lin.residual)) for t, lin in enumerate(lins[:-1])]
 
     def _stereo_term(self, d: FloatArray, poses=None, affs=None):
         """The stereo residuals of the host frame: (linearisation, lambda W, Huber weight, loss) or None."""
@@ -349,7 +345,7 @@ class HostPointsFactor(PythonFactor):
         H_dd = np.zeros(n)
         g_d = np.zeros(n)
         c_pt = np.zeros(n)
-        for t, (lin, W, w, loss, _) in enumerate(self._target_terms(poses, affs, d, True)):
+        for t, (lin, W, w, loss) in enumerate(self._target_terms(poses, affs, d)):
             c_pt += loss
             H_t, g_t, H_pd_t, H_dd_t, g_d_t = gauss_newton_sums(lin, W * w[:, None], self.with_affine)
             cols = self._columns(t)
