@@ -15,25 +15,14 @@ temporary array, and the kernel was about half of a whole VO run (docs/benchmark
 photometric kernel"). The arithmetic here is float64 throughout (the numpy sampler it replaced
 interpolated in float32: results moved by about 1e-5 grey levels, the KITTI figures not at all).
 
-Compiled on first use and cached on disk (``__pycache__`` beside this file, or numba's user cache
-directory when that is not writable; with neither, e.g. a read-only install without a home
-directory, :func:`jit` compiles in every process instead of failing at import).
+Compiled on first use and cached on disk (:func:`gtvo._jit.jit`).
 """
 
 from __future__ import annotations
 
-from typing import Callable
-
-import numba
 import numpy as np
 
-
-def jit(fn: Callable) -> Callable:
-    """``numba.njit`` with an on-disk cache when numba finds a writable place for one."""
-    try:
-        return numba.njit(cache=True)(fn)
-    except RuntimeError:  # "cannot cache function ...: no locator available"
-        return numba.njit(cache=False)(fn)
+from gtvo._jit import jit
 
 
 @jit
@@ -260,3 +249,4 @@ def accumulate_target(J_host, J_affine_host, J_target, J_affine_target, weight, 
         for b in range(a):
             H[a, b] = H[b, a]
     return H, g, H_pd, H_dd, g_d
+

@@ -1,8 +1,10 @@
 import numpy as np
 import pytest
+from numpy.typing import NDArray
 
 from gtvo.errors import InputError
 from gtvo.frontend import DEFAULT_BORDER, block_gradient_thresholds, gradient_magnitude, select_points
+from gtvo.frontend._compiled import pick_cells
 
 from _synthetic_stereo import texture
 
@@ -98,3 +100,52 @@ def test_kitti_frame_spread(shared_data):
     h, w = img.shape
     hist, _, _ = np.histogram2d(px[:, 0], px[:, 1], bins=[4, 2], range=[[0, w], [0, h]])
     assert hist.min() > 0.05 * len(px)            # every one of 8 image regions gets points
+
+
+# The numpy form of step 3 that gtvo.frontend._compiled.pick_cells replaced: the reference.
+def _pad_to_multiple(a: NDArray, m: int, fill: float) -> NDArray:
+    h, w = a.shape
+    ph, pw = (-h) % m, (-w) % m
+    if ph == 0 and pw == 0:
+        return a
+    return np.pad(a, ((0, ph), (0, pw)), constant_values=fill)
+
+
+def _pick_hierarchical(score: NDArray, thr: NDArray, eligible: NDArray, cell: int, levels: int,
+                       downweight: float) -> NDArray[np.bool_]:
+    """Boolean map of picks for one cell size (the 3-level rule of step 3)."""
+    h, w = score.shape
+    picked = np.zeros((h, w), dtype=bool)
+    for lvl in range(levels):
+        c = cell * (2 ** lvl)
+        ok = eligible & (score > thr * (downweight ** lvl))
+        masked = _pad_to_multiple(np.where(ok, score, -1.0).astype(np.float32), c, -1.0)
+        have = _pad_to_multiple(picked, c, False)
+        nby, nbx = masked.shape[0] // c, masked.shape[1] // c
+        cells = masked.reshape(nby, c, nbx, c).transpose(0, 2, 1, 3).reshape(nby, nbx, c * c)
+        has_pick = have.reshape(nby, c, nbx, c).any(axis=(1, 3))
+        idx = np.argmax(cells, axis=-1)
+        best = np.take_along_axis(cells, idx[..., None], axis=-1)[..., 0]
+        take = (best >= 0) & ~has_pick
+        by, bx = np.nonzero(take)
+        k = idx[by, bx]
+        picked[by * c + k // c, bx * c + k % c] = True
+    return picked
+
+
+@pytest.mark.parametrize("shape,cell,border", [((240, 320), 5, DEFAULT_BORDER), ((97, 131), 3, 4), ((370, 1226), 11, 8),
+                                               ((64, 64), 1, 0), ((50, 70), 40, 2)])
+def test_compiled_cell_pick_equals_the_numpy_rule(shape, cell, border):
+    """pick_cells against the numpy rule: same picks, pixel for pixel (ties included: a
+    quantised score has many equal maxima per cell)."""
+    img = textured(*shape, seed=sum(shape))
+    for score in (gradient_magnitude(img), np.floor(gradient_magnitude(img) / 8.0).astype(np.float32)):
+        thr = block_gradient_thresholds(score, 32, 7.0 if score.max() > 20 else 0.5)
+        eligible = np.zeros(shape, dtype=bool)
+        eligible[border:shape[0] - border, border:shape[1] - border] = True
+        for levels, downweight in ((3, 0.75), (1, 1.0), (4, 0.5)):
+            ref = _pick_hierarchical(score, thr, eligible, cell, levels, downweight)
+            factors = np.array([downweight ** lvl for lvl in range(levels)], dtype=np.float32)
+            got = pick_cells(score, thr, border, cell, factors)
+            assert ref.any()
+            np.testing.assert_array_equal(got, ref)

@@ -23,6 +23,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gtvo.errors import InputError
+from gtvo.frontend._compiled import pick_cells
 from gtvo.image import image_gradients, to_float_gray
 
 #: Radius of the 8-pixel DSO pattern and of the 5x5 stereo patch.
@@ -35,14 +36,6 @@ def gradient_magnitude(image: NDArray) -> NDArray[np.float32]:
     """``G = sqrt(gx^2 + gy^2)`` of a gray image, central differences, float32 (H, W)."""
     gx, gy = image_gradients(to_float_gray(image))
     return np.sqrt(gx * gx + gy * gy)
-
-
-def _pad_to_multiple(a: NDArray, m: int, fill: float) -> NDArray:
-    h, w = a.shape
-    ph, pw = (-h) % m, (-w) % m
-    if ph == 0 and pw == 0:
-        return a
-    return np.pad(a, ((0, ph), (0, pw)), constant_values=fill)
 
 
 def block_gradient_thresholds(grad_mag: NDArray, block: int = 32,
@@ -69,28 +62,6 @@ def block_gradient_thresholds(grad_mag: NDArray, block: int = 32,
     smooth = np.nanmean(stack, axis=0) + float(threshold_offset)
     full = np.repeat(np.repeat(smooth, block, axis=0), block, axis=1)
     return full[:h, :w].astype(np.float32)
-
-
-def _pick_hierarchical(score: NDArray, thr: NDArray, eligible: NDArray, cell: int, levels: int,
-                       downweight: float) -> NDArray[np.bool_]:
-    """Boolean map of picks for one cell size (the 3-level rule of step 3)."""
-    h, w = score.shape
-    picked = np.zeros((h, w), dtype=bool)
-    for lvl in range(levels):
-        c = cell * (2 ** lvl)
-        ok = eligible & (score > thr * (downweight ** lvl))
-        masked = _pad_to_multiple(np.where(ok, score, -1.0).astype(np.float32), c, -1.0)
-        have = _pad_to_multiple(picked, c, False)
-        nby, nbx = masked.shape[0] // c, masked.shape[1] // c
-        cells = masked.reshape(nby, c, nbx, c).transpose(0, 2, 1, 3).reshape(nby, nbx, c * c)
-        has_pick = have.reshape(nby, c, nbx, c).any(axis=(1, 3))
-        idx = np.argmax(cells, axis=-1)
-        best = np.take_along_axis(cells, idx[..., None], axis=-1)[..., 0]
-        take = (best >= 0) & ~has_pick
-        by, bx = np.nonzero(take)
-        k = idx[by, bx]
-        picked[by * c + k // c, bx * c + k % c] = True
-    return picked
 
 
 def select_points(image: NDArray, target: int = 2000, border: int = DEFAULT_BORDER, *,
@@ -129,8 +100,8 @@ def select_points(image: NDArray, target: int = 2000, border: int = DEFAULT_BORD
     target = int(target)
     score = gradient_magnitude(img)
     thr = block_gradient_thresholds(score, block, threshold_offset)
-    eligible = np.zeros((h, w), dtype=bool)
-    eligible[border:h - border, border:w - border] = True
+    # the threshold factor of each cell level, float32 as numpy's float32 x Python float product
+    factors = np.array([downweight ** lvl for lvl in range(levels)], dtype=np.float32)
 
     area = float((h - 2 * border) * (w - 2 * border))
     cell = max(1.0, np.sqrt(area / target))
@@ -138,7 +109,7 @@ def select_points(image: NDArray, target: int = 2000, border: int = DEFAULT_BORD
     for _ in range(max_iterations):
         c = int(max(1, round(cell)))
         if c not in tried:
-            tried[c] = _pick_hierarchical(score, thr, eligible, c, levels, downweight)
+            tried[c] = pick_cells(score, thr, border, c, factors)
         n = int(tried[c].sum())
         if target <= n <= (1 + tolerance) * target or n == 0:
             break
