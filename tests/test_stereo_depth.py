@@ -1,5 +1,6 @@
 import numpy as np
 import pytest
+from numpy.typing import NDArray
 
 from gtvo.camera import PinholeCamera, StereoCamera
 from gtvo.errors import InputError
@@ -13,7 +14,7 @@ from gtvo.frontend import (
     stereo_inverse_depth,
 )
 
-from gtvo.frontend.stereo_depth import matched_gain
+from gtvo.frontend.stereo_depth import DSO_PATTERN_8, PATCH_5X5, _gather_integer, _integer_search, matched_gain
 
 from _synthetic_stereo import camera, stereo_pair, texture
 
@@ -294,3 +295,77 @@ def test_right_camera_gain_is_equalized_before_matching(gain, raw_loss):
     # without the equalisation the left-right check rejects many points (measured: 17 % and 86 %
     # accepted at 0.6 and 0.8, against 96 %)
     assert raw.valid.mean() < res.valid.mean() - raw_loss
+
+
+# The numpy form of the integer epipolar search that gtvo.frontend._compiled.zssd_costs replaced:
+# the reference.
+def _integer_search_numpy(src: NDArray, dst: NDArray, u: NDArray, v: NDArray, pattern: NDArray,
+                    disparities: NDArray, sign: int, chunk: int = 2048) -> NDArray[np.float64]:
+    """ZSSD cost (N, D) of matching ``src`` patterns at integer (u, v) against ``dst`` at
+    ``(u + sign * disp, v)``; ``inf`` where a pattern sample leaves ``dst``.
+
+    Per point, one strip of ``dst`` (the pattern's rows x the searched columns) is gathered; the
+    cost of every candidate is ``sum Lc^2 - 2 sum Lc R + sum R^2 - (sum R)^2 / P`` with ``Lc`` the
+    zero-mean source pattern, accumulated by a loop over the P pattern offsets (each step
+    vectorised over points x candidates).
+    """
+    n, d_count, p = u.size, disparities.size, pattern.shape[0]
+    pu, pv = pattern[:, 0], pattern[:, 1]
+    rows = np.unique(pv)
+    row_of = np.searchsorted(rows, pv)
+    dx0 = int(pu.min())
+    width = d_count + int(pu.max()) - dx0
+    cost = np.full((n, d_count), np.inf)
+    for s in range(0, n, chunk):
+        e = min(n, s + chunk)
+        us, vs = u[s:e], v[s:e]
+        src_vals, _ = _gather_integer(src, us[:, None] + pu, vs[:, None] + pv)          # (n, P)
+        src_c = src_vals - src_vals.mean(axis=1, keepdims=True)
+        # strip columns: start + j, j = 0..width-1; candidate i, offset dx -> j = dx - dx0 + i (sign +1)
+        # or j = dx - dx0 + (D - 1 - i) (sign -1).
+        first = disparities[0] if sign > 0 else disparities[-1]
+        start = us + sign * first + dx0
+        cols = start[:, None, None] + np.arange(width)[None, None, :]
+        rws = np.broadcast_to(vs[:, None, None] + rows[None, :, None], (e - s, rows.size, width))
+        strip, _ = _gather_integer(dst, np.broadcast_to(cols, rws.shape), rws)
+        strip = strip.astype(np.float64)
+        # accumulate in strip order (j0 + i), then flip the candidate axis for sign -1
+        s_lr = np.zeros((e - s, d_count))
+        s_r = np.zeros((e - s, d_count))
+        s_rr = np.zeros((e - s, d_count))
+        for k in range(p):
+            j0 = int(pu[k]) - dx0
+            r = strip[:, row_of[k], j0:j0 + d_count]
+            s_lr += src_c[:, k:k + 1] * r
+            s_r += r
+            s_rr += r * r
+        s_ll = np.sum(src_c * src_c, axis=1, keepdims=True)
+        c = np.maximum(s_ll - 2.0 * s_lr + s_rr - s_r * s_r / p, 0.0)
+        if sign < 0:
+            c = c[:, ::-1]
+        # a candidate is valid when its whole pattern lies inside dst
+        h, w = dst.shape
+        left_col = us[:, None] + sign * disparities[None, :] + dx0
+        inside = ((left_col >= 0) & (left_col + int(pu.max()) - dx0 <= w - 1)
+                  & (vs[:, None] + int(pv.min()) >= 0) & (vs[:, None] + int(pv.max()) <= h - 1))
+        cost[s:e] = np.where(inside, c, np.inf)
+    return cost
+
+
+@pytest.mark.parametrize("sign", [-1, 1])
+@pytest.mark.parametrize("pattern", [PATCH_5X5, DSO_PATTERN_8])
+def test_compiled_search_equals_the_numpy_search(sign, pattern):
+    """Same costs to the bit, inf where the pattern leaves the image (points near every edge,
+    disparities reaching past both sides)."""
+    rng = np.random.default_rng(7)
+    h, w = 60, 90
+    v_, u_ = np.mgrid[0:h, 0:w].astype(float)
+    src = texture(u_, v_, 1).astype(np.float32)
+    dst = np.roll(src, 6 * sign, axis=1) + rng.normal(0, 2, (h, w)).astype(np.float32)
+    u = rng.integers(0, w, 300)
+    v = rng.integers(0, h, 300)
+    disps = np.arange(0, 41, dtype=np.int64)
+    got = _integer_search(src, dst, u, v, pattern, disps, sign)
+    ref = _integer_search_numpy(src, dst, u, v, pattern, disps, sign, chunk=64)
+    assert np.isinf(ref).any() and np.isfinite(ref).any()
+    np.testing.assert_array_equal(got, ref)

@@ -1,9 +1,12 @@
 """Compiled loops (numba) of the front end; each is the loop form of numpy code in
-:mod:`gtvo.frontend.point_selection` and is tested against it.
+:mod:`gtvo.frontend` and is tested against it.
 
 * :func:`pick_cells`: step 3 of the point-selection rule, the hierarchical per-cell pick of the
   pixel of largest gradient above the threshold. The numpy form padded and reshaped two full-size
-  arrays per level (about half of ``select_points``' time on KITTI).
+  arrays per level (about half of ``select_points``' time on KITTI);
+* :func:`zssd_costs`: the integer epipolar search of :mod:`gtvo.frontend.stereo_depth` (every
+  candidate disparity's zero-mean SSD); the numpy form gathered a strip per point and made a
+  pass over points x candidates per pattern pixel.
 """
 
 from __future__ import annotations
@@ -51,3 +54,40 @@ def pick_cells(score, thr, border, cell, level_factors):
                     picked[by, bx] = True
     return picked
 
+
+@jit
+def zssd_costs(dst, u, v, pu, pv, src_c, s_ll, disparities, sign):
+    """The integer epipolar search's ZSSD cost (N, D) of ``stereo_depth._integer_search``.
+
+    Point ``n``'s zero-mean source pattern ``src_c[n]`` (P values at offsets ``(pu, pv)``, float32,
+    with ``s_ll[n] = sum src_c^2``) against ``dst`` (float32 (H, W)) at ``(u[n] + sign * d + pu,
+    v[n] + pv)`` for every ``d`` of ``disparities``:
+    ``s_ll - 2 sum src_c R + sum R^2 - (sum R)^2 / P``, clamped at 0; ``inf`` where a pattern
+    sample leaves ``dst``. The sums run over the pattern in order, in float64, as the numpy form
+    accumulated them, so the costs are the same to the bit.
+    """
+    h, w = dst.shape
+    n = u.shape[0]
+    d_count = disparities.shape[0]
+    p = pu.shape[0]
+    cost = np.full((n, d_count), np.inf)
+    for i in range(n):
+        for j in range(d_count):
+            base = u[i] + sign * disparities[j]
+            inside = True
+            s_lr = 0.0
+            s_r = 0.0
+            s_rr = 0.0
+            for k in range(p):
+                x = base + pu[k]
+                y = v[i] + pv[k]
+                if x < 0 or x > w - 1 or y < 0 or y > h - 1:
+                    inside = False
+                    break
+                r = np.float64(dst[y, x])
+                s_lr += np.float64(src_c[i, k]) * r
+                s_r += r
+                s_rr += r * r
+            if inside:
+                cost[i, j] = max(np.float64(s_ll[i]) - 2.0 * s_lr + s_rr - s_r * s_r / p, 0.0)
+    return cost

@@ -35,6 +35,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from gtvo.camera import StereoCamera
 from gtvo.errors import InputError
+from gtvo.frontend._compiled import zssd_costs
 from gtvo.frontend.point_selection import DEFAULT_BORDER, select_points
 from gtvo.image import bilinear_sample, check_same_size, image_gradients, to_float_gray
 
@@ -183,56 +184,23 @@ def _gather_integer(image: NDArray, u: NDArray, v: NDArray) -> tuple[NDArray, ND
 
 
 def _integer_search(src: NDArray, dst: NDArray, u: NDArray, v: NDArray, pattern: NDArray,
-                    disparities: NDArray, sign: int, chunk: int = 2048) -> NDArray[np.float64]:
+                    disparities: NDArray, sign: int) -> NDArray[np.float64]:
     """ZSSD cost (N, D) of matching ``src`` patterns at integer (u, v) against ``dst`` at
     ``(u + sign * disp, v)``; ``inf`` where a pattern sample leaves ``dst``.
 
-    Per point, one strip of ``dst`` (the pattern's rows x the searched columns) is gathered; the
-    cost of every candidate is ``sum Lc^2 - 2 sum Lc R + sum R^2 - (sum R)^2 / P`` with ``Lc`` the
-    zero-mean source pattern, accumulated by a loop over the P pattern offsets (each step
-    vectorised over points x candidates).
+    The cost of every candidate is ``sum Lc^2 - 2 sum Lc R + sum R^2 - (sum R)^2 / P`` with ``Lc``
+    the zero-mean source pattern (computed here) and ``R`` the candidate's ``dst`` pattern
+    (:func:`gtvo.frontend._compiled.zssd_costs`, one compiled loop over points x candidates;
+    its numpy form is the reference in the tests).
     """
-    n, d_count, p = u.size, disparities.size, pattern.shape[0]
     pu, pv = pattern[:, 0], pattern[:, 1]
-    rows = np.unique(pv)
-    row_of = np.searchsorted(rows, pv)
-    dx0 = int(pu.min())
-    width = d_count + int(pu.max()) - dx0
-    cost = np.full((n, d_count), np.inf)
-    for s in range(0, n, chunk):
-        e = min(n, s + chunk)
-        us, vs = u[s:e], v[s:e]
-        src_vals, _ = _gather_integer(src, us[:, None] + pu, vs[:, None] + pv)          # (n, P)
-        src_c = src_vals - src_vals.mean(axis=1, keepdims=True)
-        # strip columns: start + j, j = 0..width-1; candidate i, offset dx -> j = dx - dx0 + i (sign +1)
-        # or j = dx - dx0 + (D - 1 - i) (sign -1).
-        first = disparities[0] if sign > 0 else disparities[-1]
-        start = us + sign * first + dx0
-        cols = start[:, None, None] + np.arange(width)[None, None, :]
-        rws = np.broadcast_to(vs[:, None, None] + rows[None, :, None], (e - s, rows.size, width))
-        strip, _ = _gather_integer(dst, np.broadcast_to(cols, rws.shape), rws)
-        strip = strip.astype(np.float64)
-        # accumulate in strip order (j0 + i), then flip the candidate axis for sign -1
-        s_lr = np.zeros((e - s, d_count))
-        s_r = np.zeros((e - s, d_count))
-        s_rr = np.zeros((e - s, d_count))
-        for k in range(p):
-            j0 = int(pu[k]) - dx0
-            r = strip[:, row_of[k], j0:j0 + d_count]
-            s_lr += src_c[:, k:k + 1] * r
-            s_r += r
-            s_rr += r * r
-        s_ll = np.sum(src_c * src_c, axis=1, keepdims=True)
-        c = np.maximum(s_ll - 2.0 * s_lr + s_rr - s_r * s_r / p, 0.0)
-        if sign < 0:
-            c = c[:, ::-1]
-        # a candidate is valid when its whole pattern lies inside dst
-        h, w = dst.shape
-        left_col = us[:, None] + sign * disparities[None, :] + dx0
-        inside = ((left_col >= 0) & (left_col + int(pu.max()) - dx0 <= w - 1)
-                  & (vs[:, None] + int(pv.min()) >= 0) & (vs[:, None] + int(pv.max()) <= h - 1))
-        cost[s:e] = np.where(inside, c, np.inf)
-    return cost
+    src_vals, _ = _gather_integer(src, u[:, None] + pu, v[:, None] + pv)  # (N, P); 0 outside src
+    src_c = src_vals - src_vals.mean(axis=1, keepdims=True)
+    s_ll = np.sum(src_c * src_c, axis=1)
+    return zssd_costs(np.ascontiguousarray(dst, dtype=np.float32), np.ascontiguousarray(u, dtype=np.int64),
+                      np.ascontiguousarray(v, dtype=np.int64), np.ascontiguousarray(pu, dtype=np.int64),
+                      np.ascontiguousarray(pv, dtype=np.int64), np.ascontiguousarray(src_c), s_ll,
+                      np.ascontiguousarray(disparities, dtype=np.int64), int(sign))
 
 
 def stereo_inverse_depth(left: NDArray, right: NDArray, stereo_camera: StereoCamera, pixels: ArrayLike, *,
