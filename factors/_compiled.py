@@ -7,6 +7,8 @@ and to numerical derivatives through it):
   border and clipped-cell validity rule);
 * :func:`warp_residuals`: :func:`photometric_residuals` for a :class:`GradientImage` target in
   three tight loops (warp, gather, residuals and Jacobians) instead of about 40 numpy passes;
+* :func:`point_huber`: ``photometric.point_robust_terms``, each point's Huber weight and loss
+  on its whitened pattern norm;
 * :func:`accumulate_target`: ``photometric.gauss_newton_sums``, the Gauss-Newton sums of one
   host-target pair (the window's Hessian accumulation before the Schur complement).
 
@@ -250,3 +252,23 @@ def accumulate_target(J_host, J_affine_host, J_target, J_affine_target, weight, 
             H[a, b] = H[b, a]
     return H, g, H_pd, H_dd, g_d
 
+
+@jit
+def point_huber(weight, residual, k, robust):
+    """Per point ``x = sqrt(sum_P w r^2)`` (``weight``, ``residual`` (N, P)): ``(IRLS weight,
+    loss)`` of the Huber kernel with threshold ``k`` (``robust`` False: 1 and ``x^2 / 2``), the
+    values of ``photometric.huber_weight`` / ``huber_loss``."""
+    n, p = residual.shape
+    w_out = np.ones(n)
+    loss = np.empty(n)
+    for i in range(n):
+        s = 0.0
+        for m in range(p):
+            s += weight[i, m] * residual[i, m] * residual[i, m]
+        x = np.sqrt(s)
+        if not robust or x <= k:
+            loss[i] = 0.5 * x * x
+        else:
+            loss[i] = k * x - 0.5 * k * k
+            w_out[i] = k / x
+    return w_out, loss

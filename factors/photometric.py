@@ -139,6 +139,23 @@ class GradientImage:
         return bilinear_sample(self.image, u, v, border=self.border)
 
 
+def _relative_pose(T_world_a: object, T_world_b: object) -> FloatArray:
+    """``T_a_b = T_world_a^-1 T_world_b`` as a 4x4 matrix (``gtsam.Pose3`` or 4x4 inputs).
+
+    Rigid inverse (``R^T``), not a general solve: the per-call cost of the window's many small
+    kernel calls (a 4x4 ``np.linalg.solve`` took as long as a tenth of a 300-point kernel call).
+    """
+    if hasattr(T_world_a, "between") and hasattr(T_world_b, "matrix"):
+        return np.asarray(T_world_a.between(T_world_b).matrix(), dtype=float)  # type: ignore[attr-defined]
+    A = _as_matrix(T_world_a)
+    B = _as_matrix(T_world_b)
+    Rt = A[:3, :3].T
+    out = np.eye(4)
+    out[:3, :3] = Rt @ B[:3, :3]
+    out[:3, 3] = Rt @ (B[:3, 3] - A[:3, 3])
+    return out
+
+
 def _as_matrix(T: object) -> FloatArray:
     """A 4x4 matrix from a ``gtsam.Pose3`` or an array."""
     if hasattr(T, "matrix"):
@@ -264,9 +281,7 @@ def photometric_residuals(camera: PinholeCamera, host_intensity: ArrayLike, host
         raise InputError(f"photometric_residuals: {n} pixels but {d.shape[0]} inverse depths")
     Ih = np.asarray(host_intensity, dtype=float).reshape(n, p)
     hv = np.ones((n, p), dtype=bool) if host_valid is None else np.asarray(host_valid, dtype=bool).reshape(n, p)
-    Twh = _as_matrix(T_world_host)
-    Twt = _as_matrix(T_world_target)
-    Tth = np.linalg.solve(Twt, Twh)
+    Tth = _relative_pose(T_world_target, T_world_host)
     R = Tth[:3, :3]
     t = Tth[:3, 3]
     a_h, b_h = (float(x) for x in np.asarray(affine_host, dtype=float).reshape(2))
@@ -391,13 +406,28 @@ def variance_weight(J_depth: ArrayLike, inverse_depth_variance: ArrayLike, sigma
 def huber_weight(norm: ArrayLike, k: float) -> FloatArray:
     """IRLS weight of the Huber kernel on a whitened norm: 1 inside ``k``, ``k/|x|`` outside."""
     x = np.abs(np.asarray(norm, dtype=float))
-    return np.where(x <= k, 1.0, k / np.maximum(x, 1e-300))
+    return np.where(x <= k, 1.0, k / np.maximum(x, k))  # (max: no overflow in the unused branch)
 
 
 def huber_loss(norm: ArrayLike, k: float) -> FloatArray:
     """Huber loss ``rho(x)``: ``x^2/2`` inside ``k``, ``k|x| - k^2/2`` outside (GTSAM's)."""
     x = np.abs(np.asarray(norm, dtype=float))
     return np.where(x <= k, 0.5 * x * x, k * x - 0.5 * k * k)
+
+
+def point_robust_terms(weight: ArrayLike, residual: ArrayLike, k: float | None) -> tuple[FloatArray, FloatArray]:
+    """Each point's Huber IRLS weight and loss on its whitened pattern norm.
+
+    With ``x_n = sqrt(sum_P W r^2)`` over the point's pattern residuals (``weight`` W and
+    ``residual`` of shape (N, P)): ``(huber_weight(x, k), huber_loss(x, k))``, each (N,); ``k``
+    None: no kernel, ``(1, x^2 / 2)``. One compiled pass (the window calls it per host and target
+    at every cost evaluation).
+    """
+    W = np.ascontiguousarray(weight, dtype=float)
+    r = np.ascontiguousarray(residual, dtype=float)
+    if W.shape != r.shape or r.ndim != 2:
+        raise InputError(f"point_robust_terms: weight {W.shape} and residual {r.shape} must be equal (N, P)")
+    return _compiled.point_huber(W, r, 0.0 if k is None else float(k), k is not None)
 
 
 def stereo_residuals(camera: PinholeCamera, baseline: float, left_intensity: ArrayLike,

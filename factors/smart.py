@@ -39,8 +39,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from factors.gtsam_factors import DEFAULT_HUBER_K, DEFAULT_SIGMA_INTENSITY, PythonFactor
-from factors.photometric import (PATTERN_DSO8, GradientSampler, gauss_newton_sums, huber_loss, huber_weight,
-                                 pattern_bearings, photometric_residuals, replace_rows, sample_host, stereo_residuals,
+from factors.photometric import (PATTERN_DSO8, GradientSampler, gauss_newton_sums, pattern_bearings,
+                                 photometric_residuals, point_robust_terms, replace_rows, sample_host, stereo_residuals,
                                  variance_weight)
 from gtvo.camera import PinholeCamera
 from gtvo.errors import InputError
@@ -267,10 +267,7 @@ class HostPointsFactor(PythonFactor):
         return out
 
     def _robust(self, W: FloatArray, r: FloatArray) -> tuple[FloatArray, FloatArray]:
-        norm = np.sqrt(np.sum(W * r ** 2, axis=1))
-        if self.huber_k is None:
-            return np.ones_like(norm), 0.5 * norm ** 2
-        return huber_weight(norm, self.huber_k), huber_loss(norm, self.huber_k)
+        return point_robust_terms(W, r, self.huber_k)
 
     def _weights(self, lins: list) -> list[FloatArray]:
         """W per target (then stereo): frozen at the first evaluation of a run (class docstring)."""

@@ -48,9 +48,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from factors.gtsam_factors import DEFAULT_HUBER_K, DEFAULT_SIGMA_INTENSITY, ConstantVelocityFactor
-from factors.photometric import (PATTERN_DSO8, PATTERN_SINGLE, GradientImage, gauss_newton_sums, huber_loss,
-                                 huber_weight, pattern_bearings, photometric_residuals,
-                                 sample_host, stereo_residuals, variance_weight)
+from factors.photometric import (PATTERN_DSO8, PATTERN_SINGLE, GradientImage, gauss_newton_sums, pattern_bearings,
+                                 photometric_residuals, point_robust_terms, sample_host, stereo_residuals, variance_weight)
 from factors.smart import HostPointsFactor, keep_cheaper_depths
 from gtvo.camera import MIN_DEPTH, PinholeCamera
 from gtvo.errors import InputError
@@ -541,11 +540,7 @@ class _HostTerms:
                                 jacobians=False, bearings=self.bearings[sel])
 
     def _robust(self, W: FloatArray, r: FloatArray) -> tuple[FloatArray, FloatArray]:
-        norm = np.sqrt(np.sum(W * r * r, axis=1))
-        k = self.config.huber_k
-        if k is None:
-            return np.ones_like(norm), 0.5 * norm ** 2
-        return huber_weight(norm, k), huber_loss(norm, k)
+        return point_robust_terms(W, r, self.config.huber_k)
 
     def cost(self, keyframes, poses, affines, d) -> float:
         return self.evaluate(keyframes, poses, affines, d)[0]

@@ -14,8 +14,9 @@ import gtsam
 import numpy as np
 import pytest
 
-from factors.photometric import (GradientImage, PhotometricLinearization, gauss_newton_sums, pattern_bearings,
-                                 photometric_residuals, sample_host, stereo_residuals)
+from factors.photometric import (GradientImage, PhotometricLinearization, gauss_newton_sums, huber_loss,
+                                 huber_weight, pattern_bearings, photometric_residuals, point_robust_terms,
+                                 sample_host, stereo_residuals)
 from gtvo.errors import InputError
 from tests._factors_synthetic import SinusoidImage, small_camera
 
@@ -166,6 +167,25 @@ def test_gauss_newton_sums_equal_the_numpy_sums(with_affine):
     np.testing.assert_allclose(g_d, np.sum(weight * lin.J_depth * lin.residual, axis=1), rtol=1e-10, atol=1e-9)
     assert np.all(H_pd[:10] == 0) and np.all(H_dd[:10] == 0)
     assert np.linalg.eigvalsh(H).min() > -1e-6 * np.abs(H).max()
+
+
+@pytest.mark.parametrize("k", [None, 0.5, 3.0, 1e9])
+def test_point_robust_terms_equal_the_numpy_huber(k):
+    rng = np.random.default_rng(3)
+    W = rng.uniform(0.0, 2.0, (200, 8))
+    r = rng.normal(0.0, 2.0, (200, 8))
+    r[:5] = 0.0  # zero norm: weight 1, loss 0
+    w, loss = point_robust_terms(W, r, k)
+    x = np.sqrt(np.sum(W * r * r, axis=1))
+    if k is None:
+        np.testing.assert_array_equal(w, 1.0)
+        np.testing.assert_allclose(loss, 0.5 * x * x, rtol=1e-14, atol=0)
+    else:
+        np.testing.assert_allclose(w, huber_weight(x, k), rtol=1e-14, atol=0)
+        np.testing.assert_allclose(loss, huber_loss(x, k), rtol=1e-14, atol=0)
+        assert k > 1e8 or np.any(w < 1.0)  # both branches of the kernel are exercised
+    with pytest.raises(InputError, match="point_robust_terms"):
+        point_robust_terms(W[:, :4], r, k)
 
 
 def test_gauss_newton_sums_reject_missing_jacobians_and_bad_weights():
