@@ -9,9 +9,40 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import shutil
 import tempfile
 from pathlib import Path
 from typing import IO, Any, Callable, Iterator
+
+from gtvo.errors import InputError
+
+
+def ensure_output_dir(path: str | Path) -> Path:
+    """Create the output folder ``path`` (and its parents) or raise a one-line :class:`InputError`.
+
+    Called before long work, so that an unusable ``--out`` (a file, a folder under a file, no
+    permission) is reported at once rather than after the run.
+    """
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise InputError("output folder is a file", path=path)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"cannot create the output folder ({exc.strerror or exc})", path=path) from None
+    if not os.access(path, os.W_OK | os.X_OK):
+        raise InputError("output folder is not writable", path=path)
+    return path
+
+
+def check_output_file(path: str | Path) -> Path:
+    """Check that ``path`` can be written as a file (its folder is created): a one-line
+    :class:`InputError` when it is a folder or its folder cannot be made."""
+    path = Path(path)
+    if path.is_dir():
+        raise InputError("is a folder; expected a file name", path=path)
+    ensure_output_dir(path.parent if str(path.parent) else Path("."))
+    return path
 
 
 @contextlib.contextmanager
@@ -22,16 +53,13 @@ def atomic_path(path: str | Path, suffix: str | None = None) -> Iterator[Path]:
     ``suffix`` defaults to the final suffix of ``path`` so that writers that pick the format
     from the extension keep working.
     """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    path = check_output_file(path)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix if suffix is not None else path.suffix,
                                dir=path.parent)
     os.close(fd)
     tmp_path = Path(tmp)
     # mkstemp creates 0600 files; give the result the permissions a plain open() would.
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(tmp_path, 0o666 & ~umask)
+    os.chmod(tmp_path, 0o666 & ~_umask())
     try:
         yield tmp_path
         os.replace(tmp_path, path)
@@ -70,3 +98,45 @@ def write_with(path: str | Path, writer: Callable[[Path], Any]) -> Path:
     with atomic_path(path) as tmp:
         writer(tmp)
     return Path(path)
+
+
+@contextlib.contextmanager
+def atomic_dir(path: str | Path, replaceable: frozenset[str] | set[str]) -> Iterator[Path]:
+    """Yield a new temporary folder next to ``path``; when the block succeeds it becomes ``path``.
+
+    For outputs that are a whole folder (a written sequence): an interrupted write leaves the
+    old folder as it was, and a shorter new sequence leaves no stale files of the old one. An
+    existing ``path`` is replaced only when it is empty or holds nothing but entries named in
+    ``replaceable`` (what this writer itself writes); anything else raises :class:`InputError`
+    rather than deleting a user's files.
+    """
+    path = Path(path)
+    if path.exists():
+        if not path.is_dir():
+            raise InputError("output folder is a file", path=path)
+        foreign = sorted(p.name for p in path.iterdir() if p.name not in replaceable)
+        if foreign:
+            raise InputError(f"output folder holds other files ({', '.join(foreign[:3])}"
+                             f"{', ...' if len(foreign) > 3 else ''}); choose a new or empty folder", path=path)
+    parent = ensure_output_dir(path.parent if str(path.parent) else Path("."))
+    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=parent))
+    os.chmod(tmp, 0o777 & ~_umask())
+    try:
+        yield tmp
+        if path.exists():
+            old = Path(tempfile.mkdtemp(prefix=f".{path.name}.old.", dir=parent))
+            os.replace(path, old / path.name)
+            os.replace(tmp, path)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _umask() -> int:
+    umask = os.umask(0)
+    os.umask(umask)
+    return umask
+

@@ -2,7 +2,8 @@
 
 Each subcommand lives in its own module under :mod:`gtvo.commands` and exposes
 ``register(subparsers)``, which adds its parser and sets ``func(args) -> int``.
-Bad input (:class:`gtvo.errors.InputError`) becomes one line on stderr and exit code 2.
+Bad input (:class:`gtvo.errors.InputError`) becomes one line on stderr and exit code 2; so does
+an operating-system error (``OSError``: an output the system refuses to write).
 """
 
 from __future__ import annotations
@@ -56,6 +57,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         return int(args.func(args) or 0)
     except (InputError, DependencyError) as exc:
         print(f"gtvo {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:  # an output the system refuses (disk full, permissions) after the checks
+        where = f"{exc.filename}: " if getattr(exc, "filename", None) else ""
+        print(f"gtvo {args.command}: error: {where}{exc.strerror or exc}", file=sys.stderr)
         return 2
     except TrackingFailure as exc:
         print(f"gtvo {args.command}: tracking failed: {exc}", file=sys.stderr)

@@ -10,6 +10,7 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
+from gtvo.atomic import ensure_output_dir
 from gtvo.datasets import open_sequence
 from gtvo.errors import InputError
 from gtvo.odometry import OdometryConfig, VisualOdometry
@@ -118,7 +119,7 @@ def run(path: str | Path | Sequence, out: str | Path | None = None, config: Odom
     if isinstance(path, Sequence) and max_frames is not None:
         seq = seq.truncated(max_frames)
     seq = seq.subsampled(frame_step)
-    out_dir = Path(out) if out is not None else Path("gtvo_out") / seq.name
+    out_dir = ensure_output_dir(Path(out) if out is not None else Path("gtvo_out") / seq.name)
     vo, traj, info = process_sequence(seq, config, progress=progress, strict=strict)
     info["frame_step"] = int(frame_step)
     closed = None

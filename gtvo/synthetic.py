@@ -33,7 +33,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import ndimage
 
-from gtvo.atomic import write_text, write_with
+from gtvo.atomic import atomic_dir, write_text, write_with
 from gtvo.camera import PinholeCamera, StereoCamera
 from gtvo.errors import InputError
 from gtvo.sequence import Sequence
@@ -589,7 +589,12 @@ def _matrix_line(M: ArrayLike) -> str:
 
 
 def write_sequence_kitti(seq: Sequence, folder: str | Path, progress: bool = False) -> Path:
-    """Write a stereo sequence in the KITTI odometry layout; every file is written atomically.
+    """Write a stereo sequence in the KITTI odometry layout, the folder as a whole.
+
+    The files are written into a new folder that replaces ``folder`` when complete
+    (:func:`gtvo.atomic.atomic_dir`): an interrupted write leaves the old folder intact, and a
+    shorter sequence leaves none of a longer one's frames behind. An existing ``folder`` that
+    holds anything but these entries is refused (:class:`InputError`), not overwritten.
 
     ``calib.txt`` (``P0:``/``P1:`` 3x4 rows, ``P1[0,3] = -fx * baseline``), ``image_0/`` and
     ``image_1/`` (8-bit PNG, ``NNNNNN.png``, intensities rounded and clipped to 0..255),
@@ -598,7 +603,16 @@ def write_sequence_kitti(seq: Sequence, folder: str | Path, progress: bool = Fal
     """
     if seq.kind != "stereo" or not isinstance(seq.camera, StereoCamera):
         raise InputError(f"sequence {seq.name} is not stereo; the KITTI layout needs a stereo pair")
-    out = Path(folder)
+    with atomic_dir(folder, KITTI_LAYOUT_ENTRIES) as tmp:
+        _write_kitti_files(seq, tmp, Path(folder), progress)
+    return Path(folder)
+
+
+#: What :func:`write_sequence_kitti` writes into its folder (and may therefore replace there).
+KITTI_LAYOUT_ENTRIES = frozenset({"calib.txt", "times.txt", "poses.txt", "image_0", "image_1"})
+
+
+def _write_kitti_files(seq: Sequence, out: Path, shown: Path, progress: bool) -> None:
     cam = seq.camera
     P0 = np.hstack([cam.left.K, np.zeros((3, 1))])
     P1 = P0.copy()
@@ -607,7 +621,7 @@ def write_sequence_kitti(seq: Sequence, folder: str | Path, progress: bool = Fal
     frames = range(len(seq))
     if progress:
         from tqdm import tqdm
-        frames = tqdm(frames, desc=f"writing {out}", unit="frame")
+        frames = tqdm(frames, desc=f"writing {shown}", unit="frame")
     for i in frames:
         for sub, image in (("image_0", seq.left(i)), ("image_1", seq.right(i))):
             img8 = np.clip(np.rint(image), 0, 255).astype(np.uint8)
@@ -621,4 +635,3 @@ def write_sequence_kitti(seq: Sequence, folder: str | Path, progress: bool = Fal
     write_text(out / "times.txt", "".join(f"{t:.6e}\n" for t in seq.timestamps))
     if seq.gt_poses is not None and np.all(np.isfinite(seq.gt_poses)):
         write_text(out / "poses.txt", "".join(_matrix_line(T[:3, :]) + "\n" for T in seq.gt_poses))
-    return out

@@ -148,3 +148,48 @@ def test_demo_with_fixed_lag_backend(tmp_path):
     assert r.returncode == 0, r.stderr
     rep = json.loads((out / "report.json").read_text())
     assert rep["mode"] == "window" and rep["window_optimisations"] >= 1 and rep["ate_rmse_m"] < 0.01
+
+
+def test_unusable_output_paths_exit_2_before_any_work(kitti_like, tmp_path, shared_data, capsys):
+    """An --out that is a file, a folder under a file, or a folder where a file is wanted: one
+    line naming the path, exit 2, and nothing run (the run would have taken its time first)."""
+    a_file = tmp_path / "a_file"
+    a_file.write_text("keep me")
+    a_dir = tmp_path / "a_dir"
+    a_dir.mkdir()
+    graph = shared_data / "pose_graphs" / "gtsam" / "pose3example.txt"
+    cases = [
+        (["run", str(kitti_like), "--out", str(a_file), "--no-progress"], "output folder is a file"),
+        (["run", str(kitti_like), "--out", str(a_file / "sub"), "--no-progress"], "cannot create the output folder"),
+        (["synthetic", "--out", str(a_file), "--frames", "2"], "output folder is a file"),
+        (["posegraph", str(graph), "--out", str(a_dir)], "is a folder"),
+        (["posegraph", str(graph), "--plot", str(a_file / "x.png")], "output folder is a file"),
+        (["posegraph", str(graph), "--max-iterations", "-3"], "--max-iterations"),
+    ]
+    for argv, needle in cases:
+        assert cli.main(argv) == 2, argv
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and needle in err[0], (argv, err)
+    assert a_file.read_text() == "keep me" and not any(a_dir.iterdir())
+
+
+def test_two_frame_run_reports_no_ate_instead_of_failing(kitti_like, tmp_path, capsys):
+    out = tmp_path / "two"
+    assert cli.main(["run", str(kitti_like), "--max-frames", "2", "--out", str(out), "--no-progress"]) == 0
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["ate_rmse_m"] is None and "at least 3" in rep["ate_skipped"]
+    assert rep["rpe_trans_rmse_m"] is not None and (out / "trajectory.png").is_file()
+
+
+def test_synthetic_rewrite_leaves_no_stale_frames_and_keeps_foreign_files(tmp_path, capsys):
+    out = tmp_path / "syn"
+    assert cli.main(["synthetic", "--out", str(out), "--frames", "4"]) == 0
+    assert cli.main(["synthetic", "--out", str(out), "--frames", "2"]) == 0
+    assert sorted(p.name for p in (out / "image_0").iterdir()) == ["000000.png", "000001.png"]
+    assert len((out / "times.txt").read_text().split()) == 2
+    (out / "notes.txt").write_text("mine")
+    capsys.readouterr()
+    assert cli.main(["synthetic", "--out", str(out), "--frames", "3"]) == 2
+    assert "notes.txt" in capsys.readouterr().err
+    assert (out / "notes.txt").read_text() == "mine" and len(list((out / "image_0").iterdir())) == 2
+    assert not [p.name for p in tmp_path.iterdir() if p.name.startswith(".")]  # no temp folders left

@@ -7,6 +7,7 @@ import json
 
 import numpy as np
 
+from gtvo.atomic import check_output_file
 from gtvo.calibration import calibrate, read_motion_pair
 from gtvo.calibration.plot import plot_trajectories
 
@@ -30,6 +31,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run the calibration; print text or JSON; optionally plot."""
+    if args.plot:
+        check_output_file(args.plot)
     odom, ref = read_motion_pair(args.odom, args.reference)
     result = calibrate(odom, ref, model=args.model, solver=args.solver, nominal_baseline=args.baseline)
     if args.plot:

@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from gtvo.atomic import write_json
+from gtvo.atomic import check_output_file, write_json
 from gtvo.datasets import FORMATS, open_sequence
 from gtvo.errors import InputError
 from gtvo.loops import LoopCandidate, LoopDetectorConfig, detect_loops
@@ -55,6 +55,8 @@ def run(args: argparse.Namespace) -> int:
     """Run the subcommand; returns the exit code."""
     if args.every < 1:
         raise InputError(f"--every must be >= 1, got {args.every}")
+    if args.out:
+        check_output_file(args.out)
     seq = open_sequence(args.sequence, format=args.format, max_frames=args.max_frames)
     config = LoopDetectorConfig()
     if args.window is not None:

@@ -7,6 +7,7 @@ import json
 import math
 import sys
 
+from gtvo.atomic import check_output_file
 from gtvo.errors import InputError
 
 
@@ -71,6 +72,8 @@ def run(args: argparse.Namespace) -> int:
     band = _parse_band(args.height_band)
     resolution = _parse_metres(args.resolution, "resolution")
     robot_radius = _parse_metres(args.robot_radius, "robot-radius")
+    if args.out:
+        check_output_file(args.out)
     points = read_point_cloud(args.map)
     grid = build_occupancy_grid(points, resolution=resolution, robot_radius=robot_radius, height_band=band)
     result = plan_path(grid, start, goal)

@@ -8,6 +8,8 @@ import sys
 from pathlib import Path
 
 from gtvo import posegraph as pg
+from gtvo.atomic import check_output_file
+from gtvo.errors import InputError
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -35,6 +37,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Read, optimise, report, write."""
+    for path in (args.out, args.plot):
+        if path:
+            check_output_file(path)
+    if args.max_iterations < 1:
+        raise InputError(f"--max-iterations must be >= 1, got {args.max_iterations}")
     graph = pg.read(args.file, args.format)
     progress = None
     if args.solver == "handrolled" and not args.json:

@@ -13,7 +13,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "synthetic", help="write the synthetic stereo sequence (exact poses) as a KITTI-layout folder",
         description="Render gtvo's deterministic synthetic stereo sequence (docs/synthetic.md) and write it as "
                     "calib.txt, image_0/, image_1/ (8-bit PNG), times.txt and poses.txt (ground truth).")
-    p.add_argument("--out", required=True, help="output folder (created; files are replaced atomically)")
+    p.add_argument("--out", required=True, help="output folder: created, or replaced as a whole when it holds only a sequence written here "
+                        "(anything else in it is refused)")
     p.add_argument("--frames", type=int, default=30, help="number of stereo pairs at 10 Hz (default 30)")
     p.add_argument("--width", type=int, default=320)
     p.add_argument("--height", type=int, default=240)
