@@ -36,11 +36,10 @@ from benchmarks.peers import make_sgbm  # noqa: E402
 from gtvo.errors import InputError  # noqa: E402
 from gtvo.image import to_uint8  # noqa: E402
 from gtvo.metrics import ate, drift_percent, kitti_segment_errors, rpe  # noqa: E402
+from gtvo.report import MIN_DRIFT_PATH_M  # noqa: E402
 from gtvo.sequence import Frame, Sequence  # noqa: E402
 from gtvo.trajectory import Trajectory  # noqa: E402
 
-#: Below this GT path length (m) the drift in % is not reported.
-MIN_DRIFT_PATH_M = 0.1
 #: Segment lengths (m) of the short-snippet KITTI segment metric (the devkit's are 100..800 m).
 SEGMENT_LENGTHS_M = (10.0, 20.0, 30.0, 40.0)
 #: The real data: ``$GTVO_SHARED_DATA`` or ``../shared/data`` beside the checkout (as tests/conftest.py).

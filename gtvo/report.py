@@ -14,13 +14,18 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gtvo._optional import require_open3d
-from gtvo.atomic import atomic_path, write_json
+from gtvo.atomic import atomic_path, ensure_output_dir, write_json
 from gtvo.errors import DependencyError, InputError
 from gtvo.metrics import align_trajectory, ate, drift_percent, kitti_segment_errors, rpe
 from gtvo.plots import plot_errors_over_time, plot_trajectory_top_view
 from gtvo.sequence import Sequence
 from gtvo.trajectory import Trajectory
 from gtvo.trajectory_io import write_tum
+
+
+#: Below this ground-truth path length (m) no drift % and no segment metric are reported: on a
+#: static clip they divide millimetres of noise by millimetres of path.
+MIN_DRIFT_PATH_M = 0.1
 
 
 def ground_truth(seq: Sequence, est: Trajectory) -> tuple[Trajectory, Trajectory] | None:
@@ -40,22 +45,30 @@ def ground_truth(seq: Sequence, est: Trajectory) -> tuple[Trajectory, Trajectory
 def evaluate(est: Trajectory, ref: Trajectory) -> dict[str, Any]:
     """Metrics of an estimate against associated ground truth (same length, same times).
 
-    ``ate_rmse_m``: SE(3)-aligned ATE; ``rpe_trans_rmse_m`` / ``rpe_rot_rmse_deg``: frame-to-frame
-    RPE; ``drift_percent``: final position error after aligning the first pose over the path
-    length; ``kitti_*``: the devkit's segment metric on lengths that fit the path (None if none).
+    ``ate_rmse_m``: SE(3)-aligned ATE (None, with the reason in ``ate_skipped``, when the
+    alignment is not determined: fewer than 3 poses, or positions on a line or a point);
+    ``rpe_trans_rmse_m`` / ``rpe_rot_rmse_deg``: frame-to-frame RPE; ``drift_percent``: final
+    position error after aligning the first pose over the path length; ``kitti_*``: the devkit's
+    segment metric on lengths that fit the path (None if none). Both None when the ground-truth
+    path is shorter than :data:`MIN_DRIFT_PATH_M`.
     """
     out: dict[str, Any] = {}
-    a = ate(est, ref, "se3")
-    out["ate_rmse_m"] = a.rmse
-    out["ate_max_m"] = a.translation.max
+    try:
+        a = ate(est, ref, "se3")
+        out["ate_rmse_m"] = a.rmse
+        out["ate_max_m"] = a.translation.max
+    except InputError as exc:
+        out["ate_rmse_m"] = out["ate_max_m"] = None
+        out["ate_skipped"] = str(exc)
     if len(est) >= 2:
         r = rpe(est, ref, 1, "frames")
         out["rpe_trans_rmse_m"] = r.translation.rmse
         out["rpe_rot_rmse_deg"] = r.rotation_deg.rmse
     length = ref.path_length()
     out["path_length_m"] = length
-    out["drift_percent"] = drift_percent(est, ref) if length > 1e-9 else None
-    if length > 1e-9:
+    moves = length >= MIN_DRIFT_PATH_M
+    out["drift_percent"] = drift_percent(est, ref) if moves else None
+    if moves:
         lengths = [L for L in (100, 200, 300, 400, 500, 600, 700, 800) if L < length]
         if not lengths:  # short logs: segments of a quarter, half and three quarters of the path
             lengths = [round(length * f, 3) for f in (0.25, 0.5, 0.75)]
@@ -89,30 +102,35 @@ def write_run_outputs(out_dir: str | Path, est: Trajectory, seq: Sequence, run_i
     ``trajectory_loop_closed.tum`` and evaluated as ``loop_closed_*``. Every file is written
     atomically.
     """
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    out = ensure_output_dir(out_dir)
     report: dict[str, Any] = {"sequence": seq.name, "source": None if seq.source is None else str(seq.source)}
     report.update(run_info)
-    write_tum(out / "trajectory.tum", est)
+    # every figure first, then the files: a failure leaves the folder's earlier outputs as a set
     pair = ground_truth(seq, est)
     if pair is not None:
         est_gt, ref = pair
         report.update(evaluate(est_gt, ref))
-        aligned, _ = align_trajectory(est_gt, ref, "se3")
-        plot_trajectory_top_view(aligned, ref, out / "trajectory.png",
-                                 title=f"{seq.name}: ATE {report['ate_rmse_m']:.3f} m (SE(3)-aligned)")
-        errs = np.linalg.norm(aligned.positions - ref.positions, axis=1)
-        plot_errors_over_time(ref.timestamps, errs, out / "errors.png", title=f"{seq.name}: position error")
+        se3 = report["ate_rmse_m"] is not None
+        aligned, _ = align_trajectory(est_gt, ref, "se3" if se3 else "origin")
+        title = (f"{seq.name}: ATE {report['ate_rmse_m']:.3f} m (SE(3)-aligned)" if se3
+                 else f"{seq.name} (first poses aligned)")
     else:
         report["ground_truth"] = False
-        plot_trajectory_top_view(est, None, out / "trajectory.png", title=f"{seq.name} (no ground truth)")
     if loop_closed is not None:
-        write_tum(out / "trajectory_loop_closed.tum", loop_closed)
         pair_lc = ground_truth(seq, loop_closed)
         if pair_lc is not None:
             m = evaluate(*pair_lc)
             report["loop_closed_ate_rmse_m"] = m["ate_rmse_m"]
             report["loop_closed_drift_percent"] = m["drift_percent"]
+    write_tum(out / "trajectory.tum", est)
+    if pair is not None:
+        plot_trajectory_top_view(aligned, ref, out / "trajectory.png", title=title)
+        errs = np.linalg.norm(aligned.positions - ref.positions, axis=1)
+        plot_errors_over_time(ref.timestamps, errs, out / "errors.png", title=f"{seq.name}: position error")
+    else:
+        plot_trajectory_top_view(est, None, out / "trajectory.png", title=f"{seq.name} (no ground truth)")
+    if loop_closed is not None:
+        write_tum(out / "trajectory_loop_closed.tum", loop_closed)
     if points is not None and len(points[0]):
         try:
             write_point_cloud(out / "points.ply", *points)
