@@ -19,14 +19,19 @@ def to_float_gray(image: NDArray, name: str = "image") -> FloatImage:
     """Convert an 8/16-bit or float image (H, W) or (H, W, 3) to float32 gray in [0, 255] units.
 
     Colour images are taken as BGR (OpenCV's order) and converted with ITU-R BT.601 weights.
+    16-bit images are scaled by 255 / 65535 (a camera that logs 16 bits is not 256x brighter);
+    8-bit and float images keep their values.
     """
     img = np.asarray(image)
+    scale = 255.0 / 65535.0 if img.dtype == np.uint16 else None
     if img.ndim == 3 and img.shape[2] in (3, 4):
         b, g, r = img[..., 0].astype(np.float32), img[..., 1].astype(np.float32), img[..., 2].astype(np.float32)
         img = 0.114 * b + 0.587 * g + 0.299 * r
     elif img.ndim != 2:
         raise InputError(f"{name} must be a 2-D gray or 3-channel image, got shape {img.shape}")
     out = img.astype(np.float32, copy=False)
+    if scale is not None:
+        out = out * np.float32(scale)
     if not np.all(np.isfinite(out)):
         raise InputError(f"{name} contains NaN or infinite values")
     return out

@@ -67,3 +67,12 @@ def test_to_float_gray():
         to_float_gray(np.zeros((2, 2, 2, 2)))
     with pytest.raises(InputError, match="NaN"):
         to_float_gray(np.full((2, 2), np.nan))
+
+
+def test_to_float_gray_scales_16_bit_to_8_bit_units():
+    g8 = np.array([[0, 1, 128, 255]], np.uint8)
+    g16 = g8.astype(np.uint16) * 257  # the same intensities logged with 16 bits
+    np.testing.assert_allclose(to_float_gray(g16), to_float_gray(g8), rtol=1e-6)
+    bgr16 = np.zeros((1, 1, 3), np.uint16)
+    bgr16[..., 2] = 100 * 257
+    assert to_float_gray(bgr16)[0, 0] == pytest.approx(29.9, rel=1e-5)
