@@ -108,6 +108,32 @@ def test_plan_bad_points():
         fit_ground_plane(_wall(np.random.default_rng(1), 5000, -5, 5, 5, 5))
 
 
+@pytest.mark.parametrize("ascii_ply", [False, True])
+def test_truncated_point_cloud_is_refused(tmp_path, ascii_ply):
+    """A PLY shorter than its header declares (an interrupted copy) is an InputError naming the
+    file, not a map of garbage points: open3d alone returns what it could read without failing."""
+    import open3d as o3d
+    pts = synthetic_cloud()[:500]
+    good = tmp_path / "good.ply"
+    assert o3d.io.write_point_cloud(str(good), o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts)),
+                                    write_ascii=ascii_ply)
+    np.testing.assert_allclose(read_point_cloud(good), pts, rtol=1e-5, atol=1e-4)  # (ASCII: 6 digits)
+    data = good.read_bytes()
+    for cut in (len(data) // 2, len(data) - 13):
+        bad = tmp_path / f"cut{cut}.ply"
+        bad.write_bytes(data[:cut])
+        with pytest.raises(InputError, match="truncated") as exc:
+            read_point_cloud(bad)
+        assert str(bad) in str(exc.value)
+
+
+def test_map_of_absurd_extent_is_refused():
+    pts = synthetic_cloud()
+    pts[0] = (1e200, 0.0, 1e200)  # one corrupt point
+    with pytest.raises(InputError, match="too large for a grid"):
+        build_occupancy_grid(pts, resolution=0.2)
+
+
 @pytest.fixture
 def plan_cli():
     """``gtvo`` main() with every command registered."""

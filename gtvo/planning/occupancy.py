@@ -52,14 +52,73 @@ def read_point_cloud(path: str | Path) -> FloatArray:
     if not path.is_file():
         raise InputError("point cloud not found", path=path)
     o3d = require_open3d()
+    _check_ply_complete(path)
     try:
-        pcd = o3d.io.read_point_cloud(str(path), remove_nan_points=True, remove_infinite_points=True)
+        # open3d reports a bad file by a warning on stdout (and returns what it read): silenced,
+        # the checks here say what is wrong in one line
+        with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
+            pcd = o3d.io.read_point_cloud(str(path), remove_nan_points=False, remove_infinite_points=False)
     except Exception as exc:  # open3d raises RuntimeError for unknown formats
         raise InputError(f"cannot read point cloud ({exc})", path=path) from None
     points = np.asarray(pcd.points, dtype=np.float64)
+    points = points[np.all(np.isfinite(points), axis=1)]
     if points.shape[0] == 0:
         raise InputError("point cloud has no (finite) points or is not a point-cloud file", path=path)
     return points
+
+
+_PLY_SIZES = {b"char": 1, b"uchar": 1, b"int8": 1, b"uint8": 1, b"short": 2, b"ushort": 2, b"int16": 2,
+              b"uint16": 2, b"int": 4, b"uint": 4, b"int32": 4, b"uint32": 4, b"float": 4, b"float32": 4,
+              b"double": 8, b"float64": 8}
+
+
+def _check_ply_complete(path: Path) -> None:
+    """Raise :class:`InputError` when a PLY file is shorter than its header declares (a truncated
+    copy or an interrupted write: open3d would read garbage there). Files that are not PLY, and
+    PLY files with variable-size (list) elements, are left to open3d."""
+    with open(path, "rb") as f:
+        if f.readline().strip() != b"ply":
+            return
+        fmt, elements = None, []  # elements: [count, bytes per item or None (has a list), properties]
+        for _ in range(1000):
+            line = f.readline()
+            if not line:
+                raise InputError("truncated or corrupt point cloud: the PLY header has no end_header", path=path)
+            parts = line.split()
+            if not parts:
+                continue
+            if parts[0] == b"end_header":
+                break
+            try:
+                if parts[0] == b"format":
+                    fmt = parts[1]
+                elif parts[0] == b"element":
+                    elements.append([int(parts[2]), 0, 0])
+                elif parts[0] == b"property" and elements:
+                    size = None if parts[1] == b"list" else _PLY_SIZES.get(parts[1])
+                    elements[-1][1] = None if size is None or elements[-1][1] is None else elements[-1][1] + size
+                    elements[-1][2] += 1
+            except (IndexError, ValueError):
+                raise InputError(f"corrupt PLY header line {line.strip()[:40]!r}", path=path) from None
+        else:
+            return
+        body = f.read()
+    if fmt == b"ascii":
+        rows = [row.split() for row in body.splitlines() if row.strip()]
+        needed = sum(n for n, _, _ in elements)
+        if len(rows) < needed:
+            raise InputError(f"truncated point cloud: the header declares {needed} rows, the file has {len(rows)}",
+                             path=path)
+        start = 0
+        for n, size, props in elements:
+            if size is not None and any(len(r) != props for r in rows[start:start + n]):
+                raise InputError(f"truncated or corrupt point cloud: a row without its {props} values", path=path)
+            start += n
+    elif fmt in (b"binary_little_endian", b"binary_big_endian") and all(sz is not None for _, sz, _ in elements):
+        needed = sum(n * sz for n, sz, _ in elements)
+        if len(body) < needed:
+            raise InputError(f"truncated point cloud: the header declares {needed} bytes of data, the file has "
+                             f"{len(body)}", path=path)
 
 
 @dataclass(frozen=True)
@@ -186,6 +245,11 @@ def build_occupancy_grid(points: ArrayLike, resolution: float = 0.1, robot_radiu
     voxel = float(voxel_size) if voxel_size is not None else 0.5 * resolution
     if not (math.isfinite(voxel) and voxel > 0):
         raise InputError(f"voxel_size must be a finite positive number, got {voxel_size!r}")
+    extent = pts.max(axis=0) - pts.min(axis=0) + 2 * margin
+    cells = float(np.ceil(extent[0] / resolution) + 1) * float(np.ceil(extent[2] / resolution) + 1)
+    if cells > MAX_CELLS or float(np.max(extent)) / voxel > 2.0 ** 30:  # (open3d's voxel index is int32)
+        raise InputError(f"the map spans {extent[0]:.4g} x {extent[2]:.4g} m (X x Z): too large for a grid at "
+                         f"{resolution} m (corrupt points, or use a coarser resolution)")
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts)).voxel_down_sample(voxel)
     pts = np.asarray(pcd.points, dtype=np.float64)
     ground = fit_ground_plane(pts, distance_threshold=ground_threshold)
