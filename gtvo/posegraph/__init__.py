@@ -20,7 +20,7 @@ from typing import Callable
 from gtvo.errors import InputError
 from gtvo.posegraph import gtsam_solver, handrolled, sesync
 from gtvo.posegraph.graph import PoseGraph
-from gtvo.posegraph.io import compose_spanning_tree, read, write_g2o
+from gtvo.posegraph.io import check_connected, compose_spanning_tree, read, write_g2o
 
 SOLVERS = ("gtsam", "handrolled")
 INITS = gtsam_solver.INITS
@@ -91,6 +91,7 @@ def optimize(graph: PoseGraph, solver: str = "gtsam", init: str = "chordal", obj
     if method not in METHODS or (solver == "handrolled" and method == "dogleg"):
         raise InputError(f"unknown method {method!r} for solver {solver}")
     graph.validate()
+    check_connected(graph)
     start = time.perf_counter()
     R0, t0 = gtsam_solver.initial_poses(graph, init)
     init_seconds = time.perf_counter() - start

@@ -134,7 +134,8 @@ def initial_poses(graph: PoseGraph, init: str) -> tuple[F64, F64]:
     """Initial poses by ``init``: ``file``, ``odometry`` or ``chordal`` (LAGO / InitializePose3)."""
     if init == "file":
         if not graph.has_vertices:
-            raise InputError("the file has no vertices: use --init odometry or chordal", graph.source or None)
+            raise InputError("--init file needs a VERTEX line for every pose, and some (or all) are missing: "
+                             "use --init odometry or chordal", graph.source or None)
         return graph.rotations.copy(), graph.translations.copy()
     if init == "odometry":
         return compose_spanning_tree(graph)

@@ -292,6 +292,17 @@ class _Parser:
         return graph
 
 
+def check_connected(graph: PoseGraph) -> None:
+    """Raise :class:`InputError` when the graph's edges leave it in more than one component: each
+    component would have a gauge of its own, which nothing fixes (the normal equations are
+    singular), whatever the initial poses."""
+    n = graph.num_poses
+    ncomp, _ = connected_components(coo_matrix((np.ones(graph.num_edges), (graph.edge_i, graph.edge_j)),
+                                               shape=(n, n)), directed=False)
+    if ncomp != 1:
+        raise InputError(f"pose graph has {ncomp} disconnected components", graph.source or None)
+
+
 def spanning_tree(graph: PoseGraph) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """BFS order from node 0 over a spanning tree that prefers odometry edges ``(i, i+1)``.
 
@@ -300,10 +311,7 @@ def spanning_tree(graph: PoseGraph) -> tuple[np.ndarray, np.ndarray, np.ndarray]
     graph is not connected (a pose graph with two components has no single gauge).
     """
     n = graph.num_poses
-    ncomp, _ = connected_components(coo_matrix((np.ones(graph.num_edges), (graph.edge_i, graph.edge_j)),
-                                               shape=(n, n)), directed=False)
-    if ncomp != 1:
-        raise InputError(f"pose graph has {ncomp} disconnected components", graph.source or None)
+    check_connected(graph)
     ids = graph.ids
     sequential = np.abs(ids[graph.edge_i] - ids[graph.edge_j]) == 1
     weight = np.where(sequential, 1.0, 2.0) + 1e-9 * np.arange(graph.num_edges) / max(graph.num_edges, 1)
