@@ -45,7 +45,7 @@ def read_calibration(path: Path) -> tuple[FloatArray, float]:
         raise InputError("P0 and P1 have different intrinsics: images are not rectified", path=path)
     baseline = -(P1[0, 3] - P0[0, 3]) / P1[0, 0]
     if not baseline > 0:
-        raise InputError(f"baseline -(P1[0,3]-P0[0,3])/P1[0,0] = {baseline!r} must be positive", path=path)
+        raise InputError(f"baseline -(P1[0,3]-P0[0,3])/P1[0,0] = {float(baseline):.6g} must be positive", path=path)
     return P0[:, :3].copy(), float(baseline)
 
 

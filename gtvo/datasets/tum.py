@@ -56,7 +56,7 @@ def intrinsics_for(folder: Path, camera: tuple[float, float, float, float] | Non
     match = re.search(r"freiburg([123])", folder.resolve().name)
     if match is None:
         raise InputError("TUM folder carries no intrinsics and its name names no freiburg1/2/3 camera: "
-                         "pass --camera fx fy cx cy", path=folder)
+                         "pass --camera FX,FY,CX,CY", path=folder)
     return TUM_INTRINSICS[f"freiburg{match.group(1)}"]
 
 
