@@ -1,0 +1,83 @@
+"""Front-end speed per KITTI keyframe: point selection and stereo inverse depth.
+
+    python benchmarks/frontend_speed.py [--root CHECKOUT] [--sequence DIR] [--points 300,2000] [--repeats 3]
+
+For every frame of the sequence (preloaded), times ``select_points`` and ``init_keyframe_points``
+(selection + stereo search + refinement + checks, what ``VisualOdometry`` runs for each new
+keyframe) for each point target; prints the mean ms per frame (best of ``--repeats`` passes) and
+its ratio to a reference measured in the same run (one OpenCV StereoSGBM of frame 0, the peers'
+settings; median of 5, before and after). A checksum of the selected pixels and inverse depths
+tells whether two checkouts compute the same points.
+
+``--root`` imports gtvo from another checkout (e.g. ``git worktree add /tmp/gtvo-old <commit>``)
+with this script's own helpers, so an older commit is measured by the same code: run it for
+both, alternately, to compare under the same machine load.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import os
+import sys
+import time
+from pathlib import Path
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    here = Path(__file__).resolve().parents[1]
+    ap.add_argument("--root", type=Path, default=here, help="gtvo checkout to measure (default: this one)")
+    ap.add_argument("--sequence", type=Path, default=None, help="KITTI folder (default KITTI_sequence_1)")
+    ap.add_argument("--points", default="300,2000", help="point targets per keyframe")
+    ap.add_argument("--repeats", type=int, default=3)
+    args = ap.parse_args()
+    sys.path.insert(0, str(here))  # the benchmark helpers
+    sys.path.insert(0, str(args.root.resolve()))  # the gtvo measured (first on the path)
+    import numpy as np  # noqa: PLC0415
+
+    import gtvo  # noqa: PLC0415
+    from benchmarks.vo_bench import KITTI_SEQUENCE_1, load_frames, reference_ms  # noqa: PLC0415
+    from gtvo.datasets import open_sequence  # noqa: PLC0415
+    from gtvo.frontend import select_points  # noqa: PLC0415
+    from gtvo.frontend.stereo_depth import init_keyframe_points  # noqa: PLC0415
+
+    seq = open_sequence(args.sequence or KITTI_SEQUENCE_1)
+    frames = load_frames(seq, progress=False)
+    lefts = [np.asarray(f.left, dtype=np.float32) for f in frames]
+    init_keyframe_points(frames[0].left, frames[0].right, seq.camera, target=100)  # compile / warm up
+    ref_before = reference_ms(frames)
+    rows = []
+    for target in (int(t) for t in args.points.split(",")):
+        best_sel = best_init = float("inf")
+        digest = hashlib.sha1()
+        for rep in range(args.repeats):
+            t0 = time.perf_counter()
+            for img in lefts:
+                select_points(img, target=target)
+            best_sel = min(best_sel, (time.perf_counter() - t0) / len(frames))
+            t0 = time.perf_counter()
+            kps = [init_keyframe_points(f.left, f.right, seq.camera, target=target) for f in frames]
+            best_init = min(best_init, (time.perf_counter() - t0) / len(frames))
+            if rep == 0:
+                for kp in kps:
+                    digest.update(np.ascontiguousarray(kp.pixels).tobytes())
+                    digest.update(np.ascontiguousarray(kp.inverse_depth).tobytes())
+        n_pts = int(np.mean([len(kp.pixels) for kp in kps]))
+        rows.append((target, n_pts, 1e3 * best_sel, 1e3 * best_init, digest.hexdigest()[:12]))
+    ref_after = reference_ms(frames)
+    ref = 0.5 * (ref_before + ref_after)
+    print(f"gtvo at {Path(gtvo.__file__).resolve().parents[1]}, {seq.name}, {len(frames)} frames")
+    print(f"Reference: one StereoSGBM of frame 0 = {ref:.0f} ms (before / after: {ref_before:.0f} / {ref_after:.0f} ms)\n")
+    print("| points asked | with depth | select_points ms (x ref) | init_keyframe_points ms (x ref) | checksum |")
+    print("|---|---|---|---|---|")
+    for target, n_pts, sel, init, digest in rows:
+        print(f"| {target} | {n_pts} | {sel:.1f} ({sel / ref:.2f}) | {init:.1f} ({init / ref:.2f}) | {digest} |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
