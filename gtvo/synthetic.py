@@ -534,10 +534,14 @@ class SyntheticSequence(Sequence):
                        affine_right=self.affine_right[idx], _frames=tuple(int(base[i]) for i in idx))
 
 
+#: Largest synthetic image side (px): the renderer holds several float images per frame.
+MAX_SIDE = 4096
+
+
 def synthetic_camera(width: int = 320, height: int = 240, baseline: float = DEFAULT_BASELINE) -> StereoCamera:
     """The rectified stereo camera of the synthetic sequences: ``fx = fy = 0.9 * width``, centred."""
-    if int(width) < 16 or int(height) < 16:
-        raise InputError(f"image size must be at least 16x16, got {width}x{height}")
+    if not (16 <= int(width) <= MAX_SIDE and 16 <= int(height) <= MAX_SIDE):
+        raise InputError(f"image size must be between 16x16 and {MAX_SIDE}x{MAX_SIDE}, got {width}x{height}")
     f = 0.9 * int(width)
     return StereoCamera(PinholeCamera(f, f, (int(width) - 1) / 2.0, (int(height) - 1) / 2.0, int(width), int(height)),
                         float(baseline))

@@ -193,3 +193,15 @@ def test_synthetic_rewrite_leaves_no_stale_frames_and_keeps_foreign_files(tmp_pa
     assert "notes.txt" in capsys.readouterr().err
     assert (out / "notes.txt").read_text() == "mine" and len(list((out / "image_0").iterdir())) == 2
     assert not [p.name for p in tmp_path.iterdir() if p.name.startswith(".")]  # no temp folders left
+
+
+@pytest.mark.parametrize("argv,needle", [
+    (["synthetic", "--frames", "0"], "--frames must be >= 1"),
+    (["demo", "--frames", "0", "--no-progress"], "--frames must be >= 1"),
+    (["synthetic", "--width", "100000"], "between 16x16 and 4096x4096"),
+])
+def test_synthetic_sizes_exit_2_one_line(tmp_path, capsys, argv, needle):
+    assert cli.main([*argv, "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and needle in err[0]
+    assert not (tmp_path / "o").exists()

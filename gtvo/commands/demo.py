@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 
 from gtvo.commands._common import add_odometry_options, odometry_config, print_report
+from gtvo.errors import InputError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -24,6 +25,8 @@ def main(args: argparse.Namespace) -> int:
     from gtvo.pipeline import run  # noqa: PLC0415
     from gtvo.synthetic import make_synthetic_sequence  # noqa: PLC0415
 
+    if args.frames < 1:
+        raise InputError(f"--frames must be >= 1, got {args.frames}")
     seq = make_synthetic_sequence(n_frames=args.frames, noise_sigma=args.noise_sigma,
                                   exposure_change=args.exposure_change)
     report = run(seq, out=args.out, config=odometry_config(args), progress=not args.no_progress)

@@ -21,14 +21,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("file", help="pose-graph file (.g2o, TORO .graph, iSAM .txt)")
     p.add_argument("--format", choices=("auto", "g2o", "toro", "isam"), default="auto",
                    help="file format (default: from the tags)")
-    p.add_argument("--solver", choices=pg.SOLVERS, default="gtsam")
+    p.add_argument("--solver", choices=pg.SOLVERS, default="gtsam",
+                   help="gtsam (default): GTSAM's C++ optimisers; handrolled: the notes' GN / LM in numpy / scipy")
     p.add_argument("--method", choices=pg.METHODS, default="lm",
                    help="lm, gn, or dogleg (gtsam only); default lm")
     p.add_argument("--init", choices=pg.INITS, default="chordal",
                    help="initial poses: file vertices, odometry spanning tree, chordal (LAGO / InitializePose3)")
     p.add_argument("--objective", choices=("geodesic", "sesync"), default="geodesic",
                    help="geodesic: GTSAM's BetweenFactor error; sesync: SE-Sync's chordal objective")
-    p.add_argument("--max-iterations", type=int, default=100)
+    p.add_argument("--max-iterations", type=int, default=100, help="iteration limit (default 100)")
     p.add_argument("--out", help="write the optimised graph as g2o (full precision)")
     p.add_argument("--plot", help="write a PNG of the optimised graph")
     p.add_argument("--json", action="store_true", help="print one JSON object")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 
+from gtvo.errors import InputError
 from gtvo.synthetic import make_synthetic_sequence, write_sequence_kitti
 
 
@@ -16,17 +17,20 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, help="output folder: created, or replaced as a whole when it holds only a sequence written here "
                         "(anything else in it is refused)")
     p.add_argument("--frames", type=int, default=30, help="number of stereo pairs at 10 Hz (default 30)")
-    p.add_argument("--width", type=int, default=320)
-    p.add_argument("--height", type=int, default=240)
-    p.add_argument("--motion", choices=("forward", "loop", "turn"), default="forward")
+    p.add_argument("--width", type=int, default=320, help="image width in pixels (default 320)")
+    p.add_argument("--height", type=int, default=240, help="image height in pixels (default 240)")
+    p.add_argument("--motion", choices=("forward", "loop", "turn"), default="forward",
+                   help="camera path: forward with wobbles (default), an elliptic loop, or a car's right turn")
     p.add_argument("--noise-sigma", type=float, default=0.0, help="Gaussian image noise in gray levels")
     p.add_argument("--exposure-change", action="store_true", help="apply the known per-frame affine brightness")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0, help="seed of textures, box layout and noise (default 0)")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     """Render and write the sequence; print where it went."""
+    if args.frames < 1:
+        raise InputError(f"--frames must be >= 1, got {args.frames}")
     seq = make_synthetic_sequence(n_frames=args.frames, width=args.width, height=args.height, motion=args.motion,
                                   noise_sigma=args.noise_sigma, exposure_change=args.exposure_change, seed=args.seed)
     out = write_sequence_kitti(seq, args.out, progress=True)
