@@ -215,6 +215,7 @@ def test_kitti_missing_right_image_and_empty(tmp_path):
     root = make_kitti(tmp_path / "seq")
     (root / "image_1" / "000001.png").unlink()
     _raises("missing right image for left image", open_sequence, root)
+    assert len(open_sequence(root, max_frames=1)) == 1  # the frames used are all there
     empty = make_kitti(tmp_path / "empty", n=0, poses=False)
     _raises("empty sequence", open_sequence, empty)
 
@@ -241,7 +242,10 @@ def test_kitti_pose_and_time_count_mismatch(tmp_path):
     make_kitti(tmp_path / "seq2").joinpath("times.txt").write_text("0\n0.1\n")
     _raises("2 timestamps for 3 images", open_sequence, tmp_path / "seq2")
     (tmp_path / "seq2" / "times.txt").write_text("0\n0.1\n0.1\n")
-    _raises("not strictly increasing", open_sequence, tmp_path / "seq2")
+    err = _raises("times.txt:3: timestamps are not strictly increasing", open_sequence, tmp_path / "seq2")
+    assert err.path == tmp_path / "seq2" / "times.txt"
+    (tmp_path / "seq2" / "times.txt").write_text("0\n0.1 x\n0.2\n")
+    _raises("times.txt:2: expected one timestamp per line", open_sequence, tmp_path / "seq2")
 
 
 # ---------------------------------------------------------------------------------------------

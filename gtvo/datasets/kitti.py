@@ -95,7 +95,16 @@ def _read_times(path: Path, count: int) -> FloatArray:
     if len(rows) != count:
         raise InputError(f"{len(rows)} timestamps for {count} images: times.txt needs one line per image",
                          path=path)
-    return parse_float_table(rows, path, slice(0, 1)).reshape(-1)
+    for row in rows:
+        if len(row.fields) != 1:
+            raise InputError(f"expected one timestamp per line, got {len(row.fields)} fields", path=path,
+                             line=row.line)
+    times = parse_float_table(rows, path, slice(0, 1)).reshape(-1)
+    back = np.flatnonzero(np.diff(times) <= 0)
+    if back.size:
+        raise InputError(f"timestamps are not strictly increasing ({times[back[0]]:.9g} then "
+                         f"{times[back[0] + 1]:.9g})", path=path, line=rows[back[0] + 1].line)
+    return times
 
 
 def read_kitti(root: Path, max_frames: int | None = None, ground_truth: Path | None = None) -> Sequence:
@@ -114,15 +123,15 @@ def read_kitti(root: Path, max_frames: int | None = None, ground_truth: Path | N
     if not lefts:
         raise InputError("empty sequence: no images", path=left_dir)
     rights = [right_dir / p.name for p in lefts]
-    for left, right in zip(lefts, rights):
+    count = len(lefts)
+    n = count if max_frames is None else min(count, int(max_frames))
+    for left, right in zip(lefts[:n], rights[:n]):  # (frames past --max-frames are not read)
         if not right.is_file():
             raise InputError(f"missing right image for left image {left}", path=right)
-    count = len(lefts)
     times_path = root / "times.txt"
     times = _read_times(times_path, count) if times_path.exists() else DEFAULT_PERIOD_S * np.arange(count)
     gt_path = ground_truth if ground_truth is not None else root / "poses.txt"
     poses = _read_poses(gt_path, count) if (ground_truth is not None or gt_path.exists()) else None
-    n = count if max_frames is None else min(count, int(max_frames))
     width, height = image_size(lefts[0])
     camera = StereoCamera(PinholeCamera.from_matrix(K, width, height), baseline)
     shape = (height, width)
