@@ -41,7 +41,7 @@ def check_output_file(path: str | Path) -> Path:
     path = Path(path)
     if path.is_dir():
         raise InputError("is a folder; expected a file name", path=path)
-    ensure_output_dir(path.parent if str(path.parent) else Path("."))
+    ensure_output_dir(path.parent)
     return path
 
 
@@ -100,34 +100,64 @@ def write_with(path: str | Path, writer: Callable[[Path], Any]) -> Path:
     return Path(path)
 
 
+#: The file by which :func:`atomic_dir` recognises a folder it wrote (and may therefore replace).
+DIR_MARKER = ".gtvo-output"
+
+
 @contextlib.contextmanager
-def atomic_dir(path: str | Path, replaceable: frozenset[str] | set[str]) -> Iterator[Path]:
+def atomic_dir(path: str | Path, replaceable: frozenset[str] | set[str], writer: str) -> Iterator[Path]:
     """Yield a new temporary folder next to ``path``; when the block succeeds it becomes ``path``.
 
     For outputs that are a whole folder (a written sequence): an interrupted write leaves the
-    old folder as it was, and a shorter new sequence leaves no stale files of the old one. An
-    existing ``path`` is replaced only when it is empty or holds nothing but entries named in
-    ``replaceable`` (what this writer itself writes); anything else raises :class:`InputError`
-    rather than deleting a user's files.
+    old folder as it was (but for the instant between two renames, when it sits in a hidden
+    ``.NAME.old.*`` folder beside it), and a shorter new sequence leaves no stale files of the
+    old one. An existing ``path`` is replaced only when it is empty, or when it carries the
+    :data:`DIR_MARKER` file that this function writes (``writer`` names who wrote it) and holds
+    nothing but that and entries named in ``replaceable``. Anything else (a real dataset folder
+    with the same layout, a folder with a user's files, the current folder or one above it)
+    raises :class:`InputError` rather than deleting anything. The check is made again just
+    before the replacement. A symbolic link is followed: its target is replaced.
     """
-    path = Path(path)
-    if path.exists():
+    path = Path(path).resolve()
+    cwd = Path.cwd().resolve()
+    if path == cwd or path in cwd.parents:
+        raise InputError("output folder is the current folder or contains it; choose another", path=path)
+
+    def check() -> None:
+        if not path.exists():
+            return
         if not path.is_dir():
             raise InputError("output folder is a file", path=path)
-        foreign = sorted(p.name for p in path.iterdir() if p.name not in replaceable)
-        if foreign:
-            raise InputError(f"output folder holds other files ({', '.join(foreign[:3])}"
-                             f"{', ...' if len(foreign) > 3 else ''}); choose a new or empty folder", path=path)
-    parent = ensure_output_dir(path.parent if str(path.parent) else Path("."))
+        names = {p.name for p in path.iterdir()}
+        if not names:
+            return
+        foreign = sorted(names - set(replaceable) - {DIR_MARKER})
+        if DIR_MARKER not in names or foreign:
+            listed = ", ".join(foreign[:3]) + (", ..." if len(foreign) > 3 else "")
+            why = f"it holds other files ({listed})" if foreign else f"it was not written by {writer}"
+            raise InputError(f"output folder is not empty and {why}; choose a new or empty folder", path=path)
+
+    check()
+    parent = ensure_output_dir(path.parent)
     tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=parent))
     os.chmod(tmp, 0o777 & ~_umask())
     try:
         yield tmp
+        (tmp / DIR_MARKER).write_text(f"written by {writer}; {path.name} may be replaced by it as a whole\n",
+                                     encoding="utf-8")
+        check()
         if path.exists():
             old = Path(tempfile.mkdtemp(prefix=f".{path.name}.old.", dir=parent))
-            os.replace(path, old / path.name)
-            os.replace(tmp, path)
-            shutil.rmtree(old, ignore_errors=True)
+            try:
+                os.replace(path, old / path.name)
+                try:
+                    os.replace(tmp, path)
+                except OSError:
+                    os.replace(old / path.name, path)  # put the old folder back
+                    raise
+            finally:
+                if path.exists():
+                    shutil.rmtree(old, ignore_errors=True)
         else:
             os.replace(tmp, path)
     finally:

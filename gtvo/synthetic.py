@@ -597,8 +597,10 @@ def write_sequence_kitti(seq: Sequence, folder: str | Path, progress: bool = Fal
 
     The files are written into a new folder that replaces ``folder`` when complete
     (:func:`gtvo.atomic.atomic_dir`): an interrupted write leaves the old folder intact, and a
-    shorter sequence leaves none of a longer one's frames behind. An existing ``folder`` that
-    holds anything but these entries is refused (:class:`InputError`), not overwritten.
+    shorter sequence leaves none of a longer one's frames behind. An existing ``folder`` is
+    replaced only when it is empty or was written here (it carries ``gtvo.atomic.DIR_MARKER``)
+    and holds nothing else; a real dataset folder or one with other files is refused
+    (:class:`InputError`), never overwritten.
 
     ``calib.txt`` (``P0:``/``P1:`` 3x4 rows, ``P1[0,3] = -fx * baseline``), ``image_0/`` and
     ``image_1/`` (8-bit PNG, ``NNNNNN.png``, intensities rounded and clipped to 0..255),
@@ -607,7 +609,7 @@ def write_sequence_kitti(seq: Sequence, folder: str | Path, progress: bool = Fal
     """
     if seq.kind != "stereo" or not isinstance(seq.camera, StereoCamera):
         raise InputError(f"sequence {seq.name} is not stereo; the KITTI layout needs a stereo pair")
-    with atomic_dir(folder, KITTI_LAYOUT_ENTRIES) as tmp:
+    with atomic_dir(folder, KITTI_LAYOUT_ENTRIES, "gtvo synthetic") as tmp:
         _write_kitti_files(seq, tmp, Path(folder), progress)
     return Path(folder)
 

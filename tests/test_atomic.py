@@ -4,7 +4,8 @@ import stat
 
 import pytest
 
-from gtvo.atomic import atomic_open, write_json, write_text
+from gtvo.atomic import DIR_MARKER, atomic_dir, atomic_open, check_output_file, ensure_output_dir, write_json, write_text
+from gtvo.errors import InputError
 
 
 def test_write_replaces_atomically(tmp_path):
@@ -33,3 +34,66 @@ def test_permissions_like_open(tmp_path):
     umask = os.umask(0)
     os.umask(umask)
     assert stat.S_IMODE(p.stat().st_mode) == 0o666 & ~umask
+
+
+LAYOUT = frozenset({"data.txt", "frames"})
+
+
+def _write(tmp, n):
+    (tmp / "data.txt").write_text(str(n))
+    (tmp / "frames").mkdir()
+    for i in range(n):
+        (tmp / "frames" / f"{i}.txt").write_text(str(i))
+
+
+def test_atomic_dir_replaces_its_own_output_as_a_whole(tmp_path):
+    out = tmp_path / "out"
+    with atomic_dir(out, LAYOUT, "the test") as tmp:
+        _write(tmp, 4)
+    with atomic_dir(out, LAYOUT, "the test") as tmp:
+        _write(tmp, 2)
+    assert sorted(p.name for p in (out / "frames").iterdir()) == ["0.txt", "1.txt"]
+    assert (out / DIR_MARKER).is_file()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]  # no temporary folders left
+
+
+def test_atomic_dir_never_deletes_what_it_did_not_write(tmp_path):
+    """A folder with the same layout but no marker (a real dataset), a folder with extra files,
+    files added while the new output is written, the current folder: all refused, all intact."""
+    real = tmp_path / "real"
+    real.mkdir()
+    _write(real, 3)
+    with pytest.raises(InputError, match="not written by the test"):
+        with atomic_dir(real, LAYOUT, "the test") as tmp:
+            _write(tmp, 1)
+    assert len(list((real / "frames").iterdir())) == 3
+    out = tmp_path / "out"
+    with atomic_dir(out, LAYOUT, "the test") as tmp:
+        _write(tmp, 2)
+    with pytest.raises(InputError, match="other files"):
+        with atomic_dir(out, LAYOUT, "the test") as tmp:
+            (out / "notes.txt").write_text("mine")  # written during the (long) render
+            _write(tmp, 1)
+    assert (out / "notes.txt").read_text() == "mine" and len(list((out / "frames").iterdir())) == 2
+    cwd = os.getcwd()
+    try:
+        os.chdir(out)
+        for name in (".", str(out.parent)):
+            with pytest.raises(InputError, match="current folder"):
+                with atomic_dir(name, LAYOUT, "the test"):
+                    pass
+    finally:
+        os.chdir(cwd)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out", "real"]
+
+
+def test_output_checks_name_the_path(tmp_path):
+    f = tmp_path / "f"
+    f.write_text("x")
+    with pytest.raises(InputError, match="output folder is a file"):
+        ensure_output_dir(f)
+    with pytest.raises(InputError, match="is a folder"):
+        check_output_file(tmp_path)
+    assert check_output_file(tmp_path / "new" / "x.json") == tmp_path / "new" / "x.json"
+    assert (tmp_path / "new").is_dir()
+

@@ -150,14 +150,15 @@ def test_demo_with_fixed_lag_backend(tmp_path):
     assert rep["mode"] == "window" and rep["window_optimisations"] >= 1 and rep["ate_rmse_m"] < 0.01
 
 
-def test_unusable_output_paths_exit_2_before_any_work(kitti_like, tmp_path, shared_data, capsys):
+def test_unusable_output_paths_exit_2_before_any_work(kitti_like, tmp_path, capsys):
     """An --out that is a file, a folder under a file, or a folder where a file is wanted: one
     line naming the path, exit 2, and nothing run (the run would have taken its time first)."""
     a_file = tmp_path / "a_file"
     a_file.write_text("keep me")
     a_dir = tmp_path / "a_dir"
     a_dir.mkdir()
-    graph = shared_data / "pose_graphs" / "gtsam" / "pose3example.txt"
+    graph = tmp_path / "two.g2o"
+    graph.write_text("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\nEDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\n")
     cases = [
         (["run", str(kitti_like), "--out", str(a_file), "--no-progress"], "output folder is a file"),
         (["run", str(kitti_like), "--out", str(a_file / "sub"), "--no-progress"], "cannot create the output folder"),
@@ -171,6 +172,7 @@ def test_unusable_output_paths_exit_2_before_any_work(kitti_like, tmp_path, shar
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and needle in err[0], (argv, err)
     assert a_file.read_text() == "keep me" and not any(a_dir.iterdir())
+    assert cli.main(["posegraph", str(graph), "--json"]) == 0  # the graph itself is fine
 
 
 def test_two_frame_run_reports_no_ate_instead_of_failing(kitti_like, tmp_path, capsys):

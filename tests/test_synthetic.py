@@ -9,6 +9,7 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 import gtvo.synthetic as synthetic
+from gtvo.atomic import DIR_MARKER
 from gtvo.camera import PinholeCamera
 from gtvo.errors import InputError
 from gtvo.image import bilinear_sample
@@ -331,7 +332,8 @@ def test_write_sequence_kitti(tmp_path):
     poses = np.loadtxt(out / "poses.txt").reshape(3, 3, 4)
     np.testing.assert_allclose(poses, seq.gt_poses[:, :3, :], atol=1e-12)
     np.testing.assert_allclose(np.loadtxt(out / "times.txt"), seq.timestamps)
-    assert not list(out.rglob(".*"))  # no temporary files left behind
+    assert [p.name for p in out.rglob(".*")] == [DIR_MARKER]  # no temporary files left behind, only the marker
+    assert not [p.name for p in out.parent.iterdir() if p.name.startswith(".")]
 
 
 def test_writer_refuses_a_non_stereo_sequence(tmp_path):
