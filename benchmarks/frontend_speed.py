@@ -9,9 +9,12 @@ its ratio to a reference measured in the same run (one OpenCV StereoSGBM of fram
 settings; median of 5, before and after). A checksum of the selected pixels and inverse depths
 tells whether two checkouts compute the same points.
 
-``--root`` imports gtvo from another checkout (e.g. ``git worktree add /tmp/gtvo-old <commit>``)
-with this script's own helpers, so an older commit is measured by the same code: run it for
-both, alternately, to compare under the same machine load.
+``--root`` imports gtvo from another checkout (e.g. ``git worktree add /tmp/gtvo-old <commit>``),
+so an older commit is measured by this same script: run it for both, alternately, to compare
+under the same machine load. The script therefore uses nothing but gtvo's public API
+(``open_sequence``, ``select_points``, ``init_keyframe_points``) and OpenCV; its SGBM reference has
+the settings of ``benchmarks/peers.make_sgbm`` (which it cannot import: that would load this
+checkout's gtvo).
 """
 
 from __future__ import annotations
@@ -35,21 +38,34 @@ def main() -> int:
     ap.add_argument("--points", default="300,2000", help="point targets per keyframe")
     ap.add_argument("--repeats", type=int, default=3)
     args = ap.parse_args()
-    sys.path.insert(0, str(here))  # the benchmark helpers
-    sys.path.insert(0, str(args.root.resolve()))  # the gtvo measured (first on the path)
+    sys.path.insert(0, str(args.root.resolve()))  # the gtvo measured
+    import cv2  # noqa: PLC0415
     import numpy as np  # noqa: PLC0415
 
     import gtvo  # noqa: PLC0415
-    from benchmarks.vo_bench import KITTI_SEQUENCE_1, load_frames, reference_ms  # noqa: PLC0415
     from gtvo.datasets import open_sequence  # noqa: PLC0415
     from gtvo.frontend import select_points  # noqa: PLC0415
     from gtvo.frontend.stereo_depth import init_keyframe_points  # noqa: PLC0415
 
-    seq = open_sequence(args.sequence or KITTI_SEQUENCE_1)
-    frames = load_frames(seq, progress=False)
+    shared = Path(os.environ.get("GTVO_SHARED_DATA") or here.parent / "shared" / "data")
+    seq = open_sequence(args.sequence or shared / "kitti_stereo_sample" / "KITTI_sequence_1")
+    frames = [seq.frame(i) for i in range(len(seq))]
     lefts = [np.asarray(f.left, dtype=np.float32) for f in frames]
+    sgbm = cv2.StereoSGBM_create(minDisparity=0, numDisparities=128, blockSize=5, P1=8 * 25, P2=32 * 25,
+                                 mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY)
+    pair = [np.clip(np.rint(np.asarray(x, dtype=np.float32)), 0, 255).astype(np.uint8)
+            for x in (frames[0].left, frames[0].right)]
+
+    def reference_ms() -> float:
+        ts = []
+        for _ in range(5):
+            t0 = time.perf_counter()
+            sgbm.compute(*pair)
+            ts.append(time.perf_counter() - t0)
+        return 1000.0 * float(np.median(ts))
+
     init_keyframe_points(frames[0].left, frames[0].right, seq.camera, target=100)  # compile / warm up
-    ref_before = reference_ms(frames)
+    ref_before = reference_ms()
     rows = []
     for target in (int(t) for t in args.points.split(",")):
         best_sel = best_init = float("inf")
@@ -68,7 +84,7 @@ def main() -> int:
                     digest.update(np.ascontiguousarray(kp.inverse_depth).tobytes())
         n_pts = int(np.mean([len(kp.pixels) for kp in kps]))
         rows.append((target, n_pts, 1e3 * best_sel, 1e3 * best_init, digest.hexdigest()[:12]))
-    ref_after = reference_ms(frames)
+    ref_after = reference_ms()
     ref = 0.5 * (ref_before + ref_after)
     print(f"gtvo at {Path(gtvo.__file__).resolve().parents[1]}, {seq.name}, {len(frames)} frames")
     print(f"Reference: one StereoSGBM of frame 0 = {ref:.0f} ms (before / after: {ref_before:.0f} / {ref_after:.0f} ms)\n")

@@ -20,7 +20,9 @@ def to_float_gray(image: NDArray, name: str = "image") -> FloatImage:
 
     Colour images are taken as BGR (OpenCV's order) and converted with ITU-R BT.601 weights.
     16-bit images are scaled by 255 / 65535 (a camera that logs 16 bits is not 256x brighter);
-    8-bit and float images keep their values.
+    8-bit and float images keep their values. A 12-bit sensor stored in 16-bit files therefore
+    comes out 16x darker than full range, and the grey-level constants (selection threshold,
+    ``sigma_intensity``) stay in 8-bit units: scale such logs to full range first.
     """
     img = np.asarray(image)
     scale = 255.0 / 65535.0 if img.dtype == np.uint16 else None

@@ -49,8 +49,9 @@ def evaluate(est: Trajectory, ref: Trajectory) -> dict[str, Any]:
     alignment is not determined: fewer than 3 poses, or positions on a line or a point);
     ``rpe_trans_rmse_m`` / ``rpe_rot_rmse_deg``: frame-to-frame RPE; ``drift_percent``: final
     position error after aligning the first pose over the path length; ``kitti_*``: the devkit's
-    segment metric on lengths that fit the path (None if none). Both None when the ground-truth
-    path is shorter than :data:`MIN_DRIFT_PATH_M`.
+    segment metric on lengths that fit the path (None if none). When the ground-truth path is
+    shorter than :data:`MIN_DRIFT_PATH_M`, ``drift_percent`` is None and the ``kitti_*`` keys are
+    absent.
     """
     out: dict[str, Any] = {}
     try:

@@ -74,8 +74,9 @@ _PLY_SIZES = {b"char": 1, b"uchar": 1, b"int8": 1, b"uint8": 1, b"short": 2, b"u
 
 def _check_ply_complete(path: Path) -> None:
     """Raise :class:`InputError` when a PLY file is shorter than its header declares (a truncated
-    copy or an interrupted write: open3d would read garbage there). Files that are not PLY, and
-    PLY files with variable-size (list) elements, are left to open3d."""
+    copy or an interrupted write: open3d would read garbage there). The elements from the first
+    one with a list property on (faces) have no known size and are left to open3d, as are files
+    that are not PLY."""
     with open(path, "rb") as f:
         if f.readline().strip() != b"ply":
             return
@@ -103,19 +104,20 @@ def _check_ply_complete(path: Path) -> None:
         else:
             return
         body = f.read()
+    # the elements before the first one with a list property have a known size
+    fixed = []
+    for n, size, props in elements:
+        if size is None:
+            break
+        fixed.append((n, size, props))
     if fmt == b"ascii":
-        rows = [row.split() for row in body.splitlines() if row.strip()]
-        needed = sum(n for n, _, _ in elements)
-        if len(rows) < needed:
-            raise InputError(f"truncated point cloud: the header declares {needed} rows, the file has {len(rows)}",
+        needed = sum(n * props for n, _, props in fixed)
+        have = len(body.split())
+        if have < needed:
+            raise InputError(f"truncated point cloud: the header declares {needed} values, the file has {have}",
                              path=path)
-        start = 0
-        for n, size, props in elements:
-            if size is not None and any(len(r) != props for r in rows[start:start + n]):
-                raise InputError(f"truncated or corrupt point cloud: a row without its {props} values", path=path)
-            start += n
-    elif fmt in (b"binary_little_endian", b"binary_big_endian") and all(sz is not None for _, sz, _ in elements):
-        needed = sum(n * sz for n, sz, _ in elements)
+    elif fmt in (b"binary_little_endian", b"binary_big_endian"):
+        needed = sum(n * size for n, size, _ in fixed)
         if len(body) < needed:
             raise InputError(f"truncated point cloud: the header declares {needed} bytes of data, the file has "
                              f"{len(body)}", path=path)
