@@ -38,6 +38,7 @@ from factors import _compiled
 from gtvo.camera import MIN_DEPTH, PinholeCamera
 from gtvo.errors import InputError
 from gtvo.image import bilinear_sample, image_gradients
+from gtvo.trajectory import invert_poses
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -147,13 +148,7 @@ def _relative_pose(T_world_a: object, T_world_b: object) -> FloatArray:
     """
     if hasattr(T_world_a, "between") and hasattr(T_world_b, "matrix"):
         return np.asarray(T_world_a.between(T_world_b).matrix(), dtype=float)  # type: ignore[attr-defined]
-    A = _as_matrix(T_world_a)
-    B = _as_matrix(T_world_b)
-    Rt = A[:3, :3].T
-    out = np.eye(4)
-    out[:3, :3] = Rt @ B[:3, :3]
-    out[:3, 3] = Rt @ (B[:3, 3] - A[:3, 3])
-    return out
+    return invert_poses(_as_matrix(T_world_a)) @ _as_matrix(T_world_b)
 
 
 def _as_matrix(T: object) -> FloatArray:

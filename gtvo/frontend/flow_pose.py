@@ -30,6 +30,7 @@ from numpy.typing import ArrayLike, NDArray
 from gtvo.camera import PinholeCamera
 from gtvo.errors import InputError
 from gtvo.image import to_uint8
+from gtvo.trajectory import invert_poses
 
 FloatArray = NDArray[np.float64]
 
@@ -139,8 +140,4 @@ def optical_flow_pose(camera: PinholeCamera, keyframe_image: ArrayLike, pixels: 
     T_frame_keyframe[:3, 3] = np.asarray(tvec, dtype=np.float64).reshape(3)
     if not np.all(np.isfinite(T_frame_keyframe)):
         return None
-    R = T_frame_keyframe[:3, :3]
-    T = np.eye(4)
-    T[:3, :3] = R.T
-    T[:3, 3] = -R.T @ T_frame_keyframe[:3, 3]
-    return FlowPose(T, n_tracked, n_in)
+    return FlowPose(invert_poses(T_frame_keyframe), n_tracked, n_in)
