@@ -33,8 +33,8 @@ import scipy.linalg
 from numpy.typing import ArrayLike, NDArray
 
 from factors.gtsam_factors import PhotometricBatchFactor
-from factors.photometric import (PATTERN_DSO8, GradientImage, huber_loss, huber_weight, pattern_bearings,
-                                 photometric_residuals, sample_host, variance_weight)
+from factors.photometric import (PATTERN_DSO8, GradientImage, huber_loss, pattern_bearings, photometric_residuals,
+                                 point_robust_terms, sample_host, variance_weight)
 from gtvo.camera import PinholeCamera
 from gtvo.errors import InputError, TrackingFailure
 from gtvo.image import build_pyramid
@@ -272,12 +272,10 @@ def _evaluate(kf: TrackingKeyframe, level: int, target: GradientImage, T: gtsam.
                                 bearings=kf.level_bearings[level])
     if W is None:
         W = variance_weight(lin.J_depth, kf.variance[idx], cfg.sigma_intensity)
-    e = np.sqrt(W) * lin.residual
-    norm = np.linalg.norm(e, axis=1)
-    w = huber_weight(norm, cfg.huber_k)
+    w, loss = point_robust_terms(W, lin.residual, cfg.huber_k)
     point_valid = lin.valid.any(axis=1)
     lost = int(np.count_nonzero(hv & (kf.inverse_depth[idx] > 0)[:, None] & ~lin.valid))
-    data_cost = float(huber_loss(norm, cfg.huber_k).sum())
+    data_cost = float(loss.sum())
     cost = data_cost + lost * _lost_pixel_loss(cfg)
     n_out = int(np.count_nonzero(point_valid & (w < 1.0)))
     A = b = None
