@@ -33,7 +33,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import ndimage
 
-from gtvo.atomic import atomic_dir, write_text, write_with
+from gtvo.atomic import atomic_dir
 from gtvo.camera import PinholeCamera, StereoCamera
 from gtvo.errors import InputError
 from gtvo.sequence import Sequence
@@ -619,25 +619,25 @@ KITTI_LAYOUT_ENTRIES = frozenset({"calib.txt", "times.txt", "poses.txt", "image_
 
 
 def _write_kitti_files(seq: Sequence, out: Path, shown: Path, progress: bool) -> None:
+    """The files of :func:`write_sequence_kitti` into ``out``, a fresh temporary folder that
+    :func:`gtvo.atomic.atomic_dir` swaps in as a whole (so plain writes; ``shown``: the name
+    the user gave, for the progress bar and errors)."""
     cam = seq.camera
     P0 = np.hstack([cam.left.K, np.zeros((3, 1))])
     P1 = P0.copy()
     P1[0, 3] = -cam.left.fx * cam.baseline
-    write_text(out / "calib.txt", f"P0: {_matrix_line(P0)}\nP1: {_matrix_line(P1)}\n")
+    (out / "calib.txt").write_text(f"P0: {_matrix_line(P0)}\nP1: {_matrix_line(P1)}\n", encoding="utf-8")
+    for sub in ("image_0", "image_1"):
+        (out / sub).mkdir()
     frames = range(len(seq))
     if progress:
         from tqdm import tqdm
         frames = tqdm(frames, desc=f"writing {shown}", unit="frame")
     for i in frames:
         for sub, image in (("image_0", seq.left(i)), ("image_1", seq.right(i))):
-            img8 = np.clip(np.rint(image), 0, 255).astype(np.uint8)
-            path = out / sub / f"{i:06d}.png"
-
-            def _write(tmp: Path, img8: NDArray[np.uint8] = img8, path: Path = path) -> None:
-                if not cv2.imwrite(str(tmp), img8):
-                    raise InputError("could not write the image", path=path)
-
-            write_with(path, _write)
-    write_text(out / "times.txt", "".join(f"{t:.6e}\n" for t in seq.timestamps))
+            if not cv2.imwrite(str(out / sub / f"{i:06d}.png"), np.clip(np.rint(image), 0, 255).astype(np.uint8)):
+                raise InputError("could not write the image", path=shown / sub / f"{i:06d}.png")
+    (out / "times.txt").write_text("".join(f"{t:.6e}\n" for t in seq.timestamps), encoding="utf-8")
     if seq.gt_poses is not None and np.all(np.isfinite(seq.gt_poses)):
-        write_text(out / "poses.txt", "".join(_matrix_line(T[:3, :]) + "\n" for T in seq.gt_poses))
+        (out / "poses.txt").write_text("".join(_matrix_line(T[:3, :]) + "\n" for T in seq.gt_poses),
+                                       encoding="utf-8")
