@@ -7,6 +7,7 @@ name stays intact until the new one is complete.
 from __future__ import annotations
 
 import contextlib
+import contextvars
 import json
 import os
 import shutil
@@ -17,19 +18,59 @@ from typing import IO, Any, Callable, Iterator
 from gtvo.errors import InputError
 
 
+#: Folders made by :func:`ensure_output_dir` inside the innermost :func:`tidy_on_failure` block.
+_CREATED: contextvars.ContextVar[list[Path] | None] = contextvars.ContextVar("gtvo_created_dirs", default=None)
+
+
+@contextlib.contextmanager
+def tidy_on_failure() -> Iterator[None]:
+    """Undo the folders :func:`ensure_output_dir` creates in this block if the block fails.
+
+    Output folders are made before the long work, so that a bad ``--out`` is reported at once;
+    when the work then fails (bad input found later, Ctrl-C), the folders this block made are
+    removed again, deepest first, as long as they are still empty. Folders that existed before,
+    and any folder something was written into, are left alone.
+    """
+    created: list[Path] = []
+    token = _CREATED.set(created)
+    try:
+        yield
+    except BaseException:
+        for folder in reversed(created):
+            try:
+                folder.rmdir()
+            except OSError:  # not empty (so are its parents), or already gone: leave it alone
+                pass
+        raise
+    finally:
+        _CREATED.reset(token)
+        outer = _CREATED.get()
+        if outer is not None:  # a nested block: the outer one answers for these folders too
+            outer.extend(p for p in created if p.is_dir())
+
+
 def ensure_output_dir(path: str | Path) -> Path:
     """Create the output folder ``path`` (and its parents) or raise a one-line :class:`InputError`.
 
     Called before long work, so that an unusable ``--out`` (a file, a folder under a file, no
-    permission) is reported at once rather than after the run.
+    permission) is reported at once rather than after the run. Inside :func:`tidy_on_failure`
+    the folders it creates are removed again if the work fails.
     """
     path = Path(path)
     if path.exists() and not path.is_dir():
         raise InputError("output folder is a file", path=path)
+    missing = []
+    probe = path.absolute()
+    while not probe.exists() and probe != probe.parent:
+        missing.append(probe)
+        probe = probe.parent
     try:
         path.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise InputError(f"cannot create the output folder ({exc.strerror or exc})", path=path) from None
+    created = _CREATED.get()
+    if created is not None:
+        created.extend(reversed(missing))  # outermost first, so that undoing goes deepest first
     if not os.access(path, os.W_OK | os.X_OK):
         raise InputError("output folder is not writable", path=path)
     return path

@@ -21,6 +21,7 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 from typing import Sequence
 
 from gtvo import __version__
+from gtvo.atomic import tidy_on_failure
 from gtvo.errors import DependencyError, InputError, TrackingFailure
 
 # One module per subcommand, in the order `gtvo --help` lists them.
@@ -54,7 +55,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        return int(args.func(args) or 0)
+        with tidy_on_failure():  # a failed command leaves no empty output folder behind
+            return int(args.func(args) or 0)
     except (InputError, DependencyError) as exc:
         print(f"gtvo {args.command}: error: {exc}", file=sys.stderr)
         return 2

@@ -10,7 +10,7 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
-from gtvo.atomic import ensure_output_dir
+from gtvo.atomic import ensure_output_dir, tidy_on_failure
 from gtvo.datasets import open_sequence
 from gtvo.errors import InputError
 from gtvo.odometry import OdometryConfig, VisualOdometry
@@ -119,19 +119,20 @@ def run(path: str | Path | Sequence, out: str | Path | None = None, config: Odom
     if isinstance(path, Sequence) and max_frames is not None:
         seq = seq.truncated(max_frames)
     seq = seq.subsampled(frame_step)
-    out_dir = ensure_output_dir(Path(out) if out is not None else Path("gtvo_out") / seq.name)
-    vo, traj, info = process_sequence(seq, config, progress=progress, strict=strict)
-    info["frame_step"] = int(frame_step)
-    closed = None
-    if loop_closure:
-        from gtvo.loop_closing import close_loops_of_run  # noqa: PLC0415
+    with tidy_on_failure():  # a run that fails leaves no empty output folder behind
+        out_dir = ensure_output_dir(Path(out) if out is not None else Path("gtvo_out") / seq.name)
+        vo, traj, info = process_sequence(seq, config, progress=progress, strict=strict)
+        info["frame_step"] = int(frame_step)
+        closed = None
+        if loop_closure:
+            from gtvo.loop_closing import close_loops_of_run  # noqa: PLC0415
 
-        keyframes = [p for p, e in enumerate(vo.estimates) if e.is_keyframe]
-        res = close_loops_of_run(seq, traj, [e.index for e in vo.estimates], keyframes, progress=progress)
-        closed = res.trajectory
-        info["loops_detected"] = len(res.candidates)
-        info["loops_accepted"] = int(sum(res.accepted))
-    report = write_run_outputs(out_dir, traj, seq, info, points=vo.point_cloud(), loop_closed=closed)
+            keyframes = [p for p, e in enumerate(vo.estimates) if e.is_keyframe]
+            res = close_loops_of_run(seq, traj, [e.index for e in vo.estimates], keyframes, progress=progress)
+            closed = res.trajectory
+            info["loops_detected"] = len(res.candidates)
+            info["loops_accepted"] = int(sum(res.accepted))
+        report = write_run_outputs(out_dir, traj, seq, info, points=vo.point_cloud(), loop_closed=closed)
     report["out"] = str(out_dir)
     return report
 

@@ -4,7 +4,8 @@ import stat
 
 import pytest
 
-from gtvo.atomic import DIR_MARKER, atomic_dir, atomic_open, check_output_file, ensure_output_dir, write_json, write_text
+from gtvo.atomic import (DIR_MARKER, atomic_dir, atomic_open, check_output_file, ensure_output_dir,
+                         tidy_on_failure, write_json, write_text)
 from gtvo.errors import InputError
 
 
@@ -97,3 +98,28 @@ def test_output_checks_name_the_path(tmp_path):
     assert check_output_file(tmp_path / "new" / "x.json") == tmp_path / "new" / "x.json"
     assert (tmp_path / "new").is_dir()
 
+
+
+def test_tidy_on_failure_removes_only_the_empty_folders_it_made(tmp_path):
+    (tmp_path / "old").mkdir()
+    with pytest.raises(RuntimeError):
+        with tidy_on_failure():
+            ensure_output_dir(tmp_path / "old" / "a" / "b")
+            ensure_output_dir(tmp_path / "c")
+            (tmp_path / "c" / "user.txt").write_text("kept")
+            raise RuntimeError("the work failed")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["c", "old"]  # c holds a file: kept
+    assert list((tmp_path / "old").iterdir()) == []  # a/b removed, the folder that existed kept
+    with tidy_on_failure():  # success: nothing is removed
+        ensure_output_dir(tmp_path / "d" / "e")
+    assert (tmp_path / "d" / "e").is_dir()
+
+
+def test_tidy_on_failure_nested_blocks_hand_their_folders_to_the_outer_one(tmp_path):
+    with pytest.raises(KeyboardInterrupt):
+        with tidy_on_failure():
+            with tidy_on_failure():
+                ensure_output_dir(tmp_path / "a" / "b")
+            assert (tmp_path / "a" / "b").is_dir()
+            raise KeyboardInterrupt
+    assert list(tmp_path.iterdir()) == []
