@@ -150,6 +150,16 @@ def test_demo_with_fixed_lag_backend(tmp_path):
     assert rep["mode"] == "window" and rep["window_optimisations"] >= 1 and rep["ate_rmse_m"] < 0.01
 
 
+@pytest.mark.parametrize("command", ["run", "demo"])
+def test_window_backend_without_window_mode_exit_2(kitti_like, tmp_path, capsys, command):
+    argv = [command, *([str(kitti_like)] if command == "run" else []), "--out", str(tmp_path / "o"),
+            "--mode", "track", "--window-backend", "fixed-lag", "--no-progress"]
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert "--window-backend fixed-lag needs --mode window" in err and "\n" not in err
+    assert not (tmp_path / "o").exists()
+
+
 def test_unusable_output_paths_exit_2_before_any_work(kitti_like, tmp_path, capsys):
     """An --out that is a file, a folder under a file, or a folder where a file is wanted: one
     line naming the path, exit 2, and nothing run (the run would have taken its time first)."""

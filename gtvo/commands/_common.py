@@ -26,7 +26,7 @@ def add_odometry_options(p: argparse.ArgumentParser) -> None:
                    help="window (default): every new keyframe joins a sliding window of 7 keyframes whose poses, "
                         "brightness and inverse depths are optimised jointly; track: each frame is only tracked "
                         "against the latest keyframe (faster, less accurate)")
-    p.add_argument("--window-backend", choices=("lm", "fixed-lag"), default="lm",
+    p.add_argument("--window-backend", choices=("lm", "fixed-lag"), default=None,
                    help="lm (default): each window solved by --solver's Levenberg-Marquardt with a hand-made "
                         "marginalisation prior; fixed-lag: gtsam.IncrementalFixedLagSmoother (iSAM2) keeps the "
                         "window and marginalises the keyframes that leave it")
@@ -43,6 +43,8 @@ def odometry_config(args: Any):
     from gtvo.odometry import OdometryConfig  # noqa: PLC0415
     from gtvo.window import WindowConfig  # noqa: PLC0415
 
+    if args.window_backend is not None and args.mode != "window":
+        raise InputError(f"--window-backend {args.window_backend} needs --mode window (got --mode {args.mode})")
     backend = "fixed_lag" if args.window_backend == "fixed-lag" else "lm"
     return OdometryConfig(solver=args.solver, points_per_keyframe=args.points, motion_model=args.motion_model,
                           mode=args.mode, window_solver=args.solver, window=WindowConfig(backend=backend))

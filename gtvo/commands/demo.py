@@ -27,9 +27,10 @@ def main(args: argparse.Namespace) -> int:
 
     if args.frames < 1:
         raise InputError(f"--frames must be >= 1, got {args.frames}")
+    config = odometry_config(args)
     seq = make_synthetic_sequence(n_frames=args.frames, noise_sigma=args.noise_sigma,
                                   exposure_change=args.exposure_change)
-    report = run(seq, out=args.out, config=odometry_config(args), progress=not args.no_progress)
+    report = run(seq, out=args.out, config=config, progress=not args.no_progress)
     print(f"gtvo demo: synthetic sequence, {len(seq)} frames {seq.pinhole.width}x{seq.pinhole.height} "
           f"({report['mode']}, {report['solver']} solver)")
     print_report(report)
