@@ -185,6 +185,17 @@ def test_unusable_output_paths_exit_2_before_any_work(kitti_like, tmp_path, caps
     assert cli.main(["posegraph", str(graph), "--json"]) == 0  # the graph itself is fine
 
 
+def test_no_progress_silences_the_bars(tmp_path, capsys):
+    graph = tmp_path / "two.g2o"
+    graph.write_text("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\nEDGE_SE2 0 1 1 0 0.1 1 0 0 1 0 1\n")
+    for argv in (["posegraph", str(graph), "--solver", "handrolled"],
+                 ["synthetic", "--out", str(tmp_path / "syn"), "--frames", "2"]):
+        assert cli.main(argv) == 0
+        assert capsys.readouterr().err != ""  # the bar
+        assert cli.main([*argv, "--no-progress"]) == 0
+        assert capsys.readouterr().err == "", argv
+
+
 def test_two_frame_run_reports_no_ate_instead_of_failing(kitti_like, tmp_path, capsys):
     out = tmp_path / "two"
     assert cli.main(["run", str(kitti_like), "--max-frames", "2", "--out", str(out), "--no-progress"]) == 0

@@ -33,6 +33,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--out", help="write the optimised graph as g2o (full precision)")
     p.add_argument("--plot", help="write a PNG of the optimised graph")
     p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar (the hand-rolled solver shows one)")
     p.set_defaults(func=run)
 
 
@@ -45,7 +46,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--max-iterations must be >= 1, got {args.max_iterations}")
     graph = pg.read(args.file, args.format)
     progress = None
-    if args.solver == "handrolled" and not args.json:
+    if args.solver == "handrolled" and not (args.json or args.no_progress):
         from tqdm import tqdm  # noqa: PLC0415
 
         bar = tqdm(total=args.max_iterations, desc="handrolled", unit="it", file=sys.stderr, leave=False)

@@ -24,6 +24,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--noise-sigma", type=float, default=0.0, help="Gaussian image noise in gray levels")
     p.add_argument("--exposure-change", action="store_true", help="apply the known per-frame affine brightness")
     p.add_argument("--seed", type=int, default=0, help="seed of textures, box layout and noise (default 0)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
 
@@ -33,6 +34,6 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--frames must be >= 1, got {args.frames}")
     seq = make_synthetic_sequence(n_frames=args.frames, width=args.width, height=args.height, motion=args.motion,
                                   noise_sigma=args.noise_sigma, exposure_change=args.exposure_change, seed=args.seed)
-    out = write_sequence_kitti(seq, args.out, progress=True)
+    out = write_sequence_kitti(seq, args.out, progress=not args.no_progress)
     print(f"wrote {len(seq)} stereo pairs ({seq.pinhole.width}x{seq.pinhole.height}, {args.motion}) to {out}")
     return 0
