@@ -107,6 +107,21 @@ def test_corrupt_frame_mid_sequence_is_skipped_unless_strict(kitti_like, tmp_pat
     assert not (tmp_path / "o2").exists()  # the folders made for the outputs are removed again
 
 
+def test_loops_skips_a_corrupt_frame_unless_strict(kitti_like, tmp_path, capsys):
+    bad = tmp_path / "bad"
+    shutil.copytree(kitti_like, bad)
+    victim = sorted((bad / "image_1").iterdir())[3]
+    victim.write_bytes(victim.read_bytes()[:100])  # truncated PNG
+    out = tmp_path / "loops.json"
+    assert cli.main(["loops", str(bad), "--out", str(out), "--no-progress"]) == 0
+    assert victim.name in capsys.readouterr().err
+    rep = json.loads(out.read_text())
+    assert rep["skipped_frames"] == [3] and rep["keyframes"] == 7
+    assert cli.main(["loops", str(bad), "--strict", "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and victim.name in err[0]
+
+
 def test_corrupt_first_frame_exit_2(kitti_like, tmp_path):
     bad = tmp_path / "bad"
     shutil.copytree(kitti_like, bad)

@@ -34,6 +34,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--min-inliers", type=int, default=None, help="PnP inliers needed to accept (default 30)")
     p.add_argument("--json", action="store_true", help="print a JSON object instead of the table")
     p.add_argument("--out", default=None, help="write the JSON object to this file")
+    p.add_argument("--strict", action="store_true", help="stop at an unreadable frame instead of skipping it")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
@@ -66,16 +67,19 @@ def run(args: argparse.Namespace) -> int:
             raise InputError(f"--min-inliers must be >= 6, got {args.min_inliers}")
         config = replace(config, verification=replace(config.verification, min_inliers=args.min_inliers))
     frames = range(0, len(seq), args.every)
-    _, loops = detect_loops(seq, frames, config, progress=not (args.json or args.no_progress))
+    det, loops = detect_loops(seq, frames, config, progress=not (args.json or args.no_progress), strict=args.strict)
     gt = seq.gt_poses if seq.has_ground_truth else None
-    result = {"sequence": seq.name, "keyframes": len(frames), "temporal_window": config.temporal_window,
+    added = set(det.indices)
+    result = {"sequence": seq.name, "keyframes": len(added), "temporal_window": config.temporal_window,
+              "skipped_frames": [k for k in frames if k not in added],
               "loops": [_loop_record(c, gt) for c in loops]}
     if args.out:
         write_json(args.out, result)
     if args.json:
         print(json.dumps(result))
         return 0
-    print(f"{seq.name}: {len(frames)} keyframes, {len(loops)} verified loop(s)")
+    skipped = f" ({len(result['skipped_frames'])} unreadable frame(s) skipped)" if result["skipped_frames"] else ""
+    print(f"{seq.name}: {len(added)} keyframes{skipped}, {len(loops)} verified loop(s)")
     if loops:
         header = f"{'i':>6} {'j':>6} {'inliers':>7} {'score':>6} {'|t| m':>8} {'rot deg':>8}"
         print(header + ("  err_t m  err_R deg" if gt is not None else ""))

@@ -18,8 +18,9 @@ by ORB matching and PnP RANSAC against its stereo/depth 3-D points.
 
 from __future__ import annotations
 
+import sys
 from dataclasses import dataclass, field
-from typing import Any, Iterable
+from typing import Any, Callable, Iterable
 
 import cv2
 import gtsam
@@ -206,6 +207,11 @@ class LoopDetector:
     def __len__(self) -> int:
         return len(self._keyframes)
 
+    @property
+    def indices(self) -> list[int]:
+        """The frame indices of the keyframes in the database, in the order they were added."""
+        return [kf.index for kf in self._keyframes]
+
     def keyframe(self, index: int) -> Keyframe:
         """The database entry of keyframe ``index``."""
         try:
@@ -353,21 +359,33 @@ class LoopDetector:
 
 
 def detect_loops(sequence: Sequence, frames: Iterable[int] | None = None, config: LoopDetectorConfig | None = None,
-                 progress: bool = False) -> tuple[LoopDetector, list[LoopCandidate]]:
+                 progress: bool = False, strict: bool = False,
+                 warn: Callable[[str], None] | None = None) -> tuple[LoopDetector, list[LoopCandidate]]:
     """Run place recognition over a sequence: every frame in ``frames`` (all when None) is added as a
     keyframe (right image or depth image by the sequence's kind) and queried right after.
+
+    With ``strict=False`` a frame whose images cannot be read (missing, corrupt, wrong size, NaN)
+    is skipped: ``warn`` (default: a line on stderr) names it and it is left out of the database,
+    as ``gtvo run`` does; ``strict=True`` raises the :class:`InputError` instead. The frames that
+    made it in are ``detector.indices``.
 
     Returns the detector (its database) and all verified loops in query order.
     """
     det = LoopDetector(sequence.camera, config)
     indices = list(range(len(sequence))) if frames is None else [int(k) for k in frames]
+    warn = warn or (lambda msg: print(f"warning: {msg}", file=sys.stderr))
     loops: list[LoopCandidate] = []
     for k in tqdm(indices, desc=f"loops {sequence.name}", unit="kf", disable=not progress):
         if not 0 <= k < len(sequence):
             raise InputError(f"frame {k} out of range 0..{len(sequence) - 1}")
-        if sequence.kind == "stereo":
-            det.add_keyframe(k, sequence.left(k), sequence.right(k))
-        else:
-            det.add_keyframe(k, sequence.left(k), depth=sequence.depth(k))
+        try:
+            images = ((sequence.left(k), sequence.right(k), None) if sequence.kind == "stereo"
+                      else (sequence.left(k), None, sequence.depth(k)))
+        except InputError as exc:
+            if strict:
+                raise
+            warn(f"skipping frame {k}: {exc}")
+            continue
+        det.add_keyframe(k, images[0], images[1], depth=images[2])
         loops += det.query(k)
     return det, loops
