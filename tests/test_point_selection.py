@@ -117,7 +117,7 @@ def _pick_hierarchical(score: NDArray, thr: NDArray, eligible: NDArray, cell: in
     h, w = score.shape
     picked = np.zeros((h, w), dtype=bool)
     for lvl in range(levels):
-        c = cell * (2 ** lvl)
+        c = min(cell * (2 ** lvl), max(h, w, cell))  # a cell larger than the image is the whole image
         ok = eligible & (score > thr * (downweight ** lvl))
         masked = _pad_to_multiple(np.where(ok, score, -1.0).astype(np.float32), c, -1.0)
         have = _pad_to_multiple(picked, c, False)
@@ -143,7 +143,7 @@ def test_compiled_cell_pick_equals_the_numpy_rule(shape, cell, border):
         thr = block_gradient_thresholds(score, 32, 7.0 if score.max() > 20 else 0.5)
         eligible = np.zeros(shape, dtype=bool)
         eligible[border:shape[0] - border, border:shape[1] - border] = True
-        for levels, downweight in ((3, 0.75), (1, 1.0), (4, 0.5)):
+        for levels, downweight in ((3, 0.75), (1, 1.0), (4, 0.5), (70, 0.9)):  # 70: 2^69 cells, no overflow
             ref = _pick_hierarchical(score, thr, eligible, cell, levels, downweight)
             factors = np.array([downweight ** lvl for lvl in range(levels)], dtype=np.float32)
             got = pick_cells(score, thr, border, cell, factors)

@@ -26,8 +26,10 @@ def pick_cells(score, thr, border, cell, level_factors):
     as the numpy form does."""
     h, w = score.shape
     picked = np.zeros((h, w), dtype=np.bool_)
+    c = cell
     for lvl in range(level_factors.shape[0]):
-        c = cell * (1 << lvl)
+        if lvl > 0:  # doubled, but no further than one cell over the whole image (no overflow)
+            c = min(2 * c, max(h, w, cell))
         f = level_factors[lvl]
         for y0 in range(0, h, c):
             y1 = min(y0 + c, h)
