@@ -70,6 +70,18 @@ def test_bad_intrinsics_rejected(kwargs):
         PinholeCamera(**base)
 
 
+@pytest.mark.parametrize("cx,cy,ok", [(320.0, 240.0, True), (-0.5, 479.5, True), (639.5, -0.5, True),
+                                       (-0.6, 240.0, False), (640.0, 240.0, False), (240.0, 480.0, False),
+                                       (240.0, 320.0 * 2, False)])
+def test_principal_point_must_lie_on_the_image(cx, cy, ok):
+    """A principal point off the image is a misread or mismatched calibration: refused by name."""
+    if ok:
+        PinholeCamera(500.0, 500.0, cx, cy, 640, 480)
+    else:
+        with pytest.raises(InputError, match=r"principal point .* outside the 640x480 image"):
+            PinholeCamera(500.0, 500.0, cx, cy, 640, 480)
+
+
 def test_bad_baseline_rejected():
     with pytest.raises(InputError, match="baseline"):
         StereoCamera(make_cam(), baseline=-0.1)

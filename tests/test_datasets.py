@@ -115,6 +115,10 @@ def make_euroc(root: Path, n: int = 4, gt: str = "inside") -> Path:
     return root
 
 
+#: intrinsics for the small made-up TUM folders (TUM's published ones are for 640x480)
+TUM_CAMERA = (50.0, 50.5, 31.5, 23.5)
+
+
 def make_tum(root: Path, n: int = 4, gt: bool = True, depth_offset: float = 0.005) -> Path:
     (root / "rgb").mkdir(parents=True)
     (root / "depth").mkdir()
@@ -311,6 +315,17 @@ def test_euroc_bad_input(tmp_path):
     _raises("sensor.yaml:", open_sequence, root)
     yaml0.write_text(_sensor_yaml(T_BS0, resolution=(W + 2, H)))
     _raises("mismatched size", open_sequence, root)
+    sheared = T_BS0.copy()
+    sheared[0, 1] += 0.01
+    yaml0.write_text(_sensor_yaml(sheared))
+    _raises("sensor.yaml: T_BS rotation block is not a rotation", open_sequence, root)
+    mirrored = T_BS0 @ np.diag([1.0, 1.0, -1.0, 1.0])
+    yaml0.write_text(_sensor_yaml(mirrored))
+    _raises("T_BS rotation block is not a rotation", open_sequence, root)
+    projective = T_BS0.copy()
+    projective[3, 0] = 0.5
+    yaml0.write_text(_sensor_yaml(projective))
+    _raises("T_BS bottom row", open_sequence, root)
 
     root = make_euroc(tmp_path / "V2")
     csv0 = root / "mav0" / "cam0" / "data.csv"
@@ -345,9 +360,11 @@ def test_euroc_ground_truth_outside_the_images_and_corrupt_image(tmp_path):
 def test_tum_made_up(tmp_path):
     root = make_tum(tmp_path / "rgbd_dataset_freiburg1_made_up")
     assert detect_format(root) == "tum"
-    seq = open_sequence(root)
+    # TUM's published freiburg1 intrinsics are for 640x480, these images are not
+    _raises(f"the image is {W}x{H} but TUM's published intrinsics are for 640x480", open_sequence, root)
+    seq = open_sequence(root, camera=TUM_CAMERA)
     assert seq.kind == "rgbd" and len(seq) == 4
-    assert seq.camera == PinholeCamera(517.3, 516.5, 318.6, 255.3, W, H)
+    assert seq.camera == PinholeCamera(*TUM_CAMERA, W, H)
     depth = seq.depth(1)
     assert depth.dtype == np.float32 and depth[0, 0] == 0 and depth[5, 5] == pytest.approx(2.0)
     colour = cv2.imread(str(root / "rgb" / f"{100 + 1 / 30:.6f}.png"))
@@ -363,7 +380,7 @@ def test_tum_association_drops_unpaired_rgb(tmp_path):
     root = make_tum(tmp_path / "freiburg3_x", depth_offset=0.0)
     lines = (root / "depth.txt").read_text().splitlines()
     (root / "depth.txt").write_text("\n".join(lines[:2] + lines[3:]) + "\n")  # drop the 2nd depth image
-    seq = open_sequence(root)
+    seq = open_sequence(root, camera=TUM_CAMERA)
     np.testing.assert_allclose(seq.timestamps, 100.0 + np.array([0, 2, 3]) / 30.0)
 
 
@@ -384,10 +401,10 @@ def test_tum_bad_input(tmp_path):
     root = make_tum(tmp_path / "freiburg3_sizes", gt=False)
     depth = sorted((root / "depth").iterdir())[2]
     cv2.imwrite(str(depth), np.zeros((H + 2, W), np.uint16))
-    err = _raises("mismatched size", validate, open_sequence(root), progress=False)
+    err = _raises("mismatched size", validate, open_sequence(root, camera=TUM_CAMERA), progress=False)
     assert err.path == depth
     cv2.imwrite(str(depth), np.zeros((H, W), np.uint8))
-    _raises("16-bit", open_sequence(root).depth, 2)
+    _raises("16-bit", open_sequence(root, camera=TUM_CAMERA).depth, 2)
 
     root = make_tum(tmp_path / "freiburg3_far_depth", depth_offset=0.5, gt=False)
     _raises("no colour image has a depth image", open_sequence, root)

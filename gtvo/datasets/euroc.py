@@ -28,6 +28,7 @@ from gtvo.datasets._common import (FloatArray, GrayImageLoader, interpolate_pose
 from gtvo.errors import InputError
 from gtvo.rectify import RawCamera, StereoRectification, stereo_rectification
 from gtvo.sequence import Sequence
+from gtvo.trajectory_io import ROTATION_TOLERANCE
 
 #: Left and right image timestamps closer than this (ns) form a pair.
 STEREO_TOLERANCE_NS = 1_000_000
@@ -94,7 +95,7 @@ def read_sensor_yaml(path: Path) -> tuple[RawCamera, FloatArray]:
     distortion_model = data.get("distortion_model", "radial-tangential")
     if distortion_model not in ("radial-tangential", "radtan"):
         raise InputError(f"distortion_model {distortion_model!r} is not supported (only radial-tangential)", path=path)
-    T_BS = numbers("T_BS", 16).reshape(4, 4)
+    T_BS = _rigid_T_BS(numbers("T_BS", 16), path)
     width, height = numbers("resolution", 2)
     fu, fv, cu, cv = numbers("intrinsics", 4)
     distortion = numbers("distortion_coefficients", 4)
@@ -102,6 +103,21 @@ def read_sensor_yaml(path: Path) -> tuple[RawCamera, FloatArray]:
         raise InputError(f"invalid intrinsics {[fu, fv, cu, cv]} or resolution {[width, height]}", path=path)
     K = np.array([[fu, 0.0, cu], [0.0, fv, cv], [0.0, 0.0, 1.0]])
     return RawCamera(K, distortion, int(width), int(height)), T_BS
+
+
+def _rigid_T_BS(values: FloatArray, path: Path) -> FloatArray:
+    """``T_BS`` as a 4x4 rigid transform, or a one-line :class:`InputError` naming ``path``: the
+    bottom row must be ``0 0 0 1`` and the rotation block a rotation within
+    :data:`gtvo.trajectory_io.ROTATION_TOLERANCE` (EuRoC's files: 6e-13)."""
+    T = np.asarray(values, dtype=np.float64).reshape(4, 4)
+    if not np.allclose(T[3], [0.0, 0.0, 0.0, 1.0], rtol=0.0, atol=1e-9):
+        raise InputError(f"T_BS bottom row is {T[3].tolist()}, expected [0, 0, 0, 1]", path=path)
+    R = T[:3, :3]
+    ortho = float(np.max(np.abs(R.T @ R - np.eye(3))))
+    if ortho > ROTATION_TOLERANCE or np.linalg.det(R) <= 0:
+        raise InputError(f"T_BS rotation block is not a rotation (max |R^T R - I| = {ortho:.3g}, "
+                         f"det {np.linalg.det(R):.6g})", path=path)
+    return T
 
 
 def read_image_list(cam_dir: Path) -> tuple[np.ndarray, list[Path]]:
@@ -167,7 +183,7 @@ def _gt_sensor_T_BS(gt_path: Path, mav0: Path) -> FloatArray:
     """T_BS of the ground-truth sensor: from its sensor.yaml for the in-folder ground truth, else identity."""
     yaml_path = mav0 / "state_groundtruth_estimate0" / "sensor.yaml"
     if gt_path.parent == yaml_path.parent and yaml_path.is_file():
-        return _yaml_numbers(_load_yaml(yaml_path), "T_BS", 16, yaml_path).reshape(4, 4)
+        return _rigid_T_BS(_yaml_numbers(_load_yaml(yaml_path), "T_BS", 16, yaml_path), yaml_path)
     return np.eye(4)
 
 

@@ -32,6 +32,8 @@ ASSOCIATION_TOLERANCE_S = 0.02
 GT_MAX_GAP_S = 0.1
 #: Depth png units per metre.
 DEPTH_SCALE = 5000.0
+#: The image size TUM's published intrinsics are for (width, height).
+TUM_IMAGE_SIZE = (640, 480)
 #: TUM's published intrinsics (fx, fy, cx, cy) of the colour cameras, 640x480.
 TUM_INTRINSICS: dict[str, tuple[float, float, float, float]] = {
     "freiburg1": (517.3, 516.5, 318.6, 255.3),
@@ -106,6 +108,9 @@ def read_tum(root: Path, max_frames: int | None = None, camera: tuple[float, flo
         require_overlap(gt_poses, gt_path, times, gt_times)
 
     width, height = image_size(rgb_paths[0])
+    if camera is None and (width, height) != TUM_IMAGE_SIZE:
+        raise InputError(f"the image is {width}x{height} but TUM's published intrinsics are for "
+                         f"{TUM_IMAGE_SIZE[0]}x{TUM_IMAGE_SIZE[1]}: pass --camera FX,FY,CX,CY", path=rgb_paths[0])
     shape = (height, width)
     return Sequence(
         name=root.resolve().name, kind="rgbd", camera=PinholeCamera(fx, fy, cx, cy, width, height),
