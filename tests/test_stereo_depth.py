@@ -297,6 +297,28 @@ def test_right_camera_gain_is_equalized_before_matching(gain, raw_loss):
     assert raw.valid.mean() < res.valid.mean() - raw_loss
 
 
+@pytest.mark.realdata
+@pytest.mark.parametrize("gain", [1.3, 1.6])
+def test_brighter_saturating_right_camera_gain_is_recovered_on_kitti(shared_data, gain):
+    """A KITTI pair whose right image is ``gain`` times brighter, clipped at 255 (8 % / 15 % of its
+    pixels saturate: the sky). Saturated patches are left out of the gain estimate, and the search
+    is repeated until the estimate settles. Measured: the kept search used 1.268 / 1.604 (one
+    estimate from the first search with saturated patches in, as before: 1.22 / 1.20), 1127 / 981
+    points accepted against 1199 at equal gains and 1010 / 644 without equalisation."""
+    left, right, cam = kitti_frame(shared_data, 10)
+    px = select_points(left, target=2000)
+    bright = np.clip(right * gain, 0, 255).astype(np.float32)
+    equal = stereo_inverse_depth(left, right, cam, px)
+    raw = stereo_inverse_depth(left, bright, cam, px, equalize_gain=False)
+    res = stereo_inverse_depth(left, bright, cam, px)
+    assert equal.right_gain == 1.0 and raw.right_gain == 1.0
+    assert res.right_gain == pytest.approx(gain, rel=0.04)
+    assert res.valid.sum() > raw.valid.sum() + 0.05 * equal.valid.sum()
+    assert res.valid.sum() > 0.78 * equal.valid.sum()
+    both = res.valid & equal.valid  # the same matches as at equal gains
+    assert np.median(np.abs(res.disparity - equal.disparity)[both]) < 0.05
+
+
 # The numpy form of the integer epipolar search that gtvo.frontend._compiled.zssd_costs replaced:
 # the reference.
 def _integer_search_numpy(src: NDArray, dst: NDArray, u: NDArray, v: NDArray, pattern: NDArray,
