@@ -197,6 +197,20 @@ def test_kitti_times_max_frames_and_no_poses(tmp_path):
     np.testing.assert_allclose(seq.timestamps, [0.0, 0.05])
 
 
+def test_kitti_release_layout_finds_its_poses_folder(tmp_path):
+    """The KITTI odometry release keeps ground truth apart: dataset/poses/07.txt for
+    dataset/sequences/07. A poses.txt inside the folder, or --ground-truth, still wins."""
+    root = make_kitti(tmp_path / "dataset" / "sequences" / "07", labelled=True)
+    (tmp_path / "dataset" / "poses").mkdir()
+    (root / "poses.txt").rename(tmp_path / "dataset" / "poses" / "07.txt")
+    seq = open_sequence(root)
+    np.testing.assert_allclose(seq.gt_poses[2], _pose([0, 0.02, 0], [0, 0, 2.0]), atol=1e-12)
+    (tmp_path / "dataset" / "poses" / "07.txt").rename(tmp_path / "dataset" / "poses" / "08.txt")
+    assert open_sequence(root).gt_poses is None  # another sequence's poses are not taken
+    other = make_kitti(tmp_path / "elsewhere" / "07", poses=False)
+    assert open_sequence(other).gt_poses is None
+
+
 def test_kitti_bad_calibration_lines(tmp_path):
     root = make_kitti(tmp_path / "seq")
     calib = root / "calib.txt"

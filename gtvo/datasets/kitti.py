@@ -6,7 +6,9 @@
                                     further lines (P2, P3, Tr, ...) are ignored
     <seq>/image_0/*.png, image_1/   left/right (or image_l/, image_r/), same file names
     <seq>/times.txt                 optional, one time [s] per image (else 0.1 s steps)
-    <seq>/poses.txt                 optional ground truth, 3x4 row-major T_world_cam0 per image
+    <seq>/poses.txt                 optional ground truth, 3x4 row-major T_world_cam0 per image;
+                                    without it, the KITTI odometry release's own place for it,
+                                    <dataset>/poses/<seq name>.txt beside <dataset>/sequences/<seq>
 
 baseline = -(P1[0,3] - P0[0,3]) / P1[0,0]  (= -P1[0,3]/P1[0,0] for KITTI, where P0[0,3] = 0).
 """
@@ -107,13 +109,28 @@ def _read_times(path: Path, count: int) -> FloatArray:
     return times
 
 
+def default_ground_truth(root: Path) -> Path | None:
+    """``root/poses.txt``, else ``<dataset>/poses/<name>.txt`` when ``root`` is
+    ``<dataset>/sequences/<name>`` (the KITTI odometry release's layout), else None."""
+    inside = root / "poses.txt"
+    if inside.exists():
+        return inside
+    resolved = root.resolve()
+    if resolved.parent.name == "sequences":
+        release = resolved.parent.parent / "poses" / f"{resolved.name}.txt"
+        if release.is_file():
+            return release
+    return None
+
+
 def read_kitti(root: Path, max_frames: int | None = None, ground_truth: Path | None = None) -> Sequence:
     """Open a KITTI odometry sequence folder (see the module docstring for the layout).
 
     Args:
         root: the sequence folder.
         max_frames: keep only the first frames.
-        ground_truth: a KITTI poses file to use instead of ``root/poses.txt``.
+        ground_truth: a KITTI poses file to use instead of the default
+            (:func:`default_ground_truth`).
     """
     require_dir(root, "KITTI sequence folder")
     calib = root / "calib.txt"
@@ -130,8 +147,8 @@ def read_kitti(root: Path, max_frames: int | None = None, ground_truth: Path | N
             raise InputError(f"missing right image for left image {left}", path=right)
     times_path = root / "times.txt"
     times = _read_times(times_path, count) if times_path.exists() else DEFAULT_PERIOD_S * np.arange(count)
-    gt_path = ground_truth if ground_truth is not None else root / "poses.txt"
-    poses = _read_poses(gt_path, count) if (ground_truth is not None or gt_path.exists()) else None
+    gt_path = ground_truth if ground_truth is not None else default_ground_truth(root)
+    poses = _read_poses(gt_path, count) if gt_path is not None else None
     width, height = image_size(lefts[0])
     camera = StereoCamera(PinholeCamera.from_matrix(K, width, height), baseline)
     shape = (height, width)
