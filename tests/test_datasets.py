@@ -211,6 +211,37 @@ def test_kitti_release_layout_finds_its_poses_folder(tmp_path):
     assert open_sequence(other).gt_poses is None
 
 
+@pytest.mark.parametrize("labelled", [True, False])
+def test_kitti_colour_pair_uses_p2_p3_and_carries_the_ground_truth_to_cam2(tmp_path, labelled):
+    """Only image_2/image_3 (KITTI's colour download): K and the baseline come from P2 and P3, each
+    camera sits at t_i = K^-1 P_i[:, 3] from cam0 (KITTI 00 has a few mm of y and z in them), and
+    poses.txt, which is cam0's, is carried to cam2: projecting a world point with the returned
+    pose and K gives what P2 gives for its cam0 coordinates."""
+    K = np.array([[50.0, 0, 31.5], [0, 50.0, 23.5], [0, 0, 1]])
+    t2, t3 = np.array([0.06, -0.0003, 0.0038]), np.array([-0.47, 0.003, 0.0049])
+    proj = {"P0": K @ np.c_[np.eye(3), np.zeros(3)], "P1": K @ np.c_[np.eye(3), [-0.54, 0, 0]],
+            "P2": K @ np.c_[np.eye(3), t2], "P3": K @ np.c_[np.eye(3), t3]}
+    root = make_kitti(tmp_path / "seq", names=("image_2", "image_3"))
+    for d in ("image_2", "image_3"):
+        for png in (root / d).iterdir():
+            cv2.imwrite(str(png), _texture(channels=3))
+    fmt = lambda P: " ".join(f"{x:.12e}" for x in P.reshape(-1))  # noqa: E731
+    (root / "calib.txt").write_text("".join((f"{k}: " if labelled else "") + fmt(P) + "\n" for k, P in proj.items()))
+    seq = open_sequence(root)
+    assert seq.camera.left == PinholeCamera(50.0, 50.0, 31.5, 23.5, W, H)
+    assert seq.camera.baseline == pytest.approx(0.53, abs=1e-9)
+    assert seq.left(0).shape == (H, W)  # colour read as gray
+    cam0_poses = np.stack([_pose([0, 0.01 * i, 0], [0, 0, 1.0 * i]) for i in range(3)])
+    X_world = np.array([0.3, -0.2, 6.0, 1.0])
+    for T_world_cam0, T_world_cam2 in zip(cam0_poses, seq.gt_poses):
+        X_cam0 = np.linalg.solve(T_world_cam0, X_world)
+        X_cam2 = np.linalg.solve(T_world_cam2, X_world)
+        np.testing.assert_allclose(K @ X_cam2[:3], proj["P2"] @ X_cam0, rtol=1e-12)
+    (root / "calib.txt").write_text(("P0: " if labelled else "") + fmt(proj["P0"]) + "\n"
+                                    + ("P1: " if labelled else "") + fmt(proj["P1"]) + "\n")
+    _raises("no P2 or P3 line" if labelled else "expected P2 and P3 lines", open_sequence, root)
+
+
 def test_kitti_bad_calibration_lines(tmp_path):
     root = make_kitti(tmp_path / "seq")
     calib = root / "calib.txt"

@@ -3,14 +3,18 @@
 ::
 
     <seq>/calib.txt                 P0 and P1 (3x4 row-major), labelled "P0:"/"P1:" or not;
-                                    further lines (P2, P3, Tr, ...) are ignored
-    <seq>/image_0/*.png, image_1/   left/right (or image_l/, image_r/), same file names
+                                    P2, P3 for the colour pair; further lines (Tr, ...) ignored
+    <seq>/image_0/*.png, image_1/   left/right (or image_l/, image_r/), same file names; without
+                                    them, the colour pair image_2/, image_3/ (read as gray)
     <seq>/times.txt                 optional, one time [s] per image (else 0.1 s steps)
     <seq>/poses.txt                 optional ground truth, 3x4 row-major T_world_cam0 per image;
                                     without it, the KITTI odometry release's own place for it,
                                     <dataset>/poses/<seq name>.txt beside <dataset>/sequences/<seq>
 
-baseline = -(P1[0,3] - P0[0,3]) / P1[0,0]  (= -P1[0,3]/P1[0,0] for KITTI, where P0[0,3] = 0).
+Each rectified camera i is cam0 moved by ``t_i = K^-1 P_i[:, 3]`` (``X_i = X_0 + t_i``), so
+``baseline = (t_left - t_right)_x`` (``= -P1[0,3]/P1[0,0]`` for the gray pair, where ``t_0 = 0``),
+and ground truth, given for cam0, is carried to the left camera: ``T_world_left =
+T_world_cam0 [I | -t_left]``.
 """
 
 from __future__ import annotations
@@ -25,8 +29,10 @@ from gtvo.datasets._common import (FloatArray, GrayImageLoader, TextRow, image_s
 from gtvo.errors import InputError
 from gtvo.sequence import Sequence
 
-#: (left, right) image folder names tried in order.
-IMAGE_DIRS: tuple[tuple[str, str], ...] = (("image_0", "image_1"), ("image_l", "image_r"))
+#: (left, right) image folder names tried in order, with the projection matrices of their cameras.
+IMAGE_DIRS: tuple[tuple[str, str, str, str], ...] = (("image_0", "image_1", "P0", "P1"),
+                                                     ("image_l", "image_r", "P0", "P1"),
+                                                     ("image_2", "image_3", "P2", "P3"))
 #: Frame period used when there is no times.txt (KITTI runs at 10 Hz).
 DEFAULT_PERIOD_S = 0.1
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".pgm", ".ppm", ".bmp", ".tif", ".tiff")
@@ -34,36 +40,51 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".pgm", ".ppm", ".bmp", ".tif", ".tif
 
 def looks_like_kitti(path: Path) -> bool:
     """True when ``path`` has a calib.txt and a left image folder."""
-    return (path / "calib.txt").is_file() and any((path / left).is_dir() for left, _ in IMAGE_DIRS)
+    return (path / "calib.txt").is_file() and any((path / d[0]).is_dir() for d in IMAGE_DIRS)
 
 
-def read_calibration(path: Path) -> tuple[FloatArray, float]:
-    """``(K, baseline)`` of the rectified pair in a KITTI ``calib.txt``."""
-    P0, P1 = read_projections(path)
-    fx = P0[0, 0]
-    if not fx > 0 or not P0[1, 1] > 0:
-        raise InputError(f"P0 has non-positive focal length fx={fx!r}, fy={P0[1, 1]!r}", path=path)
-    if not np.allclose(P0[:, :3], P1[:, :3], rtol=1e-6, atol=1e-6 * fx):
-        raise InputError("P0 and P1 have different intrinsics: images are not rectified", path=path)
-    baseline = -(P1[0, 3] - P0[0, 3]) / P1[0, 0]
+def read_calibration(path: Path, cameras: tuple[str, str] = ("P0", "P1")) -> tuple[FloatArray, float]:
+    """``(K, baseline)`` of the rectified pair ``cameras`` (left, right) in a KITTI ``calib.txt``."""
+    K, baseline, _ = _rectified_pair(path, cameras)
+    return K, baseline
+
+
+def _rectified_pair(path: Path, cameras: tuple[str, str]) -> tuple[FloatArray, float, FloatArray]:
+    """``(K, baseline, t_left)``: ``t_left`` is the left camera's offset from cam0 (module docstring)."""
+    PL, PR = read_projections(path, cameras)
+    left, right = cameras
+    fx = PL[0, 0]
+    if not fx > 0 or not PL[1, 1] > 0:
+        raise InputError(f"{left} has non-positive focal length fx={fx!r}, fy={PL[1, 1]!r}", path=path)
+    if not np.allclose(PL[:, :3], PR[:, :3], rtol=1e-6, atol=1e-6 * fx):
+        raise InputError(f"{left} and {right} have different intrinsics: images are not rectified", path=path)
+    K = PL[:, :3].copy()
+    if not (K[2, 0] == 0 and K[2, 1] == 0 and K[2, 2] > 0):
+        raise InputError(f"{left}'s last row must be (0, 0, >0, .), got {PL[2].tolist()}", path=path)
+    t_left, t_right = np.linalg.solve(K, PL[:, 3]), np.linalg.solve(K, PR[:, 3])
+    baseline = t_left[0] - t_right[0]
     if not baseline > 0:
-        raise InputError(f"baseline -(P1[0,3]-P0[0,3])/P1[0,0] = {float(baseline):.6g} must be positive", path=path)
-    return P0[:, :3].copy(), float(baseline)
+        raise InputError(f"baseline (K^-1 {left}[:,3] - K^-1 {right}[:,3])_x = {float(baseline):.6g} must be "
+                         f"positive", path=path)
+    return K, float(baseline), t_left
 
 
-def read_projections(path: Path) -> tuple[FloatArray, FloatArray]:
-    """``(P0, P1)`` 3x4 from ``calib.txt``: labelled lines ``P0: ...`` or the first two lines."""
+def read_projections(path: Path, cameras: tuple[str, str] = ("P0", "P1")) -> tuple[FloatArray, FloatArray]:
+    """The 3x4 projection matrices ``cameras`` (e.g. ``("P0", "P1")``) from ``calib.txt``: the
+    labelled lines ``P0: ...``, or in a file without labels the lines in P0, P1, P2, P3 order."""
     rows = read_rows(require_file(path, "calibration file"), 1)
     labelled = {r.fields[0].rstrip(":"): r for r in rows if r.fields[0].endswith(":")}
     if labelled:
-        missing = [k for k in ("P0", "P1") if k not in labelled]
+        missing = [k for k in cameras if k not in labelled]
         if missing:
             raise InputError(f"no {' or '.join(missing)} line", path=path)
-        picked = [TextRow(labelled[k].line, labelled[k].fields[1:]) for k in ("P0", "P1")]
+        picked = [TextRow(labelled[k].line, labelled[k].fields[1:]) for k in cameras]
     else:
-        if len(rows) < 2:
-            raise InputError(f"expected P0 and P1 lines, found {len(rows)} line(s)", path=path)
-        picked = rows[:2]
+        order = [int(k[1:]) for k in cameras]
+        if len(rows) <= max(order):
+            raise InputError(f"expected {' and '.join(cameras)} lines (P0, P1, P2, P3 in order), found "
+                             f"{len(rows)} line(s)", path=path)
+        picked = [rows[k] for k in order]
     matrices = []
     for row in picked:
         if len(row.fields) != 12:
@@ -72,11 +93,11 @@ def read_projections(path: Path) -> tuple[FloatArray, FloatArray]:
     return matrices[0], matrices[1]
 
 
-def _image_dirs(root: Path) -> tuple[Path, Path]:
-    for left, right in IMAGE_DIRS:
+def _image_dirs(root: Path) -> tuple[Path, Path, tuple[str, str]]:
+    for left, right, p_left, p_right in IMAGE_DIRS:
         if (root / left).is_dir():
-            return root / left, require_dir(root / right, "right image folder")
-    raise InputError(f"no left image folder ({', '.join(l for l, _ in IMAGE_DIRS)})", path=root)
+            return root / left, require_dir(root / right, "right image folder"), (p_left, p_right)
+    raise InputError(f"no left image folder ({', '.join(d[0] for d in IMAGE_DIRS)})", path=root)
 
 
 def _read_poses(path: Path, count: int) -> FloatArray:
@@ -133,9 +154,8 @@ def read_kitti(root: Path, max_frames: int | None = None, ground_truth: Path | N
             (:func:`default_ground_truth`).
     """
     require_dir(root, "KITTI sequence folder")
-    calib = root / "calib.txt"
-    K, baseline = read_calibration(calib)
-    left_dir, right_dir = _image_dirs(root)
+    left_dir, right_dir, cameras = _image_dirs(root)
+    K, baseline, t_left = _rectified_pair(root / "calib.txt", cameras)
     lefts = sorted(p for p in left_dir.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
     if not lefts:
         raise InputError("empty sequence: no images", path=left_dir)
@@ -149,6 +169,10 @@ def read_kitti(root: Path, max_frames: int | None = None, ground_truth: Path | N
     times = _read_times(times_path, count) if times_path.exists() else DEFAULT_PERIOD_S * np.arange(count)
     gt_path = ground_truth if ground_truth is not None else default_ground_truth(root)
     poses = _read_poses(gt_path, count) if gt_path is not None else None
+    if poses is not None and np.any(t_left != 0):  # ground truth is cam0's: carry it to the left camera
+        T_cam0_left = np.eye(4)
+        T_cam0_left[:3, 3] = -t_left
+        poses = poses @ T_cam0_left
     width, height = image_size(lefts[0])
     camera = StereoCamera(PinholeCamera.from_matrix(K, width, height), baseline)
     shape = (height, width)
