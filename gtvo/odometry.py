@@ -51,6 +51,10 @@ MotionModelName = Literal["constant-velocity", "kalman"]
 ModeName = Literal["track", "window"]
 
 
+#: The fewest points per keyframe :class:`OdometryConfig` accepts.
+MIN_POINTS_PER_KEYFRAME = 50
+
+
 @dataclass(frozen=True)
 class OdometryConfig:
     """Settings of the VO front end.
@@ -111,8 +115,8 @@ class OdometryConfig:
     def __post_init__(self) -> None:
         if self.solver not in ("handrolled", "gtsam"):
             raise InputError(f"unknown solver {self.solver!r}: use 'handrolled' or 'gtsam'")
-        if self.points_per_keyframe < 50:
-            raise InputError(f"points per keyframe must be >= 50, got {self.points_per_keyframe}")
+        if self.points_per_keyframe < MIN_POINTS_PER_KEYFRAME:
+            raise InputError(f"points per keyframe must be >= {MIN_POINTS_PER_KEYFRAME}, got {self.points_per_keyframe}")
         if self.motion_model not in ("constant-velocity", "kalman"):
             raise InputError(f"unknown motion model {self.motion_model!r}")
         if self.mode not in ("track", "window"):

@@ -69,10 +69,19 @@ def test_run_with_frame_step_uses_every_kth_frame(kitti_like, tmp_path):
     assert rep["ate_rmse_m"] < 0.01  # 30 cm steps on exact data
 
 
-def test_run_bad_frame_step_exit_2(kitti_like, tmp_path):
-    r = run_cli("run", kitti_like, "--out", tmp_path / "o", "--frame-step", "0")
-    assert r.returncode == 2
-    assert "frame step" in r.stderr and len(r.stderr.strip().splitlines()) == 1
+@pytest.mark.parametrize("argv,needle", [
+    (["run", "SEQ", "--frame-step", "0"], "--frame-step must be >= 1, got 0"),
+    (["run", "SEQ", "--max-frames", "0"], "--max-frames must be >= 1, got 0"),
+    (["run", "SEQ", "--points", "10"], "--points must be >= 50, got 10"),
+    (["demo", "--points", "-3"], "--points must be >= 50, got -3"),
+    (["loops", "SEQ", "--max-frames", "-1"], "--max-frames must be >= 1, got -1"),
+])
+def test_bad_counts_exit_2_naming_the_flag(kitti_like, tmp_path, capsys, argv, needle):
+    argv = [str(kitti_like) if a == "SEQ" else a for a in argv]
+    out = ["--out", str(tmp_path / "o")] if argv[0] != "loops" else []
+    assert cli.main([*argv, *out, "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and needle in err[0], err
     assert not (tmp_path / "o").exists()
 
 

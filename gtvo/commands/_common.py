@@ -43,6 +43,10 @@ def odometry_config(args: Any):
     from gtvo.odometry import OdometryConfig  # noqa: PLC0415
     from gtvo.window import WindowConfig  # noqa: PLC0415
 
+    from gtvo.odometry import MIN_POINTS_PER_KEYFRAME  # noqa: PLC0415
+
+    if args.points < MIN_POINTS_PER_KEYFRAME:
+        raise InputError(f"--points must be >= {MIN_POINTS_PER_KEYFRAME}, got {args.points}")
     if args.window_backend is not None and args.mode != "window":
         raise InputError(f"--window-backend {args.window_backend} needs --mode window (got --mode {args.mode})")
     backend = "fixed_lag" if args.window_backend == "fixed-lag" else "lm"

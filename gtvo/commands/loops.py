@@ -56,6 +56,8 @@ def run(args: argparse.Namespace) -> int:
     """Run the subcommand; returns the exit code."""
     if args.every < 1:
         raise InputError(f"--every must be >= 1, got {args.every}")
+    if args.max_frames is not None and args.max_frames < 1:
+        raise InputError(f"--max-frames must be >= 1, got {args.max_frames}")
     if args.out:
         check_output_file(args.out)
     seq = open_sequence(args.sequence, format=args.format, max_frames=args.max_frames)

@@ -6,6 +6,7 @@ import argparse
 import sys
 
 from gtvo.commands._common import add_odometry_options, odometry_config, parse_floats, print_report
+from gtvo.errors import InputError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -34,6 +35,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 def main(args: argparse.Namespace) -> int:
     from gtvo.pipeline import run  # noqa: PLC0415
 
+    for flag, value in (("--max-frames", args.max_frames), ("--frame-step", args.frame_step)):
+        if value is not None and value < 1:
+            raise InputError(f"{flag} must be >= 1, got {value}")
     options = {}
     if args.camera is not None:
         options["camera"] = parse_floats(args.camera, 4, "--camera")
