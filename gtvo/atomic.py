@@ -60,7 +60,7 @@ def ensure_output_dir(path: str | Path) -> Path:
     if path.exists() and not path.is_dir():
         raise InputError("output folder is a file", path=path)
     missing = []
-    probe = path.absolute()
+    probe = Path(os.path.abspath(path))  # '..' collapsed, so that an existing folder is not taken for new
     while not probe.exists() and probe != probe.parent:
         missing.append(probe)
         probe = probe.parent

@@ -54,7 +54,9 @@ class PinholeCamera:
             raise InputError(f"camera image size must be positive, got {self.width}x{self.height}")
         # A principal point off the image is a calibration for another resolution, swapped
         # values, or a misread file; every real camera's lies inside (KITTI's near the centre).
-        if not (-0.5 <= self.cx <= self.width - 0.5 and -0.5 <= self.cy <= self.height - 0.5):
+        # Half a pixel of slack past the far edge: a pyramid level (:meth:`scaled`) rounds its
+        # size down but not ``cx``, which can then sit up to 1 px past its last pixel centre.
+        if not (-0.5 <= self.cx <= self.width + 0.5 and -0.5 <= self.cy <= self.height + 0.5):
             raise InputError(f"camera principal point (cx, cy) = ({self.cx:g}, {self.cy:g}) lies outside the "
                              f"{self.width}x{self.height} image")
 

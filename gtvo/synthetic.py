@@ -536,12 +536,15 @@ class SyntheticSequence(Sequence):
 
 #: Largest synthetic image side (px): the renderer holds several float images per frame.
 MAX_SIDE = 4096
+#: Smallest synthetic image side (px).
+MIN_SIDE = 16
 
 
 def synthetic_camera(width: int = 320, height: int = 240, baseline: float = DEFAULT_BASELINE) -> StereoCamera:
     """The rectified stereo camera of the synthetic sequences: ``fx = fy = 0.9 * width``, centred."""
-    if not (16 <= int(width) <= MAX_SIDE and 16 <= int(height) <= MAX_SIDE):
-        raise InputError(f"image size must be between 16x16 and {MAX_SIDE}x{MAX_SIDE}, got {width}x{height}")
+    if not (MIN_SIDE <= int(width) <= MAX_SIDE and MIN_SIDE <= int(height) <= MAX_SIDE):
+        raise InputError(f"image size must be between {MIN_SIDE}x{MIN_SIDE} and {MAX_SIDE}x{MAX_SIDE}, "
+                         f"got {width}x{height}")
     f = 0.9 * int(width)
     return StereoCamera(PinholeCamera(f, f, (int(width) - 1) / 2.0, (int(height) - 1) / 2.0, int(width), int(height)),
                         float(baseline))

@@ -115,6 +115,16 @@ def test_tidy_on_failure_removes_only_the_empty_folders_it_made(tmp_path):
     assert (tmp_path / "d" / "e").is_dir()
 
 
+def test_tidy_on_failure_keeps_an_existing_folder_reached_through_dotdot(tmp_path, monkeypatch):
+    (tmp_path / "e").mkdir()
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(RuntimeError):
+        with tidy_on_failure():
+            ensure_output_dir("n/../e")  # 'n' is made by mkdir(parents=True); 'e' existed
+            raise RuntimeError("the work failed")
+    assert (tmp_path / "e").is_dir()
+
+
 def test_tidy_on_failure_nested_blocks_hand_their_folders_to_the_outer_one(tmp_path):
     with pytest.raises(KeyboardInterrupt):
         with tidy_on_failure():

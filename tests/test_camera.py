@@ -71,15 +71,25 @@ def test_bad_intrinsics_rejected(kwargs):
 
 
 @pytest.mark.parametrize("cx,cy,ok", [(320.0, 240.0, True), (-0.5, 479.5, True), (639.5, -0.5, True),
-                                       (-0.6, 240.0, False), (640.0, 240.0, False), (240.0, 480.0, False),
-                                       (240.0, 320.0 * 2, False)])
+                                       (640.5, 480.5, True), (-0.6, 240.0, False), (640.6, 240.0, False),
+                                       (240.0, 481.0, False), (240.0, 320.0 * 2, False)])
 def test_principal_point_must_lie_on_the_image(cx, cy, ok):
-    """A principal point off the image is a misread or mismatched calibration: refused by name."""
+    """A principal point off the image is a misread or mismatched calibration: refused by name.
+    Half a pixel of slack past the far edge keeps every pyramid level of an accepted camera valid."""
     if ok:
         PinholeCamera(500.0, 500.0, cx, cy, 640, 480)
     else:
         with pytest.raises(InputError, match=r"principal point .* outside the 640x480 image"):
             PinholeCamera(500.0, 500.0, cx, cy, 640, 480)
+
+
+def test_every_pyramid_level_of_an_accepted_camera_is_accepted():
+    """scaled() rounds the size down but not cx: the reviewer's case, cx near an odd far edge."""
+    for cam in (PinholeCamera(700.0, 700.0, 1240.5, 375.5, 1241, 376), PinholeCamera(100.0, 100.0, 8.5, 8.5, 9, 9),
+                PinholeCamera(100.0, 100.0, -0.5, -0.5, 9, 9)):
+        for level in range(4):
+            if min(cam.width >> level, cam.height >> level) > 0:
+                cam.scaled(level)
 
 
 def test_bad_baseline_rejected():

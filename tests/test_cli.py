@@ -129,6 +129,10 @@ def test_loops_skips_a_corrupt_frame_unless_strict(kitti_like, tmp_path, capsys)
     assert cli.main(["loops", str(bad), "--strict", "--no-progress"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and victim.name in err[0]
+    first = sorted((bad / "image_1").iterdir())[0]
+    first.write_bytes(b"not a png")
+    assert cli.main(["loops", str(bad), "--every", "3", "--max-frames", "4", "--no-progress"]) == 2  # 0 and 3
+    assert "no frame of 2 could be read" in capsys.readouterr().err.strip().splitlines()[-1]
 
 
 def test_corrupt_first_frame_exit_2(kitti_like, tmp_path):
@@ -245,7 +249,7 @@ def test_synthetic_rewrite_leaves_no_stale_frames_and_keeps_foreign_files(tmp_pa
 @pytest.mark.parametrize("argv,needle", [
     (["synthetic", "--frames", "0"], "--frames must be >= 1"),
     (["demo", "--frames", "0", "--no-progress"], "--frames must be >= 1"),
-    (["synthetic", "--width", "100000"], "between 16x16 and 4096x4096"),
+    (["synthetic", "--width", "100000"], "--width and --height must be between 16 and 4096, got 100000x240"),
 ])
 def test_synthetic_sizes_exit_2_one_line(tmp_path, capsys, argv, needle):
     assert cli.main([*argv, "--out", str(tmp_path / "o")]) == 2

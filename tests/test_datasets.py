@@ -209,6 +209,25 @@ def test_kitti_release_layout_finds_its_poses_folder(tmp_path):
     assert open_sequence(root).gt_poses is None  # another sequence's poses are not taken
     other = make_kitti(tmp_path / "elsewhere" / "07", poses=False)
     assert open_sequence(other).gt_poses is None
+    (tmp_path / "dataset" / "poses" / "08.txt").rename(tmp_path / "dataset" / "poses" / "09.txt")
+    (tmp_path / "dataset" / "sequences" / "09").symlink_to(other)  # a linked sequence folder
+    assert open_sequence(tmp_path / "dataset" / "sequences" / "09").gt_poses is not None
+    (tmp_path / "dataset" / "poses" / "09.txt").write_text("1 0 0 0 0 1 0 0 0 0 1 0\n")
+    _raises("09.txt: 1 poses for 3 images: 09.txt needs one line per image", open_sequence,
+            tmp_path / "dataset" / "sequences" / "09")
+
+
+def test_camera_errors_name_their_source(tmp_path):
+    root = make_kitti(tmp_path / "seq", poses=False)
+    bad = list(P0)
+    bad[2] = 400.0  # cx far off the 64x48 image
+    fmt = lambda v: " ".join(f"{x:.12e}" for x in v)  # noqa: E731
+    calib = root / "calib.txt"
+    calib.write_text(f"{fmt(bad)}\n{fmt([*bad[:3], -12.5, *bad[4:]])}\n")
+    _raises("calib.txt: camera principal point (cx, cy) = (400, 23.5) lies outside the 64x48 image (from P0)",
+            open_sequence, root)
+    tum = make_tum(tmp_path / "freiburg3_cam", gt=False)
+    _raises("the given camera (--camera): camera principal point", open_sequence, tum, camera=(50, 50, 480, 640))
 
 
 @pytest.mark.parametrize("labelled", [True, False])

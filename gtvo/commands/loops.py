@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from gtvo.atomic import check_output_file, write_json
+from gtvo.commands._common import parse_floats
 from gtvo.datasets import FORMATS, open_sequence
 from gtvo.errors import InputError
 from gtvo.loops import LoopCandidate, LoopDetectorConfig, detect_loops
@@ -28,6 +29,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("sequence", help="dataset folder (KITTI, EuRoC or TUM RGB-D layout)")
     p.add_argument("--format", default="auto", choices=("auto",) + FORMATS, help="dataset layout (default: auto)")
     p.add_argument("--max-frames", type=int, default=None, help="use only the first frames")
+    p.add_argument("--camera", metavar="FX,FY,CX,CY", default=None, help="intrinsics for TUM folders")
     p.add_argument("--every", type=int, default=1, help="every K-th frame is a keyframe (default 1)")
     p.add_argument("--window", type=int, default=None,
                    help="temporal window: the last N keyframes are never loop candidates (default 10)")
@@ -58,9 +60,12 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--every must be >= 1, got {args.every}")
     if args.max_frames is not None and args.max_frames < 1:
         raise InputError(f"--max-frames must be >= 1, got {args.max_frames}")
+    if args.window is not None and args.window < 0:
+        raise InputError(f"--window must be >= 0, got {args.window}")
+    options = {} if args.camera is None else {"camera": parse_floats(args.camera, 4, "--camera")}
     if args.out:
         check_output_file(args.out)
-    seq = open_sequence(args.sequence, format=args.format, max_frames=args.max_frames)
+    seq = open_sequence(args.sequence, format=args.format, max_frames=args.max_frames, **options)
     config = LoopDetectorConfig()
     if args.window is not None:
         config = replace(config, temporal_window=args.window)
@@ -72,6 +77,8 @@ def run(args: argparse.Namespace) -> int:
     det, loops = detect_loops(seq, frames, config, progress=not (args.json or args.no_progress), strict=args.strict)
     gt = seq.gt_poses if seq.has_ground_truth else None
     added = set(det.indices)
+    if not added:
+        raise InputError(f"no frame of {len(frames)} could be read (each was skipped)", path=seq.source)
     result = {"sequence": seq.name, "keyframes": len(added), "temporal_window": config.temporal_window,
               "skipped_frames": [k for k in frames if k not in added],
               "loops": [_loop_record(c, gt) for c in loops]}

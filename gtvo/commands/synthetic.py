@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 
 from gtvo.errors import InputError
-from gtvo.synthetic import make_synthetic_sequence, write_sequence_kitti
+from gtvo.synthetic import MAX_SIDE, MIN_SIDE, make_synthetic_sequence, write_sequence_kitti
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -32,6 +32,8 @@ def run(args: argparse.Namespace) -> int:
     """Render and write the sequence; print where it went."""
     if args.frames < 1:
         raise InputError(f"--frames must be >= 1, got {args.frames}")
+    if not (MIN_SIDE <= args.width <= MAX_SIDE and MIN_SIDE <= args.height <= MAX_SIDE):
+        raise InputError(f"--width and --height must be between {MIN_SIDE} and {MAX_SIDE}, got {args.width}x{args.height}")
     seq = make_synthetic_sequence(n_frames=args.frames, width=args.width, height=args.height, motion=args.motion,
                                   noise_sigma=args.noise_sigma, exposure_change=args.exposure_change, seed=args.seed)
     out = write_sequence_kitti(seq, args.out, progress=not args.no_progress)

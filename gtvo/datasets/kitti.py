@@ -19,6 +19,7 @@ T_world_cam0 [I | -t_left]``.
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -103,7 +104,7 @@ def _image_dirs(root: Path) -> tuple[Path, Path, tuple[str, str]]:
 def _read_poses(path: Path, count: int) -> FloatArray:
     rows = read_rows(path, 12)
     if len(rows) != count:
-        raise InputError(f"{len(rows)} poses for {count} images: poses.txt needs one line per image", path=path)
+        raise InputError(f"{len(rows)} poses for {count} images: {path.name} needs one line per image", path=path)
     for row in rows:
         if len(row.fields) != 12:
             raise InputError(f"pose needs 12 numbers, got {len(row.fields)}", path=path, line=row.line)
@@ -136,11 +137,11 @@ def default_ground_truth(root: Path) -> Path | None:
     inside = root / "poses.txt"
     if inside.exists():
         return inside
-    resolved = root.resolve()
-    if resolved.parent.name == "sequences":
-        release = resolved.parent.parent / "poses" / f"{resolved.name}.txt"
-        if release.is_file():
-            return release
+    for seq in (Path(os.path.abspath(root)), root.resolve()):  # as given (a link), then its target
+        if seq.parent.name == "sequences":
+            release = seq.parent.parent / "poses" / f"{seq.name}.txt"
+            if release.is_file():
+                return release
     return None
 
 
@@ -174,7 +175,10 @@ def read_kitti(root: Path, max_frames: int | None = None, ground_truth: Path | N
         T_cam0_left[:3, 3] = -t_left
         poses = poses @ T_cam0_left
     width, height = image_size(lefts[0])
-    camera = StereoCamera(PinholeCamera.from_matrix(K, width, height), baseline)
+    try:
+        camera = StereoCamera(PinholeCamera.from_matrix(K, width, height), baseline)
+    except InputError as exc:
+        raise InputError(f"{exc} (from {cameras[0]})", path=root / "calib.txt") from None
     shape = (height, width)
     return Sequence(
         name=root.resolve().name, kind="stereo", camera=camera, timestamps=times[:n],

@@ -112,8 +112,13 @@ def read_tum(root: Path, max_frames: int | None = None, camera: tuple[float, flo
         raise InputError(f"the image is {width}x{height} but TUM's published intrinsics are for "
                          f"{TUM_IMAGE_SIZE[0]}x{TUM_IMAGE_SIZE[1]}: pass --camera FX,FY,CX,CY", path=rgb_paths[0])
     shape = (height, width)
+    try:
+        pinhole = PinholeCamera(fx, fy, cx, cy, width, height)
+    except InputError as exc:
+        where = "the given camera (--camera)" if camera is not None else "TUM's published intrinsics"
+        raise InputError(f"{where}: {exc}", path=rgb_paths[0]) from None
     return Sequence(
-        name=root.resolve().name, kind="rgbd", camera=PinholeCamera(fx, fy, cx, cy, width, height),
+        name=root.resolve().name, kind="rgbd", camera=pinhole,
         timestamps=times, load_left=GrayImageLoader(rgb_paths, shape, "colour"),
         load_depth=DepthImageLoader(depth_paths, shape, DEPTH_SCALE), gt_poses=gt_poses, source=root,
         frame_names=[str(p) for p in rgb_paths])
