@@ -27,7 +27,7 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from gtvo.atomic import write_text
 from gtvo.errors import InputError
@@ -124,6 +124,25 @@ def read_times(path: str | Path) -> NDArray[np.float64]:
     return t
 
 
+def rotation_defects(rotations: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """``(max |R^T R - I|, det R)`` of (..., 3, 3) blocks: a block read from a file is taken as a
+    rotation when the first is at most :data:`ROTATION_TOLERANCE` and the second positive."""
+    R = np.asarray(rotations, dtype=np.float64)
+    ortho = np.max(np.abs(np.swapaxes(R, -1, -2) @ R - np.eye(3)), axis=(-2, -1))
+    return ortho, np.linalg.det(R)
+
+
+def rotation_block_error(rotation: ArrayLike) -> str | None:
+    """None when one 3x3 block is a rotation (:func:`rotation_defects`), else why it is not
+    (``"is not a rotation (max |R^T R - I| = ..., det ...)"``), for a message naming the block."""
+    ortho, det = rotation_defects(rotation)
+    return None if ortho <= ROTATION_TOLERANCE and det > 0 else _not_a_rotation(float(ortho), float(det))
+
+
+def _not_a_rotation(ortho: float, det: float) -> str:
+    return f"is not a rotation (max |R^T R - I| = {ortho:.3g}, det {det:.6g})"
+
+
 def read_kitti(path: str | Path, times_path: str | Path | None = None) -> Trajectory:
     """Read a KITTI pose file (12 values per line), with times from ``times_path`` if given.
 
@@ -136,13 +155,11 @@ def read_kitti(path: str | Path, times_path: str | Path | None = None) -> Trajec
     T = np.zeros((len(mat), 4, 4))
     T[:, :3, :] = mat.reshape(-1, 3, 4)
     T[:, 3, 3] = 1.0
-    R = T[:, :3, :3]
-    ortho = np.max(np.abs(np.einsum("nji,njk->nik", R, R) - np.eye(3)), axis=(1, 2))
-    bad = (ortho > ROTATION_TOLERANCE) | (np.linalg.det(R) <= 0)
+    ortho, det = rotation_defects(T[:, :3, :3])
+    bad = (ortho > ROTATION_TOLERANCE) | (det <= 0)
     if np.any(bad):
         i = int(np.argmax(bad))
-        raise InputError(f"rotation block is not a rotation (max |R^T R - I| = {ortho[i]:.3g}, "
-                         f"det {np.linalg.det(R[i]):.6g})", path=path, line=numbers[i])
+        raise InputError(f"rotation block {_not_a_rotation(ortho[i], det[i])}", path=path, line=numbers[i])
     if times_path is None:
         t = np.arange(len(mat), dtype=np.float64)
     else:

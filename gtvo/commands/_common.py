@@ -40,10 +40,8 @@ def add_odometry_options(p: argparse.ArgumentParser) -> None:
 
 def odometry_config(args: Any):
     """An :class:`OdometryConfig` from parsed options."""
-    from gtvo.odometry import OdometryConfig  # noqa: PLC0415
+    from gtvo.odometry import MIN_POINTS_PER_KEYFRAME, OdometryConfig  # noqa: PLC0415
     from gtvo.window import WindowConfig  # noqa: PLC0415
-
-    from gtvo.odometry import MIN_POINTS_PER_KEYFRAME  # noqa: PLC0415
 
     if args.points < MIN_POINTS_PER_KEYFRAME:
         raise InputError(f"--points must be >= {MIN_POINTS_PER_KEYFRAME}, got {args.points}")

@@ -28,7 +28,7 @@ from gtvo.datasets._common import (FloatArray, GrayImageLoader, interpolate_pose
 from gtvo.errors import InputError
 from gtvo.rectify import RawCamera, StereoRectification, stereo_rectification
 from gtvo.sequence import Sequence
-from gtvo.trajectory_io import ROTATION_TOLERANCE
+from gtvo.trajectory_io import rotation_block_error
 
 #: Left and right image timestamps closer than this (ns) form a pair.
 STEREO_TOLERANCE_NS = 1_000_000
@@ -107,16 +107,14 @@ def read_sensor_yaml(path: Path) -> tuple[RawCamera, FloatArray]:
 
 def _rigid_T_BS(values: FloatArray, path: Path) -> FloatArray:
     """``T_BS`` as a 4x4 rigid transform, or a one-line :class:`InputError` naming ``path``: the
-    bottom row must be ``0 0 0 1`` and the rotation block a rotation within
-    :data:`gtvo.trajectory_io.ROTATION_TOLERANCE` (EuRoC's files: 6e-13)."""
+    bottom row must be ``0 0 0 1`` and the rotation block a rotation
+    (:func:`gtvo.trajectory_io.rotation_block_error`; EuRoC's files: 6e-13 off)."""
     T = np.asarray(values, dtype=np.float64).reshape(4, 4)
     if not np.allclose(T[3], [0.0, 0.0, 0.0, 1.0], rtol=0.0, atol=1e-9):
         raise InputError(f"T_BS bottom row is {T[3].tolist()}, expected [0, 0, 0, 1]", path=path)
-    R = T[:3, :3]
-    ortho = float(np.max(np.abs(R.T @ R - np.eye(3))))
-    if ortho > ROTATION_TOLERANCE or np.linalg.det(R) <= 0:
-        raise InputError(f"T_BS rotation block is not a rotation (max |R^T R - I| = {ortho:.3g}, "
-                         f"det {np.linalg.det(R):.6g})", path=path)
+    problem = rotation_block_error(T[:3, :3])
+    if problem is not None:
+        raise InputError(f"T_BS rotation block {problem}", path=path)
     return T
 
 

@@ -21,8 +21,9 @@ For each selected left pixel ``p = (u, v)`` of a rectified pair (docs/frontend.m
    ``sigma_disp^2 = sigma_line^2 * g2 / g_ll + 2 sigma_intensity^2 / g_ll`` (geometric +
    photometric disparity error), and ``V = sigma_disp^2 / (fx b)^2`` since ``d = disp / (fx b)``.
 5. **Gain equalisation** (``equalize_gain``): when the accepted points' patch contrast says the
-   right camera's gain differs from the left's by more than 10 %, the search runs once more on
-   the right image divided by that gain (:func:`matched_gain`); ZSSD absorbs offsets, not gains.
+   right camera's gain differs from the left's by more than 10 %, the search runs again on the
+   right image divided by that gain (:func:`matched_gain`), re-estimated from each new search until
+   it settles; ZSSD absorbs offsets, not gains.
 """
 
 from __future__ import annotations
@@ -33,7 +34,7 @@ from enum import IntEnum
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from factors.photometric import CLIP_RANGE
+from factors import photometric
 from gtvo.camera import StereoCamera
 from gtvo.errors import InputError
 from gtvo.frontend._compiled import zssd_costs
@@ -403,8 +404,8 @@ def matched_gain(left: NDArray, right: NDArray, pixels: ArrayLike, result: Stere
                  pattern: ArrayLike | str = "patch5x5") -> float | None:
     """The right camera's gain against the left from the matched points: the median over accepted
     points of the ratio of their patches' intensity standard deviations (right patch at the
-    rounded disparity). Patches that touch a clipped pixel (:data:`factors.photometric.CLIP_RANGE`)
-    in either image are left out: a saturated patch's spread is not its scene's times the gain
+    rounded disparity). Patches that touch a clipped pixel (:data:`factors.photometric.CLIP_RANGE`,
+    read at call time like every ``GradientImage`` does; None: no check) in either image are left out: a saturated patch's spread is not its scene's times the gain
     (with a fifth of the brighter image saturated the estimate fell from 1.6 to 1.2). None with
     fewer than :data:`MIN_GAIN_POINTS` accepted, unclipped points of contrast."""
     pat = _as_pattern(pattern)
@@ -417,9 +418,10 @@ def matched_gain(left: NDArray, right: NDArray, pixels: ArrayLike, result: Stere
     ur = u - np.rint(result.disparity[result.valid]).astype(np.int64)[:, None]
     rvals, rok = _gather_integer(np.asarray(right, dtype=np.float32), ur, v)
     sl, sr = lvals.std(axis=1), rvals.std(axis=1)
-    lo, hi = CLIP_RANGE
-    unclipped = ((lvals > lo) & (lvals < hi)).all(axis=1) & ((rvals > lo) & (rvals < hi)).all(axis=1)
-    ok = lok.all(axis=1) & rok.all(axis=1) & unclipped & (sl > 2.0) & (sr > 0.0)
+    ok = lok.all(axis=1) & rok.all(axis=1) & (sl > 2.0) & (sr > 0.0)
+    if photometric.CLIP_RANGE is not None:
+        lo, hi = photometric.CLIP_RANGE
+        ok &= ((lvals > lo) & (lvals < hi)).all(axis=1) & ((rvals > lo) & (rvals < hi)).all(axis=1)
     if np.count_nonzero(ok) < MIN_GAIN_POINTS:
         return None
     return float(np.median(sr[ok] / sl[ok]))
