@@ -9,8 +9,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from gtvo.camera import PinholeCamera, StereoCamera
-from gtvo.image import image_gradients, to_float_gray
+from gtvo.core.camera import PinholeCamera, StereoCamera
+from gtvo.core.image import image_gradients, to_float_gray
 
 #: assumed SGBM disparity noise (px) for the stand-in inverse-depth variance
 DISPARITY_SIGMA = 0.5

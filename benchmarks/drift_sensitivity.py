@@ -37,12 +37,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks.peers import OrbPnPPeer, run_peer  # noqa: E402
 from benchmarks.vo_bench import KITTI_SEQUENCE_1, fmt, load_frames, markdown_table, run_gtvo, score  # noqa: E402
-from gtvo.atomic import write_json  # noqa: E402
+from gtvo.io.atomic import write_json  # noqa: E402
 from gtvo.datasets import open_sequence  # noqa: E402
-from gtvo.metrics import drift_percent  # noqa: E402
+from gtvo.evaluation.metrics import drift_percent  # noqa: E402
 from gtvo.odometry import OdometryConfig  # noqa: E402
-from gtvo.sequence import Sequence  # noqa: E402
-from gtvo.trajectory import Trajectory  # noqa: E402
+from gtvo.datasets.sequence import Sequence  # noqa: E402
+from gtvo.evaluation.trajectory import Trajectory  # noqa: E402
 from gtvo.window import WindowConfig  # noqa: E402
 
 GTVO_GRID = {"points_per_keyframe": (200, 300, 500), "window_size": (5, 7, 9)}

@@ -37,9 +37,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from benchmarks.peers import OrbPnPPeer, run_peer  # noqa: E402
 from benchmarks.vo_bench import KITTI_SEQUENCE_1, gtvo_config, load_frames, run_gtvo  # noqa: E402
 from gtvo.datasets import open_sequence  # noqa: E402
-from gtvo.image import to_uint8  # noqa: E402
-from gtvo.metrics import drift_percent  # noqa: E402
-from gtvo.trajectory import Trajectory  # noqa: E402
+from gtvo.core.image import to_uint8  # noqa: E402
+from gtvo.evaluation.metrics import drift_percent  # noqa: E402
+from gtvo.evaluation.trajectory import Trajectory  # noqa: E402
 
 DEFAULT_SEGMENTS = "0:3,3:6,6:9,9:12,0:12,12:18,18:24,24:30,30:36,36:42,42:48"
 

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gtvo.motion_model import ConstantAccelerationFilter, MotionNoise, planar_pose_from_T_world_cam, wrap_angle
+from gtvo.motion.model import ConstantAccelerationFilter, MotionNoise, planar_pose_from_T_world_cam, wrap_angle
 
 
 def read_kitti_poses(path: Path) -> np.ndarray:

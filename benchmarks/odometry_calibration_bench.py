@@ -14,9 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
-from gtvo.calibration import (PosePrior, apply_linear, fit_diff_drive, fit_diff_drive_gtsam, fit_linear,
+from gtvo.wheel_calibration import (PosePrior, apply_linear, fit_diff_drive, fit_diff_drive_gtsam, fit_linear,
                               fit_linear_gtsam, integrate_motions, joint_calibration, position_rmse, read_motion_pair)
-from gtvo.calibration.plot import plot_trajectories
+from gtvo.wheel_calibration.plot import plot_trajectories
 
 README_X = np.array([[1.00185, 4.686154, -0.468625], [0.007172, 0.445732, 0.052008], [0.004872, -1.95554, 1.218938]])
 X_TRUE = np.array([[1.05, 0.10, 0.02], [0.01, 0.95, 0.03], [0.005, -0.05, 0.90]])

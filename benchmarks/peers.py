@@ -12,7 +12,7 @@ gtvo on the same frames, and ``tests/test_peers_benchmark.py`` checks them on th
   lifted to 3-D with the same SGBM depth, and ``cv2.solvePnPRansac`` (then Levenberg-Marquardt on
   the inliers) for the current frame's pose.
 
-Both take a :class:`gtvo.sequence.Frame` at a time (stereo: depth from SGBM; RGB-D: the sensor's
+Both take a :class:`gtvo.datasets.sequence.Frame` at a time (stereo: depth from SGBM; RGB-D: the sensor's
 depth) and return ``T_world_cam`` of the left camera (docs/conventions.md), the first frame at
 the identity. Relative motions: ``T_prev_cur`` is the current camera's pose in the previous
 camera's frame, so ``T_world_cur = T_world_prev @ T_prev_cur``.
@@ -28,12 +28,12 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from gtvo._optional import require_open3d
-from gtvo.camera import PinholeCamera, StereoCamera
+from gtvo.core.optional import require_open3d
+from gtvo.core.camera import PinholeCamera, StereoCamera
 from gtvo.errors import InputError
-from gtvo.image import to_uint8
-from gtvo.sequence import Frame
-from gtvo.trajectory import Trajectory
+from gtvo.core.image import to_uint8
+from gtvo.datasets.sequence import Frame
+from gtvo.evaluation.trajectory import Trajectory
 
 FloatArray = NDArray[np.float64]
 

@@ -27,10 +27,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from gtvo.camera import PinholeCamera, StereoCamera  # noqa: E402
+from gtvo.core.camera import PinholeCamera, StereoCamera  # noqa: E402
 from gtvo.errors import InputError  # noqa: E402
 from gtvo.frontend import select_points, stereo_inverse_depth  # noqa: E402
-from gtvo.image import to_float_gray  # noqa: E402
+from gtvo.core.image import to_float_gray  # noqa: E402
 
 TARGET = 2000
 

@@ -1,9 +1,9 @@
-"""Speed and exactness figures of the synthetic sequence (gtvo.synthetic); prints a Markdown table.
+"""Speed and exactness figures of the synthetic sequence (gtvo.datasets.synthetic); prints a Markdown table.
 
 Usage: python benchmarks/synthetic_render.py [--frames 30]
 
 Speed is reported in seconds and as a ratio to a reference measured in the same run (bilinear
-sampling of a 320x240 image at every pixel, ``gtvo.image.bilinear_sample``), since the machine is
+sampling of a 320x240 image at every pixel, ``gtvo.core.image.bilinear_sample``), since the machine is
 shared. Exactness: |difference| statistics (gray levels) on interior pixels (``interior_mask``):
 (a) re-render with the principal point moved by (0.5, 0.5) px vs bilinear sampling of the image,
 (b) frame 0 warped onto frame j with exact depth and GT poses (unoccluded pixels),
@@ -21,9 +21,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from gtvo.camera import PinholeCamera  # noqa: E402
-from gtvo.image import bilinear_sample  # noqa: E402
-from gtvo.synthetic import _cached_scene, make_synthetic_sequence  # noqa: E402
+from gtvo.core.camera import PinholeCamera  # noqa: E402
+from gtvo.core.image import bilinear_sample  # noqa: E402
+from gtvo.datasets.synthetic import _cached_scene, make_synthetic_sequence  # noqa: E402
 
 
 def stats(d: np.ndarray) -> str:

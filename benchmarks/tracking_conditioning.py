@@ -27,14 +27,15 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks.vo_bench import KITTI_SEQUENCE_1, SHARED_DATA, fmt, gtvo_config, markdown_table  # noqa: E402
-from gtvo.atomic import write_json  # noqa: E402
+from gtvo.io.atomic import write_json  # noqa: E402
 from gtvo.datasets import open_sequence  # noqa: E402
-from gtvo.metrics import ate  # noqa: E402
+from gtvo.evaluation.metrics import ate  # noqa: E402
 from gtvo.odometry import OdometryConfig, VisualOdometry  # noqa: E402
-from gtvo.sequence import Sequence  # noqa: E402
-from gtvo.synthetic import make_synthetic_sequence  # noqa: E402
-from gtvo.trajectory import Trajectory, rotation_angle  # noqa: E402
-from gtvo.tracking import TrackingConfig  # noqa: E402
+from gtvo.datasets.sequence import Sequence  # noqa: E402
+from gtvo.datasets.synthetic import make_synthetic_sequence  # noqa: E402
+from gtvo.evaluation.trajectory import Trajectory  # noqa: E402
+from gtvo.core.lie import rotation_angle  # noqa: E402
+from gtvo.frontend.tracking import TrackingConfig  # noqa: E402
 
 REAL_LOGS: tuple[tuple[Path, int], ...] = (
     (KITTI_SEQUENCE_1, 1), (KITTI_SEQUENCE_1, 3),

@@ -28,8 +28,8 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from benchmarks._kitti_sgbm import load_kitti, read_gray, sgbm_keyframe_points  # noqa: E402
-from gtvo.metrics import umeyama_alignment  # noqa: E402
-from gtvo.tracking import (TrackingConfig, TrackingKeyframe, frame_pyramid, track_gtsam, track_handrolled,  # noqa: E402
+from gtvo.evaluation.metrics import umeyama_alignment  # noqa: E402
+from gtvo.frontend.tracking import (TrackingConfig, TrackingKeyframe, frame_pyramid, track_gtsam, track_handrolled,  # noqa: E402
                            track_with_guesses)
 
 DEFAULT = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti_stereo_sample" / "KITTI_sequence_1"

@@ -2,14 +2,14 @@
 preloaded frames with per-frame timing, score a trajectory against ground truth, a reference
 timing, and markdown tables.
 
-Scores (``gtvo.metrics``, on the frames that have a ground-truth pose):
+Scores (``gtvo.evaluation.metrics``, on the frames that have a ground-truth pose):
 
 * ``ate_m``: ATE RMSE after SE(3) (Umeyama) alignment, metres;
 * ``drift_pct``: final position error after aligning the first pose, % of the GT path length
   (None when the GT path is shorter than :data:`MIN_DRIFT_PATH_M`: a static clip has no drift %);
 * ``rpe_t_m``, ``rpe_r_deg``: RPE RMSE over 1-frame pairs, translation (m) and rotation (deg);
 * ``seg_t_pct``, ``seg_r_deg_per_100m``: the KITTI devkit's segment errors
-  (:func:`gtvo.metrics.kitti_segment_errors`) over the short lengths :data:`SEGMENT_LENGTHS_M`
+  (:func:`gtvo.evaluation.metrics.kitti_segment_errors`) over the short lengths :data:`SEGMENT_LENGTHS_M`
   from every frame: the drift measured from every start, not from frame 0 only (None when no
   segment fits);
 * ``max_disp_m``: the largest distance of an estimated camera position from the first one (the
@@ -34,11 +34,11 @@ if str(REPO_ROOT) not in sys.path:  # run as `python benchmarks/<script>.py`
 
 from benchmarks.peers import make_sgbm  # noqa: E402
 from gtvo.errors import InputError  # noqa: E402
-from gtvo.image import to_uint8  # noqa: E402
-from gtvo.metrics import ate, drift_percent, kitti_segment_errors, rpe  # noqa: E402
-from gtvo.report import MIN_DRIFT_PATH_M  # noqa: E402
-from gtvo.sequence import Frame, Sequence  # noqa: E402
-from gtvo.trajectory import Trajectory  # noqa: E402
+from gtvo.core.image import to_uint8  # noqa: E402
+from gtvo.evaluation.metrics import ate, drift_percent, kitti_segment_errors, rpe  # noqa: E402
+from gtvo.io.outputs import MIN_DRIFT_PATH_M  # noqa: E402
+from gtvo.datasets.sequence import Frame, Sequence  # noqa: E402
+from gtvo.evaluation.trajectory import Trajectory  # noqa: E402
 
 #: Segment lengths (m) of the short-snippet KITTI segment metric (the devkit's are 100..800 m).
 SEGMENT_LENGTHS_M = (10.0, 20.0, 30.0, 40.0)
@@ -114,7 +114,7 @@ def failure_details(vo: Any, seq: Sequence) -> list[dict[str, Any]]:
     """For each frame where gtvo's tracking failed: the reason, and how far from the ground-truth
     frame-to-frame motion (previous estimate -> this frame) the pose it kept (the motion-model
     prediction) and the pose the tracker had found are, translation (m) / rotation (deg)."""
-    from gtvo.trajectory import invert_poses, rotation_angle  # noqa: PLC0415
+    from gtvo.core.lie import invert_poses, rotation_angle  # noqa: PLC0415
 
     out = []
     est = vo.estimates

@@ -43,11 +43,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from factors.photometric import GradientImage  # noqa: E402
 from gtvo.datasets import open_sequence  # noqa: E402
 from gtvo.frontend import init_keyframe_points  # noqa: E402
-from gtvo.image import to_float_gray  # noqa: E402
+from gtvo.core.image import to_float_gray  # noqa: E402
 from gtvo.odometry import OdometryConfig  # noqa: E402
 from gtvo.pipeline import process_sequence  # noqa: E402
-from gtvo.report import evaluate  # noqa: E402
-from gtvo.trajectory import Trajectory  # noqa: E402
+from gtvo.io.outputs import evaluate  # noqa: E402
+from gtvo.evaluation.trajectory import Trajectory  # noqa: E402
 from gtvo.window import WindowConfig, WindowKeyframe, solve_gtsam, solve_handrolled  # noqa: E402
 
 REPEATS = 3
@@ -75,7 +75,7 @@ def accuracy(path: Path) -> None:
 
 def synthetic() -> None:
     """The demo's synthetic sequence (30 frames, exact ground truth): both modes, both window solvers."""
-    from gtvo.synthetic import make_synthetic_sequence  # noqa: PLC0415
+    from gtvo.datasets.synthetic import make_synthetic_sequence  # noqa: PLC0415
 
     seq = make_synthetic_sequence()
     ref = Trajectory(np.asarray(seq.timestamps, dtype=float), np.asarray(seq.gt_poses), name="gt")

@@ -17,14 +17,14 @@ temporary array, and the kernel was about half of a whole VO run (docs/benchmark
 photometric kernel"). The arithmetic here is float64 throughout (the numpy sampler it replaced
 interpolated in float32: results moved by about 1e-5 grey levels, the KITTI figures not at all).
 
-Compiled on first use and cached on disk (:func:`gtvo._jit.jit`).
+Compiled on first use and cached on disk (:func:`gtvo.core.jit.jit`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from gtvo._jit import jit
+from gtvo.core.jit import jit
 
 
 @jit

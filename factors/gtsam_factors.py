@@ -26,7 +26,7 @@ from numpy.typing import ArrayLike
 
 from factors.photometric import (PATTERN_DSO8, GradientSampler, huber_loss, huber_weight, pattern_bearings,
                                  photometric_residuals, sample_host, stereo_residuals, variance_weight)
-from gtvo.camera import PinholeCamera
+from gtvo.core.camera import PinholeCamera
 from gtvo.errors import InputError
 
 #: Default intensity noise sigma_I (8-bit units) of one image (KITTI: RMS whitened residual ~1.1 with it).

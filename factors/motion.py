@@ -1,7 +1,7 @@
 """The planar constant-acceleration motion model as native linear-Gaussian GTSAM factors.
 
 Residual math only (no I/O, no pipeline state); the model and its names are those of
-:mod:`gtvo.motion_model`. Each state ``x_t = [X, dX, Z, dZ, theta, dtheta]`` is a 6-vector
+:mod:`gtvo.motion.model`. Each state ``x_t = [X, dX, Z, dZ, theta, dtheta]`` is a 6-vector
 variable (key ``gtsam.symbol('v', t)``). The model is linear, so the factors are
 ``gtsam.JacobianFactor`` s with error ``sum_j A_j x_j - b`` whitened by a noise model, and the
 graph is a ``gtsam.GaussianFactorGraph`` whose solution is the exact posterior mean.
@@ -24,7 +24,40 @@ import gtsam
 import numpy as np
 from numpy.typing import ArrayLike
 
-from gtvo.motion_model import POSE_MEASUREMENT_MATRIX, STATE_DIM, transition_matrix
+from numpy.typing import NDArray
+
+from gtvo.errors import InputError
+
+FloatArray = NDArray[np.float64]
+
+#: State layout.
+STATE_DIM = 6
+X_INDEX, DX_INDEX, Z_INDEX, DZ_INDEX, THETA_INDEX, DTHETA_INDEX = range(6)
+
+#: ``C``: the measurement ``(X, Z, theta)`` selects state rows 0, 2 and 4.
+POSE_MEASUREMENT_MATRIX: FloatArray = np.zeros((3, STATE_DIM))
+POSE_MEASUREMENT_MATRIX[0, X_INDEX] = 1.0
+POSE_MEASUREMENT_MATRIX[1, Z_INDEX] = 1.0
+POSE_MEASUREMENT_MATRIX[2, THETA_INDEX] = 1.0
+POSE_MEASUREMENT_MATRIX.setflags(write=False)
+
+
+def check_dt(dt: float) -> float:
+    """``dt`` as a float, or InputError unless it is finite and > 0."""
+    dt = float(dt)
+    if not np.isfinite(dt) or dt <= 0:
+        raise InputError(f"motion model time step must be finite and > 0, got {dt!r}")
+    return dt
+
+
+
+def transition_matrix(dt: float) -> FloatArray:
+    """``A``: the 6x6 constant-velocity transition over ``dt`` seconds (block ``[[1, dt], [0, 1]]``)."""
+    dt = check_dt(dt)
+    A = np.eye(STATE_DIM)
+    A[X_INDEX, DX_INDEX] = A[Z_INDEX, DZ_INDEX] = A[THETA_INDEX, DTHETA_INDEX] = dt
+    return A
+
 
 #: Penalty weight GTSAM uses for constrained rows in nonlinear error evaluation (its default).
 CONSTRAINT_MU = 1000.0

@@ -4,7 +4,7 @@ Residual math only (no I/O). The calibration variable is a plain GTSAM vector (k
 :func:`calibration_key`):
 
 * linear model: the 9-vector ``x`` of X's entries in row-major order, ``u' = X u``;
-* diff-drive model: the 3-vector ``p = (k_L, k_R, k_b)`` of :mod:`gtvo.calibration.diff_drive`.
+* diff-drive model: the 3-vector ``p = (k_L, k_R, k_b)`` of :mod:`gtvo.wheel_calibration.diff_drive`.
 
 Factors:
 
@@ -28,12 +28,70 @@ Values (see docs/odometry_calibration.md for what that costs here).
 
 from __future__ import annotations
 
+import math
+from typing import Sequence
 
 import gtsam
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from gtvo.calibration.diff_drive import diff_drive_motion_scalar, wheel_arcs
+
+
+_SERIES_BELOW = 0.05  # |t| below which A, B and their derivatives use their Taylor series
+
+
+def arc_coefficients(t: ArrayLike) -> tuple[NDArray[np.float64], ...]:
+    """``A(t) = sin t/t``, ``B(t) = (1-cos t)/t`` and their derivatives ``A'(t)``, ``B'(t)`` (series near 0)."""
+    t = np.asarray(t, dtype=np.float64)
+    small = np.abs(t) < _SERIES_BELOW
+    ts = np.where(small, 1.0, t)  # safe divisor
+    t2 = t * t
+    a = np.where(small, 1 - t2 / 6 * (1 - t2 / 20 * (1 - t2 / 42 * (1 - t2 / 72))), np.sin(ts) / ts)
+    b = np.where(small, t / 2 * (1 - t2 / 12 * (1 - t2 / 30 * (1 - t2 / 56 * (1 - t2 / 90)))), (1 - np.cos(ts)) / ts)
+    da = np.where(small, -t / 3 + t * t2 / 30 - t * t2 * t2 / 840 + t * t2 ** 3 / 45360,
+                  (ts * np.cos(ts) - np.sin(ts)) / (ts * ts))
+    db = np.where(small, 0.5 - t2 / 8 + t2 * t2 / 144 - t2 ** 3 / 5760 + t2 ** 4 / 403200,
+                  (ts * np.sin(ts) - (1 - np.cos(ts))) / (ts * ts))
+    return a, b, da, db
+
+
+def wheel_arcs(odom: NDArray[np.float64], nominal_baseline: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Nominal left and right wheel arc lengths ``(s_L, s_R)`` that produced the raw motions."""
+    t = odom[:, 2]
+    ah = arc_coefficients(t / 2)[0]
+    s = (odom[:, 0] * np.cos(t / 2) + odom[:, 1] * np.sin(t / 2)) / ah
+    return s - nominal_baseline * t / 2, s + nominal_baseline * t / 2
+
+
+def _arc_scalar(t: float) -> tuple[float, float, float, float]:
+    """:func:`arc_coefficients` for one float (no numpy overhead: used per factor call)."""
+    if abs(t) < _SERIES_BELOW:
+        t2 = t * t
+        return (1 - t2 / 6 * (1 - t2 / 20 * (1 - t2 / 42 * (1 - t2 / 72))),
+                t / 2 * (1 - t2 / 12 * (1 - t2 / 30 * (1 - t2 / 56 * (1 - t2 / 90)))),
+                -t / 3 + t * t2 / 30 - t * t2 * t2 / 840 + t * t2 ** 3 / 45360,
+                0.5 - t2 / 8 + t2 * t2 / 144 - t2 ** 3 / 5760 + t2 ** 4 / 403200)
+    c, s = math.cos(t), math.sin(t)
+    return s / t, (1 - c) / t, (t * c - s) / (t * t), (t * s - (1 - c)) / (t * t)
+
+
+def diff_drive_motion_scalar(params: Sequence[float], s_left: float, s_right: float, nominal_baseline: float
+                             ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """``f(u; p)`` (3) and ``df/dp`` (3x3) for one motion given by its nominal wheel arcs (see :func:`wheel_arcs`).
+
+    The same math as :func:`apply_diff_drive`, written for one motion so that a per-motion GTSAM
+    factor does not pay numpy's per-call overhead.
+    """
+    k_l, k_r, k_b = float(params[0]), float(params[1]), float(params[2])
+    s = 0.5 * (k_r * s_right + k_l * s_left)
+    bb = k_b * nominal_baseline
+    t = (k_r * s_right - k_l * s_left) / bb
+    a, b, da, db = _arc_scalar(t)
+    f = np.array([s * a, s * b, t])
+    ds = np.array([0.5 * s_left, 0.5 * s_right, 0.0])
+    dt = np.array([-s_left / bb, s_right / bb, -t / k_b])
+    jac = np.outer([a, b, 0.0], ds) + np.outer([s * da, s * db, 1.0], dt)
+    return f, jac
 
 
 def calibration_key(index: int = 0) -> int:

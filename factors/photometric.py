@@ -35,10 +35,10 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from factors import _compiled
-from gtvo.camera import MIN_DEPTH, PinholeCamera
+from gtvo.core.camera import MIN_DEPTH, PinholeCamera
 from gtvo.errors import InputError
-from gtvo.image import bilinear_sample, image_gradients
-from gtvo.trajectory import invert_poses
+from gtvo.core.image import bilinear_sample, image_gradients
+from gtvo.core.lie import invert_poses
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -122,7 +122,7 @@ class GradientImage:
     def sample(self, u: NDArray, v: NDArray) -> tuple[FloatArray, BoolArray]:
         """Bilinear (I, gx, gy) at ``(u, v)``; 0 and False where invalid, never NaN.
 
-        Same result and validity rule as :func:`gtvo.image.bilinear_sample` on :attr:`stack`
+        Same result and validity rule as :func:`gtvo.core.image.bilinear_sample` on :attr:`stack`
         up to float32 rounding of the stored image (tested to 1e-4 grey levels), in one compiled
         pass (:func:`factors._compiled.sample_stack`; the hot path of tracking). In addition, a
         sample next to a clipped pixel is invalid (``clip_range``).

@@ -42,7 +42,7 @@ from factors.gtsam_factors import DEFAULT_HUBER_K, DEFAULT_SIGMA_INTENSITY, Pyth
 from factors.photometric import (PATTERN_DSO8, GradientSampler, gauss_newton_sums, pattern_bearings,
                                  photometric_residuals, point_robust_terms, replace_rows, sample_host, stereo_residuals,
                                  variance_weight)
-from gtvo.camera import PinholeCamera
+from gtvo.core.camera import PinholeCamera
 from gtvo.errors import InputError
 
 FloatArray = NDArray[np.float64]

@@ -1,10 +1,10 @@
 """gtvo: a factor-graph backend for direct stereo visual odometry on GTSAM.
 
 Data flows one way: readers (:mod:`gtvo.datasets`) -> frames and camera
-(:mod:`gtvo.camera`, :mod:`gtvo.image`) -> front end (:mod:`gtvo.frontend`,
-:mod:`gtvo.odometry`) -> factors (:mod:`factors`) -> solvers (:mod:`gtvo.tracking`,
-:mod:`gtvo.window`, :mod:`gtvo.posegraph`) -> outputs (:mod:`gtvo.trajectory_io`,
-:mod:`gtvo.report`). Conventions (frames, pixel centres, Pose3 tangent order):
+(:mod:`gtvo.core.camera`, :mod:`gtvo.core.image`) -> front end (:mod:`gtvo.frontend`,
+:mod:`gtvo.odometry`) -> factors (:mod:`factors`) -> solvers (:mod:`gtvo.frontend.tracking`,
+:mod:`gtvo.window`, :mod:`gtvo.posegraph`) -> outputs (:mod:`gtvo.io.trajectory_files`,
+:mod:`gtvo.io.outputs`). Conventions (frames, pixel centres, Pose3 tangent order):
 ``docs/conventions.md``.
 
 The top-level names are the small API most users need (imported on first use, so
@@ -27,14 +27,14 @@ __version__ = "0.1.0"
 
 _EXPORTS = {
     "open_sequence": "gtvo.datasets",
-    "Sequence": "gtvo.sequence",
-    "Frame": "gtvo.sequence",
-    "PinholeCamera": "gtvo.camera",
-    "StereoCamera": "gtvo.camera",
+    "Sequence": "gtvo.datasets.sequence",
+    "Frame": "gtvo.datasets.sequence",
+    "PinholeCamera": "gtvo.core.camera",
+    "StereoCamera": "gtvo.core.camera",
     "VisualOdometry": "gtvo.odometry",
     "OdometryConfig": "gtvo.odometry",
     "SlidingWindowOptimizer": "gtvo.window",
-    "Trajectory": "gtvo.trajectory",
+    "Trajectory": "gtvo.evaluation.trajectory",
     "run": "gtvo.pipeline",
     "InputError": "gtvo.errors",
 }

@@ -21,7 +21,7 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 from typing import Sequence
 
 from gtvo import __version__
-from gtvo.atomic import tidy_on_failure
+from gtvo.io.atomic import tidy_on_failure
 from gtvo.errors import DependencyError, InputError, TrackingFailure
 
 # One module per subcommand, in the order `gtvo --help` lists them.

@@ -1,8 +1,8 @@
 """The visual-odometry driver: frames in, poses out.
 
-:class:`VisualOdometry` is fed one :class:`gtvo.sequence.Frame` at a time (a user who imports
+:class:`VisualOdometry` is fed one :class:`gtvo.datasets.sequence.Frame` at a time (a user who imports
 gtvo as a backend does exactly this) and returns a :class:`FrameEstimate` per frame. The front
-end lives here; the residual math in :mod:`factors`, the trackers in :mod:`gtvo.tracking`:
+end lives here; the residual math in :mod:`factors`, the trackers in :mod:`gtvo.frontend.tracking`:
 
 * the first frame becomes a keyframe: points selected in the left image
   (:func:`gtvo.frontend.select_points`) get inverse depths and variances from stereo
@@ -35,14 +35,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from factors.photometric import GradientImage
-from gtvo.camera import PinholeCamera, StereoCamera
+from gtvo.core.camera import PinholeCamera, StereoCamera
 from gtvo.errors import InputError
 from gtvo.frontend import FlowPoseConfig, KeyframePoints, init_keyframe_points, optical_flow_pose, select_points
-from gtvo.image import to_float_gray
-from gtvo.sequence import Frame
-from gtvo.tracking import (TrackingConfig, TrackingKeyframe, TrackingResult, frame_pyramid, track_gtsam,
+from gtvo.core.image import to_float_gray
+from gtvo.datasets.sequence import Frame
+from gtvo.frontend.tracking import (TrackingConfig, TrackingKeyframe, TrackingResult, frame_pyramid, track_gtsam,
                            track_handrolled, track_with_guesses)
-from gtvo.trajectory import Trajectory
+from gtvo.evaluation.trajectory import Trajectory
 from gtvo.window import (SlidingWindowOptimizer, WindowConfig, WindowKeyframe, WindowResult,
                          estimate_stereo_affine)
 
@@ -226,7 +226,7 @@ class VisualOdometry:
             baseline = camera.baseline if isinstance(camera, StereoCamera) else None
             self.window = SlidingWindowOptimizer(self.pinhole, baseline, self.config.window)
         if self.config.motion_model == "kalman":
-            from gtvo.motion_model import ConstantAccelerationFilter  # noqa: PLC0415
+            from gtvo.motion.model import ConstantAccelerationFilter  # noqa: PLC0415
 
             self._kalman = ConstantAccelerationFilter()
 
@@ -360,7 +360,7 @@ class VisualOdometry:
         dt_prev = self.estimates[-1].timestamp - self.estimates[-2].timestamp
         dt = timestamp - self.estimates[-1].timestamp
         if self._kalman is not None and self._kalman.initialized:
-            from gtvo.motion_model import T_world_cam_from_planar_pose  # noqa: PLC0415
+            from gtvo.motion.model import T_world_cam_from_planar_pose  # noqa: PLC0415
 
             X, Z, theta = self._kalman.predict_pose(dt)
             planar = T_world_cam_from_planar_pose(X, Z, theta, last.matrix())
@@ -513,7 +513,7 @@ class VisualOdometry:
         self.estimates.append(est)
         self._previous = (frame, left) if candidate and not lost else None
         if self._kalman is not None:
-            from gtvo.motion_model import planar_pose_from_T_world_cam  # noqa: PLC0415
+            from gtvo.motion.model import planar_pose_from_T_world_cam  # noqa: PLC0415
 
             z = planar_pose_from_T_world_cam(est.T_world_cam)
             if not self._kalman.initialized:

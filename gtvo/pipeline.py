@@ -10,13 +10,13 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
-from gtvo.atomic import ensure_output_dir, tidy_on_failure
+from gtvo.io.atomic import ensure_output_dir, tidy_on_failure
 from gtvo.datasets import open_sequence
 from gtvo.errors import InputError
 from gtvo.odometry import OdometryConfig, VisualOdometry
-from gtvo.report import write_run_outputs
-from gtvo.sequence import Sequence
-from gtvo.trajectory import Trajectory
+from gtvo.io.outputs import write_run_outputs
+from gtvo.datasets.sequence import Sequence
+from gtvo.evaluation.trajectory import Trajectory
 
 
 def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progress: bool = False,
@@ -104,7 +104,7 @@ def run(path: str | Path | Sequence, out: str | Path | None = None, config: Odom
         strict: stop at the first unreadable frame instead of skipping it.
         loop_closure: after the run, detect loops among the keyframes, optimise the keyframe
             pose graph robustly (GNC) and write ``trajectory_loop_closed.tum`` as a second
-            output (:mod:`gtvo.loop_closing`).
+            output (:mod:`gtvo.loops.closing`).
         frame_step: use every ``frame_step``-th frame (after ``max_frames``): the log at a lower
             frame rate (:meth:`Sequence.subsampled`).
 
@@ -125,7 +125,7 @@ def run(path: str | Path | Sequence, out: str | Path | None = None, config: Odom
         info["frame_step"] = int(frame_step)
         closed = None
         if loop_closure:
-            from gtvo.loop_closing import close_loops_of_run  # noqa: PLC0415
+            from gtvo.loops.closing import close_loops_of_run  # noqa: PLC0415
 
             keyframes = [p for p, e in enumerate(vo.estimates) if e.is_keyframe]
             res = close_loops_of_run(seq, traj, [e.index for e in vo.estimates], keyframes, progress=progress)

@@ -51,7 +51,7 @@ from factors.gtsam_factors import DEFAULT_HUBER_K, DEFAULT_SIGMA_INTENSITY, Cons
 from factors.photometric import (PATTERN_DSO8, PATTERN_SINGLE, GradientImage, gauss_newton_sums, pattern_bearings,
                                  photometric_residuals, point_robust_terms, sample_host, stereo_residuals, variance_weight)
 from factors.smart import HostPointsFactor, keep_cheaper_depths
-from gtvo.camera import MIN_DEPTH, PinholeCamera
+from gtvo.core.camera import MIN_DEPTH, PinholeCamera
 from gtvo.errors import InputError
 
 FloatArray = NDArray[np.float64]

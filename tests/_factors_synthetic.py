@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from gtvo.camera import PinholeCamera
+from gtvo.core.camera import PinholeCamera
 
 
 class SinusoidImage:

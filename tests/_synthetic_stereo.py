@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from gtvo.camera import PinholeCamera, StereoCamera
+from gtvo.core.camera import PinholeCamera, StereoCamera
 
 
 def texture(x: np.ndarray, y: np.ndarray, seed: int = 0, n_waves: int = 40,

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from gtvo.camera import PinholeCamera, StereoCamera
+from gtvo.core.camera import PinholeCamera, StereoCamera
 from gtvo.errors import InputError
 
 

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from gtvo import cli
-from gtvo.synthetic import make_synthetic_sequence, write_sequence_kitti
-from gtvo.trajectory_io import read_tum
+from gtvo.datasets.synthetic import make_synthetic_sequence, write_sequence_kitti
+from gtvo.io.trajectory_files import read_tum
 
 
 def run_cli(*args, cwd=None):

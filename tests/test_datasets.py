@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from gtvo.camera import PinholeCamera, StereoCamera
+from gtvo.core.camera import PinholeCamera, StereoCamera
 from gtvo.datasets import detect_format, open_sequence, validate
 from gtvo.datasets._common import associate_unique, interpolate_poses
 from gtvo.errors import InputError

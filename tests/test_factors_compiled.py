@@ -205,7 +205,7 @@ def test_gauss_newton_sums_reject_missing_jacobians_and_bad_weights():
 def test_jit_compiles_without_a_cache_location():
     """numba cannot cache a function whose source is not a file (as with a read-only install and
     no home directory); ``jit`` then compiles without a cache instead of raising at import."""
-    from gtvo._jit import jit
+    from gtvo.core.jit import jit
     namespace: dict = {}
     exec(compile("def twice(x):\n    return 2.0 * x\n", "<no file>", "exec"), namespace)
     fn = jit(namespace["twice"])

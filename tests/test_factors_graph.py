@@ -9,7 +9,7 @@ import pytest
 from factors.gtsam_factors import (InverseDepthSmoothnessFactor, MotionSmoothnessFactor, PhotometricFactor,
                                    StereoFactor)
 from factors.photometric import GradientImage, photometric_residuals, sample_host, stereo_residuals
-from gtvo.camera import PinholeCamera
+from gtvo.core.camera import PinholeCamera
 from gtvo.errors import InputError
 from tests._factors_synthetic import PlaneSceneImage, SinusoidImage, small_camera
 
@@ -137,7 +137,7 @@ def test_stereo_factor_alone_recovers_inverse_depth():
 
 
 def test_gradient_image_sample_matches_gtvo_bilinear_sample():
-    from gtvo.image import bilinear_sample
+    from gtvo.core.image import bilinear_sample
     rng = np.random.default_rng(0)
     g = GradientImage(rng.uniform(0, 255, (40, 60)))
     u = rng.uniform(-3, 62, (50, 8))

@@ -9,7 +9,7 @@ import pytest
 
 from factors.gtsam_factors import PhotometricFactor, StereoFactor
 from factors.smart import HostPointsFactor
-from gtvo.camera import PinholeCamera
+from gtvo.core.camera import PinholeCamera
 from gtvo.errors import InputError
 from tests._factors_synthetic import PlaneSceneImage, SinusoidImage, small_camera
 

@@ -14,7 +14,7 @@ import pytest
 from gtvo.errors import InputError
 from gtvo.frontend import init_keyframe_points, select_points
 from gtvo.frontend import FlowPoseConfig, optical_flow_pose
-from gtvo.synthetic import make_synthetic_sequence
+from gtvo.datasets.synthetic import make_synthetic_sequence
 
 
 def _errors(T_est: np.ndarray, T_true: np.ndarray) -> tuple[float, float]:

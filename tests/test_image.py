@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from gtvo.errors import InputError
-from gtvo.image import bilinear_sample, build_pyramid, downsample, image_gradients, to_float_gray
+from gtvo.core.image import bilinear_sample, build_pyramid, downsample, image_gradients, to_float_gray
 
 
 def ramp(h=6, w=8):

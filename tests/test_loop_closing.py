@@ -2,11 +2,11 @@
 
 import numpy as np
 
-from gtvo.loop_closing import close_loops_of_run, relocate_frames
+from gtvo.loops.closing import close_loops_of_run, relocate_frames
 from gtvo.odometry import OdometryConfig
 from gtvo.pipeline import process_sequence
-from gtvo.report import evaluate, ground_truth
-from gtvo.synthetic import make_synthetic_sequence
+from gtvo.io.outputs import evaluate, ground_truth
+from gtvo.datasets.synthetic import make_synthetic_sequence
 
 
 def _pose(yaw, t):

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from gtvo.errors import InputError
-from gtvo.posegraph import lie
-from gtvo.posegraph.loop_closure import LoopEdge, close_loops
+from gtvo.core import lie
+from gtvo.loops.closure_graph import LoopEdge, close_loops
 
 ODO_INFO = np.diag([1e4] * 3 + [1e3] * 3)  # matches the simulated odometry noise (0.01 rad, 0.03 m)
 LOOP_INFO = np.diag([1e4] * 3 + [1e2] * 3)

@@ -13,7 +13,7 @@ import gtsam
 import numpy as np
 import pytest
 
-from gtvo.camera import PinholeCamera, StereoCamera
+from gtvo.core.camera import PinholeCamera, StereoCamera
 from gtvo.errors import InputError
 from gtvo.loops import (BinaryVocabulary, LoopDetector, LoopDetectorConfig, OrbParams,
                         depth_image_points, detect_loops, extract_orb, hamming_distances, idf_weights, l1_scores,

@@ -16,10 +16,11 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from gtvo.errors import InputError
-from gtvo.metrics import (ErrorStatistics, align_trajectory, ate, drift_percent, kitti_segment_errors,
+from gtvo.evaluation.metrics import (ErrorStatistics, align_trajectory, ate, drift_percent, kitti_segment_errors,
                           pairs_by_frames, pairs_by_path, rpe, umeyama_alignment)
-from gtvo.trajectory import Trajectory, invert_poses, make_poses, synchronize
-from gtvo.trajectory_io import read_kitti, read_trajectory
+from gtvo.evaluation.trajectory import Trajectory, synchronize
+from gtvo.core.lie import invert_poses, make_poses
+from gtvo.io.trajectory_files import read_kitti, read_trajectory
 
 REL = 1e-6  # relative tolerance of every cross-check against evo
 

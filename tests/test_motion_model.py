@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from gtvo.errors import InputError
-from gtvo.motion_graph import build_motion_graph, solve_motion_graph
-from gtvo.motion_model import (
+from gtvo.motion.graph import build_motion_graph, solve_motion_graph
+from gtvo.motion.model import (
     POSE_MEASUREMENT_MATRIX,
     ConstantAccelerationFilter,
     MotionNoise,

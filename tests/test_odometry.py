@@ -15,8 +15,8 @@ import pytest
 
 from gtvo.errors import InputError
 from gtvo.odometry import OdometryConfig, VisualOdometry
-from gtvo.sequence import Sequence
-from gtvo.synthetic import make_synthetic_sequence
+from gtvo.datasets.sequence import Sequence
+from gtvo.datasets.synthetic import make_synthetic_sequence
 from gtvo.window import WindowConfig
 
 
@@ -65,7 +65,7 @@ def test_memory_stays_bounded_over_a_run():
     import gc  # noqa: PLC0415
 
     from factors.photometric import GradientImage  # noqa: PLC0415
-    from gtvo.synthetic import make_synthetic_sequence  # noqa: PLC0415
+    from gtvo.datasets.synthetic import make_synthetic_sequence  # noqa: PLC0415
 
     seq = make_synthetic_sequence(n_frames=16, step_m=0.3)
     vo = _run(seq, OdometryConfig(mode="window", points_per_keyframe=150, window=WindowConfig(size=3)))

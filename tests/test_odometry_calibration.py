@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gtvo.calibration import (fit_diff_drive, fit_linear, integrate_motions, position_rmse, read_motion_pair,
+from gtvo.wheel_calibration import (fit_diff_drive, fit_linear, integrate_motions, position_rmse, read_motion_pair,
                               read_motions, relative_motions)
-from gtvo.calibration.diff_drive import (apply_diff_drive, arc_coefficients, diff_drive_motion_scalar,
-                                         diff_drive_motions_from_arcs, wheel_arcs)
-from gtvo.calibration.linear import linear_errors, linear_jacobians, normal_equations
+from factors.odometry_calibration import arc_coefficients, diff_drive_motion_scalar, wheel_arcs
+from gtvo.wheel_calibration.diff_drive import apply_diff_drive, diff_drive_motions_from_arcs
+from gtvo.wheel_calibration.linear import linear_errors, linear_jacobians, normal_equations
 from gtvo.errors import InputError
 
 X_TRUE = np.array([[1.04, 0.08, -0.03], [0.02, 0.93, 0.05], [0.006, -0.04, 0.91]])
@@ -206,7 +206,7 @@ def test_real_data_matches_readme(shared_data):
 
 
 def test_calibrate_dispatch_and_unknown_model():
-    from gtvo.calibration import calibrate
+    from gtvo.wheel_calibration import calibrate
     rng = np.random.default_rng(8)
     u = random_motions(rng, 50)
     ref = u @ X_TRUE.T

@@ -11,9 +11,9 @@ import pytest
 import gtvo.cli
 from factors.odometry_calibration import (calibrated_odometry_error, calibrated_odometry_factor, calibration_key,
                                           diff_drive_calibration_factor, linear_calibration_factor)
-from gtvo.calibration import (LoopClosure, PosePrior, apply_linear, fit_diff_drive, fit_diff_drive_gtsam, fit_linear,
+from gtvo.wheel_calibration import (LoopClosure, PosePrior, apply_linear, fit_diff_drive, fit_diff_drive_gtsam, fit_linear,
                               fit_linear_gtsam, integrate_motions, joint_calibration, position_rmse)
-from gtvo.calibration.diff_drive import apply_diff_drive
+from gtvo.wheel_calibration.diff_drive import apply_diff_drive
 from gtvo.errors import InputError
 
 X_TRUE = np.array([[1.05, 0.10, 0.02], [0.01, 0.95, 0.03], [0.005, -0.05, 0.90]])
@@ -114,7 +114,7 @@ def test_gtsam_diff_drive_equals_handrolled():
     rng = np.random.default_rng(4)
     s_l = rng.uniform(0.05, 0.3, 200)
     s_r = s_l + rng.normal(0, 0.03, 200)
-    from gtvo.calibration.diff_drive import diff_drive_motions_from_arcs
+    from gtvo.wheel_calibration.diff_drive import diff_drive_motions_from_arcs
     odom = diff_drive_motions_from_arcs(s_l, s_r, 0.5)
     ref = diff_drive_motions_from_arcs(1.03 * s_l, 0.98 * s_r, 1.08 * 0.5) + rng.normal(0, 1e-3, (200, 3))
     hand, gt = fit_diff_drive(odom, ref, 0.5), fit_diff_drive_gtsam(odom, ref, 0.5)

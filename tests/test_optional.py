@@ -6,7 +6,7 @@ import sys
 
 import pytest
 
-from gtvo._optional import require_open3d
+from gtvo.core.optional import require_open3d
 from gtvo.errors import DependencyError
 
 
@@ -33,7 +33,7 @@ def test_missing_libusb_is_named(open3d_missing_libusb):
 def test_run_without_open3d_still_writes_everything_else(open3d_missing_libusb, tmp_path):
     from gtvo.odometry import OdometryConfig
     from gtvo.pipeline import run
-    from gtvo.synthetic import make_synthetic_sequence
+    from gtvo.datasets.synthetic import make_synthetic_sequence
 
     rep = run(make_synthetic_sequence(n_frames=4), out=tmp_path, config=OdometryConfig(points_per_keyframe=400))
     assert (tmp_path / "trajectory.tum").is_file() and (tmp_path / "report.json").is_file()

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gtvo.trajectory import invert_poses, rotation_angle
+from gtvo.core.lie import invert_poses, rotation_angle
 
 KITTI = Path("kitti_stereo_sample") / "KITTI_sequence_1"
 

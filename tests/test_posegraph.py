@@ -12,7 +12,8 @@ import pytest
 
 import gtvo.posegraph as pg
 from gtvo.errors import InputError
-from gtvo.posegraph import gtsam_solver, handrolled, io, lie, sesync
+from gtvo.core import lie
+from gtvo.posegraph import gtsam_solver, handrolled, io, sesync
 from gtvo.posegraph.graph import PoseGraph
 
 # "GTSAM reference errors" and SE-Sync f* from the data README (pose_graphs/README.md)
@@ -80,10 +81,10 @@ def test_rotation_conversions() -> None:
     rng = np.random.default_rng(3)
     q = rng.normal(size=(50, 4))
     q /= np.linalg.norm(q, axis=1, keepdims=True)
-    R = lie.quat_to_rot(q)
+    R = lie.quaternions_to_rotations(q)
     for k in range(5):
         assert np.allclose(R[k], gtsam.Rot3(q[k, 3], q[k, 0], q[k, 1], q[k, 2]).matrix(), atol=1e-14)
-    assert np.allclose(lie.quat_to_rot(lie.rot_to_quat(R)), R, atol=1e-14)
+    assert np.allclose(lie.quaternions_to_rotations(lie.rotations_to_quaternions(R)), R, atol=1e-14)
     rpy = rng.normal(size=3)
     assert np.allclose(lie.rpy_to_rot(rpy), gtsam.Rot3.Ypr(rpy[2], rpy[1], rpy[0]).matrix(), atol=1e-14)
     w = np.array([[np.pi - 1e-7, 0.0, 0.0], [0.0, 1e-9, np.pi], [0.3, -0.2, 0.1]])

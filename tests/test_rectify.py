@@ -1,4 +1,4 @@
-"""Stereo rectification (gtvo.rectify): synthetic geometry and the real EuRoC pair."""
+"""Stereo rectification (gtvo.datasets.rectify): synthetic geometry and the real EuRoC pair."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from gtvo.errors import InputError
-from gtvo.rectify import RawCamera, stereo_rectification
+from gtvo.datasets.rectify import RawCamera, stereo_rectification
 
 
 def _pair(rotation_deg: float = 2.0, baseline: float = 0.12):

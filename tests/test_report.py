@@ -1,9 +1,9 @@
-"""gtvo.report: the run report's metrics on short and static logs."""
+"""gtvo.io.outputs: the run report's metrics on short and static logs."""
 
 import numpy as np
 
-from gtvo.report import MIN_DRIFT_PATH_M, evaluate
-from gtvo.trajectory import Trajectory
+from gtvo.io.outputs import MIN_DRIFT_PATH_M, evaluate
+from gtvo.evaluation.trajectory import Trajectory
 
 
 def _line(n, step, wobble=0.0):

@@ -1,4 +1,4 @@
-"""The Sequence container (gtvo/sequence.py): subsampling a log to a lower frame rate."""
+"""The Sequence container (gtvo/datasets/sequence.py): subsampling a log to a lower frame rate."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from gtvo.errors import InputError
-from gtvo.synthetic import SyntheticSequence, make_synthetic_sequence
+from gtvo.datasets.synthetic import SyntheticSequence, make_synthetic_sequence
 
 
 def test_subsampled_keeps_every_step_th_frame():

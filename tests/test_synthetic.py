@@ -8,13 +8,13 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-import gtvo.synthetic as synthetic
-from gtvo.atomic import DIR_MARKER
-from gtvo.camera import PinholeCamera
+import gtvo.datasets.synthetic as synthetic
+from gtvo.io.atomic import DIR_MARKER
+from gtvo.core.camera import PinholeCamera
 from gtvo.errors import InputError
-from gtvo.image import bilinear_sample
-from gtvo.sequence import Sequence
-from gtvo.synthetic import (SyntheticScene, SyntheticSequence, make_synthetic_sequence, synthetic_trajectory,
+from gtvo.core.image import bilinear_sample
+from gtvo.datasets.sequence import Sequence
+from gtvo.datasets.synthetic import (SyntheticScene, SyntheticSequence, make_synthetic_sequence, synthetic_trajectory,
                             write_sequence_kitti)
 
 
@@ -115,7 +115,7 @@ def test_loop_returns_to_the_start():
 
 
 def test_turn_drives_straight_then_yaws_along_its_heading():
-    from gtvo.synthetic import TURN_DEG_PER_FRAME, TURN_START_FRAME
+    from gtvo.datasets.synthetic import TURN_DEG_PER_FRAME, TURN_START_FRAME
 
     T = synthetic_trajectory(30, "turn", step_m=0.3)
     rel = np.linalg.inv(T[:-1]) @ T[1:]
@@ -279,7 +279,7 @@ def test_stereo_consistency(seq):
 
 
 def test_texture_has_gradient_at_every_pyramid_level(seq):
-    from gtvo.image import build_pyramid, image_gradients
+    from gtvo.core.image import build_pyramid, image_gradients
     for level, img in enumerate(build_pyramid(seq.left(0), 4)):
         gx, gy = image_gradients(img)
         g = np.hypot(gx, gy)

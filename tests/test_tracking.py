@@ -6,10 +6,10 @@ import gtsam
 import numpy as np
 import pytest
 
-from gtvo.camera import PinholeCamera
+from gtvo.core.camera import PinholeCamera
 from gtvo.errors import InputError, TrackingFailure
 from factors.photometric import photometric_residuals
-from gtvo.tracking import (TrackingConfig, TrackingKeyframe, frame_pyramid, level_weights, pose_covariance,
+from gtvo.frontend.tracking import (TrackingConfig, TrackingKeyframe, frame_pyramid, level_weights, pose_covariance,
                            predict_constant_velocity, track_gtsam, track_handrolled, track_with_guesses)
 from tests._factors_synthetic import PlaneSceneImage
 

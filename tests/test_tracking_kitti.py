@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from benchmarks._kitti_sgbm import load_kitti, read_gray, sgbm_keyframe_points
-from gtvo.tracking import TrackingKeyframe, frame_pyramid, track_gtsam, track_handrolled
+from gtvo.frontend.tracking import TrackingKeyframe, frame_pyramid, track_gtsam, track_handrolled
 
 pytestmark = pytest.mark.realdata
 

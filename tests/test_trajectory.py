@@ -7,8 +7,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from gtvo.errors import InputError
-from gtvo.trajectory import (Trajectory, associate, invert_poses, make_poses, matching_time_indices,
-                             quaternions_to_rotations, rotation_angle, rotations_to_quaternions, synchronize)
+from gtvo.evaluation.trajectory import Trajectory, associate, matching_time_indices, synchronize
+from gtvo.core.lie import invert_poses, make_poses, quaternions_to_rotations, rotation_angle, rotations_to_quaternions
 
 
 def random_poses(rng: np.random.Generator, n: int) -> np.ndarray:

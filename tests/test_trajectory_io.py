@@ -9,9 +9,10 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from gtvo.errors import InputError
-from gtvo.plots import choose_plane, plot_errors_over_time, plot_trajectory_top_view, project_to_plane
-from gtvo.trajectory import Trajectory, make_poses
-from gtvo.trajectory_io import (detect_format, read_euroc_csv, read_kitti, read_times, read_trajectory, read_tum,
+from gtvo.io.plots import choose_plane, plot_errors_over_time, plot_trajectory_top_view, project_to_plane
+from gtvo.evaluation.trajectory import Trajectory
+from gtvo.core.lie import make_poses
+from gtvo.io.trajectory_files import (detect_format, read_euroc_csv, read_kitti, read_times, read_trajectory, read_tum,
                                 write_kitti, write_trajectory, write_tum)
 
 

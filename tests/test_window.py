@@ -1,5 +1,5 @@
 """Sliding-window optimisation: GTSAM vs hand-rolled, recovery of perturbed poses, marginalisation,
-and the odometry in window mode (synthetic scenes rendered by gtvo.synthetic)."""
+and the odometry in window mode (synthetic scenes rendered by gtvo.datasets.synthetic)."""
 
 from __future__ import annotations
 
@@ -12,10 +12,10 @@ import pytest
 from factors.photometric import GradientImage
 from gtvo.errors import InputError
 from gtvo.frontend import init_keyframe_points, select_points
-from gtvo.image import to_float_gray
+from gtvo.core.image import to_float_gray
 from gtvo.odometry import OdometryConfig, VisualOdometry
-from gtvo.synthetic import make_synthetic_sequence
-from gtvo.tracking import TrackingKeyframe, frame_pyramid, track_handrolled
+from gtvo.datasets.synthetic import make_synthetic_sequence
+from gtvo.frontend.tracking import TrackingKeyframe, frame_pyramid, track_handrolled
 from tests._factors_synthetic import PlaneSceneImage, small_camera
 from gtvo.window import (SlidingWindowOptimizer, WindowConfig, WindowKeyframe, affine_key, build_graph,
                          marginalize, motion_factors, pose_key, solve_gtsam, solve_handrolled, window_cost)
@@ -248,8 +248,8 @@ def test_rgbd_window_on_tum_teddy(shared_data):
     (measured over 20 frames: ATE 2.14 mm window vs 2.16 mm track)."""
     from gtvo.datasets import open_sequence  # noqa: PLC0415
     from gtvo.pipeline import process_sequence  # noqa: PLC0415
-    from gtvo.report import evaluate  # noqa: PLC0415
-    from gtvo.report import ground_truth as gt_pair  # noqa: PLC0415
+    from gtvo.io.outputs import evaluate  # noqa: PLC0415
+    from gtvo.io.outputs import ground_truth as gt_pair  # noqa: PLC0415
 
     seq = open_sequence(shared_data / "rgbd_dataset_freiburg3_teddy_first20", max_frames=8,
                         camera=(535.4, 539.2, 320.1, 247.6))

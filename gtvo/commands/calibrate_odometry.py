@@ -7,9 +7,9 @@ import json
 
 import numpy as np
 
-from gtvo.atomic import check_output_file
-from gtvo.calibration import calibrate, read_motion_pair
-from gtvo.calibration.plot import plot_trajectories
+from gtvo.io.atomic import check_output_file
+from gtvo.wheel_calibration import calibrate, read_motion_pair
+from gtvo.wheel_calibration.plot import plot_trajectories
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:

@@ -23,7 +23,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def main(args: argparse.Namespace) -> int:
     from gtvo.pipeline import run  # noqa: PLC0415
-    from gtvo.synthetic import make_synthetic_sequence  # noqa: PLC0415
+    from gtvo.datasets.synthetic import make_synthetic_sequence  # noqa: PLC0415
 
     if args.frames < 1:
         raise InputError(f"--frames must be >= 1, got {args.frames}")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 
 from gtvo.errors import InputError
-from gtvo.synthetic import MAX_SIDE, MIN_SIDE, make_synthetic_sequence, write_sequence_kitti
+from gtvo.datasets.synthetic import MAX_SIDE, MIN_SIDE, make_synthetic_sequence, write_sequence_kitti
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:

@@ -1,5 +1,5 @@
 """Dataset readers: KITTI odometry, EuRoC MAV (ASL) and TUM RGB-D folders as a lazy
-:class:`gtvo.sequence.Sequence`. Layouts, association rules and frame conventions:
+:class:`gtvo.datasets.sequence.Sequence`. Layouts, association rules and frame conventions:
 ``docs/datasets.md``.
 
 >>> seq = open_sequence("/data/KITTI/00")            # doctest: +SKIP
@@ -18,7 +18,7 @@ from gtvo.datasets.euroc import looks_like_euroc, read_euroc
 from gtvo.datasets.kitti import looks_like_kitti, read_kitti
 from gtvo.datasets.tum import TUM_INTRINSICS, looks_like_tum, read_tum
 from gtvo.errors import InputError
-from gtvo.sequence import Sequence
+from gtvo.datasets.sequence import Sequence
 
 DatasetFormat = Literal["auto", "kitti", "euroc", "tum"]
 FORMATS: tuple[str, ...] = ("kitti", "euroc", "tum")

@@ -16,7 +16,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 
 from gtvo.errors import InputError
-from gtvo.image import to_float_gray
+from gtvo.core.image import to_float_gray
 
 FloatArray = NDArray[np.float64]
 
@@ -134,7 +134,7 @@ def check_image_shape(image: NDArray, shape: tuple[int, int], path: Path, what: 
 
 
 class GrayImageLoader:
-    """Lazily loads image ``i`` of a list of files as float32 gray (:func:`gtvo.image.to_float_gray`)."""
+    """Lazily loads image ``i`` of a list of files as float32 gray (:func:`gtvo.core.image.to_float_gray`)."""
 
     def __init__(self, paths: list[Path], shape: tuple[int, int], what: str):
         self.paths = list(paths)

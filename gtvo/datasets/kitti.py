@@ -24,11 +24,11 @@ from pathlib import Path
 
 import numpy as np
 
-from gtvo.camera import PinholeCamera, StereoCamera
+from gtvo.core.camera import PinholeCamera, StereoCamera
 from gtvo.datasets._common import (FloatArray, GrayImageLoader, TextRow, image_size, parse_floats,
                                    parse_float_table, read_rows, require_dir, require_file)
 from gtvo.errors import InputError
-from gtvo.sequence import Sequence
+from gtvo.datasets.sequence import Sequence
 
 #: (left, right) image folder names tried in order, with the projection matrices of their cameras.
 IMAGE_DIRS: tuple[tuple[str, str, str, str], ...] = (("image_0", "image_1", "P0", "P1"),

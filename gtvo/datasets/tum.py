@@ -19,12 +19,12 @@ from pathlib import Path
 
 import numpy as np
 
-from gtvo.camera import PinholeCamera
+from gtvo.core.camera import PinholeCamera
 from gtvo.datasets._common import (DepthImageLoader, FloatArray, GrayImageLoader, associate_unique, image_size,
                                    interpolate_poses, parse_floats, read_rows, read_tum_trajectory, require_dir,
                                    require_overlap)
 from gtvo.errors import InputError
-from gtvo.sequence import Sequence
+from gtvo.datasets.sequence import Sequence
 
 #: Colour/depth (and ground-truth nearest) association tolerance, as TUM's associate.py.
 ASSOCIATION_TOLERANCE_S = 0.02

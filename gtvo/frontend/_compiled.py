@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from gtvo._jit import jit
+from gtvo.core.jit import jit
 
 
 @jit

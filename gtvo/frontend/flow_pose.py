@@ -27,10 +27,10 @@ import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from gtvo.camera import PinholeCamera
+from gtvo.core.camera import PinholeCamera
 from gtvo.errors import InputError
-from gtvo.image import to_uint8
-from gtvo.trajectory import invert_poses
+from gtvo.core.image import to_uint8
+from gtvo.core.lie import invert_poses
 
 FloatArray = NDArray[np.float64]
 

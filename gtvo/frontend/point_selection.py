@@ -2,7 +2,7 @@
 
 Rule (docs/frontend.md, "Point selection"):
 
-1. ``G = |grad I|`` (central differences, :func:`gtvo.image.image_gradients`).
+1. ``G = |grad I|`` (central differences, :func:`gtvo.core.image.image_gradients`).
 2. The image is split into ``block x block`` blocks (32 px; partial edge blocks are completed
    by mirroring); each block's threshold is the
    median of ``G`` over the block plus ``threshold_offset`` (DSO: 7 grey levels); the block
@@ -24,7 +24,7 @@ from numpy.typing import NDArray
 
 from gtvo.errors import InputError
 from gtvo.frontend._compiled import pick_cells
-from gtvo.image import image_gradients, to_float_gray
+from gtvo.core.image import image_gradients, to_float_gray
 
 #: Radius of the 8-pixel DSO pattern and of the 5x5 stereo patch.
 PATTERN_RADIUS = 2
@@ -71,7 +71,7 @@ def select_points(image: NDArray, target: int = 2000, border: int = DEFAULT_BORD
     """Select about ``target`` well-spread high-gradient pixels of a gray image.
 
     Args:
-        image: gray (H, W) or BGR image, any dtype; converted by :func:`gtvo.image.to_float_gray`.
+        image: gray (H, W) or BGR image, any dtype; converted by :func:`gtvo.core.image.to_float_gray`.
         target: wanted number of points; the result has at most ``target`` (fewer on images
             without enough texture).
         border: pixels kept free at each image side (pattern radius + margin).

@@ -35,11 +35,11 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from factors import photometric
-from gtvo.camera import StereoCamera
+from gtvo.core.camera import StereoCamera
 from gtvo.errors import InputError
 from gtvo.frontend._compiled import zssd_costs
 from gtvo.frontend.point_selection import DEFAULT_BORDER, select_points
-from gtvo.image import bilinear_sample, check_same_size, image_gradients, to_float_gray
+from gtvo.core.image import bilinear_sample, check_same_size, image_gradients, to_float_gray
 
 FloatArray = NDArray[np.float64]
 

@@ -28,14 +28,14 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from tqdm import tqdm
 
-from gtvo.camera import PinholeCamera, StereoCamera
+from gtvo.core.camera import PinholeCamera, StereoCamera
 from gtvo.errors import InputError
-from gtvo.image import to_uint8
+from gtvo.core.image import to_uint8
 from gtvo.loops.features import (KeypointPoints, OrbFeatures, OrbParams, depth_image_points, extract_orb,
                                  stereo_points)
 from gtvo.loops.verification import VerificationParams, match_descriptors, verify_pnp
 from gtvo.loops.vocabulary import BinaryVocabulary, idf_weights, l1_scores, tfidf_vectors
-from gtvo.sequence import Sequence
+from gtvo.datasets.sequence import Sequence
 
 FloatArray = NDArray[np.float64]
 

@@ -19,9 +19,9 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from gtvo.camera import PinholeCamera, StereoCamera
+from gtvo.core.camera import PinholeCamera, StereoCamera
 from gtvo.errors import InputError
-from gtvo.image import to_uint8
+from gtvo.core.image import to_uint8
 
 FloatArray = NDArray[np.float64]
 #: Bits in an ORB descriptor (32 bytes).

@@ -33,7 +33,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import ndimage
 
-from gtvo._optional import require_open3d
+from gtvo.core.optional import require_open3d
 from gtvo.errors import InputError
 from gtvo.planning.astar import astar_banded
 

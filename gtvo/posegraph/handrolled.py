@@ -26,7 +26,8 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 from scipy.sparse.linalg import LinearOperator, cg, splu
 
-from gtvo.posegraph import lie, sesync
+from gtvo.core import lie
+from gtvo.posegraph import sesync
 from gtvo.posegraph.graph import PoseGraph
 
 F64 = NDArray[np.float64]

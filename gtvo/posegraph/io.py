@@ -27,9 +27,9 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import breadth_first_order, connected_components, minimum_spanning_tree
 
-from gtvo.atomic import atomic_open
+from gtvo.io.atomic import atomic_open
 from gtvo.errors import InputError
-from gtvo.posegraph import lie
+from gtvo.core import lie
 from gtvo.posegraph.graph import PoseGraph
 
 FORMATS = ("auto", "g2o", "toro", "isam")
@@ -169,7 +169,7 @@ class _Parser:
             self.set_dim(3)
             q = np.array(v[4:8])
             self.check_quat(q)
-            self.add_vertex(self.node_ids(v, 1)[0], lie.quat_to_rot(q[None])[0], np.array(v[1:4]))
+            self.add_vertex(self.node_ids(v, 1)[0], lie.quaternions_to_rotations(q[None])[0], np.array(v[1:4]))
         elif tag == "EDGE_SE3:QUAT":
             v = self.numbers(parts, 30)
             self.set_dim(3)
@@ -262,7 +262,7 @@ class _Parser:
                 info = np.swapaxes(U, 1, 2) @ U
         else:
             if self.fmt == "g2o":
-                Rm = lie.quat_to_rot(meas[:, 3:7])
+                Rm = lie.quaternions_to_rotations(meas[:, 3:7])
                 full = _upper_to_full(raw[has], 6)
             else:
                 Rm = lie.rpy_to_rot(meas[:, 3:6])
@@ -370,11 +370,11 @@ def write_g2o(path: str | Path, graph: PoseGraph) -> Path:
             lines.append("EDGE_SE2 %d %d " % (ids[graph.edge_i[e]], ids[graph.edge_j[e]])
                          + " ".join(g % x for x in vals))
     else:
-        q = lie.rot_to_quat(graph.rotations)
+        q = lie.rotations_to_quaternions(graph.rotations)
         for k in range(graph.num_poses):
             lines.append("VERTEX_SE3:QUAT %d " % ids[k]
                          + " ".join(g % x for x in [*graph.translations[k], *q[k]]))
-        mq = lie.rot_to_quat(graph.meas_rotations)
+        mq = lie.rotations_to_quaternions(graph.meas_rotations)
         inv = np.argsort(_PERM3)
         info_file = graph.information[:, inv][:, :, inv]
         iu = np.triu_indices(6)

@@ -14,7 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gtvo.posegraph.graph import PoseGraph
-from gtvo.posegraph.lie import hat3
+from gtvo.core.lie import hat3
 
 F64 = NDArray[np.float64]
 

@@ -8,17 +8,20 @@
 * Joint calibration inside a Pose2 graph: :func:`joint_calibration`.
 * Degenerate data raises :class:`gtvo.errors.InputError` naming the unobservable parameters.
 
-Math modules do no I/O; readers are in :mod:`gtvo.calibration.io`, the plot in
-:mod:`gtvo.calibration.plot`. Details: docs/odometry_calibration.md.
+Math modules do no I/O; readers are in :mod:`gtvo.wheel_calibration.io`, the plot in
+:mod:`gtvo.wheel_calibration.plot`. Details: docs/odometry_calibration.md.
 """
 
 from numpy.typing import ArrayLike
 
-from gtvo.calibration.diff_drive import DiffDriveCalibration, apply_diff_drive, fit_diff_drive
-from gtvo.calibration.io import read_motion_pair, read_motions
-from gtvo.calibration.linear import LinearCalibration, ResidualStatistics, apply_linear, fit_linear
-from gtvo.calibration.motions import integrate_motions, position_rmse, relative_motions
-from gtvo.calibration.observability import Observability
+from gtvo.errors import InputError
+from gtvo.wheel_calibration.diff_drive import DiffDriveCalibration, apply_diff_drive, fit_diff_drive
+from gtvo.wheel_calibration.gtsam_solvers import (JointCalibrationResult, LoopClosure, PosePrior, fit_diff_drive_gtsam,
+                                                 fit_linear_gtsam, joint_calibration)
+from gtvo.wheel_calibration.io import read_motion_pair, read_motions
+from gtvo.wheel_calibration.linear import LinearCalibration, ResidualStatistics, apply_linear, fit_linear
+from gtvo.wheel_calibration.motions import integrate_motions, position_rmse, relative_motions
+from gtvo.wheel_calibration.observability import Observability
 
 __all__ = [
     "DiffDriveCalibration", "JointCalibrationResult", "LinearCalibration", "LoopClosure", "Observability",
@@ -28,18 +31,6 @@ __all__ = [
 ]
 
 
-_GTSAM_NAMES = ("JointCalibrationResult", "LoopClosure", "PosePrior", "fit_diff_drive_gtsam", "fit_linear_gtsam",
-                "joint_calibration")
-
-
-def __getattr__(name: str):
-    """The GTSAM solvers, imported on first use (they import :mod:`factors`, which imports this package's math)."""
-    if name in _GTSAM_NAMES:
-        from gtvo.calibration import gtsam_solvers  # noqa: PLC0415
-        return getattr(gtsam_solvers, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
 def calibrate(odom: ArrayLike, reference: ArrayLike, model: str = "linear", solver: str = "handrolled",
               nominal_baseline: float = 1.0) -> LinearCalibration | DiffDriveCalibration:
     """Fit ``reference ~ f(odom)``: ``model`` in {"linear", "diff-drive"}, ``solver`` in {"handrolled", "gtsam"}.
@@ -47,8 +38,6 @@ def calibrate(odom: ArrayLike, reference: ArrayLike, model: str = "linear", solv
     ``nominal_baseline`` (m) is used by the diff-drive model only. Raises InputError for bad or
     degenerate input (naming the unobservable parameters) and for an unknown model/solver.
     """
-    from gtvo.errors import InputError  # noqa: PLC0415
-    from gtvo.calibration.gtsam_solvers import fit_diff_drive_gtsam, fit_linear_gtsam  # noqa: PLC0415
     fits = {("linear", "handrolled"): lambda: fit_linear(odom, reference),
             ("linear", "gtsam"): lambda: fit_linear_gtsam(odom, reference),
             ("diff-drive", "handrolled"): lambda: fit_diff_drive(odom, reference, nominal_baseline),

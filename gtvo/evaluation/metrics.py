@@ -9,7 +9,7 @@
 * :func:`kitti_segment_errors`: the KITTI odometry devkit's segment metric (% and deg/100 m).
 
 Every function takes two trajectories that are already associated pose by pose (same length,
-``est`` pose k belongs to ``ref`` pose k): call :func:`gtvo.trajectory.synchronize` first.
+``est`` pose k belongs to ``ref`` pose k): call :func:`gtvo.evaluation.trajectory.synchronize` first.
 """
 
 from __future__ import annotations
@@ -22,7 +22,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from gtvo.errors import InputError
-from gtvo.trajectory import FloatArray, Trajectory, invert_poses, rotation_angle
+from gtvo.evaluation.trajectory import FloatArray, Trajectory
+from gtvo.core.lie import invert_poses, rotation_angle
 
 Alignment = Literal["se3", "sim3", "origin", "none"]
 DeltaUnit = Literal["frames", "m"]
@@ -154,7 +155,7 @@ def umeyama_alignment(src: ArrayLike, dst: ArrayLike, with_scale: bool = False) 
 def _check_pair(est: Trajectory, ref: Trajectory, what: str) -> None:
     if len(est) != len(ref):
         raise InputError(f"{what}: estimate has {len(est)} poses but reference has {len(ref)}; "
-                         "associate them first (gtvo.trajectory.synchronize)")
+                         "associate them first (gtvo.evaluation.trajectory.synchronize)")
 
 
 def align_trajectory(est: Trajectory, ref: Trajectory,

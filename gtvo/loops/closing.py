@@ -4,7 +4,7 @@
    verified by PnP RANSAC on its stereo or RGB-D points) and is queried against the earlier ones.
 2. The keyframe poses become a pose graph: consecutive keyframes are joined by their VO relative
    pose (odometry edges), every verified loop by its measured relative pose
-   (``BetweenFactorPose3``), and :func:`gtvo.posegraph.loop_closure.close_loops` optimises it
+   (``BetweenFactorPose3``), and :func:`gtvo.loops.closure_graph.close_loops` optimises it
    with Graduated Non-Convexity, so that one false loop cannot bend the map.
 3. Every frame keeps its pose relative to its keyframe: ``T_world_f' = T_world_k' T_world_k^-1 T_world_f``.
 """
@@ -17,9 +17,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gtvo.loops import LoopDetector
-from gtvo.posegraph.loop_closure import LoopEdge, close_loops
-from gtvo.sequence import Sequence
-from gtvo.trajectory import Trajectory
+from gtvo.loops.closure_graph import LoopEdge, close_loops
+from gtvo.datasets.sequence import Sequence
+from gtvo.evaluation.trajectory import Trajectory
 
 #: Odometry edge standard deviations between consecutive keyframes: rotation (rad), translation (m).
 ODOMETRY_SIGMAS = (0.005, 0.05)

@@ -5,7 +5,7 @@ Given the intrinsics ``K0, K1``, radial-tangential distortions ``D0, D1`` and th
 rotations ``R0, R1`` (``x_rect0 = R0 x_cam0``, ``x_rect1 = R1 x_cam1``) that make both image
 planes coplanar with rows aligned, and one shared pinhole ``K`` with zero distortion
 (``cv2.stereoRectify`` with ``CALIB_ZERO_DISPARITY``). The rectified right camera sits at
-``+baseline`` along the rectified left camera's x axis, as :class:`gtvo.camera.StereoCamera`
+``+baseline`` along the rectified left camera's x axis, as :class:`gtvo.core.camera.StereoCamera`
 expects. The remap tables come from ``cv2.initUndistortRectifyMap`` and images are warped
 with ``cv2.remap`` (bilinear; pixels that fall outside the raw image become 0).
 
@@ -22,7 +22,7 @@ import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from gtvo.camera import PinholeCamera, StereoCamera
+from gtvo.core.camera import PinholeCamera, StereoCamera
 from gtvo.errors import InputError
 
 FloatArray = NDArray[np.float64]

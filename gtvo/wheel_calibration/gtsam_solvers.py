@@ -23,12 +23,12 @@ from numpy.typing import ArrayLike, NDArray
 
 from factors.odometry_calibration import (calibrated_odometry_factor, calibration_key, diff_drive_calibration_factor,
                                           linear_calibration_factor)
-from gtvo.calibration.diff_drive import (DiffDriveCalibration, check_diff_drive_observability,
+from gtvo.wheel_calibration.diff_drive import (DiffDriveCalibration, check_diff_drive_observability,
                                          diff_drive_normal_equations)
-from gtvo.calibration.linear import (LinearCalibration, fit_linear, ResidualStatistics, apply_linear, check_linear_observability,
+from gtvo.wheel_calibration.linear import (LinearCalibration, fit_linear, ResidualStatistics, apply_linear, check_linear_observability,
                                      linear_errors, normal_equations)
-from gtvo.calibration.motions import as_motions, integrate_motions, relative_motions
-from gtvo.calibration.observability import DEFAULT_RCOND, analyse_normal_matrix
+from gtvo.wheel_calibration.motions import as_motions, integrate_motions, relative_motions
+from gtvo.wheel_calibration.observability import DEFAULT_RCOND, analyse_normal_matrix
 from gtvo.errors import InputError
 
 

@@ -40,34 +40,16 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from factors.motion import POSE_MEASUREMENT_MATRIX, STATE_DIM, THETA_INDEX, X_INDEX, Z_INDEX, check_dt, transition_matrix
 from gtvo.errors import InputError
 
 FloatArray = NDArray[np.float64]
-
-#: State layout.
-STATE_DIM = 6
-X_INDEX, DX_INDEX, Z_INDEX, DZ_INDEX, THETA_INDEX, DTHETA_INDEX = range(6)
-
-#: ``C``: the measurement ``(X, Z, theta)`` selects state rows 0, 2 and 4.
-POSE_MEASUREMENT_MATRIX: FloatArray = np.zeros((3, STATE_DIM))
-POSE_MEASUREMENT_MATRIX[0, X_INDEX] = 1.0
-POSE_MEASUREMENT_MATRIX[1, Z_INDEX] = 1.0
-POSE_MEASUREMENT_MATRIX[2, THETA_INDEX] = 1.0
-POSE_MEASUREMENT_MATRIX.setflags(write=False)
-
 
 def wrap_angle(angle: ArrayLike) -> FloatArray | float:
     """Wrap angles (radians) to the half-open interval (-pi, pi]."""
     a = np.asarray(angle, dtype=np.float64)
     wrapped = np.pi - np.mod(np.pi - a, 2.0 * np.pi)
     return float(wrapped) if wrapped.ndim == 0 else wrapped
-
-
-def _check_dt(dt: float) -> float:
-    dt = float(dt)
-    if not np.isfinite(dt) or dt <= 0:
-        raise InputError(f"motion model time step must be finite and > 0, got {dt!r}")
-    return dt
 
 
 def _check_sigmas(name: str, values: ArrayLike, n: int, allow_zero: bool = False) -> FloatArray:
@@ -78,17 +60,9 @@ def _check_sigmas(name: str, values: ArrayLike, n: int, allow_zero: bool = False
     return v
 
 
-def transition_matrix(dt: float) -> FloatArray:
-    """``A``: the 6x6 constant-velocity transition over ``dt`` seconds (block ``[[1, dt], [0, 1]]``)."""
-    dt = _check_dt(dt)
-    A = np.eye(STATE_DIM)
-    A[X_INDEX, DX_INDEX] = A[Z_INDEX, DZ_INDEX] = A[THETA_INDEX, DTHETA_INDEX] = dt
-    return A
-
-
 def noise_gain(dt: float) -> FloatArray:
     """``G`` (6x3): how an acceleration ``a = (aX, aZ, atheta)`` held over ``dt`` enters the state."""
-    dt = _check_dt(dt)
+    dt = check_dt(dt)
     G = np.zeros((STATE_DIM, 3))
     for axis in range(3):
         G[2 * axis, axis] = 0.5 * dt * dt

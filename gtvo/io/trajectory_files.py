@@ -29,9 +29,10 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from gtvo.atomic import write_text
+from gtvo.io.atomic import write_text
 from gtvo.errors import InputError
-from gtvo.trajectory import Trajectory, make_poses, quaternions_to_rotations
+from gtvo.evaluation.trajectory import Trajectory
+from gtvo.core.lie import make_poses, quaternions_to_rotations
 
 TrajectoryFormat = Literal["tum", "kitti", "euroc", "auto"]
 

@@ -8,8 +8,8 @@ from typing import Mapping
 import numpy as np
 from numpy.typing import ArrayLike
 
-from gtvo.atomic import write_with
-from gtvo.calibration.motions import integrate_motions
+from gtvo.io.atomic import write_with
+from gtvo.wheel_calibration.motions import integrate_motions
 
 
 def plot_trajectories(path: str | Path, motions: Mapping[str, ArrayLike], title: str = "Odometry calibration") -> Path:

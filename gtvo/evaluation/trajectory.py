@@ -2,7 +2,7 @@
 
 A :class:`Trajectory` holds ``timestamps`` (N,) in seconds and ``poses`` (N, 4, 4), each the
 pose ``T_world_cam`` of the left camera (docs/conventions.md). Readers and writers live in
-:mod:`gtvo.trajectory_io`, metrics in :mod:`gtvo.metrics`, plots in :mod:`gtvo.plots`.
+:mod:`gtvo.io.trajectory_files`, metrics in :mod:`gtvo.evaluation.metrics`, plots in :mod:`gtvo.io.plots`.
 
 Timestamps must be finite and **non-decreasing** (duplicates are allowed: real ground-truth
 files contain a few). Rotation blocks are kept exactly as given (a KITTI file's rotations are
@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from gtvo.core.lie import invert_poses, make_poses, quaternions_to_rotations, rotations_to_quaternions
 from gtvo.errors import InputError
 
 FloatArray = NDArray[np.float64]
@@ -28,103 +29,6 @@ IntArray = NDArray[np.int64]
 
 #: Default association tolerance in seconds (evo's default ``max_diff``).
 DEFAULT_MAX_TIME_DIFF = 0.01
-
-
-# ---------------------------------------------------------------------------------------------
-# SE(3) / quaternion helpers (vectorised over a leading axis)
-# ---------------------------------------------------------------------------------------------
-
-def make_poses(rotations: ArrayLike, translations: ArrayLike) -> FloatArray:
-    """Stack (N, 3, 3) rotations and (N, 3) translations into (N, 4, 4) homogeneous poses."""
-    R = np.asarray(rotations, dtype=np.float64).reshape(-1, 3, 3)
-    t = np.asarray(translations, dtype=np.float64).reshape(-1, 3)
-    if len(R) != len(t):
-        raise InputError(f"{len(R)} rotations but {len(t)} translations")
-    T = np.zeros((len(R), 4, 4))
-    T[:, :3, :3] = R
-    T[:, :3, 3] = t
-    T[:, 3, 3] = 1.0
-    return T
-
-
-def invert_poses(poses: ArrayLike) -> FloatArray:
-    """Inverse ``[R^T, -R^T t]`` of (..., 4, 4) rigid poses (the rotation is not re-orthonormalised)."""
-    T = np.asarray(poses, dtype=np.float64)
-    Rt = np.swapaxes(T[..., :3, :3], -1, -2)
-    out = np.zeros_like(T)
-    out[..., :3, :3] = Rt
-    out[..., :3, 3] = -np.einsum("...ij,...j->...i", Rt, T[..., :3, 3])
-    out[..., 3, 3] = 1.0
-    return out
-
-
-def rotation_angle(rotations: ArrayLike) -> FloatArray:
-    """Angle in radians, in [0, pi], of (..., 3, 3) rotation matrices.
-
-    Uses ``atan2(|vee(R - R^T)| / 2, (trace(R) - 1) / 2)``, which stays accurate for small and
-    for near-pi angles (``arccos`` of the trace alone loses half the digits near 0).
-    """
-    R = np.asarray(rotations, dtype=np.float64)
-    s = 0.5 * np.sqrt((R[..., 2, 1] - R[..., 1, 2]) ** 2 + (R[..., 0, 2] - R[..., 2, 0]) ** 2
-                      + (R[..., 1, 0] - R[..., 0, 1]) ** 2)
-    c = 0.5 * (R[..., 0, 0] + R[..., 1, 1] + R[..., 2, 2] - 1.0)
-    return np.arctan2(s, c)
-
-
-def quaternions_to_rotations(quaternions_xyzw: ArrayLike) -> FloatArray:
-    """(N, 4) quaternions in TUM order ``qx qy qz qw`` -> (N, 3, 3) rotation matrices.
-
-    Each quaternion is normalised first; ``q`` and ``-q`` give the same rotation. The caller
-    checks for zero or non-finite quaternions (readers do, naming the line).
-    """
-    q = np.asarray(quaternions_xyzw, dtype=np.float64).reshape(-1, 4)
-    q = q / np.linalg.norm(q, axis=1, keepdims=True)
-    x, y, z, w = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
-    R = np.empty((len(q), 3, 3))
-    R[:, 0, 0] = 1 - 2 * (y * y + z * z)
-    R[:, 0, 1] = 2 * (x * y - z * w)
-    R[:, 0, 2] = 2 * (x * z + y * w)
-    R[:, 1, 0] = 2 * (x * y + z * w)
-    R[:, 1, 1] = 1 - 2 * (x * x + z * z)
-    R[:, 1, 2] = 2 * (y * z - x * w)
-    R[:, 2, 0] = 2 * (x * z - y * w)
-    R[:, 2, 1] = 2 * (y * z + x * w)
-    R[:, 2, 2] = 1 - 2 * (x * x + y * y)
-    return R
-
-
-def rotations_to_quaternions(rotations: ArrayLike) -> FloatArray:
-    """(N, 3, 3) rotation matrices -> (N, 4) unit quaternions ``qx qy qz qw`` with ``qw >= 0``.
-
-    Shepperd's method: per matrix, the branch with the largest of ``trace, R00, R11, R22``
-    avoids dividing by a small number, so it is accurate for every angle including pi.
-    """
-    R = np.asarray(rotations, dtype=np.float64).reshape(-1, 3, 3)
-    n = len(R)
-    tr = R[:, 0, 0] + R[:, 1, 1] + R[:, 2, 2]
-    diag = np.stack([R[:, 0, 0], R[:, 1, 1], R[:, 2, 2]], axis=1)
-    branch = np.argmax(np.column_stack([tr, diag]), axis=1)  # 0: trace, 1..3: diagonal i-1
-    q = np.empty((n, 4))
-    m = branch == 0
-    if np.any(m):
-        s = 2.0 * np.sqrt(1.0 + tr[m])  # s = 4 qw
-        q[m, 3] = 0.25 * s
-        q[m, 0] = (R[m, 2, 1] - R[m, 1, 2]) / s
-        q[m, 1] = (R[m, 0, 2] - R[m, 2, 0]) / s
-        q[m, 2] = (R[m, 1, 0] - R[m, 0, 1]) / s
-    for i in range(3):  # three branches, not a loop over poses
-        m = branch == i + 1
-        if not np.any(m):
-            continue
-        j, k = (i + 1) % 3, (i + 2) % 3
-        s = 2.0 * np.sqrt(np.maximum(1.0 + R[m, i, i] - R[m, j, j] - R[m, k, k], 0.0))  # s = 4 q_i
-        q[m, i] = 0.25 * s
-        q[m, 3] = (R[m, k, j] - R[m, j, k]) / s
-        q[m, j] = (R[m, j, i] + R[m, i, j]) / s
-        q[m, k] = (R[m, k, i] + R[m, i, k]) / s
-    q /= np.linalg.norm(q, axis=1, keepdims=True)
-    q[q[:, 3] < 0] *= -1.0
-    return q
 
 
 # ---------------------------------------------------------------------------------------------

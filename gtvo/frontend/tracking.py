@@ -35,9 +35,9 @@ from numpy.typing import ArrayLike, NDArray
 from factors.gtsam_factors import PhotometricBatchFactor
 from factors.photometric import (PATTERN_DSO8, GradientImage, huber_loss, pattern_bearings, photometric_residuals,
                                  point_robust_terms, sample_host, variance_weight)
-from gtvo.camera import PinholeCamera
+from gtvo.core.camera import PinholeCamera
 from gtvo.errors import InputError, TrackingFailure
-from gtvo.image import build_pyramid
+from gtvo.core.image import build_pyramid
 
 FRAME_KEY = gtsam.symbol("x", 1)
 AFFINE_KEY = gtsam.symbol("a", 1)

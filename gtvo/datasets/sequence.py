@@ -13,7 +13,7 @@ from typing import Callable, Iterator, Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from gtvo.camera import PinholeCamera, StereoCamera
+from gtvo.core.camera import PinholeCamera, StereoCamera
 from gtvo.errors import InputError
 
 ImageLoader = Callable[[int], NDArray]

@@ -10,7 +10,7 @@ at the hit's 2-D face coordinates. Everything is vectorised over the pixels.
 
 Public API:
 
-* :func:`make_synthetic_sequence` -> :class:`SyntheticSequence` (a :class:`gtvo.sequence.Sequence`
+* :func:`make_synthetic_sequence` -> :class:`SyntheticSequence` (a :class:`gtvo.datasets.sequence.Sequence`
   of kind ``"stereo"`` with ground truth, rendered lazily and LRU-cached), whose extra accessors
   are :meth:`SyntheticSequence.true_depth` (exact depth maps), :attr:`SyntheticSequence.affine_left`
   / :attr:`SyntheticSequence.affine_right` (the known brightness change) and
@@ -33,10 +33,10 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import ndimage
 
-from gtvo.atomic import atomic_dir
-from gtvo.camera import PinholeCamera, StereoCamera
+from gtvo.io.atomic import atomic_dir
+from gtvo.core.camera import PinholeCamera, StereoCamera
 from gtvo.errors import InputError
-from gtvo.sequence import Sequence
+from gtvo.datasets.sequence import Sequence
 
 FloatArray = NDArray[np.float64]
 Motion = Literal["forward", "loop", "turn"]
@@ -599,9 +599,9 @@ def write_sequence_kitti(seq: Sequence, folder: str | Path, progress: bool = Fal
     """Write a stereo sequence in the KITTI odometry layout, the folder as a whole.
 
     The files are written into a new folder that replaces ``folder`` when complete
-    (:func:`gtvo.atomic.atomic_dir`): an interrupted write leaves the old folder intact, and a
+    (:func:`gtvo.io.atomic.atomic_dir`): an interrupted write leaves the old folder intact, and a
     shorter sequence leaves none of a longer one's frames behind. An existing ``folder`` is
-    replaced only when it is empty or was written here (it carries ``gtvo.atomic.DIR_MARKER``)
+    replaced only when it is empty or was written here (it carries ``gtvo.io.atomic.DIR_MARKER``)
     and holds nothing else; a real dataset folder or one with other files is refused
     (:class:`InputError`), never overwritten.
 
@@ -623,7 +623,7 @@ KITTI_LAYOUT_ENTRIES = frozenset({"calib.txt", "times.txt", "poses.txt", "image_
 
 def _write_kitti_files(seq: Sequence, out: Path, shown: Path, progress: bool) -> None:
     """The files of :func:`write_sequence_kitti` into ``out``, a fresh temporary folder that
-    :func:`gtvo.atomic.atomic_dir` swaps in as a whole (so plain writes; ``shown``: the name
+    :func:`gtvo.io.atomic.atomic_dir` swaps in as a whole (so plain writes; ``shown``: the name
     the user gave, for the progress bar and errors)."""
     cam = seq.camera
     P0 = np.hstack([cam.left.K, np.zeros((3, 1))])

@@ -24,9 +24,9 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike
 
-from gtvo.atomic import atomic_path
+from gtvo.io.atomic import atomic_path
 from gtvo.errors import InputError
-from gtvo.trajectory import FloatArray, Trajectory
+from gtvo.evaluation.trajectory import FloatArray, Trajectory
 
 Plane = Literal["auto", "pca", "xy", "xz", "yz"]
 
@@ -101,7 +101,7 @@ def plot_trajectory_top_view(est: Trajectory, ref: Trajectory | None = None, pat
 
     Args:
         est: the estimate, already aligned to ``ref`` if the two should overlap
-            (e.g. ``gtvo.metrics.align_trajectory``).
+            (e.g. ``gtvo.evaluation.metrics.align_trajectory``).
         ref: optional ground truth, drawn dashed in grey; it also picks the plane.
         path: output PNG file.
         title: figure title.

@@ -19,8 +19,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from gtvo.calibration.motions import MOTION_COMPONENTS, as_motions
-from gtvo.calibration.observability import (DEFAULT_RCOND, Observability, analyse_normal_matrix,
+from gtvo.wheel_calibration.motions import MOTION_COMPONENTS, as_motions
+from gtvo.wheel_calibration.observability import (DEFAULT_RCOND, Observability, analyse_normal_matrix,
                                             raise_if_unobservable)
 from gtvo.errors import InputError
 

@@ -13,14 +13,14 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from gtvo._optional import require_open3d
-from gtvo.atomic import atomic_path, ensure_output_dir, write_json
+from gtvo.core.optional import require_open3d
+from gtvo.io.atomic import atomic_path, ensure_output_dir, write_json
 from gtvo.errors import DependencyError, InputError
-from gtvo.metrics import align_trajectory, ate, drift_percent, kitti_segment_errors, rpe
-from gtvo.plots import plot_errors_over_time, plot_trajectory_top_view
-from gtvo.sequence import Sequence
-from gtvo.trajectory import Trajectory
-from gtvo.trajectory_io import write_tum
+from gtvo.evaluation.metrics import align_trajectory, ate, drift_percent, kitti_segment_errors, rpe
+from gtvo.io.plots import plot_errors_over_time, plot_trajectory_top_view
+from gtvo.datasets.sequence import Sequence
+from gtvo.evaluation.trajectory import Trajectory
+from gtvo.io.trajectory_files import write_tum
 
 
 #: Below this ground-truth path length (m) no drift % and no segment metric are reported: on a

@@ -22,46 +22,21 @@ heading change into wheel arcs): pass the robot's nominal baseline.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
-from typing import Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from gtvo.calibration.linear import ResidualStatistics
-from gtvo.calibration.motions import as_motions
-from gtvo.calibration.observability import DEFAULT_RCOND, Observability, analyse_normal_matrix, raise_if_unobservable
+from gtvo.wheel_calibration.linear import ResidualStatistics
+from gtvo.wheel_calibration.motions import as_motions
+from gtvo.wheel_calibration.observability import DEFAULT_RCOND, Observability, analyse_normal_matrix, raise_if_unobservable
 from gtvo.errors import InputError
+from factors.odometry_calibration import arc_coefficients, wheel_arcs
 
 #: Parameter names, in the order of the parameter vector p.
 DIFF_DRIVE_PARAMETER_NAMES: tuple[str, str, str] = ("left wheel scale k_L", "right wheel scale k_R",
                                                     "baseline scale k_b")
 
-_SERIES_BELOW = 0.05  # |t| below which A, B and their derivatives use their Taylor series
-
-
-def arc_coefficients(t: ArrayLike) -> tuple[NDArray[np.float64], ...]:
-    """``A(t) = sin t/t``, ``B(t) = (1-cos t)/t`` and their derivatives ``A'(t)``, ``B'(t)`` (series near 0)."""
-    t = np.asarray(t, dtype=np.float64)
-    small = np.abs(t) < _SERIES_BELOW
-    ts = np.where(small, 1.0, t)  # safe divisor
-    t2 = t * t
-    a = np.where(small, 1 - t2 / 6 * (1 - t2 / 20 * (1 - t2 / 42 * (1 - t2 / 72))), np.sin(ts) / ts)
-    b = np.where(small, t / 2 * (1 - t2 / 12 * (1 - t2 / 30 * (1 - t2 / 56 * (1 - t2 / 90)))), (1 - np.cos(ts)) / ts)
-    da = np.where(small, -t / 3 + t * t2 / 30 - t * t2 * t2 / 840 + t * t2 ** 3 / 45360,
-                  (ts * np.cos(ts) - np.sin(ts)) / (ts * ts))
-    db = np.where(small, 0.5 - t2 / 8 + t2 * t2 / 144 - t2 ** 3 / 5760 + t2 ** 4 / 403200,
-                  (ts * np.sin(ts) - (1 - np.cos(ts))) / (ts * ts))
-    return a, b, da, db
-
-
-def wheel_arcs(odom: NDArray[np.float64], nominal_baseline: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Nominal left and right wheel arc lengths ``(s_L, s_R)`` that produced the raw motions."""
-    t = odom[:, 2]
-    ah = arc_coefficients(t / 2)[0]
-    s = (odom[:, 0] * np.cos(t / 2) + odom[:, 1] * np.sin(t / 2)) / ah
-    return s - nominal_baseline * t / 2, s + nominal_baseline * t / 2
 
 
 def diff_drive_motions_from_arcs(s_left: NDArray[np.float64], s_right: NDArray[np.float64],
@@ -91,37 +66,6 @@ def apply_diff_drive(params: ArrayLike, odom: ArrayLike, nominal_baseline: float
     df_ds = np.column_stack([a, b, np.zeros_like(a)])                        # (N, 3)
     df_dt = np.column_stack([s * da, s * db, np.ones_like(a)])
     jac = df_ds[:, :, None] * ds[:, None, :] + df_dt[:, :, None] * dt[:, None, :]
-    return f, jac
-
-
-def _arc_scalar(t: float) -> tuple[float, float, float, float]:
-    """:func:`arc_coefficients` for one float (no numpy overhead: used per factor call)."""
-    if abs(t) < _SERIES_BELOW:
-        t2 = t * t
-        return (1 - t2 / 6 * (1 - t2 / 20 * (1 - t2 / 42 * (1 - t2 / 72))),
-                t / 2 * (1 - t2 / 12 * (1 - t2 / 30 * (1 - t2 / 56 * (1 - t2 / 90)))),
-                -t / 3 + t * t2 / 30 - t * t2 * t2 / 840 + t * t2 ** 3 / 45360,
-                0.5 - t2 / 8 + t2 * t2 / 144 - t2 ** 3 / 5760 + t2 ** 4 / 403200)
-    c, s = math.cos(t), math.sin(t)
-    return s / t, (1 - c) / t, (t * c - s) / (t * t), (t * s - (1 - c)) / (t * t)
-
-
-def diff_drive_motion_scalar(params: Sequence[float], s_left: float, s_right: float, nominal_baseline: float
-                             ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """``f(u; p)`` (3) and ``df/dp`` (3x3) for one motion given by its nominal wheel arcs (see :func:`wheel_arcs`).
-
-    The same math as :func:`apply_diff_drive`, written for one motion so that a per-motion GTSAM
-    factor does not pay numpy's per-call overhead.
-    """
-    k_l, k_r, k_b = float(params[0]), float(params[1]), float(params[2])
-    s = 0.5 * (k_r * s_right + k_l * s_left)
-    bb = k_b * nominal_baseline
-    t = (k_r * s_right - k_l * s_left) / bb
-    a, b, da, db = _arc_scalar(t)
-    f = np.array([s * a, s * b, t])
-    ds = np.array([0.5 * s_left, 0.5 * s_right, 0.0])
-    dt = np.array([-s_left / bb, s_right / bb, -t / k_b])
-    jac = np.outer([a, b, 0.0], ds) + np.outer([s * da, s * db, 1.0], dt)
     return f, jac
 
 

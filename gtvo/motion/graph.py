@@ -2,7 +2,7 @@
 
 The graph over states ``v0 .. v{N-1}`` holds the prior on ``v0``, one pose measurement factor per
 state and one process factor between consecutive states. Its solution is the smoothed posterior
-(equal to :func:`gtvo.motion_model.rts_smooth`), and the marginal of the last state is the
+(equal to :func:`gtvo.motion.model.rts_smooth`), and the marginal of the last state is the
 filter's final estimate. The graph is linear: angles are not wrapped, so it agrees with the
 (wrapping) filter as long as no measurement or state crosses +-pi.
 """
@@ -15,12 +15,12 @@ from numpy.typing import ArrayLike, NDArray
 
 from factors.motion import pose_measurement_factor, process_factor, state_key, state_prior_factor
 from gtvo.errors import InputError
-from gtvo.motion_model import STATE_DIM, MotionNoise, _check_prior
+from gtvo.motion.model import STATE_DIM, MotionNoise, _check_prior
 
 
 def build_motion_graph(measurements: ArrayLike, times: ArrayLike, prior_mean: ArrayLike, prior_cov: ArrayLike,
                        noise: MotionNoise = MotionNoise()) -> gtsam.GaussianFactorGraph:
-    """The linear-Gaussian graph of the same problem :func:`gtvo.motion_model.filter_sequence` solves."""
+    """The linear-Gaussian graph of the same problem :func:`gtvo.motion.model.filter_sequence` solves."""
     z = np.asarray(measurements, dtype=np.float64)
     t = np.asarray(times, dtype=np.float64).reshape(-1)
     if z.ndim != 2 or z.shape[1] != 3 or z.shape[0] == 0 or t.shape != (z.shape[0],):

@@ -65,7 +65,7 @@ def downsample(image: NDArray) -> FloatImage:
 def build_pyramid(image: NDArray, levels: int, min_size: int = 16) -> list[FloatImage]:
     """Image pyramid ``[level 0 (full), level 1 (half), ...]``; stops early below ``min_size``.
 
-    Level ``l`` matches :meth:`gtvo.camera.PinholeCamera.scaled` ``(l)``.
+    Level ``l`` matches :meth:`gtvo.core.camera.PinholeCamera.scaled` ``(l)``.
     """
     if levels < 1:
         raise InputError(f"pyramid needs at least one level, got {levels}")
