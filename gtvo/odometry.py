@@ -41,10 +41,10 @@ from gtvo.frontend import FlowPoseConfig, KeyframePoints, init_keyframe_points, 
 from gtvo.core.image import to_float_gray
 from gtvo.datasets.sequence import Frame
 from gtvo.frontend.tracking import (TrackingConfig, TrackingKeyframe, TrackingResult, frame_pyramid, track_gtsam,
-                           track_handrolled, track_with_guesses)
+                                    track_handrolled, track_with_guesses)
 from gtvo.evaluation.trajectory import Trajectory
-from gtvo.window import (SlidingWindowOptimizer, WindowConfig, WindowKeyframe, WindowResult,
-                         estimate_stereo_affine)
+from gtvo.frontend.stereo_affine import estimate_stereo_affine
+from gtvo.window import SlidingWindowOptimizer, WindowConfig, WindowKeyframe, WindowResult
 
 SolverName = Literal["handrolled", "gtsam"]
 MotionModelName = Literal["constant-velocity", "kalman"]

@@ -264,7 +264,7 @@ def test_rgbd_window_on_tum_teddy(shared_data):
 def test_estimate_stereo_affine_finds_the_right_cameras_gain():
     """Synthetic rig whose right image is exp(0.04) I + (-2.0) of the left's (frame 0): recovered
     to 5e-3 in log gain and 0.5 grey levels (measured 2e-3 / 0.15)."""
-    from gtvo.window import estimate_stereo_affine  # noqa: PLC0415
+    from gtvo.frontend.stereo_affine import estimate_stereo_affine  # noqa: PLC0415
 
     s = make_synthetic_sequence(2, width=240, height=180, exposure_change=True)
     fr = s.frame(0)
@@ -328,7 +328,7 @@ def test_fixed_lag_backend_matches_lm_and_keeps_the_marginal(seq):
     fl = run(WindowConfig(size=3, max_iterations=10, backend="fixed_lag"))
     drop = run(WindowConfig(size=3, max_iterations=10, marginalize=False))
     assert [k.index for k in fl.keyframes] == [4, 6, 8]
-    assert fl._smoother.getLinearizationPoint().size() == 6  # 3 poses + 3 affines: 0 and 2 marginalised
+    assert fl.backend._smoother.getLinearizationPoint().size() == 6  # 3 poses + 3 affines: 0 and 2 marginalised
     d_fl = max(np.abs(a.pose.localCoordinates(b.pose)).max() for a, b in zip(lm.keyframes, fl.keyframes))
     d_drop = max(np.abs(a.pose.localCoordinates(b.pose)).max() for a, b in zip(lm.keyframes, drop.keyframes))
     assert d_fl < 1.5e-3

@@ -1,0 +1,214 @@
+"""The window's types and settings: keys, :class:`WindowConfig`, :class:`WindowKeyframe`, :class:`MarginalPrior`, :class:`WindowResult`."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal, Sequence
+
+import gtsam
+import numpy as np
+from numpy.typing import NDArray
+
+from factors.gtsam_factors import DEFAULT_HUBER_K, DEFAULT_SIGMA_INTENSITY
+from factors.photometric import PATTERN_DSO8, GradientImage
+from gtvo.errors import InputError
+
+FloatArray = NDArray[np.float64]
+WindowSolverName = Literal["gtsam", "handrolled"]
+
+
+def pose_key(frame_index: int) -> int:
+    """GTSAM key of a keyframe's pose (``x<frame index>``)."""
+    return gtsam.symbol("x", int(frame_index))
+
+
+def affine_key(frame_index: int) -> int:
+    """GTSAM key of a keyframe's affine brightness ``(a, b)`` (``a<frame index>``)."""
+    return gtsam.symbol("a", int(frame_index))
+
+
+
+def values_subset(values: gtsam.Values, keys: Sequence[int]) -> gtsam.Values:
+    out = gtsam.Values()
+    for k in keys:
+        if gtsam.Symbol(k).chr() == ord("x"):
+            out.insert(k, values.atPose3(k))
+        else:
+            out.insert(k, values.atVector(k))
+    return out
+
+
+@dataclass(frozen=True)
+class WindowConfig:
+    """Settings of the window (defaults follow DSO where DSO has one).
+
+    Attributes:
+        size: keyframes in the window (DSO: 7).
+        sigma_intensity, huber_k, pattern: the photometric weight ``W``, the Huber threshold on a
+            point's whitened pattern norm and the residual pattern (the factors' defaults: 8 grey
+            levels, k = 3, DSO's 8-pixel pattern).
+        lambda_stereo: weight of the host's stereo energy ``lambda E_s`` (the notes'
+            ``E = E_d + lambda E_s``); 1 treats a left-right residual like a temporal one: both
+            compare two images of the same sensor type with the same noise.
+        affine_sigma: ``(sigma_a, sigma_b)`` of the prior of each keyframe's affine brightness
+            around its tracked value. DSO without photometric calibration leaves ``(a, b)`` free;
+            (1.0 log gain, 100 grey levels) is a weak prior that only keeps the system regular.
+        acceleration_sigma: ``(angular rad/s^2, linear m/s^2)`` of the motion-smoothness prior, a
+            :class:`factors.gtsam_factors.ConstantVelocityFactor` on every three consecutive
+            keyframes that have timestamps; None: no motion prior. The defaults are weak (a car
+            brakes at up to ~8 m/s^2, a hand-held camera turns faster): with images that fix the
+            poses the prior moves nothing; it keeps a window defined when they do not.
+        gauge_sigma: sigma (rad, m; log gain, grey levels) of the gauge prior that fixes the oldest
+            keyframe's pose and affine while no marginalisation prior exists.
+        min_visible_points, min_visible_fraction: a keyframe is a target of a host when at least
+            this many (and this fraction) of the host's points project into it, in front of it.
+        max_iterations: LM iterations per window optimisation (DSO allows up to 6 per new keyframe;
+            on KITTI 4-6 moved the ATE by < 1 mm for 25-45 % more time: docs/benchmarks.md).
+        relative_tolerance: stop when an iteration lowers the cost by less than this fraction.
+        marginalize: keep leaving keyframes' information as a prior (False: simply drop them).
+        backend: ``"lm"``: each window optimised by a solver (:func:`solve_gtsam` or
+            :func:`solve_handrolled`) and leaving keyframes marginalised by :func:`marginalize`;
+            ``"fixed_lag"``: a ``gtsam.IncrementalFixedLagSmoother`` (iSAM2) holds the window,
+            the keyframe's sequence number as timestamp and lag ``size - 0.5``, and marginalises
+            leaving keyframes itself (docs/window.md, "Fixed-lag backend").
+    """
+
+    size: int = 7
+    sigma_intensity: float = DEFAULT_SIGMA_INTENSITY
+    huber_k: float | None = DEFAULT_HUBER_K
+    pattern: FloatArray = field(default_factory=lambda: PATTERN_DSO8.copy())
+    lambda_stereo: float = 1.0
+    affine_sigma: tuple[float, float] = (1.0, 100.0)
+    acceleration_sigma: tuple[float, float] | None = (1.0, 2.0)
+    gauge_sigma: float = 1e-6
+    min_visible_points: int = 30
+    min_visible_fraction: float = 0.1
+    max_iterations: int = 3
+    relative_tolerance: float = 1e-4
+    marginalize: bool = True
+    backend: Literal["lm", "fixed_lag"] = "lm"
+
+    def __post_init__(self) -> None:
+        if self.backend not in ("lm", "fixed_lag"):
+            raise InputError(f"unknown window backend {self.backend!r}: use 'lm' or 'fixed_lag'")
+        if int(self.size) < 2:
+            raise InputError(f"window size must be >= 2, got {self.size}")
+        if not (self.lambda_stereo > 0 and np.isfinite(self.lambda_stereo)):
+            raise InputError(f"lambda_stereo must be positive, got {self.lambda_stereo!r}")
+        if not all(s > 0 and np.isfinite(s) for s in self.affine_sigma):
+            raise InputError(f"affine_sigma must be positive, got {self.affine_sigma!r}")
+        acc = self.acceleration_sigma
+        if acc is not None and (len(acc) != 2 or not all(s > 0 and np.isfinite(s) for s in acc)):
+            raise InputError(f"acceleration_sigma must be two positive numbers or None, got {acc!r}")
+        if self.max_iterations < 1:
+            raise InputError(f"max_iterations must be >= 1, got {self.max_iterations}")
+
+
+@dataclass
+class WindowKeyframe:
+    """One keyframe of the window: its state and its hosted points.
+
+    Attributes:
+        index: frame index (the keys are ``x<index>``, ``a<index>``).
+        pose: ``T_world_cam`` of the left camera.
+        affine: ``(a, b)`` of its left image (window-wide brightness reference).
+        image: left image with gradients.
+        pixels, inverse_depth, variance: its points (N, 2), (N,), (N,).
+        right: right image with gradients (stereo energy), or None.
+        depth_prior: keep ``(d - prior_inverse_depth)^2 / V`` (RGB-D: the sensor's depth).
+        prior_inverse_depth: the depth prior's mean (default: the initial inverse depths).
+        affine_prior: mean of the affine prior (default: the initial affine).
+        stereo_affine: the right image's ``(a, b)`` relative to the left one (held fixed).
+        timestamp: capture time (s); keyframes without one get no motion-smoothness prior.
+    """
+
+    index: int
+    pose: gtsam.Pose3
+    affine: FloatArray
+    image: GradientImage
+    pixels: FloatArray
+    inverse_depth: FloatArray
+    variance: FloatArray
+    right: GradientImage | None = None
+    depth_prior: bool = False
+    prior_inverse_depth: FloatArray | None = None
+    affine_prior: FloatArray | None = None
+    stereo_affine: FloatArray = field(default_factory=lambda: np.zeros(2))
+    timestamp: float | None = None
+
+    def __post_init__(self) -> None:
+        self.pixels = np.asarray(self.pixels, dtype=float).reshape(-1, 2)
+        n = self.pixels.shape[0]
+        self.inverse_depth = np.asarray(self.inverse_depth, dtype=float).reshape(-1).copy()
+        self.variance = np.broadcast_to(np.asarray(self.variance, dtype=float), (n,)).copy()
+        self.affine = np.asarray(self.affine, dtype=float).reshape(2).copy()
+        if n == 0 or self.inverse_depth.shape[0] != n:
+            raise InputError(f"keyframe {self.index}: need N > 0 points with one inverse depth each")
+        if not (np.all(np.isfinite(self.inverse_depth)) and np.all(self.inverse_depth > 0)
+                and np.all(np.isfinite(self.variance)) and np.all(self.variance > 0)):
+            raise InputError(f"keyframe {self.index}: inverse depths and variances must be finite and > 0")
+        if self.right is None and not self.depth_prior:
+            raise InputError(f"keyframe {self.index}: without a right image the depths need a depth prior")
+        if self.prior_inverse_depth is None:
+            self.prior_inverse_depth = self.inverse_depth.copy()
+        if self.affine_prior is None:
+            self.affine_prior = self.affine.copy()
+        self.stereo_affine = np.asarray(self.stereo_affine, dtype=float).reshape(2)
+
+    def __len__(self) -> int:
+        return int(self.pixels.shape[0])
+
+
+@dataclass
+class MarginalPrior:
+    """The information of marginalised keyframes on the remaining ones, a quadratic in
+
+    ``delta = x_lin.localCoordinates(x)`` (per key) with a fixed linearisation point ``x_lin``::
+
+        E_m(x) = 0.5 delta^T H delta - eta^T delta + 0.5 f
+
+    (GTSAM's augmented-Hessian form). ``factors`` are the same quadratic as GTSAM linear factors.
+    """
+
+    keys: list[int]
+    dims: list[int]
+    H: FloatArray
+    eta: FloatArray
+    f: float
+    linearization_point: gtsam.Values
+    factors: gtsam.GaussianFactorGraph
+
+    def delta(self, values: gtsam.Values) -> FloatArray:
+        """``x_lin.localCoordinates(x)`` stacked over :attr:`keys`."""
+        return np.asarray(self.linearization_point.localCoordinates(values_subset(values, self.keys)).vector(
+            list(self.keys)), dtype=float)
+
+    def cost(self, values: gtsam.Values) -> float:
+        """``E_m`` at ``values``."""
+        dl = self.delta(values)
+        return float(0.5 * dl @ self.H @ dl - self.eta @ dl + 0.5 * self.f)
+
+    def nonlinear_factors(self) -> list[gtsam.LinearContainerFactor]:
+        """The prior as ``gtsam.LinearContainerFactor`` s (fixed linearisation point)."""
+        return [gtsam.LinearContainerFactor(self.factors.at(i), self.linearization_point)
+                for i in range(self.factors.size())]
+
+
+@dataclass
+class WindowResult:
+    """Outcome of one window optimisation.
+
+    Attributes:
+        solver: which solver ran.
+        initial_cost, cost: E before and after.
+        iterations: LM iterations.
+        seconds: wall time.
+        n_residuals: point-target pairs in the photometric terms.
+    """
+
+    solver: str
+    initial_cost: float
+    cost: float
+    iterations: int
+    seconds: float
+    n_residuals: int

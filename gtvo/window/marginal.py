@@ -1,0 +1,60 @@
+"""Marginalisation of a keyframe that leaves the window into a prior on the others (docs/window.md)."""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import gtsam
+import numpy as np
+from numpy.typing import NDArray
+
+from gtvo.core.camera import PinholeCamera
+from gtvo.window.config import MarginalPrior, WindowConfig, WindowKeyframe, affine_key, pose_key
+from gtvo.window.config import values_subset
+from gtvo.window.problem import gauge_noise, key_ordering, host_factor, motion_factors, visible_targets, window_values
+
+FloatArray = NDArray[np.float64]
+
+
+def marginalize(camera: PinholeCamera, baseline: float | None, keyframes: Sequence[WindowKeyframe],
+                config: WindowConfig, marginal: MarginalPrior | None, position: int = 0) -> MarginalPrior:
+    """Marginalise ``keyframes[position]`` and its points; return the prior on the others.
+
+    The factors touching it (its host factor into the keyframes that see its points, its affine
+    prior, the motion priors it is part of, the gauge prior or the previous marginal prior) are
+    linearised at the current state;
+    its pose and affine are eliminated; what is left (a quadratic on the remaining keyframes) is
+    the new prior, with the current state as its fixed linearisation point. Residuals of other
+    hosts' points in the leaving keyframe are not part of it (they are dropped).
+    """
+    kf = keyframes[position]
+    targets = visible_targets(camera, keyframes, config)[position]
+    graph = gtsam.NonlinearFactorGraph()
+    if targets:
+        graph.add(host_factor(camera, baseline, keyframes, position, targets, config))
+    aff_noise = gtsam.noiseModel.Diagonal.Sigmas(np.asarray(config.affine_sigma, dtype=float))
+    graph.add(gtsam.PriorFactorVector(affine_key(kf.index), np.asarray(kf.affine_prior, dtype=float), aff_noise))
+    for k, f in motion_factors(keyframes, config):
+        if k <= position <= k + 2:
+            graph.add(f)
+    if marginal is None:
+        graph.add(gtsam.PriorFactorPose3(pose_key(kf.index), kf.pose, gauge_noise(config, 6)))
+        graph.add(gtsam.PriorFactorVector(affine_key(kf.index), kf.affine.copy(), gauge_noise(config, 2)))
+    else:
+        for f in marginal.nonlinear_factors():
+            graph.add(f)
+    values = window_values(keyframes)
+    linear = graph.linearize(values)
+    leaving = [pose_key(kf.index), affine_key(kf.index)]
+    _, remaining = linear.eliminatePartialMultifrontal(key_ordering(leaving))
+    present = set(remaining.keyVector())
+    keys, dims = [], []
+    for other in keyframes:
+        for key, dim in ((pose_key(other.index), 6), (affine_key(other.index), 2)):
+            if key in present:
+                keys.append(key)
+                dims.append(dim)
+    aug = remaining.augmentedHessian(key_ordering(keys))
+    n = aug.shape[0] - 1
+    H = 0.5 * (aug[:n, :n] + aug[:n, :n].T)
+    return MarginalPrior(keys, dims, H, aug[:n, n].copy(), float(aug[n, n]), values_subset(values, keys), remaining)

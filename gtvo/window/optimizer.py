@@ -1,0 +1,114 @@
+"""The sliding window: :class:`SlidingWindowOptimizer` with its two back ends.
+
+* :class:`LMBackend` (``backend="lm"``): each window re-solved by LM (GTSAM or hand-rolled), the
+  keyframes that leave marginalised by :func:`gtvo.window.marginal.marginalize`.
+* :class:`gtvo.window.fixed_lag.FixedLagBackend` (``backend="fixed_lag"``): the window kept in
+  ``gtsam.IncrementalFixedLagSmoother`` (iSAM2).
+"""
+
+from __future__ import annotations
+
+
+import numpy as np
+from numpy.typing import NDArray
+
+from gtvo.core.camera import PinholeCamera
+from gtvo.errors import InputError
+from gtvo.window.config import MarginalPrior, WindowConfig, WindowKeyframe, WindowResult, WindowSolverName
+from gtvo.window.gtsam_solver import solve_gtsam
+from gtvo.window.handrolled import solve_handrolled, window_cost
+from gtvo.window.marginal import marginalize
+from gtvo.window.fixed_lag import FixedLagBackend
+from gtvo.window.problem import visible_targets
+
+FloatArray = NDArray[np.float64]
+
+
+class SlidingWindowOptimizer:
+    """A window of keyframes optimised jointly, with marginalisation of the keyframes that leave.
+
+    Args:
+        camera: left-camera intrinsics (all keyframes share them).
+        baseline: stereo baseline (m), or None for RGB-D input.
+        config: window settings.
+
+    Example::
+
+        window = SlidingWindowOptimizer(camera, baseline)
+        window.add_keyframe(WindowKeyframe(...))   # marginalises the oldest when full
+        result = window.optimize("gtsam")          # keyframes updated in place
+    """
+
+    def __init__(self, camera: PinholeCamera, baseline: float | None, config: WindowConfig | None = None) -> None:
+        self.camera = camera
+        self.baseline = baseline
+        self.config = config or WindowConfig()
+        self.keyframes: list[WindowKeyframe] = []
+        self.n_removed = 0  # keyframes that left the window (not kept: they hold images)
+        self.results: list[WindowResult] = []
+        self.backend: LMBackend | FixedLagBackend = FixedLagBackend() if self.config.backend == "fixed_lag" else LMBackend()
+
+    def add_keyframe(self, keyframe: WindowKeyframe) -> None:
+        """Append a keyframe; when the window is full, the oldest leaves first (marginalised)."""
+        if any(k.index == keyframe.index for k in self.keyframes):
+            raise InputError(f"keyframe {keyframe.index} is already in the window")
+        while len(self.keyframes) >= self.config.size:
+            self.remove_oldest()
+        self.keyframes.append(keyframe)
+
+    def remove_oldest(self) -> WindowKeyframe:
+        """Remove the oldest keyframe: marginalised into the prior (or dropped, per the config).
+
+        With the fixed-lag backend the smoother marginalises it at the next :meth:`optimize`.
+        """
+        kf = self.backend.remove_oldest(self)
+        self.n_removed += 1
+        return kf
+
+    @property
+    def marginal(self) -> MarginalPrior | None:
+        """The prior left by the keyframes that were marginalised (LM back end; None before, and for fixed-lag)."""
+        return getattr(self.backend, "marginal", None)
+
+    def cost(self) -> float:
+        """The window cost at the current state (W evaluated at this state)."""
+        return window_cost(self.camera, self.baseline, self.keyframes, self.config, self.marginal)
+
+    def optimize(self, solver: WindowSolverName = "gtsam") -> WindowResult | None:
+        """Optimise the window (None when fewer than two keyframes); keyframes are updated in place.
+
+        ``solver`` chooses the LM path's solver; the fixed-lag backend ignores it (GTSAM's smoother).
+        """
+        if len(self.keyframes) < 2:
+            return None
+        targets = visible_targets(self.camera, self.keyframes, self.config)
+        if not any(targets):
+            return None
+        res = self.backend.optimize(self, targets, solver)
+        self.results.append(res)
+        return res
+
+
+
+class LMBackend:
+    """Each window re-solved by Levenberg-Marquardt; keyframes that leave are marginalised into a prior."""
+
+    name = "lm"
+
+    def __init__(self) -> None:
+        self.marginal: MarginalPrior | None = None
+
+    def remove_oldest(self, window: SlidingWindowOptimizer) -> WindowKeyframe:
+        """Marginalise the oldest keyframe into :attr:`marginal` (or drop it, ``marginalize=False``)."""
+        if window.config.marginalize:
+            self.marginal = marginalize(window.camera, window.baseline, window.keyframes, window.config,
+                                        self.marginal, 0)
+        return window.keyframes.pop(0)
+
+    def optimize(self, window: SlidingWindowOptimizer, targets: list[list[int]],
+                 solver: WindowSolverName) -> WindowResult:
+        """Solve the window with ``solver`` ("gtsam" or "handrolled"); keyframes updated in place."""
+        solve = {"gtsam": solve_gtsam, "handrolled": solve_handrolled}.get(solver)
+        if solve is None:
+            raise InputError(f"unknown window solver {solver!r}: use 'gtsam' or 'handrolled'")
+        return solve(window.camera, window.baseline, window.keyframes, window.config, self.marginal, targets)

@@ -1,0 +1,145 @@
+"""Building the window's problem: its values, which keyframes see which host's points, and its factors.
+
+The factors of the cost of docs/window.md: one :class:`factors.smart.HostPointsFactor` per host, the
+weak affine priors, the constant-velocity priors, the gauge prior and the marginalisation prior.
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import gtsam
+import numpy as np
+from numpy.typing import NDArray
+
+from factors.gtsam_factors import ConstantVelocityFactor
+from factors.smart import HostPointsFactor
+from gtvo.core.camera import MIN_DEPTH, PinholeCamera
+from gtvo.window.config import MarginalPrior, WindowConfig, WindowKeyframe, affine_key, pose_key
+
+FloatArray = NDArray[np.float64]
+
+
+# ----------------------------------------------------------------------------------------------
+# the problem shared by both solvers
+
+
+def key_ordering(keys: Sequence[int]) -> gtsam.Ordering:
+    o = gtsam.Ordering()
+    for k in keys:
+        o.push_back(k)
+    return o
+
+
+def window_values(keyframes: Sequence[WindowKeyframe]) -> gtsam.Values:
+    """The keyframes' poses and affines as GTSAM ``Values``."""
+    v = gtsam.Values()
+    for kf in keyframes:
+        v.insert(pose_key(kf.index), kf.pose)
+        v.insert(affine_key(kf.index), kf.affine)
+    return v
+
+
+def visible_targets(camera: PinholeCamera, keyframes: Sequence[WindowKeyframe], config: WindowConfig
+                    ) -> list[list[int]]:
+    """For each host (position in ``keyframes``), the positions of the keyframes that see its points.
+
+    A point counts as seen when it projects in front of the target and inside its image with a
+    2-pixel border; a target needs ``min_visible_points`` and ``min_visible_fraction`` of them.
+    """
+    out: list[list[int]] = []
+    for h, kh in enumerate(keyframes):
+        X = camera.backproject_inverse_depth(kh.pixels, kh.inverse_depth)
+        Th = kh.pose.matrix()
+        Xw = X @ Th[:3, :3].T + Th[:3, 3]
+        ts: list[int] = []
+        for t, kt in enumerate(keyframes):
+            if t == h:
+                continue
+            Tt = kt.pose.inverse().matrix()
+            Xt = Xw @ Tt[:3, :3].T + Tt[:3, 3]
+            front = Xt[:, 2] > MIN_DEPTH
+            z = np.where(front, Xt[:, 2], 1.0)
+            u = camera.fx * Xt[:, 0] / z + camera.cx
+            v = camera.fy * Xt[:, 1] / z + camera.cy
+            inside = front & (u >= 2) & (u <= camera.width - 3) & (v >= 2) & (v <= camera.height - 3)
+            n = int(np.count_nonzero(inside))
+            if n >= config.min_visible_points and n >= config.min_visible_fraction * len(kh):
+                ts.append(t)
+        out.append(ts)
+    return out
+
+
+def gauge_noise(config: WindowConfig, dim: int) -> gtsam.noiseModel.Base:
+    return gtsam.noiseModel.Isotropic.Sigma(dim, config.gauge_sigma)
+
+
+def motion_factors(keyframes: Sequence[WindowKeyframe], config: WindowConfig
+                   ) -> list[tuple[int, ConstantVelocityFactor]]:
+    """The motion-smoothness prior: ``(k, factor)`` for every three consecutive keyframes
+    ``k, k+1, k+2`` (positions) with increasing timestamps (none when ``acceleration_sigma`` is None)."""
+    if config.acceleration_sigma is None:
+        return []
+    out = []
+    for k in range(len(keyframes) - 2):
+        a, b, c = keyframes[k], keyframes[k + 1], keyframes[k + 2]
+        if a.timestamp is None or b.timestamp is None or c.timestamp is None:
+            continue
+        dt_prev, dt_next = b.timestamp - a.timestamp, c.timestamp - b.timestamp
+        if dt_prev > 0 and dt_next > 0:
+            out.append((k, ConstantVelocityFactor(pose_key(a.index), pose_key(b.index), pose_key(c.index),
+                                                  dt_prev, dt_next, *config.acceleration_sigma)))
+    return out
+
+
+def prior_factors(keyframes: Sequence[WindowKeyframe], config: WindowConfig, with_gauge: bool
+                  ) -> gtsam.NonlinearFactorGraph:
+    """Affine priors of every keyframe, and (``with_gauge``) the gauge prior on the oldest."""
+    g = gtsam.NonlinearFactorGraph()
+    aff_noise = gtsam.noiseModel.Diagonal.Sigmas(np.asarray(config.affine_sigma, dtype=float))
+    for kf in keyframes:
+        g.add(gtsam.PriorFactorVector(affine_key(kf.index), np.asarray(kf.affine_prior, dtype=float), aff_noise))
+    if with_gauge and keyframes:
+        k0 = keyframes[0]
+        g.add(gtsam.PriorFactorPose3(pose_key(k0.index), k0.pose, gauge_noise(config, 6)))
+        g.add(gtsam.PriorFactorVector(affine_key(k0.index), k0.affine.copy(), gauge_noise(config, 2)))
+    return g
+
+
+def host_factor(camera: PinholeCamera, baseline: float | None, keyframes: Sequence[WindowKeyframe], h: int,
+                targets: Sequence[int], config: WindowConfig) -> HostPointsFactor:
+    """The :class:`HostPointsFactor` of host ``keyframes[h]`` observed in ``targets`` (positions)."""
+    kh = keyframes[h]
+    return HostPointsFactor(
+        pose_key(kh.index), [pose_key(keyframes[t].index) for t in targets], camera, kh.pixels,
+        kh.inverse_depth, kh.image, [keyframes[t].image for t in targets], kh.variance,
+        sigma_intensity=config.sigma_intensity, huber_k=config.huber_k, affine_host_key=affine_key(kh.index),
+        affine_target_keys=[affine_key(keyframes[t].index) for t in targets], depth_prior=kh.depth_prior,
+        pattern=config.pattern, right_image=kh.right, baseline=baseline if kh.right is not None else None,
+        lambda_stereo=config.lambda_stereo, stereo_affine=kh.stereo_affine,
+        prior_inverse_depth=kh.prior_inverse_depth)
+
+
+def build_graph(camera: PinholeCamera, baseline: float | None, keyframes: Sequence[WindowKeyframe],
+                config: WindowConfig, marginal: MarginalPrior | None,
+                targets: list[list[int]] | None = None
+                ) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values, dict[int, HostPointsFactor]]:
+    """The window's factor graph: one smart factor per host with targets, priors, motion prior,
+    marginal prior.
+
+    Returns ``(graph, values, host_factors)`` with ``host_factors[position] = factor``.
+    """
+    targets = visible_targets(camera, keyframes, config) if targets is None else targets
+    graph = prior_factors(keyframes, config, with_gauge=marginal is None)
+    for _, f in motion_factors(keyframes, config):
+        graph.add(f)
+    hosts: dict[int, HostPointsFactor] = {}
+    for h, ts in enumerate(targets):
+        if ts:
+            f = host_factor(camera, baseline, keyframes, h, ts, config)
+            hosts[h] = f
+            graph.add(f)
+    if marginal is not None:
+        for f in marginal.nonlinear_factors():
+            graph.add(f)
+    return graph, window_values(keyframes), hosts
