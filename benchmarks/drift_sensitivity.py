@@ -40,7 +40,7 @@ from benchmarks.vo_bench import KITTI_SEQUENCE_1, fmt, load_frames, markdown_tab
 from gtvo.io.atomic import write_json  # noqa: E402
 from gtvo.datasets import open_sequence  # noqa: E402
 from gtvo.evaluation.metrics import drift_percent  # noqa: E402
-from gtvo.odometry import OdometryConfig  # noqa: E402
+from gtvo.config import OdometryConfig  # noqa: E402
 from gtvo.datasets.sequence import Sequence  # noqa: E402
 from gtvo.evaluation.trajectory import Trajectory  # noqa: E402
 from gtvo.window import WindowConfig  # noqa: E402

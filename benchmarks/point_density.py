@@ -23,7 +23,7 @@ if str(REPO_ROOT) not in sys.path:  # run as `python benchmarks/<script>.py`
 
 from benchmarks.vo_bench import (KITTI_SEQUENCE_1, fmt, load_frames, markdown_table, reference_ms,  # noqa: E402
                                  run_gtvo, score)
-from gtvo.odometry import OdometryConfig  # noqa: E402
+from gtvo.config import OdometryConfig  # noqa: E402
 from gtvo import open_sequence  # noqa: E402
 from gtvo.window import WindowConfig  # noqa: E402
 

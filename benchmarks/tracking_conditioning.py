@@ -30,7 +30,8 @@ from benchmarks.vo_bench import KITTI_SEQUENCE_1, SHARED_DATA, fmt, gtvo_config,
 from gtvo.io.atomic import write_json  # noqa: E402
 from gtvo.datasets import open_sequence  # noqa: E402
 from gtvo.evaluation.metrics import ate  # noqa: E402
-from gtvo.odometry import OdometryConfig, VisualOdometry  # noqa: E402
+from gtvo.config import OdometryConfig
+from gtvo.odometry import VisualOdometry  # noqa: E402
 from gtvo.datasets.sequence import Sequence  # noqa: E402
 from gtvo.datasets.synthetic import make_synthetic_sequence  # noqa: E402
 from gtvo.evaluation.trajectory import Trajectory  # noqa: E402

@@ -58,7 +58,7 @@ def gtvo_config(solver: str, mode: str = "track", **overrides: Any):
     ``mode`` goes to the config's ``mode`` field when gtvo has one; without it only ``"track"``
     (frame-to-keyframe tracking) exists and any other mode raises :class:`ModeUnavailable`.
     """
-    from gtvo.odometry import OdometryConfig  # noqa: PLC0415
+    from gtvo.config import OdometryConfig  # noqa: PLC0415
 
     names = {f.name for f in dataclasses.fields(OdometryConfig)}
     kwargs: dict[str, Any] = {"solver": solver, **overrides}

@@ -44,7 +44,7 @@ from factors.photometric import GradientImage  # noqa: E402
 from gtvo.datasets import open_sequence  # noqa: E402
 from gtvo.frontend import init_keyframe_points  # noqa: E402
 from gtvo.core.image import to_float_gray  # noqa: E402
-from gtvo.odometry import OdometryConfig  # noqa: E402
+from gtvo.config import OdometryConfig  # noqa: E402
 from gtvo.pipeline import process_sequence  # noqa: E402
 from gtvo.io.outputs import evaluate  # noqa: E402
 from gtvo.evaluation.trajectory import Trajectory  # noqa: E402

@@ -32,7 +32,7 @@ _EXPORTS = {
     "PinholeCamera": "gtvo.core.camera",
     "StereoCamera": "gtvo.core.camera",
     "VisualOdometry": "gtvo.odometry",
-    "OdometryConfig": "gtvo.odometry",
+    "OdometryConfig": "gtvo.config",
     "SlidingWindowOptimizer": "gtvo.window",
     "Trajectory": "gtvo.evaluation.trajectory",
     "run": "gtvo.pipeline",

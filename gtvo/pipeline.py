@@ -13,7 +13,8 @@ from typing import Any, Callable
 from gtvo.io.atomic import ensure_output_dir, tidy_on_failure
 from gtvo.datasets import open_sequence
 from gtvo.errors import InputError
-from gtvo.odometry import OdometryConfig, VisualOdometry
+from gtvo.config import OdometryConfig
+from gtvo.odometry import VisualOdometry
 from gtvo.io.outputs import write_run_outputs
 from gtvo.datasets.sequence import Sequence
 from gtvo.evaluation.trajectory import Trajectory

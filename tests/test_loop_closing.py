@@ -3,7 +3,7 @@
 import numpy as np
 
 from gtvo.loops.closing import close_loops_of_run, relocate_frames
-from gtvo.odometry import OdometryConfig
+from gtvo.config import OdometryConfig
 from gtvo.pipeline import process_sequence
 from gtvo.io.outputs import evaluate, ground_truth
 from gtvo.datasets.synthetic import make_synthetic_sequence

@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 
 from gtvo.errors import InputError
-from gtvo.odometry import OdometryConfig, VisualOdometry
+from gtvo.config import OdometryConfig
+from gtvo.odometry import VisualOdometry
 from gtvo.datasets.sequence import Sequence
 from gtvo.datasets.synthetic import make_synthetic_sequence
 from gtvo.window import WindowConfig

@@ -31,7 +31,7 @@ def test_missing_libusb_is_named(open3d_missing_libusb):
 
 
 def test_run_without_open3d_still_writes_everything_else(open3d_missing_libusb, tmp_path):
-    from gtvo.odometry import OdometryConfig
+    from gtvo.config import OdometryConfig
     from gtvo.pipeline import run
     from gtvo.datasets.synthetic import make_synthetic_sequence
 

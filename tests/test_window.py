@@ -13,7 +13,8 @@ from factors.photometric import GradientImage
 from gtvo.errors import InputError
 from gtvo.frontend import init_keyframe_points, select_points
 from gtvo.core.image import to_float_gray
-from gtvo.odometry import OdometryConfig, VisualOdometry
+from gtvo.config import OdometryConfig
+from gtvo.odometry import VisualOdometry
 from gtvo.datasets.synthetic import make_synthetic_sequence
 from gtvo.frontend.tracking import TrackingKeyframe, frame_pyramid, track_handrolled
 from tests._factors_synthetic import PlaneSceneImage, small_camera

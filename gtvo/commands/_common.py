@@ -40,7 +40,7 @@ def add_odometry_options(p: argparse.ArgumentParser) -> None:
 
 def odometry_config(args: Any):
     """An :class:`OdometryConfig` from parsed options."""
-    from gtvo.odometry import MIN_POINTS_PER_KEYFRAME, OdometryConfig  # noqa: PLC0415
+    from gtvo.config import MIN_POINTS_PER_KEYFRAME, OdometryConfig  # noqa: PLC0415
     from gtvo.window import WindowConfig  # noqa: PLC0415
 
     if args.points < MIN_POINTS_PER_KEYFRAME:
