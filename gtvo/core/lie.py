@@ -18,6 +18,9 @@ from gtvo.errors import InputError
 F64 = NDArray[np.float64]
 FloatArray = F64
 
+#: A rotation block R read from a file must satisfy max|R^T R - I| <= this and det(R) > 0.
+ROTATION_TOLERANCE = 1e-3
+
 _SMALL = 1e-4  # below this angle the closed forms switch to their Taylor series
 
 
@@ -331,3 +334,23 @@ def rotations_to_quaternions(rotations: ArrayLike) -> FloatArray:
     q /= np.linalg.norm(q, axis=1, keepdims=True)
     q[q[:, 3] < 0] *= -1.0
     return q
+
+
+def rotation_defects(rotations: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """``(max |R^T R - I|, det R)`` of (..., 3, 3) blocks: a block read from a file is taken as a
+    rotation when the first is at most :data:`ROTATION_TOLERANCE` and the second positive."""
+    R = np.asarray(rotations, dtype=np.float64)
+    ortho = np.max(np.abs(np.swapaxes(R, -1, -2) @ R - np.eye(3)), axis=(-2, -1))
+    return ortho, np.linalg.det(R)
+
+
+def rotation_block_error(rotation: ArrayLike) -> str | None:
+    """None when one 3x3 block is a rotation (:func:`rotation_defects`), else why it is not
+    (``"is not a rotation (max |R^T R - I| = ..., det ...)"``), for a message naming the block."""
+    ortho, det = rotation_defects(rotation)
+    return None if ortho <= ROTATION_TOLERANCE and det > 0 else not_a_rotation(float(ortho), float(det))
+
+
+def not_a_rotation(ortho: float, det: float) -> str:
+    """The message for a block that is not a rotation (its defects as :func:`rotation_defects` gives them)."""
+    return f"is not a rotation (max |R^T R - I| = {ortho:.3g}, det {det:.6g})"

@@ -28,7 +28,7 @@ from gtvo.datasets._common import (FloatArray, GrayImageLoader, interpolate_pose
 from gtvo.errors import InputError
 from gtvo.datasets.rectify import RawCamera, StereoRectification, stereo_rectification
 from gtvo.datasets.sequence import Sequence
-from gtvo.io.trajectory_files import rotation_block_error
+from gtvo.core.lie import rotation_block_error
 
 #: Left and right image timestamps closer than this (ns) form a pair.
 STEREO_TOLERANCE_NS = 1_000_000
@@ -108,7 +108,7 @@ def read_sensor_yaml(path: Path) -> tuple[RawCamera, FloatArray]:
 def _rigid_T_BS(values: FloatArray, path: Path) -> FloatArray:
     """``T_BS`` as a 4x4 rigid transform, or a one-line :class:`InputError` naming ``path``: the
     bottom row must be ``0 0 0 1`` and the rotation block a rotation
-    (:func:`gtvo.io.trajectory_files.rotation_block_error`; EuRoC's files: 6e-13 off)."""
+    (:func:`gtvo.core.lie.rotation_block_error`; EuRoC's files: 6e-13 off)."""
     T = np.asarray(values, dtype=np.float64).reshape(4, 4)
     if not np.allclose(T[3], [0.0, 0.0, 0.0, 1.0], rtol=0.0, atol=1e-9):
         raise InputError(f"T_BS bottom row is {T[3].tolist()}, expected [0, 0, 0, 1]", path=path)

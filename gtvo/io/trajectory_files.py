@@ -27,19 +27,17 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import NDArray
 
 from gtvo.io.atomic import write_text
 from gtvo.errors import InputError
 from gtvo.evaluation.trajectory import Trajectory
-from gtvo.core.lie import make_poses, quaternions_to_rotations
+from gtvo.core.lie import ROTATION_TOLERANCE, make_poses, not_a_rotation, quaternions_to_rotations, rotation_defects
 
 TrajectoryFormat = Literal["tum", "kitti", "euroc", "auto"]
 
 #: A quaternion on disk may deviate this much from unit norm (files print 4-9 digits).
 QUATERNION_NORM_TOLERANCE = 1e-3
-#: A KITTI rotation block R must satisfy max|R^T R - I| <= this and det(R) > 0.
-ROTATION_TOLERANCE = 1e-3
 
 
 def _read_rows(path: Path, delimiter: str | None) -> tuple[list[int], list[list[str]]]:
@@ -125,25 +123,6 @@ def read_times(path: str | Path) -> NDArray[np.float64]:
     return t
 
 
-def rotation_defects(rotations: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """``(max |R^T R - I|, det R)`` of (..., 3, 3) blocks: a block read from a file is taken as a
-    rotation when the first is at most :data:`ROTATION_TOLERANCE` and the second positive."""
-    R = np.asarray(rotations, dtype=np.float64)
-    ortho = np.max(np.abs(np.swapaxes(R, -1, -2) @ R - np.eye(3)), axis=(-2, -1))
-    return ortho, np.linalg.det(R)
-
-
-def rotation_block_error(rotation: ArrayLike) -> str | None:
-    """None when one 3x3 block is a rotation (:func:`rotation_defects`), else why it is not
-    (``"is not a rotation (max |R^T R - I| = ..., det ...)"``), for a message naming the block."""
-    ortho, det = rotation_defects(rotation)
-    return None if ortho <= ROTATION_TOLERANCE and det > 0 else _not_a_rotation(float(ortho), float(det))
-
-
-def _not_a_rotation(ortho: float, det: float) -> str:
-    return f"is not a rotation (max |R^T R - I| = {ortho:.3g}, det {det:.6g})"
-
-
 def read_kitti(path: str | Path, times_path: str | Path | None = None) -> Trajectory:
     """Read a KITTI pose file (12 values per line), with times from ``times_path`` if given.
 
@@ -160,7 +139,7 @@ def read_kitti(path: str | Path, times_path: str | Path | None = None) -> Trajec
     bad = (ortho > ROTATION_TOLERANCE) | (det <= 0)
     if np.any(bad):
         i = int(np.argmax(bad))
-        raise InputError(f"rotation block {_not_a_rotation(ortho[i], det[i])}", path=path, line=numbers[i])
+        raise InputError(f"rotation block {not_a_rotation(ortho[i], det[i])}", path=path, line=numbers[i])
     if times_path is None:
         t = np.arange(len(mat), dtype=np.float64)
     else:

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Literal, Sequence
+from typing import Literal, Protocol, Sequence
 
 import gtsam
 import numpy as np
@@ -11,6 +11,7 @@ from numpy.typing import NDArray
 
 from factors.gtsam_factors import DEFAULT_HUBER_K, DEFAULT_SIGMA_INTENSITY
 from factors.photometric import PATTERN_DSO8, GradientImage
+from gtvo.core.camera import PinholeCamera
 from gtvo.errors import InputError
 
 FloatArray = NDArray[np.float64]
@@ -212,3 +213,12 @@ class WindowResult:
     iterations: int
     seconds: float
     n_residuals: int
+
+
+class WindowState(Protocol):
+    """What a back end sees of the window it serves (:class:`gtvo.window.SlidingWindowOptimizer`)."""
+
+    camera: PinholeCamera
+    baseline: float | None
+    config: WindowConfig
+    keyframes: list[WindowKeyframe]

@@ -8,17 +8,12 @@ as docs/window.md ("Fixed-lag backend") describes.
 from __future__ import annotations
 
 import time
-from typing import TYPE_CHECKING
-
 import gtsam
 import numpy as np
 
 from factors.smart import HostPointsFactor
-from gtvo.window.config import WindowKeyframe, WindowResult, affine_key, pose_key
+from gtvo.window.config import WindowKeyframe, WindowResult, WindowState, affine_key, pose_key
 from gtvo.window.problem import host_factor, motion_factors, prior_factors
-
-if TYPE_CHECKING:
-    from gtvo.window.optimizer import SlidingWindowOptimizer
 
 
 class FixedLagBackend:
@@ -33,11 +28,11 @@ class FixedLagBackend:
         self._host_slots: dict[int, tuple[int, HostPointsFactor]] = {}  # kf index -> (factor index, factor)
         self._motion_added: set[tuple[int, ...]] = set()  # keyframe triples whose motion prior is in the smoother
 
-    def remove_oldest(self, window: SlidingWindowOptimizer) -> WindowKeyframe:
+    def remove_oldest(self, window: WindowState) -> WindowKeyframe:
         """Drop the oldest keyframe from the window's list: the smoother marginalises it at the next update."""
         return window.keyframes.pop(0)
 
-    def optimize(self, window: SlidingWindowOptimizer, targets: list[list[int]], solver: str = "gtsam") -> WindowResult:
+    def optimize(self, window: WindowState, targets: list[list[int]], solver: str = "gtsam") -> WindowResult:
         """One update of the fixed-lag smoother, then ``max_iterations - 1`` more (iSAM2 takes one
         Gauss-Newton step per update, relinearising every variable).
 

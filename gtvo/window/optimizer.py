@@ -14,7 +14,7 @@ from numpy.typing import NDArray
 
 from gtvo.core.camera import PinholeCamera
 from gtvo.errors import InputError
-from gtvo.window.config import MarginalPrior, WindowConfig, WindowKeyframe, WindowResult, WindowSolverName
+from gtvo.window.config import MarginalPrior, WindowConfig, WindowKeyframe, WindowResult, WindowSolverName, WindowState
 from gtvo.window.gtsam_solver import solve_gtsam
 from gtvo.window.handrolled import solve_handrolled, window_cost
 from gtvo.window.marginal import marginalize
@@ -98,14 +98,14 @@ class LMBackend:
     def __init__(self) -> None:
         self.marginal: MarginalPrior | None = None
 
-    def remove_oldest(self, window: SlidingWindowOptimizer) -> WindowKeyframe:
+    def remove_oldest(self, window: WindowState) -> WindowKeyframe:
         """Marginalise the oldest keyframe into :attr:`marginal` (or drop it, ``marginalize=False``)."""
         if window.config.marginalize:
             self.marginal = marginalize(window.camera, window.baseline, window.keyframes, window.config,
                                         self.marginal, 0)
         return window.keyframes.pop(0)
 
-    def optimize(self, window: SlidingWindowOptimizer, targets: list[list[int]],
+    def optimize(self, window: WindowState, targets: list[list[int]],
                  solver: WindowSolverName) -> WindowResult:
         """Solve the window with ``solver`` ("gtsam" or "handrolled"); keyframes updated in place."""
         solve = {"gtsam": solve_gtsam, "handrolled": solve_handrolled}.get(solver)
