@@ -1,8 +1,9 @@
 """The visual-odometry driver: frames in, poses out.
 
 :class:`VisualOdometry` is fed one :class:`gtvo.datasets.sequence.Frame` at a time (a user who imports
-gtvo as a backend does exactly this) and returns a :class:`FrameEstimate` per frame. The front
-end lives here; the residual math in :mod:`factors`, the trackers in :mod:`gtvo.frontend.tracking`:
+gtvo as a backend does exactly this) and returns a :class:`FrameEstimate` per frame. This module
+is the loop; the front end's parts live in :mod:`gtvo.frontend` (tracker, point selection, stereo
+depth, keyframe rule), the residual math in :mod:`factors`, the window in :mod:`gtvo.window`:
 
 * the first frame becomes a keyframe: points selected in the left image
   (:func:`gtvo.frontend.select_points`) get inverse depths and variances from stereo
@@ -12,7 +13,7 @@ end lives here; the residual math in :mod:`factors`, the trackers in :mod:`gtvo.
   constant-acceleration Kalman filter when it is available and chosen);
 * a new keyframe is made when the keyframe's points drift out of view, the motion relative to
   the keyframe grows large against the scene depth, or the brightness changes a lot (rule in
-  :class:`OdometryConfig` and docs/architecture.md);
+  :mod:`gtvo.frontend.keyframes`);
 * when tracking fails, the frame is re-initialised from stereo at the predicted pose and the run
   goes on; a frame with too few points for that (a blank or covered view) is *lost*: it keeps the
   predicted pose and the next frames are tracked against the keyframe again; both are counted;
@@ -27,7 +28,6 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from dataclasses import dataclass
 
 import gtsam
 import numpy as np
@@ -36,7 +36,7 @@ from numpy.typing import NDArray
 from factors.photometric import GradientImage
 from gtvo.core.camera import PinholeCamera, StereoCamera
 from gtvo.errors import InputError
-from gtvo.frontend import KeyframePoints, init_keyframe_points, optical_flow_pose, select_points
+from gtvo.frontend import KeyframePoints, init_keyframe_points, optical_flow_pose
 from gtvo.core.image import to_float_gray
 from gtvo.datasets.sequence import Frame
 from gtvo.frontend.tracking import (TrackingKeyframe, TrackingResult, frame_pyramid, track_gtsam, track_handrolled,
@@ -44,64 +44,10 @@ from gtvo.frontend.tracking import (TrackingKeyframe, TrackingResult, frame_pyra
 from gtvo.evaluation.trajectory import Trajectory
 from gtvo.frontend.stereo_affine import estimate_stereo_affine
 from gtvo.config import OdometryConfig
+from gtvo.frontend.keyframes import KeyframeRule, needs_keyframe
+from gtvo.frontend.rgbd import rgbd_keyframe_points
+from gtvo.odometry.estimates import FrameEstimate, FrameOutcome, Keyframe
 from gtvo.window import SlidingWindowOptimizer, WindowKeyframe, WindowResult
-
-@dataclass(frozen=True)
-class FrameEstimate:
-    """What the VO says about one frame.
-
-    Attributes:
-        index, timestamp: the frame's.
-        T_world_cam: the left camera's pose (4x4). In window mode it is rewritten whenever the
-            window moves the frame's keyframe (``T_world_keyframe * T_keyframe_frame``).
-        is_keyframe: True when the frame became a keyframe.
-        tracking: the tracker's result (None for keyframes made without tracking: the first
-            frame and re-initialisations).
-        reinitialised: True when tracking failed and the frame was re-initialised.
-        seconds: wall time spent on the frame.
-        keyframe_index: the frame index of the keyframe it was tracked against (its own index
-            when it was made a keyframe without tracking).
-        lost: True when tracking failed and the frame could not be re-initialised either (too few
-            points with a depth: a blank, covered or textureless view). Its pose is the motion
-            model's prediction (relative to ``keyframe_index``, re-expressed when the window moves
-            that keyframe), ``tracking`` holds the failed attempt, and no keyframe is made from it:
-            the next frames are tracked against the latest keyframe (which may be the frame before
-            it, promoted when it failed) again.
-        T_keyframe_frame: a frame that is not a keyframe: its pose relative to ``keyframe_index``
-            (tracked, or predicted when it is lost), from which ``T_world_cam`` is re-expressed.
-    """
-
-    index: int
-    timestamp: float
-    T_world_cam: NDArray[np.float64]
-    is_keyframe: bool
-    tracking: TrackingResult | None
-    reinitialised: bool
-    seconds: float
-    keyframe_index: int = -1
-    lost: bool = False
-    T_keyframe_frame: gtsam.Pose3 | None = None
-
-
-@dataclass
-class Keyframe:
-    """A keyframe: its pose, its points (hosted in it) and its tracking pyramid.
-
-    Each keyframe is its own brightness reference: the affine brightness ``(a, b)`` a tracked
-    frame gets is relative to its keyframe, so brightness errors do not chain from keyframe
-    to keyframe.
-    """
-
-    index: int
-    T_world_cam: gtsam.Pose3
-    points: KeyframePoints
-    #: the tracker's data (pyramid samples of the points) and the left image (grey levels, the
-    #: optical-flow fallback's reference) while this is the latest keyframe, the only one frames
-    #: are tracked against; both are dropped when the next keyframe is made, so a long run keeps
-    #: only each keyframe's pose and points
-    tracker: TrackingKeyframe | None
-    image: NDArray[np.float32] | None = None
-
 
 class VisualOdometry:
     """Frame-to-keyframe direct stereo (or RGB-D) odometry.
@@ -138,6 +84,9 @@ class VisualOdometry:
         self.flow_recoveries = 0
         self.lost_frames = 0
         self.window_results: list[WindowResult] = []
+        self._keyframe_rule = KeyframeRule(self.config.keyframe_min_visible, self.config.keyframe_max_motion,
+                                           self.config.keyframe_max_flow, self.config.keyframe_max_rotation_deg,
+                                           self.config.keyframe_max_brightness)
         self._previous: tuple[Frame, NDArray[np.float32]] | None = None
         self._kalman = None
         self._keyframe_by_index: dict[int, Keyframe] = {}
@@ -167,8 +116,11 @@ class VisualOdometry:
             raise InputError(f"frame {frame.index}: timestamp {frame.timestamp} is not after the previous frame's")
         left = to_float_gray(frame.left, f"frame {frame.index} left image")
         if not self.keyframes:
-            kf = self._make_keyframe(frame, left, gtsam.Pose3())
-            return self._finish(frame, left, kf.T_world_cam, True, None, False, t0)
+            try:
+                kf = self._make_keyframe(frame, left, gtsam.Pose3())
+            except _TooFewPoints as exc:  # nothing can start from the first frame
+                raise InputError(str(exc)) from None
+            return self._finish(frame, left, kf.T_world_cam, FrameOutcome.KEYFRAME, None, t0)
 
         kf = self.keyframes[-1]
         assert kf.tracker is not None  # the latest keyframe keeps its tracker
@@ -201,18 +153,19 @@ class VisualOdometry:
             new_kf = self._make_keyframe_if_possible(frame, left, T_pred)
             if new_kf is None:  # nothing to re-initialise from: the frame is lost
                 self.lost_frames += 1
-                return self._finish(frame, left, T_pred, False, result, False, t0, lost=True,
+                return self._finish(frame, left, T_pred, FrameOutcome.LOST, result, t0,
                                     T_keyframe_frame=kf.T_world_cam.between(T_pred))
-            return self._finish(frame, left, new_kf.T_world_cam, True, result, True, t0)
+            return self._finish(frame, left, new_kf.T_world_cam, FrameOutcome.REINITIALISED, result, t0)
 
         T_world = kf.T_world_cam.compose(result.T_keyframe_frame)
-        if self._needs_keyframe(kf, result):
+        if needs_keyframe(self.pinhole, kf.points, result, self._keyframe_rule):
             new_kf = self._make_keyframe_if_possible(frame, left, T_world, (kf.index, result.affine))
             if new_kf is not None:
-                return self._finish(frame, left, new_kf.T_world_cam, True, result, False, t0)
-            return self._finish(frame, left, T_world, False, result, False, t0, candidate=False,
+                return self._finish(frame, left, new_kf.T_world_cam, FrameOutcome.KEYFRAME, result, t0)
+            return self._finish(frame, left, T_world, FrameOutcome.TRACKED, result, t0, candidate=False,
                                 T_keyframe_frame=result.T_keyframe_frame)
-        return self._finish(frame, left, T_world, False, result, False, t0, T_keyframe_frame=result.T_keyframe_frame)
+        return self._finish(frame, left, T_world, FrameOutcome.TRACKED, result, t0,
+                            T_keyframe_frame=result.T_keyframe_frame)
 
     def trajectory(self, name: str = "gtvo") -> Trajectory:
         """The estimated left-camera trajectory so far (every frame)."""
@@ -289,22 +242,6 @@ class VisualOdometry:
         # constant velocity, scaled to the time step
         xi = gtsam.Pose3.Logmap(prev.between(last)) * (dt / dt_prev if dt_prev > 0 else 1.0)
         return last.compose(gtsam.Pose3.Expmap(xi))
-
-    def _needs_keyframe(self, kf: Keyframe, result: TrackingResult) -> bool:
-        cfg = self.config
-        n = len(kf.points)
-        if result.n_valid < cfg.keyframe_min_visible * n:
-            return True
-        T = result.T_keyframe_frame
-        med_d = float(np.median(kf.points.inverse_depth))
-        if float(np.linalg.norm(T.translation())) * med_d > cfg.keyframe_max_motion:
-            return True
-        if translation_flow_rms(self.pinhole, kf.points, T.translation()) > cfg.keyframe_max_flow * (
-                self.pinhole.width + self.pinhole.height):
-            return True
-        if np.degrees(np.linalg.norm(gtsam.Rot3.Logmap(T.rotation()))) > cfg.keyframe_max_rotation_deg:
-            return True
-        return abs(float(result.affine[0])) > cfg.keyframe_max_brightness
 
     def _frame_points(self, frame: Frame, left: NDArray[np.float32]) -> KeyframePoints:
         cfg = self.config
@@ -418,19 +355,21 @@ class VisualOdometry:
 
     def _mark_last_as_keyframe(self) -> None:
         """Record that the previous frame was promoted to a keyframe."""
-        self.estimates[-1] = dataclasses.replace(self.estimates[-1], is_keyframe=True)
+        self.estimates[-1] = dataclasses.replace(self.estimates[-1], outcome=FrameOutcome.KEYFRAME)
 
-    def _finish(self, frame: Frame, left: NDArray[np.float32], T_world_cam: gtsam.Pose3, is_kf: bool,
-                result: TrackingResult | None, reinit: bool, t0: float, lost: bool = False,
-                candidate: bool = True, T_keyframe_frame: gtsam.Pose3 | None = None) -> FrameEstimate:
+    def _finish(self, frame: Frame, left: NDArray[np.float32], T_world_cam: gtsam.Pose3, outcome: FrameOutcome,
+                result: TrackingResult | None, t0: float, candidate: bool = True,
+                T_keyframe_frame: gtsam.Pose3 | None = None) -> FrameEstimate:
         """Record the frame's estimate. ``candidate``: the frame may be promoted to a keyframe by
         the next frame (not when it is lost or just failed to become one); ``T_keyframe_frame``:
         a non-keyframe's pose relative to its keyframe."""
-        kf_index = self.keyframes[-1].index if result is not None and not reinit else frame.index
-        if result is not None and not reinit and is_kf:  # tracked against the keyframe before this one
+        tracked = result is not None and outcome is not FrameOutcome.REINITIALISED
+        kf_index = self.keyframes[-1].index if tracked else frame.index
+        if tracked and outcome is FrameOutcome.KEYFRAME:  # tracked against the keyframe before this one
             kf_index = self.keyframes[-2].index
-        est = FrameEstimate(frame.index, float(frame.timestamp), T_world_cam.matrix(), is_kf, result, reinit,
-                            time.perf_counter() - t0, kf_index, lost, T_keyframe_frame)
+        lost = outcome is FrameOutcome.LOST
+        est = FrameEstimate(frame.index, float(frame.timestamp), T_world_cam.matrix(), outcome, result,
+                            time.perf_counter() - t0, kf_index, T_keyframe_frame)
         self.estimates.append(est)
         self._previous = (frame, left) if candidate and not lost else None
         if self._kalman is not None:
@@ -446,8 +385,8 @@ class VisualOdometry:
         return est
 
 
-class _TooFewPoints(InputError):
-    """A frame cannot host a keyframe: too few points with a depth."""
+class _TooFewPoints(Exception):
+    """Control flow: a frame cannot host a keyframe (too few points with a depth)."""
 
 
 _BLAS_CONTROLLER = None
@@ -463,20 +402,6 @@ def _single_threaded_blas():
     return _BLAS_CONTROLLER.limit(limits=1, user_api="blas")
 
 
-def translation_flow_rms(camera: PinholeCamera, points: KeyframePoints, t_keyframe_frame: NDArray) -> float:
-    """RMS displacement (px) of a keyframe's points caused by the translation alone.
-
-    A point ``X`` of the keyframe is at ``X - t`` in a frame translated by ``t`` (rotation
-    ignored: rotation alone gives no parallax, so it is no reason for a new keyframe).
-    """
-    X = camera.backproject_inverse_depth(points.pixels, points.inverse_depth)
-    uv, ok = camera.project(X - np.asarray(t_keyframe_frame, dtype=float).reshape(1, 3))
-    if not np.any(ok):
-        return float("inf")
-    d = uv[ok] - points.pixels[ok]
-    return float(np.sqrt(np.mean(np.sum(d * d, axis=1))))
-
-
 def rigid_pose(T: NDArray[np.float64]) -> gtsam.Pose3:
     """A ``Pose3`` from a 4x4 matrix, its rotation projected onto SO(3).
 
@@ -487,20 +412,3 @@ def rigid_pose(T: NDArray[np.float64]) -> gtsam.Pose3:
     return gtsam.Pose3(gtsam.Rot3.ClosestTo(np.asarray(T[:3, :3], dtype=np.float64)), np.asarray(T[:3, 3], dtype=np.float64))
 
 
-def rgbd_keyframe_points(image: NDArray[np.float32], depth: NDArray[np.float32], target: int,
-                         sigma_model: tuple[float, float] = (0.0012, 0.0019)) -> KeyframePoints:
-    """Keyframe points from an RGB-D frame: selected pixels with the sensor's depth.
-
-    The depth noise ``sigma_z = s0 + s2 z^2`` (structured-light sensors) becomes an inverse-depth
-    variance ``V = sigma_z^2 / z^4`` (first-order propagation through ``d = 1/z``).
-    """
-    px = select_points(image, target=target)
-    iu = np.rint(px[:, 0]).astype(np.intp)
-    iv = np.rint(px[:, 1]).astype(np.intp)
-    z = np.asarray(depth, dtype=np.float64)[iv, iu]
-    ok = np.isfinite(z) & (z > 0.1) & (z < 10.0)
-    px, z = px[ok], z[ok]
-    s0, s2 = sigma_model
-    sigma = s0 + s2 * z * z
-    return KeyframePoints(pixels=px, inverse_depth=1.0 / z, variance=(sigma * sigma) / z ** 4,
-                          intensity=np.asarray(image, dtype=np.float64)[iv[ok], iu[ok]])

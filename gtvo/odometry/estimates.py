@@ -1,0 +1,100 @@
+"""What the odometry says about each frame (:class:`FrameEstimate`, one :class:`FrameOutcome`) and its keyframes."""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+
+import gtsam
+import numpy as np
+from numpy.typing import NDArray
+
+from gtvo.frontend.stereo_depth import KeyframePoints
+from gtvo.frontend.tracking import TrackingKeyframe, TrackingResult
+
+
+class FrameOutcome(enum.Enum):
+    """How a frame was handled: one value per frame.
+
+    * ``TRACKED``: tracked against the latest keyframe.
+    * ``KEYFRAME``: made a keyframe (the first frame, or a tracked frame the keyframe rule chose, or
+      a frame promoted when the next one could not be tracked against the old keyframe).
+    * ``REINITIALISED``: tracking failed and the frame became a keyframe at the motion model's
+      prediction (counted as a tracking failure).
+    * ``LOST``: tracking failed and the frame could not host a keyframe either (too few points
+      with a depth); its pose is the prediction (counted as a tracking failure).
+    """
+
+    TRACKED = "tracked"
+    KEYFRAME = "keyframe"
+    REINITIALISED = "reinitialised"
+    LOST = "lost"
+
+
+@dataclass(frozen=True)
+class FrameEstimate:
+    """What the VO says about one frame.
+
+    Attributes:
+        index, timestamp: the frame's.
+        T_world_cam: the left camera's pose (4x4). In window mode it is rewritten whenever the
+            window moves the frame's keyframe (``T_world_keyframe * T_keyframe_frame``).
+        outcome: how the frame was handled (:class:`FrameOutcome`); :attr:`is_keyframe`,
+            :attr:`reinitialised` and :attr:`lost` are read from it.
+        tracking: the tracker's result (None for keyframes made without tracking: the first
+            frame and re-initialisations).
+        seconds: wall time spent on the frame.
+        keyframe_index: the frame index of the keyframe it was tracked against (its own index
+            when it was made a keyframe without tracking).
+        T_keyframe_frame: a frame that is not a keyframe: its pose relative to ``keyframe_index``
+            (tracked, or predicted when it is lost), from which ``T_world_cam`` is re-expressed.
+    """
+
+    index: int
+    timestamp: float
+    T_world_cam: NDArray[np.float64]
+    outcome: FrameOutcome
+    tracking: TrackingResult | None
+    seconds: float
+    keyframe_index: int = -1
+    T_keyframe_frame: gtsam.Pose3 | None = None
+
+    @property
+    def is_keyframe(self) -> bool:
+        """True when the frame became a keyframe (``KEYFRAME`` or ``REINITIALISED``)."""
+        return self.outcome in (FrameOutcome.KEYFRAME, FrameOutcome.REINITIALISED)
+
+    @property
+    def reinitialised(self) -> bool:
+        """True when tracking failed and the frame was re-initialised as a keyframe."""
+        return self.outcome is FrameOutcome.REINITIALISED
+
+    @property
+    def lost(self) -> bool:
+        """True when tracking failed and the frame could not be re-initialised either (too few
+        points with a depth: a blank, covered or textureless view). Its pose is the motion
+        model's prediction (relative to ``keyframe_index``, re-expressed when the window moves
+        that keyframe), ``tracking`` holds the failed attempt, and no keyframe is made from it:
+        the next frames are tracked against the latest keyframe (which may be the frame before
+        it, promoted when it failed) again."""
+        return self.outcome is FrameOutcome.LOST
+
+
+@dataclass
+class Keyframe:
+    """A keyframe: its pose, its points (hosted in it) and its tracking pyramid.
+
+    Each keyframe is its own brightness reference: the affine brightness ``(a, b)`` a tracked
+    frame gets is relative to its keyframe, so brightness errors do not chain from keyframe
+    to keyframe.
+    """
+
+    index: int
+    T_world_cam: gtsam.Pose3
+    points: KeyframePoints
+    #: the tracker's data (pyramid samples of the points) and the left image (grey levels, the
+    #: optical-flow fallback's reference) while this is the latest keyframe, the only one frames
+    #: are tracked against; both are dropped when the next keyframe is made, so a long run keeps
+    #: only each keyframe's pose and points
+    tracker: TrackingKeyframe | None
+    image: NDArray[np.float32] | None = None
