@@ -8,13 +8,14 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-import gtvo.datasets.synthetic as synthetic
+import gtvo.datasets.synthetic_scene as synthetic_scene
 from gtvo.io.atomic import DIR_MARKER
 from gtvo.core.camera import PinholeCamera
 from gtvo.errors import InputError
 from gtvo.core.image import bilinear_sample
 from gtvo.datasets.sequence import Sequence
-from gtvo.datasets.synthetic import (SyntheticScene, SyntheticSequence, make_synthetic_sequence, synthetic_trajectory,
+from gtvo.datasets.synthetic_scene import SyntheticScene
+from gtvo.datasets.synthetic import (SyntheticSequence, make_synthetic_sequence, synthetic_trajectory,
                             write_sequence_kitti)
 
 
@@ -51,7 +52,7 @@ def warp_consistency(seq: SyntheticSequence, i: int, j: int) -> tuple[np.ndarray
 
 def test_same_seed_gives_byte_identical_images():
     a = make_synthetic_sequence(n_frames=4, seed=3, noise_sigma=2.0, exposure_change=True)
-    synthetic._cached_scene.cache_clear()  # rebuild the textures too, not only reuse the cached scene
+    synthetic_scene._cached_scene.cache_clear()  # rebuild the textures too, not only reuse the cached scene
     b = make_synthetic_sequence(n_frames=4, seed=3, noise_sigma=2.0, exposure_change=True)
     assert a.scene is not b.scene
     for i in (3, 0):  # rendering order does not matter either

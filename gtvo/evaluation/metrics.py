@@ -5,8 +5,8 @@
   estimate to the reference with ``"se3"``, ``"sim3"``, ``"origin"`` or ``"none"``.
 * :func:`rpe`: relative pose error ``E = (Q_i^-1 Q_j)^-1 (P_i^-1 P_j)`` over consecutive pairs
   (evo's RPE), translation in metres and rotation in degrees.
-* :func:`drift_percent`: final position error after aligning the first pose, per path length.
-* :func:`kitti_segment_errors`: the KITTI odometry devkit's segment metric (% and deg/100 m).
+* :func:`drift_percent` and :func:`kitti_segment_errors` (the KITTI devkit's segment metric) live in
+  :mod:`gtvo.evaluation.drift` and are imported here too.
 
 Every function takes two trajectories that are already associated pose by pose (same length,
 ``est`` pose k belongs to ``ref`` pose k): call :func:`gtvo.evaluation.trajectory.synchronize` first.
@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Literal, Sequence
+from typing import Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -24,15 +24,17 @@ from numpy.typing import ArrayLike, NDArray
 from gtvo.errors import InputError
 from gtvo.evaluation.trajectory import FloatArray, Trajectory
 from gtvo.core.lie import invert_poses, rotation_angle
+from gtvo.evaluation.alignment import (Alignment, SimilarityTransform, align_trajectory, check_pair,
+                                       umeyama_alignment)
+from gtvo.evaluation.drift import KITTI_SEGMENT_LENGTHS, KittiSegmentResult, drift_percent, kitti_segment_errors
 
-Alignment = Literal["se3", "sim3", "origin", "none"]
 DeltaUnit = Literal["frames", "m"]
 PairsFrom = Literal["est", "ref"]
 
-#: Umeyama is degenerate when singular value 2 of the covariance is <= this times singular value 1.
-DEGENERATE_SINGULAR_RATIO = 1e-12
-#: The KITTI odometry benchmark's segment lengths in metres.
-KITTI_SEGMENT_LENGTHS: tuple[float, ...] = (100.0, 200.0, 300.0, 400.0, 500.0, 600.0, 700.0, 800.0)
+__all__ = ["ATEResult", "Alignment", "DeltaUnit", "ErrorStatistics", "KITTI_SEGMENT_LENGTHS", "KittiSegmentResult",
+           "RPEResult", "SimilarityTransform", "align_trajectory", "ate", "drift_percent", "kitti_segment_errors",
+           "pairs_by_frames", "pairs_by_path", "relative_pose_errors", "rpe", "umeyama_alignment"]
+
 
 
 # ---------------------------------------------------------------------------------------------
@@ -74,112 +76,6 @@ class ErrorStatistics:
 
 
 # ---------------------------------------------------------------------------------------------
-# Umeyama alignment
-# ---------------------------------------------------------------------------------------------
-
-@dataclass(frozen=True)
-class SimilarityTransform:
-    """``x -> scale * rotation @ x + translation`` (scale 1 for a rigid transform)."""
-
-    rotation: FloatArray
-    translation: FloatArray
-    scale: float = 1.0
-
-    def matrix(self) -> FloatArray:
-        """The 4x4 matrix ``[[scale R, t], [0, 1]]``."""
-        M = np.eye(4)
-        M[:3, :3] = self.scale * self.rotation
-        M[:3, 3] = self.translation
-        return M
-
-    def rigid_matrix(self) -> FloatArray:
-        """The 4x4 rigid part ``[[R, t], [0, 1]]`` (what :meth:`Trajectory.transform` takes)."""
-        M = np.eye(4)
-        M[:3, :3] = self.rotation
-        M[:3, 3] = self.translation
-        return M
-
-    def apply(self, points: ArrayLike) -> FloatArray:
-        """Transform (N, 3) points."""
-        return self.scale * np.asarray(points, dtype=np.float64) @ self.rotation.T + self.translation
-
-    def apply_to(self, traj: Trajectory) -> Trajectory:
-        """Transform a trajectory: positions by the similarity, rotations by ``R`` only."""
-        return traj.transform(self.rigid_matrix(), self.scale)
-
-
-def umeyama_alignment(src: ArrayLike, dst: ArrayLike, with_scale: bool = False) -> SimilarityTransform:
-    """Least-squares ``(R, t, s)`` minimising ``sum_i |dst_i - (s R src_i + t)|^2`` (Umeyama 1991).
-
-    Args:
-        src, dst: (N, 3) corresponding points (N >= 3).
-        with_scale: estimate the scale ``s`` (Sim(3)); otherwise ``s = 1`` (SE(3)).
-
-    With means ``mu_s, mu_d``, variance ``sigma_s^2 = mean |src_i - mu_s|^2`` and covariance
-    ``C = mean (dst_i - mu_d)(src_i - mu_s)^T = U D V^T``: ``S = diag(1, 1, det(U) det(V))``,
-    ``R = U S V^T``, ``s = trace(D S) / sigma_s^2``, ``t = mu_d - s R mu_s``.
-
-    Raises:
-        InputError: shapes differ, fewer than 3 points, non-finite values, or degenerate
-            geometry: the second singular value of ``C`` is not above
-            :data:`DEGENERATE_SINGULAR_RATIO` times the first (all points on one line or in one
-            point: the rotation about that line is not determined; evo rejects these too, with
-            an absolute threshold).
-    """
-    X = np.asarray(src, dtype=np.float64)
-    Y = np.asarray(dst, dtype=np.float64)
-    if X.shape != Y.shape or X.ndim != 2 or X.shape[1] != 3:
-        raise InputError(f"umeyama_alignment needs two (N, 3) arrays of the same shape, got {X.shape} and {Y.shape}")
-    n = X.shape[0]
-    if n < 3:
-        raise InputError(f"umeyama_alignment needs at least 3 point pairs, got {n}")
-    if not (np.all(np.isfinite(X)) and np.all(np.isfinite(Y))):
-        raise InputError("umeyama_alignment: points contain NaN or infinite values")
-    mu_x, mu_y = X.mean(axis=0), Y.mean(axis=0)
-    Xc, Yc = X - mu_x, Y - mu_y
-    sigma_x = float(np.sum(Xc * Xc)) / n
-    cov = Yc.T @ Xc / n
-    U, d, Vt = np.linalg.svd(cov)
-    if not d[1] > DEGENERATE_SINGULAR_RATIO * d[0]:
-        raise InputError("umeyama_alignment: degenerate point sets (covariance rank < 2, e.g. collinear "
-                         "or a single point); the alignment is not unique")
-    S = np.eye(3)
-    if np.linalg.det(U) * np.linalg.det(Vt) < 0.0:
-        S[2, 2] = -1.0
-    R = U @ S @ Vt
-    s = float(np.sum(d * np.diag(S)) / sigma_x) if with_scale else 1.0
-    t = mu_y - s * R @ mu_x
-    return SimilarityTransform(R, t, s)
-
-
-def _check_pair(est: Trajectory, ref: Trajectory, what: str) -> None:
-    if len(est) != len(ref):
-        raise InputError(f"{what}: estimate has {len(est)} poses but reference has {len(ref)}; "
-                         "associate them first (gtvo.evaluation.trajectory.synchronize)")
-
-
-def align_trajectory(est: Trajectory, ref: Trajectory,
-                     align: Alignment = "se3") -> tuple[Trajectory, SimilarityTransform]:
-    """The estimate mapped into the reference's world, and the transform used.
-
-    ``"se3"``/``"sim3"``: Umeyama on the positions (all pose pairs). ``"origin"``: the rigid
-    transform ``T_ref[0] T_est[0]^-1`` that puts the first estimated pose onto the first
-    reference pose. ``"none"``: identity.
-    """
-    _check_pair(est, ref, "align_trajectory")
-    if align in ("se3", "sim3"):
-        S = umeyama_alignment(est.positions, ref.positions, with_scale=(align == "sim3"))
-    elif align == "origin":
-        M = ref.poses[0] @ invert_poses(est.poses[0])
-        S = SimilarityTransform(M[:3, :3].copy(), M[:3, 3].copy(), 1.0)
-    elif align == "none":
-        S = SimilarityTransform(np.eye(3), np.zeros(3), 1.0)
-    else:
-        raise InputError(f"unknown alignment {align!r}: use 'se3', 'sim3', 'origin' or 'none'")
-    return S.apply_to(est), S
-
-
-# ---------------------------------------------------------------------------------------------
 # ATE
 # ---------------------------------------------------------------------------------------------
 
@@ -217,7 +113,7 @@ def ate(est: Trajectory, ref: Trajectory, align: Alignment = "se3") -> ATEResult
     The estimate is aligned to the reference (:func:`align_trajectory`), then per pose the
     translation error ``|p_est_i' - p_ref_i|`` and the rotation angle of ``R_est_i'^T R_ref_i``.
     """
-    _check_pair(est, ref, "ate")
+    check_pair(est, ref, "ate")
     aligned, S = align_trajectory(est, ref, align)
     t_err = np.linalg.norm(aligned.positions - ref.positions, axis=1)
     E_rot = np.einsum("nji,njk->nik", aligned.rotations, ref.rotations)
@@ -331,7 +227,7 @@ def rpe(est: Trajectory, ref: Trajectory, delta: float = 1, delta_unit: DeltaUni
     Raises:
         InputError: lengths differ, bad delta, or no pair fits.
     """
-    _check_pair(est, ref, "rpe")
+    check_pair(est, ref, "rpe")
     if delta_unit == "frames":
         if float(delta) != int(delta):
             raise InputError(f"RPE delta in frames must be an integer, got {delta!r}")
@@ -351,100 +247,3 @@ def rpe(est: Trajectory, ref: Trajectory, delta: float = 1, delta_unit: DeltaUni
     r_err = np.degrees(rotation_angle(E[:, :3, :3]))
     return RPEResult(pairs, t_err, r_err, ref.timestamps[pairs[:, 1]].copy(), ErrorStatistics.of(t_err),
                      ErrorStatistics.of(r_err), float(delta), delta_unit)
-
-
-# ---------------------------------------------------------------------------------------------
-# Drift and the KITTI segment metric
-# ---------------------------------------------------------------------------------------------
-
-def drift_percent(est: Trajectory, ref: Trajectory) -> float:
-    """Final position error after aligning the first pose, in percent of the reference path length.
-
-    ``est' = T_ref[0] T_est[0]^-1 est`` (the ``"origin"`` alignment: first poses coincide), then
-    ``100 * |p_est'[-1] - p_ref[-1]| / L`` with ``L`` the reference's path length.
-
-    Raises:
-        InputError: lengths differ or the reference does not move (``L = 0``).
-    """
-    _check_pair(est, ref, "drift_percent")
-    length = ref.path_length()
-    if not length > 0:
-        raise InputError("drift_percent: the reference path length is 0 (it does not move)")
-    aligned, _ = align_trajectory(est, ref, "origin")
-    return float(100.0 * np.linalg.norm(aligned.positions[-1] - ref.positions[-1]) / length)
-
-
-@dataclass(frozen=True)
-class KittiSegmentResult:
-    """The KITTI devkit's segment errors.
-
-    Attributes:
-        translation_percent: mean over all segments of ``t_err / len``, times 100.
-        rotation_deg_per_100m: mean over all segments of ``r_err / len`` (rad/m), in deg per 100 m.
-        first_frames, segment_lengths: (K,) the segments' first frame and nominal length (m).
-        last_frames: (K,) their last frame.
-        translation_ratios: (K,) ``t_err / len`` (unitless).
-        rotation_rad_per_m: (K,) ``r_err / len``.
-        per_length: ``{length: (translation_percent, rotation_deg_per_100m, count)}`` for each
-            length with at least one segment.
-    """
-
-    translation_percent: float
-    rotation_deg_per_100m: float
-    first_frames: NDArray[np.int64]
-    last_frames: NDArray[np.int64]
-    segment_lengths: FloatArray
-    translation_ratios: FloatArray
-    rotation_rad_per_m: FloatArray
-    per_length: dict[float, tuple[float, float, int]]
-
-
-def kitti_segment_errors(est: Trajectory, ref: Trajectory, lengths: Sequence[float] = KITTI_SEGMENT_LENGTHS,
-                         step: int = 10) -> KittiSegmentResult | None:
-    """The KITTI odometry devkit's metric (``evaluate_odometry.cpp``, ``calcSequenceErrors``).
-
-    ``dist`` is the reference's accumulated path length (:meth:`Trajectory.distances`). For
-    every ``step``-th first frame ``f`` and every length ``L``, the last frame is the first
-    ``l >= f`` with ``dist[l] > dist[f] + L``; segments without one are skipped. Then
-    ``E = (P_f^-1 P_l)^-1 (Q_f^-1 Q_l)`` (``P`` estimate, ``Q`` reference), ``t_err = |trans(E)|``,
-    ``r_err = acos(clip((trace(rot E) - 1) / 2, -1, 1))``, each divided by ``L``; the results are
-    the means over all segments (``t`` times 100 in %, ``r`` in degrees per 100 m). The devkit
-    computes in single precision; this uses double.
-
-    For short trajectories pass smaller ``lengths`` (e.g. ``(5, 10, 20)``): the benchmark's
-    100..800 m need a path longer than 100 m.
-
-    Returns:
-        The result, or ``None`` when no segment of any length fits in the trajectory.
-
-    Raises:
-        InputError: lengths differ, a length is not positive, or ``step < 1``.
-    """
-    _check_pair(est, ref, "kitti_segment_errors")
-    L = np.asarray(lengths, dtype=np.float64).reshape(-1)
-    if L.size == 0 or not np.all(np.isfinite(L)) or np.any(L <= 0):
-        raise InputError(f"kitti_segment_errors: lengths must be positive numbers, got {list(lengths)}")
-    if int(step) < 1:
-        raise InputError(f"kitti_segment_errors: step must be >= 1, got {step}")
-    dist = ref.distances()
-    first = np.arange(0, len(ref), int(step), dtype=np.int64)
-    F, LL = np.meshgrid(first, L, indexing="ij")  # (n_first, n_lengths)
-    last = np.searchsorted(dist, dist[F] + LL, side="right")  # first index with dist > dist[f] + L
-    ok = last < len(ref)
-    if not np.any(ok):
-        return None
-    f, l, seg = F[ok], last[ok].astype(np.int64), LL[ok]
-    delta_ref = invert_poses(ref.poses[f]) @ ref.poses[l]
-    delta_est = invert_poses(est.poses[f]) @ est.poses[l]
-    E = invert_poses(delta_est) @ delta_ref
-    t_err = np.linalg.norm(E[:, :3, 3], axis=1) / seg
-    c = 0.5 * (E[:, 0, 0] + E[:, 1, 1] + E[:, 2, 2] - 1.0)
-    r_err = np.arccos(np.clip(c, -1.0, 1.0)) / seg
-    per_length: dict[float, tuple[float, float, int]] = {}
-    for length in L:  # one entry per requested length, not per segment
-        m = seg == length
-        if np.any(m):
-            per_length[float(length)] = (float(100.0 * np.mean(t_err[m])),
-                                         float(np.degrees(np.mean(r_err[m])) * 100.0), int(np.sum(m)))
-    return KittiSegmentResult(float(100.0 * np.mean(t_err)), float(np.degrees(np.mean(r_err)) * 100.0),
-                              f, l, seg, t_err, r_err, per_length)
