@@ -24,8 +24,9 @@ import gtsam
 import numpy as np
 from numpy.typing import ArrayLike
 
-from factors.photometric import (PATTERN_DSO8, GradientSampler, huber_loss, huber_weight, pattern_bearings,
-                                 photometric_residuals, sample_host, stereo_residuals, variance_weight)
+from factors.photometric import (PATTERN_DSO8, GradientSampler, pattern_bearings, photometric_residuals, sample_host,
+                                 stereo_residuals)
+from factors.weights import huber_loss, huber_weight, variance_weight
 from gtvo.core.camera import PinholeCamera
 from gtvo.errors import InputError
 

@@ -14,7 +14,8 @@ import pytest
 from factors.gtsam_factors import (ConstantVelocityFactor, InverseDepthSmoothnessFactor, MotionSmoothnessFactor,
                                    PhotometricBatchFactor, PhotometricFactor, StereoFactor, edge_aware_weight,
                                    huber_loss)
-from factors.photometric import PATTERN_DSO8, photometric_residuals, sample_host, variance_weight
+from factors.photometric import PATTERN_DSO8, photometric_residuals, sample_host
+from factors.weights import variance_weight
 from gtvo.errors import InputError
 from tests._factors_synthetic import SinusoidImage, numeric_jacobians, small_camera
 

@@ -33,8 +33,8 @@ import scipy.linalg
 from numpy.typing import ArrayLike, NDArray
 
 from factors.gtsam_factors import PhotometricBatchFactor
-from factors.photometric import (PATTERN_DSO8, GradientImage, huber_loss, pattern_bearings, photometric_residuals,
-                                 point_robust_terms, sample_host, variance_weight)
+from factors.photometric import PATTERN_DSO8, GradientImage, pattern_bearings, photometric_residuals, sample_host
+from factors.weights import huber_loss, point_robust_terms, variance_weight
 from gtvo.core.camera import PinholeCamera
 from gtvo.errors import InputError, TrackingFailure
 from gtvo.core.image import build_pyramid
