@@ -21,8 +21,8 @@ def _problem(seed: int = 0, stereo: bool = True, n: int = 40):
     px = np.c_[rng.uniform(25, 135, n), rng.uniform(25, 95, n)]
     d = rng.uniform(0.2, 1.5, n)
     V = rng.uniform(1e-4, 1e-2, n)
-    pts = HostPoints(cam, px, SinusoidImage(seed=seed + 1), [SinusoidImage(seed=seed + 2), SinusoidImage(seed=seed + 3)],
-                     V, d * (1 + 0.05 * rng.normal(size=n)), sigma_intensity=8.0, huber_k=2.0, pattern=PATTERN_DSO8,
+    targets = [SinusoidImage(seed=seed + 2), SinusoidImage(seed=seed + 3)]
+    pts = HostPoints(cam, px, SinusoidImage(seed=seed + 1), targets, V, d * (1 + 0.05 * rng.normal(size=n)), sigma_intensity=8.0, huber_k=2.0, pattern=PATTERN_DSO8,
                      depth_prior=True, right_image=SinusoidImage(seed=seed + 4) if stereo else None,
                      baseline=0.2 if stereo else None, lambda_stereo=0.7, stereo_affine=(0.05, 2.0))
     poses = [gtsam.Pose3(gtsam.Rot3.Expmap(rng.normal(0, 0.02, 3)), rng.normal(0, 0.05, 3)) for _ in range(3)]

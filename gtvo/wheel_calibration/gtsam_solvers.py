@@ -22,7 +22,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from factors.keys import calibration_key, pose_key
-from factors.odometry_calibration import calibrated_odometry_factor, diff_drive_calibration_factor, linear_calibration_factor
+from factors.odometry_calibration import (calibrated_odometry_factor, diff_drive_calibration_factor,
+                                          linear_calibration_factor)
 from gtvo.wheel_calibration.diff_drive import (DiffDriveCalibration, check_diff_drive_observability,
                                          diff_drive_normal_equations)
 from gtvo.wheel_calibration.linear import (LinearCalibration, fit_linear, ResidualStatistics, apply_linear, check_linear_observability,

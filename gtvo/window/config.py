@@ -1,4 +1,5 @@
-"""The window's types and settings: keys (:mod:`factors.keys`'s ``pose_key``, ``affine_key`` of the frame index), :class:`WindowConfig`, :class:`WindowKeyframe`, :class:`MarginalPrior`, :class:`WindowResult`."""
+"""The window's types and settings: :class:`WindowConfig`, :class:`WindowKeyframe`, :class:`MarginalPrior`,
+:class:`WindowResult` (keys: :mod:`factors.keys`' ``pose_key``, ``affine_key`` of the frame index)."""
 
 from __future__ import annotations
 
