@@ -7,9 +7,9 @@ and to numerical derivatives through it):
   border and clipped-cell validity rule);
 * :func:`warp_residuals`: :func:`photometric_residuals` for a :class:`GradientImage` target in
   three tight loops (warp, gather, residuals and Jacobians) instead of about 40 numpy passes;
-* :func:`point_huber`: ``photometric.point_robust_terms``, each point's Huber weight and loss
+* :func:`point_huber`: ``weights.point_robust_terms``, each point's Huber weight and loss
   on its whitened pattern norm;
-* :func:`accumulate_target`: ``photometric.gauss_newton_sums``, the Gauss-Newton sums of one
+* :func:`accumulate_target`: ``host_points.gauss_newton_sums``, the Gauss-Newton sums of one
   host-target pair (the window's Hessian accumulation before the Schur complement).
 
 Why compiled: the numpy form makes about 40 passes over (N, P) arrays per call, each a
@@ -257,7 +257,7 @@ def accumulate_target(J_host, J_affine_host, J_target, J_affine_target, weight, 
 def point_huber(weight, residual, k, robust):
     """Per point ``x = sqrt(sum_P w r^2)`` (``weight``, ``residual`` (N, P)): ``(IRLS weight,
     loss)`` of the Huber kernel with threshold ``k`` (``robust`` False: 1 and ``x^2 / 2``), the
-    values of ``photometric.huber_weight`` / ``huber_loss``."""
+    values of ``weights.huber_weight`` / ``huber_loss``."""
     n, p = residual.shape
     w_out = np.ones(n)
     loss = np.empty(n)

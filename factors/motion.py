@@ -2,7 +2,7 @@
 
 Residual math only (no I/O, no pipeline state); the model and its names are those of
 :mod:`gtvo.motion.model`. Each state ``x_t = [X, dX, Z, dZ, theta, dtheta]`` is a 6-vector
-variable (key ``gtsam.symbol('v', t)``). The model is linear, so the factors are
+variable (key :func:`factors.keys.motion_state_key`, ``v<t>``). The model is linear, so the factors are
 ``gtsam.JacobianFactor`` s with error ``sum_j A_j x_j - b`` whitened by a noise model, and the
 graph is a ``gtsam.GaussianFactorGraph`` whose solution is the exact posterior mean.
 
@@ -61,11 +61,6 @@ def transition_matrix(dt: float) -> FloatArray:
 
 #: Penalty weight GTSAM uses for constrained rows in nonlinear error evaluation (its default).
 CONSTRAINT_MU = 1000.0
-
-
-def state_key(t: int) -> int:
-    """Key of the motion-model state ``t``: ``gtsam.symbol('v', t)``."""
-    return gtsam.symbol("v", int(t))
 
 
 def process_row_map(dt: float) -> np.ndarray:

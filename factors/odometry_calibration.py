@@ -1,7 +1,7 @@
 """Odometry-calibration residuals as GTSAM custom factors with analytic Jacobians.
 
 Residual math only (no I/O). The calibration variable is a plain GTSAM vector (keyed by
-:func:`calibration_key`):
+:func:`factors.keys.calibration_key`):
 
 * linear model: the 9-vector ``x`` of X's entries in row-major order, ``u' = X u``;
 * diff-drive model: the 3-vector ``p = (k_L, k_R, k_b)`` of :mod:`gtvo.wheel_calibration.diff_drive`.
@@ -92,11 +92,6 @@ def diff_drive_motion_scalar(params: Sequence[float], s_left: float, s_right: fl
     dt = np.array([-s_left / bb, s_right / bb, -t / k_b])
     jac = np.outer([a, b, 0.0], ds) + np.outer([s * da, s * db, 1.0], dt)
     return f, jac
-
-
-def calibration_key(index: int = 0) -> int:
-    """The key of the calibration variable: ``gtsam.symbol('c', index)``."""
-    return gtsam.symbol("c", index)
 
 
 def _kron_u(u: NDArray[np.float64]) -> NDArray[np.float64]:

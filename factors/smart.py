@@ -7,14 +7,13 @@ points hosted in one keyframe, evaluates all their residuals in all targets in o
 pass, eliminates the inverse depths by the Schur complement and hands GTSAM only the pose and
 affine blocks of its keys. The optimiser's Values then hold a few dozen variables.
 
-Linearisation at values ``x`` (poses/affines of the keys) and inverse depths ``d``, with the
-IRLS weights ``w_n`` (Huber on each point-target pattern norm) and variance weights ``W``::
+The linearisation itself (weights, robust losses, accumulation over targets, stereo term, depth
+prior, Schur complement, back-substitution, safeguarded depth step) is
+:class:`factors.host_points.HostPoints`, shared with the hand-rolled window solver; this module is
+its GTSAM adapter: keys, ``Values`` -> poses and affines, the whitening below, the cache by state
+and the commit of the depths.
 
-    H_pp = sum J_p^T wW J_p,  H_pd[n] = sum J_p^T wW J_d,  H_dd[n] = sum wW J_d^2 (+ 1/sigma_prior^2)
-    g_p  = sum J_p^T wW r,    g_d[n]  = sum wW J_d r      (+ (d - d_prior)/sigma_prior^2)
-    H_red = H_pp - sum_n H_pd H_pd^T / H_dd,    g_red = g_p - sum_n H_pd g_d / H_dd
-
-and the factor's linear part is ``|R dx + e'|^2`` with ``R^T R = H_red``, ``R^T e' = g_red``.
+The factor's linear part is ``|R dx + e'|^2`` with ``R^T R = H_red``, ``R^T e' = g_red``.
 An extra error entry ``c`` with zero Jacobian, ``c^2 = 2E - sum_n g_d^2/H_dd - |e'|^2 >= 0``,
 makes the linear model at ``dx`` equal the Gauss-Newton model of the cost with the depths at
 their conditional optimum (at ``dx = 0``: E minus the depth-only Newton decrease). ``error(x)``
@@ -39,9 +38,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from factors.gtsam_factors import DEFAULT_HUBER_K, DEFAULT_SIGMA_INTENSITY, PythonFactor
-from factors.photometric import (PATTERN_DSO8, GradientSampler, gauss_newton_sums, pattern_bearings,
-                                 photometric_residuals, point_robust_terms, replace_rows, sample_host, stereo_residuals,
-                                 variance_weight)
+from factors.host_points import DepthSystem, HostPoints
+from factors.photometric import PATTERN_DSO8, GradientSampler
 from gtvo.core.camera import PinholeCamera
 from gtvo.errors import InputError
 
@@ -52,27 +50,7 @@ FloatArray = NDArray[np.float64]
 class _Linearization:
     x_poses: list[gtsam.Pose3]
     x_affines: list[FloatArray]
-    d: FloatArray
-    H_pd: FloatArray  # (N, M)
-    H_dd: FloatArray  # (N,)
-    g_d: FloatArray  # (N,)
-    active: NDArray[np.bool_]  # (N,) points with curvature
-    point_cost: FloatArray  # (N,) each point's cost at the linearisation point
-
-
-def keep_cheaper_depths(d: FloatArray, c: FloatArray, lins: list, rows: NDArray[np.intp], d_old: FloatArray,
-                        c_old: FloatArray, lins_old: list) -> tuple[FloatArray, FloatArray, list]:
-    """The safeguarded depth step's merge: of the points ``rows`` (whose cost at the new depths
-    ``d`` rose), those that cost less at their old depth (``c_old``, ``lins_old``: evaluated for
-    ``rows`` only) take it back. Returns ``(depths, point costs, linearisations)``; the inputs
-    are not modified."""
-    keep = np.flatnonzero(c_old < c[rows])
-    if not keep.size:
-        return d, c, lins
-    r = rows[keep]
-    d, c = d.copy(), c.copy()
-    d[r], c[r] = d_old[r], c_old[keep]
-    return d, c, [None if a is None else replace_rows(a, r, b, keep) for a, b in zip(lins, lins_old)]
+    system: DepthSystem
 
 
 class HostPointsFactor(PythonFactor):
@@ -126,42 +104,23 @@ class HostPointsFactor(PythonFactor):
         self.with_affine = affine_host_key is not None
         if self.with_affine and (affine_target_keys is None or len(affine_target_keys) != len(self.target_keys)):
             raise InputError("HostPointsFactor: give one affine target key per target with affine_host_key")
-        self.camera = camera
-        self.pixels = np.asarray(pixels, dtype=float).reshape(-1, 2)
-        n = self.pixels.shape[0]
+        n = np.asarray(pixels, dtype=float).reshape(-1, 2).shape[0]
         d = np.asarray(inverse_depth, dtype=float).reshape(-1)
         if n == 0 or d.shape[0] != n or not np.all(np.isfinite(d)) or np.any(d <= 0):
             raise InputError(f"HostPointsFactor: need N > 0 points with finite positive inverse depths (N={n})")
-        self.variance = np.broadcast_to(np.asarray(inverse_depth_variance, dtype=float), (n,)).copy()
-        if depth_prior and not np.all(self.variance > 0):
-            raise InputError("HostPointsFactor: a depth prior needs positive inverse-depth variances")
-        self.pattern = np.asarray(pattern, dtype=float).reshape(-1, 2)
-        self.host_intensity, self.host_valid = sample_host(host_image, self.pixels, self.pattern)
-        self.bearings = pattern_bearings(camera, self.pixels, self.pattern)  # fixed: host pixels only
-        self.target_images = list(target_images)
-        self.sigma = float(sigma_intensity)
-        self.huber_k = huber_k
-        self.depth_prior = bool(depth_prior)
-        self.d_prior = d.copy() if prior_inverse_depth is None else \
-            np.asarray(prior_inverse_depth, dtype=float).reshape(-1).copy()
-        if self.d_prior.shape[0] != n or not np.all(np.isfinite(self.d_prior)):
-            raise InputError(f"HostPointsFactor: prior_inverse_depth must hold {n} finite values")
+        #: the linearisation (pure numpy, shared with the hand-rolled window solver)
+        self.points = HostPoints(camera, pixels, host_image, target_images, inverse_depth_variance,
+                                 d if prior_inverse_depth is None else prior_inverse_depth,
+                                 sigma_intensity=sigma_intensity, huber_k=huber_k, pattern=pattern,
+                                 depth_prior=depth_prior, with_affine=self.with_affine, right_image=right_image,
+                                 baseline=baseline, lambda_stereo=lambda_stereo, stereo_affine=stereo_affine)
         self.depths = d.copy()
         self.pose_keys = [host_key] + self.target_keys
         self.affine_keys = ([affine_host_key] + list(affine_target_keys)) if self.with_affine else []
         nt = len(self.target_keys)
         self.dim = 6 * (1 + nt) + (2 * (1 + nt) if self.with_affine else 0)
-        self.right_image = right_image
-        if right_image is not None:
-            if baseline is None or not (np.isfinite(baseline) and baseline > 0):
-                raise InputError(f"HostPointsFactor: a stereo term needs a positive baseline, got {baseline!r}")
-            if not (np.isfinite(lambda_stereo) and lambda_stereo > 0):
-                raise InputError(f"HostPointsFactor: lambda_stereo must be positive, got {lambda_stereo!r}")
-        self.baseline = None if baseline is None else float(baseline)
-        self.lambda_stereo = float(lambda_stereo)
-        self.stereo_affine = np.asarray(stereo_affine, dtype=float).reshape(2)
+        self._column_blocks = [self._columns(t) for t in range(nt)]
         self._lin: _Linearization | None = None
-        self._W: list[FloatArray] | None = None
         self._cached: tuple[FloatArray, list[FloatArray]] | None = None
         self._state_lins: tuple[FloatArray, list] | None = None  # (state, lins) of the last evaluation
         self._trial: tuple[FloatArray, FloatArray, float] | None = None  # (values, depths, cost) of _safeguarded
@@ -184,11 +143,7 @@ class HostPointsFactor(PythonFactor):
         """Inverse depths implied by the last linearisation's back-substitution at these values."""
         lin = self._lin
         assert lin is not None
-        dx = self._delta(poses, affs)
-        step = np.zeros_like(lin.d)
-        a = lin.active
-        step[a] = -(lin.g_d[a] + lin.H_pd[a] @ dx) / lin.H_dd[a]
-        return np.maximum(lin.d + step, 0.1 * lin.d)  # keep d > 0: LM rejects such far steps anyway
+        return lin.system.back_substitute(self._delta(poses, affs))
 
     def _depths_at(self, poses: list[gtsam.Pose3], affs: list[FloatArray]) -> FloatArray:
         """The inverse depths that go with these values (:meth:`_safeguarded`)."""
@@ -206,14 +161,10 @@ class HostPointsFactor(PythonFactor):
         if self._trial is not None and np.array_equal(self._trial[0], key):
             return self._trial[1], self._trial[2]
         d = self._back_substitution(poses, affs)
-        c, lins = self._point_costs(poses, affs, d)
-        rows = np.flatnonzero(c > lin.point_cost)
-        if rows.size:
-            lins_old = self._residuals(poses, affs, lin.d, rows)
-            d_new = d
-            d, c, lins = keep_cheaper_depths(d, c, lins, rows, lin.d, self._losses(lins_old, lin.d, rows), lins_old)
-            if d is not d_new:
-                self._state_lins = (self._state(poses, affs, d), lins)
+        c, d_safe, lins = self.points.safeguard(poses, affs, lin.system, d, self._lins(poses, affs, d))
+        if d_safe is not d:
+            self._state_lins = (self._state(poses, affs, d_safe), lins)
+        d = d_safe
         E = float(c.sum())
         self._trial = (key, d, E)
         return d, E
@@ -223,7 +174,7 @@ class HostPointsFactor(PythonFactor):
         poses, affs = self._read(values)
         self.depths = self._depths_at(poses, affs)
         self._lin = None
-        self._W = None
+        self.points.release_weights()
         self._cached = None
         self._state_lins = None
         self._trial = None
@@ -246,52 +197,9 @@ class HostPointsFactor(PythonFactor):
         state = self._state(poses, affs, d)
         if self._state_lins is not None and np.array_equal(self._state_lins[0], state):
             return self._state_lins[1]
-        out = self._residuals(poses, affs, d)
+        out = self.points.residuals(poses, affs, d)
         self._state_lins = (state, out)
         return out
-
-    def _residuals(self, poses, affs, d, rows: NDArray[np.intp] | None = None) -> list:
-        """Linearisations of every target, then the stereo term (or None), of all points or of the
-        points ``rows`` (``d`` is always the full (N,) vector); not cached."""
-        sel = slice(None) if rows is None else rows
-        Ih, hv, px, f, ds = self.host_intensity[sel], self.host_valid[sel], self.pixels[sel], self.bearings[sel], d[sel]
-        ah = affs[0] if self.with_affine else np.zeros(2)
-        out: list = []
-        for t, img in enumerate(self.target_images):
-            at = affs[1 + t] if self.with_affine else np.zeros(2)
-            out.append(photometric_residuals(self.camera, Ih, hv, px, ds, poses[0], poses[1 + t], img, ah, at,
-                                             self.pattern, jacobians=True, host_jacobians=True, bearings=f))
-        out.append(None if self.right_image is None else
-                   stereo_residuals(self.camera, self.baseline, Ih, hv, px, ds, self.right_image, (0.0, 0.0),
-                                    self.stereo_affine, self.pattern, jacobians=False, bearings=f))
-        return out
-
-    def _robust(self, W: FloatArray, r: FloatArray) -> tuple[FloatArray, FloatArray]:
-        return point_robust_terms(W, r, self.huber_k)
-
-    def _weights(self, lins: list) -> list[FloatArray]:
-        """W per target (then stereo): frozen at the first evaluation of a run (class docstring)."""
-        if self._W is None:
-            W = [variance_weight(lin.J_depth, self.variance, self.sigma) for lin in lins[:-1]]
-            if lins[-1] is not None:
-                W.append(self.lambda_stereo * variance_weight(lins[-1].J_depth, self.variance, self.sigma))
-            self._W = W
-        return self._W
-
-    def _target_terms(self, poses, affs, d) -> list[tuple]:
-        """Per target: ``(linearisation, W, Huber IRLS weights, loss)``."""
-        lins = self._lins(poses, affs, d)
-        Ws = self._weights(lins)
-        return [(lin, Ws[t], *self._robust(Ws[t], lin.residual)) for t, lin in enumerate(lins[:-1])]
-
-    def _stereo_term(self, d: FloatArray, poses=None, affs=None):
-        """The stereo residuals of the host frame: (linearisation, lambda W, Huber weight, loss) or None."""
-        if self.right_image is None:
-            return None
-        lins = self._lins(poses, affs, d)
-        Ws = self._weights(lins)
-        w, loss = self._robust(Ws[-1], lins[-1].residual)
-        return lins[-1], Ws[-1], w, loss
 
     def cost(self, values: gtsam.Values, inverse_depth: ArrayLike | None = None) -> float:
         """The true nonlinear cost at ``values`` with the given (default: current) inverse depths."""
@@ -300,25 +208,7 @@ class HostPointsFactor(PythonFactor):
         return self._cost(poses, affs, d)
 
     def _cost(self, poses, affs, d) -> float:
-        return float(self._point_costs(poses, affs, d)[0].sum())
-
-    def _point_costs(self, poses, affs, d) -> tuple[FloatArray, list]:
-        """Each point's cost (N,) at a state, and the linearisations it came from."""
-        lins = self._lins(poses, affs, d)
-        return self._losses(lins, d), lins
-
-    def _losses(self, lins: list, d: FloatArray, rows: NDArray[np.intp] | None = None) -> FloatArray:
-        """Each point's cost from its linearisations: robust photometric and stereo losses and the
-        depth prior (``rows``: ``lins`` hold only these points; W must be frozen already)."""
-        sel = slice(None) if rows is None else rows
-        assert rows is None or self._W is not None
-        Ws = self._weights(lins)
-        c = np.zeros(d.shape[0] if rows is None else rows.size)
-        for W, lin in zip(Ws, lins):
-            c += self._robust(W[sel], lin.residual)[1]
-        if self.depth_prior:
-            c += 0.5 * (d[sel] - self.d_prior[sel]) ** 2 / self.variance[sel]
-        return c
+        return float(self.points.point_costs(self._lins(poses, affs, d), d).sum())
 
     def _columns(self, t: int) -> NDArray[np.intp]:
         """Reduced-state columns of target t's Gauss-Newton block, in :func:`gauss_newton_sums`'
@@ -335,43 +225,13 @@ class HostPointsFactor(PythonFactor):
         if self._lin is not None:
             self.depths = self._safeguarded(poses, affs)[0]
         d = self.depths
-        n, M = d.shape[0], self.dim
-        H_pp = np.zeros((M, M))
-        g_p = np.zeros(M)
-        H_pd = np.zeros((n, M))
-        H_dd = np.zeros(n)
-        g_d = np.zeros(n)
-        c_pt = np.zeros(n)
-        for t, (lin, W, w, loss) in enumerate(self._target_terms(poses, affs, d)):
-            c_pt += loss
-            H_t, g_t, H_pd_t, H_dd_t, g_d_t = gauss_newton_sums(lin, W * w[:, None], self.with_affine)
-            cols = self._columns(t)
-            H_pp[np.ix_(cols, cols)] += H_t
-            g_p[cols] += g_t
-            H_pd[:, cols] += H_pd_t
-            H_dd += H_dd_t
-            g_d += g_d_t
-        st = self._stereo_term(d, poses, affs)
-        if st is not None:
-            lin, W, w, loss = st
-            ww = W * w[:, None]
-            H_dd += np.sum(ww * lin.J_depth ** 2, axis=1)
-            g_d += np.sum(ww * lin.J_depth * lin.residual, axis=1)
-            c_pt += loss
-        if self.depth_prior:
-            H_dd += 1.0 / self.variance
-            g_d += (d - self.d_prior) / self.variance
-            c_pt += 0.5 * (d - self.d_prior) ** 2 / self.variance
-        E = float(c_pt.sum())
-        active = H_dd > 1e-12 * max(float(H_dd.max()), 1e-300)
-        Hdd_s = np.where(active, H_dd, 1.0)
-        L = H_pd[active] / Hdd_s[active, None]
-        H_red = H_pp - L.T @ H_pd[active]
-        g_red = g_p - L.T @ g_d[active]
-        self._lin = _Linearization(poses, affs, d.copy(), H_pd, Hdd_s, g_d, active, c_pt)
+        H_red = np.zeros((self.dim, self.dim))
+        g_red = np.zeros(self.dim)
+        system = self.points.linearize(self._lins(poses, affs, d), d, H_red, g_red, self._column_blocks)
+        E = float(system.point_cost.sum())
+        self._lin = _Linearization(poses, affs, system)
         self._trial = None  # the safeguard compares against this linearisation's depths now
-        depth_decrease = 0.5 * float(np.sum(g_d[active] ** 2 / Hdd_s[active]))
-        return 0.5 * (H_red + H_red.T), g_red, E - depth_decrease
+        return 0.5 * (H_red + H_red.T), g_red, E - system.newton_decrease()
 
     def _evaluate(self, this: gtsam.CustomFactor, values: gtsam.Values, H: list | None) -> np.ndarray:
         poses, affs = self._read(values)

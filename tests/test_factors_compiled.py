@@ -14,9 +14,10 @@ import gtsam
 import numpy as np
 import pytest
 
-from factors.photometric import (GradientImage, PhotometricLinearization, gauss_newton_sums, huber_loss,
-                                 huber_weight, pattern_bearings, photometric_residuals, point_robust_terms,
+from factors.host_points import gauss_newton_sums
+from factors.photometric import (GradientImage, PhotometricLinearization, pattern_bearings, photometric_residuals,
                                  sample_host, stereo_residuals)
+from factors.weights import huber_loss, huber_weight, point_robust_terms
 from gtvo.errors import InputError
 from tests._factors_synthetic import SinusoidImage, small_camera
 

@@ -6,14 +6,16 @@ import gtsam
 import numpy as np
 import pytest
 
-from factors.gtsam_factors import (InverseDepthSmoothnessFactor, MotionSmoothnessFactor, PhotometricFactor,
-                                   StereoFactor)
+from factors.gtsam_factors import PhotometricFactor, StereoFactor
+from factors.keys import affine_key as A
+from factors.keys import inverse_depth_key as D
+from factors.keys import pose_key as X
 from factors.photometric import GradientImage, photometric_residuals, sample_host, stereo_residuals
+from factors.smoothness import InverseDepthSmoothnessFactor, MotionSmoothnessFactor
 from gtvo.core.camera import PinholeCamera
 from gtvo.errors import InputError
 from tests._factors_synthetic import PlaneSceneImage, SinusoidImage, small_camera
 
-X, D, A = (lambda i: gtsam.symbol("x", i)), (lambda i: gtsam.symbol("d", i)), (lambda i: gtsam.symbol("a", i))
 
 
 def test_masks_counts_and_no_nan():

@@ -11,15 +11,18 @@ import gtsam
 import numpy as np
 import pytest
 
-from factors.gtsam_factors import (ConstantVelocityFactor, InverseDepthSmoothnessFactor, MotionSmoothnessFactor,
-                                   PhotometricBatchFactor, PhotometricFactor, StereoFactor, edge_aware_weight,
-                                   huber_loss)
-from factors.photometric import PATTERN_DSO8, photometric_residuals, sample_host, variance_weight
+from factors.gtsam_factors import PhotometricBatchFactor, PhotometricFactor, StereoFactor
+from factors.keys import affine_key as A
+from factors.keys import inverse_depth_key as D
+from factors.keys import pose_key as X
+from factors.keys import right_affine_key as RA
+from factors.photometric import PATTERN_DSO8, photometric_residuals, sample_host
+from factors.smoothness import (ConstantVelocityFactor, InverseDepthSmoothnessFactor, MotionSmoothnessFactor,
+                                edge_aware_weight)
+from factors.weights import huber_loss, variance_weight
 from gtvo.errors import InputError
 from tests._factors_synthetic import SinusoidImage, numeric_jacobians, small_camera
 
-X, D, A, RA = (lambda i: gtsam.symbol("x", i)), (lambda i: gtsam.symbol("d", i)), \
-    (lambda i: gtsam.symbol("a", i)), (lambda i: gtsam.symbol("r", i))
 REL_TOL = 1e-6
 
 

@@ -8,12 +8,14 @@ import numpy as np
 import pytest
 
 from factors.gtsam_factors import PhotometricFactor, StereoFactor
+from factors.keys import affine_key as A
+from factors.keys import inverse_depth_key as D
+from factors.keys import pose_key as X
 from factors.smart import HostPointsFactor
 from gtvo.core.camera import PinholeCamera
 from gtvo.errors import InputError
 from tests._factors_synthetic import PlaneSceneImage, SinusoidImage, small_camera
 
-X, D, A = (lambda i: gtsam.symbol("x", i)), (lambda i: gtsam.symbol("d", i)), (lambda i: gtsam.symbol("a", i))
 
 
 def per_point_graph(cam, px, d, V, host, targets, huber_k, affine, right=None, baseline=None, lam=1.0,

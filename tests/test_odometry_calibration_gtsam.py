@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 import gtvo.cli
-from factors.odometry_calibration import (calibrated_odometry_error, calibrated_odometry_factor, calibration_key,
+from factors.keys import calibration_key, pose_key
+from factors.odometry_calibration import (calibrated_odometry_error, calibrated_odometry_factor,
                                           diff_drive_calibration_factor, linear_calibration_factor)
 from gtvo.wheel_calibration import (LoopClosure, PosePrior, apply_linear, fit_diff_drive, fit_diff_drive_gtsam, fit_linear,
                               fit_linear_gtsam, integrate_motions, joint_calibration, position_rmse)
@@ -73,7 +74,7 @@ def test_calibrated_odometry_factor_jacobians(seed):
     pj = pi.compose(gtsam.Pose2(*(rng.normal(0, 0.5, 3) + [0.5, 0, 0])))
     x = (X_TRUE + 0.05 * rng.normal(size=(3, 3))).ravel()
     u = rng.normal(0, 0.5, 3)
-    ki, kj, kc = gtsam.symbol("x", 0), gtsam.symbol("x", 1), calibration_key()
+    ki, kj, kc = pose_key(0), pose_key(1), calibration_key()
     f = calibrated_odometry_factor(ki, kj, kc, u, gtsam.noiseModel.Unit.Create(3))
     v = gtsam.Values()
     v.insert(ki, pi)

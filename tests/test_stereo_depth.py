@@ -14,7 +14,8 @@ from gtvo.frontend import (
     stereo_inverse_depth,
 )
 
-from gtvo.frontend.stereo_depth import DSO_PATTERN_8, PATCH_5X5, _gather_integer, _integer_search, matched_gain
+from factors.photometric import PATTERN_DSO8
+from gtvo.frontend.stereo_depth import PATCH_5X5, _as_pattern, _gather_integer, _integer_search, matched_gain
 
 from _synthetic_stereo import camera, stereo_pair, texture
 
@@ -375,7 +376,7 @@ def _integer_search_numpy(src: NDArray, dst: NDArray, u: NDArray, v: NDArray, pa
 
 
 @pytest.mark.parametrize("sign", [-1, 1])
-@pytest.mark.parametrize("pattern", [PATCH_5X5, DSO_PATTERN_8])
+@pytest.mark.parametrize("pattern", [PATCH_5X5, PATTERN_DSO8.astype(np.int64)])
 def test_compiled_search_equals_the_numpy_search(sign, pattern):
     """Same costs to the bit, inf where the pattern leaves the image (points near every edge,
     disparities reaching past both sides)."""
@@ -391,3 +392,11 @@ def test_compiled_search_equals_the_numpy_search(sign, pattern):
     ref = _integer_search_numpy(src, dst, u, v, pattern, disps, sign, chunk=64)
     assert np.isinf(ref).any() and np.isfinite(ref).any()
     np.testing.assert_array_equal(got, ref)
+
+
+def test_dso8_is_the_factors_pattern():
+    """``pattern="dso8"`` is DSO's pattern as the photometric factors define it (one definition),
+    in the integer offsets the search needs."""
+    p = _as_pattern("dso8")
+    assert p.dtype == np.int64
+    np.testing.assert_array_equal(p, PATTERN_DSO8)

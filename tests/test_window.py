@@ -343,14 +343,14 @@ def test_smart_factor_evaluates_each_state_once(seq, monkeypatch):
     """LM's cost pass at a state and the linearisation at the same state share one evaluation of
     the photometric residuals (one call per target); a new state costs a new evaluation (after a
     linearisation, plus one of the points whose cost rose, at their linearisation depths)."""
-    import factors.smart as smart
+    import factors.host_points as host_points
 
     cam = seq.camera
     kfs = _keyframes(seq, [0, 2, 4], points=150)
     graph, values, hosts = build_graph(cam.left, cam.baseline, kfs, WindowConfig(), None)
     calls = []
-    real = smart.photometric_residuals
-    monkeypatch.setattr(smart, "photometric_residuals", lambda *a, **k: calls.append(1) or real(*a, **k))
+    real = host_points.photometric_residuals
+    monkeypatch.setattr(host_points, "photometric_residuals", lambda *a, **k: calls.append(1) or real(*a, **k))
     f = hosts[0]
     n_t = len(f.target_keys)
     e0 = f.error(values)

@@ -18,7 +18,6 @@ from gtvo.frontend.point_selection import (
     select_points,
 )
 from gtvo.frontend.stereo_depth import (
-    DSO_PATTERN_8,
     PATCH_5X5,
     KeyframePoints,
     Rejection,
@@ -31,7 +30,6 @@ from gtvo.frontend.stereo_depth import (
 
 __all__ = [
     "DEFAULT_BORDER",
-    "DSO_PATTERN_8",
     "FlowPose",
     "FlowPoseConfig",
     "PATCH_5X5",

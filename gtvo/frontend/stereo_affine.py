@@ -7,7 +7,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from factors.gtsam_factors import DEFAULT_SIGMA_INTENSITY
-from factors.photometric import PATTERN_SINGLE, GradientImage, sample_host, stereo_residuals, variance_weight
+from factors.photometric import PATTERN_SINGLE, GradientImage, sample_host, stereo_residuals
+from factors.weights import variance_weight
 from gtvo.core.camera import PinholeCamera
 
 FloatArray = NDArray[np.float64]

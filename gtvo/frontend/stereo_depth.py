@@ -43,9 +43,6 @@ from gtvo.core.image import bilinear_sample, check_same_size, image_gradients, t
 
 FloatArray = NDArray[np.float64]
 
-#: DSO's 8-pixel pattern, offsets (du, dv).
-DSO_PATTERN_8: NDArray[np.int64] = np.array(
-    [[0, -2], [-1, -1], [1, -1], [-2, 0], [0, 0], [2, 0], [-1, 1], [0, 2]], dtype=np.int64)
 #: A full 5x5 patch, offsets (du, dv) row by row.
 PATCH_5X5: NDArray[np.int64] = np.array(
     [[du, dv] for dv in range(-2, 3) for du in range(-2, 3)], dtype=np.int64)
@@ -173,10 +170,10 @@ def disparity_variance(gx: ArrayLike, gy: ArrayLike, line: ArrayLike, sigma_inte
 
 def _as_pattern(pattern: ArrayLike | str) -> NDArray[np.int64]:
     if isinstance(pattern, str):
-        table = {"patch5x5": PATCH_5X5, "dso8": DSO_PATTERN_8}
+        table = {"patch5x5": PATCH_5X5, "dso8": photometric.PATTERN_DSO8}  # dso8: the factors' pattern
         if pattern not in table:
             raise InputError(f"unknown stereo pattern {pattern!r}; use one of {sorted(table)}")
-        return table[pattern]
+        return table[pattern].astype(np.int64)
     p = np.asarray(pattern)
     if p.ndim != 2 or p.shape[1] != 2 or p.shape[0] < 3 or not np.all(p == np.round(p)):
         raise InputError(f"stereo pattern must be (P >= 3, 2) integer offsets, got shape {p.shape}")

@@ -33,14 +33,15 @@ import scipy.linalg
 from numpy.typing import ArrayLike, NDArray
 
 from factors.gtsam_factors import PhotometricBatchFactor
-from factors.photometric import (PATTERN_DSO8, GradientImage, huber_loss, pattern_bearings, photometric_residuals,
-                                 point_robust_terms, sample_host, variance_weight)
+from factors.keys import affine_key, pose_key
+from factors.photometric import PATTERN_DSO8, GradientImage, pattern_bearings, photometric_residuals, sample_host
+from factors.weights import huber_loss, point_robust_terms, variance_weight
 from gtvo.core.camera import PinholeCamera
 from gtvo.errors import InputError, TrackingFailure
 from gtvo.core.image import build_pyramid
 
-FRAME_KEY = gtsam.symbol("x", 1)
-AFFINE_KEY = gtsam.symbol("a", 1)
+FRAME_KEY = pose_key(1)
+AFFINE_KEY = affine_key(1)
 
 
 @dataclass(frozen=True)

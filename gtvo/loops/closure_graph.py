@@ -20,6 +20,7 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
+from factors.keys import pose_key
 from gtvo.errors import InputError
 
 F64 = NDArray[np.float64]
@@ -72,7 +73,7 @@ def close_loops(poses: Sequence[F64] | F64, candidates: Sequence[LoopEdge],
     n = len(P)
     Xs = [_pose3(T) for T in P]
     info_odo = np.eye(6) * 1e4 if odometry_information is None else np.asarray(odometry_information, float)
-    key = lambda k: gtsam.symbol("x", k)  # noqa: E731
+    key = pose_key
     graph = gtsam.NonlinearFactorGraph()
     graph.add(gtsam.PriorFactorPose3(key(0), Xs[0], gtsam.noiseModel.Isotropic.Sigma(6, 1e-6)))
     odo_noise = gtsam.noiseModel.Gaussian.Information(info_odo)

@@ -28,6 +28,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from tqdm import tqdm
 
+from factors import keys
 from gtvo.core.camera import PinholeCamera, StereoCamera
 from gtvo.errors import InputError
 from gtvo.core.image import to_uint8
@@ -69,7 +70,7 @@ class LoopCandidate:
     n_matches: int = 0
     rmse_px: float = 0.0
 
-    def between_factor(self, symbol_char: str = "x") -> gtsam.BetweenFactorPose3:
+    def between_factor(self, symbol_char: str = keys.POSE) -> gtsam.BetweenFactorPose3:
         """``BetweenFactorPose3(symbol(c, i), symbol(c, j), T_i_j)`` with a Gaussian noise model of
         :attr:`information` (wrap it in a robust kernel or use GNC in the pose graph)."""
         noise = gtsam.noiseModel.Gaussian.Information(self.information)

@@ -13,7 +13,8 @@ import gtsam
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from factors.motion import pose_measurement_factor, process_factor, state_key, state_prior_factor
+from factors.keys import motion_state_key
+from factors.motion import pose_measurement_factor, process_factor, state_prior_factor
 from gtvo.errors import InputError
 from gtvo.motion.model import STATE_DIM, MotionNoise, _check_prior
 
@@ -29,11 +30,11 @@ def build_motion_graph(measurements: ArrayLike, times: ArrayLike, prior_mean: Ar
         raise InputError("measurements and times must be finite and times strictly increasing")
     mean, cov = _check_prior(prior_mean, prior_cov)
     graph = gtsam.GaussianFactorGraph()
-    graph.add(state_prior_factor(state_key(0), mean, cov))
+    graph.add(state_prior_factor(motion_state_key(0), mean, cov))
     for i in range(z.shape[0]):
         if i > 0:
-            graph.add(process_factor(state_key(i - 1), state_key(i), t[i] - t[i - 1], noise.accel_sigmas))
-        graph.add(pose_measurement_factor(state_key(i), z[i], noise.measurement_sigmas))
+            graph.add(process_factor(motion_state_key(i - 1), motion_state_key(i), t[i] - t[i - 1], noise.accel_sigmas))
+        graph.add(pose_measurement_factor(motion_state_key(i), z[i], noise.measurement_sigmas))
     return graph
 
 
@@ -48,11 +49,11 @@ def solve_motion_graph(graph: gtsam.GaussianFactorGraph, n_states: int,
     """
     ordering = gtsam.Ordering()
     for i in range(n_states - 1, -1, -1):
-        ordering.push_back(state_key(i))
+        ordering.push_back(motion_state_key(i))
     solution = graph.optimize(ordering)
-    means = np.array([solution.at(state_key(i)) for i in range(n_states)]).reshape(n_states, STATE_DIM)
+    means = np.array([solution.at(motion_state_key(i)) for i in range(n_states)]).reshape(n_states, STATE_DIM)
     covs: dict[int, NDArray[np.float64]] = {}
     if marginal_states:
         marginals = gtsam.Marginals(graph, solution)
-        covs = {int(i): np.asarray(marginals.marginalCovariance(state_key(i))) for i in marginal_states}
+        covs = {int(i): np.asarray(marginals.marginalCovariance(motion_state_key(i))) for i in marginal_states}
     return means, covs

@@ -23,6 +23,7 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
+from factors.keys import pose_key
 from gtvo.errors import InputError
 from gtvo.posegraph import sesync
 from gtvo.posegraph.graph import PoseGraph
@@ -36,8 +37,8 @@ PRIOR_SIGMA = 1e-6
 
 
 def key(k: int) -> int:
-    """GTSAM key of pose-graph node ``k`` (``x`` symbols, docs/conventions.md)."""
-    return gtsam.symbol("x", int(k))
+    """GTSAM key of pose-graph node ``k`` (:func:`factors.keys.pose_key`)."""
+    return pose_key(k)
 
 
 def to_values(graph: PoseGraph, R: F64, t: F64) -> gtsam.Values:

@@ -21,7 +21,8 @@ import gtsam
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from factors.odometry_calibration import (calibrated_odometry_factor, calibration_key, diff_drive_calibration_factor,
+from factors.keys import calibration_key, pose_key
+from factors.odometry_calibration import (calibrated_odometry_factor, diff_drive_calibration_factor,
                                           linear_calibration_factor)
 from gtvo.wheel_calibration.diff_drive import (DiffDriveCalibration, check_diff_drive_observability,
                                          diff_drive_normal_equations)
@@ -164,11 +165,6 @@ def _indeterminate_as_input_error() -> Iterator[None]:
         near = f" near {m.group(1)}" if m else ""
         raise InputError(f"joint calibration: indeterminate system{near}: the pose priors and loop "
                          "closures do not determine all poses and X") from None
-
-
-def pose_key(index: int) -> int:
-    """Key of pose ``index`` in the joint graph: ``gtsam.symbol('x', index)``."""
-    return gtsam.symbol("x", index)
 
 
 def joint_calibration(raw_motions: ArrayLike, odometry_sigmas: Sequence[float],

@@ -10,7 +10,7 @@ inverse depths ``d`` and variances ``V`` from stereo or an RGB-D sensor); the co
         + sum_k |v_{k+1,k+2} - v_{k,k+1}|^2_Sigma_acc / 2                  (motion smoothness)
         + gauge prior on the oldest keyframe (pose and affine)  OR  the marginalisation prior
 
-(the motion term: a :class:`factors.gtsam_factors.ConstantVelocityFactor` on every three
+(the motion term: a :class:`factors.smoothness.ConstantVelocityFactor` on every three
 consecutive keyframes with timestamps, ``v`` their body-frame velocity twists, sigmas the
 ``acceleration_sigma`` times the time between the two velocities) over the keyframes' poses
 ``x_k`` (``T_world_cam``, GTSAM Pose3, right perturbation), affine
@@ -37,8 +37,8 @@ instead (keyframe sequence number as timestamp, lag ``size - 0.5``): the smoothe
 leaving keyframes with their host factor (depths frozen in the marginal); docs/window.md.
 """
 
-from gtvo.window.config import (MarginalPrior, WindowConfig, WindowKeyframe, WindowResult, WindowSolverName, affine_key,
-                                pose_key)
+from factors.keys import affine_key, pose_key
+from gtvo.window.config import MarginalPrior, WindowConfig, WindowKeyframe, WindowResult, WindowSolverName
 from gtvo.window.gtsam_solver import solve_gtsam
 from gtvo.window.handrolled import solve_handrolled, window_cost
 from gtvo.window.marginal import marginalize

@@ -1,4 +1,5 @@
-"""The window's types and settings: keys, :class:`WindowConfig`, :class:`WindowKeyframe`, :class:`MarginalPrior`, :class:`WindowResult`."""
+"""The window's types and settings: :class:`WindowConfig`, :class:`WindowKeyframe`, :class:`MarginalPrior`,
+:class:`WindowResult` (keys: :mod:`factors.keys`' ``pose_key``, ``affine_key`` of the frame index)."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from factors.gtsam_factors import DEFAULT_HUBER_K, DEFAULT_SIGMA_INTENSITY
+from factors.keys import is_pose_key
 from factors.photometric import PATTERN_DSO8, GradientImage
 from gtvo.core.camera import PinholeCamera
 from gtvo.errors import InputError
@@ -18,21 +20,10 @@ FloatArray = NDArray[np.float64]
 WindowSolverName = Literal["gtsam", "handrolled"]
 
 
-def pose_key(frame_index: int) -> int:
-    """GTSAM key of a keyframe's pose (``x<frame index>``)."""
-    return gtsam.symbol("x", int(frame_index))
-
-
-def affine_key(frame_index: int) -> int:
-    """GTSAM key of a keyframe's affine brightness ``(a, b)`` (``a<frame index>``)."""
-    return gtsam.symbol("a", int(frame_index))
-
-
-
 def values_subset(values: gtsam.Values, keys: Sequence[int]) -> gtsam.Values:
     out = gtsam.Values()
     for k in keys:
-        if gtsam.Symbol(k).chr() == ord("x"):
+        if is_pose_key(k):
             out.insert(k, values.atPose3(k))
         else:
             out.insert(k, values.atVector(k))
@@ -55,7 +46,7 @@ class WindowConfig:
             around its tracked value. DSO without photometric calibration leaves ``(a, b)`` free;
             (1.0 log gain, 100 grey levels) is a weak prior that only keeps the system regular.
         acceleration_sigma: ``(angular rad/s^2, linear m/s^2)`` of the motion-smoothness prior, a
-            :class:`factors.gtsam_factors.ConstantVelocityFactor` on every three consecutive
+            :class:`factors.smoothness.ConstantVelocityFactor` on every three consecutive
             keyframes that have timestamps; None: no motion prior. The defaults are weak (a car
             brakes at up to ~8 m/s^2, a hand-held camera turns faster): with images that fix the
             poses the prior moves nothing; it keeps a window defined when they do not.

@@ -11,8 +11,9 @@ import time
 import gtsam
 import numpy as np
 
+from factors.keys import affine_key, pose_key
 from factors.smart import HostPointsFactor
-from gtvo.window.config import WindowKeyframe, WindowResult, WindowState, affine_key, pose_key
+from gtvo.window.config import WindowKeyframe, WindowResult, WindowState
 from gtvo.window.problem import host_factor, motion_factors, prior_factors
 
 

@@ -9,8 +9,9 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
+from factors.keys import affine_key, pose_key
 from gtvo.core.camera import PinholeCamera
-from gtvo.window.config import MarginalPrior, WindowConfig, WindowKeyframe, WindowResult, affine_key, pose_key
+from gtvo.window.config import MarginalPrior, WindowConfig, WindowKeyframe, WindowResult
 from gtvo.window.problem import build_graph, visible_targets
 
 FloatArray = NDArray[np.float64]

@@ -1,8 +1,11 @@
 """The window solved by a hand-rolled Levenberg-Marquardt on the reduced camera system.
 
 Poses and affines are the unknowns of the reduced system; inverse depths are eliminated by the
-Schur complement per host and recovered by back-substitution (docs/window.md). It minimises the
-same cost as :mod:`gtvo.window.gtsam_solver`, and the tests compare the two.
+Schur complement per host and recovered by back-substitution (docs/window.md). Each host's
+linearisation is :class:`factors.host_points.HostPoints`, the same object that
+:class:`factors.smart.HostPointsFactor` hands GTSAM; the Levenberg-Marquardt loop here is this
+solver's own. It minimises the same cost as :mod:`gtvo.window.gtsam_solver`, and the tests
+compare the two.
 """
 
 from __future__ import annotations
@@ -14,11 +17,10 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from factors.photometric import (gauss_newton_sums, pattern_bearings, photometric_residuals, point_robust_terms,
-                                 sample_host, stereo_residuals, variance_weight)
-from factors.smart import keep_cheaper_depths
+from factors.host_points import DepthSystem, HostPoints
+from factors.keys import affine_key, pose_key
 from gtvo.core.camera import PinholeCamera
-from gtvo.window.config import MarginalPrior, WindowConfig, WindowKeyframe, WindowResult, affine_key, pose_key
+from gtvo.window.config import MarginalPrior, WindowConfig, WindowKeyframe, WindowResult
 from gtvo.window.problem import motion_factors, visible_targets
 
 FloatArray = NDArray[np.float64]
@@ -28,136 +30,50 @@ FloatArray = NDArray[np.float64]
 # hand-rolled solver: reduced camera system
 
 
-class _HostTerms:
-    """Frozen per-host data of the hand-rolled solver: host samples and the weights W.
+class _WindowHost:
+    """One host of the hand-rolled solver: its :class:`factors.host_points.HostPoints` (the same
+    linearisation as :class:`factors.smart.HostPointsFactor`'s) and where its blocks sit in the
+    window's state (8 entries per keyframe: pose, then affine).
 
-    W is evaluated once, at the window's starting state, as :class:`HostPointsFactor` does at
-    its first linearisation, so both solvers minimise the same fixed cost.
+    W is frozen at the window's starting state, where the host is built, as the smart factor
+    does at its first evaluation, so both solvers minimise the same fixed cost.
     """
 
     def __init__(self, camera: PinholeCamera, baseline: float | None, keyframes: Sequence[WindowKeyframe],
                  h: int, targets: Sequence[int], config: WindowConfig) -> None:
         kh = keyframes[h]
-        self.h, self.targets, self.camera, self.baseline, self.config = h, list(targets), camera, baseline, config
-        self.host_I, self.host_valid = sample_host(kh.image, kh.pixels, config.pattern)
-        self.bearings = pattern_bearings(camera, kh.pixels, config.pattern)  # fixed per host
-        lins = self._lins(keyframes, kh.inverse_depth, [k.pose for k in keyframes], [k.affine for k in keyframes])
-        self.W: list[FloatArray] = [variance_weight(lin.J_depth, kh.variance, config.sigma_intensity)
-                                    for lin in lins[:-1]]
-        self.W_stereo = None
-        if lins[-1] is not None:
-            self.W_stereo = config.lambda_stereo * variance_weight(lins[-1].J_depth, kh.variance,
-                                                                   config.sigma_intensity)
-        #: (E, lins) at the window's starting state: the initial cost and the first linearisation
-        self.start = (self._cost_from(kh, kh.inverse_depth, lins), lins)
+        self.h, self.targets = h, list(targets)
+        self.points = HostPoints(camera, kh.pixels, kh.image, [keyframes[t].image for t in self.targets],
+                                 kh.variance, kh.prior_inverse_depth, sigma_intensity=config.sigma_intensity,
+                                 huber_k=config.huber_k, pattern=config.pattern, depth_prior=kh.depth_prior,
+                                 right_image=kh.right, baseline=baseline, lambda_stereo=config.lambda_stereo,
+                                 stereo_affine=kh.stereo_affine)
+        # blocks [host pose, host affine, target pose, target affine]: 8 per keyframe
+        self.columns = [np.r_[8 * h:8 * h + 8, 8 * t:8 * t + 8] for t in self.targets]
+        poses, affines = self._local([k.pose for k in keyframes], [k.affine for k in keyframes])
+        lins = self.points.residuals(poses, affines, kh.inverse_depth)
+        #: (E, lins) at the window's starting state (W frozen there): the initial cost and the first linearisation
+        self.start = (float(self.points.point_costs(lins, kh.inverse_depth).sum()), lins)
 
-    def _lins(self, keyframes, d, poses, affines) -> list:
-        """Linearisations (with Jacobians) into every target, then the stereo term (or None).
+    def _local(self, poses: Sequence, affines: Sequence) -> tuple[list, list]:
+        """The host's and its targets' poses and affines, in :class:`HostPoints`' order."""
+        idx = [self.h] + self.targets
+        return [poses[i] for i in idx], [affines[i] for i in idx]
 
-        LM evaluates the cost at a trial state and, when it accepts the step, linearises there:
-        the Jacobians are computed in the cost pass (about a third of its time, the bilinear
-        gathers being the rest) so that the accepted state is not evaluated twice.
-        """
-        kh = keyframes[self.h]
-        out: list = [self._target(keyframes, t, d, poses, affines, jac=True) for t in self.targets]
-        out.append(self._stereo(kh, d) if kh.right is not None else None)
-        return out
+    def linearize(self, d: FloatArray, H: FloatArray, g: FloatArray, lins: list) -> DepthSystem:
+        """Add this host's reduced Gauss-Newton terms (depths eliminated) to the window's ``H``, ``g``;
+        ``lins``: the residuals at this state (:meth:`evaluate_safeguarded`'s or :attr:`start`'s)."""
+        return self.points.linearize(lins, d, H, g, self.columns)
 
-    def _cost_from(self, kh: WindowKeyframe, d: FloatArray, lins: list) -> float:
-        return float(self._point_costs_from(kh, d, lins).sum())
-
-    def _point_costs_from(self, kh: WindowKeyframe, d: FloatArray, lins: list,
-                          rows: NDArray[np.intp] | None = None) -> FloatArray:
-        """Each point's cost: robust photometric and stereo losses and depth prior (``rows``: ``d``
-        and ``lins`` hold only these points)."""
-        sel = slice(None) if rows is None else rows
-        c = np.zeros(d.shape[0] if rows is None else rows.size)
-        for j, lin in enumerate(lins[:-1]):
-            c += self._robust(self.W[j][sel], lin.residual)[1]
-        if lins[-1] is not None:
-            c += self._robust(self.W_stereo[sel], lins[-1].residual)[1]
-        if kh.depth_prior:
-            c += 0.5 * (d[sel] - kh.prior_inverse_depth[sel]) ** 2 / kh.variance[sel]
-        return c
-
-    def evaluate(self, keyframes, poses, affines, d) -> tuple[float, list]:
-        """This host's cost at a state and the linearisations it was computed from."""
-        lins = self._lins(keyframes, d, poses, affines)
-        return self._cost_from(keyframes[self.h], d, lins), lins
-
-    def evaluate_safeguarded(self, keyframes, poses, affines, d_new, d_old, c_old_lin
+    def evaluate_safeguarded(self, poses, affines, system: DepthSystem, d_new: FloatArray
                              ) -> tuple[float, FloatArray, list]:
         """The cost at a trial state with the back-substituted inverse depths ``d_new``, except for
-        points whose cost rose above their cost at the linearisation point (``c_old_lin``) and that
-        cost less at their linearisation depth ``d_old``, which keep it (the safeguarded depth
-        step of :class:`factors.smart.HostPointsFactor`): ``(cost, depths, linearisations)``."""
-        kh = keyframes[self.h]
-        lins = self._lins(keyframes, d_new, poses, affines)
-        c = self._point_costs_from(kh, d_new, lins)
-        d = d_new
-        rows = np.flatnonzero(c > c_old_lin)
-        if rows.size:
-            lins_old = [self._target(keyframes, t, d_old, poses, affines, jac=True, rows=rows) for t in self.targets]
-            lins_old.append(self._stereo(kh, d_old, rows) if kh.right is not None else None)
-            c_old = self._point_costs_from(kh, d_old, lins_old, rows)
-            d, c, lins = keep_cheaper_depths(d, c, lins, rows, d_old, c_old, lins_old)
+        points whose cost rose above their cost at ``system``'s linearisation point and that cost
+        less at their depth there, which keep it (the safeguarded depth step, as the smart factor's):
+        ``(cost, depths, linearisations)``."""
+        P, A = self._local(poses, affines)
+        c, d, lins = self.points.safeguard(P, A, system, d_new, self.points.residuals(P, A, d_new))
         return float(c.sum()), d, lins
-
-    def _target(self, keyframes, t, d, poses, affines, jac, rows=None):
-        kh = keyframes[self.h]
-        sel = slice(None) if rows is None else rows
-        return photometric_residuals(self.camera, self.host_I[sel], self.host_valid[sel], kh.pixels[sel], d[sel],
-                                     poses[self.h], poses[t], keyframes[t].image, affines[self.h], affines[t],
-                                     self.config.pattern, jacobians=jac, host_jacobians=jac,
-                                     bearings=self.bearings[sel])
-
-    def _stereo(self, kh: WindowKeyframe, d: FloatArray, rows=None):
-        sel = slice(None) if rows is None else rows
-        return stereo_residuals(self.camera, self.baseline, self.host_I[sel], self.host_valid[sel], kh.pixels[sel],
-                                d[sel], kh.right, (0.0, 0.0), kh.stereo_affine, self.config.pattern,
-                                jacobians=False, bearings=self.bearings[sel])
-
-    def _robust(self, W: FloatArray, r: FloatArray) -> tuple[FloatArray, FloatArray]:
-        return point_robust_terms(W, r, self.config.huber_k)
-
-    def cost(self, keyframes, poses, affines, d) -> float:
-        return self.evaluate(keyframes, poses, affines, d)[0]
-
-    def linearize(self, keyframes, poses, affines, d, H: FloatArray, g: FloatArray, lins: list | None = None):
-        """Add this host's Gauss-Newton terms to the full ``H``, ``g`` (8 per keyframe); return
-        ``(c (N,), H_pd (N, 8K), H_dd (N,), g_d (N,))`` with ``c`` each point's cost.
-        ``lins``: :meth:`evaluate`'s at this state."""
-        kh = keyframes[self.h]
-        lins = self._lins(keyframes, d, poses, affines) if lins is None else lins
-        n = d.shape[0]
-        H_pd = np.zeros((n, H.shape[0]))
-        H_dd = np.zeros(n)
-        g_d = np.zeros(n)
-        c = np.zeros(n)
-        for j, t in enumerate(self.targets):
-            lin = lins[j]
-            w, loss = self._robust(self.W[j], lin.residual)
-            c += loss
-            # blocks [host pose, host affine, target pose, target affine]: 8 per keyframe
-            H_t, g_t, H_pd_t, H_dd_t, g_d_t = gauss_newton_sums(lin, self.W[j] * w[:, None])
-            cols = np.r_[8 * self.h:8 * self.h + 8, 8 * t:8 * t + 8]
-            H[np.ix_(cols, cols)] += H_t
-            g[cols] += g_t
-            H_pd[:, cols] += H_pd_t
-            H_dd += H_dd_t
-            g_d += g_d_t
-        if self.W_stereo is not None:
-            st = lins[-1]
-            w, loss = self._robust(self.W_stereo, st.residual)
-            ww = self.W_stereo * w[:, None]
-            H_dd += np.sum(ww * st.J_depth ** 2, axis=1)
-            g_d += np.sum(ww * st.J_depth * st.residual, axis=1)
-            c += loss
-        if kh.depth_prior:
-            H_dd += 1.0 / kh.variance
-            g_d += (d - kh.prior_inverse_depth) / kh.variance
-            c += 0.5 * (d - kh.prior_inverse_depth) ** 2 / kh.variance
-        return c, H_pd, H_dd, g_d
 
 
 def _prior_terms(keyframes, poses, affines, config, with_gauge, H=None, g=None, motion=None) -> float:
@@ -217,14 +133,13 @@ def _marginal_terms(marginal: MarginalPrior | None, keyframes, poses, affines, H
 
 def window_cost(camera: PinholeCamera, baseline: float | None, keyframes: Sequence[WindowKeyframe],
                 config: WindowConfig, marginal: MarginalPrior | None = None,
-                targets: list[list[int]] | None = None, terms: list[_HostTerms] | None = None) -> float:
+                targets: list[list[int]] | None = None) -> float:
     """The window cost E at the keyframes' current state, computed the hand-rolled way (W at this state)."""
     targets = visible_targets(camera, keyframes, config) if targets is None else targets
-    if terms is None:
-        terms = [_HostTerms(camera, baseline, keyframes, h, ts, config) for h, ts in enumerate(targets)]
+    hosts = [_WindowHost(camera, baseline, keyframes, h, ts, config) for h, ts in enumerate(targets)]
     poses = [kf.pose for kf in keyframes]
     affines = [kf.affine for kf in keyframes]
-    E = sum(t.cost(keyframes, poses, affines, keyframes[t.h].inverse_depth) for t in terms)
+    E = sum(host.start[0] for host in hosts)
     E += _prior_terms(keyframes, poses, affines, config, marginal is None)
     return E + _marginal_terms(marginal, keyframes, poses, affines)
 
@@ -242,41 +157,33 @@ def solve_handrolled(camera: PinholeCamera, baseline: float | None, keyframes: S
     """
     t0 = time.perf_counter()
     targets = visible_targets(camera, keyframes, config) if targets is None else targets
-    terms = [_HostTerms(camera, baseline, keyframes, h, ts, config) for h, ts in enumerate(targets) if ts]
+    hosts = [_WindowHost(camera, baseline, keyframes, h, ts, config) for h, ts in enumerate(targets) if ts]
     K = len(keyframes)
     with_gauge = marginal is None
     poses = [kf.pose for kf in keyframes]
     affines = [kf.affine.copy() for kf in keyframes]
-    depths = {t.h: keyframes[t.h].inverse_depth.copy() for t in terms}
+    depths = {host.h: keyframes[host.h].inverse_depth.copy() for host in hosts}
     motion = motion_factors(keyframes, config)
 
-    def cost(P, A, D_new, D_old, C_old) -> tuple[float, dict[int, FloatArray], dict[int, list]]:
+    def cost(P, A, D_new, systems) -> tuple[float, dict[int, FloatArray], dict[int, list]]:
         E, D, L = 0.0, {}, {}
-        for t in terms:
-            e, D[t.h], L[t.h] = t.evaluate_safeguarded(keyframes, P, A, D_new[t.h], D_old[t.h], C_old[t.h])
+        for host in hosts:
+            e, D[host.h], L[host.h] = host.evaluate_safeguarded(P, A, systems[host.h], D_new[host.h])
             E += e
         E += _prior_terms(keyframes, P, A, config, with_gauge, motion=motion)
         return E + _marginal_terms(marginal, keyframes, P, A), D, L
 
-    E = sum(t.start[0] for t in terms) + _prior_terms(keyframes, poses, affines, config, with_gauge, motion=motion) \
+    E = sum(host.start[0] for host in hosts) \
+        + _prior_terms(keyframes, poses, affines, config, with_gauge, motion=motion) \
         + _marginal_terms(marginal, keyframes, poses, affines)
-    state_lins = {t.h: t.start[1] for t in terms}
+    state_lins = {host.h: host.start[1] for host in hosts}
     initial = E
     lam = 1e-5
     it = 0
     for it in range(1, config.max_iterations + 1):
         H = np.zeros((8 * K, 8 * K))
         g = np.zeros(8 * K)
-        lins, point_costs = {}, {}
-        for t in terms:
-            point_costs[t.h], H_pd, H_dd, g_d = t.linearize(keyframes, poses, affines, depths[t.h], H, g,
-                                                            state_lins[t.h])
-            active = H_dd > 1e-12 * max(float(H_dd.max()), 1e-300)
-            Hdd = np.where(active, H_dd, 1.0)
-            L = H_pd[active] / Hdd[active, None]
-            H -= L.T @ H_pd[active]
-            g -= L.T @ g_d[active]
-            lins[t.h] = (H_pd, Hdd, g_d, active)
+        systems = {host.h: host.linearize(depths[host.h], H, g, state_lins[host.h]) for host in hosts}
         _prior_terms(keyframes, poses, affines, config, with_gauge, H, g, motion)
         _marginal_terms(marginal, keyframes, poses, affines, H, g)
         H = 0.5 * (H + H.T)
@@ -286,12 +193,8 @@ def solve_handrolled(camera: PinholeCamera, baseline: float | None, keyframes: S
             dx = np.linalg.solve(H + lam * np.diag(diag), -g)
             P = [p.retract(dx[8 * k:8 * k + 6]) for k, p in enumerate(poses)]
             A = [a + dx[8 * k + 6:8 * k + 8] for k, a in enumerate(affines)]
-            D = {}
-            for h, (H_pd, Hdd, g_d, active) in lins.items():
-                step = np.zeros_like(g_d)
-                step[active] = -(g_d[active] + H_pd[active] @ dx) / Hdd[active]
-                D[h] = np.maximum(depths[h] + step, 0.1 * depths[h])
-            E_new, D, L_new = cost(P, A, D, depths, point_costs)
+            D = {h: system.back_substitute(dx) for h, system in systems.items()}
+            E_new, D, L_new = cost(P, A, D, systems)
             if E_new < E:
                 accepted = True
                 break

@@ -8,8 +8,9 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
+from factors.keys import affine_key, pose_key
 from gtvo.core.camera import PinholeCamera
-from gtvo.window.config import MarginalPrior, WindowConfig, WindowKeyframe, affine_key, pose_key
+from gtvo.window.config import MarginalPrior, WindowConfig, WindowKeyframe
 from gtvo.window.config import values_subset
 from gtvo.window.problem import gauge_noise, key_ordering, host_factor, motion_factors, visible_targets, window_values
 

@@ -12,10 +12,11 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from factors.gtsam_factors import ConstantVelocityFactor
+from factors.keys import affine_key, pose_key
 from factors.smart import HostPointsFactor
+from factors.smoothness import ConstantVelocityFactor
 from gtvo.core.camera import MIN_DEPTH, PinholeCamera
-from gtvo.window.config import MarginalPrior, WindowConfig, WindowKeyframe, affine_key, pose_key
+from gtvo.window.config import MarginalPrior, WindowConfig, WindowKeyframe
 
 FloatArray = NDArray[np.float64]
 

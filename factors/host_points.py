@@ -1,0 +1,304 @@
+"""The points hosted in one keyframe, linearised with their inverse depths eliminated (pure numpy).
+
+:class:`HostPoints` is the per-host core of both window solvers: the GTSAM adapter
+:class:`factors.smart.HostPointsFactor` and the hand-rolled solver of
+:mod:`gtvo.window.handrolled` (each keeps its own optimisation loop, so the two still check each
+other). It owns everything between the photometric kernel and an optimiser: the host samples
+and bearings, the variance weights ``W`` (frozen at their first evaluation), the Huber IRLS
+weights and losses, the stereo term and the depth prior, the accumulation over targets, the
+Schur elimination of the depths, the back-substitution and the safeguarded depth step.
+
+At poses/affines ``x`` and inverse depths ``d``, with the IRLS weights ``w_n`` (Huber on each
+point-target pattern norm) and variance weights ``W``::
+
+    H_pp = sum J_p^T wW J_p,  H_pd[n] = sum J_p^T wW J_d,  H_dd[n] = sum wW J_d^2 (+ 1/sigma_prior^2)
+    g_p  = sum J_p^T wW r,    g_d[n]  = sum wW J_d r      (+ (d - d_prior)/sigma_prior^2)
+    H_red = H_pp - sum_n H_pd H_pd^T / H_dd,    g_red = g_p - sum_n H_pd g_d / H_dd
+
+over the active points (``H_dd`` above 1e-12 of the largest; the others keep their depth). A
+step ``dx`` implies the depths ``d + dd``, ``dd = -(g_d + H_pd dx) / H_dd`` (kept >= 0.1 d);
+the safeguard lets a point whose cost rose above its cost at the linearisation point keep its
+old depth if that costs less (an optimiser damps only ``x``; the undamped depth step raised the
+cost of many points near the optimum). Details: docs/factors.md §7, docs/window.md.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from factors import _compiled
+from factors.photometric import (GradientSampler, PhotometricLinearization, pattern_bearings, photometric_residuals,
+                                 replace_rows, sample_host, stereo_residuals)
+from factors.weights import point_robust_terms, variance_weight
+from gtvo.core.camera import PinholeCamera
+from gtvo.errors import InputError
+
+FloatArray = NDArray[np.float64]
+
+
+def gauss_newton_sums(lin: PhotometricLinearization, weight: ArrayLike, with_affine: bool = True
+                      ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
+    """Gauss-Newton sums of one host-target linearisation (the window's Hessian accumulation).
+
+    With ``J = [J_host, J_affine_host, J_target, J_affine_target]`` per residual (this block
+    order; without ``with_affine`` the two pose blocks only), ``w = weight`` (N, P) (the
+    variance weight W times the point's robust weight), ``r`` the residual and ``j`` its
+    ``J_depth``:
+
+        H = sum w J^T J   (16, 16 or 12, 12)      g = sum w J^T r
+        H_pd[n] = sum_P w j J   (N, k)            H_dd[n] = sum_P w j^2    g_d[n] = sum_P w j r
+
+    The pose-depth blocks stay per point for the Schur complement. One compiled loop
+    (:func:`factors._compiled.accumulate_target`); tested against the numpy sums.
+
+    Raises:
+        InputError: the linearisation has no pose Jacobians (``jacobians=False`` or
+            ``host_jacobians=False``), or ``weight`` has the wrong shape.
+    """
+    if lin.J_host is None or lin.J_target is None:
+        raise InputError("gauss_newton_sums needs a linearisation with host and target Jacobians")
+    w = np.ascontiguousarray(weight, dtype=float)
+    if w.shape != lin.residual.shape:
+        raise InputError(f"gauss_newton_sums: weight has shape {w.shape}, residuals {lin.residual.shape}")
+    p = lin.residual.shape[1]
+    if with_affine:
+        if lin.J_affine_host is None or lin.J_affine_target is None:
+            raise InputError("gauss_newton_sums: with_affine needs the affine Jacobians")
+        ah, at = np.ascontiguousarray(lin.J_affine_host), np.ascontiguousarray(lin.J_affine_target)
+    else:
+        ah = at = np.zeros((0, p, 2))
+    return _compiled.accumulate_target(np.ascontiguousarray(lin.J_host), ah, np.ascontiguousarray(lin.J_target), at,
+                                       w, np.ascontiguousarray(lin.residual), np.ascontiguousarray(lin.J_depth))
+
+
+def keep_cheaper_depths(d: FloatArray, c: FloatArray, lins: list, rows: NDArray[np.intp], d_old: FloatArray,
+                        c_old: FloatArray, lins_old: list) -> tuple[FloatArray, FloatArray, list]:
+    """The safeguarded depth step's merge: of the points ``rows`` (whose cost at the new depths
+    ``d`` rose), those that cost less at their old depth (``c_old``, ``lins_old``: evaluated for
+    ``rows`` only) take it back. Returns ``(depths, point costs, linearisations)``; the inputs
+    are not modified."""
+    keep = np.flatnonzero(c_old < c[rows])
+    if not keep.size:
+        return d, c, lins
+    r = rows[keep]
+    d, c = d.copy(), c.copy()
+    d[r], c[r] = d_old[r], c_old[keep]
+    return d, c, [None if a is None else replace_rows(a, r, b, keep) for a, b in zip(lins, lins_old)]
+
+
+@dataclass
+class DepthSystem:
+    """The per-point blocks of one linearisation of a host's points (:meth:`HostPoints.linearize`).
+
+    ``H_pd`` has one column per entry of the caller's state vector; ``H_dd`` is 1 for the
+    inactive points (no curvature), which keep their depth.
+    """
+
+    d: FloatArray  #: (N,) inverse depths at the linearisation point
+    H_pd: FloatArray  #: (N, M)
+    H_dd: FloatArray  #: (N,)
+    g_d: FloatArray  #: (N,)
+    active: NDArray[np.bool_]  #: (N,) points with curvature
+    point_cost: FloatArray  #: (N,) each point's cost at the linearisation point
+
+    def back_substitute(self, dx: FloatArray) -> FloatArray:
+        """The inverse depths implied by the state step ``dx`` (M,): ``d - (g_d + H_pd dx) / H_dd``,
+        kept at least ``0.1 d`` (> 0; an optimiser rejects such far steps anyway)."""
+        step = np.zeros_like(self.d)
+        a = self.active
+        step[a] = -(self.g_d[a] + self.H_pd[a] @ dx) / self.H_dd[a]
+        return np.maximum(self.d + step, 0.1 * self.d)
+
+    def newton_decrease(self) -> float:
+        """The decrease of the cost's Gauss-Newton model from the depth-only Newton step at ``dx = 0``:
+        ``sum_n g_d^2 / (2 H_dd)`` over the active points."""
+        a = self.active
+        return 0.5 * float(np.sum(self.g_d[a] ** 2 / self.H_dd[a]))
+
+
+class HostPoints:
+    """All points hosted in one keyframe and observed in T target images (T >= 0).
+
+    Poses and affines are passed as lists, host first then the targets in order: ``poses`` of
+    ``T_world_cam`` (``gtsam.Pose3`` or 4x4), ``affines`` of ``(a, b)`` (ignored without
+    ``with_affine``: all zero). Inverse depths ``d`` are (N,) arrays held by the caller.
+
+    Args:
+        camera: intrinsics (all images share them).
+        pixels: (N, 2) host pixels.
+        host_image: the host image with gradients; target_images: one per target.
+        inverse_depth_variance: (N,) V used in the weight W (and, with ``depth_prior``, as the
+            prior's variance).
+        prior_inverse_depth: (N,) the depth prior's mean (e.g. the stereo estimate).
+        sigma_intensity, huber_k, pattern: the weight's intensity noise, the Huber threshold on a
+            point's whitened pattern norm (None: no kernel) and the (P, 2) residual pattern.
+        depth_prior: add ``(d - prior)^2 / V`` to each point's cost (it also fixes depths of points
+            seen in no target).
+        with_affine: the affines are variables (16 Jacobian columns per target, else 12).
+        right_image, baseline, lambda_stereo, stereo_affine: the host frame's stereo energy
+            ``lambda E_s`` (:func:`factors.photometric.stereo_residuals`, right image's ``(a, b)``
+            relative to the left one held fixed); it involves only the depths.
+
+    The variance weights W are frozen at their first evaluation (:meth:`weights`) and released by
+    :meth:`release_weights`: with W moving with the state the Gauss-Newton model would not match
+    the cost an optimiser compares, and LM stalls (docs/factors.md §4).
+    """
+
+    def __init__(self, camera: PinholeCamera, pixels: ArrayLike, host_image: GradientSampler,
+                 target_images: Sequence[GradientSampler], inverse_depth_variance: ArrayLike | float,
+                 prior_inverse_depth: ArrayLike, *, sigma_intensity: float, huber_k: float | None,
+                 pattern: ArrayLike, depth_prior: bool, with_affine: bool = True,
+                 right_image: GradientSampler | None = None, baseline: float | None = None,
+                 lambda_stereo: float = 1.0, stereo_affine: ArrayLike = (0.0, 0.0)) -> None:
+        self.camera = camera
+        self.pixels = np.asarray(pixels, dtype=float).reshape(-1, 2)
+        n = self.pixels.shape[0]
+        if n == 0:
+            raise InputError("HostPoints: need N > 0 points")
+        self.variance = np.broadcast_to(np.asarray(inverse_depth_variance, dtype=float), (n,)).copy()
+        self.depth_prior = bool(depth_prior)
+        if self.depth_prior and not np.all(self.variance > 0):
+            raise InputError("HostPoints: a depth prior needs positive inverse-depth variances")
+        self.prior = np.asarray(prior_inverse_depth, dtype=float).reshape(-1).copy()
+        if self.prior.shape[0] != n or not np.all(np.isfinite(self.prior)):
+            raise InputError(f"HostPoints: prior_inverse_depth must hold {n} finite values")
+        if right_image is not None:
+            if baseline is None or not (np.isfinite(baseline) and baseline > 0):
+                raise InputError(f"HostPoints: a stereo term needs a positive baseline, got {baseline!r}")
+            if not (np.isfinite(lambda_stereo) and lambda_stereo > 0):
+                raise InputError(f"HostPoints: lambda_stereo must be positive, got {lambda_stereo!r}")
+        self.pattern = np.asarray(pattern, dtype=float).reshape(-1, 2)
+        self.host_intensity, self.host_valid = sample_host(host_image, self.pixels, self.pattern)
+        self.bearings = pattern_bearings(camera, self.pixels, self.pattern)  # fixed: host pixels only
+        self.target_images = list(target_images)
+        self.sigma = float(sigma_intensity)
+        self.huber_k = huber_k
+        self.with_affine = bool(with_affine)
+        self.right_image = right_image
+        self.baseline = None if baseline is None else float(baseline)
+        self.lambda_stereo = float(lambda_stereo)
+        self.stereo_affine = np.asarray(stereo_affine, dtype=float).reshape(2)
+        self.W: list[FloatArray] | None = None
+
+    def __len__(self) -> int:
+        return int(self.pixels.shape[0])
+
+    # --- residuals and weights ---------------------------------------------------------------
+    def residuals(self, poses: Sequence, affines: Sequence | None, d: FloatArray,
+                  rows: NDArray[np.intp] | None = None) -> list:
+        """Linearisations (with Jacobians) of every target, then the stereo term (or None), of all
+        points or of the points ``rows`` (``d`` is always the full (N,) vector).
+
+        An optimiser evaluates the cost at a trial state and, when it accepts it, linearises at the
+        same state: the Jacobians cost about a third of a pass (the bilinear gathers being the
+        rest), so the cost pass computes them and the linearisation reuses its output.
+        """
+        sel = slice(None) if rows is None else rows
+        Ih, hv, px, f, ds = self.host_intensity[sel], self.host_valid[sel], self.pixels[sel], self.bearings[sel], d[sel]
+        zero = np.zeros(2)
+        ah = affines[0] if self.with_affine else zero
+        out: list = []
+        for t, img in enumerate(self.target_images):
+            at = affines[1 + t] if self.with_affine else zero
+            out.append(photometric_residuals(self.camera, Ih, hv, px, ds, poses[0], poses[1 + t], img, ah, at,
+                                             self.pattern, jacobians=True, host_jacobians=True, bearings=f))
+        out.append(None if self.right_image is None else
+                   stereo_residuals(self.camera, self.baseline, Ih, hv, px, ds, self.right_image, (0.0, 0.0),
+                                    self.stereo_affine, self.pattern, jacobians=False, bearings=f))
+        return out
+
+    def weights(self, lins: list) -> list[FloatArray]:
+        """W per target (then ``lambda`` W of the stereo term): frozen at the first call, from the
+        :meth:`residuals` ``lins`` of all points given then."""
+        if self.W is None:
+            W = [variance_weight(lin.J_depth, self.variance, self.sigma) for lin in lins[:-1]]
+            if lins[-1] is not None:
+                W.append(self.lambda_stereo * variance_weight(lins[-1].J_depth, self.variance, self.sigma))
+            self.W = W
+        return self.W
+
+    def release_weights(self) -> None:
+        """Forget the frozen W: the next evaluation freezes them again at its state."""
+        self.W = None
+
+    def point_costs(self, lins: list, d: FloatArray, rows: NDArray[np.intp] | None = None) -> FloatArray:
+        """Each point's cost from its :meth:`residuals`: robust photometric and stereo losses and
+        the depth prior (``rows``: ``lins`` hold only these points; W must be frozen already)."""
+        sel = slice(None) if rows is None else rows
+        assert rows is None or self.W is not None
+        Ws = self.weights(lins)
+        c = np.zeros(d.shape[0] if rows is None else rows.size)
+        for W, lin in zip(Ws, lins):
+            c += point_robust_terms(W[sel], lin.residual, self.huber_k)[1]
+        if self.depth_prior:
+            c += 0.5 * (d[sel] - self.prior[sel]) ** 2 / self.variance[sel]
+        return c
+
+    # --- linearisation -----------------------------------------------------------------------
+    def linearize(self, lins: list, d: FloatArray, H: FloatArray, g: FloatArray,
+                  columns: Sequence[NDArray[np.intp]]) -> DepthSystem:
+        """Add this host's Gauss-Newton terms, depths eliminated, to the caller's ``H`` (M, M), ``g`` (M,).
+
+        ``lins``: :meth:`residuals` at this state (all points); ``columns[t]``: the entries of the
+        caller's state vector of target t's :func:`gauss_newton_sums` block (host pose, [host
+        affine,] target pose[, target affine]). Returns the per-point blocks and costs.
+        """
+        n = d.shape[0]
+        H_pd = np.zeros((n, H.shape[0]))
+        H_dd = np.zeros(n)
+        g_d = np.zeros(n)
+        c = np.zeros(n)
+        Ws = self.weights(lins)
+        for t, cols in enumerate(columns):
+            lin, W = lins[t], Ws[t]
+            w, loss = point_robust_terms(W, lin.residual, self.huber_k)
+            c += loss
+            H_t, g_t, H_pd_t, H_dd_t, g_d_t = gauss_newton_sums(lin, W * w[:, None], self.with_affine)
+            H[np.ix_(cols, cols)] += H_t
+            g[cols] += g_t
+            H_pd[:, cols] += H_pd_t
+            H_dd += H_dd_t
+            g_d += g_d_t
+        if lins[-1] is not None:
+            st, W = lins[-1], Ws[-1]
+            w, loss = point_robust_terms(W, st.residual, self.huber_k)
+            ww = W * w[:, None]
+            H_dd += np.sum(ww * st.J_depth ** 2, axis=1)
+            g_d += np.sum(ww * st.J_depth * st.residual, axis=1)
+            c += loss
+        if self.depth_prior:
+            H_dd += 1.0 / self.variance
+            g_d += (d - self.prior) / self.variance
+            c += 0.5 * (d - self.prior) ** 2 / self.variance
+        return self._eliminate(DepthSystem(d.copy(), H_pd, H_dd, g_d, np.ones(n, dtype=bool), c), H, g)
+
+    @staticmethod
+    def _eliminate(system: DepthSystem, H: FloatArray, g: FloatArray) -> DepthSystem:
+        """Schur-eliminate the active depths from ``H``, ``g`` in place:
+        ``H -= sum_n H_pd H_pd^T / H_dd``, ``g -= sum_n H_pd g_d / H_dd``."""
+        H_dd = system.H_dd
+        active = H_dd > 1e-12 * max(float(H_dd.max()), 1e-300)
+        Hdd = np.where(active, H_dd, 1.0)
+        L = system.H_pd[active] / Hdd[active, None]
+        H -= L.T @ system.H_pd[active]
+        g -= L.T @ system.g_d[active]
+        system.H_dd, system.active = Hdd, active
+        return system
+
+    def safeguard(self, poses: Sequence, affines: Sequence | None, system: DepthSystem, d: FloatArray,
+                  lins: list) -> tuple[FloatArray, FloatArray, list]:
+        """The safeguarded depth step at a trial state: ``d`` are :meth:`DepthSystem.back_substitute`'s
+        depths and ``lins`` the :meth:`residuals` there; the points whose cost rose above their cost
+        at ``system``'s linearisation point and that cost less at their depth there keep it.
+        Returns ``(point costs, depths, linearisations)`` (``d`` itself when no point goes back)."""
+        c = self.point_costs(lins, d)
+        rows = np.flatnonzero(c > system.point_cost)
+        if rows.size:
+            lins_old = self.residuals(poses, affines, system.d, rows)
+            d, c, lins = keep_cheaper_depths(d, c, lins, rows, system.d, self.point_costs(lins_old, system.d, rows),
+                                             lins_old)
+        return c, d, lins

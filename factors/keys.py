@@ -1,0 +1,59 @@
+"""The GTSAM keys of the VO problem, defined once (docs/conventions.md, "Keys").
+
+Every key is ``gtsam.symbol(char, index)`` with one character per kind of variable, as
+``gtsam.symbol_shorthand`` does in GTSAM's examples. Graphs built anywhere in gtvo (tracking, the
+window, pose graphs, loop closure, the motion model, wheel-odometry calibration) take their keys
+from here, so two modules that meet in one graph agree on them.
+"""
+
+from __future__ import annotations
+
+import gtsam
+
+#: Pose ``T_world_cam`` of a frame, keyframe or pose-graph node (Pose3; Pose2 in 2-D graphs).
+POSE = "x"
+#: Inverse depth of a point (double), indexed by a global point index.
+INVERSE_DEPTH = "d"
+#: Affine brightness ``(a, b)`` of a frame's (left) image (Vector2).
+AFFINE = "a"
+#: Affine brightness ``(a, b)`` of a frame's right image (Vector2).
+RIGHT_AFFINE = "r"
+#: Motion-model state (Vector).
+MOTION_STATE = "v"
+#: Wheel-odometry calibration parameters (Vector).
+CALIBRATION = "c"
+
+
+def pose_key(index: int) -> int:
+    """Key of the pose of frame / keyframe / pose-graph node ``index`` (``x<index>``)."""
+    return gtsam.symbol(POSE, int(index))
+
+
+def inverse_depth_key(index: int) -> int:
+    """Key of the inverse depth of point ``index`` (``d<index>``)."""
+    return gtsam.symbol(INVERSE_DEPTH, int(index))
+
+
+def affine_key(index: int) -> int:
+    """Key of the affine brightness ``(a, b)`` of frame ``index``'s left image (``a<index>``)."""
+    return gtsam.symbol(AFFINE, int(index))
+
+
+def right_affine_key(index: int) -> int:
+    """Key of the affine brightness ``(a, b)`` of frame ``index``'s right image (``r<index>``)."""
+    return gtsam.symbol(RIGHT_AFFINE, int(index))
+
+
+def motion_state_key(index: int) -> int:
+    """Key of the motion-model state ``index`` (``v<index>``)."""
+    return gtsam.symbol(MOTION_STATE, int(index))
+
+
+def calibration_key(index: int = 0) -> int:
+    """Key of the wheel-odometry calibration variable ``index`` (``c<index>``)."""
+    return gtsam.symbol(CALIBRATION, int(index))
+
+
+def is_pose_key(key: int) -> bool:
+    """Whether ``key`` is a pose key (:func:`pose_key`)."""
+    return gtsam.Symbol(key).chr() == ord(POSE)

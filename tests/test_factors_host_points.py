@@ -1,0 +1,125 @@
+"""HostPoints, the per-host linearisation shared by both window solvers: independent of where the
+caller's state puts its blocks, back-substitution, the safeguarded depth step, frozen weights.
+(Its reduced system against the per-point graph: tests/test_factors_smart.py; the two solvers
+built on it against each other: tests/test_window.py.)"""
+
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+import pytest
+
+from factors.host_points import HostPoints
+from factors.photometric import PATTERN_DSO8
+from tests._factors_synthetic import SinusoidImage, small_camera
+
+
+def _problem(seed: int = 0, stereo: bool = True, n: int = 40):
+    """A host with two targets (and a right image): ``(points, poses, affines, d)``."""
+    rng = np.random.default_rng(seed)
+    cam = small_camera()
+    px = np.c_[rng.uniform(25, 135, n), rng.uniform(25, 95, n)]
+    d = rng.uniform(0.2, 1.5, n)
+    V = rng.uniform(1e-4, 1e-2, n)
+    targets = [SinusoidImage(seed=seed + 2), SinusoidImage(seed=seed + 3)]
+    pts = HostPoints(cam, px, SinusoidImage(seed=seed + 1), targets, V, d * (1 + 0.05 * rng.normal(size=n)), sigma_intensity=8.0, huber_k=2.0, pattern=PATTERN_DSO8,
+                     depth_prior=True, right_image=SinusoidImage(seed=seed + 4) if stereo else None,
+                     baseline=0.2 if stereo else None, lambda_stereo=0.7, stereo_affine=(0.05, 2.0))
+    poses = [gtsam.Pose3(gtsam.Rot3.Expmap(rng.normal(0, 0.02, 3)), rng.normal(0, 0.05, 3)) for _ in range(3)]
+    affines = [rng.normal(0, 0.1, 2) for _ in range(3)]
+    return pts, poses, affines, d
+
+
+def _local_columns(t: int) -> np.ndarray:
+    """All poses, then all affines (the smart factor's order), for host + 2 targets."""
+    return np.r_[0:6, 18:20, 6 * (1 + t):6 * (2 + t), 18 + 2 * (1 + t):20 + 2 * (1 + t)]
+
+
+@pytest.mark.parametrize("stereo", [False, True])
+def test_linearization_does_not_depend_on_the_callers_layout(stereo):
+    """The same host linearised into the smart factor's 24-entry state and into a 5-keyframe
+    window state (host at position 3, targets at 0 and 4, 8 entries each, already holding other
+    terms) gives the same reduced system and per-point blocks, entry for entry."""
+    pts, poses, affines, d = _problem(stereo=stereo)
+    lins = pts.residuals(poses, affines, d)
+    H1, g1 = np.zeros((24, 24)), np.zeros(24)
+    s1 = pts.linearize(lins, d, H1, g1, [_local_columns(t) for t in range(2)])
+
+    rng = np.random.default_rng(5)
+    A = rng.normal(size=(40, 40))
+    H0, g0 = A @ A.T, rng.normal(size=40)
+    H2, g2 = H0.copy(), g0.copy()
+    pos = [3, 0, 4]  # host, targets
+    s2 = pts.linearize(lins, d, H2, g2, [np.r_[8 * pos[0]:8 * pos[0] + 8, 8 * p:8 * p + 8] for p in pos[1:]])
+    # window entry of each smart-factor entry: poses first, then affines
+    where = np.r_[[8 * p + i for p in pos for i in range(6)], [8 * p + 6 + i for p in pos for i in range(2)]]
+    scale = np.abs(H1).max()
+    np.testing.assert_allclose((H2 - H0)[np.ix_(where, where)], H1, rtol=0, atol=1e-12 * scale)
+    np.testing.assert_allclose((g2 - g0)[where], g1, rtol=0, atol=1e-12 * np.abs(g1).max())
+    others = np.setdiff1d(np.arange(40), where)
+    assert np.array_equal(H2[others], H0[others]) and np.array_equal(g2[others], g0[others])
+    np.testing.assert_array_equal(s2.H_pd[:, where], s1.H_pd)
+    assert not s2.H_pd[:, others].any()
+    for name in ("H_dd", "g_d", "active", "point_cost", "d"):
+        np.testing.assert_array_equal(getattr(s2, name), getattr(s1, name))
+    assert s1.point_cost.sum() == pytest.approx(pts.point_costs(lins, d).sum(), rel=1e-14)
+
+
+def test_back_substitution_is_the_depth_rows_of_the_newton_system():
+    """``H_pd dx + H_dd dd = -g_d`` for every active point, depths kept >= 0.1 d."""
+    pts, poses, affines, d = _problem(seed=1)
+    H, g = np.zeros((24, 24)), np.zeros(24)
+    s = pts.linearize(pts.residuals(poses, affines, d), d, H, g, [_local_columns(t) for t in range(2)])
+    dx = np.linalg.solve(H + 1e-6 * np.eye(24), -g)
+    dd = s.back_substitute(dx) - d
+    a = s.active & (dd > -0.9 * d)  # not clamped
+    assert a.sum() > 0.8 * len(d)
+    np.testing.assert_allclose(s.H_pd[a] @ dx + s.H_dd[a] * dd[a], -s.g_d[a], rtol=1e-9,
+                               atol=1e-9 * np.abs(s.g_d).max())
+    big = s.back_substitute(1e6 * dx)
+    assert np.all(big >= 0.1 * d - 1e-15)
+    assert s.newton_decrease() == pytest.approx(0.5 * np.sum(s.g_d[s.active] ** 2 / s.H_dd[s.active]))
+
+
+def test_safeguard_keeps_per_point_the_cheaper_depth():
+    """At a trial state, a point whose cost rose above its cost at the linearisation point keeps
+    whichever of its new and old depth costs less; the others keep the new depth."""
+    pts, poses, affines, d = _problem(seed=2)
+    H, g = np.zeros((24, 24)), np.zeros(24)
+    s = pts.linearize(pts.residuals(poses, affines, d), d, H, g, [_local_columns(t) for t in range(2)])
+    rng = np.random.default_rng(3)
+    dx = np.linalg.solve(H + 1e-3 * np.diag(np.diag(H)), -g) + rng.normal(0, 0.005, 24)
+    P = [p.retract(dx[6 * i:6 * i + 6]) for i, p in enumerate(poses)]
+    A = [a + dx[18 + 2 * i:20 + 2 * i] for i, a in enumerate(affines)]
+    d_new = s.back_substitute(dx)
+    c, d_out, lins = pts.safeguard(P, A, s, d_new, pts.residuals(P, A, d_new))
+    c_new = pts.point_costs(pts.residuals(P, A, d_new), d_new)
+    c_old = pts.point_costs(pts.residuals(P, A, d), d)
+    rose = c_new > s.point_cost
+    assert rose.any()
+    back = rose & (c_old < c_new)
+    assert back.any() and not back[rose].all()  # (measured: 5 rose, 3 of them go back)
+    np.testing.assert_array_equal(d_out, np.where(back, d, d_new))
+    np.testing.assert_allclose(c, np.where(back, c_old, c_new), rtol=1e-12)
+    np.testing.assert_allclose(pts.point_costs(lins, d_out), c, rtol=1e-12)  # lins belong to d_out
+    # at dx = 0 the safeguarded cost cannot exceed the cost at the linearisation point
+    d0 = s.back_substitute(np.zeros(24))
+    c0 = pts.safeguard(poses, affines, s, d0, pts.residuals(poses, affines, d0))[0]
+    assert c0.sum() <= s.point_cost.sum()
+
+
+def test_weights_are_frozen_until_released():
+    """W is evaluated once, at the first state given; release_weights re-evaluates it at the next."""
+    pts, poses, affines, d = _problem(seed=3)
+    c_a = pts.point_costs(pts.residuals(poses, affines, d), d)
+    moved = [poses[0]] + [p.retract(np.r_[0, 0, 0, 0.05, -0.03, 0.04]) for p in poses[1:]]
+    lins_b = pts.residuals(moved, affines, d)
+    W_a = [w.copy() for w in pts.W]
+    c_frozen = pts.point_costs(lins_b, d)
+    assert all(np.array_equal(a, b) for a, b in zip(W_a, pts.W))
+    pts.release_weights()
+    c_released = pts.point_costs(lins_b, d)
+    assert not np.allclose(c_frozen, c_released, rtol=1e-6)
+    fresh = _problem(seed=3)[0]
+    np.testing.assert_array_equal(fresh.point_costs(fresh.residuals(moved, affines, d), d), c_released)
+    assert not np.allclose(c_a, c_released, rtol=1e-6)
