@@ -274,6 +274,15 @@ def test_info_command(tmp_path, capsys):
     assert code == 0 and "gtvo run would fail:" in out and "never pair" in out
     code, _, err = _run_cli(["info", str(_truncated(tmp_path / "c.bag"))], capsys)
     assert code == 2 and "cannot read bag" in err
+    code, _, err = _run_cli(["run", str(tmp_path / "missing.bag")], capsys)
+    assert code == 2 and "missing.bag: bag not found" in err
+
+
+@pytest.mark.realdata
+def test_info_on_a_folder(shared_data, capsys):
+    code, out, _ = _run_cli(["info", str(shared_data / "rgbd_dataset_freiburg3_teddy_first20")], capsys)
+    assert code == 0 and ": tum" in out and "gtvo run would use: rgbd, 20 frames" in out
+    assert "fx 535.4" in out and "ground truth yes" in out
 
 
 # --------------------------------------------------------------------------------------------
@@ -324,14 +333,15 @@ def kitti(shared_data, tmp_path_factory):
 
 
 @pytest.mark.realdata
-def test_kitti_bag_run_is_the_folder_run(kitti, tmp_path):
-    import gtvo
-
+def test_kitti_bag_run_is_the_folder_run(kitti, tmp_path, capsys):
     root, ros1, _ = kitti
-    config = gtvo.OdometryConfig(mode="track")
-    a = gtvo.run(root, out=tmp_path / "folder", config=config, max_frames=FRAMES)
-    b = gtvo.run(ros1, out=tmp_path / "bag", config=config, max_frames=FRAMES, ground_truth_topic="/ground_truth")
-    assert a["frames"] == b["frames"] == FRAMES
+    common = ["--max-frames", str(FRAMES), "--mode", "track", "--no-progress"]
+    assert cli_main(["run", str(root), "--out", str(tmp_path / "folder")] + common) == 0
+    assert cli_main(["run", str(ros1), "--out", str(tmp_path / "bag"), "--ground-truth-topic", "/ground_truth",
+                     "--left-topic", "/stereo/left/image_rect"] + common) == 0
+    assert "unpaired_messages" in capsys.readouterr().out
+    a, b = (json.loads((tmp_path / d / "report.json").read_text()) for d in ("folder", "bag"))
+    assert a["frames"] == b["frames"] == FRAMES and a["ate_rmse_m"] is not None
     assert (tmp_path / "folder" / "trajectory.tum").read_bytes() == (tmp_path / "bag" / "trajectory.tum").read_bytes()
     assert b["ate_rmse_m"] == pytest.approx(a["ate_rmse_m"], rel=1e-9, abs=1e-12)
     assert b["unpaired_messages"] == {"/stereo/left/image_rect": 0, "/stereo/right/image_rect": 0}

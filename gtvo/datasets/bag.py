@@ -62,7 +62,9 @@ MAX_READ_AHEAD = 32
 
 def looks_like_bag(path: Path) -> bool:
     """True for a ROS1 ``.bag`` file, a ROS2 bag folder (``metadata.yaml``), or a ``.db3``/``.mcap``
-    file inside one."""
+    file inside one (also when such a file is missing, so that the error says "bag not found")."""
+    if path.suffix in (".bag", ".db3", ".mcap") and not path.exists():
+        return True
     if path.is_file():
         return path.suffix == ".bag" or (path.suffix in (".db3", ".mcap") and (path.parent / "metadata.yaml").is_file())
     return (path / "metadata.yaml").is_file()
@@ -431,13 +433,6 @@ def _pair(first: _TopicStamps, second: _TopicStamps, tolerance: float, choice: T
                          f"and {choice.second} ({ns_to_seconds(b.min()):.6f}..{ns_to_seconds(b.max()):.6f} s) never "
                          f"pair within {tolerance * 1e3:g} ms", path=where)
     return order_a[ia], order_b[ib], a[order_a[ia]]
-
-
-def _first_message(stream: BagStream, topic: str, msgtype: str, where: str) -> Any:
-    try:
-        return stream.reader.deserialize(stream.get(topic, 0), msgtype)
-    except _reader_errors() as exc:
-        raise InputError(f"cannot decode message: {_first_line(exc)}", path=where) from None
 
 
 def _calibration(stream: BagStream, topics: list[TopicSummary], choice: TopicChoice, calib: Path | None,
