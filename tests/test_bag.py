@@ -257,6 +257,8 @@ def test_bag_options_on_a_folder_are_refused(tmp_path):
     (tmp_path / "depth.txt").write_text("")
     with pytest.raises(InputError, match="left_topic apply to ROS bags only"):
         open_sequence(tmp_path, left_topic="/x")
+    with pytest.raises(InputError, match="not a ROS bag"):
+        open_sequence(tmp_path, format="bag")
 
 
 def test_info_command(tmp_path, capsys):

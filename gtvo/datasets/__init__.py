@@ -86,6 +86,8 @@ def _open_bag(path: Path, kind: str, max_frames: int | None, ground_truth: Path 
               options: dict[str, Any]) -> Sequence:
     if kind != "bag":
         raise InputError(f"{', '.join(options)} apply to ROS bags only, this is {kind}", path=path)
+    if not looks_like_bag(path):
+        raise InputError("not a ROS bag: expected a .bag file or a ROS2 bag folder (metadata.yaml)", path=path)
     calib = options.pop("calib", None)
     return read_bag(path, max_frames=max_frames, calib=None if calib is None else Path(calib),
                     ground_truth=ground_truth, **options)
