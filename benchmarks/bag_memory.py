@@ -74,6 +74,13 @@ def measure(path: Path) -> dict:
             "peak_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
 
 
+def _remove(path: Path) -> None:
+    if path.is_dir():
+        shutil.rmtree(path)
+    else:
+        path.unlink()
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sizes", default="0.25,1", help="bag sizes in GB (comma separated)")
@@ -100,10 +107,10 @@ def main(argv: list[str] | None = None) -> int:
             row = {"bag_gb": size / 1e9, "write_s": written, **json.loads(out.strip().splitlines()[-1])}
             rows.append(row)
             print(f"{path.name}: {row['bag_gb']:.3f} GB, {row['frames']} stereo frames, peak RSS "
-                  f"{row['peak_mib']:.0f} MiB (after imports {row['baseline_mib']:.0f} MiB), open {row['open_s']:.1f} s, "
-                  f"read {row['read_s']:.1f} s, ground truth {row['has_gt']}", flush=True)
+                  f"{row['peak_mib']:.0f} MiB (after imports {row['baseline_mib']:.0f} MiB), "
+                  f"open {row['open_s']:.1f} s, read {row['read_s']:.1f} s, ground truth {row['has_gt']}", flush=True)
             if not args.keep:
-                shutil.rmtree(path) if path.is_dir() else path.unlink()
+                _remove(path)
     finally:
         if not args.keep:
             shutil.rmtree(folder, ignore_errors=True)

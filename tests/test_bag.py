@@ -137,6 +137,22 @@ def test_ground_truth_topic_types_agree(tmp_path, msgtype):
     np.testing.assert_allclose(ref.gt_poses[2][:3, 3], [0.2, 0.0, 0.4], atol=1e-12)
 
 
+def test_ground_truth_file_for_a_bag(tmp_path):
+    from scipy.spatial.transform import Rotation
+
+    ref = open_sequence(write_small_stereo(tmp_path / "p.bag", gt="geometry_msgs/msg/PoseStamped"),
+                        ground_truth_topic="/gt")
+    rows = [f"{float(t)!r} " + " ".join(f"{float(v)!r}" for v in [*T[:3, 3], *Rotation.from_matrix(T[:3, :3]).as_quat()])
+            for t, T in zip(ref.timestamps, ref.gt_poses)]
+    (tmp_path / "gt.txt").write_text("\n".join(rows) + "\n")
+    seq = open_sequence(tmp_path / "p.bag", ground_truth=tmp_path / "gt.txt")
+    np.testing.assert_allclose(seq.gt_poses, ref.gt_poses, atol=1e-12)
+    late = tmp_path / "late.txt"
+    late.write_text("".join(f"{100.0 + k} 0 0 0 0 0 0 1\n" for k in range(3)))
+    with pytest.raises(InputError, match="does not overlap"):
+        open_sequence(tmp_path / "p.bag", ground_truth=late)
+
+
 def test_calib_files_replace_camera_info(tmp_path):
     bag = write_small_stereo(tmp_path / "a.bag", info=False)
     with pytest.raises(InputError, match="--calib"):
