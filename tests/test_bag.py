@@ -419,3 +419,29 @@ def test_tum_rgbd_bag_is_the_folder(shared_data, tmp_path, name):
     _, ta, _ = process_sequence(folder, config)
     _, tb, _ = process_sequence(seq, config)
     np.testing.assert_array_equal(tb.poses, ta.poses)
+
+
+def test_camera_info_checks_and_rectified_topic_names():
+    from gtvo.datasets.bag import RECTIFIED_TOPIC
+    from gtvo.datasets.bag_calib import camera_model_from_msg
+
+    assert RECTIFIED_TOPIC.search("/cam/left/image_rect") and RECTIFIED_TOPIC.search("/rectified/left/image")
+    assert not RECTIFIED_TOPIC.search("/direct/left/image_raw")
+
+    def info(**changes):
+        roi = SimpleNamespace(width=0, height=0)
+        base = dict(width=W, height=H, distortion_model="plumb_bob", d=np.zeros(5), k=K_SMALL.reshape(-1),
+                    r=np.eye(3).reshape(-1), p=_P(K_SMALL).reshape(-1), binning_x=0, binning_y=0, roi=roi)
+        base.update(changes)
+        return SimpleNamespace(**base)
+
+    assert camera_model_from_msg(info(), "bag: /ci").is_undistorted
+    assert not camera_model_from_msg(info(d=np.array([0.1, 0, 0, 0, 0])), "bag: /ci").is_undistorted
+    with pytest.raises(InputError, match="bag: /ci: .*zero intrinsic matrix K"):
+        camera_model_from_msg(info(k=np.zeros(9), d=np.array([0.1, 0, 0, 0, 0])), "bag: /ci")
+    with pytest.raises(InputError, match="binning"):
+        camera_model_from_msg(info(binning_x=2), "bag: /ci")
+    with pytest.raises(InputError, match="region of interest"):
+        camera_model_from_msg(info(roi=SimpleNamespace(width=10, height=10)), "bag: /ci")
+    with pytest.raises(InputError, match="distortion model 'equidistant'"):
+        camera_model_from_msg(info(distortion_model="equidistant", d=np.array([0.1, 0, 0, 0])), "bag: /ci")

@@ -24,6 +24,7 @@ Layouts and conventions: ``docs/datasets.md`` ("ROS bags").
 from __future__ import annotations
 
 import bisect
+import re
 import sqlite3
 import struct
 from dataclasses import dataclass, field
@@ -55,6 +56,8 @@ GT_TOLERANCE_S = 0.02
 GT_MAX_GAP_S = 0.1
 #: Name pairs that make two image topics a stereo pair (left token, right token).
 STEREO_TOKENS = (("left", "right"), ("cam0", "cam1"), ("infra1", "infra2"))
+#: An image topic whose name matches carries rectified images (``image_rect``, ``/rectified/``).
+RECTIFIED_TOPIC = re.compile(r"(^|[/_])rect")
 #: Messages read ahead and kept for later frames at most; a stream jumps rather than reads further.
 MAX_BUFFERED = 16
 MAX_READ_AHEAD = 32
@@ -458,7 +461,7 @@ def _calibration(stream: BagStream, topics: list[TopicSummary], choice: TopicCho
         finally:
             reader.close()
         models.append(camera_model_from_msg(msg, f"{where}: {info}"))
-    rectified = all("rect" in t for t in image_topics)
+    rectified = all(RECTIFIED_TOPIC.search(t) for t in image_topics)
     if choice.kind == "rgbd":
         return rgbd_calibration(models[0], rectified, size)
     return stereo_calibration(models[0], models[1], rectified, size)

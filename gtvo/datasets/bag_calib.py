@@ -59,8 +59,10 @@ class CameraModel:
 
     @property
     def is_undistorted(self) -> bool:
-        """True when ``D`` is zero and ``R`` the identity: the raw image is already rectified."""
-        return bool(np.all(self.D == 0) and np.allclose(self.R, np.eye(3), atol=1e-12))
+        """True when ``D`` is zero, ``R`` the identity and ``K = P[:, :3]``: rectifying the raw
+        image would leave it as it is."""
+        return bool(np.all(self.D == 0) and np.allclose(self.R, np.eye(3), atol=1e-12)
+                    and np.allclose(self.K, self.P[:, :3], rtol=1e-9, atol=1e-9))
 
 
 @dataclass(frozen=True)
@@ -90,6 +92,12 @@ def camera_model_from_msg(msg: Any, source: str) -> CameraModel:
     P = _matrix(getattr(msg, "p", getattr(msg, "P", None)), (3, 4), "P", source)
     R = _matrix(getattr(msg, "r", getattr(msg, "R", None)), (3, 3), "R", source)
     D = np.asarray(getattr(msg, "d", getattr(msg, "D", [])), dtype=np.float64).reshape(-1)
+    roi = getattr(msg, "roi", None)
+    binned = max(int(getattr(msg, "binning_x", 0)), int(getattr(msg, "binning_y", 0))) > 1
+    cropped = roi is not None and int(roi.width) > 0 and (int(roi.width), int(roi.height)) != (msg.width, msg.height)
+    if binned or cropped:
+        raise InputError("CameraInfo with binning or a region of interest is not supported: pass --calib FILE",
+                         path=source)
     return checked_model(CameraModel(int(msg.width), int(msg.height), K, D, R, P,
                                      str(msg.distortion_model), source))
 
@@ -110,8 +118,8 @@ def checked_model(model: CameraModel) -> CameraModel:
         raise InputError(f"camera calibration has a zero projection matrix P (fx={model.P[0, 0]:g}, "
                          f"fy={model.P[1, 1]:g}): an uncalibrated camera; pass --calib FILE", path=model.source)
     if not model.is_undistorted and not (model.K[0, 0] > 0 and model.K[1, 1] > 0):
-        raise InputError(f"camera calibration has a zero intrinsic matrix K (fx={model.K[0, 0]:g}) but "
-                         f"distortion or rectification to apply: pass --calib FILE", path=model.source)
+        raise InputError(f"camera calibration has a zero intrinsic matrix K (fx={model.K[0, 0]:g}) for raw "
+                         f"images: an uncalibrated camera; pass --calib FILE", path=model.source)
     if model.distortion_model not in SUPPORTED_DISTORTION and not model.is_undistorted:
         raise InputError(f"distortion model {model.distortion_model!r} is not supported (plumb_bob, "
                          f"rational_polynomial)", path=model.source)
@@ -142,7 +150,7 @@ def rgbd_calibration(colour: CameraModel, rectified: bool, size: tuple[int, int]
     """The pinhole camera of an RGB-D bag: ``P[:, :3]`` for rectified colour images, else ``K``
     (no undistortion: the depth image is registered to the raw colour image, as the TUM reader)."""
     _check_size(colour, size)
-    K = colour.P[:, :3] if rectified or colour.is_undistorted else colour.K
+    K = colour.P[:, :3] if rectified else colour.K
     try:
         camera = PinholeCamera.from_matrix(K, size[0], size[1])
     except InputError as exc:
