@@ -1,5 +1,5 @@
 """ROS bags (ROS1 ``.bag``, ROS2 folders of ``.db3``/``.mcap``) as a lazy, streamed
-:class:`gtvo.sequence.Sequence`, read with the pure-Python ``rosbags`` (no ROS install).
+:class:`gtvo.datasets.sequence.Sequence`, read with the pure-Python ``rosbags`` (no ROS install).
 
 * Topics: a stereo pair of ``sensor_msgs/Image`` or ``sensor_msgs/CompressedImage`` topics
   (``.../left/...`` and ``.../right/...``, or ``cam0``/``cam1``, ``infra1``/``infra2``), or an
@@ -40,8 +40,8 @@ from gtvo.datasets._common import (FloatArray, associate_unique, interpolate_pos
 from gtvo.datasets.bag_calib import BagCalibration, camera_model_from_msg, read_calib_file, rgbd_calibration, \
     stereo_calibration
 from gtvo.errors import InputError
-from gtvo.image import to_float_gray
-from gtvo.sequence import Sequence
+from gtvo.core.image import to_float_gray
+from gtvo.datasets.sequence import Sequence
 
 IMAGE = "sensor_msgs/msg/Image"
 COMPRESSED = "sensor_msgs/msg/CompressedImage"

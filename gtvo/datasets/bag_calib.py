@@ -12,7 +12,7 @@ camera's frame (a pure rotation ``[R^T | 0]``; the identity for rectified images
 * Raw images: each image is warped with ``cv2.initUndistortRectifyMap(K, D, R, P)`` (the
   CameraInfo's own rectification, as ROS's ``image_proc`` does) and the rectified camera is the
   one of the ``P`` matrices. An EuRoC ``sensor.yaml`` has no ``R, P``: the pair is rectified with
-  ``cv2.stereoRectify`` as the EuRoC reader does (:func:`gtvo.rectify.stereo_rectification`).
+  ``cv2.stereoRectify`` as the EuRoC reader does (:func:`gtvo.datasets.rectify.stereo_rectification`).
 
 Layouts and the YAML form: ``docs/datasets.md`` ("ROS bags").
 """
@@ -27,7 +27,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from gtvo.camera import PinholeCamera, StereoCamera
+from gtvo.core.camera import PinholeCamera, StereoCamera
 from gtvo.datasets._common import FloatArray
 from gtvo.errors import InputError
 
@@ -214,7 +214,7 @@ def _kitti_calib(path: Path, kind: str, size: tuple[int, int]) -> BagCalibration
 
 def _euroc_calib(path: Path, kind: str, size: tuple[int, int]) -> BagCalibration:
     from gtvo.datasets.euroc import read_sensor_yaml  # noqa: PLC0415
-    from gtvo.rectify import stereo_rectification  # noqa: PLC0415
+    from gtvo.datasets.rectify import stereo_rectification  # noqa: PLC0415
 
     if kind == "rgbd":
         raise InputError("an EuRoC sensor.yaml calibrates a stereo pair, not an RGB-D camera", path=path)

@@ -10,7 +10,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-from gtvo.camera import StereoCamera
+from gtvo.core.camera import StereoCamera
 from gtvo.datasets.bag import GROUND_TRUTH_TYPES
 from gtvo.errors import InputError
 
