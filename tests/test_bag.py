@@ -445,3 +445,26 @@ def test_camera_info_checks_and_rectified_topic_names():
         camera_model_from_msg(info(roi=SimpleNamespace(width=10, height=10)), "bag: /ci")
     with pytest.raises(InputError, match="distortion model 'equidistant'"):
         camera_model_from_msg(info(distortion_model="equidistant", d=np.array([0.1, 0, 0, 0])), "bag: /ci")
+
+
+def test_small_rgbd_bag_16uc1_millimetres_and_subsampling(tmp_path):
+    from gtvo.core.image import to_float_gray
+
+    path = tmp_path / "rgbd"
+    bgr = [np.stack([_texture(3 * i + c) for c in range(3)], axis=-1) for i in range(4)]
+    mm = [np.full((H, W), 1000 + 250 * i, np.uint16) for i in range(4)]
+    with BagWriter(path) as bag:
+        bag.camera_info("/camera/rgb/camera_info", 10**9, W, H, K_SMALL, _P(K_SMALL))
+        for i in range(4):
+            ns = 10**9 + i * 33_000_000
+            bag.image("/camera/rgb/image_color", ns, bgr[i][..., ::-1], "rgb8")
+            bag.image("/camera/depth/image", ns + 10_000_000, mm[i], "16UC1")  # 10 ms later: within 20 ms
+    seq = open_sequence(path)
+    assert seq.kind == "rgbd" and len(seq) == 4 and seq.topics.second == "/camera/depth/image"
+    np.testing.assert_array_equal(seq.left(2), to_float_gray(bgr[2]))
+    np.testing.assert_array_equal(seq.depth(2), np.full((H, W), np.float32(1.5)))
+    half = seq.subsampled(2)
+    assert type(half) is type(seq) and len(half) == 2 and half.unpaired == seq.unpaired
+    np.testing.assert_array_equal(half.depth(1), seq.depth(2))
+    with pytest.raises(InputError, match="never pair within 5 ms"):
+        open_sequence(path, stamp_tolerance=0.005)
