@@ -438,8 +438,9 @@ def _pair(first: _TopicStamps, second: _TopicStamps, tolerance: float, choice: T
     return order_a[ia], order_b[ib], a[order_a[ia]]
 
 
-def _calibration(stream: BagStream, topics: list[TopicSummary], choice: TopicChoice, calib: Path | None,
-                 size: tuple[int, int], where: Path) -> BagCalibration:
+def _calibration(topics: list[TopicSummary], choice: TopicChoice, calib: Path | None, size: tuple[int, int],
+                 where: Path) -> BagCalibration:
+    """From ``calib`` when given, else from the first CameraInfo beside each image topic."""
     if calib is not None:
         return read_calib_file(calib, choice.kind, size)
     image_topics = [choice.first] if choice.kind == "rgbd" else [choice.first, choice.second]
@@ -469,6 +470,8 @@ def _calibration(stream: BagStream, topics: list[TopicSummary], choice: TopicCho
 
 def _ground_truth(samples: list[tuple[int, FloatArray]], gt_topic: str | None, gt_file: Path | None,
                   times: FloatArray, calibration: BagCalibration, where: Path) -> FloatArray | None:
+    """Ground truth at ``times`` (NaN rows where none), carried to the rectified left camera; from
+    ``gt_file`` when given, else from the topic's ``samples``; None without either."""
     if gt_file is not None:
         gt_times, poses = read_trajectory(gt_file)
         label: Path | str = gt_file
@@ -528,7 +531,7 @@ def read_bag(path: Path, max_frames: int | None = None, calib: Path | None = Non
     names = [f"{where}:{choice.first}@{t:.9f}" for t in times]
     probe = BagImageLoader(stream, choice.first, msgtypes[choice.first], first.tolist(), names)
     height, width = probe(0).shape[:2]
-    calibration = _calibration(stream, topics, choice, calib, (width, height), where)
+    calibration = _calibration(topics, choice, calib, (width, height), where)
     gt_poses = _ground_truth(samples, ground_truth_topic, ground_truth, times, calibration, where)
     second_names = [f"{where}:{choice.second}@{ns_to_seconds(stamps[choice.second].header_ns[k]):.9f}"
                     for k in second]
