@@ -468,3 +468,39 @@ def test_small_rgbd_bag_16uc1_millimetres_and_subsampling(tmp_path):
     np.testing.assert_array_equal(half.depth(1), seq.depth(2))
     with pytest.raises(InputError, match="never pair within 5 ms"):
         open_sequence(path, stamp_tolerance=0.005)
+
+
+@pytest.mark.realdata
+def test_euroc_raw_bag_with_camera_info_or_sensor_yaml_is_the_folder(shared_data, tmp_path):
+    """Raw (distorted) EuRoC images in a bag: rectified with the CameraInfo's own K, D, R, P
+    (here those stereoRectify gives) or with --calib cam0/sensor.yaml, they equal the folder's."""
+    from gtvo.datasets.euroc import read_sensor_yaml
+
+    root = shared_data / "euroc_v101_static_stereo"
+    mav0 = root / "mav0"
+    folder = open_sequence(root, max_frames=4)
+    raw0, T_B0 = read_sensor_yaml(mav0 / "cam0" / "sensor.yaml")
+    raw1, T_B1 = read_sensor_yaml(mav0 / "cam1" / "sensor.yaml")
+    T = np.linalg.inv(T_B1) @ T_B0
+    R0, R1, P0, P1, *_ = cv2.stereoRectify(raw0.K, raw0.distortion, raw1.K, raw1.distortion, raw0.size,
+                                           T[:3, :3].copy(), T[:3, 3].reshape(3, 1).copy(),
+                                           flags=cv2.CALIB_ZERO_DISPARITY, alpha=0, newImageSize=raw0.size)
+    rows = [line.split(",") for line in (mav0 / "cam0" / "data.csv").read_text().splitlines()[1:5]]
+    with BagWriter(tmp_path / "euroc.bag") as bag:
+        for cam, raw, R, P in (("cam0", raw0, R0, P0), ("cam1", raw1, R1, P1)):
+            bag.camera_info(f"/{cam}/camera_info", int(rows[0][0]), raw.width, raw.height, raw.K, P,
+                            D=np.append(raw.distortion, 0.0), R=R)
+        for ns, name in rows:
+            for cam in ("cam0", "cam1"):
+                image = cv2.imread(str(mav0 / cam / "data" / name.strip()), cv2.IMREAD_UNCHANGED)
+                bag.image(f"/{cam}/image_raw", int(ns), image, "mono8")
+    for options in ({}, {"calib": mav0 / "cam0" / "sensor.yaml"}):
+        seq = open_sequence(tmp_path / "euroc.bag", **options)
+        assert seq.camera.left == folder.camera.left
+        assert seq.camera.baseline == pytest.approx(folder.camera.baseline, rel=1e-12)
+        # the EuRoC reader computes ns * 1e-9 (ns rounded to a float first), the bag sec + nsec / 1e9:
+        # at 1.4e9 s they may differ by one float step (2.4e-7 s)
+        np.testing.assert_allclose(seq.timestamps, folder.timestamps, rtol=0, atol=2.5e-7)
+        for i in (0, 3):
+            np.testing.assert_array_equal(seq.left(i), folder.left(i))
+            np.testing.assert_array_equal(seq.right(i), folder.right(i))
