@@ -142,7 +142,7 @@ def test_ground_truth_file_for_a_bag(tmp_path):
 
     ref = open_sequence(write_small_stereo(tmp_path / "p.bag", gt="geometry_msgs/msg/PoseStamped"),
                         ground_truth_topic="/gt")
-    rows = [f"{float(t)!r} " + " ".join(f"{float(v)!r}" for v in [*T[:3, 3], *Rotation.from_matrix(T[:3, :3]).as_quat()])
+    rows = [" ".join(f"{float(v)!r}" for v in [t, *T[:3, 3], *Rotation.from_matrix(T[:3, :3]).as_quat()])
             for t, T in zip(ref.timestamps, ref.gt_poses)]
     (tmp_path / "gt.txt").write_text("\n".join(rows) + "\n")
     seq = open_sequence(tmp_path / "p.bag", ground_truth=tmp_path / "gt.txt")
