@@ -107,6 +107,13 @@ def test_pairing_counts_unpaired_and_max_frames(tmp_path):
     np.testing.assert_array_equal(seq.left(2), _texture(6).astype(np.float32))  # frame 2 is left message 3
     np.testing.assert_array_equal(seq.right(2), _texture(7).astype(np.float32))
     assert len(open_sequence(path, max_frames=2)) == 2
+    unstamped = tmp_path / "zero.bag"
+    with BagWriter(unstamped) as bag:
+        for i in range(4):
+            bag.image("/cam/left/image_rect", 0, _texture(i), "mono8", log_ns=10**9 + i)
+            bag.image("/cam/right/image_rect", 0, _texture(i), "mono8", log_ns=10**9 + i)
+    with pytest.raises(InputError, match="4 messages carry only 1 distinct header stamps"):
+        open_sequence(unstamped)
     with pytest.raises(InputError, match="never pair within 1 ms"):
         open_sequence(path, stamp_tolerance=0.001)
 

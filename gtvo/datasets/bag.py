@@ -427,6 +427,11 @@ def _pair(first: _TopicStamps, second: _TopicStamps, tolerance: float, choice: T
     b = np.asarray(second.header_ns, dtype=np.int64)
     if a.size == 0 or b.size == 0:
         raise InputError(f"no messages on {choice.first if a.size == 0 else choice.second}", path=where)
+    for topic, stamps in ((choice.first, a), (choice.second, b)):
+        distinct = np.unique(stamps).size
+        if 2 * distinct < stamps.size:
+            raise InputError(f"{topic}: {stamps.size} messages carry only {distinct} distinct header stamps "
+                             f"(a driver that does not stamp its images?)", path=where)
     origin = int(min(a.min(), b.min()))
     order_a, order_b = np.argsort(a, kind="stable"), np.argsort(b, kind="stable")
     ta, tb = (a[order_a] - origin) * 1e-9, (b[order_b] - origin) * 1e-9
