@@ -176,6 +176,13 @@ def test_calib_files_replace_camera_info(tmp_path):
         seq = open_sequence(bag, calib=calib)
         assert seq.camera == with_info.camera
         np.testing.assert_array_equal(seq.left(1), with_info.left(1))
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("left:\n" + block(0.0) + "  distortion_coefficients: [a, b]\nright:\n" + block(-5.0))
+    with pytest.raises(InputError, match="bad.yaml: left: distortion_coefficients must be a list of numbers"):
+        open_sequence(bag, calib=bad)
+    (tmp_path / "none.yaml").write_text("cameras: 2\n")
+    with pytest.raises(InputError, match="none.yaml: calibration yaml needs 'left:'"):
+        open_sequence(bag, calib=tmp_path / "none.yaml")
 
 
 def test_decode_image_encodings():

@@ -247,7 +247,10 @@ def _yaml_camera(block: Any, source: str) -> CameraModel:
     D = np.zeros(5)
     if "distortion_coefficients" in block:
         value = block["distortion_coefficients"]
-        D = np.asarray(value.get("data") if isinstance(value, dict) else value, dtype=np.float64).reshape(-1)
+        try:
+            D = np.asarray(value.get("data") if isinstance(value, dict) else value, dtype=np.float64).reshape(-1)
+        except (TypeError, ValueError):
+            raise InputError(f"distortion_coefficients must be a list of numbers, got {value!r}", path=source) from None
     try:
         width, height = int(block["image_width"]), int(block["image_height"])
     except (KeyError, TypeError, ValueError):
