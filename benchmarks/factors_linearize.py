@@ -29,10 +29,10 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from benchmarks._kitti_sgbm import load_kitti, read_gray, sgbm_keyframe_points  # noqa: E402
 from factors.gtsam_factors import PhotometricBatchFactor, PhotometricFactor, StereoFactor  # noqa: E402
-from factors.keys import affine_key as A  # noqa: E402
-from factors.keys import inverse_depth_key as D  # noqa: E402
-from factors.keys import pose_key as X  # noqa: E402
-from factors.keys import right_affine_key as RA  # noqa: E402
+from gtvo.core.keys import affine_key as A  # noqa: E402
+from gtvo.core.keys import inverse_depth_key as D  # noqa: E402
+from gtvo.core.keys import pose_key as X  # noqa: E402
+from gtvo.core.keys import right_affine_key as RA  # noqa: E402
 from factors.photometric import GradientImage  # noqa: E402
 from factors.smart import HostPointsFactor  # noqa: E402
 from factors.smoothness import InverseDepthSmoothnessFactor, MotionSmoothnessFactor  # noqa: E402

@@ -15,7 +15,7 @@ pipeline state. Every factor works in a plain ``gtsam.NonlinearFactorGraph``.
   ``ConstantVelocityFactor``.
 * :mod:`factors.smart`: ``HostPointsFactor``, the per-host factor with Schur-eliminated depths
   (the GTSAM adapter of ``HostPoints``).
-* :mod:`factors.keys`: the GTSAM keys of the VO problem; :mod:`factors.motion`,
+* :mod:`gtvo.core.keys`: the GTSAM keys of the VO problem; :mod:`factors.motion`,
   :mod:`factors.odometry_calibration`: the motion model's and the wheel-odometry calibration's factors.
 
 Derivations: docs/factors.md.

@@ -3,7 +3,7 @@
 Every factor here is a ``gtsam.CustomFactor`` subclass (through :class:`PythonFactor`, which
 lets GTSAM free it) with analytic Jacobians and works in a
 plain ``gtsam.NonlinearFactorGraph`` with ``gtsam.LevenbergMarquardtOptimizer``. Keys:
-:mod:`factors.keys` (poses ``pose_key(i)``, Pose3 ``T_world_cam``; inverse depths
+:mod:`gtvo.core.keys` (poses ``pose_key(i)``, Pose3 ``T_world_cam``; inverse depths
 ``inverse_depth_key(j)``, double; left and right affine brightness ``affine_key(i)``,
 ``right_affine_key(i)``, Vector2 ``(a, b)``). The smoothness priors are in :mod:`factors.smoothness`.
 

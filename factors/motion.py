@@ -2,7 +2,7 @@
 
 Residual math only (no I/O, no pipeline state); the model and its names are those of
 :mod:`gtvo.motion.model`. Each state ``x_t = [X, dX, Z, dZ, theta, dtheta]`` is a 6-vector
-variable (key :func:`factors.keys.motion_state_key`, ``v<t>``). The model is linear, so the factors are
+variable (key :func:`gtvo.core.keys.motion_state_key`, ``v<t>``). The model is linear, so the factors are
 ``gtsam.JacobianFactor`` s with error ``sum_j A_j x_j - b`` whitened by a noise model, and the
 graph is a ``gtsam.GaussianFactorGraph`` whose solution is the exact posterior mean.
 

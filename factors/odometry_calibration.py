@@ -1,7 +1,7 @@
 """Odometry-calibration residuals as GTSAM custom factors with analytic Jacobians.
 
 Residual math only (no I/O). The calibration variable is a plain GTSAM vector (keyed by
-:func:`factors.keys.calibration_key`):
+:func:`gtvo.core.keys.calibration_key`):
 
 * linear model: the 9-vector ``x`` of X's entries in row-major order, ``u' = X u``;
 * diff-drive model: the 3-vector ``p = (k_L, k_R, k_b)`` of :mod:`gtvo.wheel_calibration.diff_drive`.

@@ -28,6 +28,7 @@ from gtvo.errors import DependencyError, InputError, TrackingFailure
 COMMAND_MODULES: tuple[str, ...] = (
     "gtvo.commands.demo",
     "gtvo.commands.run",
+    "gtvo.commands.info",
     "gtvo.commands.synthetic",
     "gtvo.commands.plan",
     "gtvo.commands.calibrate_odometry",

@@ -97,10 +97,11 @@ def run(path: str | Path | Sequence, out: str | Path | None = None, config: Odom
     """Run gtvo on a sequence folder (or an opened :class:`Sequence`) and write its outputs.
 
     Args:
-        path: a KITTI / EuRoC / TUM folder, or a :class:`Sequence`.
+        path: a KITTI / EuRoC / TUM folder, a ROS bag, or a :class:`Sequence`.
         out: output folder (``gtvo_out/<sequence name>`` when None).
         config: odometry settings.
-        format, max_frames, open_options: passed to :func:`gtvo.datasets.open_sequence`.
+        format, max_frames, open_options: passed to :func:`gtvo.datasets.open_sequence` (for bags
+            also ``calib``, ``left_topic``, ``right_topic``, ``depth_topic``, ``ground_truth_topic``).
         progress: show a progress bar.
         strict: stop at the first unreadable frame instead of skipping it.
         loop_closure: after the run, detect loops among the keyframes, optimise the keyframe
@@ -124,6 +125,8 @@ def run(path: str | Path | Sequence, out: str | Path | None = None, config: Odom
         out_dir = ensure_output_dir(Path(out) if out is not None else Path("gtvo_out") / seq.name)
         vo, traj, info = process_sequence(seq, config, progress=progress, strict=strict)
         info["frame_step"] = int(frame_step)
+        if getattr(seq, "unpaired", None) is not None:  # a ROS bag: messages that found no partner
+            info["unpaired_messages"] = seq.unpaired  # type: ignore[attr-defined]
         closed = None
         if loop_closure:
             from gtvo.loops.closing import close_loops_of_run  # noqa: PLC0415

@@ -490,7 +490,7 @@ def test_missing_and_unknown_folders(tmp_path):
     _raises("unknown dataset layout", open_sequence, tmp_path / "empty")
     root = make_kitti(tmp_path / "k")
     _raises("max_frames must be >= 1", open_sequence, root, max_frames=0)
-    _raises("unknown dataset format", open_sequence, root, format="bag")
+    _raises("unknown dataset format", open_sequence, root, format="las")
     _raises("TUM folders only", open_sequence, root, camera=(1, 1, 1, 1))
     _raises("KITTI sequence folder not found", open_sequence, tmp_path / "nope", format="kitti")
 

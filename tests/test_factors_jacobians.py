@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 
 from factors.gtsam_factors import PhotometricBatchFactor, PhotometricFactor, StereoFactor
-from factors.keys import affine_key as A
-from factors.keys import inverse_depth_key as D
-from factors.keys import pose_key as X
-from factors.keys import right_affine_key as RA
+from gtvo.core.keys import affine_key as A
+from gtvo.core.keys import inverse_depth_key as D
+from gtvo.core.keys import pose_key as X
+from gtvo.core.keys import right_affine_key as RA
 from factors.photometric import PATTERN_DSO8, photometric_residuals, sample_host
 from factors.smoothness import (ConstantVelocityFactor, InverseDepthSmoothnessFactor, MotionSmoothnessFactor,
                                 edge_aware_weight)

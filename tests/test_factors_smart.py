@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from factors.gtsam_factors import PhotometricFactor, StereoFactor
-from factors.keys import affine_key as A
-from factors.keys import inverse_depth_key as D
-from factors.keys import pose_key as X
+from gtvo.core.keys import affine_key as A
+from gtvo.core.keys import inverse_depth_key as D
+from gtvo.core.keys import pose_key as X
 from factors.smart import HostPointsFactor
 from gtvo.core.camera import PinholeCamera
 from gtvo.errors import InputError

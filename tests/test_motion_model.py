@@ -220,7 +220,7 @@ def test_process_factor_encodes_x_next_equals_A_x_prev_plus_G_a():
     and its Jacobians equal central differences of that residual (tolerance 1e-9)."""
     import gtsam
 
-    from factors.keys import motion_state_key as state_key
+    from gtvo.core.keys import motion_state_key as state_key
     from factors.motion import process_factor, process_row_map
 
     dt, k = 0.13, np.array([0.8, 1.2, 0.3])
@@ -256,7 +256,7 @@ def test_process_factor_encodes_x_next_equals_A_x_prev_plus_G_a():
 def test_measurement_and_prior_factors():
     import gtsam
 
-    from factors.keys import motion_state_key as state_key
+    from gtvo.core.keys import motion_state_key as state_key
     from factors.motion import pose_measurement_factor, state_prior_factor
 
     rng = np.random.default_rng(8)

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import gtvo.cli
-from factors.keys import calibration_key, pose_key
+from gtvo.core.keys import calibration_key, pose_key
 from factors.odometry_calibration import (calibrated_odometry_error, calibrated_odometry_factor,
                                           diff_drive_calibration_factor, linear_calibration_factor)
 from gtvo.wheel_calibration import (LoopClosure, PosePrior, apply_linear, fit_diff_drive, fit_diff_drive_gtsam, fit_linear,

@@ -57,7 +57,7 @@ def print_report(report: dict[str, Any]) -> None:
     keys = ("frames", "keyframes", "seconds", "frames_per_second", "tracking_failures", "flow_recoveries",
             "lost_frames", "window_optimisations", "window_seconds_mean", "ate_rmse_m", "rpe_trans_rmse_m",
             "ate_skipped", "drift_percent", "loops_detected", "loops_accepted", "loop_closed_ate_rmse_m",
-            "loop_closed_drift_percent", "points")
+            "loop_closed_drift_percent", "points", "unpaired_messages")
     for k in keys:
         if k in report and report[k] is not None:
             v = report[k]

@@ -1,10 +1,11 @@
-"""``gtvo run``: offline odometry of a logged sequence (KITTI, EuRoC, TUM layouts)."""
+"""``gtvo run``: offline odometry of a logged sequence (KITTI, EuRoC, TUM layouts, ROS bags)."""
 
 from __future__ import annotations
 
 import argparse
 import sys
 
+from gtvo.commands._bag import add_bag_options, bag_options
 from gtvo.commands._common import add_odometry_options, odometry_config, parse_floats, print_report
 from gtvo.errors import InputError
 
@@ -12,11 +13,11 @@ from gtvo.errors import InputError
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "run", help="odometry of a logged sequence; writes trajectory, report, plots, points",
-        description="Track every frame of a KITTI / EuRoC / TUM RGB-D sequence and write DIR/trajectory.tum, "
-                    "DIR/report.json (with ATE, RPE and drift when ground truth exists), DIR/trajectory.png "
-                    "and DIR/points.ply.")
-    p.add_argument("sequence", metavar="SEQUENCE_DIR", help="the sequence folder")
-    p.add_argument("--format", choices=("auto", "kitti", "euroc", "tum"), default="auto",
+        description="Track every frame of a KITTI / EuRoC / TUM RGB-D sequence or a ROS bag and write "
+                    "DIR/trajectory.tum, DIR/report.json (with ATE, RPE and drift when ground truth exists), "
+                    "DIR/trajectory.png and DIR/points.ply.")
+    p.add_argument("sequence", metavar="SEQUENCE_DIR", help="the sequence folder, or a ROS bag (.bag, ROS2 folder)")
+    p.add_argument("--format", choices=("auto", "kitti", "euroc", "tum", "bag"), default="auto",
                    help="dataset layout (default: auto-detect)")
     p.add_argument("--out", metavar="DIR", default=None, help="output folder (default gtvo_out/<name>)")
     p.add_argument("--max-frames", type=int, metavar="N", default=None, help="use only the first N frames")
@@ -29,6 +30,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="detect loops among the keyframes, optimise the keyframe pose graph robustly (GNC) and "
                         "write DIR/trajectory_loop_closed.tum as a second output")
     add_odometry_options(p)
+    add_bag_options(p)
     p.set_defaults(func=main)
 
 
@@ -38,7 +40,7 @@ def main(args: argparse.Namespace) -> int:
     for flag, value in (("--max-frames", args.max_frames), ("--frame-step", args.frame_step)):
         if value is not None and value < 1:
             raise InputError(f"{flag} must be >= 1, got {value}")
-    options = {}
+    options = bag_options(args)
     if args.camera is not None:
         options["camera"] = parse_floats(args.camera, 4, "--camera")
     if args.ground_truth is not None:

@@ -9,30 +9,33 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 from tqdm import tqdm
 
 from gtvo.datasets._common import require_dir
+from gtvo.datasets.bag import looks_like_bag, read_bag
 from gtvo.datasets.euroc import looks_like_euroc, read_euroc
 from gtvo.datasets.kitti import looks_like_kitti, read_kitti
 from gtvo.datasets.tum import TUM_INTRINSICS, looks_like_tum, read_tum
 from gtvo.errors import InputError
 from gtvo.datasets.sequence import Sequence
 
-DatasetFormat = Literal["auto", "kitti", "euroc", "tum"]
-FORMATS: tuple[str, ...] = ("kitti", "euroc", "tum")
+DatasetFormat = Literal["auto", "kitti", "euroc", "tum", "bag"]
+FORMATS: tuple[str, ...] = ("kitti", "euroc", "tum", "bag")
 
 __all__ = ["DatasetFormat", "FORMATS", "TUM_INTRINSICS", "detect_format", "open_sequence", "read_euroc",
            "read_kitti", "read_tum", "validate"]
 
 
 def detect_format(path: str | Path) -> str:
-    """The layout of a sequence folder: ``"kitti"``, ``"euroc"`` or ``"tum"``.
+    """The layout of a sequence folder: ``"kitti"``, ``"euroc"`` or ``"tum"``; ``"bag"`` for a ROS bag.
 
     Raises:
         InputError: the folder is missing or matches no known layout.
     """
+    if looks_like_bag(Path(path)):
+        return "bag"
     folder = require_dir(Path(path), "sequence folder")
     if looks_like_kitti(folder):
         return "kitti"
@@ -46,7 +49,7 @@ def detect_format(path: str | Path) -> str:
 
 def open_sequence(path: str | Path, format: DatasetFormat = "auto",
                   camera: tuple[float, float, float, float] | None = None, max_frames: int | None = None,
-                  ground_truth: str | Path | None = None) -> Sequence:
+                  ground_truth: str | Path | None = None, **bag_options: Any) -> Sequence:
     """Open a dataset folder as a lazy :class:`Sequence` (images are read when asked for).
 
     Args:
@@ -56,6 +59,8 @@ def open_sequence(path: str | Path, format: DatasetFormat = "auto",
         max_frames: keep only the first ``max_frames`` frames.
         ground_truth: a ground-truth file to use instead of the one in the folder (KITTI poses,
             ASL csv or TUM trajectory, as the layout reads).
+        bag_options: ROS bags only: ``calib``, ``left_topic``, ``right_topic``, ``depth_topic``,
+            ``ground_truth_topic``, ``stamp_tolerance`` (:func:`gtvo.datasets.bag.read_bag`).
     """
     folder = Path(path)
     if max_frames is not None and int(max_frames) < 1:
@@ -67,11 +72,25 @@ def open_sequence(path: str | Path, format: DatasetFormat = "auto",
         raise InputError(f"a camera override applies to TUM folders only, this is {kind}", path=folder)
     gt = None if ground_truth is None else Path(ground_truth)
     n = None if max_frames is None else int(max_frames)
+    bag_options = {k: v for k, v in bag_options.items() if v is not None}
+    if kind == "bag" or bag_options:
+        return _open_bag(folder, kind, n, gt, bag_options)
     if kind == "kitti":
         return read_kitti(folder, max_frames=n, ground_truth=gt)
     if kind == "euroc":
         return read_euroc(folder, max_frames=n, ground_truth=gt)
     return read_tum(folder, max_frames=n, camera=camera, ground_truth=gt)
+
+
+def _open_bag(path: Path, kind: str, max_frames: int | None, ground_truth: Path | None,
+              options: dict[str, Any]) -> Sequence:
+    if kind != "bag":
+        raise InputError(f"{', '.join(options)} apply to ROS bags only, this is {kind}", path=path)
+    if not looks_like_bag(path):
+        raise InputError("not a ROS bag: expected a .bag file or a ROS2 bag folder (metadata.yaml)", path=path)
+    calib = options.pop("calib", None)
+    return read_bag(path, max_frames=max_frames, calib=None if calib is None else Path(calib),
+                    ground_truth=ground_truth, **options)
 
 
 def validate(seq: Sequence, check_images: bool = True, progress: bool = True) -> None:

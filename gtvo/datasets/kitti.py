@@ -53,6 +53,13 @@ def read_calibration(path: Path, cameras: tuple[str, str] = ("P0", "P1")) -> tup
 def _rectified_pair(path: Path, cameras: tuple[str, str]) -> tuple[FloatArray, float, FloatArray]:
     """``(K, baseline, t_left)``: ``t_left`` is the left camera's offset from cam0 (module docstring)."""
     PL, PR = read_projections(path, cameras)
+    return rectified_from_projections(PL, PR, cameras, path)
+
+
+def rectified_from_projections(PL: FloatArray, PR: FloatArray, cameras: tuple[str, str],
+                               path: Path | str) -> tuple[FloatArray, float, FloatArray]:
+    """``(K, baseline, t_left)`` of a rectified pair from its 3x4 projections ``PL, PR`` (named
+    ``cameras`` in errors, which name ``path``); also used for ROS ``CameraInfo.P``."""
     left, right = cameras
     fx = PL[0, 0]
     if not fx > 0 or not PL[1, 1] > 0:

@@ -33,7 +33,7 @@ import scipy.linalg
 from numpy.typing import ArrayLike, NDArray
 
 from factors.gtsam_factors import PhotometricBatchFactor
-from factors.keys import affine_key, pose_key
+from gtvo.core.keys import affine_key, pose_key
 from factors.photometric import PATTERN_DSO8, GradientImage, pattern_bearings, photometric_residuals, sample_host
 from factors.weights import huber_loss, point_robust_terms, variance_weight
 from gtvo.core.camera import PinholeCamera

@@ -20,7 +20,7 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from factors.keys import pose_key
+from gtvo.core.keys import pose_key
 from gtvo.errors import InputError
 
 F64 = NDArray[np.float64]

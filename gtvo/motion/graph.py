@@ -13,7 +13,7 @@ import gtsam
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from factors.keys import motion_state_key
+from gtvo.core.keys import motion_state_key
 from factors.motion import pose_measurement_factor, process_factor, state_prior_factor
 from gtvo.errors import InputError
 from gtvo.motion.model import STATE_DIM, MotionNoise, _check_prior

@@ -23,7 +23,7 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from factors.keys import pose_key
+from gtvo.core.keys import pose_key
 from gtvo.errors import InputError
 from gtvo.posegraph import sesync
 from gtvo.posegraph.graph import PoseGraph
@@ -37,7 +37,7 @@ PRIOR_SIGMA = 1e-6
 
 
 def key(k: int) -> int:
-    """GTSAM key of pose-graph node ``k`` (:func:`factors.keys.pose_key`)."""
+    """GTSAM key of pose-graph node ``k`` (:func:`gtvo.core.keys.pose_key`)."""
     return pose_key(k)
 
 

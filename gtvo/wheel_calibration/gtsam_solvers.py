@@ -21,7 +21,7 @@ import gtsam
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from factors.keys import calibration_key, pose_key
+from gtvo.core.keys import calibration_key, pose_key
 from factors.odometry_calibration import (calibrated_odometry_factor, diff_drive_calibration_factor,
                                           linear_calibration_factor)
 from gtvo.wheel_calibration.diff_drive import (DiffDriveCalibration, check_diff_drive_observability,

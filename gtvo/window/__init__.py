@@ -37,7 +37,7 @@ instead (keyframe sequence number as timestamp, lag ``size - 0.5``): the smoothe
 leaving keyframes with their host factor (depths frozen in the marginal); docs/window.md.
 """
 
-from factors.keys import affine_key, pose_key
+from gtvo.core.keys import affine_key, pose_key
 from gtvo.window.config import MarginalPrior, WindowConfig, WindowKeyframe, WindowResult, WindowSolverName
 from gtvo.window.gtsam_solver import solve_gtsam
 from gtvo.window.handrolled import solve_handrolled, window_cost

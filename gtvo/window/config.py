@@ -1,5 +1,5 @@
 """The window's types and settings: :class:`WindowConfig`, :class:`WindowKeyframe`, :class:`MarginalPrior`,
-:class:`WindowResult` (keys: :mod:`factors.keys`' ``pose_key``, ``affine_key`` of the frame index)."""
+:class:`WindowResult` (keys: :mod:`gtvo.core.keys`' ``pose_key``, ``affine_key`` of the frame index)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from factors.gtsam_factors import DEFAULT_HUBER_K, DEFAULT_SIGMA_INTENSITY
-from factors.keys import is_pose_key
+from gtvo.core.keys import is_pose_key
 from factors.photometric import PATTERN_DSO8, GradientImage
 from gtvo.core.camera import PinholeCamera
 from gtvo.errors import InputError

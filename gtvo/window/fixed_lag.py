@@ -11,7 +11,7 @@ import time
 import gtsam
 import numpy as np
 
-from factors.keys import affine_key, pose_key
+from gtvo.core.keys import affine_key, pose_key
 from factors.smart import HostPointsFactor
 from gtvo.window.config import WindowKeyframe, WindowResult, WindowState
 from gtvo.window.problem import host_factor, motion_factors, prior_factors

@@ -9,7 +9,7 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from factors.keys import affine_key, pose_key
+from gtvo.core.keys import affine_key, pose_key
 from gtvo.core.camera import PinholeCamera
 from gtvo.window.config import MarginalPrior, WindowConfig, WindowKeyframe, WindowResult
 from gtvo.window.problem import build_graph, visible_targets

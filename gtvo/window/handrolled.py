@@ -18,7 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from factors.host_points import DepthSystem, HostPoints
-from factors.keys import affine_key, pose_key
+from gtvo.core.keys import affine_key, pose_key
 from gtvo.core.camera import PinholeCamera
 from gtvo.window.config import MarginalPrior, WindowConfig, WindowKeyframe, WindowResult
 from gtvo.window.problem import motion_factors, visible_targets

@@ -8,7 +8,7 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from factors.keys import affine_key, pose_key
+from gtvo.core.keys import affine_key, pose_key
 from gtvo.core.camera import PinholeCamera
 from gtvo.window.config import MarginalPrior, WindowConfig, WindowKeyframe
 from gtvo.window.config import values_subset

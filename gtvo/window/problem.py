@@ -12,7 +12,7 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from factors.keys import affine_key, pose_key
+from gtvo.core.keys import affine_key, pose_key
 from factors.smart import HostPointsFactor
 from factors.smoothness import ConstantVelocityFactor
 from gtvo.core.camera import MIN_DEPTH, PinholeCamera

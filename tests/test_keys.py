@@ -1,11 +1,11 @@
-"""The GTSAM keys of the VO problem (factors.keys): the characters of docs/conventions.md, one per
+"""The GTSAM keys of the VO problem (gtvo.core.keys): the characters of docs/conventions.md, one per
 kind of variable, so graphs built by different modules agree on them."""
 
 from __future__ import annotations
 
 import gtsam
 
-from factors import keys
+from gtvo.core import keys
 
 
 def test_keys_follow_the_conventions_table():
