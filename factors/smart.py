@@ -1,7 +1,7 @@
 """A per-host "smart" photometric factor: the host's inverse depths live inside the factor.
 
 GTSAM's Python ``CustomFactor`` copies the whole ``Values`` on every call from inside an
-optimiser (``/work/shared/notes/dependency-facts.md``), so one factor and one variable per
+optimiser (the team's measured facts about the GTSAM wheel, docs/factors.md), so one factor and one variable per
 inverse depth costs O(points x variables) per iteration. :class:`HostPointsFactor` holds all
 points hosted in one keyframe, evaluates all their residuals in all targets in one vectorised
 pass, eliminates the inverse depths by the Schur complement and hands GTSAM only the pose and

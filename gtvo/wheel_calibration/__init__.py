@@ -1,6 +1,6 @@
 """Odometry calibration: find how raw odometry motions map to reference motions.
 
-* Linear model (seed 003, section 3): ``u' = X u`` with a 3x3 X by least squares
+* Linear model (the notes on estimation and odometry calibration, section 3): ``u' = X u`` with a 3x3 X by least squares
   (:func:`fit_linear`, hand-rolled normal equations; :func:`fit_linear_gtsam`, the same with GTSAM
   custom factors, LM and Marginals).
 * Differential-drive model: wheel scales and baseline scale (:func:`fit_diff_drive`,

@@ -1,6 +1,6 @@
 """The notes' linear odometry calibration: ``u'_i = X u_i`` with the 3x3 matrix X by least squares.
 
-Pure numpy, no I/O. Notation (seed 003, section 3):
+Pure numpy, no I/O. Notation (the notes on estimation and odometry calibration, section 3):
 
 * ``u_i``  raw (biased) odometry motion ``(dx, dy, dtheta)``; ``u*_i`` the reference motion.
 * ``x``    the 9-vector of X's entries in row-major order ``(x11, x12, x13, x21, ..., x33)``.
