@@ -26,9 +26,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--method", choices=pg.METHODS, default="lm",
                    help="lm, gn, or dogleg (gtsam only); default lm")
     p.add_argument("--init", choices=pg.INITS, default="chordal",
-                   help="initial poses: file vertices, odometry spanning tree, chordal (LAGO / InitializePose3)")
-    p.add_argument("--objective", choices=("geodesic", "sesync"), default="geodesic",
-                   help="geodesic: GTSAM's BetweenFactor error; sesync: SE-Sync's chordal objective")
+                   help="initial poses: file vertices, odometry spanning tree, chordal (LAGO / InitializePose3; "
+                        "odometry when GTSAM gives up on it, with a warning); default chordal")
+    p.add_argument("--objective", choices=pg.OBJECTIVES, default="geodesic",
+                   help="geodesic: GTSAM's BetweenFactor error; sesync: SE-Sync's chordal objective; "
+                        "default geodesic")
+    p.add_argument("--strict", action="store_true",
+                   help="refuse information matrices that are not positive definite (by default the geodesic "
+                        "objective replaces each by the nearest positive-definite one, with a warning)")
     p.add_argument("--max-iterations", type=int, default=100, help="iteration limit (default 100)")
     p.add_argument("--out", help="write the optimised graph as g2o (full precision)")
     p.add_argument("--plot", help="write a PNG of the optimised graph")
@@ -54,10 +59,18 @@ def run(args: argparse.Namespace) -> int:
         def progress(it: int, cost: float) -> None:
             bar.update(1)
             bar.set_postfix(cost=f"{cost:.6g}")
-    result = pg.optimize(graph, solver=args.solver, init=args.init, objective=args.objective, method=args.method,
-                         max_iterations=args.max_iterations, progress=progress)
-    if progress is not None:
-        bar.close()
+    def warn(msg: str) -> None:
+        if progress is not None:
+            bar.clear()
+        print(f"warning: {msg}", file=sys.stderr)
+
+    try:
+        result = pg.optimize(graph, solver=args.solver, init=args.init, objective=args.objective,
+                             method=args.method, max_iterations=args.max_iterations, progress=progress,
+                             strict=args.strict, warn=warn)
+    finally:
+        if progress is not None:
+            bar.close()
     if args.out:
         pg.write_g2o(args.out, result.graph)
     if args.plot:
@@ -72,9 +85,11 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(info, allow_nan=False))
     else:
         print(f"{graph.source}: {graph.dim}-D, {graph.num_poses} poses, {graph.num_edges} edges")
-        print(f"solver {args.solver} ({args.method}), init {args.init}, objective {args.objective}")
+        init = args.init if result.init_used == args.init else f"{result.init_used} (--init {args.init} failed)"
+        print(f"solver {args.solver} ({args.method}), init {init}, objective {args.objective}")
         print(f"gtsam_error       {result.gtsam_error:.10g}  (initial {result.initial_gtsam_error:.10g})")
         print(f"sesync_objective  {result.sesync_objective:.10g}  (initial {result.initial_sesync_objective:.10g})")
-        print(f"iterations        {result.iterations}")
+        print(f"iterations        {result.iterations}"
+              + ("" if result.converged else f"  (not converged after {result.iterations} iterations)"))
         print(f"seconds           {result.seconds:.3f}  (initialisation {result.init_seconds:.3f})")
     return 0

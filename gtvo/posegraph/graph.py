@@ -8,6 +8,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gtvo.errors import InputError
+from gtvo.posegraph.information import check_blocks
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
@@ -61,8 +62,16 @@ class PoseGraph:
                          self.edge_i, self.edge_j, self.meas_rotations, self.meas_translations, self.information,
                          self.source, dict(self.skipped), self.identity_information)
 
+    def with_information(self, information: F64) -> "PoseGraph":
+        """A copy with other information matrices (same poses and measurements)."""
+        return PoseGraph(self.dim, self.ids, self.rotations, self.translations, self.has_vertices, self.edge_i,
+                         self.edge_j, self.meas_rotations, self.meas_translations, np.asarray(information, float),
+                         self.source, dict(self.skipped), self.identity_information)
+
     def validate(self) -> None:
-        """Raise :class:`InputError` for an empty graph, NaN or a non-positive-definite information."""
+        """Raise :class:`InputError` for an empty graph, NaN, a self-loop, or an information matrix
+        whose translation or rotation block is not positive definite. A full matrix that is not
+        positive definite (cross terms) is allowed here: see :mod:`gtvo.posegraph.information`."""
         where = self.source or "pose graph"
         if self.num_edges == 0:
             raise InputError("pose graph has no edges", where)
@@ -72,9 +81,4 @@ class PoseGraph:
         if np.any(self.edge_i == self.edge_j):
             e = int(np.flatnonzero(self.edge_i == self.edge_j)[0])
             raise InputError(f"edge {e} connects node {int(self.ids[self.edge_i[e]])} to itself", where)
-        ev = np.linalg.eigvalsh(0.5 * (self.information + np.swapaxes(self.information, 1, 2)))
-        bad = np.flatnonzero(ev[:, 0] <= 0)
-        if len(bad):
-            e = int(bad[0])
-            raise InputError(f"information matrix of edge {int(self.ids[self.edge_i[e]])}-"
-                             f"{int(self.ids[self.edge_j[e]])} is not positive definite", where)
+        check_blocks(self)

@@ -11,13 +11,19 @@
 * Initialisations: ``file`` (the vertices), ``odometry`` (edges composed along a spanning tree),
   ``chordal`` (LAGO ``gtsam.lago.initialize`` in 2-D on a diagonal-information copy of the
   graph, over the odometric path or, when an edge (i, i+1) is missing as in ais2klinik, over
-  GTSAM's own spanning tree; ``gtsam.InitializePose3.initialize`` in 3-D).
+  GTSAM's own spanning tree; ``gtsam.InitializePose3.initialize`` in 3-D). When GTSAM's sparse
+  Cholesky declares that linear system indeterminate (:func:`initialise`), the odometry
+  initialisation is used instead and a callback is told so in one line.
+* GTSAM's optimisers are stepped here (``iterate`` until GTSAM's own ``checkConvergence``), so a
+  run that stops at its iteration cap is known as such (``GtsamResult.converged``).
 """
 
 from __future__ import annotations
 
+import re
 import time
 from dataclasses import dataclass
+from typing import Callable
 
 import gtsam
 import numpy as np
@@ -131,8 +137,69 @@ def _prior(graph: PoseGraph, values: gtsam.Values) -> gtsam.NonlinearFactor:
     return gtsam.PriorFactorPose3(key(0), values.atPose3(key(0)), gtsam.noiseModel.Isotropic.Sigma(6, PRIOR_SIGMA))
 
 
+def indeterminate_near(exc: BaseException) -> str | None:
+    """For GTSAM's ``IndeterminantLinearSystemException`` (a ``RuntimeError`` in Python): the
+    variable it names (``"x472"``, or ``""`` when it names none); None for any other exception."""
+    text = str(exc)
+    if not isinstance(exc, RuntimeError) or "ndetermina" not in text:
+        return None
+    m = re.search(r"Symbol: (\w+)", text)
+    return m.group(1) if m else ""
+
+
+def chordal_poses(graph: PoseGraph) -> tuple[F64, F64]:
+    """LAGO (2-D, on the diagonal of the information) or ``InitializePose3`` (3-D) poses.
+
+    Raises GTSAM's ``RuntimeError`` when its linear solver gives up (see :func:`initialise`).
+    """
+    fg = between_graph(graph, diagonal=graph.dim == 2)
+    anchor = gtsam.Values()
+    if graph.dim == 2:
+        anchor.insert(key(0), gtsam.Pose2())
+        fg.add(_prior(graph, anchor))
+        try:  # LAGO's default spanning tree is the odometric path (i, i+1): needs every such edge
+            values = gtsam.lago.initialize(fg, True)
+        except (IndexError, RuntimeError) as exc:
+            if indeterminate_near(exc) is not None:
+                raise
+            values = gtsam.lago.initialize(fg, False)
+    else:
+        anchor.insert(key(0), gtsam.Pose3())
+        fg.add(_prior(graph, anchor))
+        values = gtsam.InitializePose3.initialize(fg)
+    return from_values(graph, values)
+
+
+def initialise(graph: PoseGraph, init: str, warn: Callable[[str], None] | None = None) -> tuple[F64, F64, str]:
+    """Initial poses by ``init`` and the initialisation actually used: ``(R, t, used)``.
+
+    ``chordal`` falls back to ``odometry`` (``used == "odometry"``, and ``warn`` gets one line)
+    when GTSAM's sparse Cholesky declares the linear system of LAGO / InitializePose3
+    indeterminate. That happens on well-posed graphs too: GTSAM refuses a frontal factor whose
+    last two diagonal entries differ by 2^12 or more, which LAGO's second stage (translations and
+    an orientation correction per pose, one 3x3 block each) produces when the translation
+    precisions are ~1e6 times the rotation precisions (docs/posegraph.md).
+    """
+    if init != "chordal":
+        return (*initial_poses(graph, init), init)
+    try:
+        R, t = chordal_poses(graph)
+    except RuntimeError as exc:
+        near = indeterminate_near(exc)
+        if near is None:
+            raise
+        what = "LAGO" if graph.dim == 2 else "InitializePose3"
+        if warn is not None:
+            warn(f"chordal initialisation failed (GTSAM's {what}: indeterminate linear system"
+                 f"{' near ' + near if near else ''}); starting from --init odometry instead")
+        R, t = compose_spanning_tree(graph)
+        return R, t, "odometry"
+    return R, t, "chordal"
+
+
 def initial_poses(graph: PoseGraph, init: str) -> tuple[F64, F64]:
-    """Initial poses by ``init``: ``file``, ``odometry`` or ``chordal`` (LAGO / InitializePose3)."""
+    """Initial poses by ``init``: ``file``, ``odometry`` or ``chordal`` (LAGO / InitializePose3; no
+    fallback here, see :func:`initialise`)."""
     if init == "file":
         if not graph.has_vertices:
             raise InputError("--init file needs a VERTEX line for every pose, and some (or all) are missing: "
@@ -141,43 +208,25 @@ def initial_poses(graph: PoseGraph, init: str) -> tuple[F64, F64]:
     if init == "odometry":
         return compose_spanning_tree(graph)
     if init == "chordal":
-        fg = between_graph(graph, diagonal=graph.dim == 2)
-        anchor = gtsam.Values()
-        if graph.dim == 2:
-            anchor.insert(key(0), gtsam.Pose2())
-            fg.add(_prior(graph, anchor))
-            try:  # LAGO's default spanning tree is the odometric path (i, i+1): needs every such edge
-                values = gtsam.lago.initialize(fg, True)
-            except (IndexError, RuntimeError):
-                values = gtsam.lago.initialize(fg, False)
-        else:
-            anchor.insert(key(0), gtsam.Pose3())
-            fg.add(_prior(graph, anchor))
-            values = gtsam.InitializePose3.initialize(fg)
-        return from_values(graph, values)
+        return chordal_poses(graph)
     raise InputError(f"unknown initialisation {init!r} (choose from {', '.join(INITS)})")
 
 
 @dataclass
 class GtsamResult:
-    """Poses at the end, GTSAM's final error of the chosen objective, iterations and seconds."""
+    """Poses at the end, GTSAM's final error of the chosen objective, iterations, seconds, and
+    whether GTSAM's convergence test passed before the iteration cap."""
 
     rotations: F64
     translations: F64
     error: float
     iterations: int
     seconds: float
+    converged: bool = True
 
 
-def optimize(graph: PoseGraph, R0: F64, t0: F64, objective: str = "geodesic", method: str = "lm",
-             max_iterations: int = 100, rel_tol: float = 1e-10, abs_tol: float = 1e-12) -> GtsamResult:
-    """Run GTSAM's LM / Gauss-Newton / Dogleg on the objective's graph plus a gauge prior on ``x_0``.
-
-    ``seconds`` is the optimiser's own time (graph construction excluded).
-    """
-    fg = objective_graph(graph, objective)
-    values = to_values(graph, R0, t0)
-    fg.add(_prior(graph, values))
+def _optimizer(fg: gtsam.NonlinearFactorGraph, values: gtsam.Values, method: str, max_iterations: int,
+               rel_tol: float, abs_tol: float) -> tuple[gtsam.NonlinearOptimizer, gtsam.NonlinearOptimizerParams]:
     if method == "lm":
         params: gtsam.NonlinearOptimizerParams = gtsam.LevenbergMarquardtParams()
     elif method == "gn":
@@ -190,14 +239,43 @@ def optimize(graph: PoseGraph, R0: F64, t0: F64, objective: str = "geodesic", me
     params.setAbsoluteErrorTol(abs_tol)
     params.setMaxIterations(max_iterations)
     if method == "lm":
-        opt = gtsam.LevenbergMarquardtOptimizer(fg, values, params)
-    elif method == "gn":
-        opt = gtsam.GaussNewtonOptimizer(fg, values, params)
-    else:
-        opt = gtsam.DoglegOptimizer(fg, values, params)
+        return gtsam.LevenbergMarquardtOptimizer(fg, values, params), params
+    if method == "gn":
+        return gtsam.GaussNewtonOptimizer(fg, values, params), params
+    return gtsam.DoglegOptimizer(fg, values, params), params
+
+
+def optimize(graph: PoseGraph, R0: F64, t0: F64, objective: str = "geodesic", method: str = "lm",
+             max_iterations: int = 100, rel_tol: float = 1e-10, abs_tol: float = 1e-12) -> GtsamResult:
+    """Run GTSAM's LM / Gauss-Newton / Dogleg on the objective's graph plus a gauge prior on ``x_0``.
+
+    The loop is GTSAM's own (``NonlinearOptimizer::optimize``: ``iterate`` until
+    ``checkConvergence`` or the cap), stepped from here so that ``converged`` is known.
+    ``seconds`` is the optimiser's own time (graph construction excluded). GTSAM's
+    indeterminate-system error (Gauss-Newton and Dogleg have no damping to fall back on) becomes
+    one :class:`InputError` line.
+    """
+    fg = objective_graph(graph, objective)
+    values = to_values(graph, R0, t0)
+    fg.add(_prior(graph, values))
+    opt, params = _optimizer(fg, values, method, max_iterations, rel_tol, abs_tol)
     start = time.perf_counter()
-    result = opt.optimize()
+    current = opt.error()
+    converged = current <= abs_tol
+    try:
+        while not converged and opt.iterations() < max_iterations and np.isfinite(current):
+            opt.iterate()
+            new = opt.error()
+            converged = bool(gtsam.checkConvergence(params, current, new))
+            current = new
+    except RuntimeError as exc:
+        near = indeterminate_near(exc)
+        if near is None:
+            raise
+        raise InputError(f"GTSAM's {method} stopped at iteration {opt.iterations() + 1}: indeterminate linear "
+                         f"system{' near ' + near if near else ''} (try --method lm)", graph.source or None) from None
     seconds = time.perf_counter() - start
+    result = opt.values()
     R, t = from_values(graph, result)
     err = objective_graph(graph, objective).error(result)
-    return GtsamResult(R, t, float(err), int(opt.iterations()), seconds)
+    return GtsamResult(R, t, float(err), int(opt.iterations()), seconds, converged)

@@ -99,6 +99,7 @@ class _Parser:
         self.vertices: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self.vertex_raw: list[tuple[int, list[float]]] = []
         self.edge_ids: list[tuple[int, int]] = []
+        self.edge_lines: list[int] = []
         self.edge_meas: list[list[float]] = []
         self.edge_info: list[list[float]] = []
         self.edge_has_info: list[bool] = []
@@ -231,17 +232,32 @@ class _Parser:
         if i == j:
             raise self.fail(f"edge connects node {i} to itself")
         self.edge_ids.append((i, j))
+        self.edge_lines.append(self.lineno)
         self.edge_meas.append(meas)
         self.edge_info.append(info if has_info else [])
         self.edge_has_info.append(has_info)
 
     # --- assembly -----------------------------------------------------------------------
+    def check_edge_vertices(self, ij: np.ndarray) -> None:
+        """In a file with vertex lines, every edge must join two of them (a pose of its own would
+        be made up at the identity otherwise): InputError at the first edge that does not."""
+        if not self.vertices:
+            return
+        known = np.array(sorted(self.vertices), dtype=np.int64)
+        missing = ~np.isin(ij, known)
+        if np.any(missing):
+            e = int(np.flatnonzero(missing.any(axis=1))[0])
+            node = int(ij[e][missing[e]][0])
+            raise InputError(f"edge {ij[e, 0]}-{ij[e, 1]} refers to node {node}, which has no vertex line",
+                             self.path, self.edge_lines[e])
+
     def build(self) -> PoseGraph:
         if not self.edge_ids:
             raise InputError("pose graph has no edges", self.path)
         d = int(self.dim)  # type: ignore[arg-type]
         p = 3 if d == 2 else 6
         ij = np.array(self.edge_ids, dtype=np.int64)
+        self.check_edge_vertices(ij)
         meas = np.array(self.edge_meas, dtype=float)
         has = np.array(self.edge_has_info, dtype=bool)
         m = len(ij)
