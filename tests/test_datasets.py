@@ -406,7 +406,7 @@ def test_euroc_ground_truth_outside_the_images_and_corrupt_image(tmp_path):
     far.write_text(f"{T0_NS + 10**12},0,0,0,1,0,0,0\n{T0_NS + 10**12 + 5_000_000},0,0,0,1,0,0,0\n")
     _raises("does not overlap the images", open_sequence, root)
     far.write_text(f"{T0_NS},0,0,0,0,0,0,0\n")
-    _raises("data.csv:1: quaternion has zero length", open_sequence, root)
+    _raises("data.csv:1: quaternion is not unit length (norm 0)", open_sequence, root)
     far.unlink()
     wrong = root / "mav0" / "cam0" / "data" / f"{T0_NS + DT_NS}.png"
     cv2.imwrite(str(wrong), _texture(H - 1, W))

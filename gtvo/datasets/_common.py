@@ -16,6 +16,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 
 from gtvo.errors import InputError
+from gtvo.io.trajectory_files import QUATERNION_NORM_TOLERANCE
 from gtvo.core.image import to_float_gray
 
 FloatArray = NDArray[np.float64]
@@ -176,14 +177,16 @@ def poses_from_quaternions(translations: ArrayLike, quats_xyzw: ArrayLike, path:
                            lines: list[int]) -> FloatArray:
     """(N, 4, 4) poses from translations (N, 3) and quaternions (N, 4) in ``x y z w`` order.
 
-    Quaternions are normalised; a (near) zero quaternion raises InputError at ``path:line``.
+    A quaternion whose norm is not within :data:`gtvo.io.trajectory_files.QUATERNION_NORM_TOLERANCE`
+    of 1 raises InputError at ``path:line`` (as the trajectory readers do); the rest are normalised.
     """
     t = np.asarray(translations, dtype=np.float64).reshape(-1, 3)
     q = np.asarray(quats_xyzw, dtype=np.float64).reshape(-1, 4)
     norms = np.linalg.norm(q, axis=1)
-    if np.any(norms < 1e-6):
-        k = int(np.argmax(norms < 1e-6))
-        raise InputError("quaternion has zero length", path=path, line=lines[k])
+    bad = np.flatnonzero(np.abs(norms - 1.0) > QUATERNION_NORM_TOLERANCE)
+    if bad.size:
+        k = int(bad[0])
+        raise InputError(f"quaternion is not unit length (norm {norms[k]:.6g})", path=path, line=lines[k])
     poses = np.tile(np.eye(4), (t.shape[0], 1, 1))
     poses[:, :3, :3] = Rotation.from_quat(q / norms[:, None]).as_matrix()
     poses[:, :3, 3] = t

@@ -29,6 +29,7 @@ from gtvo.datasets._common import (FloatArray, GrayImageLoader, TextRow, image_s
                                    parse_float_table, read_rows, require_dir, require_file)
 from gtvo.errors import InputError
 from gtvo.datasets.sequence import Sequence
+from gtvo.io.trajectory_files import ROTATION_TOLERANCE, rotation_block_error, rotation_defects
 
 #: (left, right) image folder names tried in order, with the projection matrices of their cameras.
 IMAGE_DIRS: tuple[tuple[str, str, str, str], ...] = (("image_0", "image_1", "P0", "P1"),
@@ -118,6 +119,11 @@ def _read_poses(path: Path, count: int) -> FloatArray:
     table = parse_float_table(rows, path, slice(0, 12))
     poses = np.tile(np.eye(4), (count, 1, 1))
     poses[:, :3, :] = table.reshape(count, 3, 4)
+    ortho, det = rotation_defects(poses[:, :3, :3])
+    bad = np.flatnonzero((ortho > ROTATION_TOLERANCE) | (det <= 0))
+    if bad.size:
+        k = int(bad[0])
+        raise InputError(f"rotation block {rotation_block_error(poses[k, :3, :3])}", path=path, line=rows[k].line)
     return poses
 
 
