@@ -52,12 +52,32 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of the ``gtvo`` console script; returns the exit code."""
+    """Entry point of the ``gtvo`` console script; returns the exit code.
+
+    ``gtvo ... | head``: when the reader of stdout leaves, gtvo stops quietly with exit code 1
+    (Python's documented handling of ``BrokenPipeError``), not with an error line.
+    """
+    try:
+        try:
+            code = _run(argv)
+        except SystemExit:  # argparse after --help or a usage error
+            sys.stdout.flush()
+            raise
+        sys.stdout.flush()  # a closed pipe shows here, not at the interpreter's exit
+        return code
+    except BrokenPipeError:
+        _silence_stdout()
+        return 1
+
+
+def _run(argv: Sequence[str] | None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
         with tidy_on_failure():  # a failed command leaves no empty output folder behind
             return int(args.func(args) or 0)
+    except BrokenPipeError:
+        raise
     except (InputError, DependencyError) as exc:
         print(f"gtvo {args.command}: error: {exc}", file=sys.stderr)
         return 2
@@ -71,6 +91,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"gtvo {args.command}: interrupted", file=sys.stderr)
         return 130
+
+
+def _silence_stdout() -> None:
+    """Point stdout at /dev/null, so that the interpreter's last flush does not fail again."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError, AttributeError):  # no real file descriptor (e.g. captured output)
+        pass
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -36,3 +36,23 @@ class DependencyError(GtvoError, ImportError):
 
 class TrackingFailure(GtvoError):
     """Tracking could not produce a trustworthy pose (too few points, diverging cost...)."""
+
+
+def not_a_file(path: str | Path, what: str = "file", line: int | None = None) -> InputError:
+    """The :class:`InputError` for ``path`` where a file was expected and is not: ``"is a folder,
+    not a <what>"`` when it is a folder, else ``"<what> not found"``."""
+    if Path(path).is_dir():
+        return InputError(f"is a folder, not a {what}", path, line)
+    return InputError(f"{what} not found", path, line)
+
+
+def show(value: object) -> str:
+    """``repr`` of a value for a message, numpy scalars and arrays (also inside a tuple or list)
+    as plain Python numbers and lists: ``1.5``, not ``np.float64(1.5)``."""
+    def plain(v: object) -> object:
+        if hasattr(v, "tolist"):
+            return v.tolist()
+        if isinstance(v, (tuple, list)):
+            return type(v)(plain(x) for x in v)
+        return v
+    return repr(plain(value))

@@ -177,7 +177,7 @@ def test_reader_plain_table_and_errors(tmp_path):
         (tmp_path / name).write_text(text)
         with pytest.raises(InputError, match=pattern):
             read_motions(tmp_path / name)
-    with pytest.raises(InputError, match="no such file"):
+    with pytest.raises(InputError, match="motions file not found"):
         read_motions(tmp_path / "missing.txt")
     other = tmp_path / "ref.txt"
     other.write_text("0.1 0 0\n")

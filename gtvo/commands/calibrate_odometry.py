@@ -20,8 +20,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "format or a plain table) to reference motions of the same rows.")
     p.add_argument("odom", help="raw odometry motions file")
     p.add_argument("reference", help="reference motions file (e.g. scan matching)")
-    p.add_argument("--model", choices=("linear", "diff-drive"), default="linear")
-    p.add_argument("--solver", choices=("handrolled", "gtsam"), default="handrolled")
+    p.add_argument("--model", choices=("linear", "diff-drive"), default="linear",
+                   help="linear: a 3x3 matrix X with reference = X odometry (least squares); diff-drive: left and "
+                        "right wheel scales and the baseline of a differential drive; default linear")
+    p.add_argument("--solver", choices=("handrolled", "gtsam"), default="handrolled",
+                   help="handrolled: closed-form / Gauss-Newton in numpy; gtsam: the same fit as a GTSAM factor "
+                        "graph; default handrolled")
     p.add_argument("--baseline", type=float, default=1.0,
                    help="nominal wheel baseline in metres (diff-drive model; default 1.0)")
     p.add_argument("--plot", metavar="OUT.png", help="write the raw/calibrated/reference trajectories as PNG")

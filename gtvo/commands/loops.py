@@ -25,7 +25,8 @@ from gtvo.loops import LoopCandidate, LoopDetectorConfig, detect_loops
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the ``loops`` subcommand."""
     p = subparsers.add_parser("loops", help="detect and verify loop closures among the keyframes of a sequence",
-                              description=__doc__.splitlines()[0])
+                              description="Place recognition over a logged sequence (every K-th frame a keyframe): "
+                                          "print the verified loops, or a JSON object with --json.")
     p.add_argument("sequence", help="dataset folder (KITTI, EuRoC or TUM RGB-D layout)")
     p.add_argument("--format", default="auto", choices=("auto",) + FORMATS, help="dataset layout (default: auto)")
     p.add_argument("--max-frames", type=int, default=None, help="use only the first frames")

@@ -15,7 +15,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 
-from gtvo.errors import InputError
+from gtvo.errors import InputError, not_a_file
 from gtvo.io.trajectory_files import QUATERNION_NORM_TOLERANCE
 from gtvo.core.image import to_float_gray
 
@@ -37,7 +37,7 @@ def require_dir(path: Path, what: str = "folder") -> Path:
 def require_file(path: Path, what: str = "file") -> Path:
     """``path`` if it is a regular file, else InputError naming it."""
     if not path.is_file():
-        raise InputError(f"{what} not found", path=path)
+        raise not_a_file(path, what)
     return path
 
 
@@ -114,7 +114,7 @@ def parse_timestamp_ns(text: str, path: Path, line: int) -> int:
 def read_image(path: Path) -> NDArray:
     """The raw image at ``path`` (any depth, channels as stored), InputError when unreadable."""
     if not path.is_file():
-        raise InputError("image file not found", path=path)
+        raise not_a_file(path, "image file")
     image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if image is None or image.size == 0:
         raise InputError("cannot read image (unreadable or corrupt file)", path=path)

@@ -25,7 +25,7 @@ import yaml
 from gtvo.datasets._common import (FloatArray, GrayImageLoader, interpolate_poses, nearest_indices,
                                    parse_timestamp_ns,
                                    read_rows, read_trajectory, require_dir, require_file, require_overlap)
-from gtvo.errors import InputError
+from gtvo.errors import InputError, show
 from gtvo.datasets.rectify import RawCamera, StereoRectification, stereo_rectification
 from gtvo.datasets.sequence import Sequence
 from gtvo.core.lie import rotation_block_error
@@ -68,9 +68,13 @@ def _load_yaml(path: Path) -> dict:
 
 def _yaml_numbers(data: dict, key: str, count: int, path: Path) -> FloatArray:
     """``count`` finite numbers under ``key`` (a list, or a matrix mapping with ``data``)."""
-    value = data.get(key)
+    if key not in data:
+        raise InputError(f"no {key!r} key (it needs {count} numbers)", path=path)
+    value = data[key]
     if isinstance(value, dict):
-        value = value.get("data")
+        if "data" not in value:
+            raise InputError(f"{key} has no 'data' key (it needs {count} numbers)", path=path)
+        value = value["data"]
     try:
         arr = np.asarray(value, dtype=np.float64).reshape(-1)
     except (TypeError, ValueError):
@@ -100,7 +104,7 @@ def read_sensor_yaml(path: Path) -> tuple[RawCamera, FloatArray]:
     fu, fv, cu, cv = numbers("intrinsics", 4)
     distortion = numbers("distortion_coefficients", 4)
     if not (fu > 0 and fv > 0 and width >= 1 and height >= 1):
-        raise InputError(f"invalid intrinsics {[fu, fv, cu, cv]} or resolution {[width, height]}", path=path)
+        raise InputError(f"invalid intrinsics {show([fu, fv, cu, cv])} or resolution {show([width, height])}", path=path)
     K = np.array([[fu, 0.0, cu], [0.0, fv, cv], [0.0, 0.0, 1.0]])
     return RawCamera(K, distortion, int(width), int(height)), T_BS
 

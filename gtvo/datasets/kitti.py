@@ -64,7 +64,7 @@ def rectified_from_projections(PL: FloatArray, PR: FloatArray, cameras: tuple[st
     left, right = cameras
     fx = PL[0, 0]
     if not fx > 0 or not PL[1, 1] > 0:
-        raise InputError(f"{left} has non-positive focal length fx={fx!r}, fy={PL[1, 1]!r}", path=path)
+        raise InputError(f"{left} has non-positive focal length fx={float(fx)!r}, fy={float(PL[1, 1])!r}", path=path)
     if not np.allclose(PL[:, :3], PR[:, :3], rtol=1e-6, atol=1e-6 * fx):
         raise InputError(f"{left} and {right} have different intrinsics: images are not rectified", path=path)
     K = PL[:, :3].copy()

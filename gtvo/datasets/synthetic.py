@@ -31,7 +31,7 @@ from scipy import ndimage
 
 from gtvo.io.atomic import atomic_dir
 from gtvo.core.camera import PinholeCamera, StereoCamera
-from gtvo.errors import InputError
+from gtvo.errors import InputError, show
 from gtvo.datasets.sequence import Sequence
 from gtvo.datasets.synthetic_scene import Rendering, SyntheticScene, make_scene
 
@@ -80,7 +80,7 @@ def synthetic_trajectory(n_frames: int, motion: Motion = "forward", step_m: floa
     if n < 1:
         raise InputError(f"n_frames must be >= 1, got {n_frames}")
     if not (np.isfinite(step_m) and step_m > 0):
-        raise InputError(f"step_m must be a finite positive number, got {step_m!r}")
+        raise InputError(f"step_m must be a finite positive number, got {show(step_m)}")
     dt = 1.0 / float(frame_rate_hz)
     t = np.arange(n) * dt
     deg = np.pi / 180.0
@@ -287,7 +287,7 @@ def make_synthetic_sequence(n_frames: int = 30, width: int = 320, height: int = 
     for name, value in (("noise_sigma", noise_sigma), ("baseline", baseline)):
         if not np.isfinite(value) or value < 0 or (name == "baseline" and value == 0):
             raise InputError(f"{name} must be finite and {'positive' if name == 'baseline' else '>= 0'}, "
-                             f"got {value!r}")
+                             f"got {show(value)}")
     if int(supersample) < 1:
         raise InputError(f"supersample must be >= 1, got {supersample}")
     camera = synthetic_camera(width, height, baseline)

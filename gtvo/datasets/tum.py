@@ -23,7 +23,7 @@ from gtvo.core.camera import PinholeCamera
 from gtvo.datasets._common import (DepthImageLoader, FloatArray, GrayImageLoader, associate_unique, image_size,
                                    interpolate_poses, parse_floats, read_rows, read_tum_trajectory, require_dir,
                                    require_overlap)
-from gtvo.errors import InputError
+from gtvo.errors import InputError, show
 from gtvo.datasets.sequence import Sequence
 
 #: Colour/depth (and ground-truth nearest) association tolerance, as TUM's associate.py.
@@ -53,7 +53,7 @@ def intrinsics_for(folder: Path, camera: tuple[float, float, float, float] | Non
     if camera is not None:
         values = tuple(float(v) for v in camera)
         if len(values) != 4 or not all(np.isfinite(values)) or values[0] <= 0 or values[1] <= 0:
-            raise InputError(f"camera must be four finite numbers fx fy cx cy with fx, fy > 0, got {camera!r}")
+            raise InputError(f"camera must be four finite numbers fx fy cx cy with fx, fy > 0, got {show(camera)}")
         return values  # type: ignore[return-value]
     match = re.search(r"freiburg([123])", folder.resolve().name)
     if match is None:

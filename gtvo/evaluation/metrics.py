@@ -21,7 +21,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from gtvo.errors import InputError
+from gtvo.errors import InputError, show
 from gtvo.evaluation.trajectory import FloatArray, Trajectory
 from gtvo.core.lie import invert_poses, rotation_angle
 from gtvo.evaluation.alignment import (Alignment, SimilarityTransform, align_trajectory, check_pair,
@@ -146,7 +146,7 @@ def pairs_by_path(positions: ArrayLike, delta: float, legacy: bool = False) -> N
     P = np.asarray(positions, dtype=np.float64)
     delta = float(delta)
     if not np.isfinite(delta) or delta <= 0:
-        raise InputError(f"RPE delta in metres must be finite and positive, got {delta!r}")
+        raise InputError(f"RPE delta in metres must be finite and positive, got {show(delta)}")
     n = len(P)
     if n < 2:
         return np.zeros((0, 2), np.int64)
@@ -230,7 +230,7 @@ def rpe(est: Trajectory, ref: Trajectory, delta: float = 1, delta_unit: DeltaUni
     check_pair(est, ref, "rpe")
     if delta_unit == "frames":
         if float(delta) != int(delta):
-            raise InputError(f"RPE delta in frames must be an integer, got {delta!r}")
+            raise InputError(f"RPE delta in frames must be an integer, got {show(delta)}")
         pairs = pairs_by_frames(len(est), int(delta))
     elif delta_unit == "m":
         if pairs_from not in ("est", "ref"):

@@ -22,7 +22,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from gtvo.core.lie import invert_poses, make_poses, quaternions_to_rotations, rotations_to_quaternions
-from gtvo.errors import InputError
+from gtvo.errors import InputError, show
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -67,7 +67,7 @@ class Trajectory:
         if np.any(back):
             k = int(np.argmax(back)) + 1
             raise InputError(f"{where}: timestamps go backwards at pose {k} "
-                             f"({self.timestamps[k - 1]!r} -> {self.timestamps[k]!r})")
+                             f"({float(self.timestamps[k - 1])!r} -> {float(self.timestamps[k])!r})")
         if not np.allclose(self.poses[:, 3, :], [0.0, 0.0, 0.0, 1.0], rtol=0.0, atol=1e-12):
             raise InputError(f"{where}: the last row of every pose must be [0, 0, 0, 1]")
 
@@ -129,7 +129,7 @@ class Trajectory:
             raise InputError(f"transform must be a finite 4x4 matrix, got shape {T.shape}")
         scale = float(scale)
         if not np.isfinite(scale) or scale <= 0:
-            raise InputError(f"transform scale must be finite and positive, got {scale!r}")
+            raise InputError(f"transform scale must be finite and positive, got {show(scale)}")
         R, t = T[:3, :3], T[:3, 3]
         poses = np.empty_like(self.poses)
         poses[:, :3, :3] = np.einsum("ij,njk->nik", R, self.rotations)
@@ -158,7 +158,7 @@ def matching_time_indices(stamps_1: ArrayLike, stamps_2: ArrayLike, max_diff: fl
     s2 = np.asarray(stamps_2, dtype=np.float64).reshape(-1) + float(offset_2)
     max_diff = float(max_diff)
     if not np.isfinite(max_diff) or max_diff < 0:
-        raise InputError(f"max_diff must be a finite non-negative number of seconds, got {max_diff!r}")
+        raise InputError(f"max_diff must be a finite non-negative number of seconds, got {show(max_diff)}")
     if s2.size == 0 or s1.size == 0:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
     if np.any(np.diff(s2) < 0):

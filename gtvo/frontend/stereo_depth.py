@@ -36,7 +36,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from factors import photometric
 from gtvo.core.camera import StereoCamera
-from gtvo.errors import InputError
+from gtvo.errors import InputError, show
 from gtvo.frontend._compiled import zssd_costs
 from gtvo.frontend.point_selection import DEFAULT_BORDER, select_points
 from gtvo.core.image import bilinear_sample, check_same_size, image_gradients, to_float_gray
@@ -269,7 +269,7 @@ def stereo_inverse_depth(left: NDArray, right: NDArray, stereo_camera: StereoCam
         raise InputError(f"disparity range must satisfy 0 <= min < max, got [{min_disparity}, {max_disparity}]")
     for name, val in (("sigma_intensity", sigma_intensity), ("sigma_line", sigma_line)):
         if not np.isfinite(val) or val < 0:
-            raise InputError(f"{name} must be finite and >= 0, got {val!r}")
+            raise InputError(f"{name} must be finite and >= 0, got {show(val)}")
     pat = _as_pattern(pattern)
     n = px.shape[0]
     u = px[:, 0].astype(np.int64)

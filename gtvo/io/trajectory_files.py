@@ -30,7 +30,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gtvo.io.atomic import write_text
-from gtvo.errors import InputError
+from gtvo.errors import InputError, not_a_file
 from gtvo.evaluation.trajectory import Trajectory
 from gtvo.core.lie import ROTATION_TOLERANCE, make_poses, not_a_rotation, quaternions_to_rotations, rotation_defects
 
@@ -43,7 +43,7 @@ QUATERNION_NORM_TOLERANCE = 1e-3
 def _read_rows(path: Path, delimiter: str | None) -> tuple[list[int], list[list[str]]]:
     """Line numbers (1-based) and fields of the non-blank, non-comment lines."""
     if not path.is_file():
-        raise InputError("trajectory file not found", path=path)
+        raise not_a_file(path, "trajectory file")
     try:
         text = path.read_text(encoding="utf-8-sig")
     except UnicodeDecodeError as exc:
@@ -92,7 +92,7 @@ def _check_times(path: Path, numbers: list[int], t: NDArray[np.float64]) -> None
     back = np.diff(t) < 0
     if np.any(back):
         k = int(np.argmax(back)) + 1
-        raise InputError(f"time goes backwards ({t[k - 1]!r} -> {t[k]!r})", path=path, line=numbers[k])
+        raise InputError(f"time goes backwards ({float(t[k - 1])!r} -> {float(t[k])!r})", path=path, line=numbers[k])
 
 
 def _rotations_from_quaternions(path: Path, numbers: list[int], q_xyzw: NDArray[np.float64]) -> NDArray[np.float64]:

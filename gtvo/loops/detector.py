@@ -30,7 +30,7 @@ from tqdm import tqdm
 
 from gtvo.core import keys
 from gtvo.core.camera import PinholeCamera, StereoCamera
-from gtvo.errors import InputError
+from gtvo.errors import InputError, show
 from gtvo.core.image import to_uint8
 from gtvo.loops.features import (KeypointPoints, OrbFeatures, OrbParams, depth_image_points, extract_orb,
                                  stereo_points)
@@ -130,15 +130,15 @@ class LoopDetectorConfig:
         for name in ("n_words", "vocabulary_iterations", "min_training_keyframes", "max_training_descriptors",
                      "reference_neighbours", "max_candidates"):
             if int(getattr(self, name)) < 1:
-                raise InputError(f"loop detector {name} must be >= 1, got {getattr(self, name)!r}")
+                raise InputError(f"loop detector {name} must be >= 1, got {show(getattr(self, name))}")
         for name in ("temporal_window", "island_gap"):
             if int(getattr(self, name)) < 0:
-                raise InputError(f"loop detector {name} must be >= 0, got {getattr(self, name)!r}")
+                raise InputError(f"loop detector {name} must be >= 0, got {show(getattr(self, name))}")
         for name in ("min_reference_score", "min_normalised_score", "disparity_sigma_px", "depth_noise_per_m",
                      "stereo_max_hamming"):
             v = float(getattr(self, name))
             if not np.isfinite(v) or v < 0:
-                raise InputError(f"loop detector {name} must be finite and >= 0, got {v!r}")
+                raise InputError(f"loop detector {name} must be finite and >= 0, got {show(v)}")
 
 
 @dataclass

@@ -40,7 +40,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import sparse
 
-from gtvo.errors import InputError
+from gtvo.errors import InputError, show
 
 SQRT2 = math.sqrt(2.0)
 
@@ -85,7 +85,7 @@ def _check_cell(name: str, cell: tuple[int, int], grid: NDArray[np.bool_]) -> tu
     try:
         r, c = (int(v) for v in cell)
     except (TypeError, ValueError):
-        raise InputError(f"{name} must be a (row, col) pair of integers, got {cell!r}") from None
+        raise InputError(f"{name} must be a (row, col) pair of integers, got {show(cell)}") from None
     if not (0 <= r < grid.shape[0] and 0 <= c < grid.shape[1]):
         raise InputError(f"{name} cell {(r, c)} is outside the {grid.shape[0]}x{grid.shape[1]} grid")
     if grid[r, c]:
@@ -242,7 +242,7 @@ def astar_banded(occupied: ArrayLike, start: tuple[int, int], goal: tuple[int, i
     Delta-stepping on the heuristic-reduced costs ``c(i, j) - h(i) + h(j) >= 0``.
     """
     if not (np.isfinite(band) and band > 0):
-        raise InputError(f"band must be a finite positive number, got {band!r}")
+        raise InputError(f"band must be a finite positive number, got {show(band)}")
     grid = _check_grid(occupied)
     start = _check_cell("start", start, grid)
     goal = _check_cell("goal", goal, grid)

@@ -34,7 +34,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy import ndimage
 
 from gtvo.core.optional import require_open3d
-from gtvo.errors import InputError
+from gtvo.errors import InputError, not_a_file, show
 from gtvo.planning.astar import astar_banded
 
 FloatArray = NDArray[np.float64]
@@ -50,7 +50,7 @@ def read_point_cloud(path: str | Path) -> FloatArray:
     """
     path = Path(path)
     if not path.is_file():
-        raise InputError("point cloud not found", path=path)
+        raise not_a_file(path, "point cloud")
     o3d = require_open3d()
     _check_ply_complete(path)
     try:
@@ -233,10 +233,10 @@ def build_occupancy_grid(points: ArrayLike, resolution: float = 0.1, robot_radiu
                                   ("ground_threshold", ground_threshold, True), ("margin", margin, False)):
         v = float(value)
         if not math.isfinite(v) or v < 0 or (positive and v == 0):
-            raise InputError(f"{name} must be a finite {'positive' if positive else 'non-negative'} number, got {value!r}")
+            raise InputError(f"{name} must be a finite {'positive' if positive else 'non-negative'} number, got {show(value)}")
     low, high = (float(v) for v in height_band)
     if not (math.isfinite(low) and math.isfinite(high) and low < high):
-        raise InputError(f"height_band must be (low, high) with low < high, got {height_band!r}")
+        raise InputError(f"height_band must be (low, high) with low < high, got {show(height_band)}")
     pts = np.asarray(points, dtype=np.float64)
     if pts.ndim != 2 or pts.shape[1] != 3:
         raise InputError(f"points must be an (N, 3) array, got shape {pts.shape}")
@@ -246,7 +246,7 @@ def build_occupancy_grid(points: ArrayLike, resolution: float = 0.1, robot_radiu
     o3d = require_open3d()
     voxel = float(voxel_size) if voxel_size is not None else 0.5 * resolution
     if not (math.isfinite(voxel) and voxel > 0):
-        raise InputError(f"voxel_size must be a finite positive number, got {voxel_size!r}")
+        raise InputError(f"voxel_size must be a finite positive number, got {show(voxel_size)}")
     extent = pts.max(axis=0) - pts.min(axis=0) + 2 * margin
     cells = float(np.ceil(extent[0] / resolution) + 1) * float(np.ceil(extent[2] / resolution) + 1)
     if cells > MAX_CELLS or float(np.max(extent)) / voxel > 2.0 ** 30:  # (open3d's voxel index is int32)

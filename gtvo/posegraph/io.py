@@ -28,7 +28,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import breadth_first_order, connected_components, minimum_spanning_tree
 
 from gtvo.io.atomic import atomic_open
-from gtvo.errors import InputError
+from gtvo.errors import InputError, not_a_file
 from gtvo.core import lie
 from gtvo.posegraph.graph import PoseGraph
 
@@ -82,7 +82,7 @@ def read(path: str | Path, fmt: str = "auto") -> PoseGraph:
     """Read a pose graph (``fmt``: ``auto``, ``g2o``, ``toro`` or ``isam``)."""
     path = Path(path)
     if not path.is_file():
-        raise InputError("no such file", path)
+        raise not_a_file(path, "pose-graph file")
     if fmt not in FORMATS:
         raise InputError(f"unknown pose-graph format {fmt!r} (choose from {', '.join(FORMATS)})")
     if fmt == "auto":

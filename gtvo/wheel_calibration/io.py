@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from gtvo.errors import InputError
+from gtvo.errors import InputError, not_a_file
 
 _HEADER = re.compile(r"#\s*(rows|columns)\s*:\s*(\S+)")
 
@@ -26,8 +26,8 @@ def read_motions(path: str | Path) -> NDArray[np.float64]:
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise InputError("no such file", path) from None
+    except (FileNotFoundError, IsADirectoryError):
+        raise not_a_file(path, "motions file") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"cannot read motions ({exc.__class__.__name__}: {exc})", path) from None
     rows: list[list[float]] = []

@@ -14,7 +14,7 @@ from factors.gtsam_factors import DEFAULT_HUBER_K, DEFAULT_SIGMA_INTENSITY
 from gtvo.core.keys import is_pose_key
 from factors.photometric import PATTERN_DSO8, GradientImage
 from gtvo.core.camera import PinholeCamera
-from gtvo.errors import InputError
+from gtvo.errors import InputError, show
 
 FloatArray = NDArray[np.float64]
 WindowSolverName = Literal["gtsam", "handrolled"]
@@ -86,12 +86,12 @@ class WindowConfig:
         if int(self.size) < 2:
             raise InputError(f"window size must be >= 2, got {self.size}")
         if not (self.lambda_stereo > 0 and np.isfinite(self.lambda_stereo)):
-            raise InputError(f"lambda_stereo must be positive, got {self.lambda_stereo!r}")
+            raise InputError(f"lambda_stereo must be positive, got {show(self.lambda_stereo)}")
         if not all(s > 0 and np.isfinite(s) for s in self.affine_sigma):
-            raise InputError(f"affine_sigma must be positive, got {self.affine_sigma!r}")
+            raise InputError(f"affine_sigma must be positive, got {show(self.affine_sigma)}")
         acc = self.acceleration_sigma
         if acc is not None and (len(acc) != 2 or not all(s > 0 and np.isfinite(s) for s in acc)):
-            raise InputError(f"acceleration_sigma must be two positive numbers or None, got {acc!r}")
+            raise InputError(f"acceleration_sigma must be two positive numbers or None, got {show(acc)}")
         if self.max_iterations < 1:
             raise InputError(f"max_iterations must be >= 1, got {self.max_iterations}")
 
