@@ -261,7 +261,7 @@ def optimize(graph: PoseGraph, R0: F64, t0: F64, objective: str = "geodesic", me
     opt, params = _optimizer(fg, values, method, max_iterations, rel_tol, abs_tol)
     start = time.perf_counter()
     current = opt.error()
-    converged = current <= abs_tol
+    converged = current <= 0.0  # GTSAM's errorTol (0 by default): nothing to do
     try:
         while not converged and opt.iterations() < max_iterations and np.isfinite(current):
             opt.iterate()
