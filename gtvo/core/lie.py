@@ -20,6 +20,8 @@ FloatArray = F64
 
 #: A rotation block R read from a file must satisfy max|R^T R - I| <= this and det(R) > 0.
 ROTATION_TOLERANCE = 1e-3
+#: A quaternion read from a file may deviate this much from unit norm (files print 4-9 digits).
+QUATERNION_NORM_TOLERANCE = 1e-3
 
 _SMALL = 1e-4  # below this angle the closed forms switch to their Taylor series
 

@@ -16,7 +16,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 
 from gtvo.errors import InputError, not_a_file
-from gtvo.io.trajectory_files import QUATERNION_NORM_TOLERANCE
+from gtvo.core.lie import QUATERNION_NORM_TOLERANCE
 from gtvo.core.image import to_float_gray
 
 FloatArray = NDArray[np.float64]
@@ -177,7 +177,7 @@ def poses_from_quaternions(translations: ArrayLike, quats_xyzw: ArrayLike, path:
                            lines: list[int]) -> FloatArray:
     """(N, 4, 4) poses from translations (N, 3) and quaternions (N, 4) in ``x y z w`` order.
 
-    A quaternion whose norm is not within :data:`gtvo.io.trajectory_files.QUATERNION_NORM_TOLERANCE`
+    A quaternion whose norm is not within :data:`gtvo.core.lie.QUATERNION_NORM_TOLERANCE`
     of 1 raises InputError at ``path:line`` (as the trajectory readers do); the rest are normalised.
     """
     t = np.asarray(translations, dtype=np.float64).reshape(-1, 3)

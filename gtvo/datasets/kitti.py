@@ -29,7 +29,7 @@ from gtvo.datasets._common import (FloatArray, GrayImageLoader, TextRow, image_s
                                    parse_float_table, read_rows, require_dir, require_file)
 from gtvo.errors import InputError
 from gtvo.datasets.sequence import Sequence
-from gtvo.io.trajectory_files import ROTATION_TOLERANCE, rotation_block_error, rotation_defects
+from gtvo.core.lie import ROTATION_TOLERANCE, rotation_block_error, rotation_defects
 
 #: (left, right) image folder names tried in order, with the projection matrices of their cameras.
 IMAGE_DIRS: tuple[tuple[str, str, str, str], ...] = (("image_0", "image_1", "P0", "P1"),

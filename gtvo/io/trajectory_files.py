@@ -32,12 +32,10 @@ from numpy.typing import NDArray
 from gtvo.io.atomic import write_text
 from gtvo.errors import InputError, not_a_file
 from gtvo.evaluation.trajectory import Trajectory
-from gtvo.core.lie import ROTATION_TOLERANCE, make_poses, not_a_rotation, quaternions_to_rotations, rotation_defects
+from gtvo.core.lie import (QUATERNION_NORM_TOLERANCE, ROTATION_TOLERANCE, make_poses, not_a_rotation,
+                           quaternions_to_rotations, rotation_defects)
 
 TrajectoryFormat = Literal["tum", "kitti", "euroc", "auto"]
-
-#: A quaternion on disk may deviate this much from unit norm (files print 4-9 digits).
-QUATERNION_NORM_TOLERANCE = 1e-3
 
 
 def _read_rows(path: Path, delimiter: str | None) -> tuple[list[int], list[list[str]]]:

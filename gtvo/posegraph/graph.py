@@ -8,7 +8,6 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gtvo.errors import InputError
-from gtvo.posegraph.information import check_blocks
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
@@ -82,3 +81,31 @@ class PoseGraph:
             e = int(np.flatnonzero(self.edge_i == self.edge_j)[0])
             raise InputError(f"edge {e} connects node {int(self.ids[self.edge_i[e]])} to itself", where)
         check_blocks(self)
+
+
+def blocks(dim: int) -> tuple[slice, slice]:
+    """``(translation, rotation)`` index ranges of an information matrix in GTSAM's tangent order
+    (2-D ``[x, y, theta]``, 3-D ``[rot, trans]``)."""
+    return (slice(0, 2), slice(2, 3)) if dim == 2 else (slice(3, 6), slice(0, 3))
+
+
+def not_positive_definite(information: F64) -> NDArray[np.bool_]:
+    """Per matrix of ``(m, p, p)``: True where its symmetric part has an eigenvalue <= 0."""
+    sym = 0.5 * (information + np.swapaxes(information, 1, 2))
+    return np.linalg.eigvalsh(sym)[:, 0] <= 0
+
+
+def edge_name(graph: PoseGraph, e: int) -> str:
+    """``"i-j"`` with the file's node ids of edge ``e``."""
+    return f"{int(graph.ids[graph.edge_i[e]])}-{int(graph.ids[graph.edge_j[e]])}"
+
+
+def check_blocks(graph: PoseGraph) -> None:
+    """InputError naming the first edge whose translation or rotation block is not positive
+    definite (both objectives need them: SE-Sync's weights are built from their inverses)."""
+    trans, rot = blocks(graph.dim)
+    for name, sl in (("translation", trans), ("rotation", rot)):
+        bad = np.flatnonzero(not_positive_definite(graph.information[:, sl, sl]))
+        if len(bad):
+            raise InputError(f"information matrix of edge {edge_name(graph, int(bad[0]))}: its {name} block is "
+                             "not positive definite", graph.source or "pose graph")

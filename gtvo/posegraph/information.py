@@ -11,48 +11,19 @@ is replaced by the nearest positive-definite one (:func:`nearest_positive_defini
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numpy as np
 from numpy.typing import NDArray
 
 from gtvo.errors import InputError
+from gtvo.posegraph.graph import PoseGraph, blocks, check_blocks, edge_name, not_positive_definite
 
-if TYPE_CHECKING:  # graph.py imports this module
-    from gtvo.posegraph.graph import PoseGraph
+__all__ = ["EIGENVALUE_FLOOR", "blocks", "check_blocks", "not_positive_definite", "nearest_positive_definite",
+           "repaired", "block_diagonal", "refuse_not_positive_definite"]
 
 F64 = NDArray[np.float64]
 
 #: Eigenvalues of a repaired matrix are at least this fraction of its largest eigenvalue.
 EIGENVALUE_FLOOR = 1e-6
-
-
-def blocks(dim: int) -> tuple[slice, slice]:
-    """``(translation, rotation)`` index ranges of the information in GTSAM's tangent order
-    (2-D ``[x, y, theta]``, 3-D ``[rot, trans]``)."""
-    return (slice(0, 2), slice(2, 3)) if dim == 2 else (slice(3, 6), slice(0, 3))
-
-
-def not_positive_definite(information: F64) -> NDArray[np.bool_]:
-    """Per matrix of ``(m, p, p)``: True where its symmetric part has an eigenvalue <= 0."""
-    sym = 0.5 * (information + np.swapaxes(information, 1, 2))
-    return np.linalg.eigvalsh(sym)[:, 0] <= 0
-
-
-def edge_name(graph: PoseGraph, e: int) -> str:
-    """``"i-j"`` with the file's node ids of edge ``e``."""
-    return f"{int(graph.ids[graph.edge_i[e]])}-{int(graph.ids[graph.edge_j[e]])}"
-
-
-def check_blocks(graph: PoseGraph) -> None:
-    """InputError naming the first edge whose translation or rotation block is not positive
-    definite (both objectives need them: SE-Sync's weights are built from their inverses)."""
-    trans, rot = blocks(graph.dim)
-    for name, sl in (("translation", trans), ("rotation", rot)):
-        bad = np.flatnonzero(not_positive_definite(graph.information[:, sl, sl]))
-        if len(bad):
-            raise InputError(f"information matrix of edge {edge_name(graph, int(bad[0]))}: its {name} block is "
-                             "not positive definite", graph.source or "pose graph")
 
 
 def nearest_positive_definite(information: F64, floor: float = EIGENVALUE_FLOOR) -> F64:
