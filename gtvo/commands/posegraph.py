@@ -90,6 +90,6 @@ def run(args: argparse.Namespace) -> int:
         print(f"gtsam_error       {result.gtsam_error:.10g}  (initial {result.initial_gtsam_error:.10g})")
         print(f"sesync_objective  {result.sesync_objective:.10g}  (initial {result.initial_sesync_objective:.10g})")
         print(f"iterations        {result.iterations}"
-              + ("" if result.converged else f"  (not converged after {result.iterations} iterations)"))
+              + ("" if result.converged else f"  (not converged after {result.iterations} iteration{'' if result.iterations == 1 else 's'})"))
         print(f"seconds           {result.seconds:.3f}  (initialisation {result.init_seconds:.3f})")
     return 0

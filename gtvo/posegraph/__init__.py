@@ -131,7 +131,7 @@ def optimize(graph: PoseGraph, solver: str = "gtsam", init: str = "chordal", obj
             hres.converged
     out = pd_graph.with_poses(R, t)
     if not converged and warn is not None:
-        warn(f"not converged after {iterations} iterations (raise --max-iterations)")
+        warn(f"not converged after {iterations} iteration{'' if iterations == 1 else 's'} (raise --max-iterations)")
     return PoseGraphResult(graph.with_poses(R, t), solver, init, objective, method, gtsam_error(out),
                            sesync.objective(graph, R, t), gtsam_error(g0), sesync.objective(graph, R0, t0),
                            iterations, seconds, init_seconds, converged, init_used, repaired)
