@@ -23,9 +23,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gtvo.core.camera import StereoCamera
-from gtvo.datasets.sequence import Sequence
+from gtvo.core.image import to_float_gray
+from gtvo.datasets.sequence import Frame, Sequence
 from gtvo.errors import InputError
 from gtvo.evaluation.trajectory import Trajectory
+from gtvo.frontend.rgbd import rgbd_keyframe_points
 from gtvo.frontend.stereo_depth import KeyframePoints, init_keyframe_points
 from gtvo.frontend.tracking import TrackingConfig
 from gtvo.loops import LoopCandidate, LoopDetector
@@ -37,8 +39,8 @@ from gtvo.loops.direct_refinement import refine_loop_both_ways
 #: frame estimates are not given): a weak link, since such a pose is a motion-model guess.
 ODOMETRY_SIGMAS = (0.005, 0.05)
 
-#: Points per keyframe when a stereo keyframe's points have to be made afresh for the direct
-#: refinement (the VO's default, OdometryConfig.points_per_keyframe).
+#: Points per keyframe when a keyframe's points have to be made afresh for the direct refinement
+#: (the VO's default, OdometryConfig.points_per_keyframe).
 REFINEMENT_POINTS = 300
 
 
@@ -76,9 +78,8 @@ def close_loops_of_run(seq: Sequence, est: Trajectory, frame_indices: list[int],
             covariance of their relative pose (:func:`odometry_covariances`), or None where no
             tracking links them; None for all: every edge gets :data:`ODOMETRY_SIGMAS`.
         keyframe_points: the VO's points of each keyframe (window-refined depths), by frame index
-            in ``seq``, hosting the direct refinement of a loop; a stereo keyframe missing here gets
-            points made afresh from its pair (less accurate: one pair's depths), an RGB-D one cannot
-            be refined and its loops are dropped (``unrefined``).
+            in ``seq``, hosting the direct refinement of a loop; a keyframe missing here gets points
+            made afresh from its stereo pair (less accurate: one pair's depths) or its depth image.
         tracking_config: the tracker's settings for the refinement (the VO's, default
             :class:`TrackingConfig`).
 
@@ -132,22 +133,21 @@ def _detect(seq: Sequence, est: Trajectory, frame_indices: list[int], kfs: list[
 def _refine(seq: Sequence, c: LoopCandidate, fi: int, fj: int, points: Mapping[int, KeyframePoints] | None,
             config: TrackingConfig | None):
     """The loop ``c`` (query frame ``fi``, candidate ``fj``) re-measured by direct alignment both
-    ways (:func:`refine_loop_both_ways`), or None (also for RGB-D keyframes whose points are not given)."""
+    ways (:func:`refine_loop_both_ways`), or None."""
     host, target = seq.frame(fi), seq.frame(fj)
     pi = points.get(fi) if points is not None else None
     pj = points.get(fj) if points is not None else None
-    pi = _stereo_points(seq, host) if pi is None else pi
-    pj = _stereo_points(seq, target) if pj is None else pj
-    if pi is None or pj is None:
-        return None
+    pi = _fresh_points(seq, host) if pi is None else pi
+    pj = _fresh_points(seq, target) if pj is None else pj
     return refine_loop_both_ways(seq.pinhole, host.left, pi, target.left, pj, c.T_i_j, config)
 
 
-def _stereo_points(seq: Sequence, frame) -> KeyframePoints | None:
-    """A stereo keyframe's points made from its images as the VO makes them; None for RGB-D."""
-    if not isinstance(seq.camera, StereoCamera) or frame.right is None:
-        return None
-    return init_keyframe_points(frame.left, frame.right, seq.camera, target=REFINEMENT_POINTS)
+def _fresh_points(seq: Sequence, frame: Frame) -> KeyframePoints:
+    """A keyframe's points made from its images as the VO makes them (stereo pair or depth image)."""
+    if isinstance(seq.camera, StereoCamera):
+        return init_keyframe_points(frame.left, frame.right, seq.camera, target=REFINEMENT_POINTS)
+    return rgbd_keyframe_points(to_float_gray(frame.left, f"frame {frame.index} image"), frame.depth,
+                                REFINEMENT_POINTS)
 
 
 def odometry_covariances(estimates: Seq, keyframes: list[int]) -> list[NDArray[np.float64] | None]:
