@@ -25,8 +25,8 @@ def _closed_and_open_ate(motion: str) -> tuple[float, float, list[bool]]:
                              odometry_covariances=odometry_covariances(vo.estimates, kfs),
                              keyframe_points={kf.index: kf.points for kf in vo.keyframes},
                              tracking_config=vo.config.tracking)
-    return (evaluate(*ground_truth(seq, res.trajectory))["ate_rmse_m"], evaluate(*ground_truth(seq, traj))["ate_rmse_m"],
-            res.accepted)
+    closed = evaluate(*ground_truth(seq, res.trajectory))["ate_rmse_m"]
+    return closed, evaluate(*ground_truth(seq, traj))["ate_rmse_m"], res.accepted
 
 
 def test_loop_closure_lowers_the_ate_of_a_true_loop():

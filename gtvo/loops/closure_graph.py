@@ -7,9 +7,9 @@ and optimises with Graduated Non-Convexity (``gtsam.GncLMOptimizer``, truncated-
 loss, inlier threshold at the 99 % chi-square quantile of 6 degrees of freedom, set explicitly:
 GTSAM 4.3's default, not a promise of every version). Odometry edges are declared known
 inliers; a candidate whose final GNC weight is below 0.5 is rejected, so one false loop cannot
-bend the map; a last LM solve on odometry plus the accepted loops gives the returned poses. ``method="huber"`` / ``"cauchy"``
-instead wrap the loop edges in a robust kernel and reject by the chi-square test of the
-final residual.
+bend the map; a last LM solve on odometry plus the accepted loops gives the returned poses.
+``method="huber"`` / ``"cauchy"`` instead wrap the loop edges in a robust kernel and reject by
+the chi-square test of the final residual.
 """
 
 from __future__ import annotations
