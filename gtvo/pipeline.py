@@ -129,12 +129,16 @@ def run(path: str | Path | Sequence, out: str | Path | None = None, config: Odom
             info["unpaired_messages"] = seq.unpaired  # type: ignore[attr-defined]
         closed = None
         if loop_closure:
-            from gtvo.loops.closing import close_loops_of_run  # noqa: PLC0415
+            from gtvo.loops.closing import close_loops_of_run, odometry_covariances  # noqa: PLC0415
 
             keyframes = [p for p, e in enumerate(vo.estimates) if e.is_keyframe]
-            res = close_loops_of_run(seq, traj, [e.index for e in vo.estimates], keyframes, progress=progress)
+            res = close_loops_of_run(seq, traj, [e.index for e in vo.estimates], keyframes, progress=progress,
+                                     odometry_covariances=odometry_covariances(vo.estimates, keyframes),
+                                     keyframe_points={kf.index: kf.points for kf in vo.keyframes},
+                                     tracking_config=vo.config.tracking)
             closed = res.trajectory
-            info["loops_detected"] = len(res.candidates)
+            info["loops_detected"] = len(res.candidates) + len(res.unrefined)
+            info["loops_unrefined"] = len(res.unrefined)
             info["loops_accepted"] = int(sum(res.accepted))
         report = write_run_outputs(out_dir, traj, seq, info, points=vo.point_cloud(), loop_closed=closed)
     report["out"] = str(out_dir)

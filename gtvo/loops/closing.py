@@ -2,27 +2,46 @@
 
 1. Every keyframe of the run goes into a :class:`gtvo.loops.LoopDetector` (ORB bag of words,
    verified by PnP RANSAC on its stereo or RGB-D points) and is queried against the earlier ones.
-2. The keyframe poses become a pose graph: consecutive keyframes are joined by their VO relative
-   pose (odometry edges), every verified loop by its measured relative pose
-   (``BetweenFactorPose3``), and :func:`gtvo.loops.closure_graph.close_loops` optimises it
-   with Graduated Non-Convexity, so that one false loop cannot bend the map.
-3. Every frame keeps its pose relative to its keyframe: ``T_world_f' = T_world_k' T_world_k^-1 T_world_f``.
+2. Each verified loop is re-measured by direct alignment (:func:`gtvo.loops.direct_refinement.refine_loop`):
+   the candidate's image tracked against the query keyframe's points from the PnP pose, the way
+   the VO measures its odometry edges; a loop the tracker cannot align is dropped.
+3. The keyframe poses become a pose graph: consecutive keyframes are joined by their VO relative
+   pose (odometry edges) with the covariance of the tracking that linked them, every loop by its
+   direct relative pose and covariance (``BetweenFactorPose3``), and
+   :func:`gtvo.loops.closure_graph.close_loops` optimises it with Graduated Non-Convexity, so
+   that one false loop cannot bend the map. Both kinds of edge come from the same photometric
+   model, so neither is on another scale of confidence than the other (docs/loop_closure.md).
+4. Every frame keeps its pose relative to its keyframe: ``T_world_f' = T_world_k' T_world_k^-1 T_world_f``.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Mapping, Sequence as Seq
 
 import numpy as np
 from numpy.typing import NDArray
 
-from gtvo.loops import LoopDetector
-from gtvo.loops.closure_graph import LoopEdge, close_loops
-from gtvo.datasets.sequence import Sequence
+from gtvo.core.camera import StereoCamera
+from gtvo.core.image import to_float_gray
+from gtvo.datasets.sequence import Frame, Sequence
+from gtvo.errors import InputError
 from gtvo.evaluation.trajectory import Trajectory
+from gtvo.frontend.rgbd import rgbd_keyframe_points
+from gtvo.frontend.stereo_depth import KeyframePoints, init_keyframe_points
+from gtvo.frontend.tracking import TrackingConfig
+from gtvo.loops import LoopCandidate, LoopDetector
+from gtvo.loops.closure_graph import LoopEdge, close_loops
+from gtvo.loops.direct_refinement import refine_loop_both_ways
 
-#: Odometry edge standard deviations between consecutive keyframes: rotation (rad), translation (m).
+#: Odometry edge standard deviations, rotation (rad) and translation (m), for consecutive keyframes
+#: that no successful tracking links (the first keyframe after a re-initialisation, or a run whose
+#: frame estimates are not given): a weak link, since such a pose is a motion-model guess.
 ODOMETRY_SIGMAS = (0.005, 0.05)
+
+#: Points per keyframe when a keyframe's points have to be made afresh for the direct refinement
+#: (the VO's default, OdometryConfig.points_per_keyframe).
+REFINEMENT_POINTS = 300
 
 
 @dataclass
@@ -33,15 +52,19 @@ class LoopClosingResult:
         trajectory: every frame, re-expressed after the keyframe pose graph was optimised.
         candidates: verified loop candidates ``(i, j)`` as frame indices of the sequence.
         accepted: per candidate, True when the robust optimisation kept it.
+        unrefined: verified loops ``(i, j)`` that direct alignment could not measure (not in the graph).
     """
 
     trajectory: Trajectory
     candidates: list[tuple[int, int]] = field(default_factory=list)
     accepted: list[bool] = field(default_factory=list)
+    unrefined: list[tuple[int, int]] = field(default_factory=list)
 
 
 def close_loops_of_run(seq: Sequence, est: Trajectory, frame_indices: list[int], keyframes: list[int],
-                       progress: bool = False) -> LoopClosingResult:
+                       progress: bool = False, odometry_covariances: Seq[NDArray[np.float64] | None] | None = None,
+                       keyframe_points: Mapping[int, KeyframePoints] | None = None,
+                       tracking_config: TrackingConfig | None = None) -> LoopClosingResult:
     """Detect loops among a run's keyframes and return the loop-closed trajectory.
 
     Args:
@@ -51,15 +74,48 @@ def close_loops_of_run(seq: Sequence, est: Trajectory, frame_indices: list[int],
             have no pose).
         keyframes: positions in ``est`` of the keyframes.
         progress: show a progress bar.
+        odometry_covariances: per pair of consecutive keyframes (``len(keyframes) - 1``), the 6x6
+            covariance of their relative pose (:func:`odometry_covariances`), or None where no
+            tracking links them; None for all: every edge gets :data:`ODOMETRY_SIGMAS`.
+        keyframe_points: the VO's points of each keyframe (window-refined depths), by frame index
+            in ``seq``, hosting the direct refinement of a loop; a keyframe missing here gets points
+            made afresh from its stereo pair (less accurate: one pair's depths) or its depth image.
+        tracking_config: the tracker's settings for the refinement (the VO's, default
+            :class:`TrackingConfig`).
 
     Returns the input trajectory unchanged when no loop is found.
     """
     kfs = sorted(set(int(k) for k in keyframes))
     if len(kfs) < 2:
         return LoopClosingResult(est)
+    found = _detect(seq, est, frame_indices, kfs, progress)
+    if not found:
+        return LoopClosingResult(est)
+    rank = {k: r for r, k in enumerate(kfs)}
+    edges, pairs, unrefined = [], [], []
+    for c in found:
+        fi, fj = int(frame_indices[c.i]), int(frame_indices[c.j])
+        refined = _refine(seq, c, fi, fj, keyframe_points, tracking_config)
+        if refined is None:
+            unrefined.append((fi, fj))
+        else:
+            edges.append(LoopEdge(rank[c.i], rank[c.j], refined.T_i_j, refined.information))
+            pairs.append((fi, fj))
+    if not edges:
+        return LoopClosingResult(est, unrefined=unrefined)
+    info = odometry_informations(len(kfs), odometry_covariances)
+    result = close_loops(est.poses[kfs], edges, odometry_information=info)
+    poses = relocate_frames(est.poses, kfs, result.poses)
+    traj = Trajectory(est.timestamps.copy(), poses, name=f"{est.name} (loop closed)")
+    return LoopClosingResult(traj, pairs, [bool(a) for a in result.accepted], unrefined)
+
+
+def _detect(seq: Sequence, est: Trajectory, frame_indices: list[int], kfs: list[int],
+            progress: bool) -> list[LoopCandidate]:
+    """Every keyframe added to a :class:`LoopDetector` and queried: the verified loops (PnP)."""
     detector = LoopDetector(seq.camera)
-    found = []
-    it = kfs
+    found: list[LoopCandidate] = []
+    it: Seq[int] = kfs
     if progress:
         from tqdm import tqdm  # noqa: PLC0415
 
@@ -71,17 +127,66 @@ def close_loops_of_run(seq: Sequence, est: Trajectory, frame_indices: list[int],
         else:
             detector.add_keyframe(k, frame.left, depth=frame.depth, T_world_cam=est.poses[k])
         found.extend(detector.query(k))
-    if not found:
-        return LoopClosingResult(est)
-    rank = {k: r for r, k in enumerate(kfs)}
-    edges = [LoopEdge(rank[c.i], rank[c.j], c.T_i_j, c.information) for c in found]
+    return found
+
+
+def _refine(seq: Sequence, c: LoopCandidate, fi: int, fj: int, points: Mapping[int, KeyframePoints] | None,
+            config: TrackingConfig | None):
+    """The loop ``c`` (query frame ``fi``, candidate ``fj``) re-measured by direct alignment both
+    ways (:func:`refine_loop_both_ways`), or None."""
+    host, target = seq.frame(fi), seq.frame(fj)
+    pi = points.get(fi) if points is not None else None
+    pj = points.get(fj) if points is not None else None
+    pi = _fresh_points(seq, host) if pi is None else pi
+    pj = _fresh_points(seq, target) if pj is None else pj
+    return refine_loop_both_ways(seq.pinhole, host.left, pi, target.left, pj, c.T_i_j, config)
+
+
+def _fresh_points(seq: Sequence, frame: Frame) -> KeyframePoints:
+    """A keyframe's points made from its images as the VO makes them (stereo pair or depth image)."""
+    if isinstance(seq.camera, StereoCamera):
+        return init_keyframe_points(frame.left, frame.right, seq.camera, target=REFINEMENT_POINTS)
+    return rgbd_keyframe_points(to_float_gray(frame.left, f"frame {frame.index} image"), frame.depth,
+                                REFINEMENT_POINTS)
+
+
+def odometry_covariances(estimates: Seq, keyframes: list[int]) -> list[NDArray[np.float64] | None]:
+    """Per pair of consecutive keyframes (positions in ``estimates``), the covariance of their
+    relative pose: the tracker's covariance of the later keyframe when it was tracked against the
+    earlier one (:attr:`FrameEstimate.keyframe_index`), else None.
+
+    In window mode the keyframe poses are refined jointly after tracking, so the tracker's
+    covariance is an upper bound of the relative pose's; it is the same photometric model as the
+    loops' (:func:`gtvo.loops.direct_refinement.refine_loop`), which is what keeps the two kinds of
+    edge on one scale.
+    """
+    kfs = sorted(set(int(k) for k in keyframes))
+    out: list[NDArray[np.float64] | None] = []
+    for a, b in zip(kfs[:-1], kfs[1:]):
+        e = estimates[b]
+        ok = (e.tracking is not None and e.tracking.success and not e.reinitialised
+              and e.keyframe_index == estimates[a].index and np.all(np.isfinite(e.tracking.covariance)))
+        out.append(np.array(e.tracking.covariance, dtype=float) if ok else None)
+    return out
+
+
+def odometry_informations(n_keyframes: int, covariances: Seq[NDArray[np.float64] | None] | None
+                          ) -> NDArray[np.float64]:
+    """(n_keyframes - 1, 6, 6) information of the odometry edges: the inverse covariance, or
+    :data:`ODOMETRY_SIGMAS` where there is none."""
     sr, st = ODOMETRY_SIGMAS
-    info = np.diag([1 / sr**2] * 3 + [1 / st**2] * 3)
-    result = close_loops(est.poses[kfs], edges, odometry_information=info)
-    poses = relocate_frames(est.poses, kfs, result.poses)
-    traj = Trajectory(est.timestamps.copy(), poses, name=f"{est.name} (loop closed)")
-    pairs = [(int(frame_indices[c.i]), int(frame_indices[c.j])) for c in found]
-    return LoopClosingResult(traj, pairs, [bool(a) for a in result.accepted])
+    weak = np.diag([1 / sr**2] * 3 + [1 / st**2] * 3)
+    info = np.tile(weak, (n_keyframes - 1, 1, 1))
+    if covariances is None:
+        return info
+    if len(covariances) != n_keyframes - 1:
+        raise InputError(f"{len(covariances)} odometry covariances for {n_keyframes} keyframes "
+                         f"(expected {n_keyframes - 1})")
+    for k, C in enumerate(covariances):
+        if C is not None:
+            C = 0.5 * (np.asarray(C, float) + np.asarray(C, float).T)
+            info[k] = np.linalg.inv(C)
+    return info
 
 
 def relocate_frames(poses: NDArray[np.float64], keyframes: list[int],

@@ -4,11 +4,12 @@ Given the keyframe poses ``T_world_kf`` of a VO run (their consecutive relative 
 odometry edges) and candidate loop edges ``(i, j, T_i_j, information)`` from place recognition
 (not part of this module), :func:`close_loops` adds every candidate as a ``BetweenFactorPose3``
 and optimises with Graduated Non-Convexity (``gtsam.GncLMOptimizer``, truncated-least-squares
-loss). Odometry edges are declared known inliers; a candidate whose final GNC weight is below
-0.5 is rejected, so one false loop cannot bend the map; a last LM solve on odometry plus the
-accepted loops gives the returned poses. ``method="huber"`` / ``"cauchy"``
-instead wrap the loop edges in a robust kernel and reject by the chi-square test of the
-final residual.
+loss, inlier threshold at the 99 % chi-square quantile of 6 degrees of freedom, set explicitly:
+GTSAM 4.3's default, not a promise of every version). Odometry edges are declared known
+inliers; a candidate whose final GNC weight is below 0.5 is rejected, so one false loop cannot
+bend the map; a last LM solve on odometry plus the accepted loops gives the returned poses.
+``method="huber"`` / ``"cauchy"`` instead wrap the loop edges in a robust kernel and reject by
+the chi-square test of the final residual.
 """
 
 from __future__ import annotations
@@ -26,6 +27,9 @@ from gtvo.errors import InputError
 F64 = NDArray[np.float64]
 METHODS = ("gnc", "huber", "cauchy")
 CHI2_6DOF_99 = 16.812  # 99 % quantile of chi-square with 6 degrees of freedom
+#: GNC's truncated least squares treats a loop as an inlier while its chi-square is below this
+#: quantile (``GncOptimizer.setInlierCostThresholdsAtProbability``): 16.8 for a 6-dof loop.
+GNC_INLIER_PROBABILITY = 0.99
 
 
 @dataclass
@@ -63,7 +67,8 @@ def close_loops(poses: Sequence[F64] | F64, candidates: Sequence[LoopEdge],
     """Optimise the keyframe graph ``odometry + candidate loops``; see the module docstring.
 
     ``poses``: ``(n, 4, 4)`` keyframe poses ``T_world_kf`` (the odometry edges are their
-    consecutive relative poses, with ``odometry_information``, default identity x 1e4).
+    consecutive relative poses, with ``odometry_information``: one 6x6 for all edges or one per
+    edge, ``(n - 1, 6, 6)``; default identity x 1e4).
     """
     P = np.asarray(poses, dtype=float)
     if P.ndim != 3 or P.shape[1:] != (4, 4) or len(P) < 2:
@@ -73,11 +78,15 @@ def close_loops(poses: Sequence[F64] | F64, candidates: Sequence[LoopEdge],
     n = len(P)
     Xs = [_pose3(T) for T in P]
     info_odo = np.eye(6) * 1e4 if odometry_information is None else np.asarray(odometry_information, float)
+    if info_odo.shape == (6, 6):
+        info_odo = np.broadcast_to(info_odo, (n - 1, 6, 6))
+    if info_odo.shape != (n - 1, 6, 6) or not np.all(np.isfinite(info_odo)):
+        raise InputError(f"odometry information must be a finite 6x6 or ({n - 1}, 6, 6), got {info_odo.shape}")
     key = pose_key
     graph = gtsam.NonlinearFactorGraph()
     graph.add(gtsam.PriorFactorPose3(key(0), Xs[0], gtsam.noiseModel.Isotropic.Sigma(6, 1e-6)))
-    odo_noise = gtsam.noiseModel.Gaussian.Information(info_odo)
     for k in range(n - 1):
+        odo_noise = gtsam.noiseModel.Gaussian.Information(np.array(info_odo[k]))
         graph.add(gtsam.BetweenFactorPose3(key(k), key(k + 1), Xs[k].between(Xs[k + 1]), odo_noise))
     first_loop = graph.size()
     for c in candidates:
@@ -97,6 +106,7 @@ def close_loops(poses: Sequence[F64] | F64, candidates: Sequence[LoopEdge],
         params = gtsam.GncLMParams(gtsam.LevenbergMarquardtParams())
         params.setKnownInliers(list(range(first_loop)))
         opt = gtsam.GncLMOptimizer(graph, initial, params)
+        opt.setInlierCostThresholdsAtProbability(GNC_INLIER_PROBABILITY)
         result = opt.optimize()
         weights = np.asarray(opt.getWeights(), float)[first_loop:]
         accepted = weights > 0.5
