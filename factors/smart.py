@@ -169,6 +169,13 @@ class HostPointsFactor(PythonFactor):
         self._trial = (key, d, E)
         return d, E
 
+    def depths_at(self, values: gtsam.Values) -> FloatArray:
+        """The inverse depths :meth:`commit` would set at ``values``, without committing: the factor
+        keeps its linearisation, weights and caches (a linearisation at ``values`` that follows,
+        e.g. ``gtsam.Marginals``, reuses the residuals of the cost pass there)."""
+        poses, affs = self._read(values)
+        return np.array(self._depths_at(poses, affs), dtype=float)
+
     def commit(self, values: gtsam.Values) -> FloatArray:
         """Set the inverse depths to those implied at ``values`` (call after optimisation)."""
         poses, affs = self._read(values)

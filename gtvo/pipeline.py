@@ -15,6 +15,9 @@ from gtvo.datasets import open_sequence
 from gtvo.errors import InputError
 from gtvo.config import OdometryConfig
 from gtvo.odometry import VisualOdometry
+import numpy as np
+
+from gtvo.io.covariances import KeyframeCovariances
 from gtvo.io.outputs import write_run_outputs
 from gtvo.datasets.sequence import Sequence
 from gtvo.evaluation.trajectory import Trajectory
@@ -86,7 +89,10 @@ def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progre
             "window_optimisations": len(vo.window_results),
             "window_seconds_mean": _mean([r.seconds for r in vo.window_results]),
             "window_iterations_mean": _mean([r.iterations for r in vo.window_results]),
+            "covariance_seconds": float(sum(r.covariance_seconds for r in vo.window_results)),
         })
+    info["covariances"] = ("not computed (--no-covariances)" if config.mode == "window" and not config.window.covariances
+                           else "not computed (track mode: no window)" if config.mode != "window" else "computed")
     return vo, traj, info
 
 
@@ -140,9 +146,25 @@ def run(path: str | Path | Sequence, out: str | Path | None = None, config: Odom
             info["loops_detected"] = len(res.candidates) + len(res.unrefined)
             info["loops_unrefined"] = len(res.unrefined)
             info["loops_accepted"] = int(sum(res.accepted))
-        report = write_run_outputs(out_dir, traj, seq, info, points=vo.point_cloud(), loop_closed=closed)
+        report = write_run_outputs(out_dir, traj, seq, info, points=vo.point_cloud(), loop_closed=closed,
+                                   covariances=keyframe_covariances(vo))
     report["out"] = str(out_dir)
     return report
+
+
+def keyframe_covariances(vo: VisualOdometry) -> KeyframeCovariances | None:
+    """Every keyframe's pose covariance from its last window optimisation (None when the run
+    computed none: track mode or ``WindowConfig.covariances=False``)."""
+    if vo.window is None or not vo.config.window.covariances:
+        return None
+    stamp = {e.index: e.timestamp for e in vo.estimates}
+    rows = [(kf.index, P) for kf in vo.keyframes if (P := vo.covariance(kf)) is not None]
+    cw = vo.config.window
+    source = ("iSAM2 marginalCovariance of the fixed-lag smoother" if cw.backend == "fixed_lag" else
+              "gtsam.Marginals of the window's graph" if vo.config.window_solver == "gtsam" else
+              "inverse of the window's reduced Hessian (hand-rolled)")
+    return KeyframeCovariances(np.array([i for i, _ in rows], dtype=np.int64), np.array([stamp[i] for i, _ in rows]),
+                               np.array([P for _, P in rows]).reshape(-1, 6, 6), source)
 
 
 def _mean(xs: list[float]) -> float | None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 
 from gtvo.commands._bag import add_bag_options, bag_options
@@ -29,6 +30,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--loop-closure", action="store_true",
                    help="detect loops among the keyframes, optimise the keyframe pose graph robustly (GNC) and "
                         "write DIR/trajectory_loop_closed.tum as a second output")
+    p.add_argument("--no-covariances", action="store_true",
+                   help="do not compute the keyframes' pose covariances (no DIR/covariances.npz, no ellipses)")
     add_odometry_options(p)
     add_bag_options(p)
     p.set_defaults(func=main)
@@ -46,6 +49,8 @@ def main(args: argparse.Namespace) -> int:
     if args.ground_truth is not None:
         options["ground_truth"] = args.ground_truth
     config = odometry_config(args)
+    if args.no_covariances:
+        config = dataclasses.replace(config, window=dataclasses.replace(config.window, covariances=False))
     report = run(args.sequence, out=args.out, config=config, format=args.format,
                  max_frames=args.max_frames, progress=not args.no_progress, strict=args.strict,
                  loop_closure=args.loop_closure, frame_step=args.frame_step, **options)

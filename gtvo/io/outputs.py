@@ -17,6 +17,7 @@ from gtvo.core.optional import require_open3d
 from gtvo.io.atomic import atomic_path, ensure_output_dir, write_json
 from gtvo.errors import DependencyError, InputError
 from gtvo.evaluation.metrics import align_trajectory, ate, drift_percent, kitti_segment_errors, rpe
+from gtvo.io.covariances import KeyframeCovariances, covariance_summary, position_ellipses, write_covariances
 from gtvo.io.plots import plot_errors_over_time, plot_trajectory_top_view
 from gtvo.datasets.sequence import Sequence
 from gtvo.evaluation.trajectory import Trajectory
@@ -95,13 +96,15 @@ def write_point_cloud(path: str | Path, points: NDArray[np.float64], intensity: 
 
 def write_run_outputs(out_dir: str | Path, est: Trajectory, seq: Sequence, run_info: dict[str, Any],
                       points: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None,
-                      loop_closed: Trajectory | None = None) -> dict[str, Any]:
+                      loop_closed: Trajectory | None = None,
+                      covariances: KeyframeCovariances | None = None) -> dict[str, Any]:
     """Write a run's outputs into ``out_dir`` and return the report written to ``report.json``.
 
     ``run_info`` holds the run's own figures (frames, keyframes, seconds, ...); metrics are added
     when the sequence has ground truth. ``loop_closed``, when given, is written as
-    ``trajectory_loop_closed.tum`` and evaluated as ``loop_closed_*``. Every file is written
-    atomically.
+    ``trajectory_loop_closed.tum`` and evaluated as ``loop_closed_*``. ``covariances``, when given,
+    is written as ``covariances.npz``, summarised in the report and drawn as position ellipses in
+    ``trajectory.png`` (:mod:`gtvo.io.covariances`). Every file is written atomically.
     """
     out = ensure_output_dir(out_dir)
     report: dict[str, Any] = {"sequence": seq.name, "source": None if seq.source is None else str(seq.source)}
@@ -123,13 +126,20 @@ def write_run_outputs(out_dir: str | Path, est: Trajectory, seq: Sequence, run_i
             m = evaluate(*pair_lc)
             report["loop_closed_ate_rmse_m"] = m["ate_rmse_m"]
             report["loop_closed_drift_percent"] = m["drift_percent"]
+    if covariances is not None:
+        report.update(covariance_summary(covariances))
+    drawn = aligned if pair is not None else est
+    ellipses = position_ellipses(covariances, drawn) if covariances is not None and len(covariances) else None
     write_tum(out / "trajectory.tum", est)
+    if covariances is not None and len(covariances):
+        write_covariances(out / "covariances.npz", covariances)
     if pair is not None:
-        plot_trajectory_top_view(aligned, ref, out / "trajectory.png", title=title)
+        plot_trajectory_top_view(aligned, ref, out / "trajectory.png", title=title, ellipses=ellipses)
         errs = np.linalg.norm(aligned.positions - ref.positions, axis=1)
         plot_errors_over_time(ref.timestamps, errs, out / "errors.png", title=f"{seq.name}: position error")
     else:
-        plot_trajectory_top_view(est, None, out / "trajectory.png", title=f"{seq.name} (no ground truth)")
+        plot_trajectory_top_view(est, None, out / "trajectory.png", title=f"{seq.name} (no ground truth)",
+                                 ellipses=ellipses)
     if loop_closed is not None:
         write_tum(out / "trajectory_loop_closed.tum", loop_closed)
     if points is not None and len(points[0]):

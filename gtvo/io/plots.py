@@ -95,8 +95,53 @@ def _save(fig, path: str | Path) -> Path:
     return path
 
 
+def plane_matrix(plane: str, basis_points: ArrayLike | None = None) -> FloatArray:
+    """The (2, 3) linear map of :func:`project_to_plane` (without the ``"pca"`` centring): it
+    carries a 3-D covariance ``P`` onto the plane as ``A P A^T``."""
+    if plane == "pca":
+        if basis_points is None:
+            raise InputError("the pca plane needs its basis points")
+        return _principal_axes(np.asarray(basis_points, dtype=np.float64))[:2].copy()
+    A = np.zeros((2, 3))
+    A[0, _AXES[plane[0]]] = A[1, _AXES[plane[1]]] = 1.0
+    return A
+
+
+#: 95 % of a 2-D Gaussian lies inside sqrt(5.991) sigma (chi-square, 2 dof).
+_CHI2_2_95 = 5.991464547107979
+
+
+def _draw_ellipses(ax, centres: FloatArray, covariances: FloatArray, plane: str, basis: FloatArray) -> None:
+    """95 % position ellipses projected onto the plot's plane, magnified by a 1-2-5 factor (named in
+    the legend) so that the largest spans about 1/20 of the plot when they are smaller than that."""
+    from matplotlib.patches import Ellipse  # noqa: PLC0415
+
+    A = plane_matrix(plane, basis)
+    uv, _, _ = project_to_plane(centres, plane, basis)
+    C = np.einsum("ij,kjl,ml->kim", A, covariances, A)
+    half_axes, angles = [], []
+    for c in C:
+        w, V = np.linalg.eigh(0.5 * (c + c.T))
+        half_axes.append(np.sqrt(np.maximum(w, 0.0) * _CHI2_2_95))
+        angles.append(np.degrees(np.arctan2(V[1, 1], V[0, 1])))
+    half = np.asarray(half_axes)
+    extent = float(np.ptp(project_to_plane(basis, plane, basis)[0], axis=0).max()) if len(basis) > 1 else 1.0
+    largest = float(half.max()) if half.size else 0.0
+    gain = 1.0
+    if largest > 0 and 2 * largest < extent / 20:
+        raw = extent / 20 / (2 * largest)
+        e = 10.0 ** np.floor(np.log10(raw))
+        gain = max(m * e for m in (1, 2, 5) if m * e <= raw)
+    for k in range(len(C)):
+        ax.add_patch(Ellipse((uv[k, 0], uv[k, 1]), 2 * gain * half[k, 1], 2 * gain * half[k, 0], angle=angles[k],
+                             fill=False, color="tab:red", lw=0.8,
+                             label=(f"95 % position ellipse x {gain:g}" if gain != 1 else "95 % position ellipse")
+                             if k == 0 else None))
+
+
 def plot_trajectory_top_view(est: Trajectory, ref: Trajectory | None = None, path: str | Path = "trajectory.png",
-                             title: str = "", plane: Plane = "auto") -> Path:
+                             title: str = "", plane: Plane = "auto",
+                             ellipses: tuple[FloatArray, FloatArray] | None = None) -> Path:
     """Plot the estimated (and ground-truth) positions seen from above; write a PNG.
 
     Args:
@@ -106,6 +151,9 @@ def plot_trajectory_top_view(est: Trajectory, ref: Trajectory | None = None, pat
         path: output PNG file.
         title: figure title.
         plane: ``"auto"``, ``"pca"``, ``"xy"``, ``"xz"`` or ``"yz"`` (module docstring).
+        ellipses: ``(centres (M, 3), position covariances (M, 3, 3))`` in ``est``'s world frame:
+            drawn as 95 % ellipses on the plot's plane (magnified, with the factor in the legend,
+            when they would be too small to see).
 
     Returns:
         ``path``.
@@ -120,6 +168,8 @@ def plot_trajectory_top_view(est: Trajectory, ref: Trajectory | None = None, pat
     uv, xlabel, ylabel = project_to_plane(est.positions, chosen, basis)
     ax.plot(uv[:, 0], uv[:, 1], "-", color="tab:blue", lw=1.2, label=_label(est, "estimate"))
     ax.plot(uv[:1, 0], uv[:1, 1], "o", color="tab:green", ms=5, label="start")
+    if ellipses is not None and len(ellipses[0]):
+        _draw_ellipses(ax, np.asarray(ellipses[0], float), np.asarray(ellipses[1], float), chosen, basis)
     ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel)
     ax.set_aspect("equal", adjustable="datalim")

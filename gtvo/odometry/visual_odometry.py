@@ -186,6 +186,24 @@ class VisualOdometry:
             return np.zeros((0, 3)), np.zeros(0)
         return np.concatenate(pts), np.concatenate(vals)
 
+    def covariance(self, keyframe: int | Keyframe) -> NDArray[np.float64] | None:
+        """The 6x6 pose covariance of a keyframe (its frame index, or the :class:`Keyframe`) from the
+        last window optimisation it was part of: GTSAM's tangent order ``[rotation, translation]``,
+        right perturbation ``T = T_hat * Exp(xi)`` (``xi`` in the keyframe's own camera frame),
+        relative to the world frame fixed by the first keyframe (docs/window.md, "Pose covariances").
+
+        None when no covariance was computed for it: track mode, ``WindowConfig.covariances=False``,
+        or a keyframe no window optimisation included. Raises :class:`InputError` for a frame index
+        that is not a keyframe.
+        """
+        index = keyframe.index if isinstance(keyframe, Keyframe) else int(keyframe)
+        if index not in self._keyframe_by_index:
+            raise InputError(f"frame {index} is not a keyframe of this run")
+        if self.window is None:
+            return None
+        P = self.window.covariances.get(index)
+        return None if P is None else P.copy()
+
     # -- internals ------------------------------------------------------------------------------
     def _track(self, kf: Keyframe, pyr, T_pred: gtsam.Pose3, last: gtsam.Pose3,
                left: NDArray[np.float32]) -> TrackingResult:

@@ -63,6 +63,9 @@ class WindowConfig:
             ``"fixed_lag"``: a ``gtsam.IncrementalFixedLagSmoother`` (iSAM2) holds the window,
             the keyframe's sequence number as timestamp and lag ``size - 0.5``, and marginalises
             leaving keyframes itself (docs/window.md, "Fixed-lag backend").
+        covariances: after each optimisation, keep every keyframe's 6x6 pose covariance at the
+            optimum (:mod:`gtvo.window.covariance`; docs/window.md, "Pose covariances"); False: none
+            are computed (no cost).
     """
 
     size: int = 7
@@ -79,6 +82,7 @@ class WindowConfig:
     relative_tolerance: float = 1e-4
     marginalize: bool = True
     backend: Literal["lm", "fixed_lag"] = "lm"
+    covariances: bool = True
 
     def __post_init__(self) -> None:
         if self.backend not in ("lm", "fixed_lag"):
@@ -196,6 +200,9 @@ class WindowResult:
         iterations: LM iterations.
         seconds: wall time.
         n_residuals: point-target pairs in the photometric terms.
+        covariances: frame index -> 6x6 pose covariance at the optimum of every keyframe of the
+            window (``WindowConfig.covariances``; None when not computed).
+        covariance_seconds: wall time of the covariances (part of ``seconds``).
     """
 
     solver: str
@@ -204,6 +211,8 @@ class WindowResult:
     iterations: int
     seconds: float
     n_residuals: int
+    covariances: dict[int, FloatArray] | None = None
+    covariance_seconds: float = 0.0
 
 
 class WindowState(Protocol):

@@ -13,6 +13,7 @@ import numpy as np
 
 from gtvo.core.keys import affine_key, pose_key
 from factors.smart import HostPointsFactor
+from gtvo.window.covariance import marginals_of_smoother
 from gtvo.window.config import WindowKeyframe, WindowResult, WindowState
 from gtvo.window.problem import host_factor, motion_factors, prior_factors
 
@@ -99,6 +100,9 @@ class FixedLagBackend:
         for kf in window.keyframes:
             kf.pose = est.atPose3(pose_key(kf.index))
             kf.affine = np.asarray(est.atVector(affine_key(kf.index)), dtype=float).copy()
+        t_cov = time.perf_counter()
+        covs = marginals_of_smoother(self._smoother, [kf.index for kf in window.keyframes]) if cfg.covariances else None
+        t_cov = time.perf_counter() - t_cov
         n_res = sum(len(window.keyframes[h]) * len(ts) for h, ts in enumerate(targets))
         return WindowResult("fixed_lag", float("nan"), float("nan"), cfg.max_iterations,
-                            time.perf_counter() - t0, n_res)
+                            time.perf_counter() - t0, n_res, covs, t_cov if covs is not None else 0.0)

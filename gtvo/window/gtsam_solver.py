@@ -11,6 +11,7 @@ from numpy.typing import NDArray
 
 from gtvo.core.keys import affine_key, pose_key
 from gtvo.core.camera import PinholeCamera
+from gtvo.window.covariance import marginals_of_graph
 from gtvo.window.config import MarginalPrior, WindowConfig, WindowKeyframe, WindowResult
 from gtvo.window.problem import build_graph, visible_targets
 
@@ -34,10 +35,15 @@ def solve_gtsam(camera: PinholeCamera, baseline: float | None, keyframes: Sequen
     initial = opt.error()  # computed by the optimiser at construction: no extra pass
     result = opt.optimize()
     cost = opt.error()
-    for h, f in hosts.items():
-        keyframes[h].inverse_depth = f.commit(result).copy()
+    depths = {h: f.depths_at(result) for h, f in hosts.items()}  # before Marginals relinearises the hosts
+    t_cov = time.perf_counter()
+    covs = marginals_of_graph(graph, result, [kf.index for kf in keyframes]) if config.covariances else None
+    t_cov = time.perf_counter() - t_cov
+    for h, d in depths.items():
+        keyframes[h].inverse_depth = d
     for kf in keyframes:
         kf.pose = result.atPose3(pose_key(kf.index))
         kf.affine = np.asarray(result.atVector(affine_key(kf.index)), dtype=float).copy()
     n_res = sum(len(keyframes[h]) * len(ts) for h, ts in enumerate(targets))
-    return WindowResult("gtsam", float(initial), float(cost), int(opt.iterations()), time.perf_counter() - t0, n_res)
+    return WindowResult("gtsam", float(initial), float(cost), int(opt.iterations()), time.perf_counter() - t0, n_res,
+                        covs, t_cov if covs is not None else 0.0)

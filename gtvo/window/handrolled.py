@@ -20,6 +20,7 @@ from numpy.typing import NDArray
 from factors.host_points import DepthSystem, HostPoints
 from gtvo.core.keys import affine_key, pose_key
 from gtvo.core.camera import PinholeCamera
+from gtvo.window.covariance import marginals_of_hessian
 from gtvo.window.config import MarginalPrior, WindowConfig, WindowKeyframe, WindowResult
 from gtvo.window.problem import motion_factors, visible_targets
 
@@ -206,10 +207,22 @@ def solve_handrolled(camera: PinholeCamera, baseline: float | None, keyframes: S
         lam = max(lam / 10.0, 1e-7)
         if decrease < config.relative_tolerance * max(E, 1e-300):
             break
+    t_cov = time.perf_counter()
+    covs = None
+    if config.covariances:  # the undamped reduced system at the optimum (its residuals are kept: no new pass)
+        H = np.zeros((8 * K, 8 * K))
+        g = np.zeros(8 * K)
+        for host in hosts:
+            host.linearize(depths[host.h], H, g, state_lins[host.h])
+        _prior_terms(keyframes, poses, affines, config, with_gauge, H, g, motion)
+        _marginal_terms(marginal, keyframes, poses, affines, H, g)
+        covs = marginals_of_hessian(H, [kf.index for kf in keyframes])
+    t_cov = time.perf_counter() - t_cov
     for k, kf in enumerate(keyframes):
         kf.pose = poses[k]
         kf.affine = np.asarray(affines[k], dtype=float).copy()
         if k in depths:
             kf.inverse_depth = depths[k].copy()
     n_res = sum(len(keyframes[h]) * len(ts) for h, ts in enumerate(targets))
-    return WindowResult("handrolled", float(initial), float(E), it, time.perf_counter() - t0, n_res)
+    return WindowResult("handrolled", float(initial), float(E), it, time.perf_counter() - t0, n_res,
+                        covs, t_cov if covs is not None else 0.0)

@@ -46,6 +46,9 @@ class SlidingWindowOptimizer:
         self.keyframes: list[WindowKeyframe] = []
         self.n_removed = 0  # keyframes that left the window (not kept: they hold images)
         self.results: list[WindowResult] = []
+        #: frame index -> 6x6 pose covariance from the last optimisation the keyframe was part of
+        #: (``config.covariances``; docs/window.md, "Pose covariances")
+        self.covariances: dict[int, FloatArray] = {}
         self.backend: LMBackend | FixedLagBackend = FixedLagBackend() if self.config.backend == "fixed_lag" else LMBackend()
 
     def add_keyframe(self, keyframe: WindowKeyframe) -> None:
@@ -85,6 +88,8 @@ class SlidingWindowOptimizer:
         if not any(targets):
             return None
         res = self.backend.optimize(self, targets, solver)
+        if res.covariances is not None:
+            self.covariances.update(res.covariances)
         self.results.append(res)
         return res
 

@@ -1,0 +1,135 @@
+"""A run's keyframe pose covariances: ``covariances.npz``, the ``report.json`` summary and the
+position ellipses of ``trajectory.png`` (docs/window.md, "Pose covariances").
+
+``covariances.npz`` holds::
+
+    frame_index   (K,)      int64    the keyframes' frame indices (as in trajectory.tum's order)
+    timestamp     (K,)      float64  their timestamps (s)
+    covariance    (K, 6, 6) float64  each keyframe's pose covariance
+    tangent_order ()        str      "rx, ry, rz, tx, ty, tz (...)": GTSAM's Pose3 tangent order
+    frame         ()        str      the perturbation and frame (right: T = T_hat * Exp(xi), body frame)
+    source        ()        str      how they were computed (gtsam.Marginals, reduced Hessian, iSAM2)
+    inflation     ()        float64  the factor the window's covariances were multiplied by (1: none)
+
+Read it with ``np.load(path)`` (no pickle needed: the strings are NumPy unicode scalars).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from gtvo.errors import InputError
+from gtvo.evaluation.trajectory import Trajectory
+from gtvo.io.atomic import atomic_path
+
+FloatArray = NDArray[np.float64]
+
+#: GTSAM's Pose3 tangent order, the order of every 6x6 covariance gtvo writes.
+TANGENT_ORDER = "rx, ry, rz, tx, ty, tz (GTSAM Pose3 tangent: rotation [rad] first, then translation [m])"
+#: The perturbation convention and the frame the covariances are expressed in.
+TANGENT_FRAME = ("right perturbation T = T_hat * Exp(xi): xi in the pose's own body (left camera) frame; "
+                 "uncertainty relative to the world frame fixed by the first pose (the gauge)")
+#: Most position ellipses drawn in trajectory.png (evenly spaced keyframes).
+MAX_ELLIPSES = 20
+
+
+@dataclass
+class KeyframeCovariances:
+    """The keyframes' pose covariances of a run (one row per keyframe that has one).
+
+    Attributes:
+        frame_index: (K,) frame indices; timestamp: (K,) seconds.
+        covariance: (K, 6, 6) in :data:`TANGENT_ORDER`, :data:`TANGENT_FRAME`.
+        source: how they were computed (e.g. ``"gtsam.Marginals of the window"``).
+        inflation: the factor they were multiplied by (1.0: the window's own).
+    """
+
+    frame_index: NDArray[np.int64]
+    timestamp: FloatArray
+    covariance: FloatArray
+    source: str
+    inflation: float = 1.0
+
+    def __post_init__(self) -> None:
+        self.frame_index = np.asarray(self.frame_index, dtype=np.int64).reshape(-1)
+        self.timestamp = np.asarray(self.timestamp, dtype=float).reshape(-1)
+        self.covariance = np.asarray(self.covariance, dtype=float).reshape(-1, 6, 6)
+        k = len(self.frame_index)
+        if len(self.timestamp) != k or len(self.covariance) != k:
+            raise InputError(f"covariances: {k} frame indices, {len(self.timestamp)} timestamps and "
+                             f"{len(self.covariance)} covariances must match")
+
+    def __len__(self) -> int:
+        return int(len(self.frame_index))
+
+    def arrays(self) -> dict[str, Any]:
+        """The arrays of ``covariances.npz`` (module docstring)."""
+        return {"frame_index": self.frame_index, "timestamp": self.timestamp, "covariance": self.covariance,
+                "tangent_order": np.str_(TANGENT_ORDER), "frame": np.str_(TANGENT_FRAME),
+                "source": np.str_(self.source), "inflation": np.float64(self.inflation)}
+
+
+def sigmas(covariance: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Per pose: position sigma (m) and rotation sigma (deg), the square roots of the traces of the
+    translation and rotation blocks (the RMS of the 3-D error's norm)."""
+    P = np.asarray(covariance, dtype=float).reshape(-1, 6, 6)
+    pos = np.sqrt(np.maximum(np.trace(P[:, 3:, 3:], axis1=1, axis2=2), 0.0))
+    rot = np.degrees(np.sqrt(np.maximum(np.trace(P[:, :3, :3], axis1=1, axis2=2), 0.0)))
+    return pos, rot
+
+
+def covariance_summary(cov: KeyframeCovariances) -> dict[str, Any]:
+    """The ``report.json`` keys of a run's covariances: ``covariances`` = ``"written"``,
+    ``covariances_file``, ``covariance_keyframes``, ``covariance_source``, ``covariance_inflation``
+    and the median and largest position sigma (m) and rotation sigma (deg) over the keyframes but
+    the first (the gauge, whose covariance is the gauge prior's). A run without covariances has
+    ``covariances`` = the reason instead (set by :func:`gtvo.run`).
+    """
+    if not len(cov):
+        return {"covariances": "none computed (no window optimisation)"}
+    pos, rot = sigmas(cov.covariance[1:] if len(cov) > 1 else cov.covariance)
+    return {"covariances": "written", "covariances_file": "covariances.npz", "covariance_keyframes": len(cov),
+            "covariance_source": cov.source, "covariance_inflation": cov.inflation,
+            "covariance_position_sigma_m_median": float(np.median(pos)),
+            "covariance_position_sigma_m_max": float(np.max(pos)),
+            "covariance_rotation_sigma_deg_median": float(np.median(rot)),
+            "covariance_rotation_sigma_deg_max": float(np.max(rot))}
+
+
+def write_covariances(path: str | Path, cov: KeyframeCovariances) -> Path:
+    """Write ``covariances.npz`` atomically."""
+    with atomic_path(path, suffix=".npz") as tmp:
+        with open(tmp, "wb") as fh:
+            np.savez(fh, **cov.arrays())
+    return Path(path)
+
+
+def read_covariances(path: str | Path) -> KeyframeCovariances:
+    """Read a ``covariances.npz`` written by :func:`write_covariances`."""
+    try:
+        with np.load(path) as z:
+            return KeyframeCovariances(z["frame_index"], z["timestamp"], z["covariance"], str(z["source"]),
+                                       float(z["inflation"]))
+    except (OSError, KeyError, ValueError) as exc:
+        raise InputError(f"not a covariances file: {exc}", path=path) from exc
+
+
+def position_ellipses(cov: KeyframeCovariances, traj: Trajectory, most: int = MAX_ELLIPSES
+                      ) -> tuple[FloatArray, FloatArray]:
+    """Centres (M, 3) and world-frame position covariances (M, 3, 3) of up to ``most`` evenly spaced
+    keyframes found in ``traj`` (by timestamp; ``traj`` may be aligned to ground truth: its rotations
+    carry the body-frame blocks into its world, ``R P_tt R^T``)."""
+    idx = np.searchsorted(traj.timestamps, cov.timestamp)
+    idx = np.clip(idx, 0, max(len(traj) - 1, 0))
+    ok = np.flatnonzero(np.isclose(traj.timestamps[idx], cov.timestamp)) if len(traj) else np.zeros(0, int)
+    ok = ok[ok > 0] if len(ok) > 1 else ok  # the gauge keyframe has no extent
+    if len(ok) > most:
+        ok = ok[np.unique(np.linspace(0, len(ok) - 1, most).round().astype(int))]
+    R = traj.poses[idx[ok], :3, :3]
+    P = cov.covariance[ok, 3:, 3:]
+    return traj.positions[idx[ok]], np.einsum("kij,kjl,kml->kim", R, P, R)
