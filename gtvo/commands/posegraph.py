@@ -37,6 +37,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--max-iterations", type=int, default=100, help="iteration limit (default 100)")
     p.add_argument("--out", help="write the optimised graph as g2o (full precision)")
     p.add_argument("--plot", help="write a PNG of the optimised graph")
+    p.add_argument("--covariances", metavar="FILE.npz",
+                   help="write every node's marginal covariance at the optimum (gtsam.Marginals; GTSAM's tangent "
+                        "order, relative to node 0) as .npz")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--no-progress", action="store_true", help="no progress bar (the hand-rolled solver shows one)")
     p.set_defaults(func=run)
@@ -44,7 +47,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Read, optimise, report, write."""
-    for path in (args.out, args.plot):
+    for path in (args.out, args.plot, args.covariances):
         if path:
             check_output_file(path)
     if args.max_iterations < 1:
@@ -78,6 +81,11 @@ def run(args: argparse.Namespace) -> int:
 
         plot_graph(result.graph, args.plot,
                    title=f"{Path(graph.source).name} ({args.solver}, {args.objective}, GTSAM error {result.gtsam_error:.6g})")
+    if args.covariances:
+        from gtvo.posegraph.covariance import marginal_covariances, write_marginals  # noqa: PLC0415
+
+        write_marginals(args.covariances, result.graph, marginal_covariances(result.graph, args.objective),
+                        args.objective)
     info = result.as_dict()
     info["skipped_lines"] = graph.skipped
     info["identity_information_edges"] = graph.identity_information
