@@ -152,19 +152,20 @@ def run(path: str | Path | Sequence, out: str | Path | None = None, config: Odom
     return report
 
 
-def keyframe_covariances(vo: VisualOdometry) -> KeyframeCovariances | None:
-    """Every keyframe's pose covariance from its last window optimisation (None when the run
-    computed none: track mode or ``WindowConfig.covariances=False``)."""
+def keyframe_covariances(vo: VisualOdometry, inflation: float = 1.0) -> KeyframeCovariances | None:
+    """Every keyframe's pose covariance from its last window optimisation, times ``inflation``
+    (:meth:`VisualOdometry.covariance`); None when the run computed none (track mode or
+    ``WindowConfig.covariances=False``)."""
     if vo.window is None or not vo.config.window.covariances:
         return None
     stamp = {e.index: e.timestamp for e in vo.estimates}
-    rows = [(kf.index, P) for kf in vo.keyframes if (P := vo.covariance(kf)) is not None]
+    rows = [(kf.index, P) for kf in vo.keyframes if (P := vo.covariance(kf, inflation)) is not None]
     cw = vo.config.window
     source = ("iSAM2 marginalCovariance of the fixed-lag smoother" if cw.backend == "fixed_lag" else
               "gtsam.Marginals of the window's graph" if vo.config.window_solver == "gtsam" else
               "inverse of the window's reduced Hessian (hand-rolled)")
     return KeyframeCovariances(np.array([i for i, _ in rows], dtype=np.int64), np.array([stamp[i] for i, _ in rows]),
-                               np.array([P for _, P in rows]).reshape(-1, 6, 6), source)
+                               np.array([P for _, P in rows]).reshape(-1, 6, 6), source, float(inflation))
 
 
 def _mean(xs: list[float]) -> float | None:

@@ -99,6 +99,30 @@ def test_window_keeps_each_keyframes_last_covariance_and_backends_agree(seq):
     assert np.sqrt(np.trace(ref[0][3:, 3:])) < 1e-5
 
 
+@pytest.mark.parametrize("solver", ["gtsam", "handrolled"])
+def test_covariances_add_no_residual_pass_and_change_nothing(seq, monkeypatch, solver):
+    """With covariances the solvers evaluate the photometric residuals exactly as often as without
+    (the covariance reuses the last cost pass's Jacobians) and end at the same poses and depths."""
+    import factors.host_points as host_points  # noqa: PLC0415
+
+    cam = seq.camera
+    kfs = _keyframes(seq, [0, 2, 4], perturb=(0.002, 0.006), points=150)
+    solve = {"gtsam": solve_gtsam, "handrolled": solve_handrolled}[solver]
+    real = host_points.photometric_residuals
+    ends = {}
+    for on in (False, True):
+        calls = []
+        monkeypatch.setattr(host_points, "photometric_residuals", lambda *a, **k: calls.append(1) or real(*a, **k))
+        ks = copy.deepcopy(kfs)
+        res = solve(cam.left, cam.baseline, ks, WindowConfig(max_iterations=4, covariances=on))
+        assert (res.covariances is not None) == on
+        ends[on] = (len(calls), ks)
+    assert ends[True][0] == ends[False][0]
+    for a, b in zip(ends[True][1], ends[False][1]):
+        assert np.array_equal(a.pose.matrix(), b.pose.matrix())
+        assert np.array_equal(a.inverse_depth, b.inverse_depth)
+
+
 def test_covariances_off_cost_nothing(seq):
     cam = seq.camera
     kfs = _keyframes(seq, [0, 2, 4], points=150)
@@ -120,6 +144,14 @@ def test_visual_odometry_covariance_api(seq):
         P = vo.covariance(kf)
         assert P is not None and P.shape == (6, 6)
         assert np.array_equal(P, vo.covariance(kf.index))
+        assert np.allclose(vo.covariance(kf, inflation=4.0), 4.0 * P)
+    with pytest.raises(InputError):
+        vo.covariance(vo.keyframes[0], inflation=0.0)
+    from gtvo.pipeline import keyframe_covariances  # noqa: PLC0415
+
+    cov = keyframe_covariances(vo, inflation=2.0)
+    assert list(cov.frame_index) == [kf.index for kf in vo.keyframes] and cov.inflation == 2.0
+    assert np.allclose(cov.covariance[-1], 2.0 * vo.covariance(vo.keyframes[-1]))
     non_kf = [e.index for e in vo.estimates if not e.is_keyframe]
     if non_kf:
         with pytest.raises(InputError):
