@@ -11,7 +11,7 @@ chi2(6, 0.95) = 12.59. Prints one line per seed and a Markdown summary: mean NEE
 fraction inside the 95 % bound, and the same for the position and rotation blocks.
 
     python benchmarks/covariance_nees.py [--seeds 20] [--frames 30] [--noise 2] [--size 160x120]
-        [--solver gtsam] [--motion forward] [--inflation 1.0]
+        [--solver gtsam] [--motion forward] [--inflation 1.0] [--iterations 3]
 """
 
 from __future__ import annotations
@@ -31,6 +31,7 @@ import numpy as np  # noqa: E402
 from gtvo.config import OdometryConfig  # noqa: E402
 from gtvo.datasets.synthetic import make_synthetic_sequence  # noqa: E402
 from gtvo.odometry import VisualOdometry  # noqa: E402
+from gtvo.window import WindowConfig  # noqa: E402
 
 #: chi-square 95 % quantiles for 6 and 3 degrees of freedom
 CHI2_95 = {6: 12.591587243743977, 3: 7.814727903251178}
@@ -74,6 +75,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--solver", choices=("gtsam", "handrolled"), default="gtsam", help="window solver")
     ap.add_argument("--motion", choices=("forward", "loop", "turn"), default="forward")
     ap.add_argument("--inflation", type=float, default=1.0, help="multiply every covariance by this first")
+    ap.add_argument("--iterations", type=int, default=WindowConfig().max_iterations,
+                    help="the window's LM iterations (default: WindowConfig's)")
     args = ap.parse_args(argv)
     w, h = (int(x) for x in args.size.lower().split("x"))
     rows: dict[str, list[float]] = {"all": [], "rot": [], "pos": [], "first": [], "later": []}
@@ -81,7 +84,8 @@ def main(argv: list[str] | None = None) -> int:
     for seed in range(args.seeds):
         seq = make_synthetic_sequence(args.frames, width=w, height=h, noise_sigma=args.noise, seed=seed,
                                       motion=args.motion)
-        vo = VisualOdometry(seq.camera, OdometryConfig(mode="window", window_solver=args.solver))
+        vo = VisualOdometry(seq.camera, OdometryConfig(mode="window", window_solver=args.solver,
+                                                       window=WindowConfig(max_iterations=args.iterations)))
         for i in range(len(seq)):
             vo.process(seq.frame(i))
         errs = keyframe_errors(vo, np.asarray(seq.gt_poses))
@@ -97,7 +101,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"seed {seed}: {len(errs)} keyframes, mean NEES {np.mean(n_all):.2f}, median position error "
               f"{1000 * pos_err:.2f} mm, median position sigma {1000 * pos_sig:.2f} mm", file=sys.stderr, flush=True)
     print(f"\n{args.seeds} seeds x {args.frames} frames, {w}x{h}, noise {args.noise:g}, {args.motion}, "
-          f"{args.solver} window solver, inflation {args.inflation:g}; {len(rows['all'])} keyframe poses; "
+          f"{args.solver} window solver, {args.iterations} LM iterations, inflation {args.inflation:g}; "
+          f"{len(rows['all'])} keyframe poses; "
           f"{time.perf_counter() - t0:.0f} s\n")
     print("| block | dof | mean NEES | mean / dof (optimism) | inside 95 % bound | inflation for 95 % inside |")
     print("|---|---|---|---|---|---|")

@@ -24,12 +24,6 @@ from gtvo.core.keys import pose_key
 
 FloatArray = NDArray[np.float64]
 
-#: The tangent order and frame of every covariance gtvo writes (also the npz metadata).
-TANGENT_ORDER = "rx, ry, rz, tx, ty, tz (GTSAM Pose3 tangent: rotation first, then translation)"
-TANGENT_FRAME = ("right perturbation T = T_hat * Exp(xi): xi in the keyframe's own (left camera) body frame; "
-                 "relative to the world frame fixed by the first keyframe (gauge)")
-
-
 def symmetric(P: FloatArray) -> FloatArray:
     """``(P + P^T) / 2`` (round-off of an inversion removed)."""
     P = np.asarray(P, dtype=float)
@@ -60,10 +54,3 @@ def marginals_of_smoother(smoother: gtsam.IncrementalFixedLagSmoother, indices: 
                           ) -> dict[int, FloatArray]:
     """The smoother's (iSAM2) marginal covariance of every keyframe pose in ``indices``."""
     return {int(i): symmetric(smoother.marginalCovariance(pose_key(i))) for i in indices}
-
-
-def pose_sigmas(P: FloatArray) -> tuple[float, float]:
-    """``(position sigma m, rotation sigma rad)`` of a 6x6 pose covariance: the square roots of the
-    traces of its translation and rotation blocks (the RMS of the 3-D error's norm)."""
-    P = np.asarray(P, dtype=float)
-    return float(np.sqrt(max(np.trace(P[3:, 3:]), 0.0))), float(np.sqrt(max(np.trace(P[:3, :3]), 0.0)))
