@@ -192,6 +192,28 @@ def test_run_writes_covariances_and_report(tmp_path):
     assert "covariance_position_sigma_m_median" not in report_off
 
 
+def test_hessian_marginals_and_undetermined_poses():
+    """The pose blocks of H^-1 (badly scaled H: a gauge-like 1e12 entry); a singular H gives NaN,
+    which the report leaves out of its sigmas and counts."""
+    from gtvo.io.covariances import KeyframeCovariances, covariance_summary  # noqa: PLC0415
+    from gtvo.window.covariance import marginals_of_hessian  # noqa: PLC0415
+
+    rng = np.random.default_rng(3)
+    A = rng.normal(size=(40, 16))
+    H = A.T @ A
+    H[:8, :8] += 1e12 * np.eye(8)
+    C = np.linalg.inv(H)
+    out = marginals_of_hessian(H, [5, 9])
+    assert _rel(out[5], C[:6, :6]) < 1e-6 and _rel(out[9], C[8:14, 8:14]) < 1e-6
+    H[:, 12] = H[12, :] = 0.0  # a direction with no information
+    assert all(np.isnan(P).all() for P in marginals_of_hessian(H, [5, 9]).values())
+    P = np.stack([np.eye(6) * 1e-12, np.diag([1e-4] * 3 + [4e-4] * 3), np.full((6, 6), np.nan)])
+    rep = covariance_summary(KeyframeCovariances([0, 3, 7], [0.0, 0.3, 0.7], P, "test"))
+    assert rep["covariance_undetermined"] == 1 and rep["covariance_keyframes"] == 3
+    assert rep["covariance_position_sigma_m_max"] == pytest.approx(np.sqrt(12e-4))
+    assert rep["covariance_rotation_sigma_deg_median"] == pytest.approx(np.degrees(np.sqrt(3e-4)))
+
+
 @pytest.mark.parametrize("plane", ["xz", "pca"])
 def test_plane_matrix_is_the_projection(plane):
     rng = np.random.default_rng(1)

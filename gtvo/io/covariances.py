@@ -76,10 +76,11 @@ class KeyframeCovariances:
 
 def sigmas(covariance: FloatArray) -> tuple[FloatArray, FloatArray]:
     """Per pose: position sigma (m) and rotation sigma (deg), the square roots of the traces of the
-    translation and rotation blocks (the RMS of the 3-D error's norm)."""
+    translation and rotation blocks (the RMS of the 3-D error's norm; NaN for an undetermined pose)."""
     P = np.asarray(covariance, dtype=float).reshape(-1, 6, 6)
-    pos = np.sqrt(np.maximum(np.trace(P[:, 3:, 3:], axis1=1, axis2=2), 0.0))
-    rot = np.degrees(np.sqrt(np.maximum(np.trace(P[:, :3, :3], axis1=1, axis2=2), 0.0)))
+    with np.errstate(invalid="ignore"):
+        pos = np.sqrt(np.maximum(np.trace(P[:, 3:, 3:], axis1=1, axis2=2), 0.0))
+        rot = np.degrees(np.sqrt(np.maximum(np.trace(P[:, :3, :3], axis1=1, axis2=2), 0.0)))
     return pos, rot
 
 
@@ -93,12 +94,17 @@ def covariance_summary(cov: KeyframeCovariances) -> dict[str, Any]:
     if not len(cov):
         return {"covariances": "none computed (no window optimisation)"}
     pos, rot = sigmas(cov.covariance[1:] if len(cov) > 1 else cov.covariance)
-    return {"covariances": "written", "covariances_file": "covariances.npz", "covariance_keyframes": len(cov),
-            "covariance_source": cov.source, "covariance_inflation": cov.inflation,
-            "covariance_position_sigma_m_median": float(np.median(pos)),
-            "covariance_position_sigma_m_max": float(np.max(pos)),
-            "covariance_rotation_sigma_deg_median": float(np.median(rot)),
-            "covariance_rotation_sigma_deg_max": float(np.max(rot))}
+    ok = np.isfinite(pos) & np.isfinite(rot)
+    out: dict[str, Any] = {"covariances": "written", "covariances_file": "covariances.npz",
+                           "covariance_keyframes": len(cov), "covariance_source": cov.source,
+                           "covariance_inflation": cov.inflation,
+                           # keyframes whose window's system was singular at the optimum (NaN in the file)
+                           "covariance_undetermined": int(np.count_nonzero(~np.all(np.isfinite(cov.covariance),
+                                                                                  axis=(1, 2))))}
+    for name, v in (("position_sigma_m", pos[ok]), ("rotation_sigma_deg", rot[ok])):
+        out[f"covariance_{name}_median"] = float(np.median(v)) if v.size else None
+        out[f"covariance_{name}_max"] = float(np.max(v)) if v.size else None
+    return out
 
 
 def write_covariances(path: str | Path, cov: KeyframeCovariances) -> Path:
@@ -124,9 +130,11 @@ def position_ellipses(cov: KeyframeCovariances, traj: Trajectory, most: int = MA
     """Centres (M, 3) and world-frame position covariances (M, 3, 3) of up to ``most`` evenly spaced
     keyframes found in ``traj`` (by timestamp; ``traj`` may be aligned to ground truth: its rotations
     carry the body-frame blocks into its world, ``R P_tt R^T``)."""
-    idx = np.searchsorted(traj.timestamps, cov.timestamp)
-    idx = np.clip(idx, 0, max(len(traj) - 1, 0))
-    ok = np.flatnonzero(np.isclose(traj.timestamps[idx], cov.timestamp)) if len(traj) else np.zeros(0, int)
+    if not len(traj) or not len(cov):
+        return np.zeros((0, 3)), np.zeros((0, 3, 3))
+    idx = np.clip(np.searchsorted(traj.timestamps, cov.timestamp), 0, len(traj) - 1)
+    found = np.isclose(traj.timestamps[idx], cov.timestamp) & np.all(np.isfinite(cov.covariance), axis=(1, 2))
+    ok = np.flatnonzero(found)
     ok = ok[ok > 0] if len(ok) > 1 else ok  # the gauge keyframe has no extent
     if len(ok) > most:
         ok = ok[np.unique(np.linspace(0, len(ok) - 1, most).round().astype(int))]

@@ -30,23 +30,40 @@ def symmetric(P: FloatArray) -> FloatArray:
     return 0.5 * (P + P.T)
 
 
+def undetermined(indices: Sequence[int]) -> dict[int, FloatArray]:
+    """All-NaN covariances: the window's system did not determine them (singular at the optimum)."""
+    return {int(i): np.full((6, 6), np.nan) for i in indices}
+
+
 def marginals_of_graph(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
                        indices: Sequence[int]) -> dict[int, FloatArray]:
-    """``gtsam.Marginals(graph, values)``: the 6x6 pose covariance of every keyframe index in ``indices``."""
-    marginals = gtsam.Marginals(graph, values)
-    return {int(i): symmetric(marginals.marginalCovariance(pose_key(i))) for i in indices}
+    """``gtsam.Marginals(graph, values)``: the 6x6 pose covariance of every keyframe index in ``indices``
+    (all NaN when GTSAM finds the system indeterminate)."""
+    try:
+        marginals = gtsam.Marginals(graph, values)
+        return {int(i): symmetric(marginals.marginalCovariance(pose_key(i))) for i in indices}
+    except RuntimeError:  # gtsam.IndeterminantLinearSystemException
+        return undetermined(indices)
 
 
 def marginals_of_hessian(H: FloatArray, indices: Sequence[int], block: int = 8) -> dict[int, FloatArray]:
     """The pose blocks of ``H^-1`` for a state of ``block`` entries per keyframe (pose first).
 
     ``H`` is the reduced (undamped) Gauss-Newton Hessian at the optimum, symmetric positive definite
-    when the gauge is fixed (gauge or marginal prior).
+    when the gauge is fixed (gauge or marginal prior); all NaN when it is not (Cholesky fails).
     """
     H = symmetric(H)
     # scale to unit diagonal first: the gauge prior (1e12) sits beside photometric curvatures (1e5)
-    s = 1.0 / np.sqrt(np.maximum(np.diag(H), 1e-300))
-    C = np.linalg.inv(H * s[:, None] * s[None, :]) * s[:, None] * s[None, :]
+    d = np.diag(H)
+    if not np.all(np.isfinite(H)) or np.any(d <= 0):
+        return undetermined(indices)
+    s = 1.0 / np.sqrt(d)
+    try:
+        L = np.linalg.cholesky(H * s[:, None] * s[None, :])
+    except np.linalg.LinAlgError:
+        return undetermined(indices)
+    Linv = np.linalg.inv(L)
+    C = (Linv.T @ Linv) * s[:, None] * s[None, :]
     return {int(i): symmetric(C[block * k:block * k + 6, block * k:block * k + 6]) for k, i in enumerate(indices)}
 
 
