@@ -276,3 +276,22 @@ def test_posegraph_covariances_equal_gtsam_marginals(tmp_path, solver):
         assert _rel(C[k], ref) < 1e-4
     # the far end of the chain is less certain than the node next to the anchor
     assert np.trace(C[3]) > np.trace(C[1])
+
+
+def test_posegraph_covariances_2d_against_gtsams_reader(shared_data, tmp_path):
+    """A 2-D file: the written marginals equal gtsam.Marginals of the graph GTSAM's own g2o reader
+    builds, at the optimised poses (node ids as keys, prior on the first node)."""
+    from gtvo import cli  # noqa: PLC0415
+
+    path = shared_data / "pose_graphs" / "gtsam" / "pose2example.txt"
+    out, npz = tmp_path / "opt.g2o", tmp_path / "cov.npz"
+    assert cli.main(["posegraph", str(path), "--json", "--out", str(out), "--covariances", str(npz)]) == 0
+    fg, _ = gtsam.readG2o(str(path), False)
+    _, values = gtsam.readG2o(str(out), False)
+    with np.load(npz) as z:
+        ids, C = list(z["node_id"]), z["covariance"]
+    fg.add(gtsam.PriorFactorPose2(int(ids[0]), values.atPose2(int(ids[0])), gtsam.noiseModel.Isotropic.Sigma(3, 1e-6)))
+    marginals = gtsam.Marginals(fg, values)
+    assert C.shape == (len(ids), 3, 3)
+    for k in range(1, len(ids)):
+        assert _rel(C[k], marginals.marginalCovariance(int(ids[k]))) < 1e-4
