@@ -2,7 +2,8 @@
 
 ``gtsam.Marginals`` of the objective's factor graph (docs/posegraph.md) plus the gauge prior on
 node 0 that the solvers use (``sigma`` 1e-6), linearised at the graph's poses: at the optimum
-whichever solver found it (the marginals are a property of the optimum, not of the solver).
+whichever solver found it (the marginals are a property of the optimum, not of the solver; after
+a run that did not converge, at its last iterate).
 Each node's covariance is in GTSAM's tangent order (2-D ``[x, y, theta]``, 3-D
 ``[rx, ry, rz, tx, ty, tz]``) with the right perturbation ``X = X_hat * Exp(xi)`` (``xi`` in the
 node's own frame), relative to node 0 (the gauge).
@@ -16,9 +17,11 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
+from gtvo.errors import InputError
 from gtvo.io.atomic import atomic_path
+from gtvo.posegraph import information
 from gtvo.posegraph.graph import PoseGraph
-from gtvo.posegraph.gtsam_solver import _prior, key, objective_graph, to_values
+from gtvo.posegraph.gtsam_solver import _prior, indeterminate_near, key, objective_graph, to_values
 
 F64 = NDArray[np.float64]
 
@@ -29,15 +32,29 @@ TANGENT_FRAME = ("right perturbation X = X_hat * Exp(xi): xi in the node's own f
 
 
 def marginal_covariances(graph: PoseGraph, objective: str = "geodesic") -> F64:
-    """(n, d, d) marginal covariance of every node at the graph's poses (d = 3 in 2-D, 6 in 3-D)."""
+    """(n, d, d) marginal covariance of every node at the graph's poses (d = 3 in 2-D, 6 in 3-D).
+
+    The geodesic objective uses the information matrices as :func:`gtvo.posegraph.optimize` does
+    (those that are not positive definite replaced by the nearest positive-definite matrix).
+    Raises :class:`InputError` (one line) when GTSAM finds the system indeterminate there.
+    """
+    if objective == "geodesic":
+        graph = information.repaired(graph)[0]
     fg = objective_graph(graph, objective)
     values = to_values(graph, graph.rotations, graph.translations)
     fg.add(_prior(graph, values))
-    marginals = gtsam.Marginals(fg, values)
     out = np.empty((graph.num_poses, graph.tangent_dim, graph.tangent_dim))
-    for k in range(graph.num_poses):
-        P = np.asarray(marginals.marginalCovariance(key(k)), dtype=float)
-        out[k] = 0.5 * (P + P.T)
+    try:
+        marginals = gtsam.Marginals(fg, values)
+        for k in range(graph.num_poses):
+            P = np.asarray(marginals.marginalCovariance(key(k)), dtype=float)
+            out[k] = 0.5 * (P + P.T)
+    except RuntimeError as exc:
+        near = indeterminate_near(exc)
+        if near is None:
+            raise
+        raise InputError(f"no covariances: the {objective} system is indeterminate at these poses"
+                         f"{' near ' + near if near else ''}", graph.source or None) from None
     return out
 
 
