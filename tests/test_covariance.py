@@ -295,3 +295,23 @@ def test_posegraph_covariances_2d_against_gtsams_reader(shared_data, tmp_path):
     assert C.shape == (len(ids), 3, 3)
     for k in range(1, len(ids)):
         assert _rel(C[k], marginals.marginalCovariance(int(ids[k]))) < 1e-4
+
+
+def test_trajectory_ellipses_are_the_projected_95_percent_ellipses():
+    """An elongated position covariance on the xz plane: the drawn ellipse has the 95 % half axes
+    sqrt(5.991 * eigenvalue) times the gain the legend names, along the covariance's main axis."""
+    from gtvo.io.plots import _draw_ellipses, _new_figure  # noqa: PLC0415
+
+    path = np.c_[np.linspace(0, 10, 11), np.zeros(11), np.linspace(0, 20, 11)]
+    R = gtsam.Rot3.Ry(0.5).matrix()  # main axis in the xz plane, 0.5 rad from x towards -z
+    P = R @ np.diag([4e-4, 1e-6, 1e-4]) @ R.T
+    fig = _new_figure((4, 4))
+    ax = fig.add_subplot(1, 1, 1)
+    _draw_ellipses(ax, path[5:6], P[None], "xz", path)
+    (e,) = ax.patches
+    gain = float(e.get_label().split("x")[-1])
+    assert gain in (10.0, 20.0, 50.0) and 2 * gain * np.sqrt(5.991 * 4e-4) <= np.ptp(path[:, 2]) / 20
+    assert e.width == pytest.approx(2 * gain * np.sqrt(5.991 * 4e-4), rel=1e-3)
+    assert e.height == pytest.approx(2 * gain * np.sqrt(5.991 * 1e-4), rel=1e-3)
+    assert np.cos(np.radians(e.angle) + 0.5) == pytest.approx(1.0, abs=1e-6) or \
+        np.cos(np.radians(e.angle) + 0.5) == pytest.approx(-1.0, abs=1e-6)
