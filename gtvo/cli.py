@@ -3,7 +3,9 @@
 Each subcommand lives in its own module under :mod:`gtvo.commands` and exposes
 ``register(subparsers)``, which adds its parser and sets ``func(args) -> int``.
 Bad input (:class:`gtvo.errors.InputError`) becomes one line on stderr and exit code 2; so does
-an operating-system error (``OSError``: an output the system refuses to write).
+an operating-system error (``OSError``: an output the system refuses to write). Ctrl-C anywhere
+becomes ``gtvo CMD: interrupted`` and exit code 130 (also when compiled code it stopped reports
+it as another error: :func:`caused_by_interrupt`).
 """
 
 from __future__ import annotations
@@ -71,11 +73,21 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def _run(argv: Sequence[str] | None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
     try:
-        with tidy_on_failure():  # a failed command leaves no empty output folder behind
-            return int(args.func(args) or 0)
+        args = build_parser().parse_args(argv)
+    except KeyboardInterrupt:
+        print("gtvo: interrupted", file=sys.stderr)
+        return 130
+    try:
+        try:
+            with tidy_on_failure():  # a failed command leaves no empty output folder behind
+                return int(args.func(args) or 0)
+        except BrokenPipeError:
+            raise
+        except Exception as exc:
+            if caused_by_interrupt(exc):  # e.g. a SystemError from compiled code that Ctrl-C stopped
+                raise KeyboardInterrupt from exc
+            raise
     except BrokenPipeError:
         raise
     except (InputError, DependencyError) as exc:
@@ -91,6 +103,23 @@ def _run(argv: Sequence[str] | None) -> int:
     except KeyboardInterrupt:
         print(f"gtvo {args.command}: interrupted", file=sys.stderr)
         return 130
+
+
+def caused_by_interrupt(exc: BaseException) -> bool:
+    """True when a :class:`KeyboardInterrupt` is in ``exc``'s chain (``__cause__`` / ``__context__``).
+
+    A Ctrl-C whose ``KeyboardInterrupt`` is raised while compiled code (a numba dispatcher) is
+    returning surfaces as ``SystemError: ... returned a result with an exception set`` with the
+    interrupt as its context: still an interrupt, not a crash.
+    """
+    seen: set[int] = set()
+    e: BaseException | None = exc
+    while e is not None and id(e) not in seen:
+        if isinstance(e, KeyboardInterrupt):
+            return True
+        seen.add(id(e))
+        e = e.__cause__ or e.__context__
+    return False
 
 
 def _silence_stdout() -> None:

@@ -31,6 +31,9 @@ from gtvo.evaluation.trajectory import FloatArray, Trajectory
 Plane = Literal["auto", "pca", "xy", "xz", "yz"]
 
 _AXES = {"x": 0, "y": 1, "z": 2}
+#: Axis labels of the ``"xz"`` top view of a world that is the first camera's frame (x right, y down,
+#: z forward): a VO run's own world, and KITTI's ground truth.
+CAMERA_WORLD_XZ_LABELS = ("x (m, right; world = first camera)", "z (m, forward)")
 #: "auto" uses a coordinate plane when the least-spread axis is within this angle of a coordinate axis.
 AUTO_PLANE_MAX_TILT_DEG = 30.0
 
@@ -96,7 +99,8 @@ def _save(fig, path: str | Path) -> Path:
 
 
 def plot_trajectory_top_view(est: Trajectory, ref: Trajectory | None = None, path: str | Path = "trajectory.png",
-                             title: str = "", plane: Plane = "auto") -> Path:
+                             title: str = "", plane: Plane = "auto",
+                             axis_labels: tuple[str, str] | None = None) -> Path:
     """Plot the estimated (and ground-truth) positions seen from above; write a PNG.
 
     Args:
@@ -106,6 +110,8 @@ def plot_trajectory_top_view(est: Trajectory, ref: Trajectory | None = None, pat
         path: output PNG file.
         title: figure title.
         plane: ``"auto"``, ``"pca"``, ``"xy"``, ``"xz"`` or ``"yz"`` (module docstring).
+        axis_labels: the two axis labels instead of the plane's own (e.g. a coordinate plane's
+            axes named in their frame: :data:`CAMERA_WORLD_XZ_LABELS`).
 
     Returns:
         ``path``.
@@ -120,6 +126,8 @@ def plot_trajectory_top_view(est: Trajectory, ref: Trajectory | None = None, pat
     uv, xlabel, ylabel = project_to_plane(est.positions, chosen, basis)
     ax.plot(uv[:, 0], uv[:, 1], "-", color="tab:blue", lw=1.2, label=_label(est, "estimate"))
     ax.plot(uv[:1, 0], uv[:1, 1], "o", color="tab:green", ms=5, label="start")
+    if axis_labels is not None:
+        xlabel, ylabel = axis_labels
     ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel)
     ax.set_aspect("equal", adjustable="datalim")
