@@ -125,7 +125,7 @@ def run(path: str | Path | Sequence, out: str | Path | None = None, config: Odom
         seq = seq.truncated(max_frames)
     seq = seq.subsampled(frame_step)
     with tidy_on_failure():  # a run that fails leaves no empty output folder behind
-        ensure_output_dir(out_dir.parent)
+        ensure_output_dir(out_dir)  # an unusable --out is reported before the long work
         vo, traj, info = process_sequence(seq, config, progress=progress, strict=strict)
         info["frame_step"] = int(frame_step)
         if getattr(seq, "unpaired", None) is not None:  # a ROS bag: messages that found no partner

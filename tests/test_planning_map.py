@@ -16,6 +16,9 @@ TILT = 0.05              # the ground is pitched by 0.05 rad against the world x
 GAP = (1.0, 2.5)         # the wall at Z = 5 has a gap for X in this range
 
 
+# every test here reads, writes or processes point clouds with open3d
+pytestmark = pytest.mark.usefixtures("open3d")
+
 def _ground_y(X, Z):
     return CAMERA_HEIGHT + np.tan(TILT) * Z
 
