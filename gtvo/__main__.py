@@ -3,9 +3,9 @@
 import sys
 
 try:
-    from gtvo.cli import main
+    from gtvo.cli import entry_point
 except KeyboardInterrupt:  # Ctrl-C while the command line itself is being imported
     print("gtvo: interrupted", file=sys.stderr)
     sys.exit(130)
 
-sys.exit(main())
+entry_point()

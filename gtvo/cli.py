@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import os
+import signal
 import sys
 
 # gtvo's linear algebra is many small products (8x8 .. 6000x16); multithreaded BLAS on a busy
@@ -24,7 +25,7 @@ from typing import Sequence
 
 from gtvo import __version__
 from gtvo.io.atomic import tidy_on_failure
-from gtvo.errors import DependencyError, InputError, TrackingFailure
+from gtvo.errors import DependencyError, InputError, TrackingFailure, caused_by_interrupt
 
 # One module per subcommand, in the order `gtvo --help` lists them.
 COMMAND_MODULES: tuple[str, ...] = (
@@ -105,21 +106,15 @@ def _run(argv: Sequence[str] | None) -> int:
         return 130
 
 
-def caused_by_interrupt(exc: BaseException) -> bool:
-    """True when a :class:`KeyboardInterrupt` is in ``exc``'s chain (``__cause__`` / ``__context__``).
+def entry_point() -> None:
+    """The ``gtvo`` console script and ``python -m gtvo``: :func:`main`, then exit with its code.
 
-    A Ctrl-C whose ``KeyboardInterrupt`` is raised while compiled code (a numba dispatcher) is
-    returning surfaces as ``SystemError: ... returned a result with an exception set`` with the
-    interrupt as its context: still an interrupt, not a crash.
+    Once the command is done, Ctrl-C is ignored: the interpreter's shutdown (which would otherwise
+    die of the signal without a word) can no longer change anything the command did.
     """
-    seen: set[int] = set()
-    e: BaseException | None = exc
-    while e is not None and id(e) not in seen:
-        if isinstance(e, KeyboardInterrupt):
-            return True
-        seen.add(id(e))
-        e = e.__cause__ or e.__context__
-    return False
+    code = main()
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    sys.exit(code)
 
 
 def _silence_stdout() -> None:
@@ -132,4 +127,4 @@ def _silence_stdout() -> None:
 
 
 if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())
+    entry_point()
