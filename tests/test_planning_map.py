@@ -168,7 +168,7 @@ def test_cli_json_and_png(tmp_path, plan_cli, capsys):
     (["--map", "PLY", "--start", "1", "--goal", "0,9"], "--start"),
     (["--map", "PLY", "--start", "0,1", "--goal", "0,9", "--resolution", "abc"], "--resolution"),
     (["--map", "PLY", "--start", "0,1", "--goal", "50,9"], "outside the map"),
-    (["--map", "EMPTY", "--start", "0,1", "--goal", "0,9"], "no (finite) points"),
+    (["--map", "EMPTY", "--start", "0,1", "--goal", "0,9"], "corrupt point cloud (RPly: Wrong magic number"),
 ])
 def test_cli_bad_input_exit_2_one_line(tmp_path, plan_cli, capsys, args, needle):
     ply = _write_ply(tmp_path / "points.ply", synthetic_cloud()[::4])
