@@ -26,8 +26,9 @@ from gtvo.io import outputs
 from gtvo.io.atomic import DIR_MARKER
 from gtvo.io.outputs import RUN_OUTPUT_NAMES, check_run_output_dir, top_view, write_run_outputs
 from gtvo.io.plots import CAMERA_WORLD_XZ_LABELS
-from gtvo.map_points import MAX_RELATIVE_DEPTH_SIGMA, MapPoints, constrained_mask
-from gtvo.odometry import OdometryConfig, VisualOdometry
+from gtvo.core.map_points import MAX_RELATIVE_DEPTH_SIGMA, MapPoints, constrained_mask
+from gtvo.config import OdometryConfig
+from gtvo.odometry import VisualOdometry
 
 KITTI = Path("kitti_stereo_sample") / "KITTI_sequence_1"
 

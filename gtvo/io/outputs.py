@@ -21,7 +21,7 @@ from gtvo.io.plots import CAMERA_WORLD_XZ_LABELS, plot_errors_over_time, plot_tr
 from gtvo.datasets.sequence import Sequence
 from gtvo.evaluation.trajectory import Trajectory
 from gtvo.io.trajectory_files import write_tum
-from gtvo.map_points import MapPoints
+from gtvo.core.map_points import MapPoints
 
 
 #: Below this ground-truth path length (m) no drift % and no segment metric are reported: on a
@@ -148,7 +148,7 @@ def write_run_outputs(out_dir: str | Path, est: Trajectory, seq: Sequence, run_i
     """Write a run's outputs into ``out_dir`` as a set and return the report written to ``report.json``.
 
     ``run_info`` holds the run's own figures (frames, keyframes, seconds, ...); metrics are added
-    when the sequence has ground truth. ``points``: the map (:class:`gtvo.map_points.MapPoints`,
+    when the sequence has ground truth. ``points``: the map (:class:`gtvo.core.map_points.MapPoints`,
     whose counts go into the report as ``map_points_written`` / ``map_points_left_out``, or plain
     ``(points, intensities)``). ``loop_closed``, when given, is written as
     ``trajectory_loop_closed.tum`` and evaluated as ``loop_closed_*``.

@@ -48,7 +48,7 @@ from gtvo.frontend.keyframes import KeyframeRule, needs_keyframe
 from gtvo.frontend.rgbd import rgbd_keyframe_points
 from gtvo.odometry.estimates import FrameEstimate, FrameOutcome, Keyframe
 from gtvo.window import SlidingWindowOptimizer, WindowKeyframe, WindowResult
-from gtvo.map_points import MapPoints, constrained_mask
+from gtvo.core.map_points import MapPoints, constrained_mask
 
 class VisualOdometry:
     """Frame-to-keyframe direct stereo (or RGB-D) odometry.
@@ -191,7 +191,7 @@ class VisualOdometry:
     def map_points(self) -> MapPoints:
         """The keyframe points whose depth the run constrains, in the world frame (what ``points.ply``
         holds): inverse depth positive, relative depth sigma bounded and, in window mode, seen from
-        enough keyframes in a window optimisation (:mod:`gtvo.map_points`); the rest counted."""
+        enough keyframes in a window optimisation (:mod:`gtvo.core.map_points`); the rest counted."""
         pts, vals = [np.zeros((0, 3))], [np.zeros(0)]
         left_out: dict[str, int] = {}
         for kf in self.keyframes:
