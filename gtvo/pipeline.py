@@ -143,6 +143,7 @@ def run(path: str | Path | Sequence, out: str | Path | None = None, config: Odom
             info["loops_detected"] = len(res.candidates) + len(res.unrefined)
             info["loops_unrefined"] = len(res.unrefined)
             info["loops_accepted"] = int(sum(res.accepted))
+            info["loop_closure_solver"] = "gtsam_gnc_lm"  # GncLMOptimizer, then LM on the kept loops
         report = write_run_outputs(out_dir, traj, seq, info, points=vo.map_points(), loop_closed=closed)
     report["out"] = str(out_dir)
     return report

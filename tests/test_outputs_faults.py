@@ -136,14 +136,17 @@ def test_readme_chain_run_then_plan_on_real_data(kitti_real, tmp_path, open3d):
     assert (tmp_path / "p.png").is_file()
 
 
-@pytest.mark.parametrize("options", [["--window-backend", "fixed-lag"], ["--solver", "gtsam"], ["--loop-closure"],
-                                     ["--mode", "track"]], ids=["fixed-lag", "gtsam", "loop-closure", "track"])
-def test_map_of_every_backend_can_be_planned_on(kitti_real, tmp_path, open3d, options):
+@pytest.mark.parametrize("options,backend", [(["--window-backend", "fixed-lag"], "fixed_lag"),
+                                             (["--solver", "gtsam"], "lm"), (["--loop-closure"], "lm"),
+                                             (["--mode", "track"], None)], ids=["fixed-lag", "gtsam", "loop-closure", "track"])
+def test_map_of_every_backend_can_be_planned_on(kitti_real, tmp_path, open3d, options, backend):
     out = tmp_path / "out"
     r = run_cli("run", kitti_real, "--out", out, "--no-progress", *options)
     assert r.returncode == 0, r.stderr
     rep = json.loads((out / "report.json").read_text())
     assert rep["map_points_written"] > 5000
+    assert rep.get("loop_closure_solver") == ("gtsam_gnc_lm" if "--loop-closure" in options else None)
+    assert rep.get("window_backend") == backend
     pts = np.asarray(open3d.io.read_point_cloud(str(out / "points.ply")).points)
     assert np.max(np.linalg.norm(pts, axis=1)) < 1000.0
     p = run_cli("plan", "--map", out / "points.ply", "--start", "0,5", "--goal", "0,30", "--json")
@@ -381,6 +384,7 @@ def test_fixed_lag_run_reports_isam2_and_every_solver(kitti_like, tmp_path):
     r = run_cli("run", kitti_like, "--out", out, "--no-progress", "--max-frames", "4", "--solver", "gtsam")
     rep = json.loads((out / "report.json").read_text())
     assert (rep["tracker_solver"], rep["window_backend"], rep["window_solver"]) == ("gtsam", "lm", "gtsam")
+    assert "loop_closure_solver" not in rep
 
 
 # -- 10. console, plots, library noise ----------------------------------------------------------

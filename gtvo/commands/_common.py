@@ -65,6 +65,8 @@ def describe_solvers(report: dict[str, Any]) -> str:
     text = f"{report['mode']}, tracker {report['tracker_solver']}"
     if report.get("window_backend") is not None:
         text += f", window {report['window_backend']} back end with {report['window_solver']}"
+    if report.get("loop_closure_solver") is not None:
+        text += f", loop closure {report['loop_closure_solver']}"
     return text
 
 
