@@ -1,7 +1,8 @@
 """Atomic output: write to a temporary file in the same folder, then rename.
 
 An interrupted run never leaves a half-written file behind, and an older file of the same
-name stays intact until the new one is complete.
+name stays intact until the new one is complete. :func:`atomic_dir` does the same for a whole
+folder (a written sequence, a run's output set).
 """
 
 from __future__ import annotations
@@ -151,10 +152,11 @@ DIR_MARKER = ".gtvo-output"
 def atomic_dir(path: str | Path, replaceable: frozenset[str] | set[str], writer: str) -> Iterator[Path]:
     """Yield a new temporary folder next to ``path``; when the block succeeds it becomes ``path``.
 
-    For outputs that are a whole folder (a written sequence): an interrupted write leaves the
-    old folder as it was (but for the instant between two renames, when it sits in a hidden
-    ``.NAME.old.*`` folder beside it), and a shorter new sequence leaves no stale files of the
-    old one. An existing ``path`` is replaced only when it is empty, or when it carries the
+    For outputs that are a whole folder (a written sequence, a run's outputs): an interrupted
+    write leaves the old folder as it was, and a shorter new set leaves no stale files of the old
+    one. The swap is two renames (the old folder aside into a hidden ``.NAME.old.*`` folder, the
+    new one in); Ctrl-C is held back between them (:func:`deferred_interrupts`), so only a crash
+    of the machine there can leave the old folder aside. An existing ``path`` is replaced only when it is empty, or when it carries the
     :data:`DIR_MARKER` file that this function writes (``writer`` names who wrote it) and holds
     nothing but that and entries named in ``replaceable``. Anything else (a real dataset folder
     with the same layout, a folder with a user's files, the current folder or one above it)
