@@ -10,10 +10,13 @@ the window's constraints) shows up the same way. A point is written when
 * ``d > 0`` and ``d``, ``V`` are finite;
 * ``sqrt(V) / d <= MAX_RELATIVE_DEPTH_SIGMA`` (1/3: its depth is bounded at 3 sigma). ``V`` is
   the measurement's own variance; the window only adds information, so this is conservative;
-* with the sliding window (window mode): the window compared it with at least
-  ``MIN_OBSERVING_KEYFRAMES - 1`` other keyframes (it was seen, projected inside the image, from
-  ``MIN_OBSERVING_KEYFRAMES`` = 2 keyframes, its host included) in some optimisation. A point no
-  other keyframe saw kept only its stereo depth and never took part in the joint estimate.
+* when a window optimisation included its keyframe (window mode): the window compared it with
+  at least ``MIN_OBSERVING_KEYFRAMES - 1`` other keyframes (it was seen, projected in front and
+  inside the image, from ``MIN_OBSERVING_KEYFRAMES`` = 2 keyframes, its host included) in some
+  optimisation. A point no other keyframe saw kept only its stereo depth while the window checked
+  its neighbours against each other. A keyframe no optimisation included (track mode, or a
+  window run that never had two keyframes: a static camera) is exported as measured, under the
+  first two rules alone.
 
 Points left out are counted per reason (:class:`MapPoints`); docs/evaluation.md, "The map".
 """
@@ -68,7 +71,7 @@ def constrained_mask(inverse_depth: FloatArray, variance: FloatArray, observing_
     Args:
         inverse_depth, variance: (N,) ``d`` (1/m) and its variance ``V`` (1/m^2).
         observing_keyframes: (N,) keyframes that saw each point, host included; None when no
-            window ran (the observation rule is then not applied).
+            window optimisation included the point's keyframe (the rule is then not applied).
 
     Returns:
         ``(keep, left_out)``: the (N,) mask and the counts of points left out per reason.

@@ -190,14 +190,16 @@ class VisualOdometry:
 
     def map_points(self) -> MapPoints:
         """The keyframe points whose depth the run constrains, in the world frame (what ``points.ply``
-        holds): inverse depth positive, relative depth sigma bounded and, in window mode, seen from
-        enough keyframes in a window optimisation (:mod:`gtvo.core.map_points`); the rest counted."""
+        holds): inverse depth positive, relative depth sigma bounded and, for keyframes that a window
+        optimisation included, seen from enough keyframes in one (:mod:`gtvo.core.map_points`); the
+        rest counted."""
         pts, vals = [np.zeros((0, 3))], [np.zeros(0)]
         left_out: dict[str, int] = {}
         for kf in self.keyframes:
-            seen = None
-            if self.window is not None:
-                seen = 1 + self._observed.get(kf.index, np.zeros(len(kf.points), dtype=np.int64))
+            # keyframes no window optimisation included (track mode, a run with one keyframe)
+            # keep their measured depths, under the depth rules alone
+            observed = self._observed.get(kf.index)
+            seen = None if observed is None else 1 + observed
             keep, out = constrained_mask(kf.points.inverse_depth, kf.points.variance, seen)
             for k, v in out.items():
                 left_out[k] = left_out.get(k, 0) + v
