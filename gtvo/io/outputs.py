@@ -137,8 +137,9 @@ def check_run_output_dir(out_dir: str | Path, inputs: tuple[Path | None, set[Pat
                          "choose another", path=out_dir)
     for f in sorted(images):
         if out == f or f in out.parents:
-            raise InputError(f"output folder is {'inside ' if out != f else ''}the input's image folder {f}; "
-                             "outputs there would mix with the frames: choose another", path=out_dir)
+            where = "one of the input's image folders" if out == f else f"inside the input's image folder {f}"
+            raise InputError(f"output folder is {where}; outputs there would mix with the frames: choose another",
+                             path=out_dir)
     return check_replaceable_dir(out, RUN_OUTPUT_NAMES, RUN_WRITER)
 
 
