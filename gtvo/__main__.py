@@ -2,6 +2,10 @@
 
 import sys
 
-from gtvo.cli import main
+try:
+    from gtvo.cli import entry_point
+except KeyboardInterrupt:  # Ctrl-C while the command line itself is being imported
+    print("gtvo: interrupted", file=sys.stderr)
+    sys.exit(130)
 
-sys.exit(main())
+entry_point()

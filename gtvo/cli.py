@@ -3,7 +3,9 @@
 Each subcommand lives in its own module under :mod:`gtvo.commands` and exposes
 ``register(subparsers)``, which adds its parser and sets ``func(args) -> int``.
 Bad input (:class:`gtvo.errors.InputError`) becomes one line on stderr and exit code 2; so does
-an operating-system error (``OSError``: an output the system refuses to write).
+an operating-system error (``OSError``: an output the system refuses to write). Ctrl-C anywhere
+becomes ``gtvo CMD: interrupted`` and exit code 130 (also when compiled code it stopped reports
+it as another error: :func:`caused_by_interrupt`).
 """
 
 from __future__ import annotations
@@ -11,6 +13,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import os
+import signal
 import sys
 
 # gtvo's linear algebra is many small products (8x8 .. 6000x16); multithreaded BLAS on a busy
@@ -22,7 +25,7 @@ from typing import Sequence
 
 from gtvo import __version__
 from gtvo.io.atomic import tidy_on_failure
-from gtvo.errors import DependencyError, InputError, TrackingFailure
+from gtvo.errors import DependencyError, InputError, TrackingFailure, caused_by_interrupt
 
 # One module per subcommand, in the order `gtvo --help` lists them.
 COMMAND_MODULES: tuple[str, ...] = (
@@ -71,11 +74,21 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def _run(argv: Sequence[str] | None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
     try:
-        with tidy_on_failure():  # a failed command leaves no empty output folder behind
-            return int(args.func(args) or 0)
+        args = build_parser().parse_args(argv)
+    except KeyboardInterrupt:
+        print("gtvo: interrupted", file=sys.stderr)
+        return 130
+    try:
+        try:
+            with tidy_on_failure():  # a failed command leaves no empty output folder behind
+                return int(args.func(args) or 0)
+        except BrokenPipeError:
+            raise
+        except Exception as exc:
+            if caused_by_interrupt(exc):  # e.g. a SystemError from compiled code that Ctrl-C stopped
+                raise KeyboardInterrupt from exc
+            raise
     except BrokenPipeError:
         raise
     except (InputError, DependencyError) as exc:
@@ -93,6 +106,17 @@ def _run(argv: Sequence[str] | None) -> int:
         return 130
 
 
+def entry_point() -> None:
+    """The ``gtvo`` console script and ``python -m gtvo``: :func:`main`, then exit with its code.
+
+    Once the command is done, Ctrl-C is ignored: the interpreter's shutdown (which would otherwise
+    die of the signal without a word) can no longer change anything the command did.
+    """
+    code = main()
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    sys.exit(code)
+
+
 def _silence_stdout() -> None:
     """Point stdout at /dev/null, so that the interpreter's last flush does not fail again."""
     try:
@@ -103,4 +127,4 @@ def _silence_stdout() -> None:
 
 
 if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())
+    entry_point()

@@ -56,3 +56,21 @@ def show(value: object) -> str:
             return type(v)(plain(x) for x in v)
         return v
     return repr(plain(value))
+
+
+def caused_by_interrupt(exc: BaseException) -> bool:
+    """True when a :class:`KeyboardInterrupt` is in ``exc``'s chain (``__cause__`` / ``__context__``).
+
+    Ctrl-C that lands inside compiled code surfaces as another error with the interrupt as its
+    context: ``SystemError: CPUDispatcher(...) returned a result with an exception set`` when a
+    numba function returns, ``ImportError: initialization failed`` when an extension module
+    (open3d, gtsam) is being imported. Those are interrupts, not crashes or missing packages.
+    """
+    seen: set[int] = set()
+    e: BaseException | None = exc
+    while e is not None and id(e) not in seen:
+        if isinstance(e, KeyboardInterrupt):
+            return True
+        seen.add(id(e))
+        e = e.__cause__ or e.__context__
+    return False

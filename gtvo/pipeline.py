@@ -10,15 +10,15 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
+import numpy as np
+
 from gtvo.io.atomic import ensure_output_dir, tidy_on_failure
 from gtvo.datasets import open_sequence
 from gtvo.errors import InputError
 from gtvo.config import OdometryConfig
 from gtvo.odometry import VisualOdometry
-import numpy as np
-
 from gtvo.io.covariances import KeyframeCovariances
-from gtvo.io.outputs import write_run_outputs
+from gtvo.io.outputs import check_run_output_dir, write_run_outputs
 from gtvo.datasets.sequence import Sequence
 from gtvo.evaluation.trajectory import Trajectory
 
@@ -66,7 +66,7 @@ def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progre
     sigmas = [e.tracking.rotation_sigma_deg for e in vo.estimates if e.tracking is not None and e.tracking.success]
     info: dict[str, Any] = {
         "mode": config.mode,
-        "solver": config.solver,
+        "tracker_solver": config.solver,
         "motion_model": config.motion_model,
         "frames": n,
         "keyframes": len(vo.keyframes),
@@ -84,7 +84,8 @@ def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progre
     }
     if config.mode == "window":
         info.update({
-            "window_solver": config.window_solver,
+            "window_backend": vo.window.backend.name if vo.window is not None else None,
+            "window_solver": vo.window.solver_name(config.window_solver) if vo.window is not None else None,
             "window_size": config.window.size,
             "window_optimisations": len(vo.window_results),
             "window_seconds_mean": _mean([r.seconds for r in vo.window_results]),
@@ -124,11 +125,13 @@ def run(path: str | Path | Sequence, out: str | Path | None = None, config: Odom
     """
     seq = path if isinstance(path, Sequence) else open_sequence(path, format=format, max_frames=max_frames,  # type: ignore[arg-type]
                                                                **open_options)
+    out_dir = Path(out) if out is not None else Path("gtvo_out") / seq.name
+    check_run_output_dir(out_dir, seq)  # before the long work
     if isinstance(path, Sequence) and max_frames is not None:
         seq = seq.truncated(max_frames)
     seq = seq.subsampled(frame_step)
     with tidy_on_failure():  # a run that fails leaves no empty output folder behind
-        out_dir = ensure_output_dir(Path(out) if out is not None else Path("gtvo_out") / seq.name)
+        ensure_output_dir(out_dir)  # an unusable --out is reported before the long work
         vo, traj, info = process_sequence(seq, config, progress=progress, strict=strict)
         info["frame_step"] = int(frame_step)
         if getattr(seq, "unpaired", None) is not None:  # a ROS bag: messages that found no partner
@@ -146,7 +149,8 @@ def run(path: str | Path | Sequence, out: str | Path | None = None, config: Odom
             info["loops_detected"] = len(res.candidates) + len(res.unrefined)
             info["loops_unrefined"] = len(res.unrefined)
             info["loops_accepted"] = int(sum(res.accepted))
-        report = write_run_outputs(out_dir, traj, seq, info, points=vo.point_cloud(), loop_closed=closed,
+            info["loop_closure_solver"] = "gtsam_gnc_lm"  # GncLMOptimizer, then LM on the kept loops
+        report = write_run_outputs(out_dir, traj, seq, info, points=vo.map_points(), loop_closed=closed,
                                    covariances=keyframe_covariances(vo))
     report["out"] = str(out_dir)
     return report

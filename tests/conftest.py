@@ -28,3 +28,16 @@ def shared_data() -> Path:
     if not d.is_dir():
         pytest.skip(f"real data not found at {d}")
     return d
+
+
+@pytest.fixture(scope="session")
+def open3d():
+    """The open3d module; tests that need it are skipped, with the reason, when it cannot be
+    imported (its wheel needs the system library libusb-1.0)."""
+    from gtvo.core.optional import require_open3d
+    from gtvo.errors import DependencyError
+
+    try:
+        return require_open3d()
+    except DependencyError as exc:
+        pytest.skip(str(exc))

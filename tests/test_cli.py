@@ -11,6 +11,7 @@ import pytest
 from gtvo import cli
 from gtvo.datasets.synthetic import make_synthetic_sequence, write_sequence_kitti
 from gtvo.io.trajectory_files import read_tum
+from gtvo.io.atomic import DIR_MARKER
 
 
 def run_cli(*args, cwd=None):
@@ -42,9 +43,11 @@ def test_run_writes_outputs_and_metrics(kitti_like, tmp_path):
     out = tmp_path / "out"
     r = run_cli("run", kitti_like, "--out", out, "--no-progress", "--points", "600")
     assert r.returncode == 0, r.stderr
-    for name in ("trajectory.tum", "report.json", "trajectory.png", "errors.png", "points.ply"):
+    for name in ("trajectory.tum", "report.json", "trajectory.png", "errors.png"):
         assert (out / name).is_file(), name
     rep = json.loads((out / "report.json").read_text())
+    # points.ply needs open3d (its wheel needs libusb-1.0): without it the report says why
+    assert (out / "points.ply").is_file() or rep.get("map_points_skipped")
     assert rep["frames"] == 8 and rep["keyframes"] >= 1 and rep["frames_per_second"] > 0
     # exact synthetic data: sub-centimetre ATE; per-frame error measured 5-10 mm per 15 cm step
     # (points on the scene's occlusion edges bias frame-to-keyframe tracking a little)
@@ -55,7 +58,7 @@ def test_run_writes_outputs_and_metrics(kitti_like, tmp_path):
     traj = read_tum(out / "trajectory.tum")
     assert len(traj) == 8
     np.testing.assert_allclose(traj.poses[0], np.eye(4), atol=1e-12)
-    assert not [p.name for p in out.iterdir() if p.name.startswith(".")]  # no temp files
+    assert [p.name for p in out.iterdir() if p.name.startswith(".")] == [DIR_MARKER]  # no temp files
 
 
 def test_run_with_frame_step_uses_every_kth_frame(kitti_like, tmp_path):

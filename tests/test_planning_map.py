@@ -16,6 +16,9 @@ TILT = 0.05              # the ground is pitched by 0.05 rad against the world x
 GAP = (1.0, 2.5)         # the wall at Z = 5 has a gap for X in this range
 
 
+# every test here reads, writes or processes point clouds with open3d
+pytestmark = pytest.mark.usefixtures("open3d")
+
 def _ground_y(X, Z):
     return CAMERA_HEIGHT + np.tan(TILT) * Z
 
@@ -165,7 +168,7 @@ def test_cli_json_and_png(tmp_path, plan_cli, capsys):
     (["--map", "PLY", "--start", "1", "--goal", "0,9"], "--start"),
     (["--map", "PLY", "--start", "0,1", "--goal", "0,9", "--resolution", "abc"], "--resolution"),
     (["--map", "PLY", "--start", "0,1", "--goal", "50,9"], "outside the map"),
-    (["--map", "EMPTY", "--start", "0,1", "--goal", "0,9"], "no (finite) points"),
+    (["--map", "EMPTY", "--start", "0,1", "--goal", "0,9"], "corrupt point cloud (RPly: Wrong magic number"),
 ])
 def test_cli_bad_input_exit_2_one_line(tmp_path, plan_cli, capsys, args, needle):
     ply = _write_ply(tmp_path / "points.ply", synthetic_cloud()[::4])

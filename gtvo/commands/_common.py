@@ -52,14 +52,29 @@ def odometry_config(args: Any):
                           mode=args.mode, window_solver=args.solver, window=WindowConfig(backend=backend))
 
 
+#: The report's headline figures, in the order the console summary prints them.
+SUMMARY_KEYS = ("frames", "keyframes", "seconds", "frames_per_second", "tracking_failures", "flow_recoveries",
+                "lost_frames", "window_optimisations", "window_seconds_mean", "ate_rmse_m", "rpe_trans_rmse_m",
+                "ate_skipped", "drift_percent", "loops_detected", "loops_accepted", "loop_closed_ate_rmse_m",
+                "loop_closed_drift_percent", "map_points_written", "map_points_left_out", "map_points_skipped",
+                "unpaired_messages")
+
+
+def describe_solvers(report: dict[str, Any]) -> str:
+    """What ran, from a run's report: mode, the tracker's solver and the window's back end and solver."""
+    text = f"{report['mode']}, tracker {report['tracker_solver']}"
+    if report.get("window_backend") is not None:
+        text += f", window {report['window_backend']} back end with {report['window_solver']}"
+    if report.get("loop_closure_solver") is not None:
+        text += f", loop closure {report['loop_closure_solver']}"
+    return text
+
+
 def print_report(report: dict[str, Any]) -> None:
-    """Print the headline figures of a run's report."""
-    keys = ("frames", "keyframes", "seconds", "frames_per_second", "tracking_failures", "flow_recoveries",
-            "lost_frames", "window_optimisations", "window_seconds_mean", "ate_rmse_m", "rpe_trans_rmse_m",
-            "ate_skipped", "drift_percent", "loops_detected", "loops_accepted", "loop_closed_ate_rmse_m",
-            "loop_closed_drift_percent", "points", "unpaired_messages")
-    for k in keys:
-        if k in report and report[k] is not None:
-            v = report[k]
-            print(f"  {k:<22} {v:.4g}" if isinstance(v, float) else f"  {k:<22} {v}")
+    """Print the headline figures of a run's report, one per line, values in one column."""
+    shown = [k for k in SUMMARY_KEYS if report.get(k) is not None]
+    width = max((len(k) for k in shown), default=0) + 1
+    for k in shown:
+        v = report[k]
+        print(f"  {k:<{width}} {v:.4g}" if isinstance(v, float) else f"  {k:<{width}} {v}")
     print(f"  outputs in {report['out']}")

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from gtvo.commands._common import add_odometry_options, odometry_config, print_report
+from gtvo.commands._common import add_odometry_options, describe_solvers, odometry_config, print_report
 from gtvo.errors import InputError
 
 
@@ -32,6 +32,6 @@ def main(args: argparse.Namespace) -> int:
                                   exposure_change=args.exposure_change)
     report = run(seq, out=args.out, config=config, progress=not args.no_progress)
     print(f"gtvo demo: synthetic sequence, {len(seq)} frames {seq.pinhole.width}x{seq.pinhole.height} "
-          f"({report['mode']}, {report['solver']} solver)")
+          f"({describe_solvers(report)})")
     print_report(report)
     return 0

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from types import ModuleType
 
-from gtvo.errors import DependencyError
+from gtvo.errors import DependencyError, caused_by_interrupt
 
 
 def require_open3d() -> ModuleType:
@@ -17,6 +17,8 @@ def require_open3d() -> ModuleType:
     try:
         import open3d  # noqa: PLC0415
     except ImportError as exc:  # pragma: no cover - depends on the machine
+        if caused_by_interrupt(exc):  # Ctrl-C during the import: not a missing package
+            raise KeyboardInterrupt from exc
         msg = str(exc)
         if "libusb" in msg:
             raise DependencyError(

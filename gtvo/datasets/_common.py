@@ -18,6 +18,7 @@ from scipy.spatial.transform import Rotation
 from gtvo.errors import InputError, not_a_file
 from gtvo.core.lie import QUATERNION_NORM_TOLERANCE
 from gtvo.core.image import to_float_gray
+from gtvo.core.native_output import captured_native_stderr
 
 FloatArray = NDArray[np.float64]
 
@@ -115,9 +116,12 @@ def read_image(path: Path) -> NDArray:
     """The raw image at ``path`` (any depth, channels as stored), InputError when unreadable."""
     if not path.is_file():
         raise not_a_file(path, "image file")
-    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if image is None or image.size == 0:
-        raise InputError("cannot read image (unreadable or corrupt file)", path=path)
+    with captured_native_stderr() as native:  # libpng & co. print their own complaints: kept out of the console
+        image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    # a decoder error with an image returned all the same: the image is partial or garbage
+    if image is None or image.size == 0 or any("error" in line.lower() for line in native.lines()):
+        said = f": {native.summary()}" if native.lines() else ""
+        raise InputError(f"cannot read image (unreadable or corrupt file{said})", path=path)
     return image
 
 

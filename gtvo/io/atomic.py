@@ -1,7 +1,8 @@
 """Atomic output: write to a temporary file in the same folder, then rename.
 
 An interrupted run never leaves a half-written file behind, and an older file of the same
-name stays intact until the new one is complete.
+name stays intact until the new one is complete. :func:`atomic_dir` does the same for a whole
+folder (a written sequence, a run's output set).
 """
 
 from __future__ import annotations
@@ -11,7 +12,9 @@ import contextvars
 import json
 import os
 import shutil
+import signal
 import tempfile
+import threading
 from pathlib import Path
 from typing import IO, Any, Callable, Iterator
 
@@ -149,36 +152,18 @@ DIR_MARKER = ".gtvo-output"
 def atomic_dir(path: str | Path, replaceable: frozenset[str] | set[str], writer: str) -> Iterator[Path]:
     """Yield a new temporary folder next to ``path``; when the block succeeds it becomes ``path``.
 
-    For outputs that are a whole folder (a written sequence): an interrupted write leaves the
-    old folder as it was (but for the instant between two renames, when it sits in a hidden
-    ``.NAME.old.*`` folder beside it), and a shorter new sequence leaves no stale files of the
-    old one. An existing ``path`` is replaced only when it is empty, or when it carries the
+    For outputs that are a whole folder (a written sequence, a run's outputs): an interrupted
+    write leaves the old folder as it was, and a shorter new set leaves no stale files of the old
+    one. The swap is two renames (the old folder aside into a hidden ``.NAME.old.*`` folder, the
+    new one in); Ctrl-C is held back between them (:func:`deferred_interrupts`), so only a crash
+    of the machine there can leave the old folder aside. An existing ``path`` is replaced only when it is empty, or when it carries the
     :data:`DIR_MARKER` file that this function writes (``writer`` names who wrote it) and holds
     nothing but that and entries named in ``replaceable``. Anything else (a real dataset folder
     with the same layout, a folder with a user's files, the current folder or one above it)
     raises :class:`InputError` rather than deleting anything. The check is made again just
     before the replacement. A symbolic link is followed: its target is replaced.
     """
-    path = Path(path).resolve()
-    cwd = Path.cwd().resolve()
-    if path == cwd or path in cwd.parents:
-        raise InputError("output folder is the current folder or contains it; choose another", path=path)
-
-    def check() -> None:
-        if not path.exists():
-            return
-        if not path.is_dir():
-            raise InputError("output folder is a file", path=path)
-        names = {p.name for p in path.iterdir()}
-        if not names:
-            return
-        foreign = sorted(names - set(replaceable) - {DIR_MARKER})
-        if DIR_MARKER not in names or foreign:
-            listed = ", ".join(foreign[:3]) + (", ..." if len(foreign) > 3 else "")
-            why = f"it holds other files ({listed})" if foreign else f"it was not written by {writer}"
-            raise InputError(f"output folder is not empty and {why}; choose a new or empty folder", path=path)
-
-    check()
+    path = check_replaceable_dir(path, replaceable, writer)
     parent = ensure_output_dir(path.parent)
     tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=parent))
     os.chmod(tmp, 0o777 & ~_umask())
@@ -186,24 +171,78 @@ def atomic_dir(path: str | Path, replaceable: frozenset[str] | set[str], writer:
         yield tmp
         (tmp / DIR_MARKER).write_text(f"written by {writer}; {path.name} may be replaced by it as a whole\n",
                                      encoding="utf-8")
-        check()
-        if path.exists():
-            old = Path(tempfile.mkdtemp(prefix=f".{path.name}.old.", dir=parent))
-            try:
-                os.replace(path, old / path.name)
-                try:
-                    os.replace(tmp, path)
-                except OSError:
-                    os.replace(old / path.name, path)  # put the old folder back
-                    raise
-            finally:
-                if path.exists():
-                    shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.replace(tmp, path)
+        check_replaceable_dir(path, replaceable, writer)
+        with deferred_interrupts():  # no Ctrl-C between the two renames: old set or new set, never neither
+            _swap_in(tmp, path, parent)
     finally:
         if tmp.exists():
             shutil.rmtree(tmp, ignore_errors=True)
+
+
+def check_replaceable_dir(path: str | Path, replaceable: frozenset[str] | set[str], writer: str) -> Path:
+    """The resolved ``path`` if :func:`atomic_dir` may replace it, else a one-line :class:`InputError`.
+
+    It may when it does not exist, is empty, or carries :data:`DIR_MARKER` and holds nothing but
+    that and entries named in ``replaceable``; never the current folder or one above it.
+    """
+    path = Path(path).resolve()
+    cwd = Path.cwd().resolve()
+    if path == cwd or path in cwd.parents:
+        raise InputError("output folder is the current folder or contains it; choose another", path=path)
+    if not path.exists():
+        return path
+    if not path.is_dir():
+        raise InputError("output folder is a file", path=path)
+    names = {p.name for p in path.iterdir()}
+    if not names:
+        return path
+    foreign = sorted(names - set(replaceable) - {DIR_MARKER})
+    if DIR_MARKER not in names or foreign:
+        listed = ", ".join(foreign[:3]) + (", ..." if len(foreign) > 3 else "")
+        why = f"it holds other files ({listed})" if foreign else f"it was not written by {writer}"
+        raise InputError(f"output folder is not empty and {why}; choose a new or empty folder", path=path)
+    return path
+
+
+def _swap_in(tmp: Path, path: Path, parent: Path) -> None:
+    """Rename ``tmp`` onto ``path``; an existing ``path`` goes aside first and is deleted after."""
+    if not path.exists():
+        os.replace(tmp, path)
+        return
+    old = Path(tempfile.mkdtemp(prefix=f".{path.name}.old.", dir=parent))
+    try:
+        os.replace(path, old / path.name)
+        try:
+            os.replace(tmp, path)
+        except OSError:
+            os.replace(old / path.name, path)  # put the old folder back
+            raise
+    finally:
+        if path.exists():
+            shutil.rmtree(old, ignore_errors=True)
+
+
+@contextlib.contextmanager
+def deferred_interrupts() -> Iterator[None]:
+    """Hold back SIGINT (Ctrl-C) during the block; one that arrived is raised as
+    :class:`KeyboardInterrupt` when the block ends.
+
+    For steps that must not stop half-way (two renames that swap an output folder). Only the
+    main thread can set signal handlers: elsewhere, or when SIGINT is not Python's default
+    handler (a caller chose its own), the block runs unprotected.
+    """
+    if threading.current_thread() is not threading.main_thread() \
+            or signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
+        yield
+        return
+    caught: list[int] = []
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: caught.append(signum))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    if caught:
+        raise KeyboardInterrupt
 
 
 def _umask() -> int:

@@ -2,7 +2,7 @@
 
 :func:`evaluate` is pure (metrics against the sequence's ground truth); :func:`write_run_outputs`
 writes ``trajectory.tum``, ``report.json``, ``trajectory.png`` (and ``errors.png``) and
-``points.ply`` atomically into one folder.
+``points.ply`` into one folder, replaced as a set.
 """
 
 from __future__ import annotations
@@ -14,14 +14,15 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gtvo.core.optional import require_open3d
-from gtvo.io.atomic import atomic_path, ensure_output_dir, write_json
+from gtvo.io.atomic import atomic_dir, atomic_path, check_replaceable_dir, write_json
 from gtvo.errors import DependencyError, InputError
 from gtvo.evaluation.metrics import align_trajectory, ate, drift_percent, kitti_segment_errors, rpe
 from gtvo.io.covariances import KeyframeCovariances, covariance_summary, position_ellipses, write_covariances
-from gtvo.io.plots import plot_errors_over_time, plot_trajectory_top_view
+from gtvo.io.plots import CAMERA_WORLD_XZ_LABELS, plot_errors_over_time, plot_trajectory_top_view
 from gtvo.datasets.sequence import Sequence
 from gtvo.evaluation.trajectory import Trajectory
 from gtvo.io.trajectory_files import write_tum
+from gtvo.core.map_points import MapPoints
 
 
 #: Below this ground-truth path length (m) no drift % and no segment metric are reported: on a
@@ -94,22 +95,78 @@ def write_point_cloud(path: str | Path, points: NDArray[np.float64], intensity: 
     return Path(path)
 
 
+#: Every entry ``gtvo run`` writes into its output folder (an earlier run's set may be replaced).
+RUN_OUTPUT_NAMES = frozenset({"trajectory.tum", "trajectory_loop_closed.tum", "report.json", "trajectory.png",
+                              "errors.png", "points.ply", "covariances.npz"})
+#: Who writes run output folders (recorded in their :data:`gtvo.io.atomic.DIR_MARKER`).
+RUN_WRITER = "gtvo run"
+
+
+def top_view(ref: Trajectory | None) -> dict[str, Any]:
+    """Plane and axis labels of a run's ``trajectory.png``.
+
+    The estimate's world is the first camera (x right, y down, z forward), and an estimate aligned
+    to ground truth is in the ground truth's world: when that is the first camera too (its first
+    pose is the identity, as KITTI's), or there is no ground truth, the top view is the x-z plane
+    named in that frame; otherwise the plot picks its plane (:func:`gtvo.io.plots.choose_plane`).
+    """
+    if ref is None or (len(ref) and np.allclose(ref.poses[0], np.eye(4), atol=1e-6)):
+        return {"plane": "xz", "axis_labels": CAMERA_WORLD_XZ_LABELS}
+    return {"plane": "auto"}
+
+
+def input_folders(seq: Sequence) -> tuple[Path | None, set[Path]]:
+    """The folders a sequence is read from: ``(source folder, folders of its image files)``."""
+    images: set[Path] = set()
+    for loader in (seq.load_left, seq.load_right, seq.load_depth):
+        images.update(Path(f).resolve().parent for f in getattr(loader, "paths", ()))
+    images.update(Path(n).resolve().parent for n in seq.frame_names if Path(n).is_file())
+    return (None if seq.source is None else Path(seq.source).resolve()), images
+
+
+def check_run_output_dir(out_dir: str | Path, inputs: tuple[Path | None, set[Path]] | Sequence) -> Path:
+    """The resolved ``out_dir`` if a run may write its outputs there, else a one-line :class:`InputError`.
+
+    Refused: the input folder itself, an image folder of the input or a folder inside one
+    (``inputs``: the sequence or its :func:`input_folders`), and a folder that is neither new,
+    empty nor an earlier run's output set (:func:`gtvo.io.atomic.check_replaceable_dir`).
+    """
+    source, images = input_folders(inputs) if isinstance(inputs, Sequence) else inputs
+    out = Path(out_dir).resolve()
+    if source is not None and out == source:
+        raise InputError("output folder is the input folder; outputs there would mix with the data: "
+                         "choose another", path=out_dir)
+    for f in sorted(images):
+        if out == f or f in out.parents:
+            where = "one of the input's image folders" if out == f else f"inside the input's image folder {f}"
+            raise InputError(f"output folder is {where}; outputs there would mix with the frames: choose another",
+                             path=out_dir)
+    return check_replaceable_dir(out, RUN_OUTPUT_NAMES, RUN_WRITER)
+
+
 def write_run_outputs(out_dir: str | Path, est: Trajectory, seq: Sequence, run_info: dict[str, Any],
-                      points: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None,
+                      points: MapPoints | tuple[NDArray[np.float64], NDArray[np.float64]] | None = None,
                       loop_closed: Trajectory | None = None,
                       covariances: KeyframeCovariances | None = None) -> dict[str, Any]:
-    """Write a run's outputs into ``out_dir`` and return the report written to ``report.json``.
+    """Write a run's outputs into ``out_dir`` as a set and return the report written to ``report.json``.
 
     ``run_info`` holds the run's own figures (frames, keyframes, seconds, ...); metrics are added
-    when the sequence has ground truth. ``loop_closed``, when given, is written as
+    when the sequence has ground truth. ``points``: the map (:class:`gtvo.core.map_points.MapPoints`,
+    whose counts go into the report as ``map_points_written`` / ``map_points_left_out``, or plain
+    ``(points, intensities)``). ``loop_closed``, when given, is written as
     ``trajectory_loop_closed.tum`` and evaluated as ``loop_closed_*``. ``covariances``, when given,
     is written as ``covariances.npz``, summarised in the report and drawn as position ellipses in
-    ``trajectory.png`` (:mod:`gtvo.io.covariances`). Every file is written atomically.
+    ``trajectory.png`` (:mod:`gtvo.io.covariances`).
+
+    The files are written into a temporary folder beside ``out_dir`` that then replaces it
+    (:func:`gtvo.io.atomic.atomic_dir`): an interrupted or failed write leaves the earlier set as
+    it was, and no file of an earlier run is left beside the new ones. ``out_dir`` must be new,
+    empty or an earlier run's output folder, and not the input's (:func:`check_run_output_dir`).
     """
-    out = ensure_output_dir(out_dir)
+    out_path = check_run_output_dir(out_dir, seq)
     report: dict[str, Any] = {"sequence": seq.name, "source": None if seq.source is None else str(seq.source)}
     report.update(run_info)
-    # every figure first, then the files: a failure leaves the folder's earlier outputs as a set
+    # every figure first, then the files
     pair = ground_truth(seq, est)
     if pair is not None:
         est_gt, ref = pair
@@ -126,30 +183,38 @@ def write_run_outputs(out_dir: str | Path, est: Trajectory, seq: Sequence, run_i
             m = evaluate(*pair_lc)
             report["loop_closed_ate_rmse_m"] = m["ate_rmse_m"]
             report["loop_closed_drift_percent"] = m["drift_percent"]
+    if points is not None and not isinstance(points, MapPoints):
+        points = MapPoints(np.asarray(points[0], dtype=float).reshape(-1, 3), np.asarray(points[1], dtype=float))
     if covariances is not None:
         report.update(covariance_summary(covariances))
     drawn = aligned if pair is not None else est
     ellipses = position_ellipses(covariances, drawn) if covariances is not None and len(covariances) else None
-    write_tum(out / "trajectory.tum", est)
-    if covariances is not None and len(covariances):
-        write_covariances(out / "covariances.npz", covariances)
-    if pair is not None:
-        plot_trajectory_top_view(aligned, ref, out / "trajectory.png", title=title, ellipses=ellipses)
-        errs = np.linalg.norm(aligned.positions - ref.positions, axis=1)
-        plot_errors_over_time(ref.timestamps, errs, out / "errors.png", title=f"{seq.name}: position error")
-    else:
-        plot_trajectory_top_view(est, None, out / "trajectory.png", title=f"{seq.name} (no ground truth)",
-                                 ellipses=ellipses)
-    if loop_closed is not None:
-        write_tum(out / "trajectory_loop_closed.tum", loop_closed)
-    if points is not None and len(points[0]):
-        try:
-            write_point_cloud(out / "points.ply", *points)
-            report["points"] = int(len(points[0]))
-        except DependencyError as exc:
-            report["points"] = None
-            report["points_skipped"] = str(exc)
-    write_json(out / "report.json", _jsonable(report))
+    view = top_view(None if pair is None else pair[1])
+    with atomic_dir(out_path, RUN_OUTPUT_NAMES, RUN_WRITER) as out:
+        write_tum(out / "trajectory.tum", est)
+        if covariances is not None and len(covariances):
+            write_covariances(out / "covariances.npz", covariances)
+        if pair is not None:
+            plot_trajectory_top_view(aligned, ref, out / "trajectory.png", title=title, ellipses=ellipses, **view)
+            errs = np.linalg.norm(aligned.positions - ref.positions, axis=1)
+            plot_errors_over_time(ref.timestamps, errs, out / "errors.png", title=f"{seq.name}: position error")
+        else:
+            plot_trajectory_top_view(est, None, out / "trajectory.png", title=f"{seq.name} (no ground truth)",
+                                     ellipses=ellipses, **view)
+        if loop_closed is not None:
+            write_tum(out / "trajectory_loop_closed.tum", loop_closed)
+        if points is not None:
+            report["map_points_written"] = points.written
+            report["map_points_left_out"] = points.left_out_total
+            if points.left_out:
+                report["map_points_left_out_by_reason"] = dict(points.left_out)
+            if points.written:
+                try:
+                    write_point_cloud(out / "points.ply", points.points, points.intensity)
+                except DependencyError as exc:
+                    report["map_points_written"] = None
+                    report["map_points_skipped"] = str(exc)
+        write_json(out / "report.json", _jsonable(report))
     return report
 
 

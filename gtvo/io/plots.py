@@ -31,6 +31,9 @@ from gtvo.evaluation.trajectory import FloatArray, Trajectory
 Plane = Literal["auto", "pca", "xy", "xz", "yz"]
 
 _AXES = {"x": 0, "y": 1, "z": 2}
+#: Axis labels of the ``"xz"`` top view of a world that is the first camera's frame (x right, y down,
+#: z forward): a VO run's own world, and KITTI's ground truth.
+CAMERA_WORLD_XZ_LABELS = ("x (m, right; world = first camera)", "z (m, forward)")
 #: "auto" uses a coordinate plane when the least-spread axis is within this angle of a coordinate axis.
 AUTO_PLANE_MAX_TILT_DEG = 30.0
 
@@ -141,7 +144,8 @@ def _draw_ellipses(ax, centres: FloatArray, covariances: FloatArray, plane: str,
 
 def plot_trajectory_top_view(est: Trajectory, ref: Trajectory | None = None, path: str | Path = "trajectory.png",
                              title: str = "", plane: Plane = "auto",
-                             ellipses: tuple[FloatArray, FloatArray] | None = None) -> Path:
+                             ellipses: tuple[FloatArray, FloatArray] | None = None,
+                             axis_labels: tuple[str, str] | None = None) -> Path:
     """Plot the estimated (and ground-truth) positions seen from above; write a PNG.
 
     Args:
@@ -154,6 +158,8 @@ def plot_trajectory_top_view(est: Trajectory, ref: Trajectory | None = None, pat
         ellipses: ``(centres (M, 3), position covariances (M, 3, 3))`` in ``est``'s world frame:
             drawn as 95 % ellipses on the plot's plane (magnified, with the factor in the legend,
             when they would be too small to see).
+        axis_labels: the two axis labels instead of the plane's own (e.g. a coordinate plane's
+            axes named in their frame: :data:`CAMERA_WORLD_XZ_LABELS`).
 
     Returns:
         ``path``.
@@ -170,6 +176,8 @@ def plot_trajectory_top_view(est: Trajectory, ref: Trajectory | None = None, pat
     ax.plot(uv[:1, 0], uv[:1, 1], "o", color="tab:green", ms=5, label="start")
     if ellipses is not None and len(ellipses[0]):
         _draw_ellipses(ax, np.asarray(ellipses[0], float), np.asarray(ellipses[1], float), chosen, basis)
+    if axis_labels is not None:
+        xlabel, ylabel = axis_labels
     ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel)
     ax.set_aspect("equal", adjustable="datalim")

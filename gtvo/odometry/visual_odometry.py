@@ -48,6 +48,7 @@ from gtvo.frontend.keyframes import KeyframeRule, needs_keyframe
 from gtvo.frontend.rgbd import rgbd_keyframe_points
 from gtvo.odometry.estimates import FrameEstimate, FrameOutcome, Keyframe
 from gtvo.window import SlidingWindowOptimizer, WindowKeyframe, WindowResult
+from gtvo.core.map_points import MapPoints, constrained_mask
 
 class VisualOdometry:
     """Frame-to-keyframe direct stereo (or RGB-D) odometry.
@@ -91,6 +92,8 @@ class VisualOdometry:
         self._kalman = None
         self._keyframe_by_index: dict[int, Keyframe] = {}
         self._window_affine: dict[int, NDArray[np.float64]] = {}  # keyframe index -> (a, b) in the window
+        # keyframe index -> per point, the most other keyframes a window optimisation compared it with
+        self._observed: dict[int, NDArray[np.int64]] = {}
         self.window: SlidingWindowOptimizer | None = None
         if self.config.mode == "window":
             baseline = camera.baseline if isinstance(camera, StereoCamera) else None
@@ -175,12 +178,11 @@ class VisualOdometry:
                           np.stack([e.T_world_cam for e in self.estimates]), name=name)
 
     def point_cloud(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """Every keyframe's points in the world frame (N, 3) and their intensities (N,)."""
+        """Every keyframe's points in the world frame (N, 3) and their intensities (N,), unfiltered
+        (points with a non-positive inverse depth would be mirrored: see :meth:`map_points`)."""
         pts, vals = [], []
         for kf in self.keyframes:
-            X = self.pinhole.backproject_inverse_depth(kf.points.pixels, kf.points.inverse_depth)
-            T = kf.T_world_cam.matrix()
-            pts.append(X @ T[:3, :3].T + T[:3, 3])
+            pts.append(self._world_points(kf))
             vals.append(kf.points.intensity)
         if not pts:
             return np.zeros((0, 3)), np.zeros(0)
@@ -209,6 +211,30 @@ class VisualOdometry:
             return None
         P = self.window.covariances.get(index)
         return None if P is None else float(inflation) * P
+    def map_points(self) -> MapPoints:
+        """The keyframe points whose depth the run constrains, in the world frame (what ``points.ply``
+        holds): inverse depth positive, relative depth sigma bounded and, for keyframes that a window
+        optimisation included, seen from enough keyframes in one (:mod:`gtvo.core.map_points`); the
+        rest counted."""
+        pts, vals = [np.zeros((0, 3))], [np.zeros(0)]
+        left_out: dict[str, int] = {}
+        for kf in self.keyframes:
+            # keyframes no window optimisation included (track mode, a run with one keyframe)
+            # keep their measured depths, under the depth rules alone
+            observed = self._observed.get(kf.index)
+            seen = None if observed is None else 1 + observed
+            keep, out = constrained_mask(kf.points.inverse_depth, kf.points.variance, seen)
+            for k, v in out.items():
+                left_out[k] = left_out.get(k, 0) + v
+            pts.append(self._world_points(kf)[keep])
+            vals.append(np.asarray(kf.points.intensity, dtype=float)[keep])
+        return MapPoints(np.concatenate(pts), np.concatenate(vals), left_out)
+
+    def _world_points(self, kf: Keyframe) -> NDArray[np.float64]:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            X = self.pinhole.backproject_inverse_depth(kf.points.pixels, kf.points.inverse_depth)
+        T = kf.T_world_cam.matrix()
+        return X @ T[:3, :3].T + T[:3, 3]
 
     # -- internals ------------------------------------------------------------------------------
     def _track(self, kf: Keyframe, pyr, T_pred: gtsam.Pose3, last: gtsam.Pose3,
@@ -348,6 +374,9 @@ class VisualOdometry:
         if res is None:
             return T_world_cam, pts
         self.window_results.append(res)
+        for index, n in self.window.observation_counts().items():
+            prev = self._observed.get(index)
+            self._observed[index] = n if prev is None or len(prev) != len(n) else np.maximum(prev, n)
         for w in self.window.keyframes:
             old = self._keyframe_by_index.get(w.index)
             if old is not None:

@@ -33,6 +33,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import ndimage
 
+from gtvo.core.native_output import captured_native_stderr
 from gtvo.core.optional import require_open3d
 from gtvo.errors import InputError, not_a_file, show
 from gtvo.planning.astar import astar_banded
@@ -54,12 +55,16 @@ def read_point_cloud(path: str | Path) -> FloatArray:
     o3d = require_open3d()
     _check_ply_complete(path)
     try:
-        # open3d reports a bad file by a warning on stdout (and returns what it read): silenced,
-        # the checks here say what is wrong in one line
-        with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
+        # open3d reports a bad file by a warning on stdout and its PLY reader (RPly) by a line on
+        # stderr, and returns what it read: both kept out of the console; an RPly error makes the
+        # file corrupt, said in gtvo's one line
+        with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error), \
+                captured_native_stderr() as native:
             pcd = o3d.io.read_point_cloud(str(path), remove_nan_points=False, remove_infinite_points=False)
     except Exception as exc:  # open3d raises RuntimeError for unknown formats
         raise InputError(f"cannot read point cloud ({exc})", path=path) from None
+    if any(line.startswith("RPly") for line in native.lines()):
+        raise InputError(f"corrupt point cloud ({native.summary()})", path=path)
     points = np.asarray(pcd.points, dtype=np.float64)
     points = points[np.all(np.isfinite(points), axis=1)]
     if points.shape[0] == 0:

@@ -23,6 +23,11 @@ class FixedLagBackend:
 
     name = "fixed_lag"
 
+    @staticmethod
+    def solver_name(requested: str) -> str:
+        """What runs whatever solver is requested: gtsam's iSAM2 (in the fixed-lag smoother)."""
+        return "gtsam_isam2"
+
     def __init__(self) -> None:
         self._smoother: gtsam.IncrementalFixedLagSmoother | None = None
         self._stamp: dict[int, float] = {}

@@ -19,7 +19,7 @@ from gtvo.window.gtsam_solver import solve_gtsam
 from gtvo.window.handrolled import solve_handrolled, window_cost
 from gtvo.window.marginal import marginalize
 from gtvo.window.fixed_lag import FixedLagBackend
-from gtvo.window.problem import visible_targets
+from gtvo.window.problem import observation_counts, visible_targets
 
 FloatArray = NDArray[np.float64]
 
@@ -49,6 +49,8 @@ class SlidingWindowOptimizer:
         #: frame index -> 6x6 pose covariance from the last optimisation the keyframe was part of
         #: (``config.covariances``; docs/window.md, "Pose covariances")
         self.covariances: dict[int, FloatArray] = {}
+        #: per keyframe of the last optimised window, the positions of its targets (:func:`visible_targets`)
+        self.last_targets: list[list[int]] = []
         self.backend: LMBackend | FixedLagBackend = FixedLagBackend() if self.config.backend == "fixed_lag" else LMBackend()
 
     def add_keyframe(self, keyframe: WindowKeyframe) -> None:
@@ -82,6 +84,7 @@ class SlidingWindowOptimizer:
 
         ``solver`` chooses the LM path's solver; the fixed-lag backend ignores it (GTSAM's smoother).
         """
+        self.last_targets = []
         if len(self.keyframes) < 2:
             return None
         targets = visible_targets(self.camera, self.keyframes, self.config)
@@ -91,7 +94,22 @@ class SlidingWindowOptimizer:
         if res.covariances is not None:
             self.covariances.update(res.covariances)
         self.results.append(res)
+        self.last_targets = targets
         return res
+
+    def solver_name(self, requested: WindowSolverName) -> str:
+        """The solver that :meth:`optimize` with ``solver=requested`` runs (the fixed-lag back end
+        ignores the request: gtsam's iSAM2)."""
+        return self.backend.solver_name(requested)
+
+    def observation_counts(self) -> dict[int, NDArray[np.int64]]:
+        """Per keyframe index of the last optimised window, per hosted point: the number of other
+        keyframes the optimisation compared it with and in which it is seen (the host not counted;
+        all zeros before the first optimisation)."""
+        if len(self.last_targets) != len(self.keyframes):
+            return {k.index: np.zeros(len(k), dtype=np.int64) for k in self.keyframes}
+        counts = observation_counts(self.camera, self.keyframes, self.last_targets)
+        return {k.index: c for k, c in zip(self.keyframes, counts)}
 
 
 
@@ -102,6 +120,10 @@ class LMBackend:
 
     def __init__(self) -> None:
         self.marginal: MarginalPrior | None = None
+
+    def solver_name(self, requested: WindowSolverName) -> str:
+        """The LM back end runs the requested solver."""
+        return str(requested)
 
     def remove_oldest(self, window: WindowState) -> WindowKeyframe:
         """Marginalise the oldest keyframe into :attr:`marginal` (or drop it, ``marginalize=False``)."""

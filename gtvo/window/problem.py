@@ -46,28 +46,46 @@ def visible_targets(camera: PinholeCamera, keyframes: Sequence[WindowKeyframe], 
     """For each host (position in ``keyframes``), the positions of the keyframes that see its points.
 
     A point counts as seen when it projects in front of the target and inside its image with a
-    2-pixel border; a target needs ``min_visible_points`` and ``min_visible_fraction`` of them.
+    2-pixel border (:func:`seen_in`); a target needs ``min_visible_points`` and
+    ``min_visible_fraction`` of them.
     """
     out: list[list[int]] = []
     for h, kh in enumerate(keyframes):
-        X = camera.backproject_inverse_depth(kh.pixels, kh.inverse_depth)
-        Th = kh.pose.matrix()
-        Xw = X @ Th[:3, :3].T + Th[:3, 3]
         ts: list[int] = []
         for t, kt in enumerate(keyframes):
             if t == h:
                 continue
-            Tt = kt.pose.inverse().matrix()
-            Xt = Xw @ Tt[:3, :3].T + Tt[:3, 3]
-            front = Xt[:, 2] > MIN_DEPTH
-            z = np.where(front, Xt[:, 2], 1.0)
-            u = camera.fx * Xt[:, 0] / z + camera.cx
-            v = camera.fy * Xt[:, 1] / z + camera.cy
-            inside = front & (u >= 2) & (u <= camera.width - 3) & (v >= 2) & (v <= camera.height - 3)
-            n = int(np.count_nonzero(inside))
+            n = int(np.count_nonzero(seen_in(camera, kh, kt)))
             if n >= config.min_visible_points and n >= config.min_visible_fraction * len(kh):
                 ts.append(t)
         out.append(ts)
+    return out
+
+
+def seen_in(camera: PinholeCamera, host: WindowKeyframe, target: WindowKeyframe) -> NDArray[np.bool_]:
+    """Per point of ``host``: does it project in front of ``target`` and inside its image (2-px border)?"""
+    X = camera.backproject_inverse_depth(host.pixels, host.inverse_depth)
+    Th = host.pose.matrix()
+    Xw = X @ Th[:3, :3].T + Th[:3, 3]
+    Tt = target.pose.inverse().matrix()
+    Xt = Xw @ Tt[:3, :3].T + Tt[:3, 3]
+    front = Xt[:, 2] > MIN_DEPTH
+    z = np.where(front, Xt[:, 2], 1.0)
+    u = camera.fx * Xt[:, 0] / z + camera.cx
+    v = camera.fy * Xt[:, 1] / z + camera.cy
+    return front & (u >= 2) & (u <= camera.width - 3) & (v >= 2) & (v <= camera.height - 3)
+
+
+def observation_counts(camera: PinholeCamera, keyframes: Sequence[WindowKeyframe], targets: list[list[int]]
+                       ) -> list[NDArray[np.int64]]:
+    """For each host, per point: in how many of its ``targets`` (the keyframes its factor compares it
+    with, :func:`visible_targets`) the point is seen (:func:`seen_in`). The host itself is not counted."""
+    out: list[NDArray[np.int64]] = []
+    for h, kh in enumerate(keyframes):
+        n = np.zeros(len(kh), dtype=np.int64)
+        for t in targets[h]:
+            n += seen_in(camera, kh, keyframes[t])
+        out.append(n)
     return out
 
 
