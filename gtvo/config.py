@@ -1,18 +1,55 @@
 """The configuration tree of a VO run: :class:`OdometryConfig` and the settings it nests.
 
-One place for every setting of a run (KISS-ICP's single config): the front end, the tracker
-(:class:`gtvo.frontend.tracking.TrackingConfig`), the sliding window
-(:class:`gtvo.window.WindowConfig`) and the optical-flow fallback
-(:class:`gtvo.frontend.flow_pose.FlowPoseConfig`).
+One place for every setting of a run (KISS-ICP's single config), one frozen dataclass per
+component, each field's default and allowed range declared once beside it
+(:func:`gtvo.core.settings.setting`)::
+
+    OdometryConfig
+      mode                 "window" | "track"
+      solver               SolverConfig (tracker, window)
+      frontend             FrontendConfig (points_per_keyframe, points: PointSelectionConfig,
+                                           stereo: StereoSearchConfig, depth_sigma_model)
+      keyframes            gtvo.frontend.keyframes.KeyframeRule
+      tracking             gtvo.frontend.tracking.TrackingConfig
+      window               gtvo.window.WindowConfig
+      flow_fallback        gtvo.frontend.flow_pose.FlowPoseConfig | None
+      motion_model         MotionModelConfig
+      photometric          factors.params.PhotometricParams
+
+The photometric model (noise, Huber threshold, pattern, clipped range) is set once, in
+``photometric``; the tracker's and the window's copies of it are filled from there (and are not
+keys of their own in a config file). The command line and the library share these defaults:
+``gtvo run`` and :func:`gtvo.run` run the same solvers.
+
+A run's configuration as plain data: :func:`config_to_dict` / :func:`config_from_dict` (the
+inverse, checking every key, type and range), :func:`config_to_yaml` and :func:`load_config`
+(a YAML or JSON file; ``gtvo run --config FILE``). The list of every key: docs/configuration.md
+(:func:`config_reference` writes it).
 """
 
 from __future__ import annotations
 
+import dataclasses
+import difflib
+import inspect
+import math
+import re
+import types
+import typing
 from dataclasses import dataclass, field
-from typing import Literal
+from pathlib import Path
+from typing import Any, Literal
 
+import numpy as np
+
+from factors.params import PhotometricParams
+from gtvo.core.settings import SettingError, check_settings, setting, type_hints
 from gtvo.errors import InputError
-from gtvo.frontend import FlowPoseConfig
+from gtvo.frontend.flow_pose import FlowPoseConfig
+from gtvo.frontend.keyframes import KeyframeRule
+from gtvo.frontend.point_selection import PointSelectionConfig
+from gtvo.frontend.rgbd import DEPTH_SIGMA_MODEL
+from gtvo.frontend.stereo_depth import StereoSearchConfig
 from gtvo.frontend.tracking import TrackingConfig
 from gtvo.window import WindowConfig
 
@@ -20,76 +57,442 @@ SolverName = Literal["handrolled", "gtsam"]
 MotionModelName = Literal["constant-velocity", "kalman"]
 ModeName = Literal["track", "window"]
 
-
 #: The fewest points per keyframe :class:`OdometryConfig` accepts.
 MIN_POINTS_PER_KEYFRAME = 50
 
 
 @dataclass(frozen=True)
-class OdometryConfig:
-    """Settings of the VO front end.
+class SolverConfig:
+    """Which solver runs each optimisation.
 
     Attributes:
-        solver: ``"handrolled"`` (vectorised LM, the notes' Algorithm 3) or ``"gtsam"``.
-        points_per_keyframe: target number of selected points per keyframe (300: DSO's density
-            of 2000 active points in a 7-keyframe window; stereo keeps about 60 % of them on KITTI).
-            The tracker and the window use the same points; more points were measured to be
-            slower and no more accurate (docs/benchmarks.md, "Point density").
-        tracking: the tracker's settings.
-        keyframe_min_visible: make a new keyframe when fewer than this fraction of the keyframe's
-            points are still tracked (valid residuals).
-        keyframe_max_flow: make a new keyframe when the RMS optical flow that the translation
-            since the keyframe causes at its points exceeds this fraction of ``width + height``
-            (DSO's rule: its translation weight 0.04 (640 + 480) = 44.8 gives 25 px at VGA).
-        keyframe_max_motion: make a new keyframe when ``|t_keyframe_frame| * median(d)`` (the
-            translation relative to the median scene depth, i.e. about the mean optical-flow
-            angle caused by translation) exceeds this.
-        keyframe_max_rotation_deg: ... or the rotation since the keyframe exceeds this.
-        keyframe_max_brightness: ... or ``|a_frame - a_keyframe|`` (log gain) exceeds this.
-        max_disparity: largest disparity (px) searched by the stereo initialisation.
-        depth_sigma_model: for RGB-D: ``(s0, s2)`` of the depth noise ``sigma_z = s0 + s2 z^2``.
-        motion_model: initial guess of each frame: ``"constant-velocity"`` or ``"kalman"``.
-        accept_rms_factor: tracking tries the motion-model guess first and accepts it at once
-            when its whitened RMS is below this factor times the previous frame's; otherwise it
-            also tries "no motion" and "keyframe pose" and keeps the lowest-cost success
-            (0 = always try all).
-        mode: ``"track"`` (frame-to-keyframe tracking only) or ``"window"`` (every new keyframe
-            joins a sliding window of keyframes whose poses, affine brightness and inverse depths
-            are optimised jointly, :mod:`gtvo.window`; later frames are tracked against the
-            optimised keyframe with its optimised depths).
-        window_solver: the window's solver, ``"gtsam"`` (LM on smart factors) or ``"handrolled"``.
-        window: the window's settings (size, weights, priors, iterations).
-        flow_fallback: when tracking fails from every motion-model guess (first frames, after a
-            re-initialisation, an abrupt change of speed), try once more from a guess of sparse
-            optical flow + PnP (:func:`gtvo.frontend.flow_pose.optical_flow_pose`) before
-            declaring the frame lost; None turns it off.
+        tracker: the frame tracker's: ``handrolled`` (vectorised LM, the notes' Algorithm 3) or ``gtsam``.
+        window: the sliding window's: ``gtsam`` (LM on smart factors, the window's engine) or ``handrolled``.
     """
 
-    solver: SolverName = "handrolled"
-    points_per_keyframe: int = 300
-    tracking: TrackingConfig = field(default_factory=TrackingConfig)
-    keyframe_min_visible: float = 0.7
-    keyframe_max_motion: float = 0.3
-    keyframe_max_flow: float = 1.0 / 44.8
-    keyframe_max_rotation_deg: float = 8.0
-    keyframe_max_brightness: float = 0.3
-    max_disparity: int = 128
-    depth_sigma_model: tuple[float, float] = (0.0012, 0.0019)
-    motion_model: MotionModelName = "constant-velocity"
-    accept_rms_factor: float = 1.1
-    mode: ModeName = "window"
-    window_solver: SolverName = "gtsam"
-    window: WindowConfig = field(default_factory=WindowConfig)
-    flow_fallback: FlowPoseConfig | None = field(default_factory=FlowPoseConfig)
+    tracker: SolverName = "handrolled"
+    window: SolverName = "gtsam"
 
     def __post_init__(self) -> None:
-        if self.solver not in ("handrolled", "gtsam"):
-            raise InputError(f"unknown solver {self.solver!r}: use 'handrolled' or 'gtsam'")
-        if self.points_per_keyframe < MIN_POINTS_PER_KEYFRAME:
-            raise InputError(f"points per keyframe must be >= {MIN_POINTS_PER_KEYFRAME}, got {self.points_per_keyframe}")
-        if self.motion_model not in ("constant-velocity", "kalman"):
-            raise InputError(f"unknown motion model {self.motion_model!r}")
-        if self.mode not in ("track", "window"):
-            raise InputError(f"unknown mode {self.mode!r}: use 'track' or 'window'")
-        if self.window_solver not in ("handrolled", "gtsam"):
-            raise InputError(f"unknown window solver {self.window_solver!r}: use 'handrolled' or 'gtsam'")
+        check_settings(self)
+
+    @classmethod
+    def from_name(cls, name: str) -> "SolverConfig":
+        """One solver for both (``solver="gtsam"``, the CLI's ``--solver``)."""
+        return cls(tracker=name, window=name)  # type: ignore[arg-type]
+
+
+@dataclass(frozen=True)
+class FrontendConfig:
+    """How a keyframe gets its points and their inverse depths.
+
+    Attributes:
+        points_per_keyframe: target number of selected points per keyframe (300: DSO's density of
+            2000 active points in a 7-keyframe window; stereo keeps about 60 % of them on KITTI).
+            The tracker and the window use the same points; more were measured to be slower and
+            no more accurate (docs/benchmarks.md, "Point density").
+        points: the point selection (:func:`gtvo.frontend.select_points`).
+        stereo: the stereo search (:func:`gtvo.frontend.stereo_inverse_depth`).
+        depth_sigma_model: RGB-D only: ``(s0, s2)`` of the depth noise ``sigma_z = s0 + s2 z^2`` (m;
+            :func:`gtvo.frontend.rgbd.rgbd_keyframe_points`).
+    """
+
+    points_per_keyframe: int = setting(300, f">= {MIN_POINTS_PER_KEYFRAME}")
+    points: PointSelectionConfig = field(default_factory=PointSelectionConfig)
+    stereo: StereoSearchConfig = field(default_factory=StereoSearchConfig)
+    depth_sigma_model: tuple[float, float] = setting(DEPTH_SIGMA_MODEL, ">= 0")
+
+    def __post_init__(self) -> None:
+        _check_nested(self)
+
+
+@dataclass(frozen=True)
+class MotionModelConfig:
+    """The initial guesses of each frame's pose.
+
+    Attributes:
+        model: ``constant-velocity`` or ``kalman`` (the constant-acceleration filter of :mod:`gtvo.motion.model`).
+        accept_rms_factor: tracking tries the motion model's guess first and accepts it at once when
+            its whitened RMS is below this factor times the previous frame's; otherwise it also tries
+            "no motion" and "keyframe pose" and keeps the lowest-cost success (0: always try all).
+    """
+
+    model: MotionModelName = "constant-velocity"
+    accept_rms_factor: float = setting(1.1, ">= 0")
+
+    def __post_init__(self) -> None:
+        check_settings(self)
+
+    @classmethod
+    def from_name(cls, name: str) -> "MotionModelConfig":
+        """The model ``name`` with the default settings (``motion_model="kalman"``)."""
+        return cls(model=name)  # type: ignore[arg-type]
+
+
+@dataclass(frozen=True)
+class OdometryConfig:
+    """Every setting of a VO run (the tree in the module doc; defaults suit KITTI-like and indoor data).
+
+    ``solver`` and ``motion_model`` also take a name: ``OdometryConfig(solver="gtsam")`` is
+    ``solver=SolverConfig("gtsam", "gtsam")`` (as the CLI's ``--solver``),
+    ``motion_model="kalman"`` is ``MotionModelConfig(model="kalman")``.
+
+    Attributes:
+        mode: ``window``: every new keyframe joins a sliding window of keyframes whose poses, affine
+            brightness and inverse depths are optimised jointly (:mod:`gtvo.window`; later frames are
+            tracked against the optimised keyframe); ``track``: frame-to-keyframe tracking only.
+        solver: the solvers of the tracker and of the window.
+        frontend: point selection and stereo / RGB-D depths of new keyframes.
+        keyframes: the rule that makes a tracked frame a keyframe.
+        tracking: the coarse-to-fine tracker (its photometric settings come from ``photometric``).
+        window: the sliding window (its photometric settings come from ``photometric``).
+        flow_fallback: when tracking fails from every motion-model guess, try once more from a guess
+            of sparse optical flow + PnP (:func:`gtvo.frontend.flow_pose.optical_flow_pose`) before
+            declaring the frame lost; null turns it off.
+        motion_model: the initial guess of each frame's pose.
+        photometric: the photometric model shared by the tracker, the window and the stereo gain
+            estimate: noise, Huber threshold, pattern and the sensor's clipped range.
+    """
+
+    mode: ModeName = "window"
+    solver: SolverConfig = field(default_factory=SolverConfig)
+    frontend: FrontendConfig = field(default_factory=FrontendConfig)
+    keyframes: KeyframeRule = field(default_factory=KeyframeRule)
+    tracking: TrackingConfig = field(default_factory=TrackingConfig)
+    window: WindowConfig = field(default_factory=WindowConfig)
+    flow_fallback: FlowPoseConfig | None = field(default_factory=FlowPoseConfig)
+    motion_model: MotionModelConfig = field(default_factory=MotionModelConfig)
+    photometric: PhotometricParams = field(default_factory=PhotometricParams)
+
+    def __post_init__(self) -> None:
+        for name in ("solver", "motion_model"):
+            value = getattr(self, name)
+            if isinstance(value, str):
+                object.__setattr__(self, name, type_hints(OdometryConfig)[name].from_name(value))
+        _check_nested(self)
+        for name, keys in PHOTOMETRIC_COPIES.items():
+            object.__setattr__(self, name, _with_photometric(name, getattr(self, name), keys, self.photometric))
+
+
+#: The settings of ``tracking`` and ``window`` that ``photometric`` sets (not keys of a config file).
+PHOTOMETRIC_COPIES: dict[str, tuple[str, ...]] = {
+    "tracking": ("sigma_intensity", "huber_k", "pattern", "clip_range"),
+    "window": ("sigma_intensity", "huber_k", "pattern"),
+}
+_DERIVED = frozenset(f"{name}.{key}" for name, keys in PHOTOMETRIC_COPIES.items() for key in keys)
+
+
+def _check_nested(obj: Any) -> None:
+    """:func:`check_settings` plus: every nested-config field holds its config class (or None
+    where allowed), so a wrong object fails here, naming the field, not deep in a run."""
+    check_settings(obj)
+    for f in dataclasses.fields(obj):
+        cls = _dataclass_of(type_hints(type(obj))[f.name])
+        value = getattr(obj, f.name)
+        if cls is not None and not isinstance(value, cls) and not (value is None and _optional(type_hints(type(obj))[f.name])):
+            raise SettingError(f.name, f"must be a {cls.__name__}, got {value!r}")
+
+
+def _with_photometric(name: str, sub: Any, keys: tuple[str, ...], params: PhotometricParams) -> Any:
+    """``sub`` with its photometric ``keys`` taken from ``params``; a value set on ``sub`` that
+    differs from both its default and ``params`` is an error (two sources for one setting)."""
+    default = type(sub)()
+    values = {k: params.pattern_array if k == "pattern" else getattr(params, k) for k in keys}
+    for k in keys:
+        have = getattr(sub, k)
+        if not _same(have, getattr(default, k)) and not _same(have, values[k]):
+            raise SettingError(f"{name}.{k}", f"is set by photometric.{k}; set it there")
+    return dataclasses.replace(sub, **values)
+
+
+def _same(a: Any, b: Any) -> bool:
+    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+        return a is not None and b is not None and np.array_equal(np.asarray(a, dtype=float), np.asarray(b, dtype=float))
+    return bool(a == b)
+
+
+# -- plain data ------------------------------------------------------------------------------------
+def config_to_dict(config: OdometryConfig) -> dict[str, Any]:
+    """The whole tree as plain JSON/YAML data (dicts, lists, str, numbers, bools, None); infinite
+    floats are the strings ``"inf"`` / ``"-inf"``. :func:`config_from_dict` inverts it exactly."""
+    return _to_plain(config, "")
+
+
+def _to_plain(obj: Any, path: str) -> Any:
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        return {f.name: _to_plain(getattr(obj, f.name), _join(path, f.name)) for f in dataclasses.fields(obj)
+                if _join(path, f.name) not in _DERIVED}
+    if isinstance(obj, np.ndarray):
+        return _to_plain(obj.tolist(), path)
+    if isinstance(obj, (list, tuple)):
+        return [_to_plain(v, path) for v in obj]
+    if isinstance(obj, np.generic):
+        obj = obj.item()
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return "nan" if math.isnan(obj) else ("inf" if obj > 0 else "-inf")
+    return obj
+
+
+class ConfigKeyError(InputError):
+    """A bad key or value in a configuration: ``key`` (dotted), ``detail`` (what is wrong)."""
+
+    def __init__(self, key: str, detail: str, source: str | Path | None = None) -> None:
+        where = f"{source}: " if source is not None else ""
+        super().__init__(f"{where}key '{key}': {detail}")
+        self.key, self.detail = key, detail
+
+
+def config_from_dict(data: Any, source: str | Path | None = None,
+                     base: OdometryConfig | None = None) -> OdometryConfig:
+    """An :class:`OdometryConfig` from plain data: a partial tree, whose missing keys keep the
+    values of ``base`` (default: the defaults).
+
+    Raises:
+        ConfigKeyError: an :class:`InputError`, one line ``"SOURCE: key 'window.size': must be >= 2,
+            got 1"``, for an unknown key, a value of the wrong type or out of its range.
+    """
+    if data is None:
+        data = {}
+    if base is not None and isinstance(data, dict):
+        data = _merged(config_to_dict(base), data)
+    try:
+        return _build(OdometryConfig, data, "")
+    except SettingError as exc:
+        raise ConfigKeyError(exc.key, exc.detail, source) from None
+
+
+def _merged(base: dict[str, Any], data: dict[str, Any]) -> dict[str, Any]:
+    """``base`` with ``data``'s keys put in, section by section."""
+    out = dict(base)
+    for k, v in data.items():
+        out[k] = _merged(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+    return out
+
+
+def _join(path: str, name: str) -> str:
+    return f"{path}.{name}" if path else name
+
+
+def _build(cls: type, data: Any, path: str) -> Any:
+    if isinstance(data, str) and hasattr(cls, "from_name"):
+        try:
+            return cls.from_name(data)
+        except SettingError as exc:
+            raise SettingError(path, exc.detail) from None
+    if not isinstance(data, dict):
+        raise SettingError(path or "(top level)", f"must be a mapping of keys, got {_show(data)}")
+    hints = type_hints(cls)
+    names = [f.name for f in dataclasses.fields(cls) if _join(path, f.name) not in _DERIVED]
+    for key in data:
+        if _join(path, str(key)) in _DERIVED:
+            raise SettingError(_join(path, str(key)), f"is set by photometric.{key}; set it there")
+        if key not in names:
+            close = difflib.get_close_matches(str(key), names, n=1)
+            hint = f" (did you mean '{close[0]}'?)" if close else f"; known: {', '.join(names)}"
+            raise SettingError(_join(path, str(key)), f"unknown key{hint}")
+    kwargs = {k: _convert(hints[k], v, _join(path, k)) for k, v in data.items()}
+    try:
+        return cls(**kwargs)
+    except SettingError as exc:
+        raise SettingError(_join(path, exc.key), exc.detail) from None
+    except InputError as exc:
+        raise SettingError(path or "(top level)", str(exc)) from None
+
+
+def _optional(hint: Any) -> bool:
+    return type(None) in typing.get_args(hint) and typing.get_origin(hint) in (typing.Union, types.UnionType)
+
+
+def _dataclass_of(hint: Any) -> type | None:
+    """The dataclass of a ``Config`` or ``Config | None`` hint, else None."""
+    for h in (hint, *typing.get_args(hint)):
+        if inspect.isclass(h) and dataclasses.is_dataclass(h):
+            return h
+    return None
+
+
+def _convert(hint: Any, value: Any, key: str) -> Any:
+    """``value`` checked (and converted) against the type ``hint`` of ``key``."""
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if origin in (typing.Union, types.UnionType):
+        if value is None and type(None) in args:
+            return None
+        inner = [a for a in args if a is not type(None)]
+        return _convert(inner[0], value, key) if len(inner) == 1 else value
+    if dataclasses.is_dataclass(hint):
+        return _build(hint, value, key)
+    if origin is Literal:
+        return value  # the choices are checked by the dataclass (check_settings), naming the key
+    if origin is tuple:
+        if not isinstance(value, (list, tuple)):
+            raise SettingError(key, f"must be a list, got {_show(value)}")
+        if len(args) == 2 and args[1] is Ellipsis:
+            return tuple(_convert(args[0], v, key) for v in value)
+        if len(value) != len(args):
+            raise SettingError(key, f"must be a list of {len(args)}, got {_show(value)}")
+        return tuple(_convert(a, v, key) for a, v in zip(args, value))
+    if hint is bool:
+        if not isinstance(value, bool):
+            raise SettingError(key, f"must be true or false, got {_show(value)}")
+        return value
+    if hint is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise SettingError(key, f"must be an integer, got {_show(value)}")
+        return value
+    if hint is float:
+        if isinstance(value, str) and re.fullmatch(r"[+-]?(inf|\.inf|infinity)", value.strip().lower()):
+            return -math.inf if value.strip().startswith("-") else math.inf
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise SettingError(key, f"must be a number, got {_show(value)}")
+        return float(value)
+    if hint is str and not isinstance(value, str):
+        raise SettingError(key, f"must be a string, got {_show(value)}")
+    return value
+
+
+def _show(value: Any) -> str:
+    text = repr(value)
+    return f"{text if len(text) <= 40 else text[:37] + '...'} ({type(value).__name__})"
+
+
+def as_config(value: "OdometryConfig | dict[str, Any] | str | Path | None") -> OdometryConfig:
+    """An :class:`OdometryConfig` from itself, a (partial) tree of plain data, a YAML/JSON file's
+    path, or None (the defaults): what :func:`gtvo.run`'s ``config`` takes."""
+    if value is None:
+        return OdometryConfig()
+    if isinstance(value, OdometryConfig):
+        return value
+    if isinstance(value, dict):
+        return config_from_dict(value)
+    if isinstance(value, (str, Path)):
+        return load_config(value)
+    raise InputError(f"config must be an OdometryConfig, a dict or a file path, got {type(value).__name__}")
+
+
+# -- files -----------------------------------------------------------------------------------------
+def config_to_yaml(config: OdometryConfig, header: str | None = None) -> str:
+    """The whole tree as YAML text (``header``: a comment line on top); :func:`load_config` reads it back."""
+    import yaml  # noqa: PLC0415
+
+    text = yaml.safe_dump(config_to_dict(config), sort_keys=False, default_flow_style=None, width=100)
+    return (f"# {header}\n" if header else "") + text
+
+
+def load_config(path: str | Path, base: OdometryConfig | None = None) -> OdometryConfig:
+    """The :class:`OdometryConfig` of a YAML (or JSON) file: a partial tree, missing keys keep
+    their values in ``base`` (default: the defaults; docs/configuration.md).
+
+    Raises:
+        InputError: one line naming the file (and the key): unreadable file, malformed YAML,
+            unknown key, wrong type, value out of range.
+    """
+    import yaml  # noqa: PLC0415
+
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"cannot read the config file: {getattr(exc, 'strerror', None) or exc}", path=p) from None
+    try:
+        data = yaml.load(text, Loader=_yaml_loader())  # noqa: S506 (a SafeLoader)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        problem = getattr(exc, "problem", None) or "malformed"
+        raise InputError(f"not valid YAML: {problem}", path=p, line=None if mark is None else mark.line + 1) from None
+    return config_from_dict(data, source=p, base=base)
+
+
+def _yaml_loader() -> type:
+    """PyYAML's ``SafeLoader`` reading ``1e-05`` (JSON's and Python's spelling) as a float, as
+    YAML 1.2 does (YAML 1.1 wants ``1.0e-05``)."""
+    import yaml  # noqa: PLC0415
+
+    class Loader(yaml.SafeLoader):
+        pass
+
+    number = re.compile(r"^[-+]?(?:[0-9][0-9_]*)(?:\.[0-9_]*)?[eE][-+]?[0-9]+$")
+    Loader.add_implicit_resolver("tag:yaml.org,2002:float", number, list("-+0123456789"))
+    return Loader
+
+
+# -- documentation ---------------------------------------------------------------------------------
+def field_docs(cls: type) -> dict[str, str]:
+    """Each field's text from the ``Attributes:`` section of ``cls``'s docstring (one line each;
+    an entry ``a, b: text`` documents both)."""
+    doc = inspect.getdoc(cls) or ""
+    out: dict[str, str] = {}
+    section = doc.split("Attributes:", 1)[1] if "Attributes:" in doc else ""
+    current: list[str] = []
+    for line in section.splitlines():
+        m = re.match(r"^    (\w+(?:, \w+)*): (.*)$", line)
+        if m:
+            current = [n.strip() for n in m.group(1).split(",")]
+            for n in current:
+                out[n] = m.group(2).strip()
+        elif line.startswith("        ") and current:
+            for n in current:
+                out[n] += " " + line.strip()
+        elif line.strip():
+            current = []
+    return {k: _plain_text(v) for k, v in out.items()}
+
+
+def _plain_text(text: str) -> str:
+    """reST roles and literals as plain text (``:func:`x``` -> ``x``)."""
+    text = re.sub(r":\w+:`~?([^`]+)`", r"\1", text)
+    return text.replace("``", "")
+
+
+def describe_key(key: str, config: OdometryConfig | None = None) -> tuple[str, Any, Any]:
+    """``(help text, default, hint)`` of a dotted key of the tree (``"frontend.points_per_keyframe"``),
+    the default taken from ``config`` (default: :class:`OdometryConfig`'s)."""
+    obj: Any = config or OdometryConfig()
+    cls: type = OdometryConfig
+    *parents, last = key.split(".")
+    for name in parents:
+        obj = getattr(obj, name)
+        cls = _dataclass_of(type_hints(cls)[name])  # type: ignore[assignment]
+    return field_docs(cls).get(last, ""), getattr(obj, last), type_hints(cls)[last]
+
+
+def config_reference() -> str:
+    """Every key of the tree with its type, default, range and text, as markdown (docs/configuration.md)."""
+    lines = ["| key | type | default | range | meaning |", "|---|---|---|---|---|"]
+    _reference_rows(OdometryConfig, OdometryConfig(), "", lines)
+    return "\n".join(lines) + "\n"
+
+
+def _reference_rows(cls: type, obj: Any, path: str, lines: list[str]) -> None:
+    docs, hints = field_docs(cls), type_hints(cls)
+    for f in dataclasses.fields(cls):
+        key = _join(path, f.name)
+        if key in _DERIVED:
+            continue
+        value = getattr(obj, f.name)
+        sub = _dataclass_of(hints[f.name])
+        kind = _type_name(hints[f.name])
+        default = "(below)" if sub is not None and value is not None else f"`{_yaml_scalar(_to_plain(value, key))}`"
+        rng = f.metadata.get("range", "")
+        lines.append(f"| `{key}` | {kind} | {default} | {rng} | {docs.get(f.name, '').replace('|', chr(92) + '|')} |")
+        if sub is not None:
+            _reference_rows(sub, value if value is not None else sub(), key, lines)
+
+
+def _yaml_scalar(value: Any) -> str:
+    """A plain value as a config file spells it (``true``, ``null``, ``[1.0, 2.0]``)."""
+    import json  # noqa: PLC0415
+
+    return value if isinstance(value, str) else json.dumps(value)
+
+
+def _type_name(hint: Any) -> str:
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if origin is Literal:
+        return " / ".join(f"`{a}`" for a in args)
+    if origin in (typing.Union, types.UnionType):
+        return " or ".join(_type_name(a) for a in args)
+    if origin is tuple:
+        return "list" if len(args) == 2 and args[1] is Ellipsis else f"{len(args)} numbers"
+    if hint is type(None):
+        return "null"
+    return "section" if dataclasses.is_dataclass(hint) else getattr(hint, "__name__", str(hint))

@@ -10,10 +10,12 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
-from gtvo.io.atomic import ensure_output_dir, tidy_on_failure
-from gtvo.datasets import open_sequence
+from gtvo import __version__
+from gtvo.io.atomic import ensure_output_dir, tidy_on_failure, write_text
+from gtvo.datasets import detect_format, open_sequence
+from gtvo.datasets.identity import sequence_identity
 from gtvo.errors import InputError
-from gtvo.config import OdometryConfig
+from gtvo.config import OdometryConfig, as_config, config_to_dict, config_to_yaml
 from gtvo.odometry import VisualOdometry
 import numpy as np
 
@@ -66,8 +68,8 @@ def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progre
     sigmas = [e.tracking.rotation_sigma_deg for e in vo.estimates if e.tracking is not None and e.tracking.success]
     info: dict[str, Any] = {
         "mode": config.mode,
-        "solver": config.solver,
-        "motion_model": config.motion_model,
+        "solver": config.solver.tracker,
+        "motion_model": config.motion_model.model,
         "frames": n,
         "keyframes": len(vo.keyframes),
         "seconds": seconds,
@@ -84,7 +86,7 @@ def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progre
     }
     if config.mode == "window":
         info.update({
-            "window_solver": config.window_solver,
+            "window_solver": config.solver.window,
             "window_size": config.window.size,
             "window_optimisations": len(vo.window_results),
             "window_seconds_mean": _mean([r.seconds for r in vo.window_results]),
@@ -96,7 +98,8 @@ def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progre
     return vo, traj, info
 
 
-def run(path: str | Path | Sequence, out: str | Path | None = None, config: OdometryConfig | None = None,
+def run(path: str | Path | Sequence, out: str | Path | None = None,
+        config: OdometryConfig | dict[str, Any] | str | Path | None = None,
         format: str = "auto", max_frames: int | None = None, progress: bool = False,
         strict: bool = False, loop_closure: bool = False, frame_step: int = 1,
         **open_options: Any) -> dict[str, Any]:
@@ -105,7 +108,9 @@ def run(path: str | Path | Sequence, out: str | Path | None = None, config: Odom
     Args:
         path: a KITTI / EuRoC / TUM folder, a ROS bag, or a :class:`Sequence`.
         out: output folder (``gtvo_out/<sequence name>`` when None).
-        config: odometry settings.
+        config: odometry settings: an :class:`OdometryConfig`, a partial tree as a dict, or a
+            YAML/JSON file (:func:`gtvo.config.as_config`; default the defaults, as ``gtvo run``'s); recorded
+            in full in the report (``"config"``) and in ``out/config.yaml``.
         format, max_frames, open_options: passed to :func:`gtvo.datasets.open_sequence` (for bags
             also ``calib``, ``left_topic``, ``right_topic``, ``depth_topic``, ``ground_truth_topic``).
         progress: show a progress bar.
@@ -117,7 +122,10 @@ def run(path: str | Path | Sequence, out: str | Path | None = None, config: Odom
             frame rate (:meth:`Sequence.subsampled`).
 
     Returns:
-        The report (also written to ``out/report.json``), with ``"out"`` added.
+        The report (also written to ``out/report.json``), with ``"out"`` added. Besides the run's
+        figures it records ``"config"`` (the whole resolved tree, :func:`gtvo.config.config_to_dict`;
+        ``gtvo run --config`` reads it back), ``"gtvo_version"`` and ``"input"``
+        (:func:`gtvo.datasets.identity.sequence_identity`).
 
     Raises:
         InputError: bad input (unreadable folder, ``frame_step < 1``, ...).
@@ -127,10 +135,13 @@ def run(path: str | Path | Sequence, out: str | Path | None = None, config: Odom
     if isinstance(path, Sequence) and max_frames is not None:
         seq = seq.truncated(max_frames)
     seq = seq.subsampled(frame_step)
+    config = as_config(config)
+    fmt = None if isinstance(path, Sequence) else (detect_format(path) if format == "auto" else format)
     with tidy_on_failure():  # a run that fails leaves no empty output folder behind
         out_dir = ensure_output_dir(Path(out) if out is not None else Path("gtvo_out") / seq.name)
         vo, traj, info = process_sequence(seq, config, progress=progress, strict=strict)
-        info["frame_step"] = int(frame_step)
+        info.update(frame_step=int(frame_step), gtvo_version=__version__, input=sequence_identity(seq, fmt),
+                    config=config_to_dict(config))
         if getattr(seq, "unpaired", None) is not None:  # a ROS bag: messages that found no partner
             info["unpaired_messages"] = seq.unpaired  # type: ignore[attr-defined]
         closed = None
@@ -148,6 +159,7 @@ def run(path: str | Path | Sequence, out: str | Path | None = None, config: Odom
             info["loops_accepted"] = int(sum(res.accepted))
         report = write_run_outputs(out_dir, traj, seq, info, points=vo.point_cloud(), loop_closed=closed,
                                    covariances=keyframe_covariances(vo))
+        write_text(out_dir / "config.yaml", config_to_yaml(config, f"gtvo {__version__}: `gtvo run --config` this file"))
     report["out"] = str(out_dir)
     return report
 

@@ -7,7 +7,7 @@ import dataclasses
 import sys
 
 from gtvo.commands._bag import add_bag_options, bag_options
-from gtvo.commands._common import add_odometry_options, odometry_config, parse_floats, print_report
+from gtvo.commands._common import add_odometry_options, odometry_config, parse_floats, print_report, solvers_text
 from gtvo.errors import InputError
 
 
@@ -54,6 +54,6 @@ def main(args: argparse.Namespace) -> int:
     report = run(args.sequence, out=args.out, config=config, format=args.format,
                  max_frames=args.max_frames, progress=not args.no_progress, strict=args.strict,
                  loop_closure=args.loop_closure, frame_step=args.frame_step, **options)
-    print(f"gtvo run: {report['sequence']} ({report['mode']}, {report['solver']} solver)", file=sys.stdout)
+    print(f"gtvo run: {report['sequence']} ({solvers_text(report)})", file=sys.stdout)
     print_report(report)
     return 0
