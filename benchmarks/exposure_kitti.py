@@ -11,8 +11,8 @@ own auto exposure) ``I`` becomes ``clip(g I + o, 0, 255)`` with ``log g ~ U(-A, 
 by up to ``2A`` in log: what auto exposure does at its worst, and beyond (``A = 0.5``: up to
 2.7x). Bright gains saturate KITTI's sky and road. Each amplitude and seed runs in window mode
 with the CLI defaults twice: with the clipped-pixel check (``photometric.clip_range = (0, 255)``, the
-default) and without it (``photometric.clip_range = None``). Prints ATE (SE(3)-aligned), end-point drift, segment drift, failures
-(frames re-initialised) and the failures' reasons. Deterministic (no timing).
+default) and without it (``photometric.clip_range = None``). Prints ATE (SE(3)-aligned), end-point
+drift, segment drift, failures (frames re-initialised) and the failures' reasons. Deterministic (no timing).
 """
 
 from __future__ import annotations

@@ -186,28 +186,32 @@ def _check_nested(obj: Any) -> None:
     """:func:`check_settings` plus: every nested-config field holds its config class (or None
     where allowed), so a wrong object fails here, naming the field, not deep in a run."""
     check_settings(obj)
+    hints = type_hints(type(obj))
     for f in dataclasses.fields(obj):
-        cls = _dataclass_of(type_hints(type(obj))[f.name])
-        value = getattr(obj, f.name)
-        if cls is not None and not isinstance(value, cls) and not (value is None and _optional(type_hints(type(obj))[f.name])):
+        cls, value = _dataclass_of(hints[f.name]), getattr(obj, f.name)
+        if cls is not None and not isinstance(value, cls) and not (value is None and _optional(hints[f.name])):
             raise SettingError(f.name, f"must be a {cls.__name__}, got {value!r}")
 
 
 def _with_photometric(name: str, sub: Any, keys: tuple[str, ...], params: PhotometricParams) -> Any:
-    """``sub`` with its photometric ``keys`` taken from ``params``; a value set on ``sub`` that
-    differs from both its default and ``params`` is an error (two sources for one setting)."""
-    default = type(sub)()
+    """``sub`` with its photometric ``keys`` taken from ``params``. A value the caller set on
+    ``sub`` (not a copy made here: ``dataclasses.replace(config, photometric=...)`` re-copies)
+    that differs from both its default and ``params`` is an error: two sources for one setting."""
     values = {k: params.pattern_array if k == "pattern" else getattr(params, k) for k in keys}
-    for k in keys:
-        have = getattr(sub, k)
-        if not _same(have, getattr(default, k)) and not _same(have, values[k]):
-            raise SettingError(f"{name}.{k}", f"is set by photometric.{k}; set it there")
-    return dataclasses.replace(sub, **values)
+    if not getattr(sub, "_photometric_copy", False):
+        default = type(sub)()
+        for k in keys:
+            have = getattr(sub, k)
+            if not _same(have, getattr(default, k)) and not _same(have, values[k]):
+                raise SettingError(f"{name}.{k}", f"is set by photometric.{k}; set it there")
+    copy = dataclasses.replace(sub, **values)
+    object.__setattr__(copy, "_photometric_copy", True)
+    return copy
 
 
 def _same(a: Any, b: Any) -> bool:
     if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
-        return a is not None and b is not None and np.array_equal(np.asarray(a, dtype=float), np.asarray(b, dtype=float))
+        return a is not None and b is not None and np.array_equal(np.asarray(a, float), np.asarray(b, float))
     return bool(a == b)
 
 

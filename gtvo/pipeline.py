@@ -159,7 +159,7 @@ def run(path: str | Path | Sequence, out: str | Path | None = None,
             info["loops_accepted"] = int(sum(res.accepted))
         report = write_run_outputs(out_dir, traj, seq, info, points=vo.point_cloud(), loop_closed=closed,
                                    covariances=keyframe_covariances(vo))
-        write_text(out_dir / "config.yaml", config_to_yaml(config, f"gtvo {__version__}: `gtvo run --config` this file"))
+        write_text(out_dir / "config.yaml", config_to_yaml(config, f"gtvo {__version__}: gtvo run --config this file"))
     report["out"] = str(out_dir)
     return report
 

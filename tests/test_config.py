@@ -95,6 +95,8 @@ def test_photometric_reaches_tracker_and_window_and_has_one_source():
     assert cfg.tracking.clip_range == (2.0, 250.0)
     with pytest.raises(InputError, match="tracking.huber_k.*photometric.huber_k"):
         OdometryConfig(tracking=TrackingConfig(huber_k=2.0))
+    back = dataclasses.replace(cfg, photometric=PhotometricParams())  # the copies follow a new photometric
+    assert back.tracking.huber_k == back.window.huber_k == PhotometricParams().huber_k
     with pytest.raises(InputError, match="key 'window.sigma_intensity': is set by photometric"):
         config_from_dict({"window": {"sigma_intensity": 4.0}})
 

@@ -236,7 +236,8 @@ def test_pipeline_window_mode_report(seq, tmp_path):
     from gtvo.pipeline import run  # noqa: PLC0415
 
     cfg = OdometryConfig(mode="window", solver=SolverConfig(window="handrolled"),
-                         frontend=FrontendConfig(points_per_keyframe=200), keyframes=KeyframeRule(max_motion=0.02))
+                         frontend=FrontendConfig(points_per_keyframe=200),
+                         keyframes=KeyframeRule(max_motion=0.02))
     report = run(seq, out=tmp_path / "out", config=cfg, max_frames=4)
     assert report["mode"] == "window" and report["window_solver"] == "handrolled"
     assert report["window_optimisations"] >= 1 and report["window_seconds_mean"] > 0
@@ -255,8 +256,9 @@ def test_rgbd_window_on_tum_teddy(shared_data):
 
     seq = open_sequence(shared_data / "rgbd_dataset_freiburg3_teddy_first20", max_frames=8,
                         camera=(535.4, 539.2, 320.1, 247.6))
-    vo, traj, info = process_sequence(seq, OdometryConfig(mode="window", frontend=FrontendConfig(points_per_keyframe=600),
-                                                          keyframes=KeyframeRule(max_motion=0.01)))
+    cfg = OdometryConfig(mode="window", frontend=FrontendConfig(points_per_keyframe=600),
+                         keyframes=KeyframeRule(max_motion=0.01))
+    vo, traj, info = process_sequence(seq, cfg)
     assert info["window_optimisations"] >= 1
     assert all(w.right is None and w.depth_prior for w in vo.window.keyframes)
     est, ref = gt_pair(seq, traj)

@@ -66,28 +66,24 @@ def _help(text: str) -> str:
 
 def odometry_config(args: Any):
     """The run's :class:`OdometryConfig`: the defaults (``args.odometry_defaults``), then the
-    ``--config`` file, then the flags that were given."""
-    from gtvo.config import ConfigKeyError, SolverConfig, config_from_dict, load_config  # noqa: PLC0415
+    ``--config`` file, then the flags that were given (a bad value: one line naming the flag)."""
+    from gtvo.config import ConfigKeyError, config_from_dict, load_config  # noqa: PLC0415
 
     config = args.odometry_defaults
     if args.config is not None:
         config = load_config(args.config, base=config)
-    given = [(flag, key, getattr(args, flag[2:].replace("-", "_"))) for flag, key, _ in ODOMETRY_FLAGS]
-    for flag, key, value in given:
+    flags = [*ODOMETRY_FLAGS, ("--solver", "solver", None)]  # a solver name sets both solvers
+    for flag, key, _ in flags:
+        value = getattr(args, flag[2:].replace("-", "_"))
         if value is None:
             continue
-        if key == "window.backend":
-            value = value.replace("-", "_")
-        *parents, last = key.split(".")
-        tree: dict[str, Any] = {last: value}
-        for name in reversed(parents):
+        tree: Any = value.replace("-", "_") if key == "window.backend" else value
+        for name in reversed(key.split(".")):
             tree = {name: tree}
         try:
             config = config_from_dict(tree, base=config)
         except ConfigKeyError as exc:
             raise InputError(f"{flag} {exc.detail}") from None
-    if args.solver is not None:
-        config = config_from_dict({"solver": SolverConfig.from_name(args.solver).__dict__}, base=config)
     if args.window_backend is not None and config.mode != "window":
         raise InputError(f"--window-backend {args.window_backend} needs --mode window (got --mode {config.mode})")
     return config

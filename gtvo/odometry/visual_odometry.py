@@ -218,8 +218,9 @@ class VisualOdometry:
         prev_rms = self._last_rms()
         solver = track_handrolled if self.config.solver.tracker == "handrolled" else track_gtsam
         affine = self._affine_guess(kf)
+        factor = self.config.motion_model.accept_rms_factor
         result = track_with_guesses(kf.tracker, pyr, guesses, affine, solver=solver,
-                                    accept_rms=0.0 if prev_rms is None else self.config.motion_model.accept_rms_factor * prev_rms)
+                                    accept_rms=0.0 if prev_rms is None else factor * prev_rms)
         if result.success or self.config.flow_fallback is None or kf.image is None:
             return result
         flow = optical_flow_pose(self.pinhole, kf.image, kf.points.pixels, kf.points.inverse_depth, left,
