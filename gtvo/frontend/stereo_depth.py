@@ -35,7 +35,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from factors.photometric import DEFAULT_CLIP_RANGE
+from factors.photometric import DEFAULT_CLIP_RANGE, PATTERN_DSO8
 from gtvo.core.camera import StereoCamera
 from gtvo.core.settings import check_settings, setting
 from gtvo.errors import InputError, show
@@ -221,7 +221,7 @@ def disparity_variance(gx: ArrayLike, gy: ArrayLike, line: ArrayLike, sigma_inte
 
 def _as_pattern(pattern: ArrayLike | str) -> NDArray[np.int64]:
     if isinstance(pattern, str):
-        table = {"patch5x5": PATCH_5X5, "dso8": photometric.PATTERN_DSO8}  # dso8: the factors' pattern
+        table = {"patch5x5": PATCH_5X5, "dso8": PATTERN_DSO8}  # dso8: the factors' pattern
         if pattern not in table:
             raise InputError(f"unknown stereo pattern {pattern!r}; use one of {sorted(table)}")
         return table[pattern].astype(np.int64)
