@@ -51,6 +51,7 @@ from gtvo.frontend.point_selection import PointSelectionConfig
 from gtvo.frontend.rgbd import DEPTH_SIGMA_MODEL
 from gtvo.frontend.stereo_depth import StereoSearchConfig
 from gtvo.frontend.tracking import TrackingConfig
+from gtvo.motion.model import INITIAL_RATE_SIGMAS, MotionNoise
 from gtvo.window import WindowConfig
 
 SolverName = Literal["handrolled", "gtsam"]
@@ -115,13 +116,18 @@ class MotionModelConfig:
         accept_rms_factor: tracking tries the motion model's guess first and accepts it at once when
             its whitened RMS is below this factor times the previous frame's; otherwise it also tries
             "no motion" and "keyframe pose" and keeps the lowest-cost success (0: always try all).
+        kalman_noise: the Kalman filter's acceleration and measurement noise (``model: kalman``).
+        kalman_initial_rate_sigmas: the Kalman filter's initial rate uncertainty ``(dX, dZ, dtheta)``
+            (m/s, m/s, rad/s).
     """
 
     model: MotionModelName = "constant-velocity"
     accept_rms_factor: float = setting(1.1, ">= 0")
+    kalman_noise: MotionNoise = field(default_factory=MotionNoise)
+    kalman_initial_rate_sigmas: tuple[float, float, float] = setting(INITIAL_RATE_SIGMAS, "> 0")
 
     def __post_init__(self) -> None:
-        check_settings(self)
+        _check_nested(self)
 
     @classmethod
     def from_name(cls, name: str) -> "MotionModelConfig":

@@ -29,6 +29,7 @@ from gtvo.frontend import PointSelectionConfig, StereoSearchConfig, select_point
 from gtvo.frontend.flow_pose import FlowPoseConfig
 from gtvo.frontend.stereo_depth import StereoDepthResult, matched_gain
 from gtvo.frontend.tracking import TrackingConfig
+from gtvo.motion.model import MotionNoise
 from gtvo.window import WindowConfig
 
 DOCS = Path(__file__).resolve().parents[1] / "docs" / "configuration.md"
@@ -44,7 +45,8 @@ def _odd_config() -> OdometryConfig:
                                 depth_sigma_model=(0.002, 0.003)),
         keyframes=KeyframeRule(max_motion=0.1), tracking=TrackingConfig(max_rotation_sigma_deg=math.inf),
         window=WindowConfig(size=5, acceleration_sigma=None, backend="fixed_lag"), flow_fallback=None,
-        motion_model=MotionModelConfig(model="kalman", accept_rms_factor=0.0),
+        motion_model=MotionModelConfig(model="kalman", accept_rms_factor=0.0,
+                                       kalman_noise=MotionNoise(accel_sigmas=(2.0, 2.0, 0.0))),
         photometric=PhotometricParams(sigma_intensity=6.5, huber_k=None, pattern=((0, 0), (1, 0), (0, 1)),
                                       clip_range=None))
 
@@ -59,6 +61,7 @@ def test_plain_data_round_trip_is_exact_through_json_and_yaml(tmp_path):
         (tmp_path / "c.json").write_text(json.dumps(d))
         assert config_to_dict(load_config(tmp_path / "c.json")) == d
     odd = load_config(tmp_path / "c.json")
+    assert odd.motion_model.kalman_noise.accel_sigmas == (2.0, 2.0, 0.0)
     assert odd.frontend.stereo.max_disparity_std == math.inf and odd.flow_fallback is None
     assert odd.window.acceleration_sigma is None and odd.photometric.clip_range is None
 
@@ -284,3 +287,16 @@ def test_report_config_reproduces_the_trajectory_to_the_bit(tmp_path):
     rep_c = gtvo.run(seq, out=tmp_path / "c", config=tmp_path / "a" / "config.yaml")
     assert rep_c["config"] == rep["config"]
     assert (tmp_path / "c" / "trajectory.tum").read_bytes() == (tmp_path / "a" / "trajectory.tum").read_bytes()
+
+
+def test_kalman_settings_reach_the_filter():
+    from gtvo.odometry import VisualOdometry  # noqa: PLC0415
+
+    seq = make_synthetic_sequence(n_frames=1, width=160, height=120)
+    mm = MotionModelConfig(model="kalman", kalman_noise=MotionNoise(accel_sigmas=(3.0, 3.0, 1.0)),
+                           kalman_initial_rate_sigmas=(2.0, 2.0, 0.25))
+    vo = VisualOdometry(seq.camera, OdometryConfig(motion_model=mm))
+    assert vo._kalman.noise.accel_sigmas == (3.0, 3.0, 1.0)
+    assert vo._kalman.initial_rate_sigmas == (2.0, 2.0, 0.25)
+    with pytest.raises(InputError, match="key 'motion_model.kalman_initial_rate_sigmas': must be > 0"):
+        config_from_dict({"motion_model": {"kalman_initial_rate_sigmas": [1, 1, 0]}})

@@ -96,7 +96,8 @@ class VisualOdometry:
         if self.config.motion_model.model == "kalman":
             from gtvo.motion.model import ConstantAccelerationFilter  # noqa: PLC0415
 
-            self._kalman = ConstantAccelerationFilter()
+            mm = self.config.motion_model
+            self._kalman = ConstantAccelerationFilter(mm.kalman_noise, mm.kalman_initial_rate_sigmas)
 
     # -- public ---------------------------------------------------------------------------------
     def process(self, frame: Frame) -> FrameEstimate:
