@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import functools
 import inspect
 import math
 import re
@@ -78,8 +79,8 @@ class SolverConfig:
         check_settings(self)
 
     @classmethod
-    def from_name(cls, name: str) -> "SolverConfig":
-        """One solver for both (``solver="gtsam"``, the CLI's ``--solver``)."""
+    def both(cls, name: str) -> "SolverConfig":
+        """One solver for the tracker and the window (the CLI's ``--solver``)."""
         return cls(tracker=name, window=name)  # type: ignore[arg-type]
 
 
@@ -139,9 +140,12 @@ class MotionModelConfig:
 class OdometryConfig:
     """Every setting of a VO run (the tree in the module doc; defaults suit KITTI-like and indoor data).
 
-    ``solver`` and ``motion_model`` also take a name: ``OdometryConfig(solver="gtsam")`` is
-    ``solver=SolverConfig("gtsam", "gtsam")`` (as the CLI's ``--solver``),
-    ``motion_model="kalman"`` is ``MotionModelConfig(model="kalman")``.
+    ``solver`` and ``motion_model`` also take a name, as before the tree: ``solver="gtsam"`` is the
+    tracker's solver (``SolverConfig(tracker="gtsam")``; the window keeps its own, GTSAM by
+    default; ``SolverConfig.both(name)`` is the CLI's ``--solver``), ``motion_model="kalman"`` is
+    ``MotionModelConfig(model="kalman")``. The flat names of the settings before the tree
+    (:data:`LEGACY_NAMES`, e.g. ``points_per_keyframe``) are accepted by the constructor and read
+    as attributes, each the alias of its key; config files use the keys.
 
     Attributes:
         mode: ``window``: every new keyframe joins a sliding window of keyframes whose poses, affine
@@ -171,10 +175,10 @@ class OdometryConfig:
     photometric: PhotometricParams = field(default_factory=PhotometricParams)
 
     def __post_init__(self) -> None:
-        for name in ("solver", "motion_model"):
-            value = getattr(self, name)
-            if isinstance(value, str):
-                object.__setattr__(self, name, type_hints(OdometryConfig)[name].from_name(value))
+        if isinstance(self.solver, str):
+            object.__setattr__(self, "solver", SolverConfig(tracker=self.solver))  # type: ignore[arg-type]
+        if isinstance(self.motion_model, str):
+            object.__setattr__(self, "motion_model", MotionModelConfig.from_name(self.motion_model))
         _check_nested(self)
         for name, keys in PHOTOMETRIC_COPIES.items():
             object.__setattr__(self, name, _with_photometric(name, getattr(self, name), keys, self.photometric))
@@ -186,6 +190,59 @@ PHOTOMETRIC_COPIES: dict[str, tuple[str, ...]] = {
     "window": ("sigma_intensity", "huber_k", "pattern"),
 }
 _DERIVED = frozenset(f"{name}.{key}" for name, keys in PHOTOMETRIC_COPIES.items() for key in keys)
+
+#: The flat names of the settings before the tree, each the alias of one key: accepted by
+#: ``OdometryConfig(...)`` and readable as attributes (``config.points_per_keyframe``), so code
+#: written against the flat config keeps working; config files use the keys.
+LEGACY_NAMES: dict[str, str] = {
+    "points_per_keyframe": "frontend.points_per_keyframe",
+    "max_disparity": "frontend.stereo.max_disparity",
+    "depth_sigma_model": "frontend.depth_sigma_model",
+    "keyframe_min_visible": "keyframes.min_visible",
+    "keyframe_max_motion": "keyframes.max_motion",
+    "keyframe_max_flow": "keyframes.max_flow",
+    "keyframe_max_rotation_deg": "keyframes.max_rotation_deg",
+    "keyframe_max_brightness": "keyframes.max_brightness",
+    "accept_rms_factor": "motion_model.accept_rms_factor",
+    "window_solver": "solver.window",
+}
+
+
+def _accept_legacy_names(init: Any) -> Any:
+    """``OdometryConfig.__init__`` that also takes :data:`LEGACY_NAMES` as keywords."""
+
+    @functools.wraps(init)
+    def __init__(self: OdometryConfig, *args: Any, **kwargs: Any) -> None:
+        legacy = {k: kwargs.pop(k) for k in list(kwargs) if k in LEGACY_NAMES}
+        init(self, *args, **kwargs)
+        if legacy:
+            tree: dict[str, Any] = {}
+            for name, value in legacy.items():
+                *parents, last = LEGACY_NAMES[name].split(".")
+                node = tree
+                for part in parents:
+                    node = node.setdefault(part, {})
+                node[last] = list(value) if isinstance(value, tuple) else value
+            resolved = config_from_dict(tree, base=self)
+            for f in dataclasses.fields(self):
+                object.__setattr__(self, f.name, getattr(resolved, f.name))
+
+    return __init__
+
+
+def _legacy_property(key: str) -> property:
+    def get(self: OdometryConfig) -> Any:
+        value: Any = self
+        for part in key.split("."):
+            value = getattr(value, part)
+        return value
+
+    return property(get, doc=f"The value of ``{key}`` (its flat name before the configuration tree).")
+
+
+OdometryConfig.__init__ = _accept_legacy_names(OdometryConfig.__init__)  # type: ignore[method-assign]
+for _name, _key in LEGACY_NAMES.items():
+    setattr(OdometryConfig, _name, _legacy_property(_key))
 
 
 def _check_nested(obj: Any) -> None:

@@ -67,11 +67,38 @@ def test_plain_data_round_trip_is_exact_through_json_and_yaml(tmp_path):
 
 
 def test_names_as_shorthands_and_the_readme_form():
-    assert OdometryConfig(solver="gtsam").solver == SolverConfig("gtsam", "gtsam")  # as the CLI's --solver
+    # a solver name is the tracker's, as before the tree; the window keeps its default (GTSAM)
+    assert OdometryConfig(solver="handrolled").solver == SolverConfig("handrolled", "gtsam")
+    assert SolverConfig.both("handrolled") == SolverConfig("handrolled", "handrolled")  # the CLI's --solver
     assert OdometryConfig(motion_model="kalman").motion_model == MotionModelConfig(model="kalman")
     cfg = OdometryConfig(mode="window", solver="gtsam")  # README.md
     assert (cfg.mode, cfg.solver.tracker, cfg.solver.window) == ("window", "gtsam", "gtsam")
-    assert config_from_dict({"solver": "handrolled"}).solver == SolverConfig("handrolled", "handrolled")
+    assert config_from_dict({"motion_model": "kalman"}).motion_model.model == "kalman"
+    with pytest.raises(InputError, match="key 'solver': must be a mapping"):
+        config_from_dict({"solver": "handrolled"})  # a file names the tracker's and the window's
+
+
+def test_flat_names_before_the_tree_are_aliases_of_their_keys():
+    from gtvo.config import LEGACY_NAMES  # noqa: PLC0415
+
+    cfg = OdometryConfig(mode="track", points_per_keyframe=150, keyframe_max_motion=0.02, window_solver="handrolled",
+                         max_disparity=64, depth_sigma_model=(0.001, 0.002), accept_rms_factor=0.0)
+    assert cfg.frontend.points_per_keyframe == cfg.points_per_keyframe == 150 and cfg.mode == "track"
+    assert cfg.keyframes.max_motion == cfg.keyframe_max_motion == 0.02
+    assert cfg.solver == SolverConfig("handrolled", "handrolled") and cfg.window_solver == "handrolled"
+    assert cfg.frontend.stereo.max_disparity == cfg.max_disparity == 64
+    assert cfg.frontend.depth_sigma_model == (0.001, 0.002) and cfg.motion_model.accept_rms_factor == 0.0
+    default = OdometryConfig()
+    for name, key in LEGACY_NAMES.items():  # every alias reads its key
+        value = default
+        for part in key.split("."):
+            value = getattr(value, part)
+        assert getattr(default, name) == value, name
+    with pytest.raises(InputError, match="frontend.points_per_keyframe': must be >= 50"):
+        OdometryConfig(points_per_keyframe=10)
+    with pytest.raises(InputError, match="key 'points_per_keyframe': unknown key"):
+        config_from_dict({"points_per_keyframe": 300})  # files use the keys
+    assert dataclasses.replace(cfg, mode="window").points_per_keyframe == 150
 
 
 def test_library_defaults_are_the_single_source():

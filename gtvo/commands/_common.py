@@ -72,12 +72,14 @@ def odometry_config(args: Any):
     config = args.odometry_defaults
     if args.config is not None:
         config = load_config(args.config, base=config)
-    flags = [*ODOMETRY_FLAGS, ("--solver", "solver", None)]  # a solver name sets both solvers
+    flags = [*ODOMETRY_FLAGS, ("--solver", "solver", None)]
     for flag, key, _ in flags:
         value = getattr(args, flag[2:].replace("-", "_"))
         if value is None:
             continue
         tree: Any = value.replace("-", "_") if key == "window.backend" else value
+        if key == "solver":  # one solver for the tracker and the window
+            tree = {"tracker": value, "window": value}
         for name in reversed(key.split(".")):
             tree = {name: tree}
         try:
