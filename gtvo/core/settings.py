@@ -22,7 +22,7 @@ import math
 import typing
 from typing import Any, Literal
 
-from gtvo.errors import InputError
+from gtvo.errors import InputError, show
 
 _MISSING: Any = dataclasses.MISSING
 
@@ -99,14 +99,14 @@ def check_settings(obj: Any) -> None:
         choices = literal_choices(hints.get(f.name))
         if choices is not None and value not in choices:
             allowed = ", ".join(repr(c) for c in choices)
-            raise SettingError(f.name, f"must be one of {allowed}, got {value!r}")
+            raise SettingError(f.name, f"must be one of {allowed}, got {show(value)}")
         rng = f.metadata.get("range")
         if rng is None or value is None:
             continue
         values = value if isinstance(value, tuple) else (value,)
         for v in values:
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not in_range(float(v), rng):
-                raise SettingError(f.name, f"must be {_describe(rng)}, got {value!r}")
+                raise SettingError(f.name, f"must be {_describe(rng)}, got {show(value)}")
 
 
 def _describe(rng: str) -> str:

@@ -86,11 +86,7 @@ class WindowConfig:
     covariances: bool = True
 
     def __post_init__(self) -> None:
-        check_settings(self)
-        if self.backend not in ("lm", "fixed_lag"):
-            raise InputError(f"unknown window backend {self.backend!r}: use 'lm' or 'fixed_lag'")
-        if int(self.size) < 2:
-            raise InputError(f"window size must be >= 2, got {self.size}")
+        check_settings(self)  # backend, size, max_iterations and the ranges declared above
         if not (self.lambda_stereo > 0 and np.isfinite(self.lambda_stereo)):
             raise InputError(f"lambda_stereo must be positive, got {show(self.lambda_stereo)}")
         if not all(s > 0 and np.isfinite(s) for s in self.affine_sigma):
@@ -98,8 +94,6 @@ class WindowConfig:
         acc = self.acceleration_sigma
         if acc is not None and (len(acc) != 2 or not all(s > 0 and np.isfinite(s) for s in acc)):
             raise InputError(f"acceleration_sigma must be two positive numbers or None, got {show(acc)}")
-        if self.max_iterations < 1:
-            raise InputError(f"max_iterations must be >= 1, got {self.max_iterations}")
 
 
 @dataclass
