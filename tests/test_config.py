@@ -1,4 +1,4 @@
-"""The configuration tree (gtvo/config.py): one source of defaults, files in and out, checks that
+"""The configuration tree (gtvo/config/): one source of defaults, files in and out, checks that
 name the key and the file, the CLI built on it, and a run reproduced from its recorded config."""
 
 from __future__ import annotations
@@ -94,7 +94,7 @@ def test_flat_names_before_the_tree_are_aliases_of_their_keys():
         for part in key.split("."):
             value = getattr(value, part)
         assert getattr(default, name) == value, name
-    with pytest.raises(InputError, match="frontend.points_per_keyframe': must be >= 50"):
+    with pytest.raises(InputError, match="frontend.points_per_keyframe: must be >= 50"):
         OdometryConfig(points_per_keyframe=10)
     with pytest.raises(InputError, match="key 'points_per_keyframe': unknown key"):
         config_from_dict({"points_per_keyframe": 300})  # files use the keys
