@@ -174,7 +174,7 @@ def keyframe_covariances(vo: VisualOdometry, inflation: float = 1.0) -> Keyframe
     rows = [(kf.index, P) for kf in vo.keyframes if (P := vo.covariance(kf, inflation)) is not None]
     cw = vo.config.window
     source = ("iSAM2 marginalCovariance of the fixed-lag smoother" if cw.backend == "fixed_lag" else
-              "gtsam.Marginals of the window's graph" if vo.config.window_solver == "gtsam" else
+              "gtsam.Marginals of the window's graph" if vo.config.solver.window == "gtsam" else
               "inverse of the window's reduced Hessian (hand-rolled)")
     return KeyframeCovariances(np.array([i for i, _ in rows], dtype=np.int64), np.array([stamp[i] for i, _ in rows]),
                                np.array([P for _, P in rows]).reshape(-1, 6, 6), source, float(inflation))
