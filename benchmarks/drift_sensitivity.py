@@ -40,7 +40,7 @@ from benchmarks.vo_bench import KITTI_SEQUENCE_1, fmt, load_frames, markdown_tab
 from gtvo.io.atomic import write_json  # noqa: E402
 from gtvo.datasets import open_sequence  # noqa: E402
 from gtvo.evaluation.metrics import drift_percent  # noqa: E402
-from gtvo.config import OdometryConfig  # noqa: E402
+from gtvo.config import FrontendConfig, OdometryConfig, SolverConfig  # noqa: E402
 from gtvo.datasets.sequence import Sequence  # noqa: E402
 from gtvo.evaluation.trajectory import Trajectory  # noqa: E402
 from gtvo.window import WindowConfig  # noqa: E402
@@ -63,13 +63,14 @@ def sweep(seq: Sequence, progress: bool) -> dict[str, Any]:
     frames = load_frames(seq, progress)
     rows: list[dict[str, Any]] = []
     defaults: dict[str, Trajectory] = {}
-    base = OdometryConfig(window_solver="handrolled")
+    base = OdometryConfig(solver=SolverConfig(window="handrolled"))
     for ppk, size in itertools.product(*GTVO_GRID.values()):
         label = f"gtvo points/kf {ppk}, window {size}"
         print(f"  {label} ...", file=sys.stderr, flush=True)
-        config = OdometryConfig(window_solver="handrolled", points_per_keyframe=ppk, window=WindowConfig(size=size))
+        config = OdometryConfig(solver=SolverConfig(window="handrolled"), frontend=FrontendConfig(points_per_keyframe=ppk),
+                                window=WindowConfig(size=size))
         run = run_gtvo(seq.camera, frames, config)
-        rows.append({"method": "gtvo", "setting": label, "default": (ppk, size) == (base.points_per_keyframe,
+        rows.append({"method": "gtvo", "setting": label, "default": (ppk, size) == (base.frontend.points_per_keyframe,
                                                                                    base.window.size),
                      **score(run["trajectory"], seq)})
         if rows[-1]["default"]:

@@ -1,5 +1,5 @@
 """Exposure changes on real data: KITTI_sequence_1 with a random brightness per image, clipped like
-a sensor, with and without the clipped-pixel check (``factors.photometric.CLIP_RANGE``).
+a sensor, with and without the clipped-pixel check (``OdometryConfig.photometric.clip_range``).
 
     python benchmarks/exposure_kitti.py [--per pair|image] [--amplitudes 0,0.3,0.5,0.8]
                                         [--seeds 0,1] [--solver handrolled|gtsam] [--json OUT]
@@ -10,9 +10,9 @@ own auto exposure) ``I`` becomes ``clip(g I + o, 0, 255)`` with ``log g ~ U(-A, 
 ``o ~ U(-10, 10)`` grey levels (``A = 0``: the log as it is), so the gain between two frames jumps
 by up to ``2A`` in log: what auto exposure does at its worst, and beyond (``A = 0.5``: up to
 2.7x). Bright gains saturate KITTI's sky and road. Each amplitude and seed runs in window mode
-with the CLI defaults twice: with the clipped-pixel check (``CLIP_RANGE = (0, 255)``, the default)
-and without it (``CLIP_RANGE = None``). Prints ATE (SE(3)-aligned), end-point drift, segment drift, failures
-(frames re-initialised) and the failures' reasons. Deterministic (no timing).
+with the CLI defaults twice: with the clipped-pixel check (``photometric.clip_range = (0, 255)``, the
+default) and without it (``photometric.clip_range = None``). Prints ATE (SE(3)-aligned), end-point
+drift, segment drift, failures (frames re-initialised) and the failures' reasons. Deterministic (no timing).
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-import factors.photometric as photometric  # noqa: E402
+from factors.params import PhotometricParams  # noqa: E402
 from benchmarks.vo_bench import KITTI_SEQUENCE_1, fmt, gtvo_config, markdown_table, run_gtvo, score  # noqa: E402
 from gtvo.io.atomic import write_json  # noqa: E402
 from gtvo.datasets import open_sequence  # noqa: E402
@@ -54,12 +54,9 @@ def with_exposure(seq: Sequence, amplitude: float, seed: int, per_image: bool = 
 
 
 def run(seq: Sequence, solver: str, clip: bool) -> dict[str, Any]:
-    saved = photometric.CLIP_RANGE
-    photometric.CLIP_RANGE = saved if clip else None
-    try:
-        out = run_gtvo(seq.camera, [seq.frame(i) for i in range(len(seq))], gtvo_config(solver, "window"))
-    finally:
-        photometric.CLIP_RANGE = saved
+    photometric = PhotometricParams() if clip else PhotometricParams(clip_range=None)
+    config = gtvo_config(solver, "window", photometric=photometric)
+    out = run_gtvo(seq.camera, [seq.frame(i) for i in range(len(seq))], config)
     return {**score(out["trajectory"], seq), "failures": out["failures"], "failure_reasons": out["failure_reasons"]}
 
 

@@ -23,7 +23,7 @@ if str(REPO_ROOT) not in sys.path:  # run as `python benchmarks/<script>.py`
 
 from benchmarks.vo_bench import (KITTI_SEQUENCE_1, fmt, load_frames, markdown_table, reference_ms,  # noqa: E402
                                  run_gtvo, score)
-from gtvo.config import OdometryConfig  # noqa: E402
+from gtvo.config import FrontendConfig, OdometryConfig  # noqa: E402
 from gtvo import open_sequence  # noqa: E402
 from gtvo.window import WindowConfig  # noqa: E402
 
@@ -48,7 +48,8 @@ def main(argv: list[str] | None = None) -> int:
     ref_before = reference_ms(frames)
     rows = []
     for mode, n, it in settings:
-        cfg = OdometryConfig(mode=mode, points_per_keyframe=n, window=WindowConfig(max_iterations=it))
+        cfg = OdometryConfig(mode=mode, frontend=FrontendConfig(points_per_keyframe=n),
+                             window=WindowConfig(max_iterations=it))
         r = run_gtvo(seq.camera, frames, cfg)
         s = score(r["trajectory"], seq)
         ms = 1000.0 * r["seconds"] / len(frames)

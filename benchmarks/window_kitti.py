@@ -44,7 +44,7 @@ from factors.photometric import GradientImage  # noqa: E402
 from gtvo.datasets import open_sequence  # noqa: E402
 from gtvo.frontend import init_keyframe_points  # noqa: E402
 from gtvo.core.image import to_float_gray  # noqa: E402
-from gtvo.config import OdometryConfig  # noqa: E402
+from gtvo.config import OdometryConfig, SolverConfig  # noqa: E402
 from gtvo.pipeline import process_sequence  # noqa: E402
 from gtvo.io.outputs import evaluate  # noqa: E402
 from gtvo.evaluation.trajectory import Trajectory  # noqa: E402
@@ -58,8 +58,8 @@ def accuracy(path: Path) -> None:
     seq = open_sequence(path)
     ref = Trajectory(np.asarray(seq.timestamps, dtype=float), np.asarray(seq.gt_poses), name="gt")
     rows = [("track", OdometryConfig(mode="track")),
-            ("window gtsam", OdometryConfig(mode="window", window_solver="gtsam")),
-            ("window handrolled", OdometryConfig(mode="window", window_solver="handrolled")),
+            ("window gtsam", OdometryConfig(mode="window", solver=SolverConfig(window="gtsam"))),
+            ("window handrolled", OdometryConfig(mode="window", solver=SolverConfig(window="handrolled"))),
             ("window fixed_lag", OdometryConfig(mode="window", window=WindowConfig(backend="fixed_lag")))]
     print(f"{'mode':<20} {'ATE m':>7} {'drift %':>8} {'RPE m':>7} {'s/frame':>8} {'kf':>4} {'windows':>8} "
           f"{'s/window':>9} {'it/window':>9}")
@@ -81,8 +81,8 @@ def synthetic() -> None:
     ref = Trajectory(np.asarray(seq.timestamps, dtype=float), np.asarray(seq.gt_poses), name="gt")
     print(f"{'synthetic':<20} {'ATE m':>7} {'drift %':>8} {'s/frame':>8} {'kf':>4}")
     for name, cfg in [("track", OdometryConfig(mode="track")),
-                      ("window gtsam", OdometryConfig(mode="window", window_solver="gtsam")),
-                      ("window handrolled", OdometryConfig(mode="window", window_solver="handrolled"))]:
+                      ("window gtsam", OdometryConfig(mode="window", solver=SolverConfig(window="gtsam"))),
+                      ("window handrolled", OdometryConfig(mode="window", solver=SolverConfig(window="handrolled")))]:
         vo, traj, info = process_sequence(seq, cfg)
         m = evaluate(traj, ref)
         print(f"{name:<20} {m['ate_rmse_m']:7.4f} {m['drift_percent']:8.3f} {info['seconds'] / info['frames']:8.3f} "

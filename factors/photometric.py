@@ -47,10 +47,9 @@ BoolArray = NDArray[np.bool_]
 PATTERN_DSO8: FloatArray = np.array(
     [[0, -2], [-1, -1], [1, -1], [-2, 0], [0, 0], [2, 0], [-1, 1], [0, 2]], dtype=np.float64)
 
-#: Grey levels at or beyond which a sensor clipped, in 8-bit units: the default of every
-#: :class:`GradientImage` (None: no image is checked; benchmarks/exposure_kitti.py switches it off
-#: to measure what the check is worth).
-CLIP_RANGE: tuple[float, float] = (0.0, 255.0)
+#: Grey levels at or beyond which a sensor clipped, in 8-bit units: the default ``clip_range`` of
+#: :class:`GradientImage` and of :class:`factors.params.PhotometricParams` (a run sets its own there).
+DEFAULT_CLIP_RANGE: tuple[float, float] = (0.0, 255.0)
 
 #: A single pixel (no pattern), e.g. for fast coarse levels or tests.
 PATTERN_SINGLE: FloatArray = np.zeros((1, 2))
@@ -73,15 +72,15 @@ class GradientImage:
     Args:
         image: 2-D float image in 8-bit units.
         border: pixels kept free at each side for a sample to count as valid.
-        clip_range: ``(lo, hi)`` grey levels at which the sensor clipped; default the module's
-            :data:`CLIP_RANGE` (0 and 255, the ends of 8-bit units) at construction time. A
+        clip_range: ``(lo, hi)`` grey levels at which the sensor clipped; default
+            :data:`DEFAULT_CLIP_RANGE` (0 and 255, the ends of 8-bit units). A
             sample whose bilinear cell touches a pixel at or beyond them is invalid: a clipped
             intensity says nothing about the scene's radiance, and under a brightness change (auto
             exposure) the affine model cannot explain it. None: no check.
     """
 
     def __init__(self, image: ArrayLike, border: float = 1.0,
-                 clip_range: tuple[float, float] | None | str = "default") -> None:
+                 clip_range: tuple[float, float] | None = DEFAULT_CLIP_RANGE) -> None:
         img = np.asarray(image, dtype=np.float32)
         if img.ndim != 2 or img.shape[0] < 2 or img.shape[1] < 2:
             raise InputError(f"GradientImage needs a 2-D image of at least 2x2, got shape {img.shape}")
@@ -91,11 +90,8 @@ class GradientImage:
         self.image = img
         self.height, self.width = img.shape
         self.border = float(border)
-        if isinstance(clip_range, str):
-            if clip_range != "default":
-                raise InputError(f"GradientImage: clip_range must be (lo, hi), None or 'default', "
-                                 f"got {clip_range!r}")
-            clip_range = CLIP_RANGE
+        if clip_range is not None and (isinstance(clip_range, str) or len(clip_range) != 2):
+            raise InputError(f"GradientImage: clip_range must be (lo, hi) or None, got {clip_range!r}")
         self.clip_range = clip_range
         # per pixel: I, gx, gy and whether the bilinear cell with this top-left corner touches a
         # clipped pixel (1.0) or not (0.0), one 16-byte record (the compiled sampler reads one

@@ -12,10 +12,12 @@ from typing import Any, Callable
 
 import numpy as np
 
+from gtvo import __version__
 from gtvo.io.atomic import ensure_output_dir, tidy_on_failure
-from gtvo.datasets import open_sequence
+from gtvo.datasets import detect_format, open_sequence
+from gtvo.datasets.identity import sequence_identity
 from gtvo.errors import InputError
-from gtvo.config import OdometryConfig
+from gtvo.config import OdometryConfig, as_config, config_to_dict, config_to_yaml
 from gtvo.odometry import VisualOdometry
 from gtvo.io.covariances import KeyframeCovariances
 from gtvo.io.outputs import check_run_output_dir, write_run_outputs
@@ -66,8 +68,8 @@ def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progre
     sigmas = [e.tracking.rotation_sigma_deg for e in vo.estimates if e.tracking is not None and e.tracking.success]
     info: dict[str, Any] = {
         "mode": config.mode,
-        "tracker_solver": config.solver,
-        "motion_model": config.motion_model,
+        "tracker_solver": config.solver.tracker,
+        "motion_model": config.motion_model.model,
         "frames": n,
         "keyframes": len(vo.keyframes),
         "seconds": seconds,
@@ -85,7 +87,7 @@ def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progre
     if config.mode == "window":
         info.update({
             "window_backend": vo.window.backend.name if vo.window is not None else None,
-            "window_solver": vo.window.solver_name(config.window_solver) if vo.window is not None else None,
+            "window_solver": vo.window.solver_name(config.solver.window) if vo.window is not None else None,
             "window_size": config.window.size,
             "window_optimisations": len(vo.window_results),
             "window_seconds_mean": _mean([r.seconds for r in vo.window_results]),
@@ -97,7 +99,8 @@ def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progre
     return vo, traj, info
 
 
-def run(path: str | Path | Sequence, out: str | Path | None = None, config: OdometryConfig | None = None,
+def run(path: str | Path | Sequence, out: str | Path | None = None,
+        config: OdometryConfig | dict[str, Any] | str | Path | None = None,
         format: str = "auto", max_frames: int | None = None, progress: bool = False,
         strict: bool = False, loop_closure: bool = False, frame_step: int = 1,
         **open_options: Any) -> dict[str, Any]:
@@ -106,7 +109,9 @@ def run(path: str | Path | Sequence, out: str | Path | None = None, config: Odom
     Args:
         path: a KITTI / EuRoC / TUM folder, a ROS bag, or a :class:`Sequence`.
         out: output folder (``gtvo_out/<sequence name>`` when None).
-        config: odometry settings.
+        config: odometry settings: an :class:`OdometryConfig`, a partial tree as a dict, or a
+            YAML/JSON file (:func:`gtvo.config.as_config`; default the defaults, as ``gtvo run``'s); recorded
+            in full in the report (``"config"``) and in ``out/config.yaml``.
         format, max_frames, open_options: passed to :func:`gtvo.datasets.open_sequence` (for bags
             also ``calib``, ``left_topic``, ``right_topic``, ``depth_topic``, ``ground_truth_topic``).
         progress: show a progress bar.
@@ -118,7 +123,10 @@ def run(path: str | Path | Sequence, out: str | Path | None = None, config: Odom
             frame rate (:meth:`Sequence.subsampled`).
 
     Returns:
-        The report (also written to ``out/report.json``), with ``"out"`` added.
+        The report (also written to ``out/report.json``), with ``"out"`` added. Besides the run's
+        figures it records ``"config"`` (the whole resolved tree, :func:`gtvo.config.config_to_dict`;
+        ``gtvo run --config`` reads it back), ``"gtvo_version"`` and ``"input"``
+        (:func:`gtvo.datasets.identity.sequence_identity`).
 
     Raises:
         InputError: bad input (unreadable folder, ``frame_step < 1``, ...).
@@ -130,10 +138,13 @@ def run(path: str | Path | Sequence, out: str | Path | None = None, config: Odom
     if isinstance(path, Sequence) and max_frames is not None:
         seq = seq.truncated(max_frames)
     seq = seq.subsampled(frame_step)
+    config = as_config(config)
+    fmt = None if isinstance(path, Sequence) else (detect_format(path) if format == "auto" else format)
     with tidy_on_failure():  # a run that fails leaves no empty output folder behind
         ensure_output_dir(out_dir)  # an unusable --out is reported before the long work
         vo, traj, info = process_sequence(seq, config, progress=progress, strict=strict)
-        info["frame_step"] = int(frame_step)
+        info.update(frame_step=int(frame_step), gtvo_version=__version__, input=sequence_identity(seq, fmt),
+                    config=config_to_dict(config))
         if getattr(seq, "unpaired", None) is not None:  # a ROS bag: messages that found no partner
             info["unpaired_messages"] = seq.unpaired  # type: ignore[attr-defined]
         closed = None
@@ -151,7 +162,8 @@ def run(path: str | Path | Sequence, out: str | Path | None = None, config: Odom
             info["loops_accepted"] = int(sum(res.accepted))
             info["loop_closure_solver"] = "gtsam_gnc_lm"  # GncLMOptimizer, then LM on the kept loops
         report = write_run_outputs(out_dir, traj, seq, info, points=vo.map_points(), loop_closed=closed,
-                                   covariances=keyframe_covariances(vo))
+                                   covariances=keyframe_covariances(vo),
+                                   config_yaml=config_to_yaml(config, f"gtvo {__version__}: gtvo run --config this file"))
     report["out"] = str(out_dir)
     return report
 
@@ -166,7 +178,7 @@ def keyframe_covariances(vo: VisualOdometry, inflation: float = 1.0) -> Keyframe
     rows = [(kf.index, P) for kf in vo.keyframes if (P := vo.covariance(kf, inflation)) is not None]
     cw = vo.config.window
     source = ("iSAM2 marginalCovariance of the fixed-lag smoother" if cw.backend == "fixed_lag" else
-              "gtsam.Marginals of the window's graph" if vo.config.window_solver == "gtsam" else
+              "gtsam.Marginals of the window's graph" if vo.config.solver.window == "gtsam" else
               "inverse of the window's reduced Hessian (hand-rolled)")
     return KeyframeCovariances(np.array([i for i, _ in rows], dtype=np.int64), np.array([stamp[i] for i, _ in rows]),
                                np.array([P for _, P in rows]).reshape(-1, 6, 6), source, float(inflation))

@@ -21,5 +21,5 @@ def test_import_gtvo_is_cheap():
 def test_api_run_on_synthetic(tmp_path):
     from gtvo.datasets.synthetic import make_synthetic_sequence
 
-    rep = gtvo.run(make_synthetic_sequence(n_frames=5), out=tmp_path, config=gtvo.OdometryConfig(points_per_keyframe=400))
+    rep = gtvo.run(make_synthetic_sequence(n_frames=5), out=tmp_path, config={"frontend": {"points_per_keyframe": 400}})
     assert rep["frames"] == 5 and (tmp_path / "trajectory.tum").is_file()

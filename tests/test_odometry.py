@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from gtvo.errors import InputError
-from gtvo.config import OdometryConfig
+from gtvo.config import FrontendConfig, OdometryConfig
 from gtvo.odometry import VisualOdometry
 from gtvo.datasets.sequence import Sequence
 from gtvo.datasets.synthetic import make_synthetic_sequence
@@ -69,7 +69,8 @@ def test_memory_stays_bounded_over_a_run():
     from gtvo.datasets.synthetic import make_synthetic_sequence  # noqa: PLC0415
 
     seq = make_synthetic_sequence(n_frames=16, step_m=0.3)
-    vo = _run(seq, OdometryConfig(mode="window", points_per_keyframe=150, window=WindowConfig(size=3)))
+    vo = _run(seq, OdometryConfig(mode="window", frontend=FrontendConfig(points_per_keyframe=150),
+                                  window=WindowConfig(size=3)))
     gc.collect()
     assert len(vo.keyframes) > vo.config.window.size + 2
     # type(), not isinstance(): isinstance() on a dead weakref.proxy in gc's list raises ReferenceError

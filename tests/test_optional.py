@@ -31,11 +31,12 @@ def test_missing_libusb_is_named(open3d_missing_libusb):
 
 
 def test_run_without_open3d_still_writes_everything_else(open3d_missing_libusb, tmp_path):
-    from gtvo.config import OdometryConfig
+    from gtvo.config import FrontendConfig, OdometryConfig
     from gtvo.pipeline import run
     from gtvo.datasets.synthetic import make_synthetic_sequence
 
-    rep = run(make_synthetic_sequence(n_frames=8), out=tmp_path, config=OdometryConfig(points_per_keyframe=400))
+    rep = run(make_synthetic_sequence(n_frames=8), out=tmp_path,
+              config=OdometryConfig(frontend=FrontendConfig(points_per_keyframe=400)))
     assert (tmp_path / "trajectory.tum").is_file() and (tmp_path / "report.json").is_file()
     assert not (tmp_path / "points.ply").exists()
     saved = json.loads((tmp_path / "report.json").read_text())

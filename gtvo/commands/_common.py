@@ -20,36 +20,75 @@ def parse_floats(text: str, n: int, what: str) -> tuple[float, ...]:
     return vals
 
 
-def add_odometry_options(p: argparse.ArgumentParser) -> None:
-    """Options of the odometry shared by ``run`` and ``demo``."""
-    p.add_argument("--mode", choices=("window", "track"), default="window",
-                   help="window (default): every new keyframe joins a sliding window of 7 keyframes whose poses, "
-                        "brightness and inverse depths are optimised jointly; track: each frame is only tracked "
-                        "against the latest keyframe (faster, less accurate)")
-    p.add_argument("--window-backend", choices=("lm", "fixed-lag"), default=None,
-                   help="lm (default): each window solved by --solver's Levenberg-Marquardt with a hand-made "
-                        "marginalisation prior; fixed-lag: gtsam.IncrementalFixedLagSmoother (iSAM2) keeps the "
-                        "window and marginalises the keyframes that leave it")
-    p.add_argument("--solver", choices=("handrolled", "gtsam"), default="handrolled",
-                   help="solver of the frame tracker and of the window (default: handrolled)")
-    p.add_argument("--points", type=int, default=300, metavar="N", help="points per keyframe (default 300)")
-    p.add_argument("--motion-model", choices=("constant-velocity", "kalman"), default="constant-velocity",
-                   help="initial guess of each frame's pose (default: constant-velocity)")
+#: The odometry's flags and the key of the configuration tree each sets (``--solver`` sets both
+#: ``solver.tracker`` and ``solver.window``). Their defaults and help texts are the tree's.
+ODOMETRY_FLAGS: tuple[tuple[str, str, str | None], ...] = (
+    ("--mode", "mode", None),
+    ("--window-backend", "window.backend", None),
+    ("--points", "frontend.points_per_keyframe", "N"),
+    ("--motion-model", "motion_model.model", None),
+)
+
+
+def add_odometry_options(p: argparse.ArgumentParser, defaults: Any = None) -> None:
+    """Options of the odometry shared by ``run`` and ``demo``: ``--config FILE`` and the flags of
+    :data:`ODOMETRY_FLAGS`, each defaulting to the value in ``defaults`` (an ``OdometryConfig``;
+    default the library's), which :func:`odometry_config` starts from."""
+    from gtvo.config import OdometryConfig, describe_key  # noqa: PLC0415
+    from gtvo.core.settings import literal_choices  # noqa: PLC0415
+
+    base = defaults if defaults is not None else OdometryConfig()
+    p.add_argument("--config", metavar="FILE.yaml", default=None,
+                   help="settings from a YAML (or JSON) file: any key of the configuration tree "
+                        "(docs/configuration.md), e.g. the config.yaml of an earlier run; flags override it")
+    for flag, key, metavar in ODOMETRY_FLAGS:
+        text, default, hint = describe_key(key, base)
+        choices = literal_choices(hint)
+        kind = {} if choices else {"type": hint, "metavar": metavar}
+        p.add_argument(flag, default=None, choices=None if choices is None else [_cli(c) for c in choices],
+                       help=_help(f"{text.rstrip('.')} (config key {key}; default: {_cli(default)})"), **kind)
+    p.add_argument("--solver", choices=[_cli(c) for c in literal_choices(describe_key("solver.tracker")[2]) or ()],
+                   default=None,
+                   help=f"the solver of both the tracker and the window (config keys solver.tracker and "
+                        f"solver.window; default: {base.solver.tracker} tracker, {base.solver.window} window)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(odometry_defaults=base)
+
+
+def _cli(value: Any) -> Any:
+    """A setting's spelling on the command line (``fixed_lag`` -> ``fixed-lag``)."""
+    return value.replace("_", "-") if isinstance(value, str) else value
+
+
+def _help(text: str) -> str:
+    return text.replace("%", "%%")  # argparse formats help texts with %
 
 
 def odometry_config(args: Any):
-    """An :class:`OdometryConfig` from parsed options."""
-    from gtvo.config import MIN_POINTS_PER_KEYFRAME, OdometryConfig  # noqa: PLC0415
-    from gtvo.window import WindowConfig  # noqa: PLC0415
+    """The run's :class:`OdometryConfig`: the defaults (``args.odometry_defaults``), then the
+    ``--config`` file, then the flags that were given (a bad value: one line naming the flag)."""
+    from gtvo.config import ConfigKeyError, config_from_dict, load_config  # noqa: PLC0415
 
-    if args.points < MIN_POINTS_PER_KEYFRAME:
-        raise InputError(f"--points must be >= {MIN_POINTS_PER_KEYFRAME}, got {args.points}")
-    if args.window_backend is not None and args.mode != "window":
-        raise InputError(f"--window-backend {args.window_backend} needs --mode window (got --mode {args.mode})")
-    backend = "fixed_lag" if args.window_backend == "fixed-lag" else "lm"
-    return OdometryConfig(solver=args.solver, points_per_keyframe=args.points, motion_model=args.motion_model,
-                          mode=args.mode, window_solver=args.solver, window=WindowConfig(backend=backend))
+    config = args.odometry_defaults
+    if args.config is not None:
+        config = load_config(args.config, base=config)
+    flags = [*ODOMETRY_FLAGS, ("--solver", "solver", None)]
+    for flag, key, _ in flags:
+        value = getattr(args, flag[2:].replace("-", "_"))
+        if value is None:
+            continue
+        tree: Any = value.replace("-", "_") if key == "window.backend" else value
+        if key == "solver":  # one solver for the tracker and the window
+            tree = {"tracker": value, "window": value}
+        for name in reversed(key.split(".")):
+            tree = {name: tree}
+        try:
+            config = config_from_dict(tree, base=config)
+        except ConfigKeyError as exc:
+            raise InputError(f"{flag} {exc.detail}") from None
+    if args.window_backend is not None and config.mode != "window":
+        raise InputError(f"--window-backend {args.window_backend} needs --mode window (got --mode {config.mode})")
+    return config
 
 
 #: The report's headline figures, in the order the console summary prints them.

@@ -13,6 +13,7 @@ The math, with the names used here, is in ``docs/frontend.md``.
 from gtvo.frontend.flow_pose import FlowPose, FlowPoseConfig, optical_flow_pose
 from gtvo.frontend.point_selection import (
     DEFAULT_BORDER,
+    PointSelectionConfig,
     block_gradient_thresholds,
     gradient_magnitude,
     select_points,
@@ -22,6 +23,7 @@ from gtvo.frontend.stereo_depth import (
     KeyframePoints,
     Rejection,
     StereoDepthResult,
+    StereoSearchConfig,
     disparity_variance,
     epipolar_direction,
     init_keyframe_points,
@@ -34,8 +36,10 @@ __all__ = [
     "FlowPoseConfig",
     "PATCH_5X5",
     "KeyframePoints",
+    "PointSelectionConfig",
     "Rejection",
     "StereoDepthResult",
+    "StereoSearchConfig",
     "block_gradient_thresholds",
     "disparity_variance",
     "epipolar_direction",

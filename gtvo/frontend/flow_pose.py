@@ -28,6 +28,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from gtvo.core.camera import PinholeCamera
+from gtvo.core.settings import check_settings, setting
 from gtvo.errors import InputError
 from gtvo.core.image import to_uint8
 from gtvo.core.lie import invert_poses
@@ -49,14 +50,15 @@ class FlowPoseConfig:
         min_inliers: fewest PnP inliers for a guess.
     """
 
-    window_px: int = 21
-    pyramid_levels: int = 5
-    max_forward_backward_px: float = 1.0
-    ransac_threshold_px: float = 2.0
-    ransac_iterations: int = 200
-    min_inliers: int = 12
+    window_px: int = setting(21, ">= 3")
+    pyramid_levels: int = setting(5, ">= 0")
+    max_forward_backward_px: float = setting(1.0, "> 0")
+    ransac_threshold_px: float = setting(2.0, "> 0")
+    ransac_iterations: int = setting(200, ">= 1")
+    min_inliers: int = setting(12, ">= 4")
 
     def __post_init__(self) -> None:
+        check_settings(self)
         if self.window_px < 3 or self.window_px % 2 == 0:
             raise InputError(f"flow window must be odd and >= 3 px, got {self.window_px}")
         if self.pyramid_levels < 0:

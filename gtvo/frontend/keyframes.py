@@ -21,27 +21,35 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gtvo.core.camera import PinholeCamera
-from gtvo.errors import InputError
+from gtvo.core.settings import check_settings, setting
 from gtvo.frontend.stereo_depth import KeyframePoints
 from gtvo.frontend.tracking import TrackingResult
 
 
 @dataclass(frozen=True)
 class KeyframeRule:
-    """The thresholds of the keyframe rule (module docstring); the defaults are DSO's where DSO has one."""
+    """The thresholds of the keyframe rule (module docstring); the defaults are DSO's where DSO has
+    one. Any one condition makes a keyframe; 0 for a ``max_*`` makes every tracked frame one.
 
-    min_visible: float = 0.7
-    max_motion: float = 0.3
-    max_flow: float = 1.0 / 44.8
-    max_rotation_deg: float = 8.0
-    max_brightness: float = 0.3
+    Attributes:
+        min_visible: fewer than this fraction of the keyframe's points still tracked (valid residuals).
+        max_motion: ``|t_keyframe_frame| * median(d)`` (the translation relative to the median scene
+            depth, about the parallax angle in radians) above this.
+        max_flow: the RMS optical flow that the translation since the keyframe causes at its points
+            above this fraction of ``width + height`` (DSO's rule: its translation weight
+            0.04 (640 + 480) = 44.8 gives 25 px at VGA).
+        max_rotation_deg: the rotation since the keyframe above this (degrees).
+        max_brightness: ``|a_frame - a_keyframe|`` (log gain) above this.
+    """
+
+    min_visible: float = setting(0.7, "[0, 1]")
+    max_motion: float = setting(0.3, ">= 0")
+    max_flow: float = setting(1.0 / 44.8, ">= 0")
+    max_rotation_deg: float = setting(8.0, ">= 0")
+    max_brightness: float = setting(0.3, ">= 0")
 
     def __post_init__(self) -> None:
-        if not 0.0 <= self.min_visible <= 1.0:
-            raise InputError(f"keyframe min_visible must be in [0, 1], got {self.min_visible}")
-        for name in ("max_motion", "max_flow", "max_rotation_deg", "max_brightness"):
-            if not getattr(self, name) >= 0:
-                raise InputError(f"keyframe {name} must be >= 0 (0: every tracked frame), got {getattr(self, name)}")
+        check_settings(self)
 
 
 def needs_keyframe(camera: PinholeCamera, points: KeyframePoints, result: TrackingResult, rule: KeyframeRule) -> bool:

@@ -19,9 +19,12 @@ Pixels within ``border`` of the image edge are never picked.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from numpy.typing import NDArray
 
+from gtvo.core.settings import check_settings, setting
 from gtvo.errors import InputError
 from gtvo.frontend._compiled import pick_cells
 from gtvo.core.image import image_gradients, to_float_gray
@@ -32,14 +35,48 @@ PATTERN_RADIUS = 2
 DEFAULT_BORDER = PATTERN_RADIUS + 6
 
 
+@dataclass(frozen=True)
+class PointSelectionConfig:
+    """Settings of :func:`select_points` (the target count is the caller's: points per keyframe).
+
+    Attributes:
+        border: pixels kept free at each image side (pattern radius + a margin for the coarse
+            pyramid levels).
+        block: side of the threshold blocks (px; DSO: 32).
+        threshold_offset: added to each block's median gradient magnitude (grey levels; DSO's
+            ``minGradHistAdd`` = 7).
+        levels: number of cell levels (s, 2s, 4s, ...).
+        downweight: threshold factor per extra cell level.
+        max_iterations: iterations adapting the cell size to the target count.
+        tolerance: accept a count within ``[target, (1 + tolerance) target]`` without iterating
+            further (the surplus is then subsampled away).
+        seed: seed of the random subsample.
+    """
+
+    border: int = setting(DEFAULT_BORDER, ">= 0")
+    block: int = setting(32, ">= 1")
+    threshold_offset: float = 7.0
+    levels: int = setting(3, ">= 1")
+    downweight: float = setting(0.75, "(0, 1]")
+    max_iterations: int = setting(6, ">= 1")
+    tolerance: float = setting(0.25, ">= 0")
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        check_settings(self)
+
+
+_DEFAULT = PointSelectionConfig()
+
+
 def gradient_magnitude(image: NDArray) -> NDArray[np.float32]:
     """``G = sqrt(gx^2 + gy^2)`` of a gray image, central differences, float32 (H, W)."""
     gx, gy = image_gradients(to_float_gray(image))
     return np.sqrt(gx * gx + gy * gy)
 
 
-def block_gradient_thresholds(grad_mag: NDArray, block: int = 32,
-                              threshold_offset: float = 7.0) -> NDArray[np.float32]:
+def block_gradient_thresholds(grad_mag: NDArray, block: int = _DEFAULT.block,
+                              threshold_offset: float = _DEFAULT.threshold_offset) -> NDArray[np.float32]:
     """Per-pixel threshold map ``T`` (H, W): block median of ``grad_mag`` + offset, 3x3-smoothed.
 
     Args:
@@ -64,11 +101,15 @@ def block_gradient_thresholds(grad_mag: NDArray, block: int = 32,
     return full[:h, :w].astype(np.float32)
 
 
-def select_points(image: NDArray, target: int = 2000, border: int = DEFAULT_BORDER, *,
-                  block: int = 32, threshold_offset: float = 7.0, levels: int = 3,
-                  downweight: float = 0.75, max_iterations: int = 6, tolerance: float = 0.25,
-                  seed: int = 0) -> NDArray[np.float64]:
+def select_points(image: NDArray, target: int = 2000, border: int = _DEFAULT.border, *,
+                  block: int = _DEFAULT.block, threshold_offset: float = _DEFAULT.threshold_offset,
+                  levels: int = _DEFAULT.levels, downweight: float = _DEFAULT.downweight,
+                  max_iterations: int = _DEFAULT.max_iterations, tolerance: float = _DEFAULT.tolerance,
+                  seed: int = _DEFAULT.seed) -> NDArray[np.float64]:
     """Select about ``target`` well-spread high-gradient pixels of a gray image.
+
+    The keyword settings are :class:`PointSelectionConfig`'s (its defaults are theirs);
+    ``select_points(img, n, **dataclasses.asdict(config))`` applies a config.
 
     Args:
         image: gray (H, W) or BGR image, any dtype; converted by :func:`gtvo.core.image.to_float_gray`.

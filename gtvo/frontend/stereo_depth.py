@@ -28,17 +28,19 @@ For each selected left pixel ``p = (u, v)`` of a rectified pair (docs/frontend.m
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import asdict, dataclass, replace
 from enum import IntEnum
+from typing import Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from factors import photometric
+from factors.photometric import DEFAULT_CLIP_RANGE, PATTERN_DSO8
 from gtvo.core.camera import StereoCamera
+from gtvo.core.settings import check_settings, setting
 from gtvo.errors import InputError, show
 from gtvo.frontend._compiled import zssd_costs
-from gtvo.frontend.point_selection import DEFAULT_BORDER, select_points
+from gtvo.frontend.point_selection import DEFAULT_BORDER, PointSelectionConfig, select_points
 from gtvo.core.image import bilinear_sample, check_same_size, image_gradients, to_float_gray
 
 FloatArray = NDArray[np.float64]
@@ -57,6 +59,55 @@ EQUALIZE_MIN_LOG_GAIN = 0.1
 EQUALIZE_MAX_SEARCHES = 3
 #: Accepted points needed for :func:`matched_gain`.
 MIN_GAIN_POINTS = 10
+
+
+@dataclass(frozen=True)
+class StereoSearchConfig:
+    """Settings of the stereo search :func:`stereo_inverse_depth` (its keyword defaults are these).
+
+    Attributes:
+        min_disparity: smallest integer disparity searched (px).
+        max_disparity: largest integer disparity searched (px).
+        pattern: the matching pattern, ``"patch5x5"`` (a full 5x5 patch) or ``"dso8"`` (DSO's 8 pixels).
+        disparity_offset: added to the disparity before the conversion to inverse depth, for pairs
+            whose principal points differ (Middlebury's ``doffs = cx1 - cx0``); 0 for KITTI-style
+            rectification.
+        uniqueness_ratio: reject a match when ``best >= uniqueness_ratio * second best`` (second
+            best at least 2 px from the best).
+        max_relative_cost: reject when the refined mean squared residual per pattern pixel exceeds
+            ``2 sigma_intensity^2 + max_relative_cost * var(L)`` (``var(L)``: the left pattern's
+            intensity variance).
+        gauss_newton_iterations: 1-D Gauss-Newton steps after the parabola fit (0: parabola only).
+        left_right_check: search back from the right match into the left image.
+        lr_tolerance: allowed left-right discrepancy (px).
+        sigma_intensity: image noise standard deviation sigma_I of the disparity variance (grey levels).
+        sigma_line: epipolar-line position standard deviation sigma_l (px; rectification error).
+        max_disparity_std: reject when the disparity standard deviation exceeds this (px; inf keeps all).
+        equalize_gain: when the matched points say the right camera's gain differs from the left's
+            by more than 10 %, match again against the right image divided by that gain.
+    """
+
+    min_disparity: int = setting(0, ">= 0")
+    max_disparity: int = setting(128, ">= 1")
+    pattern: Literal["patch5x5", "dso8"] = "patch5x5"
+    disparity_offset: float = 0.0
+    uniqueness_ratio: float = setting(0.9, "(0, 1]")
+    max_relative_cost: float = setting(0.4, ">= 0")
+    gauss_newton_iterations: int = setting(3, ">= 0")
+    left_right_check: bool = True
+    lr_tolerance: float = setting(1.0, ">= 0")
+    sigma_intensity: float = setting(2.0, ">= 0")
+    sigma_line: float = setting(0.3, ">= 0")
+    max_disparity_std: float = setting(2.0, "> 0")
+    equalize_gain: bool = True
+
+    def __post_init__(self) -> None:
+        check_settings(self)
+        if self.min_disparity >= self.max_disparity:
+            raise InputError(f"min_disparity ({self.min_disparity}) must be below max_disparity ({self.max_disparity})")
+
+
+_STEREO = StereoSearchConfig()
 
 
 class Rejection(IntEnum):
@@ -170,7 +221,7 @@ def disparity_variance(gx: ArrayLike, gy: ArrayLike, line: ArrayLike, sigma_inte
 
 def _as_pattern(pattern: ArrayLike | str) -> NDArray[np.int64]:
     if isinstance(pattern, str):
-        table = {"patch5x5": PATCH_5X5, "dso8": photometric.PATTERN_DSO8}  # dso8: the factors' pattern
+        table = {"patch5x5": PATCH_5X5, "dso8": PATTERN_DSO8}  # dso8: the factors' pattern
         if pattern not in table:
             raise InputError(f"unknown stereo pattern {pattern!r}; use one of {sorted(table)}")
         return table[pattern].astype(np.int64)
@@ -209,14 +260,21 @@ def _integer_search(src: NDArray, dst: NDArray, u: NDArray, v: NDArray, pattern:
 
 
 def stereo_inverse_depth(left: NDArray, right: NDArray, stereo_camera: StereoCamera, pixels: ArrayLike, *,
-                         min_disparity: int = 0, max_disparity: int = 128,
-                         pattern: ArrayLike | str = "patch5x5", disparity_offset: float = 0.0,
-                         uniqueness_ratio: float = 0.9, max_relative_cost: float = 0.4,
-                         gauss_newton_iterations: int = 3, left_right_check: bool = True,
-                         lr_tolerance: float = 1.0, sigma_intensity: float = 2.0,
-                         sigma_line: float = 0.3, max_disparity_std: float = 2.0,
-                         equalize_gain: bool = True) -> StereoDepthResult:
+                         min_disparity: int = _STEREO.min_disparity, max_disparity: int = _STEREO.max_disparity,
+                         pattern: ArrayLike | str = _STEREO.pattern,
+                         disparity_offset: float = _STEREO.disparity_offset,
+                         uniqueness_ratio: float = _STEREO.uniqueness_ratio,
+                         max_relative_cost: float = _STEREO.max_relative_cost,
+                         gauss_newton_iterations: int = _STEREO.gauss_newton_iterations,
+                         left_right_check: bool = _STEREO.left_right_check,
+                         lr_tolerance: float = _STEREO.lr_tolerance, sigma_intensity: float = _STEREO.sigma_intensity,
+                         sigma_line: float = _STEREO.sigma_line, max_disparity_std: float = _STEREO.max_disparity_std,
+                         equalize_gain: bool = _STEREO.equalize_gain,
+                         clip_range: tuple[float, float] | None = DEFAULT_CLIP_RANGE) -> StereoDepthResult:
     """Inverse depth and its variance ``V`` of left pixels by a search along the right image row.
+
+    The keyword settings but ``clip_range`` are :class:`StereoSearchConfig`'s (its defaults are
+    theirs); ``stereo_inverse_depth(..., **dataclasses.asdict(config))`` applies a config.
 
     Args:
         left, right: the rectified gray (or BGR) pair, same size as the camera.
@@ -248,6 +306,7 @@ def stereo_inverse_depth(left: NDArray, right: NDArray, stereo_camera: StereoCam
             1.3x and 1.6x brighter right images (8 % and 15 % of their pixels saturated) are
             recovered to 1 %; at 2x ZSSD matches too few true points to start from, and the gain
             stays unequalised.
+        clip_range: the grey levels at which the sensors clipped (:func:`matched_gain`).
 
     Returns:
         A :class:`StereoDepthResult`; never NaN.
@@ -378,7 +437,7 @@ def stereo_inverse_depth(left: NDArray, right: NDArray, stereo_camera: StereoCam
     # right image equalised by the estimate, and re-estimate from the new matches (always against
     # the raw right image, whose clipped pixels are still recognisable) until it settles.
     best, applied = result, 1.0
-    gain = matched_gain(left_f, right_f, px, result, pat)
+    gain = matched_gain(left_f, right_f, px, result, pat, clip_range)
     for _ in range(EQUALIZE_MAX_SEARCHES):
         if gain is None or abs(np.log(gain / applied)) <= EQUALIZE_MIN_LOG_GAIN:
             break
@@ -389,20 +448,22 @@ def stereo_inverse_depth(left: NDArray, right: NDArray, stereo_camera: StereoCam
             uniqueness_ratio=uniqueness_ratio, max_relative_cost=max_relative_cost,
             gauss_newton_iterations=gauss_newton_iterations, left_right_check=left_right_check,
             lr_tolerance=lr_tolerance, sigma_intensity=sigma_intensity, sigma_line=sigma_line,
-            max_disparity_std=max_disparity_std, equalize_gain=False)
+            max_disparity_std=max_disparity_std, equalize_gain=False, clip_range=clip_range)
         # a contrast ratio can also be a difference in sharpness: keep the search that accepts more
         if np.count_nonzero(again.valid) >= np.count_nonzero(best.valid):
             best = replace(again, right_gain=applied)
-        gain = matched_gain(left_f, right_f, px, again, pat)
+        gain = matched_gain(left_f, right_f, px, again, pat, clip_range)
     return best
 
 
 def matched_gain(left: NDArray, right: NDArray, pixels: ArrayLike, result: StereoDepthResult,
-                 pattern: ArrayLike | str = "patch5x5") -> float | None:
+                 pattern: ArrayLike | str = _STEREO.pattern,
+                 clip_range: tuple[float, float] | None = DEFAULT_CLIP_RANGE) -> float | None:
     """The right camera's gain against the left from the matched points: the median over accepted
     points of the ratio of their patches' intensity standard deviations (right patch at the
-    rounded disparity). Patches that touch a clipped pixel (:data:`factors.photometric.CLIP_RANGE`,
-    read at call time like every ``GradientImage`` does; None: no check) in either image are left out: a saturated patch's spread is not its scene's times the gain
+    rounded disparity). Patches that touch a clipped pixel (at or beyond ``clip_range``, the
+    run's :attr:`factors.params.PhotometricParams.clip_range`; None: no check) in either image
+    are left out: a saturated patch's spread is not its scene's times the gain
     (with a fifth of the brighter image saturated the estimate fell from 1.6 to 1.2). None with
     fewer than :data:`MIN_GAIN_POINTS` accepted, unclipped points of contrast."""
     pat = _as_pattern(pattern)
@@ -416,8 +477,8 @@ def matched_gain(left: NDArray, right: NDArray, pixels: ArrayLike, result: Stere
     rvals, rok = _gather_integer(np.asarray(right, dtype=np.float32), ur, v)
     sl, sr = lvals.std(axis=1), rvals.std(axis=1)
     ok = lok.all(axis=1) & rok.all(axis=1) & (sl > 2.0) & (sr > 0.0)
-    if photometric.CLIP_RANGE is not None:
-        lo, hi = photometric.CLIP_RANGE
+    if clip_range is not None:
+        lo, hi = clip_range
         ok &= ((lvals > lo) & (lvals < hi)).all(axis=1) & ((rvals > lo) & (rvals < hi)).all(axis=1)
     if np.count_nonzero(ok) < MIN_GAIN_POINTS:
         return None
@@ -426,15 +487,20 @@ def matched_gain(left: NDArray, right: NDArray, pixels: ArrayLike, result: Stere
 
 def init_keyframe_points(left: NDArray, right: NDArray, stereo_camera: StereoCamera, target: int = 2000, *,
                          border: int = DEFAULT_BORDER, selection_seed: int = 0,
+                         selection: PointSelectionConfig | None = None, stereo: StereoSearchConfig | None = None,
                          **stereo_options: object) -> KeyframePoints:
     """Select about ``target`` points in the left image and keep those with a valid stereo depth.
 
-    ``stereo_options`` are passed to :func:`stereo_inverse_depth` (e.g. ``max_disparity``).
+    ``selection`` (default: ``border`` and ``selection_seed`` with the other defaults) sets the
+    point selection; ``stereo`` the search, and ``stereo_options`` are passed to
+    :func:`stereo_inverse_depth` on top of it (e.g. ``max_disparity``, ``clip_range``).
     Typically 60-80 % of the selected points survive on KITTI (docs/frontend.md).
     """
     left_f = to_float_gray(left, "left image")
-    pixels = select_points(left_f, target=target, border=border, seed=selection_seed)
-    res = stereo_inverse_depth(left_f, right, stereo_camera, pixels, **stereo_options)  # type: ignore[arg-type]
+    selection = selection or PointSelectionConfig(border=border, seed=selection_seed)
+    pixels = select_points(left_f, target, **asdict(selection))
+    options = {**(asdict(stereo) if stereo is not None else {}), **stereo_options}
+    res = stereo_inverse_depth(left_f, right, stereo_camera, pixels, **options)  # type: ignore[arg-type]
     keep = res.valid
     px = pixels[keep]
     return KeyframePoints(

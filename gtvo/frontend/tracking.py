@@ -32,11 +32,13 @@ import numpy as np
 import scipy.linalg
 from numpy.typing import ArrayLike, NDArray
 
-from factors.gtsam_factors import PhotometricBatchFactor
-from gtvo.core.keys import affine_key, pose_key
-from factors.photometric import PATTERN_DSO8, GradientImage, pattern_bearings, photometric_residuals, sample_host
+from factors.gtsam_factors import DEFAULT_HUBER_K, DEFAULT_SIGMA_INTENSITY, PhotometricBatchFactor
+from factors.photometric import (DEFAULT_CLIP_RANGE, PATTERN_DSO8, GradientImage, pattern_bearings,
+                                 photometric_residuals, sample_host)
 from factors.weights import huber_loss, point_robust_terms, variance_weight
 from gtvo.core.camera import PinholeCamera
+from gtvo.core.keys import affine_key, pose_key
+from gtvo.core.settings import check_settings, setting
 from gtvo.errors import InputError, TrackingFailure
 from gtvo.core.image import build_pyramid
 
@@ -54,6 +56,8 @@ class TrackingConfig:
         pattern: residual pattern (P, 2) in pixels of each level.
         sigma_intensity: sigma_I of the weight W.
         huber_k: Huber threshold on the whitened pattern norm of a point.
+        clip_range: grey levels at which the sensor clipped (the images' ``GradientImage`` check;
+            None: no check). In a VO run these four come from ``OdometryConfig.photometric``.
         estimate_affine: include the frame's affine brightness (a, b) in the state.
         step_tolerance: stop when the step is below this (pose in rad and m, log gain, offset b
             in units of 100 grey levels): 1e-5 rad moves a KITTI pixel by 0.007 px.
@@ -83,24 +87,28 @@ class TrackingConfig:
         min_coarse_points: lower bound of the points used on a coarse level.
     """
 
-    levels: int = 4
-    max_iterations: int = 12
+    levels: int = setting(4, ">= 1")
+    max_iterations: int = setting(12, ">= 1")
     pattern: NDArray[np.float64] = field(default_factory=lambda: PATTERN_DSO8.copy())
-    sigma_intensity: float = 8.0
-    huber_k: float = 3.0
+    sigma_intensity: float = DEFAULT_SIGMA_INTENSITY
+    huber_k: float = DEFAULT_HUBER_K
+    clip_range: tuple[float, float] | None = DEFAULT_CLIP_RANGE
     estimate_affine: bool = True
-    step_tolerance: float = 1e-5
-    cost_tolerance: float = 1e-3
-    max_rejections: int = 2
-    min_valid_points: int = 30
-    min_valid_fraction: float = 0.1
-    max_rms: float = 2.0
-    max_outlier_fraction: float = 0.6
-    max_abs_log_gain: float = 1.0
-    max_rotation_sigma_deg: float = 1.0
-    lost_point_norm: float = 6.0
-    coarse_decay: float = 2.0
-    min_coarse_points: int = 300
+    step_tolerance: float = setting(1e-5, ">= 0")
+    cost_tolerance: float = setting(1e-3, ">= 0")
+    max_rejections: int = setting(2, ">= 0")
+    min_valid_points: int = setting(30, ">= 0")
+    min_valid_fraction: float = setting(0.1, "[0, 1]")
+    max_rms: float = setting(2.0, "> 0")
+    max_outlier_fraction: float = setting(0.6, "[0, 1]")
+    max_abs_log_gain: float = setting(1.0, "> 0")
+    max_rotation_sigma_deg: float = setting(1.0, "> 0")
+    lost_point_norm: float = setting(6.0, ">= 0")
+    coarse_decay: float = setting(2.0, ">= 1")
+    min_coarse_points: int = setting(300, ">= 1")
+
+    def __post_init__(self) -> None:
+        check_settings(self)
 
 
 @dataclass
@@ -226,12 +234,14 @@ class TrackingKeyframe:
             self.level_index.append(idx)
             self.level_pixels.append(lp)
             self.level_bearings.append(pattern_bearings(self.cameras[lv], lp, pat))
-            self.host_samples.append(sample_host(GradientImage(pyr[lv]), lp, pat))
+            self.host_samples.append(sample_host(GradientImage(pyr[lv], clip_range=self.config.clip_range), lp, pat))
 
 
-def frame_pyramid(image: ArrayLike, levels: int) -> list[GradientImage]:
-    """The frame's pyramid with gradients, one :class:`GradientImage` per level."""
-    return [GradientImage(p) for p in build_pyramid(np.asarray(image, dtype=np.float32), levels)]
+def frame_pyramid(image: ArrayLike, levels: int,
+                  clip_range: tuple[float, float] | None = DEFAULT_CLIP_RANGE) -> list[GradientImage]:
+    """The frame's pyramid with gradients, one :class:`GradientImage` per level (``clip_range``:
+    the keyframe's, ``TrackingConfig.clip_range``)."""
+    return [GradientImage(p, clip_range=clip_range) for p in build_pyramid(np.asarray(image, dtype=np.float32), levels)]
 
 
 def predict_constant_velocity(T_world_prev2: gtsam.Pose3, T_world_prev: gtsam.Pose3) -> gtsam.Pose3:
@@ -390,7 +400,7 @@ def _finish(kf: TrackingKeyframe, target0: GradientImage, T: gtsam.Pose3, affine
 
 def _prepare(kf: TrackingKeyframe, frame: ArrayLike | list[GradientImage],
              T_keyframe_frame_init: gtsam.Pose3 | None, affine_init: ArrayLike | None):
-    pyr = frame if isinstance(frame, list) else frame_pyramid(frame, kf.levels)
+    pyr = frame if isinstance(frame, list) else frame_pyramid(frame, kf.levels, kf.config.clip_range)
     if len(pyr) < kf.levels:
         raise InputError(f"frame pyramid has {len(pyr)} levels, keyframe {kf.levels}")
     if (pyr[0].height, pyr[0].width) != kf.camera.shape:
@@ -499,7 +509,7 @@ def track_with_guesses(keyframe: TrackingKeyframe, frame: ArrayLike | list[Gradi
     """
     if len(guesses) == 0:
         raise InputError("track_with_guesses needs at least one initial guess")
-    pyr = frame if isinstance(frame, list) else frame_pyramid(frame, keyframe.levels)
+    pyr = frame if isinstance(frame, list) else frame_pyramid(frame, keyframe.levels, keyframe.config.clip_range)
     best_ok: TrackingResult | None = None
     best_failed: TrackingResult | None = None
     for guess in guesses:

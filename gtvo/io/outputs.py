@@ -97,7 +97,7 @@ def write_point_cloud(path: str | Path, points: NDArray[np.float64], intensity: 
 
 #: Every entry ``gtvo run`` writes into its output folder (an earlier run's set may be replaced).
 RUN_OUTPUT_NAMES = frozenset({"trajectory.tum", "trajectory_loop_closed.tum", "report.json", "trajectory.png",
-                              "errors.png", "points.ply", "covariances.npz"})
+                              "errors.png", "points.ply", "covariances.npz", "config.yaml"})
 #: Who writes run output folders (recorded in their :data:`gtvo.io.atomic.DIR_MARKER`).
 RUN_WRITER = "gtvo run"
 
@@ -147,7 +147,8 @@ def check_run_output_dir(out_dir: str | Path, inputs: tuple[Path | None, set[Pat
 def write_run_outputs(out_dir: str | Path, est: Trajectory, seq: Sequence, run_info: dict[str, Any],
                       points: MapPoints | tuple[NDArray[np.float64], NDArray[np.float64]] | None = None,
                       loop_closed: Trajectory | None = None,
-                      covariances: KeyframeCovariances | None = None) -> dict[str, Any]:
+                      covariances: KeyframeCovariances | None = None,
+                      config_yaml: str | None = None) -> dict[str, Any]:
     """Write a run's outputs into ``out_dir`` as a set and return the report written to ``report.json``.
 
     ``run_info`` holds the run's own figures (frames, keyframes, seconds, ...); metrics are added
@@ -156,7 +157,8 @@ def write_run_outputs(out_dir: str | Path, est: Trajectory, seq: Sequence, run_i
     ``(points, intensities)``). ``loop_closed``, when given, is written as
     ``trajectory_loop_closed.tum`` and evaluated as ``loop_closed_*``. ``covariances``, when given,
     is written as ``covariances.npz``, summarised in the report and drawn as position ellipses in
-    ``trajectory.png`` (:mod:`gtvo.io.covariances`).
+    ``trajectory.png`` (:mod:`gtvo.io.covariances`). ``config_yaml``, when given, is written as
+    ``config.yaml`` (the run's configuration, for ``gtvo run --config``).
 
     The files are written into a temporary folder beside ``out_dir`` that then replaces it
     (:func:`gtvo.io.atomic.atomic_dir`): an interrupted or failed write leaves the earlier set as
@@ -192,6 +194,8 @@ def write_run_outputs(out_dir: str | Path, est: Trajectory, seq: Sequence, run_i
     view = top_view(None if pair is None else pair[1])
     with atomic_dir(out_path, RUN_OUTPUT_NAMES, RUN_WRITER) as out:
         write_tum(out / "trajectory.tum", est)
+        if config_yaml is not None:
+            (out / "config.yaml").write_text(config_yaml, encoding="utf-8")
         if covariances is not None and len(covariances):
             write_covariances(out / "covariances.npz", covariances)
         if pair is not None:

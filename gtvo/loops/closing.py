@@ -40,7 +40,7 @@ from gtvo.loops.direct_refinement import refine_loop_both_ways
 ODOMETRY_SIGMAS = (0.005, 0.05)
 
 #: Points per keyframe when a keyframe's points have to be made afresh for the direct refinement
-#: (the VO's default, OdometryConfig.points_per_keyframe).
+#: (the VO's default, OdometryConfig.frontend.points_per_keyframe).
 REFINEMENT_POINTS = 300
 
 

@@ -34,7 +34,7 @@ F64 = NDArray[np.float64]
 
 #: Largest loop baseline relative to the host keyframe's median depth, ``|t_i_j| * median(d_i)``,
 #: measured by direct alignment: the same quantity as the VO's keyframe rule
-#: (``OdometryConfig.keyframe_max_motion`` = 0.3, up to which frames are tracked against a keyframe)
+#: (``OdometryConfig.keyframes.max_motion`` = 0.3, up to which frames are tracked against a keyframe)
 #: with some room. Beyond it the views differ by parallax and occlusions the photometric model
 #: does not describe, and the alignments are off by 0.5-2 % of the baseline, consistently both ways
 #: (docs/loop_closure.md, "Why loop closure made the trajectory worse").

@@ -126,6 +126,11 @@ def update(mean_bar: ArrayLike, cov_bar: ArrayLike, z: ArrayLike, Q: ArrayLike,
     return mean, 0.5 * (cov + cov.T)
 
 
+#: Default standard deviations of the initial rates ``(dX, dZ, dtheta)`` (m/s, m/s, rad/s) of
+#: :class:`ConstantAccelerationFilter`.
+INITIAL_RATE_SIGMAS: tuple[float, float, float] = (1.0, 1.0, 0.5)
+
+
 @dataclass(frozen=True)
 class MotionNoise:
     """Noise of the planar model.
@@ -253,7 +258,7 @@ class ConstantAccelerationFilter:
     """
 
     def __init__(self, noise: MotionNoise = MotionNoise(),
-                 initial_rate_sigmas: tuple[float, float, float] = (1.0, 1.0, 0.5)) -> None:
+                 initial_rate_sigmas: tuple[float, float, float] = INITIAL_RATE_SIGMAS) -> None:
         self.noise = noise
         self.initial_rate_sigmas = tuple(_check_sigmas("initial_rate_sigmas", initial_rate_sigmas, 3))
         self._mean: FloatArray | None = None

@@ -44,7 +44,7 @@ from gtvo.frontend.tracking import (TrackingKeyframe, TrackingResult, frame_pyra
 from gtvo.evaluation.trajectory import Trajectory
 from gtvo.frontend.stereo_affine import estimate_stereo_affine
 from gtvo.config import OdometryConfig
-from gtvo.frontend.keyframes import KeyframeRule, needs_keyframe
+from gtvo.frontend.keyframes import needs_keyframe
 from gtvo.frontend.rgbd import rgbd_keyframe_points
 from gtvo.odometry.estimates import FrameEstimate, FrameOutcome, Keyframe
 from gtvo.window import SlidingWindowOptimizer, WindowKeyframe, WindowResult
@@ -85,9 +85,7 @@ class VisualOdometry:
         self.flow_recoveries = 0
         self.lost_frames = 0
         self.window_results: list[WindowResult] = []
-        self._keyframe_rule = KeyframeRule(self.config.keyframe_min_visible, self.config.keyframe_max_motion,
-                                           self.config.keyframe_max_flow, self.config.keyframe_max_rotation_deg,
-                                           self.config.keyframe_max_brightness)
+        self._keyframe_rule = self.config.keyframes
         self._previous: tuple[Frame, NDArray[np.float32]] | None = None
         self._kalman = None
         self._keyframe_by_index: dict[int, Keyframe] = {}
@@ -98,10 +96,11 @@ class VisualOdometry:
         if self.config.mode == "window":
             baseline = camera.baseline if isinstance(camera, StereoCamera) else None
             self.window = SlidingWindowOptimizer(self.pinhole, baseline, self.config.window)
-        if self.config.motion_model == "kalman":
+        if self.config.motion_model.model == "kalman":
             from gtvo.motion.model import ConstantAccelerationFilter  # noqa: PLC0415
 
-            self._kalman = ConstantAccelerationFilter()
+            mm = self.config.motion_model
+            self._kalman = ConstantAccelerationFilter(mm.kalman_noise, mm.kalman_initial_rate_sigmas)
 
     # -- public ---------------------------------------------------------------------------------
     def process(self, frame: Frame) -> FrameEstimate:
@@ -129,9 +128,9 @@ class VisualOdometry:
         assert kf.tracker is not None  # the latest keyframe keeps its tracker
         T_pred = self._predict(frame.timestamp)
         last = rigid_pose(self.estimates[-1].T_world_cam)
-        pyr = frame_pyramid(left, kf.tracker.levels)
+        pyr = frame_pyramid(left, kf.tracker.levels, self.config.photometric.clip_range)
         result = self._track(kf, pyr, T_pred, last, left)
-        lost_view = result.n_valid < self.config.keyframe_min_visible * len(kf.points)
+        lost_view = result.n_valid < self.config.keyframes.min_visible * len(kf.points)
         if (not result.success or lost_view) and self._previous is not None and self._previous[0].index != kf.index:
             # the view has moved on (or tracking failed): the previous frame, whose pose is
             # tracked, becomes the keyframe, and this frame is tracked against it
@@ -244,10 +243,11 @@ class VisualOdometry:
         assert kf.tracker is not None
         guesses = [kf.T_world_cam.between(T_pred), kf.T_world_cam.between(last), gtsam.Pose3()]
         prev_rms = self._last_rms()
-        solver = track_handrolled if self.config.solver == "handrolled" else track_gtsam
+        solver = track_handrolled if self.config.solver.tracker == "handrolled" else track_gtsam
         affine = self._affine_guess(kf)
+        factor = self.config.motion_model.accept_rms_factor
         result = track_with_guesses(kf.tracker, pyr, guesses, affine, solver=solver,
-                                    accept_rms=0.0 if prev_rms is None else self.config.accept_rms_factor * prev_rms)
+                                    accept_rms=0.0 if prev_rms is None else factor * prev_rms)
         if result.success or self.config.flow_fallback is None or kf.image is None:
             return result
         flow = optical_flow_pose(self.pinhole, kf.image, kf.points.pixels, kf.points.inverse_depth, left,
@@ -294,15 +294,16 @@ class VisualOdometry:
         return last.compose(gtsam.Pose3.Expmap(xi))
 
     def _frame_points(self, frame: Frame, left: NDArray[np.float32]) -> KeyframePoints:
-        cfg = self.config
+        cfg = self.config.frontend
         if isinstance(self.camera, StereoCamera):
             if frame.right is None:
                 raise InputError(f"frame {frame.index}: stereo odometry needs a right image")
             return init_keyframe_points(left, frame.right, self.camera, target=cfg.points_per_keyframe,
-                                        max_disparity=cfg.max_disparity)
+                                        selection=cfg.points, stereo=cfg.stereo,
+                                        clip_range=self.config.photometric.clip_range)
         if frame.depth is None:
             raise InputError(f"frame {frame.index}: RGB-D odometry needs a depth image")
-        return rgbd_keyframe_points(left, frame.depth, cfg.points_per_keyframe, cfg.depth_sigma_model)
+        return rgbd_keyframe_points(left, frame.depth, cfg.points_per_keyframe, cfg.depth_sigma_model, cfg.points)
 
     def _make_keyframe(self, frame: Frame, left: NDArray[np.float32], T_world_cam: gtsam.Pose3,
                        tracked: tuple[int, NDArray[np.float64]] | None = None) -> Keyframe:
@@ -358,10 +359,11 @@ class VisualOdometry:
         elif self.window.keyframes:
             affine = self.window.keyframes[-1].affine.copy()
         right = None
-        left_img = GradientImage(left)
+        clip = self.config.photometric.clip_range
+        left_img = GradientImage(left, clip_range=clip)
         stereo_affine = np.zeros(2)
         if isinstance(self.camera, StereoCamera):
-            right = GradientImage(to_float_gray(frame.right, f"frame {frame.index} right image"))
+            right = GradientImage(to_float_gray(frame.right, f"frame {frame.index} right image"), clip_range=clip)
             stereo_affine = estimate_stereo_affine(self.pinhole, self.camera.baseline, left_img, right, pts.pixels,
                                                    pts.inverse_depth, pts.variance,
                                                    sigma_intensity=self.config.window.sigma_intensity)
@@ -369,7 +371,7 @@ class VisualOdometry:
                             pts.variance, right=right, depth_prior=right is None, stereo_affine=stereo_affine,
                             timestamp=float(frame.timestamp) if np.isfinite(frame.timestamp) else None)
         self.window.add_keyframe(wk)
-        res = self.window.optimize(self.config.window_solver)
+        res = self.window.optimize(self.config.solver.window)
         self._window_affine = {w.index: w.affine.copy() for w in self.window.keyframes}
         if res is None:
             return T_world_cam, pts

@@ -14,6 +14,7 @@ from factors.gtsam_factors import DEFAULT_HUBER_K, DEFAULT_SIGMA_INTENSITY
 from gtvo.core.keys import is_pose_key
 from factors.photometric import PATTERN_DSO8, GradientImage
 from gtvo.core.camera import PinholeCamera
+from gtvo.core.settings import check_settings, setting
 from gtvo.errors import InputError, show
 
 FloatArray = NDArray[np.float64]
@@ -68,27 +69,24 @@ class WindowConfig:
             are computed (no cost).
     """
 
-    size: int = 7
+    size: int = setting(7, ">= 2")
     sigma_intensity: float = DEFAULT_SIGMA_INTENSITY
     huber_k: float | None = DEFAULT_HUBER_K
     pattern: FloatArray = field(default_factory=lambda: PATTERN_DSO8.copy())
-    lambda_stereo: float = 1.0
-    affine_sigma: tuple[float, float] = (1.0, 100.0)
-    acceleration_sigma: tuple[float, float] | None = (1.0, 2.0)
-    gauge_sigma: float = 1e-6
-    min_visible_points: int = 30
-    min_visible_fraction: float = 0.1
-    max_iterations: int = 3
-    relative_tolerance: float = 1e-4
+    lambda_stereo: float = setting(1.0, "> 0")
+    affine_sigma: tuple[float, float] = setting((1.0, 100.0), "> 0")
+    acceleration_sigma: tuple[float, float] | None = setting((1.0, 2.0), "> 0")
+    gauge_sigma: float = setting(1e-6, "> 0")
+    min_visible_points: int = setting(30, ">= 0")
+    min_visible_fraction: float = setting(0.1, "[0, 1]")
+    max_iterations: int = setting(3, ">= 1")
+    relative_tolerance: float = setting(1e-4, ">= 0")
     marginalize: bool = True
     backend: Literal["lm", "fixed_lag"] = "lm"
     covariances: bool = True
 
     def __post_init__(self) -> None:
-        if self.backend not in ("lm", "fixed_lag"):
-            raise InputError(f"unknown window backend {self.backend!r}: use 'lm' or 'fixed_lag'")
-        if int(self.size) < 2:
-            raise InputError(f"window size must be >= 2, got {self.size}")
+        check_settings(self)  # backend, size, max_iterations and the ranges declared above
         if not (self.lambda_stereo > 0 and np.isfinite(self.lambda_stereo)):
             raise InputError(f"lambda_stereo must be positive, got {show(self.lambda_stereo)}")
         if not all(s > 0 and np.isfinite(s) for s in self.affine_sigma):
@@ -96,8 +94,6 @@ class WindowConfig:
         acc = self.acceleration_sigma
         if acc is not None and (len(acc) != 2 or not all(s > 0 and np.isfinite(s) for s in acc)):
             raise InputError(f"acceleration_sigma must be two positive numbers or None, got {show(acc)}")
-        if self.max_iterations < 1:
-            raise InputError(f"max_iterations must be >= 1, got {self.max_iterations}")
 
 
 @dataclass

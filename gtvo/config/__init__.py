@@ -1,0 +1,45 @@
+"""The configuration tree of a VO run: :class:`OdometryConfig` and the settings it nests.
+
+One place for every setting of a run (KISS-ICP's single config), one frozen dataclass per
+component, each field's default and allowed range declared once beside it
+(:func:`gtvo.core.settings.setting`)::
+
+    OdometryConfig
+      mode                 "window" | "track"
+      solver               SolverConfig (tracker, window)
+      frontend             FrontendConfig (points_per_keyframe, points: PointSelectionConfig,
+                                           stereo: StereoSearchConfig, depth_sigma_model)
+      keyframes            gtvo.frontend.keyframes.KeyframeRule
+      tracking             gtvo.frontend.tracking.TrackingConfig
+      window               gtvo.window.WindowConfig
+      flow_fallback        gtvo.frontend.flow_pose.FlowPoseConfig | None
+      motion_model         MotionModelConfig
+      photometric          factors.params.PhotometricParams
+
+The photometric model (noise, Huber threshold, pattern, clipped range) is set once, in
+``photometric``; the tracker's and the window's copies of it are filled from there (and are not
+keys of their own in a config file). The command line and the library share these defaults:
+``gtvo run`` and :func:`gtvo.run` run the same solvers.
+
+The package: the tree (:mod:`gtvo.config.tree`); the configuration as plain data and files,
+:func:`config_to_dict` / :func:`config_from_dict` (the inverse, checking every key, type and range),
+:func:`config_to_yaml` and :func:`load_config` (a YAML or JSON file; ``gtvo run --config FILE``)
+(:mod:`gtvo.config.files`); the documentation of every key, docs/configuration.md, written by
+:func:`config_reference` (:mod:`gtvo.config.reference`).
+"""
+
+from gtvo.config.files import (ConfigKeyError, as_config, config_from_dict, config_to_dict, config_to_yaml,
+                               load_config)
+from gtvo.config.reference import config_reference, describe_key, field_docs
+from gtvo.config.tree import (LEGACY_NAMES, MIN_POINTS_PER_KEYFRAME, PHOTOMETRIC_COPIES, FlowPoseConfig,
+                              FrontendConfig, KeyframeRule, MotionModelConfig, MotionNoise, OdometryConfig,
+                              PhotometricParams, PointSelectionConfig, SolverConfig, StereoSearchConfig,
+                              TrackingConfig, WindowConfig)
+
+__all__ = [
+    "LEGACY_NAMES", "MIN_POINTS_PER_KEYFRAME", "PHOTOMETRIC_COPIES", "ConfigKeyError", "FlowPoseConfig",
+    "FrontendConfig", "KeyframeRule", "MotionModelConfig", "MotionNoise", "OdometryConfig", "PhotometricParams",
+    "PointSelectionConfig", "SolverConfig", "StereoSearchConfig", "TrackingConfig", "WindowConfig", "as_config",
+    "config_from_dict", "config_reference", "config_to_dict", "config_to_yaml", "describe_key", "field_docs",
+    "load_config",
+]
