@@ -56,7 +56,8 @@ class WindowConfig:
         min_visible_points, min_visible_fraction: a keyframe is a target of a host when at least
             this many (and this fraction) of the host's points project into it, in front of it.
         max_iterations: LM iterations per window optimisation (DSO allows up to 6 per new keyframe;
-            on KITTI 4-6 moved the ATE by < 1 mm for 25-45 % more time: docs/benchmarks.md).
+            on KITTI 4 or 6 moved the ATE by < 1 mm for 33-82 % more time: docs/benchmarks.md,
+            "Point density").
         relative_tolerance: stop when an iteration lowers the cost by less than this fraction.
         marginalize: keep leaving keyframes' information as a prior (False: simply drop them).
         backend: ``"lm"``: each window optimised by a solver (:func:`solve_gtsam` or
