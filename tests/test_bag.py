@@ -17,7 +17,8 @@ import pytest
 
 from gtvo.cli import main as cli_main
 from gtvo.datasets import open_sequence
-from gtvo.datasets.bag import BagStream, choose_topics, decode_image, depth_metres, TopicSummary
+from gtvo.datasets.bag import BagStream, decode_image, depth_metres
+from gtvo.datasets.bag_topics import TopicSummary, choose_topics
 from gtvo.errors import InputError
 from tests._bags import BagWriter, stamp_from_text
 
@@ -436,7 +437,7 @@ def test_tum_rgbd_bag_is_the_folder(shared_data, tmp_path, name):
 
 
 def test_camera_info_checks_and_rectified_topic_names():
-    from gtvo.datasets.bag import RECTIFIED_TOPIC
+    from gtvo.datasets.bag_types import RECTIFIED_TOPIC
     from gtvo.datasets.bag_calib import camera_model_from_msg
 
     assert RECTIFIED_TOPIC.search("/cam/left/image_rect") and RECTIFIED_TOPIC.search("/rectified/left/image")

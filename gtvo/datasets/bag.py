@@ -24,7 +24,6 @@ Layouts and conventions: ``docs/datasets.md`` ("ROS bags").
 from __future__ import annotations
 
 import bisect
-import re
 import sqlite3
 import struct
 from dataclasses import dataclass, field
@@ -43,24 +42,10 @@ from gtvo.errors import InputError
 from gtvo.core.image import to_float_gray
 from gtvo.datasets.sequence import Sequence
 
-IMAGE = "sensor_msgs/msg/Image"
-COMPRESSED = "sensor_msgs/msg/CompressedImage"
-CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
-GROUND_TRUTH_TYPES = ("geometry_msgs/msg/PoseStamped", "nav_msgs/msg/Odometry", "geometry_msgs/msg/TransformStamped")
-#: Left/right header stamps closer than this (s) form a stereo pair.
-STEREO_TOLERANCE_S = 0.005
-#: Colour/depth header stamps closer than this (s) form an RGB-D pair (TUM's associate.py).
-RGBD_TOLERANCE_S = 0.02
-#: Ground truth: nearest sample within this (s), interpolated across gaps up to GT_MAX_GAP_S.
-GT_TOLERANCE_S = 0.02
-GT_MAX_GAP_S = 0.1
-#: Name pairs that make two image topics a stereo pair (left token, right token).
-STEREO_TOKENS = (("left", "right"), ("cam0", "cam1"), ("infra1", "infra2"))
-#: An image topic whose name matches carries rectified images (``image_rect``, ``/rectified/``).
-RECTIFIED_TOPIC = re.compile(r"(^|[/_])rect")
-#: Messages read ahead and kept for later frames at most; a stream jumps rather than reads further.
-MAX_BUFFERED = 16
-MAX_READ_AHEAD = 32
+from gtvo.datasets.bag_types import (CAMERA_INFO, COMPRESSED, GROUND_TRUTH_TYPES, GT_MAX_GAP_S, GT_TOLERANCE_S,
+                                     MAX_BUFFERED, MAX_READ_AHEAD, RECTIFIED_TOPIC, RGBD_TOLERANCE_S,
+                                     STEREO_TOLERANCE_S)
+from gtvo.datasets.bag_topics import TopicChoice, TopicSummary, camera_info_topic, choose_topics, topic_summaries
 
 
 def looks_like_bag(path: Path) -> bool:
@@ -108,110 +93,6 @@ def _first_line(exc: BaseException) -> str:
     text = str(exc).strip().splitlines()
     return f"{exc.__class__.__name__}: {text[0]}" if text else exc.__class__.__name__
 
-
-@dataclass(frozen=True)
-class TopicSummary:
-    """One topic of a bag: name, ROS message type, message count and mean rate over the bag (Hz)."""
-
-    name: str
-    msgtype: str
-    count: int
-    rate_hz: float | None
-
-
-def topic_summaries(reader: Any) -> list[TopicSummary]:
-    """Every topic of an open reader, sorted by name (rate = count / the bag's duration)."""
-    seconds = max(reader.duration, 0) * 1e-9
-    out = []
-    for name, info in sorted(reader.topics.items()):
-        count = int(info.msgcount)
-        rate = (count - 1) / seconds if seconds > 0 and count > 1 else None
-        out.append(TopicSummary(name, str(info.msgtype), count, rate))
-    return out
-
-
-# --------------------------------------------------------------------------------------------
-# choosing the topics
-
-@dataclass(frozen=True)
-class TopicChoice:
-    """What a run uses: ``kind`` and the two image topics (left, right) or (colour, depth)."""
-
-    kind: str
-    first: str
-    second: str
-
-    def __str__(self) -> str:
-        names = ("left", "right") if self.kind == "stereo" else ("colour", "depth")
-        return f"{self.kind}: {names[0]} {self.first}, {names[1]} {self.second}"
-
-
-def stereo_candidates(image_topics: list[str]) -> list[TopicChoice]:
-    """Pairs of image topics whose names differ by a left/right token (:data:`STEREO_TOKENS`)."""
-    found = []
-    for topic in image_topics:
-        for left, right in STEREO_TOKENS:
-            k = topic.rfind(left)
-            if k >= 0:
-                other = topic[:k] + right + topic[k + len(left):]
-                if other in image_topics:
-                    found.append(TopicChoice("stereo", topic, other))
-    return found
-
-
-def rgbd_candidates(image_topics: list[str]) -> list[TopicChoice]:
-    """(colour, depth) pairs: every non-stereo image topic with every topic named ``*depth*``."""
-    stereo = {t for c in stereo_candidates(image_topics) for t in (c.first, c.second)}
-    depth = [t for t in image_topics if "depth" in t.lower()]
-    colour = [t for t in image_topics if t not in depth and t not in stereo]
-    return [TopicChoice("rgbd", c, d) for c in colour for d in depth]
-
-
-def choose_topics(topics: list[TopicSummary], left: str | None = None, right: str | None = None,
-                  depth: str | None = None, where: Path | str = "") -> TopicChoice:
-    """The image topics a run uses (module docstring); InputError listing the candidates when the
-    choice is missing, ambiguous or names a topic the bag does not have."""
-    images = [t.name for t in topics if t.msgtype in (IMAGE, COMPRESSED) and t.count > 0]
-    if not images:
-        listed = ", ".join(f"{t.name} ({t.msgtype})" for t in topics) or "none"
-        raise InputError(f"no image topic (sensor_msgs/Image or CompressedImage) in the bag; topics: {listed}",
-                         path=where)
-    for flag, name in (("--left-topic", left), ("--right-topic", right), ("--depth-topic", depth)):
-        if name is not None and name not in images:
-            raise InputError(f"{flag} {name}: no such image topic in the bag; image topics: {', '.join(images)}",
-                             path=where)
-    if depth is not None and right is not None:
-        raise InputError("give --right-topic (stereo) or --depth-topic (RGB-D), not both", path=where)
-    if left is not None and (right is not None or depth is not None):
-        return TopicChoice("stereo" if right is not None else "rgbd", left, right or depth)  # type: ignore[arg-type]
-    candidates = stereo_candidates(images) or rgbd_candidates(images)
-    if depth is not None:
-        candidates = [c for c in rgbd_candidates(images) if c.second == depth]
-    candidates = [c for c in candidates if (left is None or c.first == left) and (right is None or c.second == right)]
-    if len(candidates) == 1:
-        return candidates[0]
-    listed = "; ".join(str(c) for c in candidates) if candidates else f"none among {', '.join(images)}"
-    raise InputError(f"{len(candidates)} usable image topic pairs ({listed}): choose with --left-topic and "
-                     f"--right-topic (--depth-topic for RGB-D)", path=where)
-
-
-def camera_info_topic(image_topic: str, topics: list[TopicSummary]) -> str | None:
-    """The ``CameraInfo`` topic in the image topic's namespace (``/ns/left/image_raw[/compressed]``
-    -> ``/ns/left/camera_info``), or None."""
-    infos = {t.name for t in topics if t.msgtype == CAMERA_INFO}
-    parts = image_topic.rstrip("/").split("/")
-    if parts[-1] == "compressed":
-        parts = parts[:-1]
-    while len(parts) > 1:
-        parts = parts[:-1]
-        candidate = "/".join(parts) + "/camera_info"
-        if candidate in infos:
-            return candidate
-    return None
-
-
-# --------------------------------------------------------------------------------------------
-# header stamps and the one pass over the bag on open
 
 def header_stamp_ns(raw: bytes | memoryview, ros2: bool) -> int:
     """The ``header.stamp`` (ns) of a serialised message that starts with a ``std_msgs/Header``

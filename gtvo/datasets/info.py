@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from gtvo.core.camera import StereoCamera
-from gtvo.datasets.bag import GROUND_TRUTH_TYPES
+from gtvo.datasets.bag_types import GROUND_TRUTH_TYPES
 from gtvo.errors import InputError
 
 
@@ -83,7 +83,8 @@ def describe_log(path: str | Path, format: str = "auto", **options: Any) -> LogI
         InputError: the log cannot be read at all (missing, truncated or corrupt bag, unknown layout).
     """
     from gtvo.datasets import detect_format, open_sequence  # noqa: PLC0415
-    from gtvo.datasets.bag import bag_location, open_reader, topic_summaries  # noqa: PLC0415
+    from gtvo.datasets.bag import bag_location, open_reader  # noqa: PLC0415
+    from gtvo.datasets.bag_topics import topic_summaries  # noqa: PLC0415
 
     where = Path(path)
     kind = detect_format(where) if format == "auto" else format

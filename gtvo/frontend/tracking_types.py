@@ -1,0 +1,216 @@
+"""The tracker's data: its settings (:class:`TrackingConfig`), a keyframe prepared for tracking
+(:class:`TrackingKeyframe`: pyramid samples of its points), and what tracking a frame gives
+(:class:`TrackingResult`, with the pose covariance). The solvers: :mod:`gtvo.frontend.tracking`."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import gtsam
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from factors.gtsam_factors import DEFAULT_HUBER_K, DEFAULT_SIGMA_INTENSITY
+from factors.photometric import DEFAULT_CLIP_RANGE, PATTERN_DSO8, GradientImage, pattern_bearings, sample_host
+from gtvo.core.camera import PinholeCamera
+from gtvo.core.settings import check_settings, setting
+from gtvo.errors import InputError, TrackingFailure
+from gtvo.core.image import build_pyramid
+
+
+@dataclass(frozen=True)
+class TrackingConfig:
+    """Settings of the coarse-to-fine tracker (shared by both solvers).
+
+    Attributes:
+        levels: pyramid levels used (level 0 = full resolution).
+        max_iterations: LM iterations per level.
+        pattern: residual pattern (P, 2) in pixels of each level.
+        sigma_intensity: sigma_I of the weight W.
+        huber_k: Huber threshold on the whitened pattern norm of a point.
+        clip_range: grey levels at which the sensor clipped (the images' ``GradientImage`` check;
+            None: no check). In a VO run these four come from ``OdometryConfig.photometric``.
+        estimate_affine: include the frame's affine brightness (a, b) in the state.
+        step_tolerance: stop when the step is below this (pose in rad and m, log gain, offset b
+            in units of 100 grey levels): 1e-5 rad moves a KITTI pixel by 0.007 px.
+        max_rejections: consecutive rejected steps (lambda 0.2 .. 0.2 * 2^(n-1)) after which a
+            level counts as converged (the model no longer predicts the cost at that scale).
+        cost_tolerance: stop when an accepted step lowers the cost, or the Gauss-Newton model
+            promises to lower it, by less than this fraction (GTSAM: relative error tolerance).
+        min_valid_points: fewer points with a valid residual at level 0 is a failure.
+        min_valid_fraction: a smaller fraction of the keyframe's points valid is a failure.
+        max_rms: a whitened RMS residual per valid pixel above this at level 0 is a failure
+            (the pose explains the images no better than noise of ``max_rms * sqrt(2) sigma_I``).
+        max_outlier_fraction: more valid points than this fraction down-weighted by Huber at
+            level 0 is a failure.
+        max_abs_log_gain: a brightness gain ``|a| = |log(gain)|`` above this is a failure (a
+            solver that explains an unrelated image by fading the keyframe out).
+        max_rotation_sigma_deg: a rotation standard deviation (largest axis, from
+            :attr:`TrackingResult.covariance`) above this is a failure: the images do not determine
+            the rotation (few points, texture along one direction); the converged pose can then be
+            tens of degrees off at a low residual.
+        lost_point_norm: a point whose pattern leaves the frame (or goes behind it) costs
+            ``rho(lost_point_norm)`` (spread over its pattern pixels), like a strong outlier;
+            without it a solver lowers the cost by pushing points out of the image (seen on
+            KITTI's coarsest level: a 2.5 deg pitch error that dropped 40 of 334 points).
+        coarse_decay: level ``l`` uses every ``ceil(coarse_decay^l)``-th point (at least
+            ``min_coarse_points``): a coarse image has fewer pixels to constrain the pose and the
+            points crowd there; the finest level always uses all points.
+        min_coarse_points: lower bound of the points used on a coarse level.
+    """
+
+    levels: int = setting(4, ">= 1")
+    max_iterations: int = setting(12, ">= 1")
+    pattern: NDArray[np.float64] = field(default_factory=lambda: PATTERN_DSO8.copy())
+    sigma_intensity: float = DEFAULT_SIGMA_INTENSITY
+    huber_k: float = DEFAULT_HUBER_K
+    clip_range: tuple[float, float] | None = DEFAULT_CLIP_RANGE
+    estimate_affine: bool = True
+    step_tolerance: float = setting(1e-5, ">= 0")
+    cost_tolerance: float = setting(1e-3, ">= 0")
+    max_rejections: int = setting(2, ">= 0")
+    min_valid_points: int = setting(30, ">= 0")
+    min_valid_fraction: float = setting(0.1, "[0, 1]")
+    max_rms: float = setting(2.0, "> 0")
+    max_outlier_fraction: float = setting(0.6, "[0, 1]")
+    max_abs_log_gain: float = setting(1.0, "> 0")
+    max_rotation_sigma_deg: float = setting(1.0, "> 0")
+    lost_point_norm: float = setting(6.0, ">= 0")
+    coarse_decay: float = setting(2.0, ">= 1")
+    min_coarse_points: int = setting(300, ">= 1")
+
+    def __post_init__(self) -> None:
+        check_settings(self)
+
+
+@dataclass
+class TrackingResult:
+    """Outcome of tracking one frame against a keyframe.
+
+    Attributes:
+        T_keyframe_frame: the frame's pose in the keyframe's camera frame
+            (``T_world_frame = T_world_keyframe * T_keyframe_frame``).
+        affine: the frame's affine brightness (a, b).
+        cost: final robust cost E at level 0.
+        initial_cost: E at level 0 at the initial guess.
+        iterations: LM iterations over all levels.
+        n_valid: points with at least one valid pattern residual at level 0.
+        n_outliers: valid points whose Huber weight is below 1 at level 0.
+        rms: whitened RMS residual per valid pixel at level 0 (``sqrt(2 E_valid / n)``, the robust
+            cost of the valid pixels only).
+        success: False when tracking failed; ``reason`` says why.
+        covariance: (6, 6) covariance of ``T_keyframe_frame`` in GTSAM's tangent order [rotation
+            (rad), translation (m)], right perturbation, the affine brightness marginalised: the
+            inverse Gauss-Newton Hessian of E at level 0 at the solution (with the weights W that
+            level's optimisation froze and Huber's at the solution; residuals whitened by
+            ``sigma_intensity``, so it is as good as that noise model). All infinite where the
+            Hessian is singular.
+    """
+
+    T_keyframe_frame: gtsam.Pose3
+    affine: NDArray[np.float64]
+    cost: float
+    initial_cost: float
+    iterations: int
+    n_valid: int
+    n_outliers: int
+    rms: float
+    success: bool
+    reason: str = ""
+    covariance: NDArray[np.float64] = field(default_factory=lambda: np.full((6, 6), np.inf))
+
+    @property
+    def rotation_sigma_deg(self) -> float:
+        """Standard deviation of the rotation along its worst-determined axis (degrees)."""
+        return largest_sigma(self.covariance[:3, :3], np.degrees(1.0))
+
+    @property
+    def translation_sigma_m(self) -> float:
+        """Standard deviation of the translation along its worst-determined axis (metres)."""
+        return largest_sigma(self.covariance[3:, 3:], 1.0)
+
+    def raise_if_failed(self) -> "TrackingResult":
+        """Return self, or raise :class:`TrackingFailure` with the reason."""
+        if not self.success:
+            raise TrackingFailure(self.reason)
+        return self
+
+
+def largest_sigma(cov: NDArray[np.float64], scale: float) -> float:
+    """``scale * sqrt(largest eigenvalue)`` of a covariance block; inf when it is not finite."""
+    if not np.all(np.isfinite(cov)):
+        return float("inf")
+    return scale * float(np.sqrt(max(float(np.linalg.eigvalsh(0.5 * (cov + cov.T))[-1]), 0.0)))
+
+
+def pose_covariance(A: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Covariance (6, 6) of the pose from the tracker's Gauss-Newton Hessian ``A`` (6x6, or 8x8 with
+    the affine brightness last, which is marginalised): ``(A^-1)[:6, :6]``. A Hessian singular in
+    some direction (relative to its largest eigenvalue, 1e-12) gives an all-infinite covariance."""
+    A = 0.5 * (A + A.T)
+    evals, evecs = np.linalg.eigh(A)
+    if not np.all(np.isfinite(evals)) or evals[0] <= 1e-12 * max(float(evals[-1]), 1e-300):
+        return np.full((6, 6), np.inf)
+    return ((evecs / evals) @ evecs.T)[:6, :6]
+
+
+class TrackingKeyframe:
+    """A keyframe prepared for tracking: its pyramid and its points' host intensities per level.
+
+    Args:
+        camera: level-0 intrinsics.
+        image: the keyframe's left image (H, W) in 8-bit units.
+        pixels: (N, 2) level-0 pixels of its points.
+        inverse_depth: (N,) inverse depths (> 0).
+        inverse_depth_variance: (N,) variances V (>= 0).
+        affine: the keyframe's affine brightness (a, b), held fixed.
+        config: tracker settings (levels, pattern).
+    """
+
+    def __init__(self, camera: PinholeCamera, image: ArrayLike, pixels: ArrayLike, inverse_depth: ArrayLike,
+                 inverse_depth_variance: ArrayLike, affine: ArrayLike = (0.0, 0.0),
+                 config: TrackingConfig | None = None) -> None:
+        self.config = config or TrackingConfig()
+        px = np.asarray(pixels, dtype=float).reshape(-1, 2)
+        n = px.shape[0]
+        d = np.asarray(inverse_depth, dtype=float).reshape(-1)
+        V = np.broadcast_to(np.asarray(inverse_depth_variance, dtype=float), (n,)).copy()
+        if d.shape[0] != n:
+            raise InputError(f"keyframe has {n} pixels but {d.shape[0]} inverse depths")
+        if n == 0:
+            raise InputError("keyframe has no points to track with")
+        if not (np.all(np.isfinite(px)) and np.all(np.isfinite(d)) and np.all(np.isfinite(V))):
+            raise InputError("keyframe points contain NaN or infinite pixels, inverse depths or variances")
+        if np.any(V < 0):
+            raise InputError("keyframe inverse-depth variances must be >= 0")
+        img = np.asarray(image, dtype=np.float32)
+        if img.shape[:2] != camera.shape:
+            raise InputError(f"keyframe image is {img.shape[1]}x{img.shape[0]}, camera says "
+                             f"{camera.width}x{camera.height}")
+        self.camera = camera
+        self.pixels, self.inverse_depth, self.variance = px, d, V
+        self.affine = np.asarray(affine, dtype=float).reshape(2)
+        pyr = build_pyramid(img, self.config.levels)
+        self.levels = len(pyr)
+        self.cameras = [camera.scaled(lv) for lv in range(self.levels)]
+        pat = self.config.pattern
+        self.level_index: list[NDArray[np.intp]] = []
+        self.level_pixels: list[NDArray[np.float64]] = []
+        self.level_bearings: list[NDArray[np.float64]] = []
+        self.host_samples: list[tuple[NDArray, NDArray]] = []
+        for lv in range(self.levels):
+            step = max(1, int(np.ceil(self.config.coarse_decay ** lv)))
+            step = min(step, max(1, n // max(1, self.config.min_coarse_points)))
+            idx = np.arange(0, n, step)
+            lp = (px[idx] + 0.5) / 2.0 ** lv - 0.5
+            self.level_index.append(idx)
+            self.level_pixels.append(lp)
+            self.level_bearings.append(pattern_bearings(self.cameras[lv], lp, pat))
+            self.host_samples.append(sample_host(GradientImage(pyr[lv], clip_range=self.config.clip_range), lp, pat))
+
+
+def frame_pyramid(image: ArrayLike, levels: int,
+                  clip_range: tuple[float, float] | None = DEFAULT_CLIP_RANGE) -> list[GradientImage]:
+    """The frame's pyramid with gradients, one :class:`GradientImage` per level (``clip_range``:
+    the keyframe's, ``TrackingConfig.clip_range``)."""
+    return [GradientImage(p, clip_range=clip_range) for p in build_pyramid(np.asarray(image, dtype=np.float32), levels)]
