@@ -13,6 +13,7 @@ component, each field's default and allowed range declared once beside it
       tracking             gtvo.frontend.tracking.TrackingConfig
       window               gtvo.window.WindowConfig
       flow_fallback        gtvo.frontend.flow_pose.FlowPoseConfig | None
+      frame_checks         gtvo.frontend.frame_checks.FrameCheckSettings
       motion_model         MotionModelConfig
       photometric          factors.params.PhotometricParams
 

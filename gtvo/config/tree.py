@@ -16,6 +16,7 @@ import numpy as np
 from factors.params import PhotometricParams
 from gtvo.core.settings import SettingError, check_settings, setting, type_hints
 from gtvo.frontend.flow_pose import FlowPoseConfig
+from gtvo.frontend.frame_checks import FrameCheckSettings
 from gtvo.frontend.keyframes import KeyframeRule
 from gtvo.frontend.point_selection import PointSelectionConfig
 from gtvo.frontend.rgbd import DEPTH_SIGMA_MODEL
@@ -128,6 +129,8 @@ class OdometryConfig:
         flow_fallback: when tracking fails from every motion-model guess, try once more from a guess
             of sparse optical flow + PnP (:func:`gtvo.frontend.flow_pose.optical_flow_pose`) before
             declaring the frame lost; null turns it off.
+        frame_checks: when a tracked frame is *suspect* (its image contradicts a motion model that
+            has been right: a duplicated or out-of-order frame; :mod:`gtvo.frontend.frame_checks`).
         motion_model: the initial guess of each frame's pose.
         photometric: the photometric model shared by the tracker, the window and the stereo gain
             estimate: noise, Huber threshold, pattern and the sensor's clipped range.
@@ -140,6 +143,7 @@ class OdometryConfig:
     tracking: TrackingConfig = field(default_factory=TrackingConfig)
     window: WindowConfig = field(default_factory=WindowConfig)
     flow_fallback: FlowPoseConfig | None = field(default_factory=FlowPoseConfig)
+    frame_checks: FrameCheckSettings = field(default_factory=FrameCheckSettings)
     motion_model: MotionModelConfig = field(default_factory=MotionModelConfig)
     photometric: PhotometricParams = field(default_factory=PhotometricParams)
 

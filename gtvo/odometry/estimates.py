@@ -23,12 +23,22 @@ class FrameOutcome(enum.Enum):
       prediction (counted as a tracking failure).
     * ``LOST``: tracking failed and the frame could not host a keyframe either (too few points
       with a depth); its pose is the prediction (counted as a tracking failure).
+    * ``RECOVERED``: failed from every motion-model guess, tracked from the optical-flow guess
+      (a recovered frame the keyframe rule makes a keyframe is ``KEYFRAME``, with
+      :attr:`FrameEstimate.recovered` True).
+    * ``SUSPECT``: tracked, but its image contradicts a motion model that has been right (a
+      duplicated, stale or out-of-order image: :mod:`gtvo.frontend.frame_checks`); it keeps the
+      predicted pose, does not become a keyframe and is not used for the next prediction.
+    * ``SKIPPED``: the frame's images could not be read (the pipeline's; no estimate is made).
     """
 
     TRACKED = "tracked"
     KEYFRAME = "keyframe"
     REINITIALISED = "reinitialised"
     LOST = "lost"
+    RECOVERED = "recovered"
+    SUSPECT = "suspect"
+    SKIPPED = "skipped"
 
 
 @dataclass(frozen=True)
@@ -47,7 +57,10 @@ class FrameEstimate:
         keyframe_index: the frame index of the keyframe it was tracked against (its own index
             when it was made a keyframe without tracking).
         T_keyframe_frame: a frame that is not a keyframe: its pose relative to ``keyframe_index``
-            (tracked, or predicted when it is lost), from which ``T_world_cam`` is re-expressed.
+            (tracked, or predicted when it is lost or suspect), from which ``T_world_cam`` is
+            re-expressed.
+        reason: why the frame was lost, re-initialised, recovered or suspect ("" otherwise).
+        from_flow_guess: tracked from the optical-flow guess (:attr:`recovered`).
     """
 
     index: int
@@ -58,6 +71,20 @@ class FrameEstimate:
     seconds: float
     keyframe_index: int = -1
     T_keyframe_frame: gtsam.Pose3 | None = None
+    reason: str = ""
+    from_flow_guess: bool = False
+
+    @property
+    def recovered(self) -> bool:
+        """True when the frame was tracked from the optical-flow guess (``RECOVERED``, or a
+        ``KEYFRAME`` made from such a frame)."""
+        return self.outcome is FrameOutcome.RECOVERED or self.from_flow_guess
+
+    @property
+    def suspect(self) -> bool:
+        """True when the frame's image contradicted the motion model (``SUSPECT``): its pose is
+        the prediction, relative to ``keyframe_index`` like a lost frame's."""
+        return self.outcome is FrameOutcome.SUSPECT
 
     @property
     def is_keyframe(self) -> bool:

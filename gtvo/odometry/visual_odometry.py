@@ -14,6 +14,9 @@ depth, keyframe rule), the residual math in :mod:`factors`, the window in :mod:`
 * a new keyframe is made when the keyframe's points drift out of view, the motion relative to
   the keyframe grows large against the scene depth, or the brightness changes a lot (rule in
   :mod:`gtvo.frontend.keyframes`);
+* a tracked frame whose image contradicts a motion model that has been right (a duplicated or
+  out-of-order image, :mod:`gtvo.frontend.frame_checks`) is *suspect*: it keeps the predicted
+  pose, makes no keyframe and is left out of the next prediction;
 * when tracking fails, the frame is re-initialised from stereo at the predicted pose and the run
   goes on; a frame with too few points for that (a blank or covered view) is *lost*: it keeps the
   predicted pose and the next frames are tracked against the keyframe again; both are counted;
@@ -44,6 +47,7 @@ from gtvo.frontend.tracking import (TrackingKeyframe, TrackingResult, frame_pyra
 from gtvo.evaluation.trajectory import Trajectory
 from gtvo.frontend.stereo_affine import estimate_stereo_affine
 from gtvo.config import OdometryConfig
+from gtvo.frontend.frame_checks import FrameChecker, measure_step
 from gtvo.frontend.keyframes import needs_keyframe
 from gtvo.frontend.rgbd import rgbd_keyframe_points
 from gtvo.odometry.estimates import FrameEstimate, FrameOutcome, Keyframe
@@ -87,6 +91,8 @@ class VisualOdometry:
         self.window_results: list[WindowResult] = []
         self._keyframe_rule = self.config.keyframes
         self._previous: tuple[Frame, NDArray[np.float32]] | None = None
+        self._checker = FrameChecker(self.config.frame_checks)
+        self._flow_reason: str | None = None  # set by _track when the optical-flow guess tracked the frame
         self._kalman = None
         self._keyframe_by_index: dict[int, Keyframe] = {}
         self._window_affine: dict[int, NDArray[np.float64]] = {}  # keyframe index -> (a, b) in the window
@@ -127,7 +133,7 @@ class VisualOdometry:
         kf = self.keyframes[-1]
         assert kf.tracker is not None  # the latest keyframe keeps its tracker
         T_pred = self._predict(frame.timestamp)
-        last = rigid_pose(self.estimates[-1].T_world_cam)
+        last = rigid_pose(self._good_estimates(1)[0].T_world_cam)
         pyr = frame_pyramid(left, kf.tracker.levels, self.config.photometric.clip_range)
         result = self._track(kf, pyr, T_pred, last, left)
         lost_view = result.n_valid < self.config.keyframes.min_visible * len(kf.points)
@@ -135,7 +141,7 @@ class VisualOdometry:
             # the view has moved on (or tracking failed): the previous frame, whose pose is
             # tracked, becomes the keyframe, and this frame is tracked against it
             prev_frame, prev_left = self._previous
-            prev = self.estimates[-1]
+            prev = self._good_estimates(1)[0]
             tracked = None
             if prev.tracking is not None and prev.keyframe_index in self._keyframe_by_index:
                 tracked = (prev.keyframe_index, prev.tracking.affine)
@@ -152,22 +158,30 @@ class VisualOdometry:
         if not result.success:
             # re-initialise: this frame becomes a keyframe at the motion model's prediction
             self.failures += 1
+            self._checker.not_checked()
             new_kf = self._make_keyframe_if_possible(frame, left, T_pred)
             if new_kf is None:  # nothing to re-initialise from: the frame is lost
                 self.lost_frames += 1
                 return self._finish(frame, left, T_pred, FrameOutcome.LOST, result, t0,
-                                    T_keyframe_frame=kf.T_world_cam.between(T_pred))
-            return self._finish(frame, left, new_kf.T_world_cam, FrameOutcome.REINITIALISED, result, t0)
+                                    T_keyframe_frame=kf.T_world_cam.between(T_pred),
+                                    reason=f"tracking failed ({result.reason}); too few points with a depth "
+                                           "to re-initialise")
+            return self._finish(frame, left, new_kf.T_world_cam, FrameOutcome.REINITIALISED, result, t0,
+                                reason=f"tracking failed ({result.reason})")
 
         T_world = kf.T_world_cam.compose(result.T_keyframe_frame)
+        suspect = self._suspect_reason(frame, kf, last, T_pred, T_world)
+        if suspect is not None:  # keeps the prediction, like a lost frame; no keyframe, not a candidate
+            return self._finish(frame, left, T_pred, FrameOutcome.SUSPECT, result, t0, reason=suspect,
+                                T_keyframe_frame=kf.T_world_cam.between(T_pred))
+        plain = FrameOutcome.TRACKED if self._flow_reason is None else FrameOutcome.RECOVERED
         if needs_keyframe(self.pinhole, kf.points, result, self._keyframe_rule):
             new_kf = self._make_keyframe_if_possible(frame, left, T_world, (kf.index, result.affine))
             if new_kf is not None:
                 return self._finish(frame, left, new_kf.T_world_cam, FrameOutcome.KEYFRAME, result, t0)
-            return self._finish(frame, left, T_world, FrameOutcome.TRACKED, result, t0, candidate=False,
+            return self._finish(frame, left, T_world, plain, result, t0, candidate=False,
                                 T_keyframe_frame=result.T_keyframe_frame)
-        return self._finish(frame, left, T_world, FrameOutcome.TRACKED, result, t0,
-                            T_keyframe_frame=result.T_keyframe_frame)
+        return self._finish(frame, left, T_world, plain, result, t0, T_keyframe_frame=result.T_keyframe_frame)
 
     def trajectory(self, name: str = "gtvo") -> Trajectory:
         """The estimated left-camera trajectory so far (every frame)."""
@@ -241,6 +255,7 @@ class VisualOdometry:
         """Track against ``kf`` from several initial guesses (motion model, no motion, keyframe);
         when all fail, from the optical-flow guess (``config.flow_fallback``)."""
         assert kf.tracker is not None
+        self._flow_reason = None
         guesses = [kf.T_world_cam.between(T_pred), kf.T_world_cam.between(last), gtsam.Pose3()]
         prev_rms = self._last_rms()
         solver = track_handrolled if self.config.solver.tracker == "handrolled" else track_gtsam
@@ -258,31 +273,33 @@ class VisualOdometry:
         retry = solver(kf.tracker, pyr, rigid_pose(flow.T_keyframe_frame), affine)
         if retry.success:
             self.flow_recoveries += 1
+            self._flow_reason = f"tracked from the optical-flow guess (from the motion model: {result.reason})"
             return retry
         result.reason = f"{result.reason}; from the optical-flow guess: {retry.reason}"
         return result
 
     def _last_rms(self) -> float | None:
         for e in reversed(self.estimates):
-            if e.tracking is not None and e.tracking.success:
+            if e.tracking is not None and e.tracking.success and not e.suspect:
                 return e.tracking.rms
         return None
 
     def _affine_guess(self, kf: Keyframe) -> NDArray[np.float64]:
         """The last frame's affine brightness if it was tracked against ``kf``, else (0, 0)."""
-        last = self.estimates[-1]
+        last = self._good_estimates(1)[0]
         if last.keyframe_index == kf.index and last.tracking is not None and last.tracking.success:
             return last.tracking.affine.copy()
         return np.zeros(2)
 
     def _predict(self, timestamp: float) -> gtsam.Pose3:
         """Motion-model guess of ``T_world_cam`` at ``timestamp``."""
-        last = rigid_pose(self.estimates[-1].T_world_cam)
-        if len(self.estimates) < 2:
+        good = self._good_estimates(2)  # suspect frames are left out: the step spans them
+        last = rigid_pose(good[-1].T_world_cam)
+        if len(good) < 2:
             return last
-        prev = rigid_pose(self.estimates[-2].T_world_cam)
-        dt_prev = self.estimates[-1].timestamp - self.estimates[-2].timestamp
-        dt = timestamp - self.estimates[-1].timestamp
+        prev = rigid_pose(good[-2].T_world_cam)
+        dt_prev = good[-1].timestamp - good[-2].timestamp
+        dt = timestamp - good[-1].timestamp
         if self._kalman is not None and self._kalman.initialized:
             from gtvo.motion.model import T_world_cam_from_planar_pose  # noqa: PLC0415
 
@@ -292,6 +309,30 @@ class VisualOdometry:
         # constant velocity, scaled to the time step
         xi = gtsam.Pose3.Logmap(prev.between(last)) * (dt / dt_prev if dt_prev > 0 else 1.0)
         return last.compose(gtsam.Pose3.Expmap(xi))
+
+    def _good_estimates(self, n: int) -> list[FrameEstimate]:
+        """The last ``n`` (or fewer) estimates that are not suspect, oldest first."""
+        out: list[FrameEstimate] = []
+        for e in reversed(self.estimates):
+            if not e.suspect:
+                out.append(e)
+                if len(out) == n:
+                    break
+        return out[::-1]
+
+    def _suspect_reason(self, frame: Frame, kf: Keyframe, last: gtsam.Pose3, T_pred: gtsam.Pose3,
+                        T_tracked: gtsam.Pose3) -> str | None:
+        """Why the tracked frame is suspect (:mod:`gtvo.frontend.frame_checks`), or None.
+        ``last``: the last good frame's pose (moved along with a promoted keyframe)."""
+        good = self._good_estimates(2)
+        if len(good) < 2:  # no motion model yet
+            return None
+        dt, dt_ref = frame.timestamp - good[1].timestamp, good[1].timestamp - good[0].timestamp
+        if not (np.isfinite(dt) and np.isfinite(dt_ref) and dt_ref > 0):  # no usable times: frame counts
+            dt, dt_ref = frame.index - good[1].index, good[1].index - good[0].index
+        step = measure_step(self.pinhole, kf.points, kf.T_world_cam, last, T_pred, T_tracked, dt / dt_ref)
+        previous = self.estimates[-1]
+        return self._checker.check(step, good[1].index, previous.index if previous.suspect else None)
 
     def _frame_points(self, frame: Frame, left: NDArray[np.float32]) -> KeyframePoints:
         cfg = self.config.frontend
@@ -409,23 +450,30 @@ class VisualOdometry:
             self.estimates[i] = dataclasses.replace(e, T_world_cam=T.matrix())
 
     def _mark_last_as_keyframe(self) -> None:
-        """Record that the previous frame was promoted to a keyframe."""
-        self.estimates[-1] = dataclasses.replace(self.estimates[-1], outcome=FrameOutcome.KEYFRAME)
+        """Record that the last good frame (the candidate) was promoted to a keyframe."""
+        i = next(i for i in range(len(self.estimates) - 1, -1, -1) if not self.estimates[i].suspect)
+        self.estimates[i] = dataclasses.replace(self.estimates[i], outcome=FrameOutcome.KEYFRAME)
 
     def _finish(self, frame: Frame, left: NDArray[np.float32], T_world_cam: gtsam.Pose3, outcome: FrameOutcome,
                 result: TrackingResult | None, t0: float, candidate: bool = True,
-                T_keyframe_frame: gtsam.Pose3 | None = None) -> FrameEstimate:
+                T_keyframe_frame: gtsam.Pose3 | None = None, reason: str = "") -> FrameEstimate:
         """Record the frame's estimate. ``candidate``: the frame may be promoted to a keyframe by
-        the next frame (not when it is lost or just failed to become one); ``T_keyframe_frame``:
-        a non-keyframe's pose relative to its keyframe."""
+        the next frame (not when it is lost or just failed to become one; a suspect frame leaves
+        the candidate as it was); ``T_keyframe_frame``: a non-keyframe's pose relative to its
+        keyframe; ``reason``: why it was lost, re-initialised or suspect."""
         tracked = result is not None and outcome is not FrameOutcome.REINITIALISED
         kf_index = self.keyframes[-1].index if tracked else frame.index
         if tracked and outcome is FrameOutcome.KEYFRAME:  # tracked against the keyframe before this one
             kf_index = self.keyframes[-2].index
         lost = outcome is FrameOutcome.LOST
+        flow = tracked and outcome is not FrameOutcome.LOST and self._flow_reason is not None
+        if flow and not reason:
+            reason = self._flow_reason or ""
         est = FrameEstimate(frame.index, float(frame.timestamp), T_world_cam.matrix(), outcome, result,
-                            time.perf_counter() - t0, kf_index, T_keyframe_frame)
+                            time.perf_counter() - t0, kf_index, T_keyframe_frame, reason, flow)
         self.estimates.append(est)
+        if est.suspect:  # not fed to the motion model; the candidate stays the last good frame
+            return est
         self._previous = (frame, left) if candidate and not lost else None
         if self._kalman is not None:
             from gtvo.motion.model import planar_pose_from_T_world_cam  # noqa: PLC0415
@@ -433,10 +481,13 @@ class VisualOdometry:
             z = planar_pose_from_T_world_cam(est.T_world_cam)
             if not self._kalman.initialized:
                 self._kalman.initialize(z)
-            elif lost:  # the pose is the filter's own prediction: no measurement to fuse
-                self._kalman.predict(est.timestamp - self.estimates[-2].timestamp)
             else:
-                self._kalman.step(z, est.timestamp - self.estimates[-2].timestamp)
+                good = self._good_estimates(2)
+                dt = good[1].timestamp - good[0].timestamp  # over suspect frames, which it never saw
+                if lost:  # the pose is the filter's own prediction: no measurement to fuse
+                    self._kalman.predict(dt)
+                else:
+                    self._kalman.step(z, dt)
         return est
 
 
