@@ -18,7 +18,7 @@ from gtvo.datasets import detect_format, open_sequence
 from gtvo.datasets.identity import sequence_identity
 from gtvo.errors import InputError
 from gtvo.config import OdometryConfig, as_config, config_to_dict, config_to_yaml
-from gtvo.odometry import VisualOdometry
+from gtvo.odometry import VisualOdometry, frames_by_outcome
 from gtvo.io.covariances import KeyframeCovariances
 from gtvo.io.outputs import check_run_output_dir, write_run_outputs
 from gtvo.datasets.sequence import Sequence
@@ -35,12 +35,13 @@ def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progre
 
     Returns:
         ``(vo, trajectory, run_info)`` where ``run_info`` holds frames, keyframes, seconds,
-        frames per second, failures and skipped frames.
+        frames per second, failures, skipped frames and ``frame_outcomes`` (the flagged frames
+        by index with their reasons: :func:`gtvo.odometry.frames_by_outcome`).
     """
     config = config or OdometryConfig()
     vo = VisualOdometry(seq.camera, config)
     warn = warn or (lambda msg: print(f"warning: {msg}", file=sys.stderr))
-    skipped: list[int] = []
+    skipped: list[tuple[int, str]] = []
     bar = None
     indices: Any = range(len(seq))
     if progress:
@@ -55,7 +56,7 @@ def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progre
         except InputError as exc:
             if strict or not vo.estimates:
                 raise
-            skipped.append(i)
+            skipped.append((i, str(exc)))
             warn(f"skipping frame {i}: {exc}")
             continue
         vo.process(frame)
@@ -78,7 +79,10 @@ def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progre
         "reinitialisations": sum(1 for e in vo.estimates if e.reinitialised),
         "flow_recoveries": vo.flow_recoveries,
         "lost_frames": vo.lost_frames,
-        "skipped_frames": skipped,
+        "suspect_frames": sum(1 for e in vo.estimates if e.suspect),
+        "skipped_frames": [i for i, _ in skipped],
+        # every flagged frame by index with its reason (docs/evaluation.md, "Frame outcomes")
+        "frame_outcomes": frames_by_outcome(vo.estimates, skipped),
         "tracking_iterations_mean": _mean([e.tracking.iterations for e in vo.estimates if e.tracking is not None]),
         # how well the images determined each tracked frame's rotation (TrackingResult.rotation_sigma_deg)
         "tracking_rotation_sigma_deg_median": _median(sigmas),

@@ -93,7 +93,8 @@ def odometry_config(args: Any):
 
 #: The report's headline figures, in the order the console summary prints them.
 SUMMARY_KEYS = ("frames", "keyframes", "seconds", "frames_per_second", "tracking_failures", "flow_recoveries",
-                "lost_frames", "window_optimisations", "window_seconds_mean", "ate_rmse_m", "rpe_trans_rmse_m",
+                "lost_frames", "suspect_frames", "window_optimisations", "window_seconds_mean", "ate_rmse_m",
+                "rpe_trans_rmse_m",
                 "ate_skipped", "drift_percent", "loops_detected", "loops_accepted", "loop_closed_ate_rmse_m",
                 "loop_closed_drift_percent", "map_points_written", "map_points_left_out", "map_points_skipped",
                 "unpaired_messages")
@@ -116,4 +117,21 @@ def print_report(report: dict[str, Any]) -> None:
     for k in shown:
         v = report[k]
         print(f"  {k:<{width}} {v:.4g}" if isinstance(v, float) else f"  {k:<{width}} {v}")
+    for line in flagged_frame_lines(report.get("frame_outcomes") or {}):
+        print(f"  {line}")
     print(f"  outputs in {report['out']}")
+
+
+def flagged_frame_lines(outcomes: dict[str, Any]) -> list[str]:
+    """One line per kind of flagged frame, naming them and their reasons (short forms), e.g.
+    ``suspect frames: 25, 30, 31 (no image motion while the rig moved / motion reversed ...)``."""
+    lines = []
+    for name in ("suspect", "lost", "reinitialised", "recovered", "skipped"):
+        frames = outcomes.get(name)
+        if not isinstance(frames, list) or not frames:
+            continue
+        reasons = list(dict.fromkeys(str(f.get("reason", "")).split(" (")[0] for f in frames))
+        indices = ", ".join(str(f["index"]) for f in frames)
+        why = " / ".join(r for r in reasons if r)
+        lines.append(f"{name} frames: {indices}" + (f" ({why})" if why else ""))
+    return lines

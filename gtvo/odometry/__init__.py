@@ -4,7 +4,7 @@
 :mod:`gtvo.odometry.estimates` what it says about each frame.
 """
 
-from gtvo.odometry.estimates import FrameEstimate, FrameOutcome, Keyframe
+from gtvo.odometry.estimates import FrameEstimate, FrameOutcome, Keyframe, frames_by_outcome
 from gtvo.odometry.visual_odometry import VisualOdometry, rigid_pose
 
-__all__ = ["FrameEstimate", "FrameOutcome", "Keyframe", "VisualOdometry", "rigid_pose"]
+__all__ = ["FrameEstimate", "FrameOutcome", "Keyframe", "VisualOdometry", "frames_by_outcome", "rigid_pose"]

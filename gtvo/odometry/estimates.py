@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import enum
 from dataclasses import dataclass
+from typing import Any, Iterable
 
 import gtsam
 import numpy as np
@@ -125,3 +126,23 @@ class Keyframe:
     #: only each keyframe's pose and points
     tracker: TrackingKeyframe | None
     image: NDArray[np.float32] | None = None
+
+
+#: The outcomes ``report.json`` lists frame by frame (with the reason); the others are counted.
+FLAGGED_OUTCOMES = ("suspect", "lost", "reinitialised", "recovered", "skipped")
+
+
+def frames_by_outcome(estimates: list[FrameEstimate], skipped: Iterable[tuple[int, str]] = ()) -> dict[str, Any]:
+    """The frames of a run by outcome, for ``report.json``: ``tracked`` and ``keyframe`` as counts,
+    every flagged frame (:data:`FLAGGED_OUTCOMES`) as ``{"index", "reason"}``. ``recovered``
+    lists every frame tracked from the optical-flow guess, keyframes among them; ``skipped``:
+    ``(index, reason)`` of the frames whose images could not be read (the pipeline's)."""
+    out: dict[str, Any] = {
+        "tracked": sum(1 for e in estimates if e.outcome is FrameOutcome.TRACKED),
+        "keyframe": sum(1 for e in estimates if e.outcome is FrameOutcome.KEYFRAME),
+    }
+    for name in FLAGGED_OUTCOMES[:-2]:
+        out[name] = [{"index": e.index, "reason": e.reason} for e in estimates if e.outcome.value == name]
+    out["recovered"] = [{"index": e.index, "reason": e.reason} for e in estimates if e.recovered]
+    out["skipped"] = [{"index": int(i), "reason": r} for i, r in skipped]
+    return out
