@@ -1,0 +1,286 @@
+"""Suspect frames (gtvo/frontend/frame_checks.py and its use in VisualOdometry): every bad frame
+flagged, by index.
+
+The check's figures on geometry built here (no data), the checker's arming rules, the report's
+``frame_outcomes`` and the console lines; then whole runs: the synthetic room and KITTI_sequence_1
+with injected faults (a duplicated frame, two swapped frames, a black frame) must flag exactly the
+injected frames, keep the suspect ones out of the keyframes and the window, and come back to the
+clean run's error after them; clean KITTI, TUM, EuRoC and synthetic runs must flag nothing.
+"""
+
+from __future__ import annotations
+
+import json
+
+import gtsam
+import numpy as np
+import pytest
+
+from gtvo.commands._common import flagged_frame_lines, print_report
+from gtvo.config import OdometryConfig
+from gtvo.core.camera import PinholeCamera
+from gtvo.datasets.sequence import Sequence
+from gtvo.datasets.synthetic import make_synthetic_sequence
+from gtvo.errors import InputError
+from gtvo.frontend.frame_checks import FrameChecker, FrameCheckSettings, StepCheck, measure_step, suspect_reason
+from gtvo.frontend.stereo_depth import KeyframePoints
+from gtvo.odometry import FrameEstimate, FrameOutcome, VisualOdometry, frames_by_outcome
+
+CAM = PinholeCamera(500.0, 500.0, 320.0, 240.0, 640, 480)
+
+
+def _points(n: int = 200, seed: int = 0) -> KeyframePoints:
+    rng = np.random.default_rng(seed)
+    px = np.column_stack([rng.uniform(20, 620, n), rng.uniform(20, 460, n)])
+    d = 1.0 / rng.uniform(4.0, 30.0, n)
+    return KeyframePoints(px, d, np.full(n, 1e-4), np.full(n, 100.0))
+
+
+def _forward(z: float) -> gtsam.Pose3:
+    return gtsam.Pose3(gtsam.Rot3(), np.array([0.0, 0.0, z]))
+
+
+# -- the figures -------------------------------------------------------------------------------------
+def test_a_repeated_image_is_one_frame_step_off_and_shows_no_motion():
+    pts, kf = _points(), gtsam.Pose3()
+    last, pred = _forward(1.0), _forward(2.0)
+    step = measure_step(CAM, pts, kf, last, pred, last, 1.0)
+    assert step.tracked_px == 0.0 and step.predicted_px > 5.0
+    assert step.deviation == pytest.approx(1.0) and step.along == pytest.approx(0.0)
+    assert suspect_reason(step, 7).startswith("no image motion while the rig moved")
+
+
+def test_a_frame_as_predicted_deviates_by_nothing_and_a_frame_ahead_by_its_extra_step():
+    pts, kf = _points(), gtsam.Pose3()
+    last, pred = _forward(1.0), _forward(1.5)
+    assert measure_step(CAM, pts, kf, last, pred, pred, 1.0).deviation == pytest.approx(0.0, abs=1e-9)
+    ahead = measure_step(CAM, pts, kf, last, pred, _forward(2.0), 1.0)
+    assert 0.8 < ahead.deviation < 1.4 and ahead.along > 1.0
+    assert suspect_reason(ahead, 7).startswith("image ahead of the motion model")
+
+
+def test_the_deviation_is_in_frame_steps_over_a_longer_time_step():
+    """After an excluded frame the prediction spans two steps: a frame one step short of it is one
+    frame step off (not half of the two-step prediction)."""
+    pts, kf = _points(), gtsam.Pose3()
+    rot = gtsam.Rot3.Yaw(0.0)
+    step1 = gtsam.Pose3(gtsam.Rot3.Ry(0.02), np.array([0.0, 0.0, 0.3]))  # turning: rotation-aware
+    last = gtsam.Pose3(rot, np.zeros(3))
+    pred2 = last.compose(step1).compose(step1)
+    short = measure_step(CAM, pts, kf, last, pred2, last.compose(step1), 2.0)
+    assert short.step_px == pytest.approx(short.predicted_px / 2)
+    assert 0.7 < short.deviation < 1.3 and 0 < short.along < 1
+    assert suspect_reason(short, 3, previous_suspect=4).startswith("motion reversed after suspect frame 4")
+
+
+def test_points_behind_any_camera_are_left_out():
+    pts, kf = _points(), gtsam.Pose3()
+    step = measure_step(CAM, pts, kf, gtsam.Pose3(), _forward(50.0), _forward(50.0), 1.0)
+    assert step == StepCheck(0.0, 0.0, 0.0, 1.0, 0.0)
+
+
+# -- the checker's rules ---------------------------------------------------------------------------
+def _step(deviation: float, step_px: float = 20.0, intervals: float = 1.0) -> StepCheck:
+    return StepCheck(step_px * intervals, step_px * intervals, deviation * step_px, intervals, 1.0)
+
+
+def test_the_check_arms_only_after_agreeing_frames_and_flags_a_large_deviation():
+    c = FrameChecker(FrameCheckSettings())
+    assert c.check(_step(2.0), 0) is None  # no history: not armed, and it joins the history
+    for _ in range(3):
+        assert c.check(_step(0.05), 0) is None
+    assert c.check(_step(0.4), 0) is None  # below max_deviation
+    for _ in range(3):
+        assert c.check(_step(0.05), 0) is None
+    assert c.check(_step(1.0), 5) is not None and c.consecutive == 1
+    assert c.check(_step(1.0, intervals=2.0), 5, previous_suspect=6) is not None  # history unchanged
+    assert c.check(_step(0.02, intervals=2.0), 5) is None and c.consecutive == 0
+
+
+@pytest.mark.parametrize("spoiler", ["jerky", "slow", "gap", "untracked"])
+def test_the_check_stays_off_when_the_prediction_means_nothing(spoiler):
+    c = FrameChecker(FrameCheckSettings())
+    for dev in (0.05, 0.05, 0.3 if spoiler == "jerky" else 0.05):  # handheld: the model was off lately
+        c.check(_step(dev), 0)
+    if spoiler == "untracked":
+        c.not_checked()  # a lost or re-initialised frame
+    bad = {"slow": _step(1.0, step_px=2.0), "gap": _step(1.0, intervals=3.0)}.get(spoiler, _step(1.0))
+    assert not c.armed(bad) and c.check(bad, 0) is None
+
+
+def test_a_streak_of_suspect_frames_ends_after_max_consecutive():
+    c = FrameChecker(FrameCheckSettings(max_consecutive=2))
+    for _ in range(3):
+        c.check(_step(0.01), 0)
+    assert c.check(_step(1.0), 0) and c.check(_step(1.0), 0)
+    assert c.check(_step(1.0), 0) is None  # the model, not the images, is taken to be wrong
+
+
+def test_disabled_check_flags_nothing():
+    c = FrameChecker(FrameCheckSettings(enabled=False))
+    for _ in range(4):
+        c.check(_step(0.01), 0)
+    assert c.check(_step(5.0), 0) is None
+
+
+@pytest.mark.parametrize("field,value", [("max_deviation", 0.0), ("min_step_px", float("nan")),
+                                         ("agree_frames", 0), ("max_consecutive", 0)])
+def test_bad_settings_are_input_errors(field, value):
+    with pytest.raises(InputError, match=field):
+        FrameCheckSettings(**{field: value})
+
+
+# -- the report and the console ----------------------------------------------------------------------
+def _est(i: int, outcome: FrameOutcome, reason: str = "", flow: bool = False) -> FrameEstimate:
+    return FrameEstimate(i, 0.1 * i, np.eye(4), outcome, None, 0.0, reason=reason, from_flow_guess=flow)
+
+
+def test_frames_by_outcome_lists_flagged_frames_with_reasons():
+    ests = [_est(0, FrameOutcome.KEYFRAME), _est(1, FrameOutcome.TRACKED), _est(2, FrameOutcome.SUSPECT, "no motion"),
+            _est(3, FrameOutcome.RECOVERED, "flow"), _est(4, FrameOutcome.KEYFRAME, "flow", flow=True),
+            _est(5, FrameOutcome.LOST, "blank"), _est(6, FrameOutcome.REINITIALISED, "failed")]
+    out = frames_by_outcome(ests, [(7, "unreadable")])
+    assert out["tracked"] == 1 and out["keyframe"] == 2
+    assert out["suspect"] == [{"index": 2, "reason": "no motion"}]
+    assert [f["index"] for f in out["recovered"]] == [3, 4]
+    assert out["lost"] == [{"index": 5, "reason": "blank"}] and out["reinitialised"][0]["index"] == 6
+    assert out["skipped"] == [{"index": 7, "reason": "unreadable"}]
+    assert ests[4].is_keyframe and ests[4].recovered and ests[2].suspect and not ests[2].is_keyframe
+
+
+def test_console_names_the_flagged_frames():
+    lines = flagged_frame_lines({"tracked": 3, "suspect": [{"index": 25, "reason": "no image motion (x)"},
+                                                           {"index": 30, "reason": "motion reversed (y)"}],
+                                 "lost": []})
+    assert lines == ["suspect frames: 25, 30 (no image motion / motion reversed)"]
+
+
+# -- whole runs --------------------------------------------------------------------------------------
+def _faulted(seq: Sequence, duplicate: int | None = None, swap: int | None = None, black: int | None = None
+             ) -> Sequence:
+    """``seq`` with frame ``duplicate``'s images replaced by the frame before's, frames ``swap`` and
+    ``swap + 1`` exchanged and frame ``black``'s images all zeros (timestamps unchanged)."""
+    src = list(range(len(seq)))
+    if duplicate is not None:
+        src[duplicate] = duplicate - 1
+    if swap is not None:
+        src[swap], src[swap + 1] = swap + 1, swap
+
+    def wrap(load):
+        return lambda i: np.zeros_like(load(src[i])) if i == black else load(src[i])
+
+    return Sequence(seq.name, seq.kind, seq.camera, seq.timestamps, wrap(seq.load_left), wrap(seq.load_right),
+                    None, seq.gt_poses, None, [])
+
+
+def _run(seq: Sequence, config: OdometryConfig) -> VisualOdometry:
+    vo = VisualOdometry(seq.camera, config)
+    for frame in seq:
+        vo.process(frame)
+    return vo
+
+
+def _flagged(vo: VisualOdometry) -> dict[str, list[int]]:
+    kinds = ("suspect", "lost", "reinitialised")
+    return {k: [e.index for e in vo.estimates if e.outcome.value == k] for k in kinds}
+
+
+def _errors(vo: VisualOdometry, seq: Sequence) -> np.ndarray:
+    return np.linalg.norm(vo.trajectory().poses[:, :3, 3] - seq.gt_poses[:, :3, 3], axis=1)
+
+
+@pytest.fixture(scope="module")
+def room():
+    return make_synthetic_sequence(n_frames=14, noise_sigma=1.0)
+
+
+@pytest.mark.parametrize("mode", ["track", "window"])
+def test_synthetic_duplicate_is_suspect_and_a_clean_run_flags_nothing(room, mode):
+    clean = _run(room, OdometryConfig(mode=mode))
+    assert _flagged(clean) == {"suspect": [], "lost": [], "reinitialised": []}
+    vo = _run(_faulted(room, duplicate=9), OdometryConfig(mode=mode))
+    assert _flagged(vo) == {"suspect": [9], "lost": [], "reinitialised": []}
+    e9 = vo.estimates[9]
+    assert e9.reason.startswith("no image motion while the rig moved") and not e9.is_keyframe
+    assert 9 not in [kf.index for kf in vo.keyframes]
+    err, err_clean = _errors(vo, room), _errors(clean, room)
+    assert err[9] < 0.05  # the prediction over one 15 cm step, not the repeated image's pose
+    assert np.max(np.abs(err[10:] - err_clean[10:])) < 0.02
+
+
+def test_without_the_check_the_duplicate_is_tracked_where_it_is_not(room):
+    vo = _run(_faulted(room, duplicate=9), OdometryConfig(mode="track",
+                                                          frame_checks=FrameCheckSettings(enabled=False)))
+    assert _flagged(vo)["suspect"] == [] and _errors(vo, room)[9] > 0.1
+
+
+@pytest.fixture(scope="module")
+def kitti45(shared_data):
+    from gtvo.datasets import open_sequence  # noqa: PLC0415
+
+    folder = shared_data / "kitti_stereo_sample" / "KITTI_sequence_1"
+    if not folder.is_dir():
+        pytest.skip(f"KITTI snippet not found at {folder}")
+    return open_sequence(folder, max_frames=45)
+
+
+@pytest.fixture(scope="module")
+def kitti45_clean(kitti45):
+    return _run(kitti45, OdometryConfig(mode="window"))
+
+
+@pytest.mark.realdata
+def test_kitti_clean_run_flags_nothing(kitti45_clean):
+    assert _flagged(kitti45_clean) == {"suspect": [], "lost": [], "reinitialised": []}
+
+
+@pytest.fixture(scope="module")
+def kitti45_faulted(kitti45, tmp_path_factory):
+    """Frame 25 = frame 24, frames 30/31 swapped, frame 40 black (issue 20, item 4; without the
+    check: 0 failures and 1.1-1.35 m errors at 25, 30, 31, measured), through the pipeline."""
+    from gtvo.io.outputs import write_run_outputs  # noqa: PLC0415
+    from gtvo.pipeline import process_sequence  # noqa: PLC0415
+
+    seq = _faulted(kitti45, duplicate=25, swap=30, black=40)
+    vo, traj, info = process_sequence(seq, OdometryConfig(mode="window"))
+    out = tmp_path_factory.mktemp("faulted")
+    report = write_run_outputs(out, traj, seq, info)
+    report["out"] = str(out)
+    return vo, report, out
+
+
+@pytest.mark.realdata
+def test_kitti_injected_faults_are_flagged_exactly_in_the_report(kitti45_faulted, capsys):
+    _, report, out = kitti45_faulted
+    written = json.loads((out / "report.json").read_text())
+    frames = written["frame_outcomes"]
+    assert [f["index"] for f in frames["suspect"]] == [25, 30, 31]
+    assert [f["index"] for f in frames["lost"]] == [40] and frames["reinitialised"] == []
+    assert frames["suspect"][0]["reason"].startswith("no image motion while the rig moved")
+    assert frames["suspect"][2]["reason"].startswith("motion reversed")
+    assert written["suspect_frames"] == 3 and written["lost_frames"] == 1
+    print_report(report)
+    assert "suspect frames: 25, 30, 31 (no image motion while the rig moved" in capsys.readouterr().out
+
+
+@pytest.mark.realdata
+def test_kitti_errors_after_the_faults_return_to_the_clean_runs(kitti45, kitti45_clean, kitti45_faulted):
+    vo = kitti45_faulted[0]
+    assert _flagged(vo) == {"suspect": [25, 30, 31], "lost": [40], "reinitialised": []}
+    assert not {25, 30, 31, 40} & {kf.index for kf in vo.keyframes}
+    assert vo.window is not None and not {25, 30, 31, 40} & {k.index for k in vo.window.keyframes}
+    err, err_clean = _errors(vo, kitti45), _errors(kitti45_clean, kitti45)
+    assert np.max(err[[25, 30, 31]] - err_clean[[25, 30, 31]]) < 0.1  # the prediction, not the images' 1.1-1.35 m
+    after = [26, 27, 32, 33, 41, 42, 43, 44]
+    assert np.max(np.abs(err[after] - err_clean[after])) < 0.1
+
+
+@pytest.mark.realdata
+@pytest.mark.parametrize("folder", ["rgbd_dataset_freiburg3_teddy_first20", "euroc_v101_static_stereo"])
+def test_handheld_and_static_clips_flag_nothing(shared_data, folder):
+    from gtvo.datasets import open_sequence  # noqa: PLC0415
+
+    if not (shared_data / folder).is_dir():
+        pytest.skip(f"{folder} not found")
+    vo = _run(open_sequence(shared_data / folder), OdometryConfig(mode="window"))
+    assert _flagged(vo) == {"suspect": [], "lost": [], "reinitialised": []}
