@@ -114,14 +114,16 @@ class StepCheck:
 def measure_step(camera: PinholeCamera, points: KeyframePoints, T_world_keyframe: gtsam.Pose3,
                  T_last: gtsam.Pose3, T_pred: gtsam.Pose3, T_tracked: gtsam.Pose3, intervals: float) -> StepCheck:
     """:class:`StepCheck` of a frame tracked at ``T_tracked`` (world poses of the left camera),
-    measured at the keyframe's points; points behind any of the three cameras are left out."""
+    measured at the keyframe's points seen in the last good frame's and the predicted image
+    (points that leave the view or come close to the camera would dominate the RMS); points
+    behind any of the three cameras are left out."""
     X_kf = camera.backproject_inverse_depth(points.pixels, points.inverse_depth)
     T = T_world_keyframe.matrix()
     X = X_kf @ T[:3, :3].T + T[:3, 3]
     uv_g, ok_g = _project(camera, X, T_last)
     uv_p, ok_p = _project(camera, X, T_pred)
     uv_t, ok_t = _project(camera, X, T_tracked)
-    ok = ok_g & ok_p & ok_t
+    ok = ok_g & ok_p & ok_t & _inside(camera, uv_g) & _inside(camera, uv_p)
     if not np.any(ok):
         return StepCheck(0.0, 0.0, 0.0, intervals, 0.0)
     d_pred, d_trk = uv_p[ok] - uv_g[ok], uv_t[ok] - uv_g[ok]
@@ -192,6 +194,10 @@ def _project(camera: PinholeCamera, X_world: NDArray[np.float64], T_world_cam: g
     z = np.where(ok, Xc[:, 2], 1.0)
     uv = np.stack([camera.fx * Xc[:, 0] / z + camera.cx, camera.fy * Xc[:, 1] / z + camera.cy], axis=1)
     return uv, ok
+
+
+def _inside(camera: PinholeCamera, uv: NDArray[np.float64]) -> NDArray[np.bool_]:
+    return (uv[:, 0] >= 0) & (uv[:, 0] <= camera.width - 1) & (uv[:, 1] >= 0) & (uv[:, 1] <= camera.height - 1)
 
 
 def _rms(d: NDArray[np.float64]) -> float:
