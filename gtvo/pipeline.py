@@ -66,7 +66,8 @@ def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progre
     seconds = time.perf_counter() - t0
     traj = vo.trajectory(seq.name)
     n = len(vo.estimates)
-    sigmas = [e.tracking.rotation_sigma_deg for e in vo.estimates if e.tracking is not None and e.tracking.success]
+    sigmas = [e.tracking.rotation_sigma_deg for e in vo.estimates
+              if e.tracking is not None and e.tracking.success and not e.suspect]
     info: dict[str, Any] = {
         "mode": config.mode,
         "tracker_solver": config.solver.tracker,

@@ -138,10 +138,11 @@ def _est(i: int, outcome: FrameOutcome, reason: str = "", flow: bool = False) ->
 def test_frames_by_outcome_lists_flagged_frames_with_reasons():
     ests = [_est(0, FrameOutcome.KEYFRAME), _est(1, FrameOutcome.TRACKED), _est(2, FrameOutcome.SUSPECT, "no motion"),
             _est(3, FrameOutcome.RECOVERED, "flow"), _est(4, FrameOutcome.KEYFRAME, "flow", flow=True),
-            _est(5, FrameOutcome.LOST, "blank"), _est(6, FrameOutcome.REINITIALISED, "failed")]
+            _est(5, FrameOutcome.LOST, "blank"), _est(6, FrameOutcome.REINITIALISED, "failed"),
+            _est(8, FrameOutcome.SUSPECT, "ahead", flow=True)]
     out = frames_by_outcome(ests, [(7, "unreadable")])
     assert out["tracked"] == 1 and out["keyframe"] == 2
-    assert out["suspect"] == [{"index": 2, "reason": "no motion"}]
+    assert [f["index"] for f in out["suspect"]] == [2, 8]
     assert [f["index"] for f in out["recovered"]] == [3, 4]
     assert out["lost"] == [{"index": 5, "reason": "blank"}] and out["reinitialised"][0]["index"] == 6
     assert out["skipped"] == [{"index": 7, "reason": "unreadable"}]
@@ -283,4 +284,11 @@ def test_handheld_and_static_clips_flag_nothing(shared_data, folder):
     if not (shared_data / folder).is_dir():
         pytest.skip(f"{folder} not found")
     vo = _run(open_sequence(shared_data / folder), OdometryConfig(mode="window"))
+    assert _flagged(vo) == {"suspect": [], "lost": [], "reinitialised": []}
+
+
+@pytest.mark.parametrize("motion", ["loop", "turn"])
+def test_synthetic_loop_and_turn_flag_nothing(motion):
+    seq = make_synthetic_sequence(n_frames=16, noise_sigma=1.0, motion=motion)
+    vo = _run(seq, OdometryConfig(mode="track"))
     assert _flagged(vo) == {"suspect": [], "lost": [], "reinitialised": []}

@@ -135,7 +135,8 @@ FLAGGED_OUTCOMES = ("suspect", "lost", "reinitialised", "recovered", "skipped")
 def frames_by_outcome(estimates: list[FrameEstimate], skipped: Iterable[tuple[int, str]] = ()) -> dict[str, Any]:
     """The frames of a run by outcome, for ``report.json``: ``tracked`` and ``keyframe`` as counts,
     every flagged frame (:data:`FLAGGED_OUTCOMES`) as ``{"index", "reason"}``. ``recovered``
-    lists every frame tracked from the optical-flow guess, keyframes among them; ``skipped``:
+    lists every frame whose pose was tracked from the optical-flow guess, keyframes among them
+    (not a suspect frame, whose tracked pose was not used); ``skipped``:
     ``(index, reason)`` of the frames whose images could not be read (the pipeline's)."""
     out: dict[str, Any] = {
         "tracked": sum(1 for e in estimates if e.outcome is FrameOutcome.TRACKED),
@@ -143,6 +144,6 @@ def frames_by_outcome(estimates: list[FrameEstimate], skipped: Iterable[tuple[in
     }
     for name in FLAGGED_OUTCOMES[:-2]:
         out[name] = [{"index": e.index, "reason": e.reason} for e in estimates if e.outcome.value == name]
-    out["recovered"] = [{"index": e.index, "reason": e.reason} for e in estimates if e.recovered]
+    out["recovered"] = [{"index": e.index, "reason": e.reason} for e in estimates if e.recovered and not e.suspect]
     out["skipped"] = [{"index": int(i), "reason": r} for i, r in skipped]
     return out
