@@ -195,11 +195,13 @@ def room():
     return make_synthetic_sequence(n_frames=14, noise_sigma=1.0)
 
 
-@pytest.mark.parametrize("mode", ["track", "window"])
-def test_synthetic_duplicate_is_suspect_and_a_clean_run_flags_nothing(room, mode):
-    clean = _run(room, OdometryConfig(mode=mode))
+@pytest.mark.parametrize("mode,motion_model", [("track", "constant-velocity"), ("window", "constant-velocity"),
+                                               ("track", "kalman")])
+def test_synthetic_duplicate_is_suspect_and_a_clean_run_flags_nothing(room, mode, motion_model):
+    config = OdometryConfig(mode=mode, motion_model=motion_model)
+    clean = _run(room, config)
     assert _flagged(clean) == {"suspect": [], "lost": [], "reinitialised": []}
-    vo = _run(_faulted(room, duplicate=9), OdometryConfig(mode=mode))
+    vo = _run(_faulted(room, duplicate=9), config)
     assert _flagged(vo) == {"suspect": [9], "lost": [], "reinitialised": []}
     e9 = vo.estimates[9]
     assert e9.reason.startswith("no image motion while the rig moved") and not e9.is_keyframe
