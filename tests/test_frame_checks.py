@@ -192,13 +192,14 @@ def _errors(vo: VisualOdometry, seq: Sequence) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def room():
-    return make_synthetic_sequence(n_frames=14, noise_sigma=1.0)
+    """30 cm steps: one frame step moves the points by about 7 px (at 15 cm, 3 px: the check's
+    lower limit)."""
+    return make_synthetic_sequence(n_frames=14, noise_sigma=1.0, step_m=0.3)
 
 
-@pytest.mark.parametrize("mode,motion_model", [("track", "constant-velocity"), ("window", "constant-velocity"),
-                                               ("track", "kalman")])
-def test_synthetic_duplicate_is_suspect_and_a_clean_run_flags_nothing(room, mode, motion_model):
-    config = OdometryConfig(mode=mode, motion_model=motion_model)
+@pytest.mark.parametrize("mode", ["track", "window"])
+def test_synthetic_duplicate_is_suspect_and_a_clean_run_flags_nothing(room, mode):
+    config = OdometryConfig(mode=mode)
     clean = _run(room, config)
     assert _flagged(clean) == {"suspect": [], "lost": [], "reinitialised": []}
     vo = _run(_faulted(room, duplicate=9), config)
@@ -207,14 +208,14 @@ def test_synthetic_duplicate_is_suspect_and_a_clean_run_flags_nothing(room, mode
     assert e9.reason.startswith("no image motion while the rig moved") and not e9.is_keyframe
     assert 9 not in [kf.index for kf in vo.keyframes]
     err, err_clean = _errors(vo, room), _errors(clean, room)
-    assert err[9] < 0.05  # the prediction over one 15 cm step, not the repeated image's pose
+    assert err[9] < 0.05  # the prediction over one 30 cm step, not the repeated image's pose
     assert np.max(np.abs(err[10:] - err_clean[10:])) < 0.02
 
 
 def test_without_the_check_the_duplicate_is_tracked_where_it_is_not(room):
     vo = _run(_faulted(room, duplicate=9), OdometryConfig(mode="track",
                                                           frame_checks=FrameCheckSettings(enabled=False)))
-    assert _flagged(vo)["suspect"] == [] and _errors(vo, room)[9] > 0.1
+    assert _flagged(vo)["suspect"] == [] and _errors(vo, room)[9] > 0.2
 
 
 @pytest.fixture(scope="module")
@@ -276,6 +277,16 @@ def test_kitti_errors_after_the_faults_return_to_the_clean_runs(kitti45, kitti45
     assert np.max(err[[25, 30, 31]] - err_clean[[25, 30, 31]]) < 0.1  # the prediction, not the images' 1.1-1.35 m
     after = [26, 27, 32, 33, 41, 42, 43, 44]
     assert np.max(np.abs(err[after] - err_clean[after])) < 0.1
+
+
+@pytest.mark.realdata
+def test_kitti_duplicate_with_the_kalman_motion_model(kitti45):
+    """The planar constant-acceleration filter predicts KITTI's motion well enough to arm the check
+    (on the synthetic room, whose camera bobs, it does not: the check stays off there)."""
+    seq = _faulted(kitti45.truncated(30), duplicate=25)
+    vo = _run(seq, OdometryConfig(mode="track", motion_model="kalman"))
+    assert _flagged(vo) == {"suspect": [25], "lost": [], "reinitialised": []}
+    assert np.all(_errors(vo, seq)[25:] < 0.5)
 
 
 @pytest.mark.realdata
