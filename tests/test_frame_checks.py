@@ -104,7 +104,7 @@ def test_the_check_stays_off_when_the_prediction_means_nothing(spoiler):
         c.check(_step(dev), 0)
     if spoiler == "untracked":
         c.not_checked()  # a lost or re-initialised frame
-    bad = {"slow": _step(1.0, step_px=2.0), "gap": _step(1.0, intervals=3.0)}.get(spoiler, _step(1.0))
+    bad = {"slow": _step(1.0, step_px=2.0), "gap": _step(1.0, intervals=5.0)}.get(spoiler, _step(1.0))
     assert not c.armed(bad) and c.check(bad, 0) is None
 
 
@@ -210,6 +210,20 @@ def test_synthetic_duplicate_is_suspect_and_a_clean_run_flags_nothing(room, mode
     err, err_clean = _errors(vo, room), _errors(clean, room)
     assert err[9] < 0.05  # the prediction over one 30 cm step, not the repeated image's pose
     assert np.max(np.abs(err[10:] - err_clean[10:])) < 0.02
+
+
+def test_a_camera_frozen_for_three_frames_is_flagged_on_each(room):
+    """Frames 8, 9 and 10 all show frame 7's images: each is suspect (the third is predicted over
+    three frame steps from frame 7), and frame 11 tracks as on the clean run."""
+    def frozen(load):
+        return lambda i: load(7 if 8 <= i <= 10 else i)
+
+    seq = Sequence(room.name, room.kind, room.camera, room.timestamps, frozen(room.load_left),
+                   frozen(room.load_right), None, room.gt_poses, None, [])
+    vo = _run(seq, OdometryConfig(mode="track"))
+    assert _flagged(vo) == {"suspect": [8, 9, 10], "lost": [], "reinitialised": []}
+    err = _errors(vo, room)
+    assert np.max(err[8:]) < 0.1
 
 
 def test_without_the_check_the_duplicate_is_tracked_where_it_is_not(room):

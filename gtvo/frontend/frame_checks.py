@@ -64,7 +64,8 @@ class FrameCheckSettings:
             points by at least this RMS (3 px): below it, tracking noise is a large fraction of
             the step.
         max_intervals: the check is armed only when the time since the last good frame is at
-            most this many frame steps (2.5: one excluded frame; longer gaps make the prediction
+            most this many frame steps (4.5: up to ``max_consecutive`` excluded frames, e.g. a
+            camera frozen for three frames; longer gaps make the prediction
             too loose).
         max_consecutive: at most this many frames in a row are flagged (3); the next one is
             accepted whatever it shows.
@@ -75,7 +76,7 @@ class FrameCheckSettings:
     agree_deviation: float = 0.15
     agree_frames: int = 3
     min_step_px: float = 3.0
-    max_intervals: float = 2.5
+    max_intervals: float = 4.5
     max_consecutive: int = 3
 
     def __post_init__(self) -> None:
