@@ -45,7 +45,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gtvo.core.camera import PinholeCamera
-from gtvo.errors import InputError
+from gtvo.core.settings import check_settings, setting
 from gtvo.frontend.stereo_depth import KeyframePoints
 
 
@@ -54,7 +54,7 @@ class FrameCheckSettings:
     """Thresholds of the suspect-frame check (module docstring).
 
     Attributes:
-        enabled: False turns the check off (no frame is ever suspect).
+        enabled: false turns the check off (no frame is ever suspect).
         max_deviation: a frame is suspect when its tracked image is further than this many frame
             steps from the predicted one (0.5: a 50 % speed change within one frame interval).
         agree_deviation: the check is armed only when each of the last ``agree_frames`` good
@@ -65,28 +65,21 @@ class FrameCheckSettings:
             the step.
         max_intervals: the check is armed only when the time since the last good frame is at
             most this many frame steps (4.5: up to ``max_consecutive`` excluded frames, e.g. a
-            camera frozen for three frames; longer gaps make the prediction
-            too loose).
+            camera frozen for three frames; longer gaps make the prediction too loose).
         max_consecutive: at most this many frames in a row are flagged (3); the next one is
             accepted whatever it shows.
     """
 
     enabled: bool = True
-    max_deviation: float = 0.5
-    agree_deviation: float = 0.15
-    agree_frames: int = 3
-    min_step_px: float = 3.0
-    max_intervals: float = 4.5
-    max_consecutive: int = 3
+    max_deviation: float = setting(0.5, "> 0")
+    agree_deviation: float = setting(0.15, "> 0")
+    agree_frames: int = setting(3, ">= 1")
+    min_step_px: float = setting(3.0, "> 0")
+    max_intervals: float = setting(4.5, "> 0")
+    max_consecutive: int = setting(3, ">= 1")
 
     def __post_init__(self) -> None:
-        for name in ("max_deviation", "agree_deviation", "min_step_px", "max_intervals"):
-            v = getattr(self, name)
-            if not (np.isfinite(v) and v > 0):
-                raise InputError(f"frame check {name} must be a positive number, got {v}")
-        for name in ("agree_frames", "max_consecutive"):
-            if int(getattr(self, name)) < 1:
-                raise InputError(f"frame check {name} must be >= 1, got {getattr(self, name)}")
+        check_settings(self)
 
 
 @dataclass(frozen=True)
