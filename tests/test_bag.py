@@ -17,7 +17,7 @@ import pytest
 
 from gtvo.cli import main as cli_main
 from gtvo.datasets import open_sequence
-from gtvo.datasets.bag import BagStream, decode_image, depth_metres
+from gtvo.datasets.bag_stream import BagStream, decode_image, depth_metres
 from gtvo.datasets.bag_topics import TopicSummary, choose_topics
 from gtvo.errors import InputError
 from tests._bags import BagWriter, stamp_from_text

@@ -83,7 +83,7 @@ def describe_log(path: str | Path, format: str = "auto", **options: Any) -> LogI
         InputError: the log cannot be read at all (missing, truncated or corrupt bag, unknown layout).
     """
     from gtvo.datasets import detect_format, open_sequence  # noqa: PLC0415
-    from gtvo.datasets.bag import bag_location, open_reader  # noqa: PLC0415
+    from gtvo.datasets.bag_stream import bag_location, open_reader  # noqa: PLC0415
     from gtvo.datasets.bag_topics import topic_summaries  # noqa: PLC0415
 
     where = Path(path)
