@@ -36,6 +36,7 @@ _EXPORTS = {
     "SlidingWindowOptimizer": "gtvo.window",
     "Trajectory": "gtvo.evaluation.trajectory",
     "run": "gtvo.pipeline",
+    "batch": "gtvo.batching",
     "InputError": "gtvo.errors",
 }
 

@@ -32,6 +32,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "gtvo.commands.demo",
     "gtvo.commands.run",
     "gtvo.commands.info",
+    "gtvo.commands.batch",
     "gtvo.commands.synthetic",
     "gtvo.commands.plan",
     "gtvo.commands.calibrate_odometry",

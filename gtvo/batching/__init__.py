@@ -1,0 +1,199 @@
+"""``gtvo batch``: the same job on a fleet of logs, each run as ``gtvo run`` would into
+``OUT/<name>/``, with a summary table and one comparison plot (docs/batch.md).
+
+>>> result = batch("logs/", "out/", jobs=2)        # doctest: +SKIP
+>>> result.failed                                  # doctest: +SKIP
+[]
+
+Parts: :mod:`gtvo.batching.spec` (which logs), :mod:`gtvo.batching.overrides` (per-log settings and
+the configuration's identity), :mod:`gtvo.batching.runners` (process pool or Ray),
+:mod:`gtvo.batching.summary` (``summary.json``, ``summary.md``, ``summary.png``). Nothing here
+imports numpy at module level: pool and Ray workers import this package before they set their
+BLAS threads.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from gtvo.atomic import ensure_output_dir, tidy_on_failure
+from gtvo.batching.overrides import apply_overrides, canonical, config_identity
+from gtvo.batching.runners import RECORD_NAME, failure, log_line, run_in_pool, run_on_ray
+from gtvo.batching.spec import LogSpec, read_spec
+from gtvo.batching.summary import summary_row, write_summary
+from gtvo.errors import InputError
+
+__all__ = ["BatchResult", "LogSpec", "batch", "read_spec"]
+
+
+@dataclass(frozen=True)
+class BatchResult:
+    """What :func:`batch` did.
+
+    Attributes:
+        out: the batch's output folder.
+        rows: one summary row per log, in SPEC order (as in ``summary.json``).
+        failed: names of the logs that failed.
+        resumed: names of the logs skipped by ``resume`` (their outputs were complete).
+        summary: the written files (``"json"``, ``"md"``, ``"png"``).
+    """
+
+    out: Path
+    rows: list[dict[str, Any]]
+    failed: list[str] = field(default_factory=list)
+    resumed: list[str] = field(default_factory=list)
+    summary: dict[str, Path] = field(default_factory=dict)
+
+    @property
+    def ok(self) -> bool:
+        """True when every log ran."""
+        return not self.failed
+
+
+def batch(spec: str | Path | list[Any], out: str | Path, jobs: int | None = None, ray: str | None = None,
+          resume: bool = False, progress: bool = True, config: Any = None, max_frames: int | None = None,
+          frame_step: int = 1, loop_closure: bool = False) -> BatchResult:
+    """Run every log of ``spec`` as :func:`gtvo.run` would, into ``out/<name>/``, and tabulate them.
+
+    Args:
+        spec: a folder of logs, a YAML file listing them, or that list itself (:mod:`gtvo.batching.spec`).
+        out: the batch's output folder (``summary.json``, ``summary.md``, ``summary.png``, one
+            folder per log).
+        jobs: logs run at once (default: the number of cores); workers run BLAS single-threaded.
+        ray: None for a local process pool; ``"auto"`` (a running Ray cluster), ``"local"`` (a
+            local Ray with ``jobs`` CPUs) or a cluster address to run the logs as Ray tasks.
+            Workers must see the logs and ``out`` under the same paths.
+        resume: skip logs whose outputs are complete and were made by the same job (log, format,
+            options, configuration identity).
+        progress: a progress bar over the logs.
+        config: the base :class:`gtvo.odometry.OdometryConfig` (default ``OdometryConfig()``, as
+            :func:`gtvo.run`); a log's ``config`` overrides are applied to it.
+        max_frames, frame_step, loop_closure: as :func:`gtvo.run`, for every log that does not set its own.
+
+    Returns:
+        A :class:`BatchResult`; a log that fails is in ``failed`` (with its error in its row).
+
+    Raises:
+        InputError: a bad SPEC (missing, malformed, unknown setting, duplicate names), a bad
+            ``jobs`` or unusable ``out``: before any log runs.
+        DependencyError: ``ray`` given but Ray is not installed (``pip install "gtvo[ray]"``).
+    """
+    t0 = time.perf_counter()
+    workers = _check_jobs(jobs)
+    with tidy_on_failure():
+        out_dir = ensure_output_dir(out).resolve()
+        logs = read_spec(spec, exclude=(out_dir,))
+        jobs_list = [_job(log, out_dir, config, max_frames, frame_step, loop_closure,
+                          where=f"{_where(spec)}, log {log.name!r}") for log in logs]
+    rows: list[dict[str, Any] | None] = [None] * len(logs)
+    todo: list[int] = []
+    resumed: list[str] = []
+    for i, (log, job) in enumerate(zip(logs, jobs_list)):
+        if log.problem is not None:
+            rows[i] = summary_row(log, job["key"]["config_id"], Path(job["out"]),
+                                  failure(InputError(log.problem)), None, False)
+        elif resume and _complete(Path(job["out"]), job["key"]):
+            rows[i] = _row_of(log, job, {"status": "done", "record": _read_json(Path(job["out"]) / RECORD_NAME)},
+                              resumed=True)
+            resumed.append(log.name)
+        else:
+            todo.append(i)
+    bar = _progress_bar(len(logs), len(logs) - len(todo), progress)
+
+    def on_done(k: int, result: dict[str, Any]) -> None:
+        i = todo[k]
+        rows[i] = _row_of(logs[i], jobs_list[i], result, resumed=False)
+        if result["status"] != "done":
+            say = bar.write if bar is not None else log_line
+            say(f"gtvo batch: {logs[i].name} failed: {result.get('error')}")
+        if bar is not None:
+            bar.update(1)
+            bar.set_postfix(failed=sum(1 for r in rows if r is not None and r["status"] != "done"))
+
+    n_workers = max(1, min(workers, len(todo)))
+    try:
+        if todo:
+            chosen = [jobs_list[i] for i in todo]
+            if ray is None:
+                run_in_pool(chosen, n_workers, on_done)
+            else:
+                run_on_ray(chosen, ray, workers, on_done)
+    finally:
+        if bar is not None:
+            bar.close()
+    done_rows = [r for r in rows if r is not None]
+    info = {"spec": _where(spec), "out": str(out_dir), "runner": "pool" if ray is None else f"ray ({ray})",
+            "workers": n_workers if ray is None else workers, "wall_seconds": time.perf_counter() - t0,
+            "logs_total": len(done_rows), "logs_failed": sum(1 for r in done_rows if r["status"] != "done"),
+            "logs_resumed": len(resumed)}
+    paths = write_summary(out_dir, info, done_rows)
+    failed = [r["name"] for r in done_rows if r["status"] != "done"]
+    return BatchResult(out=out_dir, rows=done_rows, failed=failed, resumed=resumed, summary=paths)
+
+
+def _check_jobs(jobs: int | None) -> int:
+    if jobs is None:
+        return os.cpu_count() or 1
+    if isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1:
+        raise InputError(f"jobs must be an integer >= 1, got {jobs!r}")
+    return jobs
+
+
+def _job(log: LogSpec, out_dir: Path, base: Any, max_frames: int | None, frame_step: int, loop_closure: bool,
+         where: str) -> dict[str, Any]:
+    """The worker's job for ``log``: resolved configuration, options, output folder, identity key."""
+    from gtvo.odometry import OdometryConfig  # noqa: PLC0415
+
+    config = apply_overrides(base if base is not None else OdometryConfig(), log.config, where=where)
+    options = {"max_frames": max_frames, "frame_step": frame_step, "loop_closure": loop_closure,
+               "camera": None, "ground_truth": None, **log.options}
+    target = out_dir / log.name
+    if target == log.path or log.path in target.parents or target in log.path.parents:
+        raise InputError(f"{where}: the output folder {target} would overlap the log {log.path}; choose another --out")
+    key = canonical({"path": str(log.path), "format": log.format, "options": options,
+                     "config_id": config_identity(config)})
+    return {"name": log.name, "path": str(log.path), "format": log.format, "out": str(target), "config": config,
+            "options": options, "key": key}
+
+
+def _complete(out: Path, key: dict[str, Any]) -> bool:
+    """True when ``out`` holds a finished run of the job ``key`` (its record is written last)."""
+    if not ((out / "report.json").is_file() and (out / "trajectory.tum").is_file()):
+        return False
+    record = _read_json(out / RECORD_NAME)
+    return record is not None and record.get("key") == key
+
+
+def _row_of(log: LogSpec, job: dict[str, Any], result: dict[str, Any], resumed: bool) -> dict[str, Any]:
+    out = Path(job["out"])
+    report = _read_json(out / "report.json") if result["status"] == "done" else None
+    if result["status"] == "done" and report is None:
+        result = failure(InputError("the run finished but its report.json cannot be read", path=out / "report.json"))
+    return summary_row(log, job["key"]["config_id"], out, result, report, resumed)
+
+
+def _read_json(path: Path) -> dict[str, Any] | None:
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    return data if isinstance(data, dict) else None
+
+
+def _progress_bar(total: int, initial: int, progress: bool) -> Any:
+    if not progress:
+        return None
+    import sys  # noqa: PLC0415
+
+    from tqdm import tqdm  # noqa: PLC0415
+
+    return tqdm(total=total, initial=initial, desc="gtvo batch", unit="log", dynamic_ncols=True, file=sys.stderr)
+
+
+def _where(spec: str | Path | list[Any]) -> str:
+    return "SPEC list" if isinstance(spec, list) else str(spec)

@@ -1,0 +1,196 @@
+"""Where the logs of a batch run: a local process pool or Ray, each log in a worker process as
+``gtvo run`` would run it.
+
+This module imports nothing heavy at the top: a worker sets single-threaded BLAS (and numba)
+before numpy is first imported (the pool's initializer; Ray's ``runtime_env``), since N workers
+each running multithreaded BLAS on N cores oversubscribe them.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import time
+import traceback
+from pathlib import Path
+from typing import Any, Callable
+
+#: Environment of every worker: single-threaded BLAS and numba (set before numpy is imported).
+WORKER_ENV: dict[str, str] = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
+                              "NUMBA_NUM_THREADS": "1"}
+
+#: The per-log record a finished log leaves in its output folder (written last).
+RECORD_NAME = "batch.json"
+
+#: Called with (index of the job, its result) as each log finishes.
+OnDone = Callable[[int, dict[str, Any]], None]
+
+
+def init_worker() -> None:
+    """Process-pool initializer: single-threaded BLAS and numba in this worker."""
+    os.environ.update(WORKER_ENV)
+
+
+def run_log(job: dict[str, Any]) -> dict[str, Any]:
+    """Run one log as ``gtvo run`` would, into ``job["out"]``; never raises for a failing log.
+
+    ``job`` holds ``name``, ``path``, ``format``, ``out``, ``config`` (a resolved
+    :class:`gtvo.odometry.OdometryConfig`), ``options`` (``max_frames``, ``frame_step``,
+    ``loop_closure``, ``camera``, ``ground_truth``) and ``key`` (what makes the outputs this
+    job's, for ``--resume``). On success the log's record (``batch.json``: the key, the Sim(3) ATE,
+    the wall time) is written last into the output folder.
+
+    Returns:
+        ``{"status": "done", "record": {...}}`` or ``{"status": "failed", "error": "one line",
+        "error_type": ..., "traceback": ... (for errors that are not gtvo's own)}``.
+    """
+    t0 = time.perf_counter()
+    out = Path(job["out"])
+    try:
+        (out / RECORD_NAME).unlink(missing_ok=True)  # a re-run that fails must not look complete
+        import cv2  # noqa: PLC0415
+
+        cv2.setRNGSeed(0)  # OpenCV's global RNG (PnP RANSAC) as in a fresh `gtvo run` process
+        from gtvo.atomic import write_json  # noqa: PLC0415
+        from gtvo.datasets import open_sequence  # noqa: PLC0415
+        from gtvo.pipeline import run  # noqa: PLC0415
+
+        opts = job["options"]
+        open_opts = {k: opts[k] for k in ("camera", "ground_truth") if opts.get(k) is not None}
+        seq = open_sequence(job["path"], format=job["format"], max_frames=opts.get("max_frames"), **open_opts)
+        report = run(seq, out=out, config=job["config"], progress=False, frame_step=opts.get("frame_step", 1),
+                     loop_closure=bool(opts.get("loop_closure", False)))
+        record = {"name": job["name"], "key": job["key"], "sim3_ate_rmse_m": sim3_ate(seq, out / "trajectory.tum"),
+                  "run_seconds": report.get("seconds"), "wall_seconds": time.perf_counter() - t0,
+                  "worker_pid": os.getpid()}
+        write_json(out / RECORD_NAME, record)
+        return {"status": "done", "record": record}
+    except KeyboardInterrupt:
+        raise
+    except Exception as exc:  # noqa: BLE001 - a failing log is reported and the others go on
+        return failure(exc, time.perf_counter() - t0)
+
+
+def failure(exc: BaseException, seconds: float | None = None) -> dict[str, Any]:
+    """The result of a log that failed with ``exc`` (one line; the traceback for unexpected errors)."""
+    from gtvo.errors import GtvoError  # noqa: PLC0415
+
+    message = " ".join(str(exc).split()) or type(exc).__name__
+    result: dict[str, Any] = {"status": "failed", "error": message, "error_type": type(exc).__name__,
+                              "wall_seconds": seconds}
+    if not isinstance(exc, (GtvoError, OSError)):
+        result["traceback"] = "".join(traceback.format_exception(exc))
+    return result
+
+
+def sim3_ate(seq: Any, trajectory_file: Path) -> float | None:
+    """Sim(3)-aligned ATE RMSE (m) of the written trajectory against the log's ground truth, or
+    None (no ground truth, or an alignment the positions do not determine)."""
+    from gtvo.errors import InputError  # noqa: PLC0415
+    from gtvo.metrics import ate  # noqa: PLC0415
+    from gtvo.report import ground_truth  # noqa: PLC0415
+    from gtvo.trajectory_io import read_tum  # noqa: PLC0415
+
+    pair = ground_truth(seq, read_tum(trajectory_file))
+    if pair is None:
+        return None
+    try:
+        return float(ate(*pair, "sim3").rmse)
+    except InputError:
+        return None
+
+
+def run_in_pool(jobs: list[dict[str, Any]], workers: int, on_done: OnDone) -> None:
+    """Run ``jobs`` in a pool of ``workers`` fresh (spawned) processes; ``on_done`` per finished log."""
+    import multiprocessing  # noqa: PLC0415
+    from concurrent.futures import ProcessPoolExecutor, as_completed  # noqa: PLC0415
+
+    ctx = multiprocessing.get_context("spawn")  # no fork of a parent holding threads and BLAS state
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=init_worker)
+    try:
+        futures = {pool.submit(run_log, job): i for i, job in enumerate(jobs)}
+        for fut in as_completed(futures):
+            try:
+                result = fut.result()
+            except Exception as exc:  # noqa: BLE001 - a worker that died (BrokenProcessPool)
+                result = failure(exc)
+            on_done(futures[fut], result)
+    except BaseException:
+        pool.shutdown(wait=False, cancel_futures=True)
+        raise
+    pool.shutdown(wait=True)
+
+
+def require_ray() -> Any:
+    """Import and return ``ray``, or raise :class:`DependencyError` naming the extra."""
+    from gtvo.errors import DependencyError  # noqa: PLC0415
+
+    try:
+        import ray  # noqa: PLC0415
+    except ImportError as exc:
+        raise DependencyError(f'--ray needs Ray, which is not installed ({exc}); install it: '
+                              f'pip install "gtvo[ray]"') from None
+    return ray
+
+
+def start_ray(address: str, cpus: int) -> tuple[Any, bool]:
+    """Connect to Ray: ``"auto"`` (a running cluster), ``"local"`` (start a local Ray with
+    ``cpus`` CPUs, no dashboard) or a cluster address. An existing connection is used as it is.
+
+    Returns:
+        ``(ray, started)``: ``started`` when this call connected (so the caller disconnects).
+    """
+    import logging  # noqa: PLC0415
+
+    from gtvo.errors import InputError  # noqa: PLC0415
+
+    ray = require_ray()
+    if ray.is_initialized():
+        return ray, False
+    kwargs: dict[str, Any] = {"logging_level": logging.WARNING, "log_to_driver": True}
+    try:
+        if address == "local":
+            ray.init(num_cpus=cpus, include_dashboard=False, **kwargs)
+        else:
+            ray.init(address=address, **kwargs)
+    except (ConnectionError, ValueError, RuntimeError) as exc:
+        raise InputError(f"--ray {address}: cannot connect to Ray ({' '.join(str(exc).split())})") from None
+    return ray, True
+
+
+def run_on_ray(jobs: list[dict[str, Any]], address: str, cpus: int, on_done: OnDone) -> None:
+    """Run ``jobs`` as Ray tasks (one CPU each) on the cluster ``address`` (see :func:`start_ray`).
+
+    The workers must see the logs' and the output folder's paths (a shared file system) and
+    import the same gtvo (Ray puts the driver's ``sys.path`` on theirs; on other machines gtvo
+    must be installed there). Their environment is :data:`WORKER_ENV` (Ray's ``runtime_env``).
+    """
+    ray, started = start_ray(address, cpus)
+    refs: dict[Any, int] = {}
+    try:
+        task = ray.remote(run_log).options(num_cpus=1, max_retries=0, runtime_env={"env_vars": dict(WORKER_ENV)})
+        refs = {task.remote(job): i for i, job in enumerate(jobs)}
+        pending = list(refs)
+        while pending:
+            ready, pending = ray.wait(pending, num_returns=1)
+            for ref in ready:
+                try:
+                    result = ray.get(ref)
+                except Exception as exc:  # noqa: BLE001 - a worker that died, a task Ray could not run
+                    result = failure(exc)
+                on_done(refs[ref], result)
+    except BaseException:
+        for ref in refs:
+            try:
+                ray.cancel(ref, force=True)
+            except Exception:  # noqa: BLE001,S110 - finished already
+                pass
+        raise
+    finally:
+        if started:
+            ray.shutdown()
+
+
+def log_line(text: str) -> None:
+    """One line on stderr (kept apart from a progress bar)."""
+    print(text, file=sys.stderr, flush=True)
