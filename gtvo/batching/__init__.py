@@ -23,7 +23,7 @@ from typing import Any
 
 from gtvo.atomic import ensure_output_dir, tidy_on_failure
 from gtvo.batching.overrides import apply_overrides, canonical, config_identity
-from gtvo.batching.runners import RECORD_NAME, failure, log_line, run_in_pool, run_on_ray
+from gtvo.batching.runners import RECORD_NAME, failure, log_line, require_ray, run_in_pool, run_on_ray
 from gtvo.batching.spec import LogSpec, read_spec
 from gtvo.batching.summary import summary_row, write_summary
 from gtvo.errors import InputError
@@ -85,6 +85,8 @@ def batch(spec: str | Path | list[Any], out: str | Path, jobs: int | None = None
     """
     t0 = time.perf_counter()
     workers = _check_jobs(jobs)
+    if ray is not None:
+        require_ray()  # a missing extra is said before any work
     with tidy_on_failure():
         out_dir = ensure_output_dir(out).resolve()
         logs = read_spec(spec, exclude=(out_dir,))

@@ -1,0 +1,266 @@
+"""`gtvo batch` / gtvo.batch: SPEC reading, per-log overrides, the pool and Ray runners, resume,
+the summary, and the exit codes (tiny synthetic logs: 6 frames of 160x120)."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+import gtvo
+from gtvo import cli
+from gtvo.batching import read_spec
+from gtvo.batching.overrides import apply_overrides, config_identity
+from gtvo.errors import InputError
+from gtvo.odometry import OdometryConfig
+from gtvo.synthetic import make_synthetic_sequence, write_sequence_kitti
+
+
+def run_cli(*args):
+    return subprocess.run([sys.executable, "-m", "gtvo", *map(str, args)], capture_output=True, text=True, timeout=300)
+
+
+@pytest.fixture(scope="module")
+def logs(tmp_path_factory) -> Path:
+    """A fleet folder: two tiny logs (different seeds), a broken (empty) log folder and a note."""
+    root = tmp_path_factory.mktemp("fleet") / "logs"
+    for seed in (1, 2):
+        write_sequence_kitti(make_synthetic_sequence(n_frames=6, width=160, height=120, seed=seed), root / f"seq{seed}")
+    (root / "broken").mkdir()
+    (root / "notes.txt").write_text("week 12\n")
+    (root / ".hidden").mkdir()
+    return root
+
+
+@pytest.fixture(scope="module")
+def pool_run(logs, tmp_path_factory):
+    """The fleet run once on the local process pool (2 workers) through the Python API."""
+    out = tmp_path_factory.mktemp("pool") / "out"
+    return gtvo.batch(logs, out, jobs=2, progress=False)
+
+
+# ---------------------------------------------------------------------------------------------
+# configuration overrides and identity
+# ---------------------------------------------------------------------------------------------
+
+def test_overrides_reach_nested_settings():
+    base = OdometryConfig()
+    cfg = apply_overrides(base, {"points_per_keyframe": 400, "mode": "track", "depth_sigma_model": [0.001, 0.002],
+                                 "window": {"size": 5, "acceleration_sigma": None},
+                                 "tracking": {"max_iterations": 7, "pattern": [[0, 0], [1, 1]]},
+                                 "flow_fallback": None})
+    assert cfg.points_per_keyframe == 400 and cfg.mode == "track" and cfg.depth_sigma_model == (0.001, 0.002)
+    assert cfg.window.size == 5 and cfg.window.acceleration_sigma is None
+    assert cfg.window.lambda_stereo == base.window.lambda_stereo  # untouched settings keep their values
+    assert cfg.tracking.max_iterations == 7 and cfg.tracking.pattern.shape == (2, 2)
+    assert cfg.flow_fallback is None
+    again = apply_overrides(OdometryConfig(flow_fallback=None), {"flow_fallback": {"min_inliers": 20}})
+    assert again.flow_fallback is not None and again.flow_fallback.min_inliers == 20
+    assert apply_overrides(base, {}) is base
+
+
+@pytest.mark.parametrize("overrides, needle", [
+    ({"window": {"sise": 5}}, "'window.sise'"),
+    ({"pointz": 5}, "'pointz'"),
+    ({"window": {"size": "5"}}, "'window.size' must be an integer"),
+    ({"points_per_keyframe": True}, "'points_per_keyframe' must be an integer"),
+    ({"mode": "fast"}, "'mode' must be one of"),
+    ({"window": 3}, "'window' must be a mapping"),
+    ({"depth_sigma_model": [1.0]}, "'depth_sigma_model' must be a list of 2"),
+    ({"tracking": {"pattern": [[0, 0, 0]]}}, "'tracking.pattern' must have 2 columns"),
+    ({"window": {"size": 1}}, "window size must be >= 2"),         # the dataclass's own check
+    ({"points_per_keyframe": 10}, "points per keyframe must be >="),
+])
+def test_bad_overrides_name_the_key_and_the_file(overrides, needle):
+    with pytest.raises(InputError) as e:
+        apply_overrides(OdometryConfig(), overrides, where="fleet.yaml, log 'a'")
+    assert needle in str(e.value) and str(e.value).startswith("fleet.yaml, log 'a': ")
+
+
+def test_config_identity_follows_the_settings():
+    a = config_identity(OdometryConfig())
+    assert a == config_identity(apply_overrides(OdometryConfig(), {"points_per_keyframe": 300}))
+    assert a != config_identity(OdometryConfig(points_per_keyframe=400))
+    assert a != config_identity(apply_overrides(OdometryConfig(), {"tracking": {"pattern": [[0.0, 0.0]]}}))
+    assert len(a) == 12 and int(a, 16) >= 0
+
+
+# ---------------------------------------------------------------------------------------------
+# SPEC
+# ---------------------------------------------------------------------------------------------
+
+def test_spec_folder_takes_every_detected_log_and_flags_broken_folders(logs):
+    specs = read_spec(logs)
+    assert [s.name for s in specs] == ["broken", "seq1", "seq2"]  # notes.txt and .hidden are not logs
+    assert [s.format for s in specs[1:]] == ["kitti", "kitti"] and specs[1].problem is None
+    assert specs[0].problem is not None and "unknown dataset layout" in specs[0].problem
+    with pytest.raises(InputError, match="itself one log"):
+        read_spec(logs / "seq1")
+    assert [s.name for s in read_spec(logs, exclude=(logs / "broken",))] == ["seq1", "seq2"]
+
+
+def test_spec_yaml_entries(logs, tmp_path):
+    spec = tmp_path / "fleet.yaml"
+    spec.write_text(f"- {logs / 'seq1'}\n"
+                    "- path: ../" + os.path.relpath(logs / "seq2", tmp_path.parent) + "\n"
+                    "  name: second\n  format: kitti\n  max_frames: 3\n  camera: [1, 2, 3, 4]\n"
+                    "  config: {points_per_keyframe: 400, window: {size: 4}}\n")
+    a, b = read_spec(spec)
+    assert (a.name, a.path, a.format, a.config) == ("seq1", (logs / "seq1").resolve(), "auto", {})
+    assert (b.name, b.path, b.format) == ("second", (logs / "seq2").resolve(), "kitti")
+    assert b.options == {"max_frames": 3, "camera": (1.0, 2.0, 3.0, 4.0)}
+    assert b.config == {"points_per_keyframe": 400, "window": {"size": 4}}
+
+
+@pytest.mark.parametrize("text, needle", [
+    ("- a\n- a\n", "two logs are named 'a'"),
+    ("- path: a\n  nmae: x\n", "log 1: unknown key 'nmae'"),
+    ("- name: x\n", "log 1: 'path' (the log) is required"),
+    ("path: a\n", "must be a list of logs"),
+    ("- path: a\n  max_frames: 0\n", "'max_frames' must be an integer >= 1"),
+    ("- path: a\n  name: ../up\n", "log name '../up' cannot be"),
+    ("- path: a\n  config: [1]\n", "'config' must be a mapping"),
+    ("- [a\n", "not valid YAML"),
+    ("[]\n", "holds no logs"),
+])
+def test_bad_spec_yaml_is_one_line_naming_the_file(tmp_path, text, needle):
+    spec = tmp_path / "fleet.yaml"
+    spec.write_text(text)
+    with pytest.raises(InputError) as e:
+        read_spec(spec)
+    assert needle in str(e.value) and "fleet.yaml" in str(e.value) and "\n" not in str(e.value)
+
+
+# ---------------------------------------------------------------------------------------------
+# runs (process pool)
+# ---------------------------------------------------------------------------------------------
+
+@pytest.mark.slow
+def test_pool_batch_runs_each_log_and_reports_the_broken_one(pool_run, logs):
+    assert callable(gtvo.batch)  # the function, even though gtvo.batching is imported
+    res = pool_run
+    assert res.failed == ["broken"] and not res.ok and res.resumed == []
+    summary = json.loads(res.summary["json"].read_text())
+    rows = {r["name"]: r for r in summary["logs"]}
+    assert list(rows) == ["broken", "seq1", "seq2"] and summary["logs_failed"] == 1
+    assert rows["broken"]["status"] == "failed" and "unknown dataset layout" in rows["broken"]["error"]
+    for name in ("seq1", "seq2"):
+        row = rows[name]
+        report = json.loads((res.out / name / "report.json").read_text())
+        assert row["status"] == "done" and row["frames"] == report["frames"] == 6
+        assert row["ate_rmse_m"] == report["ate_rmse_m"] and row["ate_rmse_m"] < 0.02
+        assert 0 < row["sim3_ate_rmse_m"] <= row["ate_rmse_m"] + 1e-12  # Sim(3) has one more freedom
+        assert row["kitti_translation_percent"] == report["kitti_translation_percent"]
+        assert row["config_id"] == config_identity(OdometryConfig())
+        for f in ("trajectory.tum", "trajectory.png", "batch.json"):
+            assert (res.out / name / f).is_file()
+    assert rows["seq1"]["ate_rmse_m"] != rows["seq2"]["ate_rmse_m"]  # two different logs
+    md = res.summary["md"].read_text()
+    assert "| seq1 | done | 6 |" in md and "## Failed logs" in md and "`broken`" in md
+    assert res.summary["png"].stat().st_size > 1000
+    assert not (res.out / "broken").exists()  # a failed log leaves no empty folder
+    assert not [p for p in res.out.iterdir() if p.name.startswith(".")]  # no temporary files
+
+
+@pytest.mark.slow
+def test_resume_skips_complete_logs_and_reruns_the_rest(pool_run, logs, tmp_path):
+    import shutil
+
+    out = tmp_path / "out"
+    shutil.copytree(pool_run.out, out)
+    (out / "seq2" / "batch.json").unlink()  # as if the batch was interrupted before seq2 finished
+    before = (out / "seq1" / "trajectory.tum").stat().st_mtime_ns
+    res = gtvo.batch(logs, out, jobs=1, resume=True, progress=False)
+    assert res.resumed == ["seq1"] and res.failed == ["broken"]
+    assert (out / "seq1" / "trajectory.tum").stat().st_mtime_ns == before
+    assert (out / "seq2" / "batch.json").is_file()
+    rows = {r["name"]: r for r in res.rows}
+    assert rows["seq1"]["resumed"] and not rows["seq2"]["resumed"] and rows["seq1"]["frames"] == 6
+    assert (out / "seq2" / "trajectory.tum").read_bytes() == (pool_run.out / "seq2" / "trajectory.tum").read_bytes()
+    # other settings are another job: nothing is resumed
+    res = gtvo.batch(logs, out, jobs=1, resume=True, progress=False, max_frames=3,
+                     config=OdometryConfig(points_per_keyframe=200))
+    assert res.resumed == [] and {r["name"]: r["frames"] for r in res.rows if r["status"] == "done"} == \
+        {"seq1": 3, "seq2": 3}
+
+
+@pytest.mark.slow
+def test_cli_yaml_with_overrides_and_a_failing_log_exits_1(logs, tmp_path):
+    (tmp_path / "empty").mkdir()
+    spec = tmp_path / "study.yaml"
+    spec.write_text(f"- {{path: {logs / 'seq1'}, name: base}}\n"
+                    f"- {{path: {logs / 'seq1'}, name: fewer_points, config: {{points_per_keyframe: 150, window: {{size: 3}}}}}}\n"
+                    "- {path: empty, name: bad}\n")
+    out = tmp_path / "out"
+    r = run_cli("batch", spec, "--out", out, "--jobs", "2", "--max-frames", "4", "--no-progress")
+    assert r.returncode == 1, r.stderr
+    assert "2 of 3 logs done" in r.stdout and "failed bad:" in r.stdout
+    rows = {row["name"]: row for row in json.loads((out / "summary.json").read_text())["logs"]}
+    assert rows["base"]["frames"] == rows["fewer_points"]["frames"] == 4
+    assert rows["base"]["config_id"] != rows["fewer_points"]["config_id"]
+    assert rows["fewer_points"]["config_overrides"] == {"points_per_keyframe": 150, "window": {"size": 3}}
+    assert rows["bad"]["status"] == "failed" and "empty" in rows["bad"]["error"]
+    # each log ran exactly as `gtvo run` runs it
+    single = tmp_path / "single"
+    r = run_cli("run", logs / "seq1", "--out", single, "--max-frames", "4", "--no-progress")
+    assert r.returncode == 0, r.stderr
+    assert (single / "trajectory.tum").read_bytes() == (out / "base" / "trajectory.tum").read_bytes()
+    assert (single / "trajectory.tum").read_bytes() != (out / "fewer_points" / "trajectory.tum").read_bytes()
+
+
+@pytest.mark.parametrize("make_spec, needle", [
+    (lambda d: d / "missing", "SPEC not found"),
+    (lambda d: _write(d / "s.yaml", "- {path: x, config: {window: {sise: 3}}}\n"), "'window.sise'"),
+    (lambda d: _write(d / "s.yaml", "- {path: x, config: {mode: fast}}\n"), "'mode' must be one of"),
+])
+def test_bad_spec_exit_2_one_line_and_no_output_folder(tmp_path, capsys, make_spec, needle):
+    spec = make_spec(tmp_path)
+    out = tmp_path / "new" / "out"
+    assert cli.main(["batch", str(spec), "--out", str(out), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert needle in err and err.count("\n") == 1 and err.startswith("gtvo batch: error:")
+    if spec.suffix == ".yaml":
+        assert "s.yaml" in err
+    assert not (tmp_path / "new").exists()
+
+
+def test_bad_jobs_exit_2(tmp_path, capsys):
+    assert cli.main(["batch", str(tmp_path), "--out", str(tmp_path / "o"), "--jobs", "0"]) == 2
+    assert "--jobs must be >= 1" in capsys.readouterr().err
+
+
+def test_ray_missing_is_one_line_naming_the_extra(tmp_path, capsys, monkeypatch):
+    monkeypatch.setitem(sys.modules, "ray", None)  # import ray fails as if it were not installed
+    assert cli.main(["batch", str(tmp_path), "--out", str(tmp_path / "o"), "--ray", "local"]) == 2
+    err = capsys.readouterr().err
+    assert 'pip install "gtvo[ray]"' in err and err.count("\n") == 1
+    assert not (tmp_path / "o").exists()
+
+
+# ---------------------------------------------------------------------------------------------
+# Ray
+# ---------------------------------------------------------------------------------------------
+
+@pytest.mark.slow
+def test_ray_local_equals_the_pool_to_the_bit(pool_run, logs, tmp_path):
+    ray = pytest.importorskip("ray", reason="Ray is not installed (pip install 'gtvo[ray]')")
+    assert not ray.is_initialized()
+    res = gtvo.batch(logs, tmp_path / "out", jobs=2, ray="local", progress=False)
+    assert not ray.is_initialized()  # the local Ray it started is shut down
+    assert res.failed == ["broken"]
+    summary = json.loads(res.summary["json"].read_text())
+    assert summary["runner"] == "ray (local)"
+    for name in ("seq1", "seq2"):
+        assert (res.out / name / "trajectory.tum").read_bytes() == \
+            (pool_run.out / name / "trajectory.tum").read_bytes(), name
+        assert (json.loads((res.out / name / "report.json").read_text())["ate_rmse_m"]
+                == json.loads((pool_run.out / name / "report.json").read_text())["ate_rmse_m"])
+
+
+def _write(path: Path, text: str) -> Path:
+    path.write_text(text)
+    return path
