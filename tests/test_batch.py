@@ -167,15 +167,17 @@ def test_pool_batch_runs_each_log_and_reports_the_broken_one(pool_run, logs):
 
 
 @pytest.mark.slow
-def test_resume_skips_complete_logs_and_reruns_the_rest(pool_run, logs, tmp_path):
+def test_resume_skips_complete_logs_and_reruns_the_rest(pool_run, logs, tmp_path, capsys):
     import shutil
 
     out = tmp_path / "out"
     shutil.copytree(pool_run.out, out)
     (out / "seq2" / "batch.json").unlink()  # as if the batch was interrupted before seq2 finished
     before = (out / "seq1" / "trajectory.tum").stat().st_mtime_ns
-    res = gtvo.batch(logs, out, jobs=1, resume=True, progress=False)
+    res = gtvo.batch(logs, out, jobs=1, resume=True, progress=True)
     assert res.resumed == ["seq1"] and res.failed == ["broken"]
+    bar = capsys.readouterr().err
+    assert "gtvo batch" in bar and "3/3" in bar and "log" in bar  # the progress bar over the logs
     assert (out / "seq1" / "trajectory.tum").stat().st_mtime_ns == before
     assert (out / "seq2" / "batch.json").is_file()
     rows = {r["name"]: r for r in res.rows}
@@ -199,6 +201,7 @@ def test_cli_yaml_with_overrides_and_a_failing_log_exits_1(logs, tmp_path):
     r = run_cli("batch", spec, "--out", out, "--jobs", "2", "--max-frames", "4", "--no-progress")
     assert r.returncode == 1, r.stderr
     assert "2 of 3 logs done" in r.stdout and "failed bad:" in r.stdout
+    assert "log/s" not in r.stderr and "s/log" not in r.stderr  # --no-progress
     rows = {row["name"]: row for row in json.loads((out / "summary.json").read_text())["logs"]}
     assert rows["base"]["frames"] == rows["fewer_points"]["frames"] == 4
     assert rows["base"]["config_id"] != rows["fewer_points"]["config_id"]
