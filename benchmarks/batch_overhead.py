@@ -19,7 +19,7 @@ measured back to back. Needs Ray for the Ray rows (``pip install "gtvo[ray]"``).
 from __future__ import annotations
 
 import argparse
-import json
+import importlib.util
 import os
 import statistics
 import tempfile
@@ -73,10 +73,8 @@ def main() -> None:
     ap.add_argument("--workers", type=int, nargs="+", default=[1, 2], help="numbers of workers (default 1 2)")
     args = ap.parse_args()
     small, large = args.logs
-    try:
-        import ray  # noqa: F401
-        runners: list[str | None] = [None, "local"]
-    except ImportError:
+    runners: list[str | None] = [None, "local"]
+    if importlib.util.find_spec("ray") is None:
         print("Ray not installed: process pool only")
         runners = [None]
     with tempfile.TemporaryDirectory() as tmp:

@@ -23,7 +23,7 @@ from typing import Any
 
 from gtvo.atomic import ensure_output_dir, tidy_on_failure
 from gtvo.batching.overrides import apply_overrides, canonical, config_identity
-from gtvo.batching.runners import RECORD_NAME, failure, log_line, require_ray, run_in_pool, run_on_ray
+from gtvo.batching.runners import RECORD_NAME, failure, require_ray, run_in_pool, run_on_ray
 from gtvo.batching.spec import LogSpec, read_spec
 from gtvo.batching.summary import summary_row, write_summary
 from gtvo.errors import InputError
@@ -92,50 +92,62 @@ def batch(spec: str | Path | list[Any], out: str | Path, jobs: int | None = None
         logs = read_spec(spec, exclude=(out_dir,))
         jobs_list = [_job(log, out_dir, config, max_frames, frame_step, loop_closure,
                           where=f"{_where(spec)}, log {log.name!r}") for log in logs]
+    rows, todo = _plan(logs, jobs_list, resume)
+    resumed = [r["name"] for r in rows if r is not None and r["resumed"]]
+    n_workers = max(1, min(workers, len(todo)))
+    _run(logs, jobs_list, todo, rows, n_workers if ray is None else workers, ray, progress)
+    done_rows = [r for r in rows if r is not None]
+    failed = [r["name"] for r in done_rows if r["status"] != "done"]
+    info = {"spec": _where(spec), "out": str(out_dir), "runner": "pool" if ray is None else f"ray ({ray})",
+            "workers": n_workers if ray is None else (workers if ray == "local" else "cluster"),
+            "wall_seconds": time.perf_counter() - t0, "logs_total": len(done_rows), "logs_failed": len(failed),
+            "logs_resumed": len(resumed)}
+    paths = write_summary(out_dir, info, done_rows)
+    return BatchResult(out=out_dir, rows=done_rows, failed=failed, resumed=resumed, summary=paths)
+
+
+def _plan(logs: list[LogSpec], jobs_list: list[dict[str, Any]], resume: bool,
+          ) -> tuple[list[dict[str, Any] | None], list[int]]:
+    """Rows known before running (logs that are no logs fail; complete ones are resumed) and the
+    indices of the logs to run."""
     rows: list[dict[str, Any] | None] = [None] * len(logs)
     todo: list[int] = []
-    resumed: list[str] = []
     for i, (log, job) in enumerate(zip(logs, jobs_list)):
         if log.problem is not None:
             rows[i] = summary_row(log, job["key"]["config_id"], Path(job["out"]),
                                   failure(InputError(log.problem)), None, False)
         elif resume and _complete(Path(job["out"]), job["key"]):
-            rows[i] = _row_of(log, job, {"status": "done", "record": _read_json(Path(job["out"]) / RECORD_NAME)},
-                              resumed=True)
-            resumed.append(log.name)
+            record = _read_json(Path(job["out"]) / RECORD_NAME)
+            rows[i] = _row_of(log, job, {"status": "done", "record": record}, resumed=True)
         else:
             todo.append(i)
+    return rows, todo
+
+
+def _run(logs: list[LogSpec], jobs_list: list[dict[str, Any]], todo: list[int], rows: list[dict[str, Any] | None],
+         workers: int, ray: str | None, progress: bool) -> None:
+    """Run the logs ``todo`` on the pool or on Ray, filling their ``rows`` as they finish."""
     bar = _progress_bar(len(logs), len(logs) - len(todo), progress)
 
     def on_done(k: int, result: dict[str, Any]) -> None:
         i = todo[k]
         rows[i] = _row_of(logs[i], jobs_list[i], result, resumed=False)
-        if result["status"] != "done":
-            say = bar.write if bar is not None else log_line
-            say(f"gtvo batch: {logs[i].name} failed: {result.get('error')}")
         if bar is not None:
+            if result["status"] != "done":
+                bar.write(f"gtvo batch: {logs[i].name} failed: {result.get('error')}")
             bar.update(1)
             bar.set_postfix(failed=sum(1 for r in rows if r is not None and r["status"] != "done"))
 
-    n_workers = max(1, min(workers, len(todo)))
     try:
         if todo:
             chosen = [jobs_list[i] for i in todo]
             if ray is None:
-                run_in_pool(chosen, n_workers, on_done)
+                run_in_pool(chosen, workers, on_done)
             else:
                 run_on_ray(chosen, ray, workers, on_done)
     finally:
         if bar is not None:
             bar.close()
-    done_rows = [r for r in rows if r is not None]
-    info = {"spec": _where(spec), "out": str(out_dir), "runner": "pool" if ray is None else f"ray ({ray})",
-            "workers": n_workers if ray is None else workers, "wall_seconds": time.perf_counter() - t0,
-            "logs_total": len(done_rows), "logs_failed": sum(1 for r in done_rows if r["status"] != "done"),
-            "logs_resumed": len(resumed)}
-    paths = write_summary(out_dir, info, done_rows)
-    failed = [r["name"] for r in done_rows if r["status"] != "done"]
-    return BatchResult(out=out_dir, rows=done_rows, failed=failed, resumed=resumed, summary=paths)
 
 
 def _check_jobs(jobs: int | None) -> int:

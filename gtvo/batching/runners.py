@@ -9,7 +9,6 @@ each running multithreaded BLAS on N cores oversubscribe them.
 from __future__ import annotations
 
 import os
-import sys
 import time
 import traceback
 from pathlib import Path
@@ -189,8 +188,3 @@ def run_on_ray(jobs: list[dict[str, Any]], address: str, cpus: int, on_done: OnD
     finally:
         if started:
             ray.shutdown()
-
-
-def log_line(text: str) -> None:
-    """One line on stderr (kept apart from a progress bar)."""
-    print(text, file=sys.stderr, flush=True)
