@@ -248,6 +248,19 @@ def test_ray_missing_is_one_line_naming_the_extra(tmp_path, capsys, monkeypatch)
 # Ray
 # ---------------------------------------------------------------------------------------------
 
+def test_ray_address_where_nothing_answers_exit_2_at_once(logs, tmp_path, capsys):
+    pytest.importorskip("ray", reason="Ray is not installed (pip install 'gtvo[ray]')")
+    import socket
+
+    with socket.socket() as s:  # a port that was free a moment ago: nothing listens there
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    assert cli.main(["batch", str(logs), "--out", str(tmp_path / "o"), "--ray", f"127.0.0.1:{port}"]) == 2
+    err = capsys.readouterr().err
+    assert f"--ray 127.0.0.1:{port}: nothing answers" in err and err.count("\n") == 1
+    assert not (tmp_path / "o").exists()
+
+
 @pytest.mark.slow
 def test_ray_local_equals_the_pool_to_the_bit(pool_run, logs, tmp_path):
     ray = pytest.importorskip("ray", reason="Ray is not installed (pip install 'gtvo[ray]')")

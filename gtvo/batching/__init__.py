@@ -23,7 +23,7 @@ from typing import Any
 
 from gtvo.atomic import ensure_output_dir, tidy_on_failure
 from gtvo.batching.overrides import apply_overrides, canonical, config_identity
-from gtvo.batching.runners import RECORD_NAME, failure, require_ray, run_in_pool, run_on_ray
+from gtvo.batching.runners import RECORD_NAME, failure, require_ray, run_in_pool, run_on_ray, start_ray
 from gtvo.batching.spec import LogSpec, read_spec
 from gtvo.batching.summary import summary_row, write_summary
 from gtvo.errors import InputError
@@ -127,6 +127,9 @@ def _plan(logs: list[LogSpec], jobs_list: list[dict[str, Any]], resume: bool,
 def _run(logs: list[LogSpec], jobs_list: list[dict[str, Any]], todo: list[int], rows: list[dict[str, Any] | None],
          workers: int, ray: str | None, progress: bool) -> None:
     """Run the logs ``todo`` on the pool or on Ray, filling their ``rows`` as they finish."""
+    if not todo:
+        return
+    ray_module, started = start_ray(ray, workers) if ray is not None else (None, False)
     bar = _progress_bar(len(logs), len(logs) - len(todo), progress)
 
     def on_done(k: int, result: dict[str, Any]) -> None:
@@ -138,16 +141,17 @@ def _run(logs: list[LogSpec], jobs_list: list[dict[str, Any]], todo: list[int], 
             bar.update(1)
             bar.set_postfix(failed=sum(1 for r in rows if r is not None and r["status"] != "done"))
 
+    chosen = [jobs_list[i] for i in todo]
     try:
-        if todo:
-            chosen = [jobs_list[i] for i in todo]
-            if ray is None:
-                run_in_pool(chosen, workers, on_done)
-            else:
-                run_on_ray(chosen, ray, workers, on_done)
+        if ray is None:
+            run_in_pool(chosen, workers, on_done)
+        else:
+            run_on_ray(chosen, on_done)
     finally:
         if bar is not None:
             bar.close()
+        if started:
+            ray_module.shutdown()
 
 
 def _check_jobs(jobs: int | None) -> int:

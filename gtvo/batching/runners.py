@@ -147,6 +147,8 @@ def start_ray(address: str, cpus: int) -> tuple[Any, bool]:
     if ray.is_initialized():
         return ray, False
     kwargs: dict[str, Any] = {"logging_level": logging.WARNING, "log_to_driver": True}
+    if address not in ("local", "auto"):
+        check_reachable(address)
     try:
         if address == "local":
             ray.init(num_cpus=cpus, include_dashboard=False, **kwargs)
@@ -157,14 +159,38 @@ def start_ray(address: str, cpus: int) -> tuple[Any, bool]:
     return ray, True
 
 
-def run_on_ray(jobs: list[dict[str, Any]], address: str, cpus: int, on_done: OnDone) -> None:
-    """Run ``jobs`` as Ray tasks (one CPU each) on the cluster ``address`` (see :func:`start_ray`).
+def check_reachable(address: str, timeout: float = 5.0) -> None:
+    """Raise a one-line :class:`InputError` when nothing answers at a ``host:port`` or
+    ``ray://host:port`` address (Ray itself keeps retrying an unreachable one for minutes).
+    Addresses of other forms are left to Ray."""
+    import socket  # noqa: PLC0415
+    from urllib.parse import urlsplit  # noqa: PLC0415
+
+    from gtvo.errors import InputError  # noqa: PLC0415
+
+    try:
+        parts = urlsplit(address if "://" in address else f"tcp://{address}")
+        host, port = parts.hostname, parts.port
+    except ValueError:
+        return
+    if not host or port is None:
+        return
+    try:
+        socket.create_connection((host, port), timeout=timeout).close()
+    except OSError as exc:
+        raise InputError(f"--ray {address}: nothing answers at {host}:{port} ({exc.strerror or exc})") from None
+
+
+def run_on_ray(jobs: list[dict[str, Any]], on_done: OnDone) -> None:
+    """Run ``jobs`` as Ray tasks (one CPU each) on the Ray this process is connected to
+    (:func:`start_ray`).
 
     The workers must see the logs' and the output folder's paths (a shared file system) and
     import the same gtvo (Ray puts the driver's ``sys.path`` on theirs; on other machines gtvo
     must be installed there). Their environment is :data:`WORKER_ENV` (Ray's ``runtime_env``).
     """
-    ray, started = start_ray(address, cpus)
+    import ray  # noqa: PLC0415
+
     refs: dict[Any, int] = {}
     try:
         task = ray.remote(run_log).options(num_cpus=1, max_retries=0, runtime_env={"env_vars": dict(WORKER_ENV)})
@@ -185,6 +211,3 @@ def run_on_ray(jobs: list[dict[str, Any]], address: str, cpus: int, on_done: OnD
             except Exception:  # noqa: BLE001,S110 - finished already
                 pass
         raise
-    finally:
-        if started:
-            ray.shutdown()
