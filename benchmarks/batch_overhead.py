@@ -30,7 +30,7 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS", "NUMB
     os.environ.setdefault(_var, "1")
 
 import gtvo  # noqa: E402
-from gtvo.synthetic import make_synthetic_sequence, write_sequence_kitti  # noqa: E402
+from gtvo.datasets.synthetic import make_synthetic_sequence, write_sequence_kitti  # noqa: E402
 
 
 def make_logs(root: Path, n: int, frames: int) -> Path:

@@ -16,8 +16,8 @@ from gtvo import cli
 from gtvo.batching import read_spec
 from gtvo.batching.overrides import apply_overrides, config_identity
 from gtvo.errors import InputError
-from gtvo.odometry import OdometryConfig
-from gtvo.synthetic import make_synthetic_sequence, write_sequence_kitti
+from gtvo.config import OdometryConfig
+from gtvo.datasets.synthetic import make_synthetic_sequence, write_sequence_kitti
 
 
 def run_cli(*args):

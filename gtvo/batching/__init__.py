@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from gtvo.atomic import ensure_output_dir, tidy_on_failure
+from gtvo.io.atomic import ensure_output_dir, tidy_on_failure
 from gtvo.batching.overrides import apply_overrides, canonical, config_identity
 from gtvo.batching.runners import RECORD_NAME, failure, require_ray, run_in_pool, run_on_ray, start_ray
 from gtvo.batching.spec import LogSpec, read_spec
@@ -71,7 +71,7 @@ def batch(spec: str | Path | list[Any], out: str | Path, jobs: int | None = None
         resume: skip logs whose outputs are complete and were made by the same job (log, format,
             options, configuration identity).
         progress: a progress bar over the logs.
-        config: the base :class:`gtvo.odometry.OdometryConfig` (default ``OdometryConfig()``, as
+        config: the base :class:`gtvo.config.OdometryConfig` (default ``OdometryConfig()``, as
             :func:`gtvo.run`); a log's ``config`` overrides are applied to it.
         max_frames, frame_step, loop_closure: as :func:`gtvo.run`, for every log that does not set its own.
 
@@ -165,7 +165,7 @@ def _check_jobs(jobs: int | None) -> int:
 def _job(log: LogSpec, out_dir: Path, base: Any, max_frames: int | None, frame_step: int, loop_closure: bool,
          where: str) -> dict[str, Any]:
     """The worker's job for ``log``: resolved configuration, options, output folder, identity key."""
-    from gtvo.odometry import OdometryConfig  # noqa: PLC0415
+    from gtvo.config import OdometryConfig  # noqa: PLC0415
 
     config = apply_overrides(base if base is not None else OdometryConfig(), log.config, where=where)
     options = {"max_frames": max_frames, "frame_step": frame_step, "loop_closure": loop_closure,

@@ -1,5 +1,5 @@
 """Per-log configuration overrides of ``gtvo batch``: a nested mapping applied to the dataclass
-tree of :class:`gtvo.odometry.OdometryConfig`, and the configuration's identity (a short hash).
+tree of :class:`gtvo.config.OdometryConfig`, and the configuration's identity (a short hash).
 
 Stand-in until the nested configuration module (``gtvo/config.py``, issue 19) loads
 configurations itself: :func:`apply_overrides` is the one place to swap for its loader.

@@ -34,7 +34,7 @@ def run_log(job: dict[str, Any]) -> dict[str, Any]:
     """Run one log as ``gtvo run`` would, into ``job["out"]``; never raises for a failing log.
 
     ``job`` holds ``name``, ``path``, ``format``, ``out``, ``config`` (a resolved
-    :class:`gtvo.odometry.OdometryConfig`), ``options`` (``max_frames``, ``frame_step``,
+    :class:`gtvo.config.OdometryConfig`), ``options`` (``max_frames``, ``frame_step``,
     ``loop_closure``, ``camera``, ``ground_truth``) and ``key`` (what makes the outputs this
     job's, for ``--resume``). On success the log's record (``batch.json``: the key, the Sim(3) ATE,
     the wall time) is written last into the output folder.
@@ -50,7 +50,7 @@ def run_log(job: dict[str, Any]) -> dict[str, Any]:
         import cv2  # noqa: PLC0415
 
         cv2.setRNGSeed(0)  # OpenCV's global RNG (PnP RANSAC) as in a fresh `gtvo run` process
-        from gtvo.atomic import write_json  # noqa: PLC0415
+        from gtvo.io.atomic import write_json  # noqa: PLC0415
         from gtvo.datasets import open_sequence  # noqa: PLC0415
         from gtvo.pipeline import run  # noqa: PLC0415
 
@@ -86,9 +86,9 @@ def sim3_ate(seq: Any, trajectory_file: Path) -> float | None:
     """Sim(3)-aligned ATE RMSE (m) of the written trajectory against the log's ground truth, or
     None (no ground truth, or an alignment the positions do not determine)."""
     from gtvo.errors import InputError  # noqa: PLC0415
-    from gtvo.metrics import ate  # noqa: PLC0415
-    from gtvo.report import ground_truth  # noqa: PLC0415
-    from gtvo.trajectory_io import read_tum  # noqa: PLC0415
+    from gtvo.evaluation.metrics import ate  # noqa: PLC0415
+    from gtvo.io.outputs import ground_truth  # noqa: PLC0415
+    from gtvo.io.trajectory_files import read_tum  # noqa: PLC0415
 
     pair = ground_truth(seq, read_tum(trajectory_file))
     if pair is None:

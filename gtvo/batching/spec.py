@@ -8,7 +8,7 @@ A SPEC is either
   files it does not recognise (notes, a README) and hidden entries are ignored; or
 * a YAML file holding a list, one entry per log: a path, or a mapping with ``path`` and the
   optional keys of :data:`ENTRY_KEYS` (``config`` is a nested mapping of
-  :class:`gtvo.odometry.OdometryConfig` settings; relative paths are relative to the YAML file).
+  :class:`gtvo.config.OdometryConfig` settings; relative paths are relative to the YAML file).
 
 Every problem with the SPEC itself is an :class:`InputError` naming the file and the entry.
 """

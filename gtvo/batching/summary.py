@@ -7,7 +7,7 @@ import math
 from pathlib import Path
 from typing import Any
 
-from gtvo.atomic import write_json, write_text
+from gtvo.io.atomic import write_json, write_text
 
 #: The figures of a log's ``report.json`` copied into its summary row.
 REPORT_FIELDS: tuple[str, ...] = ("sequence", "mode", "solver", "frames", "keyframes", "seconds", "frames_per_second",
@@ -77,7 +77,7 @@ def summary_markdown(info: dict[str, Any], rows: list[dict[str, Any]]) -> str:
 def plot_summary(rows: list[dict[str, Any]], path: Path) -> Path:
     """One comparison figure: frames per second, ATE (SE(3) and Sim(3)) and segment drift per log
     (horizontal bars, one row per log; a failed log says so, a missing figure is left empty)."""
-    from gtvo.plots import _new_figure, _save  # noqa: PLC0415
+    from gtvo.io.plots import _new_figure, _save  # noqa: PLC0415
 
     names = [r["name"] for r in rows]
     n = len(rows)
