@@ -40,7 +40,15 @@ def logs(tmp_path_factory) -> Path:
 def pool_run(logs, tmp_path_factory):
     """The fleet run once on the local process pool (2 workers) through the Python API."""
     out = tmp_path_factory.mktemp("pool") / "out"
-    return gtvo.batch(logs, out, jobs=2, progress=False)
+    before = os.environ.get("OPENBLAS_NUM_THREADS")
+    os.environ["OPENBLAS_NUM_THREADS"] = "2"  # the workers must still run BLAS single-threaded
+    try:
+        return gtvo.batch(logs, out, jobs=2, progress=False)
+    finally:
+        if before is None:
+            del os.environ["OPENBLAS_NUM_THREADS"]
+        else:
+            os.environ["OPENBLAS_NUM_THREADS"] = before
 
 
 # ---------------------------------------------------------------------------------------------
@@ -158,6 +166,7 @@ def test_pool_batch_runs_each_log_and_reports_the_broken_one(pool_run, logs):
         assert row["config_id"] == config_identity(OdometryConfig())
         for f in ("trajectory.tum", "trajectory.png", "batch.json"):
             assert (res.out / name / f).is_file()
+        assert json.loads((res.out / name / "batch.json").read_text())["blas_threads"] == 1
     assert rows["seq1"]["ate_rmse_m"] != rows["seq2"]["ate_rmse_m"]  # two different logs
     md = res.summary["md"].read_text()
     assert "| seq1 | done | 6 |" in md and "## Failed logs" in md and "`broken`" in md
@@ -273,6 +282,7 @@ def test_ray_local_equals_the_pool_to_the_bit(pool_run, logs, tmp_path):
     for name in ("seq1", "seq2"):
         assert (res.out / name / "trajectory.tum").read_bytes() == \
             (pool_run.out / name / "trajectory.tum").read_bytes(), name
+        assert json.loads((res.out / name / "batch.json").read_text())["blas_threads"] == 1
         assert (json.loads((res.out / name / "report.json").read_text())["ate_rmse_m"]
                 == json.loads((pool_run.out / name / "report.json").read_text())["ate_rmse_m"])
 

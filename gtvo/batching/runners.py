@@ -37,7 +37,7 @@ def run_log(job: dict[str, Any]) -> dict[str, Any]:
     :class:`gtvo.config.OdometryConfig`), ``options`` (``max_frames``, ``frame_step``,
     ``loop_closure``, ``camera``, ``ground_truth``) and ``key`` (what makes the outputs this
     job's, for ``--resume``). On success the log's record (``batch.json``: the key, the Sim(3) ATE,
-    the wall time) is written last into the output folder.
+    the wall time, the worker's pid and BLAS threads) is written last into the output folder.
 
     Returns:
         ``{"status": "done", "record": {...}}`` or ``{"status": "failed", "error": "one line",
@@ -61,13 +61,21 @@ def run_log(job: dict[str, Any]) -> dict[str, Any]:
                      loop_closure=bool(opts.get("loop_closure", False)))
         record = {"name": job["name"], "key": job["key"], "sim3_ate_rmse_m": sim3_ate(seq, out / "trajectory.tum"),
                   "run_seconds": report.get("seconds"), "wall_seconds": time.perf_counter() - t0,
-                  "worker_pid": os.getpid()}
+                  "worker_pid": os.getpid(), "blas_threads": blas_threads()}
         write_json(out / RECORD_NAME, record)
         return {"status": "done", "record": record}
     except KeyboardInterrupt:
         raise
     except Exception as exc:  # noqa: BLE001 - a failing log is reported and the others go on
         return failure(exc, time.perf_counter() - t0)
+
+
+def blas_threads() -> int | None:
+    """The most threads any BLAS library loaded in this process may use (None if none is loaded)."""
+    from threadpoolctl import threadpool_info  # noqa: PLC0415
+
+    counts = [int(p["num_threads"]) for p in threadpool_info() if p.get("user_api") == "blas"]
+    return max(counts) if counts else None
 
 
 def failure(exc: BaseException, seconds: float | None = None) -> dict[str, Any]:
