@@ -26,8 +26,12 @@ OnDone = Callable[[int, dict[str, Any]], None]
 
 
 def init_worker() -> None:
-    """Process-pool initializer: single-threaded BLAS and numba in this worker."""
+    """Process-pool initializer: single-threaded BLAS and numba in this worker; Ctrl-C is left to
+    the parent, which ends the workers (no traceback from every worker)."""
+    import signal  # noqa: PLC0415
+
     os.environ.update(WORKER_ENV)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def run_log(job: dict[str, Any]) -> dict[str, Any]:
@@ -122,10 +126,23 @@ def run_in_pool(jobs: list[dict[str, Any]], workers: int, on_done: OnDone) -> No
             except Exception as exc:  # noqa: BLE001 - a worker that died (BrokenProcessPool)
                 result = failure(exc)
             on_done(futures[fut], result)
-    except BaseException:
-        pool.shutdown(wait=False, cancel_futures=True)
+    except BaseException:  # Ctrl-C: stop the workers now rather than after their current logs
+        _terminate(pool)
         raise
     pool.shutdown(wait=True)
+
+
+def _terminate(pool: Any) -> None:
+    """Cancel the pending logs and end the pool's worker processes at once."""
+    pool.shutdown(wait=False, cancel_futures=True)
+    stop = getattr(pool, "terminate_workers", None)  # Python >= 3.14
+    if stop is not None:
+        stop()
+        return
+    for proc in list((getattr(pool, "_processes", None) or {}).values()):
+        proc.terminate()
+    for proc in list((getattr(pool, "_processes", None) or {}).values()):
+        proc.join(timeout=5)
 
 
 def require_ray() -> Any:
