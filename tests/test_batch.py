@@ -132,6 +132,7 @@ def test_spec_yaml_entries(logs, tmp_path):
     ("- path: a\n  max_frames: 0\n", "'max_frames' must be an integer >= 1"),
     ("- path: a\n  name: ../up\n", "log name '../up' cannot be"),
     ("- path: a\n  config: [1]\n", "'config' must be a mapping"),
+    ("- path: a\n  format: kiti\n", "unknown 'format' 'kiti' (known: auto, kitti"),
     ("- [a\n", "not valid YAML"),
     ("[]\n", "holds no logs"),
 ])

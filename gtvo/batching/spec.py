@@ -140,13 +140,19 @@ def _entry(item: Any, number: int, base: Path, where: str) -> LogSpec:
     if not isinstance(name, str):
         raise InputError(f"{at}: 'name' must be a string, got {name!r}")
     fmt = item.get("format", "auto")
-    if not isinstance(fmt, str):
-        raise InputError(f"{at}: 'format' must be a string, got {fmt!r}")
+    _check_format(fmt, at)
     config = item.get("config") or {}
     if not isinstance(config, dict):
         raise InputError(f"{at}: 'config' must be a mapping of settings, got {config!r}")
     options = _options(item, base, at)
     return LogSpec(name=_check_name(name, at), path=log, format=fmt, config=config, options=options)
+
+
+def _check_format(fmt: Any, at: str) -> None:
+    from gtvo.datasets import FORMATS  # noqa: PLC0415 - the readers' own list: new layouts come with them
+
+    if fmt != "auto" and fmt not in FORMATS:
+        raise InputError(f"{at}: unknown 'format' {fmt!r} (known: auto, {', '.join(FORMATS)})")
 
 
 def _options(item: dict[str, Any], base: Path, at: str) -> dict[str, Any]:
