@@ -54,8 +54,8 @@ def run_log(job: dict[str, Any]) -> dict[str, Any]:
         import cv2  # noqa: PLC0415
 
         cv2.setRNGSeed(0)  # OpenCV's global RNG (PnP RANSAC) as in a fresh `gtvo run` process
-        from gtvo.io.atomic import write_json  # noqa: PLC0415
         from gtvo.datasets import open_sequence  # noqa: PLC0415
+        from gtvo.io.atomic import write_json  # noqa: PLC0415
         from gtvo.pipeline import run  # noqa: PLC0415
 
         opts = job["options"]
