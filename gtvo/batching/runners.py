@@ -39,8 +39,8 @@ def run_log(job: dict[str, Any]) -> dict[str, Any]:
 
     ``job`` holds ``name``, ``path``, ``format``, ``out``, ``config`` (a resolved
     :class:`gtvo.config.OdometryConfig`), ``options`` (``max_frames``, ``frame_step``,
-    ``loop_closure``, ``camera``, ``ground_truth``) and ``key`` (what makes the outputs this
-    job's, for ``--resume``). On success the log's record (``batch.json``: the key, the Sim(3) ATE,
+    ``loop_closure``; the others go to :func:`gtvo.datasets.open_sequence`) and ``key`` (what
+    makes the outputs this job's, for ``--resume``). On success the log's record (``batch.json``: the key, the Sim(3) ATE,
     the wall time, the worker's pid and BLAS threads) is written last into the output folder.
 
     Returns:
@@ -59,7 +59,8 @@ def run_log(job: dict[str, Any]) -> dict[str, Any]:
         from gtvo.pipeline import run  # noqa: PLC0415
 
         opts = job["options"]
-        open_opts = {k: opts[k] for k in ("camera", "ground_truth") if opts.get(k) is not None}
+        open_opts = {k: v for k, v in opts.items()
+                     if k not in ("max_frames", "frame_step", "loop_closure") and v is not None}
         seq = open_sequence(job["path"], format=job["format"], max_frames=opts.get("max_frames"), **open_opts)
         report = run(seq, out=out, config=job["config"], progress=False, frame_step=opts.get("frame_step", 1),
                      loop_closure=bool(opts.get("loop_closure", False)))

@@ -24,7 +24,11 @@ from gtvo.errors import InputError
 
 #: Keys a YAML entry may have (besides ``path``).
 ENTRY_KEYS: tuple[str, ...] = ("name", "format", "config", "max_frames", "frame_step", "loop_closure", "camera",
-                               "ground_truth")
+                               "ground_truth", *("left_topic", "right_topic", "depth_topic", "ground_truth_topic",
+                                                 "stamp_tolerance", "calib"))
+
+#: Keys of a ROS bag's reading (as ``gtvo run``'s flags of the same names): topics, then the rest.
+BAG_TOPIC_KEYS: tuple[str, ...] = ("left_topic", "right_topic", "depth_topic", "ground_truth_topic")
 
 #: Names a log's output folder may not take: the batch's own files.
 RESERVED_NAMES: frozenset[str] = frozenset({"summary.json", "summary.md", "summary.png"})
@@ -42,8 +46,9 @@ class LogSpec:
         format: the dataset layout, ``"auto"`` to detect it.
         config: the configuration overrides of this log (nested mapping, applied to the batch's
             base configuration), empty for none.
-        options: further ``gtvo.run`` options (``max_frames``, ``frame_step``, ``loop_closure``,
-            ``camera``, ``ground_truth``) set for this log.
+        options: further ``gtvo.run`` options set for this log (``max_frames``, ``frame_step``,
+            ``loop_closure``, ``camera``, ``ground_truth``; for ROS bags ``calib``, the topics of
+            :data:`BAG_TOPIC_KEYS` and ``stamp_tolerance``).
         problem: why the SPEC folder's entry is not a recognised log (the log then fails).
     """
 
@@ -173,11 +178,22 @@ def _options(item: dict[str, Any], base: Path, at: str) -> dict[str, Any]:
                 or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in cam)):
             raise InputError(f"{at}: 'camera' must be a list [fx, fy, cx, cy], got {cam!r}")
         options["camera"] = tuple(float(v) for v in cam)
-    if "ground_truth" in item:
-        gt = item["ground_truth"]
-        if not isinstance(gt, str) or not gt:
-            raise InputError(f"{at}: 'ground_truth' must be a file path, got {gt!r}")
-        options["ground_truth"] = str(_resolve(base, gt))
+    for key in ("ground_truth", "calib"):
+        if key in item:
+            value = item[key]
+            if not isinstance(value, str) or not value:
+                raise InputError(f"{at}: {key!r} must be a file path, got {value!r}")
+            options[key] = str(_resolve(base, value))
+    for key in BAG_TOPIC_KEYS:
+        if key in item:
+            if not isinstance(item[key], str) or not item[key]:
+                raise InputError(f"{at}: {key!r} must be a topic name, got {item[key]!r}")
+            options[key] = item[key]
+    if "stamp_tolerance" in item:
+        tol = item["stamp_tolerance"]
+        if isinstance(tol, bool) or not isinstance(tol, (int, float)) or not tol > 0:
+            raise InputError(f"{at}: 'stamp_tolerance' must be a positive number of seconds, got {tol!r}")
+        options["stamp_tolerance"] = float(tol)
     return options
 
 
