@@ -232,7 +232,8 @@ def test_cli_yaml_with_overrides_and_a_failing_log_exits_1(logs, tmp_path):
     (tmp_path / "empty").mkdir()
     spec = tmp_path / "study.yaml"
     spec.write_text(f"- {{path: {logs / 'seq1'}, name: base}}\n"
-                    f"- {{path: {logs / 'seq1'}, name: fewer_points, config: {{points_per_keyframe: 150, window: {{size: 3}}}}}}\n"
+                    f"- {{path: {logs / 'seq1'}, name: fewer_points,\n"
+                    "   config: {points_per_keyframe: 150, window: {size: 3}}}\n"
                     "- {path: empty, name: bad}\n")
     out = tmp_path / "out"
     r = run_cli("batch", spec, "--out", out, "--jobs", "2", "--max-frames", "4", "--no-progress")

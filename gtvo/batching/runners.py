@@ -40,8 +40,9 @@ def run_log(job: dict[str, Any]) -> dict[str, Any]:
     ``job`` holds ``name``, ``path``, ``format``, ``out``, ``config`` (a resolved
     :class:`gtvo.config.OdometryConfig`), ``options`` (``max_frames``, ``frame_step``,
     ``loop_closure``; the others go to :func:`gtvo.datasets.open_sequence`) and ``key`` (what
-    makes the outputs this job's, for ``--resume``). On success the log's record (``batch.json``: the key, the Sim(3) ATE,
-    the wall time, the worker's pid and BLAS threads) is written last into the output folder.
+    makes the outputs this job's, for ``--resume``). On success the log's record (``batch.json``:
+    the key, the Sim(3) ATE, the wall time, the worker's pid and BLAS threads) is written last
+    into the output folder.
 
     Returns:
         ``{"status": "done", "record": {...}}`` or ``{"status": "failed", "error": "one line",
