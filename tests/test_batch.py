@@ -129,8 +129,9 @@ def test_spec_folder_takes_every_detected_log_and_flags_broken_folders(logs):
     assert [s.name for s in specs] == ["broken", "drive", "seq1", "seq2"]
     assert [s.format for s in specs[1:]] == ["bag", "kitti", "kitti"] and specs[1].problem is None
     assert specs[0].problem is not None and "unknown dataset layout" in specs[0].problem
-    with pytest.raises(InputError, match="itself one log"):
-        read_spec(logs / "seq1")
+    for single in ("seq1", "drive.bag"):
+        with pytest.raises(InputError, match="itself one log"):
+            read_spec(logs / single)
     assert [s.name for s in read_spec(logs, exclude=(logs / "broken",))] == ["drive", "seq1", "seq2"]
 
 
@@ -143,6 +144,8 @@ def test_spec_yaml_entries(logs, tmp_path):
     a, b = read_spec(spec)
     assert (a.name, a.path, a.format, a.config) == ("seq1", (logs / "seq1").resolve(), "auto", {})
     assert (b.name, b.path, b.format) == ("second", (logs / "seq2").resolve(), "kitti")
+    spec.write_text("- {path: a, name: drive 3 (rain)}\n")  # any single folder name
+    assert read_spec(spec)[0].name == "drive 3 (rain)"
     assert b.options == {"max_frames": 3, "camera": (1.0, 2.0, 3.0, 4.0)}
     assert b.config == {"points_per_keyframe": 400, "window": {"size": 4}}
 
@@ -154,6 +157,8 @@ def test_spec_yaml_entries(logs, tmp_path):
     ("path: a\n", "must be a list of logs"),
     ("- path: a\n  max_frames: 0\n", "'max_frames' must be an integer >= 1"),
     ("- path: a\n  name: ../up\n", "log name '../up' cannot be"),
+    ("- path: a\n  name: .hidden\n", "log name '.hidden' cannot be"),
+    ("- path: a\n  name: summary.json\n", "log name 'summary.json' cannot be"),
     ("- path: a\n  config: [1]\n", "'config' must be a mapping"),
     ("- path: a\n  format: kiti\n", "unknown 'format' 'kiti' (known: auto, kitti"),
     ("- [a\n", "not valid YAML"),

@@ -15,7 +15,6 @@ Every problem with the SPEC itself is an :class:`InputError` naming the file and
 
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -32,8 +31,6 @@ BAG_TOPIC_KEYS: tuple[str, ...] = ("left_topic", "right_topic", "depth_topic", "
 
 #: Names a log's output folder may not take: the batch's own files.
 RESERVED_NAMES: frozenset[str] = frozenset({"summary.json", "summary.md", "summary.png"})
-
-_NAME_RE = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.+=@,-]*$")
 
 
 @dataclass(frozen=True)
@@ -110,6 +107,16 @@ def _from_folder(folder: Path, exclude: tuple[Path, ...]) -> list[LogSpec]:
 
 def _from_yaml(path: Path) -> list[LogSpec]:
     import yaml  # noqa: PLC0415
+
+    from gtvo.datasets import detect_format  # noqa: PLC0415
+
+    try:
+        kind = detect_format(path)
+    except InputError:
+        kind = None
+    if kind is not None:  # a bag file
+        raise InputError(f"SPEC is itself one log ({kind}): give the folder that holds it, or run it with gtvo run",
+                         path=path)
 
     try:
         data = yaml.safe_load(path.read_text(encoding="utf-8"))
@@ -203,9 +210,11 @@ def _resolve(base: Path, text: str) -> Path:
 
 
 def _check_name(name: str, at: str) -> str:
-    if not _NAME_RE.match(name) or name in RESERVED_NAMES:
-        raise InputError(f"{at}: log name {name!r} cannot be a folder name of the batch (use letters, digits and "
-                         f"_ . + = @ , -; not starting with '.' or '-'; not {', '.join(sorted(RESERVED_NAMES))})")
+    """``name`` if it can name one folder inside the batch's output folder."""
+    if (not name.strip() or name.startswith((".", "-")) or any(c in name for c in '/\\\0')
+            or not name.isprintable() or name in RESERVED_NAMES):
+        raise InputError(f"{at}: log name {name!r} cannot be a folder name of the batch (one folder name, "
+                         f"not starting with '.' or '-', not {', '.join(sorted(RESERVED_NAMES))})")
     return name
 
 
