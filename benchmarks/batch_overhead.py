@@ -86,6 +86,7 @@ def main() -> None:
         print(f"{'runner':<10} {'W':>2} {'wall S s':>9} {'wall L s':>9} {'runs L s':>9} {'per log s':>10} "
               f"{'fixed s':>8}")
         per_log: dict[tuple[str, int], float] = {}
+        walls: dict[tuple[str, int], float] = {}
         for workers in args.workers:
             for ray in runners:
                 med = {}
@@ -98,12 +99,15 @@ def main() -> None:
                 fixed = S["wall"] - (S["runs"] + small * one) / workers
                 name = "pool" if ray is None else "ray local"
                 per_log[(name, workers)] = one
+                walls[(name, workers)] = L["wall"]
                 print(f"{name:<10} {workers:>2} {S['wall']:>9.2f} {L['wall']:>9.2f} {L['runs']:>9.2f} {one:>10.2f} "
                       f"{fixed:>8.2f}")
         if "local" in runners:
             for workers in args.workers:
-                ratio = per_log[("ray local", workers)] / per_log[("pool", workers)]
-                print(f"overhead per log, ray local / pool, {workers} worker(s): {ratio:.2f}x")
+                ray_one, pool_one = per_log[("ray local", workers)], per_log[("pool", workers)]
+                ratio = f"{ray_one / pool_one:.2f}x" if ray_one > 0 and pool_one > 0 else "n/a (a slope below the noise)"
+                print(f"overhead per log, ray local / pool, {workers} worker(s): {ratio}; wall time of {large} logs, "
+                      f"ray local / pool: {walls[('ray local', workers)] / walls[('pool', workers)]:.2f}x")
             starts = [ray_start_seconds(2) for _ in range(args.repeats)]
             print(f"local Ray start + shutdown (2 CPUs), alone: {statistics.median(starts):.2f} s")
 
