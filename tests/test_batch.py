@@ -287,6 +287,19 @@ def test_ray_missing_is_one_line_naming_the_extra(tmp_path, capsys, monkeypatch)
     assert not (tmp_path / "o").exists()
 
 
+def test_a_log_that_kills_its_worker_fails_alone():
+    from gtvo.batching.runners import run_in_pool
+    from tests._batch_tasks import crash_or_pass
+
+    jobs = [{"name": f"log{i}", "crash": i == 2} for i in range(5)]
+    calls: list[tuple[int, dict]] = []
+    run_in_pool(jobs, 2, lambda i, r: calls.append((i, r)), task=crash_or_pass)
+    assert sorted(i for i, _ in calls) == [0, 1, 2, 3, 4]  # every log reported exactly once
+    results = dict(calls)
+    assert results[2]["status"] == "failed" and "worker process died" in results[2]["error"]
+    assert all(results[i]["status"] == "done" for i in (0, 1, 3, 4))
+
+
 # ---------------------------------------------------------------------------------------------
 # Ray
 # ---------------------------------------------------------------------------------------------

@@ -113,25 +113,51 @@ def sim3_ate(seq: Any, trajectory_file: Path) -> float | None:
         return None
 
 
-def run_in_pool(jobs: list[dict[str, Any]], workers: int, on_done: OnDone) -> None:
-    """Run ``jobs`` in a pool of ``workers`` fresh (spawned) processes; ``on_done`` per finished log."""
+def run_in_pool(jobs: list[dict[str, Any]], workers: int, on_done: OnDone,
+                task: Callable[[dict[str, Any]], dict[str, Any]] = run_log) -> None:
+    """Run ``jobs`` in a pool of ``workers`` fresh (spawned) processes; ``on_done`` per finished log.
+
+    A worker process that dies (killed, out of memory, a crash in native code) breaks the whole
+    pool, and every log it was running or had queued fails with it. Those logs are then run
+    again one at a time, each in a pool of its own, so that only the log that kills its worker
+    fails (with a line that says so) and the others finish.
+    """
+    from concurrent.futures.process import BrokenProcessPool  # noqa: PLC0415
+
+    broken = _pool_round(list(range(len(jobs))), jobs, workers, on_done, task)
+    for i in broken:
+        again = _pool_round([i], jobs, 1, on_done, task)
+        if again:
+            on_done(i, failure(BrokenProcessPool("the worker process died while running this log (killed, out "
+                                                 "of memory or a crash in native code)")))
+
+
+def _pool_round(indices: list[int], jobs: list[dict[str, Any]], workers: int, on_done: OnDone,
+                task: Callable[[dict[str, Any]], dict[str, Any]]) -> list[int]:
+    """Run ``jobs[indices]`` in one pool; return the indices whose results a dead worker took."""
     import multiprocessing  # noqa: PLC0415
     from concurrent.futures import ProcessPoolExecutor, as_completed  # noqa: PLC0415
+    from concurrent.futures.process import BrokenProcessPool  # noqa: PLC0415
 
     ctx = multiprocessing.get_context("spawn")  # no fork of a parent holding threads and BLAS state
     pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=init_worker)
+    broken: list[int] = []
     try:
-        futures = {pool.submit(run_log, job): i for i, job in enumerate(jobs)}
+        futures = {pool.submit(task, jobs[i]): i for i in indices}
         for fut in as_completed(futures):
             try:
                 result = fut.result()
-            except Exception as exc:  # noqa: BLE001 - a worker that died (BrokenProcessPool)
+            except BrokenProcessPool:
+                broken.append(futures[fut])
+                continue
+            except Exception as exc:  # noqa: BLE001 - a result that could not come back
                 result = failure(exc)
             on_done(futures[fut], result)
     except BaseException:  # Ctrl-C: stop the workers now rather than after their current logs
         _terminate(pool)
         raise
     pool.shutdown(wait=True)
+    return sorted(broken)
 
 
 def _terminate(pool: Any) -> None:
