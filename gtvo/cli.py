@@ -15,6 +15,7 @@ import importlib
 import os
 import signal
 import sys
+import warnings
 
 # gtvo's linear algebra is many small products (8x8 .. 6000x16); multithreaded BLAS on a busy
 # 2-core machine made them up to 300x slower (docs/benchmarks.md, sliding window). The CLI runs
@@ -24,6 +25,7 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 from typing import Sequence
 
 from gtvo import __version__
+from gtvo.core.interrupt import interrupt_requested, note_interrupt, raise_if_interrupted
 from gtvo.io.atomic import tidy_on_failure
 from gtvo.errors import DependencyError, InputError, TrackingFailure, caused_by_interrupt
 
@@ -83,11 +85,15 @@ def _run(argv: Sequence[str] | None) -> int:
     try:
         try:
             with tidy_on_failure():  # a failed command leaves no empty output folder behind
-                return int(args.func(args) or 0)
+                code = int(args.func(args) or 0)
+            raise_if_interrupted()  # a Ctrl-C that a library swallowed (gtvo.core.interrupt)
+            return code
         except BrokenPipeError:
             raise
         except Exception as exc:
-            if caused_by_interrupt(exc):  # e.g. a SystemError from compiled code that Ctrl-C stopped
+            # e.g. a SystemError from compiled code that Ctrl-C stopped, or an error that followed a
+            # Ctrl-C some library swallowed
+            if caused_by_interrupt(exc) or interrupt_requested():
                 raise KeyboardInterrupt from exc
             raise
     except BrokenPipeError:
@@ -113,8 +119,13 @@ def entry_point() -> None:
     Once the command is done, Ctrl-C is ignored: the interpreter's shutdown (which would otherwise
     die of the signal without a word) can no longer change anything the command did.
     """
+    signal.signal(signal.SIGINT, note_interrupt)
+    # gtvo draws no 3-D axes; matplotlib warns about them only when a Ctrl-C broke its optional import
+    warnings.filterwarnings("ignore", message="Unable to import Axes3D")
     code = main()
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if interrupt_requested() and code not in (130, 1):  # 1: stdout's reader left (BrokenPipe)
+        code = 130
     sys.exit(code)
 
 

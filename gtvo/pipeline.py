@@ -16,6 +16,7 @@ from gtvo import __version__
 from gtvo.io.atomic import ensure_output_dir, tidy_on_failure
 from gtvo.datasets import detect_format, open_sequence
 from gtvo.datasets.identity import sequence_identity
+from gtvo.core.interrupt import raise_if_interrupted
 from gtvo.errors import InputError
 from gtvo.config import OdometryConfig, as_config, config_to_dict, config_to_yaml
 from gtvo.odometry import VisualOdometry, frames_by_outcome
@@ -51,6 +52,7 @@ def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progre
         indices = bar
     t0 = time.perf_counter()
     for i in indices:
+        raise_if_interrupted()  # a Ctrl-C that a library swallowed stops the run here
         try:
             frame = seq.frame(i)
         except InputError as exc:
@@ -166,6 +168,7 @@ def run(path: str | Path | Sequence, out: str | Path | None = None,
             info["loops_unrefined"] = len(res.unrefined)
             info["loops_accepted"] = int(sum(res.accepted))
             info["loop_closure_solver"] = "gtsam_gnc_lm"  # GncLMOptimizer, then LM on the kept loops
+        raise_if_interrupted()
         report = write_run_outputs(out_dir, traj, seq, info, points=vo.map_points(), loop_closed=closed,
                                    covariances=keyframe_covariances(vo),
                                    config_yaml=config_to_yaml(config, f"gtvo {__version__}: gtvo run --config this file"))
