@@ -18,7 +18,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "DIR/trajectory.tum, DIR/report.json (with ATE, RPE and drift when ground truth exists), "
                     "DIR/trajectory.png and DIR/points.ply.")
     p.add_argument("sequence", metavar="SEQUENCE_DIR", help="the sequence folder, or a ROS bag (.bag, ROS2 folder)")
-    p.add_argument("--format", choices=("auto", "kitti", "euroc", "tum", "bag"), default="auto",
+    p.add_argument("--format", choices=("auto", "kitti", "kitti_raw", "euroc", "tum", "bag"), default="auto",
                    help="dataset layout (default: auto-detect)")
     p.add_argument("--out", metavar="DIR", default=None, help="output folder (default gtvo_out/<name>)")
     p.add_argument("--max-frames", type=int, metavar="N", default=None, help="use only the first N frames")
