@@ -8,6 +8,7 @@ import sys
 
 from gtvo.commands._bag import add_bag_options, bag_options
 from gtvo.commands._common import add_odometry_options, describe_solvers, odometry_config, parse_floats, print_report
+from gtvo.commands._viewer import add_viewer_options, viewer_observers
 from gtvo.errors import InputError
 
 
@@ -34,6 +35,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="do not compute the keyframes' pose covariances (no DIR/covariances.npz, no ellipses)")
     add_odometry_options(p)
     add_bag_options(p)
+    add_viewer_options(p)
     p.set_defaults(func=main)
 
 
@@ -51,9 +53,10 @@ def main(args: argparse.Namespace) -> int:
     config = odometry_config(args)
     if args.no_covariances:
         config = dataclasses.replace(config, window=dataclasses.replace(config.window, covariances=False))
-    report = run(args.sequence, out=args.out, config=config, format=args.format,
-                 max_frames=args.max_frames, progress=not args.no_progress, strict=args.strict,
-                 loop_closure=args.loop_closure, frame_step=args.frame_step, **options)
+    with viewer_observers(args) as observers:
+        report = run(args.sequence, out=args.out, config=config, format=args.format,
+                     max_frames=args.max_frames, progress=not args.no_progress, strict=args.strict,
+                     loop_closure=args.loop_closure, frame_step=args.frame_step, observers=observers, **options)
     print(f"gtvo run: {report['sequence']} ({describe_solvers(report)})", file=sys.stdout)
     print_report(report)
     return 0

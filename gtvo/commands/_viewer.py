@@ -1,0 +1,30 @@
+"""``--rerun FILE.rrd`` / ``--rerun-connect ADDRESS``: the Rerun viewer options of ``run`` and ``demo``."""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+from typing import Any, Iterator
+
+
+def add_viewer_options(p: argparse.ArgumentParser) -> None:
+    """Add ``--rerun`` and ``--rerun-connect`` (needs the ``viewer`` extra: ``pip install "gtvo[viewer]"``)."""
+    p.add_argument("--rerun", metavar="FILE.rrd", default=None,
+                   help="log the run to a Rerun recording as it goes (cameras, images, tracked points, window, "
+                        "trajectory, map, plots); open it with `rerun FILE.rrd`. Needs pip install \"gtvo[viewer]\"")
+    p.add_argument("--rerun-connect", metavar="ADDRESS", default=None,
+                   help="log the run to a running Rerun viewer, e.g. rerun+http://127.0.0.1:9876/proxy "
+                        "(the address `rerun` listens on by default)")
+
+
+@contextlib.contextmanager
+def viewer_observers(args: Any) -> Iterator[list[Any]]:
+    """The run's observers for the parsed options: ``[]``, or a :class:`gtvo.io.rerun_log.RerunLogger`
+    whose recording is kept only when the block succeeds."""
+    if args.rerun is None and args.rerun_connect is None:
+        yield []
+        return
+    from gtvo.io.rerun_log import RerunLogger  # noqa: PLC0415  (rerun-sdk is imported here, not at start-up)
+
+    with RerunLogger(save=args.rerun, connect=args.rerun_connect) as logger:
+        yield [logger]
