@@ -240,3 +240,18 @@ def test_real_drive(shared_data, tmp_path):
         shutil.copy(calib, date / calib.name)
     assert detect_format(drive) == "kitti_raw"
     assert open_sequence(drive).camera == seq.camera
+
+
+@pytest.mark.realdata
+@pytest.mark.slow
+def test_gtvo_run_detects_the_real_drive(shared_data, tmp_path, capsys):
+    from gtvo.cli import main
+
+    root = shared_data / RAW_DRIVE
+    if not root.is_dir():
+        pytest.skip(f"{root} not found")
+    assert main(["run", str(root), "--out", str(tmp_path), "--max-frames", "4", "--mode", "track", "--no-progress"]) == 0
+    assert f"gtvo run: {RAW_DRIVE}" in capsys.readouterr().out
+    tum = np.loadtxt(tmp_path / "trajectory.tum")
+    assert tum.shape == (4, 8) and tum[0, 0] == pytest.approx(1317042145.9677906, abs=1e-6)  # 2011-09-26 13:02:25.97 UTC
+    assert 0.5 < np.linalg.norm(tum[3, 1:4]) < 10  # a car at about 10-13 m/s over 0.3 s
