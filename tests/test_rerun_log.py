@@ -203,6 +203,13 @@ def test_bad_file_name_and_address_exit_2(rerun, tmp_path, capsys):
     assert len(err) == 2 and "x.txt: a Rerun recording is a .rrd file" in err[0] and "rerun+http://" in err[1]
 
 
+def test_failed_command_removes_the_folders_it_made_for_the_recording(rerun, tmp_path, capsys):
+    rrd = tmp_path / "a" / "b" / "x.rrd"
+    assert cli_main(["run", str(tmp_path / "missing"), "--out", str(tmp_path / "o"), "--rerun", str(rrd)]) == 2
+    assert "sequence folder not found" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []
+
+
 def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))

@@ -19,8 +19,9 @@ def add_viewer_options(p: argparse.ArgumentParser) -> None:
 
 @contextlib.contextmanager
 def viewer_observers(args: Any) -> Iterator[list[Any]]:
-    """The run's observers for the parsed options: ``[]``, or a :class:`gtvo.io.rerun_log.RerunLogger`
-    whose recording is kept only when the block succeeds."""
+    """The run's observers for the parsed options: ``[]``, or a
+    :class:`gtvo.io.rerun_log.RerunLogger` whose recording is kept only when the block succeeds (the
+    CLI's ``tidy_on_failure`` then also removes the folders made for it)."""
     if args.rerun is None and args.rerun_connect is None:
         yield []
         return

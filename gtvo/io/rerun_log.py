@@ -228,6 +228,8 @@ class RerunLogger:
     def _log_window(self, vo: "VisualOdometry", every_keyframe: bool = False) -> None:
         rr = self.rr
         keyframes = window_keyframes(vo)
+        if not keyframes:
+            return
         poses = np.stack([kf.T_world_cam.matrix() for kf in keyframes])
         self.rec.log("world/window", rr.Points3D(poses[:, :3, 3], labels=[str(kf.index) for kf in keyframes],
                                                  colors=[255, 160, 0], radii=0.05))
