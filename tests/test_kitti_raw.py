@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from gtvo.datasets import detect_format, open_sequence
-from gtvo.datasets.kitti_raw import EARTH_RADIUS_M, parse_kitti_time
+from gtvo.datasets.kitti_raw import (EARTH_RADIUS_M, camera_ground_truth, parse_kitti_time, read_rectifying_rotation,
+                                     read_rigid)
 from gtvo.errors import InputError
 
 W, H = 64, 48
@@ -230,6 +231,14 @@ def test_real_drive(shared_data, tmp_path):
     assert seq.timestamps[-1] - seq.timestamps[0] == pytest.approx(11.037, abs=0.01)
     assert np.all(np.diff(seq.timestamps) > 0.09)
     assert seq.left(0).shape == (375, 1242) and seq.right(107).shape == (375, 1242)
+    # its calibration files: the rectified cam0 sits about 1.08 m ahead of the IMU and 0.73 m above
+    # it (KITTI's sensor set-up), looking forward (its z along the IMU's x), its y (down) along -z
+    T_cam0_imu = read_rigid(root / "calib_velo_to_cam.txt") @ read_rigid(root / "calib_imu_to_velo.txt")
+    T_imu_cam = camera_ground_truth(np.eye(4)[None], T_cam0_imu, read_rectifying_rotation(
+        root / "calib_cam_to_cam.txt"), np.zeros(3))[0]
+    np.testing.assert_allclose(T_imu_cam[:3, 3], [1.08, -0.31, 0.73], atol=0.01)
+    np.testing.assert_allclose(T_imu_cam[:3, 2], [1, 0, 0], atol=0.02)
+    np.testing.assert_allclose(T_imu_cam[:3, 1], [0, 0, -1], atol=0.02)
     # KITTI's own layout: calibration in the date folder above the drive
     date = tmp_path / "2011_09_26"
     drive = date / "2011_09_26_drive_0001_sync"

@@ -36,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from gtvo.core.camera import PinholeCamera, StereoCamera
+from gtvo.core.lie import rotation_block_error
 from gtvo.datasets._common import (FloatArray, GrayImageLoader, TextRow, image_size, parse_floats, read_rows,
                                    require_dir, require_file)
 from gtvo.datasets.kitti import DEFAULT_PERIOD_S, IMAGE_SUFFIXES
@@ -113,12 +114,12 @@ def read_rectifying_rotation(path: Path) -> FloatArray:
     return T
 
 
-def _require_rotation(R: FloatArray, path: Path, name: str, tolerance: float = 1e-3) -> None:
-    """KITTI prints 7 digits: a rotation block off by more than ``tolerance`` (or mirrored) is bad input."""
-    err = float(np.abs(R @ R.T - np.eye(3)).max())
-    if err > tolerance or np.linalg.det(R) <= 0:
-        raise InputError(f"{name} is not a rotation matrix (|R R^T - I| = {err:.3g}, det {np.linalg.det(R):.3g})",
-                         path=path)
+def _require_rotation(R: FloatArray, path: Path, name: str) -> None:
+    """KITTI prints 7 digits: a block off a rotation (:func:`gtvo.core.lie.rotation_block_error`)
+    is bad input naming the file and the matrix."""
+    problem = rotation_block_error(R)
+    if problem is not None:
+        raise InputError(f"{name} {problem}", path=path)
 
 
 # --------------------------------------------------------------------------------------------
