@@ -198,9 +198,11 @@ def test_failed_run_leaves_no_recording(rerun, tmp_path):
 
 def test_bad_file_name_and_address_exit_2(rerun, tmp_path, capsys):
     assert cli_main(["demo", "--frames", "2", "--out", str(tmp_path), "--rerun", str(tmp_path / "x.txt")]) == 2
-    assert cli_main(["demo", "--frames", "2", "--out", str(tmp_path), "--rerun-connect", "localhost:9876"]) == 2
+    assert cli_main(["demo", "--frames", "2", "--out", str(tmp_path), "--rerun", str(tmp_path / "x.rrd"),
+                     "--rerun-connect", "localhost:9876"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 2 and "x.txt: a Rerun recording is a .rrd file" in err[0] and "rerun+http://" in err[1]
+    assert list(tmp_path.iterdir()) == []  # neither x.rrd nor its temporary file
 
 
 def test_failed_command_removes_the_folders_it_made_for_the_recording(rerun, tmp_path, capsys):

@@ -115,14 +115,14 @@ class RerunLogger:
             sinks.append(rr.FileSink(str(tmp)))
         if connect is not None:
             if not connect.startswith(("rerun://", "rerun+http://", "rerun+https://")):
-                self._files.close()
+                self._discard_file()
                 raise InputError(f"Rerun viewer address must start with rerun+http://, rerun+https:// or rerun://, "
                                  f"got {connect!r} (a viewer listens on rerun+http://127.0.0.1:9876/proxy)")
             sinks.append(rr.GrpcSink(connect))
         try:
             self.rec.set_sinks(*sinks)
         except (RuntimeError, ValueError) as exc:
-            self._files.close()
+            self._discard_file()
             raise InputError(f"Rerun cannot open {connect or save}: {exc}") from None
 
     def close(self, success: bool = True) -> None:
@@ -137,9 +137,14 @@ class RerunLogger:
             print(f"warning: Rerun viewer at {self.connect} did not take the data ({exc})", file=sys.stderr)
         self.rec.disconnect()
         if success:
-            self._files.close()
+            self._files.close()  # atomic_path: the temporary file becomes ``save``
         else:
-            self._files.__exit__(RuntimeError, RuntimeError("run failed"), None)
+            self._discard_file()
+
+    def _discard_file(self) -> None:
+        """Remove the temporary ``.rrd`` without replacing ``save`` (atomic_path's failure branch)."""
+        failure = RuntimeError("Rerun recording discarded")
+        self._files.__exit__(type(failure), failure, None)
 
     def __enter__(self) -> "RerunLogger":
         return self
