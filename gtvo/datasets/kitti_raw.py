@@ -226,7 +226,8 @@ def _ground_truth(root: Path, oxts_dir: Path, lefts: list[Path], t_left: FloatAr
     if not any(found):
         raise InputError(f"no OXTS record named like the images ({records[0].name}, ...)", path=data)
     cam_to_cam = _require_calibration(root, CAM_TO_CAM)
-    T_cam0_imu = read_rigid(_require_calibration(root, VELO_TO_CAM)) @ read_rigid(_require_calibration(root, IMU_TO_VELO))
+    T_cam0_velo = read_rigid(_require_calibration(root, VELO_TO_CAM))
+    T_cam0_imu = T_cam0_velo @ read_rigid(_require_calibration(root, IMU_TO_VELO))
     return camera_ground_truth(oxts_imu_poses(found), T_cam0_imu, read_rectifying_rotation(cam_to_cam), t_left)
 
 
