@@ -27,7 +27,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--frame-step", type=int, metavar="K", default=1,
                    help="use every K-th frame (after --max-frames): the log at 1/K of its frame rate")
     p.add_argument("--camera", metavar="FX,FY,CX,CY", default=None, help="intrinsics for TUM folders")
-    p.add_argument("--ground-truth", metavar="FILE", default=None, help="ground truth to use instead of the folder's (KITTI raw: an oxts folder)")
+    p.add_argument("--ground-truth", metavar="FILE", default=None,
+                   help="ground truth to use instead of the folder's (KITTI raw: an oxts folder)")
     p.add_argument("--strict", action="store_true", help="stop at an unreadable frame instead of skipping it")
     p.add_argument("--loop-closure", action="store_true",
                    help="detect loops among the keyframes, optimise the keyframe pose graph robustly (GNC) and "
