@@ -48,7 +48,8 @@ def detect_format(path: str | Path) -> str:
     if looks_like_tum(folder):
         return "tum"
     raise InputError("unknown dataset layout: expected KITTI (calib.txt + image_0/ or image_l/), KITTI raw "
-                     "(image_00/data/ + calib_cam_to_cam.txt), EuRoC (mav0/cam0/ + mav0/cam1/) or TUM RGB-D (rgb.txt + depth.txt)", path=folder)
+                     "(image_00/data/ + calib_cam_to_cam.txt), EuRoC (mav0/cam0/ + mav0/cam1/) or TUM RGB-D "
+                     "(rgb.txt + depth.txt)", path=folder)
 
 
 def open_sequence(path: str | Path, format: DatasetFormat = "auto",
