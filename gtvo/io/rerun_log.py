@@ -237,7 +237,7 @@ class RerunLogger:
             return
         poses = np.stack([kf.T_world_cam.matrix() for kf in keyframes])
         self.rec.log("world/window", rr.Points3D(poses[:, :3, 3], labels=[str(kf.index) for kf in keyframes],
-                                                 colors=[255, 160, 0], radii=0.05))
+                                                 colors=[255, 160, 0], radii=rr.Radius.ui_points(6.0)))
         axis = 0.5 * _step_length(vo)
         self.rec.log("world/window/axes", rr.Arrows3D(origins=poses[:, :3, 3], vectors=axis * poses[:, :3, 2],
                                                       colors=[255, 160, 0]))
