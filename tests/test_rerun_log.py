@@ -16,6 +16,7 @@ import pytest
 
 from gtvo.cli import main as cli_main
 from gtvo.config import OdometryConfig
+from gtvo.datasets import open_sequence
 from gtvo.datasets.synthetic import make_synthetic_sequence
 from gtvo.io.rerun_log import residual_colors, tracked_point_residuals
 from gtvo.odometry import VisualOdometry
@@ -243,3 +244,21 @@ def test_without_rerun_sdk_one_line_names_the_extra(tmp_path, monkeypatch, capsy
     err = capsys.readouterr().err.strip()
     assert code == 2 and len(err.splitlines()) == 1 and 'pip install "gtvo[viewer]"' in err
     assert not (tmp_path / "d.rrd").exists() and not (tmp_path / "o").exists()
+
+
+@pytest.mark.realdata
+def test_rgbd_run_is_recorded_with_unix_times_and_ground_truth(rerun, shared_data, tmp_path):
+    root = shared_data / "rgbd_dataset_freiburg3_teddy_first20"
+    if not root.is_dir():
+        pytest.skip(f"{root} not found")
+    rrd = tmp_path / "tum.rrd"
+    args = ["run", str(root), "--out", str(tmp_path / "out"), "--max-frames", "4", "--no-progress", "--rerun", str(rrd)]
+    assert cli_main(args) == 0
+    rows = read_rrd(rrd)
+    cams = rows["/world/camera"]
+    first = open_sequence(root).timestamps[0]
+    assert len(cams) == 4 and cams[0]["sensor_time"].timestamp() == pytest.approx(first, abs=1e-6)  # a date
+    gt = np.asarray(rows["/world/trajectory/ground_truth"][0]["LineStrips3D:strips"][0])
+    np.testing.assert_allclose(gt[0], 0.0, atol=1e-6)  # starts on the first estimate, the origin
+    assert len(gt) == 4 and np.linalg.norm(gt[-1]) < 0.5
+    assert "/plots/tracking/rms" in rows and "/plots/rig/right_gain" not in rows  # RGB-D: no right camera
