@@ -16,9 +16,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "run", help="odometry of a logged sequence; writes trajectory, report, plots, points",
         description="Track every frame of a KITTI (odometry or raw) / EuRoC / TUM RGB-D sequence or a ROS bag "
-                    "and write "
-                    "DIR/trajectory.tum, DIR/report.json (with ATE, RPE and drift when ground truth exists), "
-                    "DIR/trajectory.png and DIR/points.ply.")
+                    "and write DIR/trajectory.tum, DIR/report.json (with ATE, RPE and drift when ground truth "
+                    "exists), DIR/trajectory.png and DIR/points.ply.")
     p.add_argument("sequence", metavar="SEQUENCE_DIR", help="the sequence folder, or a ROS bag (.bag, ROS2 folder)")
     p.add_argument("--format", choices=("auto", "kitti", "kitti_raw", "euroc", "tum", "bag"), default="auto",
                    help="dataset layout (default: auto-detect)")
