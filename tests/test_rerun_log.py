@@ -64,8 +64,8 @@ def rerun():
 @pytest.fixture(scope="module")
 def demo_recording(rerun, tmp_path_factory):
     """`gtvo demo --rerun` (window mode): the recording and the report's folder."""
-    out = tmp_path_factory.mktemp("demo")
-    rrd = out / "sub" / "demo.rrd"
+    root = tmp_path_factory.mktemp("demo")
+    out, rrd = root / "out", root / "sub" / "demo.rrd"
     code = cli_main(["demo", "--frames", str(FRAMES), "--out", str(out), "--no-progress", "--rerun", str(rrd)])
     assert code == 0
     return read_rrd(rrd), out
@@ -198,12 +198,15 @@ def test_failed_run_leaves_no_recording(rerun, tmp_path):
 
 
 def test_bad_file_name_and_address_exit_2(rerun, tmp_path, capsys):
-    assert cli_main(["demo", "--frames", "2", "--out", str(tmp_path), "--rerun", str(tmp_path / "x.txt")]) == 2
-    assert cli_main(["demo", "--frames", "2", "--out", str(tmp_path), "--rerun", str(tmp_path / "x.rrd"),
+    assert cli_main(["demo", "--frames", "2", "--out", str(tmp_path / "o"), "--rerun", str(tmp_path / "x.txt")]) == 2
+    assert cli_main(["demo", "--frames", "2", "--out", str(tmp_path / "o"), "--rerun", str(tmp_path / "x.rrd"),
                      "--rerun-connect", "localhost:9876"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 2 and "x.txt: a Rerun recording is a .rrd file" in err[0] and "rerun+http://" in err[1]
     assert list(tmp_path.iterdir()) == []  # neither x.rrd nor its temporary file
+    out = tmp_path / "out"
+    assert cli_main(["demo", "--frames", "2", "--out", str(out), "--rerun", str(out / "x.rrd")]) == 2
+    assert "inside the output folder" in capsys.readouterr().err and not out.exists()
 
 
 def test_failed_command_removes_the_folders_it_made_for_the_recording(rerun, tmp_path, capsys):

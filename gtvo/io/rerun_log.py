@@ -66,7 +66,8 @@ class RerunLogger:
     """Logs a run to a ``.rrd`` file and/or a running viewer (see the module docstring).
 
     Args:
-        save: the ``.rrd`` file to write (atomically: it appears when the run has finished).
+        save: the ``.rrd`` file to write (atomically: it appears when the run has finished); not
+            inside the run's output folder, which :func:`gtvo.pipeline.run` replaces as a set.
         connect: the address of a running viewer (``rerun+http://127.0.0.1:9876/proxy`` is
             the one ``rerun`` opens by default).
         jpeg_quality: JPEG quality of the logged images (1-100), None for raw images.
