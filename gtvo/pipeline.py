@@ -8,7 +8,7 @@ import statistics
 import sys
 import time
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Iterable
 
 import numpy as np
 
@@ -19,6 +19,7 @@ from gtvo.datasets.identity import sequence_identity
 from gtvo.core.interrupt import raise_if_interrupted
 from gtvo.errors import InputError
 from gtvo.config import OdometryConfig, as_config, config_to_dict, config_to_yaml
+from gtvo.io.observer import RunObserver
 from gtvo.odometry import VisualOdometry, frames_by_outcome
 from gtvo.io.covariances import KeyframeCovariances
 from gtvo.io.outputs import check_run_output_dir, write_run_outputs
@@ -28,11 +29,14 @@ from gtvo.evaluation.trajectory import Trajectory
 
 def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progress: bool = False,
                      strict: bool = False, warn: Callable[[str], None] | None = None,
+                     observers: Iterable[RunObserver] = (),
                      ) -> tuple[VisualOdometry, Trajectory, dict[str, Any]]:
     """Run the odometry over ``seq``.
 
     A frame whose images cannot be read is skipped with a warning (and counted), unless
     ``strict``; the first frame must be readable, since everything starts from it.
+    ``observers`` (:class:`gtvo.io.observer.RunObserver`, e.g. the Rerun logger) see the start,
+    every processed frame and the end.
 
     Returns:
         ``(vo, trajectory, run_info)`` where ``run_info`` holds frames, keyframes, seconds,
@@ -41,6 +45,9 @@ def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progre
     """
     config = config or OdometryConfig()
     vo = VisualOdometry(seq.camera, config)
+    observers = list(observers)
+    for o in observers:
+        o.on_start(seq, vo)
     warn = warn or (lambda msg: print(f"warning: {msg}", file=sys.stderr))
     skipped: list[tuple[int, str]] = []
     bar = None
@@ -61,7 +68,9 @@ def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progre
             skipped.append((i, str(exc)))
             warn(f"skipping frame {i}: {exc}")
             continue
-        vo.process(frame)
+        estimate = vo.process(frame)
+        for o in observers:
+            o.on_frame(frame, estimate, vo)
         if bar is not None:
             bar.set_postfix(kf=len(vo.keyframes), fail=vo.failures,
                             **({"win": len(vo.window_results)} if config.mode == "window" else {}))
@@ -103,6 +112,8 @@ def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progre
         })
     info["covariances"] = ("not computed (--no-covariances)" if config.mode == "window" and not config.window.covariances
                            else "not computed (track mode: no window)" if config.mode != "window" else "computed")
+    for o in observers:
+        o.on_finish(vo, traj, info)
     return vo, traj, info
 
 
@@ -110,7 +121,7 @@ def run(path: str | Path | Sequence, out: str | Path | None = None,
         config: OdometryConfig | dict[str, Any] | str | Path | None = None,
         format: str = "auto", max_frames: int | None = None, progress: bool = False,
         strict: bool = False, loop_closure: bool = False, frame_step: int = 1,
-        **open_options: Any) -> dict[str, Any]:
+        observers: Iterable[RunObserver] = (), **open_options: Any) -> dict[str, Any]:
     """Run gtvo on a sequence folder (or an opened :class:`Sequence`) and write its outputs.
 
     Args:
@@ -128,6 +139,8 @@ def run(path: str | Path | Sequence, out: str | Path | None = None,
             output (:mod:`gtvo.loops.closing`).
         frame_step: use every ``frame_step``-th frame (after ``max_frames``): the log at a lower
             frame rate (:meth:`Sequence.subsampled`).
+        observers: see the run as it goes (:func:`process_sequence`), e.g.
+            :class:`gtvo.io.rerun_log.RerunLogger`.
 
     Returns:
         The report (also written to ``out/report.json``), with ``"out"`` added. Besides the run's
@@ -149,7 +162,7 @@ def run(path: str | Path | Sequence, out: str | Path | None = None,
     fmt = None if isinstance(path, Sequence) else (detect_format(path) if format == "auto" else format)
     with tidy_on_failure():  # a run that fails leaves no empty output folder behind
         ensure_output_dir(out_dir)  # an unusable --out is reported before the long work
-        vo, traj, info = process_sequence(seq, config, progress=progress, strict=strict)
+        vo, traj, info = process_sequence(seq, config, progress=progress, strict=strict, observers=observers)
         info.update(frame_step=int(frame_step), gtvo_version=__version__, input=sequence_identity(seq, fmt),
                     config=config_to_dict(config))
         if getattr(seq, "unpaired", None) is not None:  # a ROS bag: messages that found no partner

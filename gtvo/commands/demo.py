@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 
 from gtvo.commands._common import add_odometry_options, describe_solvers, odometry_config, print_report
+from gtvo.commands._viewer import add_viewer_options, viewer_observers
 from gtvo.errors import InputError
 
 
@@ -18,6 +19,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--noise-sigma", type=float, default=1.0, help="image noise in gray levels (default 1)")
     p.add_argument("--exposure-change", action="store_true", help="vary the exposure from frame to frame")
     add_odometry_options(p, demo_defaults())
+    add_viewer_options(p)
     p.set_defaults(func=main)
 
 
@@ -38,7 +40,8 @@ def main(args: argparse.Namespace) -> int:
     config = odometry_config(args)
     seq = make_synthetic_sequence(n_frames=args.frames, noise_sigma=args.noise_sigma,
                                   exposure_change=args.exposure_change)
-    report = run(seq, out=args.out, config=config, progress=not args.no_progress)
+    with viewer_observers(args) as observers:
+        report = run(seq, out=args.out, config=config, progress=not args.no_progress, observers=observers)
     print(f"gtvo demo: synthetic sequence, {len(seq)} frames {seq.pinhole.width}x{seq.pinhole.height} "
           f"({describe_solvers(report)})")
     print_report(report)

@@ -8,24 +8,26 @@ import sys
 
 from gtvo.commands._bag import add_bag_options, bag_options
 from gtvo.commands._common import add_odometry_options, describe_solvers, odometry_config, parse_floats, print_report
+from gtvo.commands._viewer import add_viewer_options, viewer_observers
 from gtvo.errors import InputError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "run", help="odometry of a logged sequence; writes trajectory, report, plots, points",
-        description="Track every frame of a KITTI / EuRoC / TUM RGB-D sequence or a ROS bag and write "
-                    "DIR/trajectory.tum, DIR/report.json (with ATE, RPE and drift when ground truth exists), "
-                    "DIR/trajectory.png and DIR/points.ply.")
+        description="Track every frame of a KITTI (odometry or raw) / EuRoC / TUM RGB-D sequence or a ROS bag "
+                    "and write DIR/trajectory.tum, DIR/report.json (with ATE, RPE and drift when ground truth "
+                    "exists), DIR/trajectory.png and DIR/points.ply.")
     p.add_argument("sequence", metavar="SEQUENCE_DIR", help="the sequence folder, or a ROS bag (.bag, ROS2 folder)")
-    p.add_argument("--format", choices=("auto", "kitti", "euroc", "tum", "bag"), default="auto",
+    p.add_argument("--format", choices=("auto", "kitti", "kitti_raw", "euroc", "tum", "bag"), default="auto",
                    help="dataset layout (default: auto-detect)")
     p.add_argument("--out", metavar="DIR", default=None, help="output folder (default gtvo_out/<name>)")
     p.add_argument("--max-frames", type=int, metavar="N", default=None, help="use only the first N frames")
     p.add_argument("--frame-step", type=int, metavar="K", default=1,
                    help="use every K-th frame (after --max-frames): the log at 1/K of its frame rate")
     p.add_argument("--camera", metavar="FX,FY,CX,CY", default=None, help="intrinsics for TUM folders")
-    p.add_argument("--ground-truth", metavar="FILE", default=None, help="ground truth to use instead of the folder's")
+    p.add_argument("--ground-truth", metavar="FILE", default=None,
+                   help="ground truth to use instead of the folder's (KITTI raw: an oxts folder)")
     p.add_argument("--strict", action="store_true", help="stop at an unreadable frame instead of skipping it")
     p.add_argument("--loop-closure", action="store_true",
                    help="detect loops among the keyframes, optimise the keyframe pose graph robustly (GNC) and "
@@ -34,6 +36,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="do not compute the keyframes' pose covariances (no DIR/covariances.npz, no ellipses)")
     add_odometry_options(p)
     add_bag_options(p)
+    add_viewer_options(p)
     p.set_defaults(func=main)
 
 
@@ -51,9 +54,10 @@ def main(args: argparse.Namespace) -> int:
     config = odometry_config(args)
     if args.no_covariances:
         config = dataclasses.replace(config, window=dataclasses.replace(config.window, covariances=False))
-    report = run(args.sequence, out=args.out, config=config, format=args.format,
-                 max_frames=args.max_frames, progress=not args.no_progress, strict=args.strict,
-                 loop_closure=args.loop_closure, frame_step=args.frame_step, **options)
+    with viewer_observers(args) as observers:
+        report = run(args.sequence, out=args.out, config=config, format=args.format,
+                     max_frames=args.max_frames, progress=not args.no_progress, strict=args.strict,
+                     loop_closure=args.loop_closure, frame_step=args.frame_step, observers=observers, **options)
     print(f"gtvo run: {report['sequence']} ({describe_solvers(report)})", file=sys.stdout)
     print_report(report)
     return 0

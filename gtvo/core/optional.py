@@ -1,4 +1,4 @@
-"""Lazy imports of optional heavy dependencies.
+"""Lazy imports of optional heavy dependencies (open3d; rerun-sdk, the ``viewer`` extra).
 
 Open3D's wheel needs the system library libusb-1.0 (``apt-get install libusb-1.0-0``);
 without it ``import open3d`` fails. gtvo imports open3d only where it is used, so
@@ -26,3 +26,14 @@ def require_open3d() -> ModuleType:
             ) from exc
         raise DependencyError(f"open3d is not importable ({msg}); install it: pip install open3d") from exc
     return open3d
+
+
+def require_rerun() -> ModuleType:
+    """Import and return ``rerun`` (the ``rerun-sdk`` package, the ``viewer`` extra), or raise
+    :class:`DependencyError` with a one-line reason naming the extra."""
+    try:
+        import rerun  # noqa: PLC0415
+    except ImportError as exc:  # pragma: no cover - depends on the machine
+        raise DependencyError(f'the Rerun viewer output needs rerun-sdk ({exc.msg}): pip install "gtvo[viewer]"') \
+            from exc
+    return rerun

@@ -1,4 +1,4 @@
-"""Dataset readers: KITTI odometry, EuRoC MAV (ASL) and TUM RGB-D folders as a lazy
+"""Dataset readers: KITTI odometry, KITTI raw, EuRoC MAV (ASL) and TUM RGB-D folders as a lazy
 :class:`gtvo.datasets.sequence.Sequence`. Layouts, association rules and frame conventions:
 ``docs/datasets.md``.
 
@@ -17,19 +17,21 @@ from gtvo.datasets._common import require_dir
 from gtvo.datasets.bag import looks_like_bag, read_bag
 from gtvo.datasets.euroc import looks_like_euroc, read_euroc
 from gtvo.datasets.kitti import looks_like_kitti, read_kitti
+from gtvo.datasets.kitti_raw import looks_like_kitti_raw, read_kitti_raw
 from gtvo.datasets.tum import TUM_INTRINSICS, looks_like_tum, read_tum
 from gtvo.errors import InputError
 from gtvo.datasets.sequence import Sequence
 
-DatasetFormat = Literal["auto", "kitti", "euroc", "tum", "bag"]
-FORMATS: tuple[str, ...] = ("kitti", "euroc", "tum", "bag")
+DatasetFormat = Literal["auto", "kitti", "kitti_raw", "euroc", "tum", "bag"]
+FORMATS: tuple[str, ...] = ("kitti", "kitti_raw", "euroc", "tum", "bag")
 
 __all__ = ["DatasetFormat", "FORMATS", "TUM_INTRINSICS", "detect_format", "open_sequence", "read_euroc",
-           "read_kitti", "read_tum", "validate"]
+           "read_kitti", "read_kitti_raw", "read_tum", "validate"]
 
 
 def detect_format(path: str | Path) -> str:
-    """The layout of a sequence folder: ``"kitti"``, ``"euroc"`` or ``"tum"``; ``"bag"`` for a ROS bag.
+    """The layout of a sequence folder: ``"kitti"``, ``"kitti_raw"``, ``"euroc"`` or ``"tum"``;
+    ``"bag"`` for a ROS bag.
 
     Raises:
         InputError: the folder is missing or matches no known layout.
@@ -39,12 +41,15 @@ def detect_format(path: str | Path) -> str:
     folder = require_dir(Path(path), "sequence folder")
     if looks_like_kitti(folder):
         return "kitti"
+    if looks_like_kitti_raw(folder):
+        return "kitti_raw"
     if looks_like_euroc(folder):
         return "euroc"
     if looks_like_tum(folder):
         return "tum"
-    raise InputError("unknown dataset layout: expected KITTI (calib.txt + image_0/ or image_l/), "
-                     "EuRoC (mav0/cam0/ + mav0/cam1/) or TUM RGB-D (rgb.txt + depth.txt)", path=folder)
+    raise InputError("unknown dataset layout: expected KITTI (calib.txt + image_0/ or image_l/), KITTI raw "
+                     "(image_00/data/ + calib_cam_to_cam.txt), EuRoC (mav0/cam0/ + mav0/cam1/) or TUM RGB-D "
+                     "(rgb.txt + depth.txt)", path=folder)
 
 
 def open_sequence(path: str | Path, format: DatasetFormat = "auto",
@@ -54,11 +59,11 @@ def open_sequence(path: str | Path, format: DatasetFormat = "auto",
 
     Args:
         path: the sequence folder.
-        format: ``"auto"`` (see :func:`detect_format`), ``"kitti"``, ``"euroc"`` or ``"tum"``.
+        format: ``"auto"`` (see :func:`detect_format`) or one of :data:`FORMATS`.
         camera: ``(fx, fy, cx, cy)`` for TUM folders (overrides the name-based intrinsics).
         max_frames: keep only the first ``max_frames`` frames.
         ground_truth: a ground-truth file to use instead of the one in the folder (KITTI poses,
-            ASL csv or TUM trajectory, as the layout reads).
+            KITTI raw OXTS folder, ASL csv or TUM trajectory, as the layout reads).
         bag_options: ROS bags only: ``calib``, ``left_topic``, ``right_topic``, ``depth_topic``,
             ``ground_truth_topic``, ``stamp_tolerance`` (:func:`gtvo.datasets.bag.read_bag`).
     """
@@ -77,6 +82,8 @@ def open_sequence(path: str | Path, format: DatasetFormat = "auto",
         return _open_bag(folder, kind, n, gt, bag_options)
     if kind == "kitti":
         return read_kitti(folder, max_frames=n, ground_truth=gt)
+    if kind == "kitti_raw":
+        return read_kitti_raw(folder, max_frames=n, ground_truth=gt)
     if kind == "euroc":
         return read_euroc(folder, max_frames=n, ground_truth=gt)
     return read_tum(folder, max_frames=n, camera=camera, ground_truth=gt)
