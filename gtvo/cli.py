@@ -22,7 +22,7 @@ import warnings
 # BLAS single-threaded unless the user says otherwise; set before numpy is first imported.
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
-from typing import Sequence
+from typing import Any, Callable, Sequence
 
 from gtvo import __version__
 from gtvo.core.interrupt import interrupt_requested, note_interrupt, raise_if_interrupted
@@ -79,8 +79,11 @@ def main(argv: Sequence[str] | None = None) -> int:
 def _run(argv: Sequence[str] | None) -> int:
     try:
         args = build_parser().parse_args(argv)
-    except KeyboardInterrupt:
-        print("gtvo: interrupted", file=sys.stderr)
+    except KeyboardInterrupt:  # while the command modules are imported
+        words = [a for a in (sys.argv[1:] if argv is None else argv) if not a.startswith("-")]
+        known = {m.rsplit(".", 1)[1].replace("_", "-") for m in COMMAND_MODULES}
+        name = f"gtvo {words[0]}" if words and words[0] in known else "gtvo"
+        print(f"{name}: interrupted", file=sys.stderr)
         return 130
     try:
         try:
@@ -120,6 +123,7 @@ def entry_point() -> None:
     die of the signal without a word) can no longer change anything the command did.
     """
     signal.signal(signal.SIGINT, note_interrupt)
+    sys.unraisablehook = _quiet_interrupts(sys.unraisablehook)
     # gtvo draws no 3-D axes; matplotlib warns about them only when a Ctrl-C broke its optional import
     warnings.filterwarnings("ignore", message="Unable to import Axes3D")
     code = main()
@@ -137,6 +141,16 @@ def entry_point() -> None:
                 pass
         os._exit(130)
     sys.exit(code)
+
+
+def _quiet_interrupts(hook: Callable[[Any], None]) -> Callable[[Any], None]:
+    """An unraisable-exception hook that drops a Ctrl-C raised where Python cannot propagate it (a
+    weakref or ctypes callback: "Exception ignored in ..."): the interrupt is recorded anyway
+    (:mod:`gtvo.core.interrupt`) and the command ends with its one line."""
+    def hook_(unraisable: Any) -> None:
+        if not isinstance(unraisable.exc_value, KeyboardInterrupt):
+            hook(unraisable)
+    return hook_
 
 
 def _silence_stdout() -> None:
