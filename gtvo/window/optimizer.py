@@ -39,10 +39,20 @@ class SlidingWindowOptimizer:
         result = window.optimize("gtsam")          # keyframes updated in place
     """
 
-    def __init__(self, camera: PinholeCamera, baseline: float | None, config: WindowConfig | None = None) -> None:
+    def __init__(self, camera: PinholeCamera, baseline: float | None, config: WindowConfig | None = None,
+                 rig_offset: FloatArray | None = None) -> None:
         self.camera = camera
         self.baseline = baseline
         self.config = config or WindowConfig()
+        #: the stereo rig's offset (delta_x, delta_y) (px), estimated by every optimisation when
+        #: given (its starting value; docs/window.md, "Rig calibration"), else None (rectified model)
+        self.rig_offset: FloatArray | None = None
+        if rig_offset is not None:
+            if baseline is None:
+                raise InputError("a rig offset needs a stereo window (a baseline)")
+            if self.config.backend != "lm":
+                raise InputError("the rig offset is estimated by the 'lm' window backend only")
+            self.rig_offset = np.asarray(rig_offset, dtype=float).reshape(2).copy()
         self.keyframes: list[WindowKeyframe] = []
         self.n_removed = 0  # keyframes that left the window (not kept: they hold images)
         self.results: list[WindowResult] = []
@@ -77,7 +87,8 @@ class SlidingWindowOptimizer:
 
     def cost(self) -> float:
         """The window cost at the current state (W evaluated at this state)."""
-        return window_cost(self.camera, self.baseline, self.keyframes, self.config, self.marginal)
+        return window_cost(self.camera, self.baseline, self.keyframes, self.config, self.marginal,
+                           rig_offset=self.rig_offset)
 
     def optimize(self, solver: WindowSolverName = "gtsam") -> WindowResult | None:
         """Optimise the window (None when fewer than two keyframes); keyframes are updated in place.
@@ -129,7 +140,7 @@ class LMBackend:
         """Marginalise the oldest keyframe into :attr:`marginal` (or drop it, ``marginalize=False``)."""
         if window.config.marginalize:
             self.marginal = marginalize(window.camera, window.baseline, window.keyframes, window.config,
-                                        self.marginal, 0)
+                                        self.marginal, 0, getattr(window, "rig_offset", None))
         return window.keyframes.pop(0)
 
     def optimize(self, window: WindowState, targets: list[list[int]],
@@ -138,4 +149,9 @@ class LMBackend:
         solve = {"gtsam": solve_gtsam, "handrolled": solve_handrolled}.get(solver)
         if solve is None:
             raise InputError(f"unknown window solver {solver!r}: use 'gtsam' or 'handrolled'")
-        return solve(window.camera, window.baseline, window.keyframes, window.config, self.marginal, targets)
+        rig = getattr(window, "rig_offset", None)
+        res = solve(window.camera, window.baseline, window.keyframes, window.config, self.marginal, targets,
+                    rig_offset=rig)
+        if rig is not None and res.rig_offset is not None:
+            window.rig_offset = res.rig_offset.copy()  # type: ignore[attr-defined]
+        return res
