@@ -9,17 +9,19 @@
 from __future__ import annotations
 
 
+import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
 from gtvo.core.camera import PinholeCamera
+from gtvo.core.keys import rig_offset_key
 from gtvo.errors import InputError
 from gtvo.window.config import MarginalPrior, WindowConfig, WindowKeyframe, WindowResult, WindowSolverName, WindowState
 from gtvo.window.gtsam_solver import solve_gtsam
 from gtvo.window.handrolled import solve_handrolled, window_cost
 from gtvo.window.marginal import marginalize
 from gtvo.window.fixed_lag import FixedLagBackend
-from gtvo.window.problem import observation_counts, visible_targets
+from gtvo.window.problem import build_graph, observation_counts, visible_targets
 
 FloatArray = NDArray[np.float64]
 
@@ -89,6 +91,19 @@ class SlidingWindowOptimizer:
         """The window cost at the current state (W evaluated at this state)."""
         return window_cost(self.camera, self.baseline, self.keyframes, self.config, self.marginal,
                            rig_offset=self.rig_offset)
+
+    def rig_offset_covariance(self) -> FloatArray | None:
+        """The 2x2 marginal covariance (px^2) of the rig offset at the current state: the window's
+        graph (host factors, priors, marginal prior) linearised once, ``gtsam.Marginals``.
+        None when the rig offset is not estimated or the window has no host factor yet."""
+        if self.rig_offset is None or len(self.keyframes) < 2 or self.config.backend != "lm":
+            return None
+        targets = visible_targets(self.camera, self.keyframes, self.config)
+        if not any(targets):
+            return None
+        graph, values, _ = build_graph(self.camera, self.baseline, self.keyframes, self.config, self.marginal, targets,
+                                       self.rig_offset)
+        return np.asarray(gtsam.Marginals(graph, values).marginalCovariance(rig_offset_key()), dtype=float)
 
     def optimize(self, solver: WindowSolverName = "gtsam") -> WindowResult | None:
         """Optimise the window (None when fewer than two keyframes); keyframes are updated in place.
