@@ -363,15 +363,22 @@ class VisualOdometry:
         return rgbd_keyframe_points(left, frame.depth, cfg.points_per_keyframe, cfg.depth_sigma_model, cfg.points)
 
     def _initial_vertical_offset(self, left: NDArray[np.float32], right: NDArray) -> None:
-        """The rig's vertical offset from the first stereo pair (a 2-D search), the window's starting value."""
+        """The rig's vertical offset from the first stereo pair (a 2-D search), the window's starting value.
+
+        Raises:
+            _TooFewPoints: no stereo match survives at any row shift (an InputError on the first frame).
+        """
         assert self.rig_offset is not None and isinstance(self.camera, StereoCamera)
         pixels = select_points(left, self.config.points_per_keyframe, **dataclasses.asdict(self.config.points))
         est = estimate_vertical_offset(left, right, self.camera, pixels, max_disparity=self.config.stereo.max_disparity)
         self.rig_initial = est
-        if est is not None:
-            self.rig_offset = np.array([0.0, est.delta_y])
-            assert self.window is not None
-            self.window.rig_offset = self.rig_offset.copy()
+        if est is None:
+            raise _TooFewPoints("the first stereo pair has no stereo match at any vertical offset within "
+                                "+-2 rows: the right camera is offset too far from its calibration (or the "
+                                "images hold no texture); no rig offset can be estimated")
+        self.rig_offset = np.array([0.0, est.delta_y])
+        assert self.window is not None
+        self.window.rig_offset = self.rig_offset.copy()
 
     def _make_keyframe(self, frame: Frame, left: NDArray[np.float32], T_world_cam: gtsam.Pose3,
                        tracked: tuple[int, NDArray[np.float64]] | None = None) -> Keyframe:
