@@ -224,3 +224,24 @@ def test_odometry_estimates_a_vertical_offset_and_off_switch(seq):
         off.process(seq.frame(i))
     assert off.rig_offset is None and off.window.rig_offset is None
     assert all(r.rig_offset is None for r in off.window_results)
+
+
+def test_cli_switch_turns_the_rig_calibration_off():
+    import argparse
+
+    from gtvo.commands._common import add_odometry_options, odometry_config
+
+    p = argparse.ArgumentParser()
+    add_odometry_options(p)
+    assert odometry_config(p.parse_args([])).window.rig_calibration is True
+    assert odometry_config(p.parse_args(["--no-rig-calibration"])).window.rig_calibration is False
+
+
+def test_rig_warning_only_for_a_large_clear_offset():
+    from gtvo.odometry.rig_report import rig_warning
+
+    assert rig_warning({"rig_offset_px": [0.1, -0.1], "rig_offset_sigma_px": [0.01, 0.01]}) is None
+    assert rig_warning({"rig_offset_px": [1.4, 0.0], "rig_offset_sigma_px": [1.0, 0.01]}) is None  # not clear
+    msg = rig_warning({"rig_offset_px": [1.4, -0.1], "rig_offset_sigma_px": [0.01, 0.01]})
+    assert msg == "the right camera is offset by +1.4 px horizontally from its calibration: check the rig"
+    assert rig_warning({"rig_calibration": False}) is None
