@@ -37,7 +37,7 @@ class VerticalOffset:
         delta_y: the right image's vertical offset (px).
         sigma: its standard error (1.4826 MAD / sqrt(n) of the per-point estimates, px).
         n_points: matched points it rests on.
-        rows_searched: the integer row shifts tried, with the matches each accepted.
+        rows_searched: the whole-row shifts tried, with the matches each accepted.
     """
 
     delta_y: float
@@ -109,9 +109,12 @@ def estimate_vertical_offset(left: ArrayLike, right: ArrayLike, stereo_camera: S
                              max_disparity: int = 128, search_rows: int = 2) -> VerticalOffset | None:
     """The right image's vertical offset ``delta_y`` from one stereo pair (a 2-D stereo search).
 
-    1. The 1-D stereo search (:func:`stereo_inverse_depth`) against the right image moved by each
-       whole row shift ``k`` in ``[-search_rows, search_rows]``; the shift that accepts most
-       matches is kept (a row offset of a pixel or more loses most 1-D matches).
+    1. The 1-D stereo search (:func:`stereo_inverse_depth`) against the right image moved by the
+       whole row shifts ``k`` = -1, 0, 1, and further out (up to ``search_rows``) while the best
+       is at the edge and the next accepts more; the shift that accepts most matches is kept (a
+       row offset of a pixel or more loses many 1-D matches). When step 2 finds the offset more
+       than half a row from ``k``, the search runs once more on the nearest row and step 2 is
+       repeated there if it accepts more matches.
     2. Each accepted match is refined by a zero-mean SSD Gauss-Newton over its disparity and its
        vertical offset (5x5 patch, bilinear, raw right image); the points whose patch constrains
        both directions (the 2x2 normal matrix's smaller eigenvalue above its median over the
@@ -129,19 +132,38 @@ def estimate_vertical_offset(left: ArrayLike, right: ArrayLike, stereo_camera: S
     if int(search_rows) < 0:
         raise InputError(f"search_rows must be >= 0, got {search_rows}")
     counts: dict[int, int] = {}
-    best = None
-    for k in range(-int(search_rows), int(search_rows) + 1):
-        res = stereo_inverse_depth(left_f, correct_right_image(right_f, (0.0, k)), stereo_camera, px,
-                                   max_disparity=max_disparity)
-        counts[k] = int(np.count_nonzero(res.valid))
-        if best is None or counts[k] > counts[best[0]]:
-            best = (k, res)
-    assert best is not None
-    k, res = best
+    results = {}
+
+    def search(k: int) -> None:
+        results[k] = stereo_inverse_depth(left_f, correct_right_image(right_f, (0.0, k)), stereo_camera, px,
+                                          max_disparity=max_disparity)
+        counts[k] = int(np.count_nonzero(results[k].valid))
+
+    for k in (-1, 0, 1)[1 - min(int(search_rows), 1):2 + min(int(search_rows), 1)]:
+        search(k)
+    k = max(counts, key=lambda j: counts[j])
+    while k != 0 and abs(k) < int(search_rows) and (k + np.sign(k)) not in counts:  # the best at the edge: go on
+        search(int(k + np.sign(k)))
+        if counts[int(k + np.sign(k))] <= counts[k]:
+            break
+        k = int(k + np.sign(k))
     if counts[k] < MIN_OFFSET_POINTS:
         return None
+    est = _vote(left_f, right_f, px, results[k], k, counts)
+    if est is not None and abs(est.delta_y - k) > 0.5:
+        r = int(round(est.delta_y))  # matched a row off: match again on the nearest row, refine from there
+        if r not in counts and abs(r) <= int(search_rows):
+            search(r)
+            if counts[r] > counts[k]:
+                return _vote(left_f, right_f, px, results[r], r, counts) or est
+    return est
+
+
+def _vote(left: NDArray[np.float32], right: NDArray[np.float32], px: FloatArray, res, k: int,
+          counts: dict[int, int]) -> VerticalOffset | None:
+    """Step 2 of :func:`estimate_vertical_offset` for the matches ``res`` found at row shift ``k``."""
     sel = res.valid
-    dy, lam = _refine_points(left_f, right_f, px[sel], res.disparity[sel], float(k))
+    dy, lam = _refine_points(left, right, px[sel], res.disparity[sel], float(k))
     ok = np.isfinite(dy) & (np.abs(dy - k) < 1.0)
     if not np.any(ok):
         return None
@@ -151,4 +173,4 @@ def estimate_vertical_offset(left: ArrayLike, right: ArrayLike, stereo_camera: S
         return None
     est = float(np.median(dy[ok]))
     mad = float(np.median(np.abs(dy[ok] - est)))
-    return VerticalOffset(est, 1.4826 * mad / np.sqrt(n), n, counts)
+    return VerticalOffset(est, 1.4826 * mad / np.sqrt(n), n, dict(counts))

@@ -441,7 +441,8 @@ class VisualOdometry:
             right = GradientImage(to_float_gray(frame.right, f"frame {frame.index} right image"), clip_range=clip)
             stereo_affine = estimate_stereo_affine(self.pinhole, self.camera.baseline, left_img, right, pts.pixels,
                                                    pts.inverse_depth, pts.variance,
-                                                   sigma_intensity=self.config.window.sigma_intensity)
+                                                   sigma_intensity=self.config.window.sigma_intensity,
+                                                   offset=self.rig_offset)
         wk = WindowKeyframe(frame.index, T_world_cam, affine, left_img, pts.pixels, pts.inverse_depth,
                             pts.variance, right=right, depth_prior=right is None, stereo_affine=stereo_affine,
                             timestamp=float(frame.timestamp) if np.isfinite(frame.timestamp) else None)
