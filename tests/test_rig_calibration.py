@@ -245,3 +245,26 @@ def test_rig_warning_only_for_a_large_clear_offset():
     msg = rig_warning({"rig_offset_px": [1.4, -0.1], "rig_offset_sigma_px": [0.01, 0.01]})
     assert msg == "the right camera is offset by +1.4 px horizontally from its calibration: check the rig"
     assert rig_warning({"rig_calibration": False}) is None
+
+
+def test_rgbd_and_track_mode_have_no_rig_variable(seq):
+    """RGB-D input (no baseline) and the track mode keep today's path: no rig offset anywhere."""
+    assert VisualOdometry(seq.camera.left).rig_offset is None
+    assert VisualOdometry(seq.camera, OdometryConfig(mode="track")).rig_offset is None
+    assert VisualOdometry(seq.camera, OdometryConfig(window=WindowConfig(backend="fixed_lag"))).rig_offset is None
+
+
+def test_report_has_the_offset_and_the_scale(seq, tmp_path):
+    """report.json of a window run: the rig offset with its sigma, the Sim(3) ATE and the scale ratio."""
+    import json
+
+    from gtvo.pipeline import run
+
+    report = run(seq, out=tmp_path / "out", config=OdometryConfig(points_per_keyframe=200))
+    saved = json.loads((tmp_path / "out" / "report.json").read_text())
+    assert saved["window_optimisations"] >= 1
+    assert saved["rig_calibration"] is True and len(saved["rig_offset_px"]) == 2
+    assert all(s > 0 for s in saved["rig_offset_sigma_px"])
+    assert saved["ate_sim3_rmse_m"] <= saved["ate_rmse_m"] + 1e-12
+    assert saved["scale_ratio"] == pytest.approx(1.0, abs=0.05)
+    assert report["rig_offset_px"] == saved["rig_offset_px"]

@@ -20,14 +20,17 @@ FloatArray = NDArray[np.float64]
 
 def solve_gtsam(camera: PinholeCamera, baseline: float | None, keyframes: Sequence[WindowKeyframe],
                 config: WindowConfig, marginal: MarginalPrior | None = None,
-                targets: list[list[int]] | None = None, rig_offset: FloatArray | None = None) -> WindowResult:
+                targets: list[list[int]] | None = None, rig_offset: FloatArray | None = None,
+                rig_hold_x: float | None = None) -> WindowResult:
     """Optimise the window with ``gtsam.LevenbergMarquardtOptimizer``; updates ``keyframes`` in place.
 
     ``rig_offset``: the rig offset's current estimate when it is a variable (the result's
-    ``rig_offset`` is the optimised one), None: the rectified model."""
+    ``rig_offset`` is the optimised one), None: the rectified model; ``rig_hold_x``: its ``delta_x``
+    held at this value (:func:`gtvo.window.problem.rig_prior`)."""
     t0 = time.perf_counter()
     targets = visible_targets(camera, keyframes, config) if targets is None else targets
-    graph, values, hosts = build_graph(camera, baseline, keyframes, config, marginal, targets, rig_offset)
+    graph, values, hosts = build_graph(camera, baseline, keyframes, config, marginal, targets, rig_offset,
+                                       rig_hold_x)
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(config.max_iterations)
     params.setRelativeErrorTol(config.relative_tolerance)

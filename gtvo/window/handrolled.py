@@ -22,7 +22,7 @@ from gtvo.core.keys import affine_key, pose_key, rig_offset_key
 from gtvo.core.camera import PinholeCamera
 from gtvo.window.covariance import marginals_of_hessian
 from gtvo.window.config import MarginalPrior, WindowConfig, WindowKeyframe, WindowResult
-from gtvo.window.problem import motion_factors, needs_rig_prior, visible_targets
+from gtvo.window.problem import motion_factors, needs_rig_prior, rig_prior_mean_sigmas, visible_targets
 
 FloatArray = NDArray[np.float64]
 
@@ -117,16 +117,19 @@ def _prior_terms(keyframes, poses, affines, config, with_gauge, H=None, g=None, 
     return E
 
 
-def _rig_prior_terms(config: WindowConfig, offset: FloatArray | None, active: bool, H=None, g=None) -> float:
-    """The rig offset's zero-mean prior (``active``: :func:`needs_rig_prior`): cost, and (given H, g)
-    its terms in the rig's entries (the last two of the state)."""
+def _rig_prior_terms(config: WindowConfig, offset: FloatArray | None, active: bool, H=None, g=None,
+                     hold_x: float | None = None) -> float:
+    """The rig offset's prior (``active``: :func:`needs_rig_prior`; mean and sigmas of
+    :func:`rig_prior_mean_sigmas`): cost, and (given H, g) its terms in the rig's entries (the last
+    two of the state)."""
     if offset is None or not active:
         return 0.0
-    s2 = config.rig_offset_sigma ** 2
+    mean, sigmas = rig_prior_mean_sigmas(config, hold_x)
+    e = (offset - mean) / sigmas
     if H is not None:
-        H[-2:, -2:] += np.eye(2) / s2
-        g[-2:] += offset / s2
-    return 0.5 * float(offset @ offset) / s2
+        H[-2:, -2:] += np.diag(1.0 / sigmas ** 2)
+        g[-2:] += e / sigmas
+    return 0.5 * float(e @ e)
 
 
 def _marginal_terms(marginal: MarginalPrior | None, keyframes, poses, affines, H=None, g=None,
@@ -154,7 +157,8 @@ def _marginal_terms(marginal: MarginalPrior | None, keyframes, poses, affines, H
 
 def window_cost(camera: PinholeCamera, baseline: float | None, keyframes: Sequence[WindowKeyframe],
                 config: WindowConfig, marginal: MarginalPrior | None = None,
-                targets: list[list[int]] | None = None, rig_offset: FloatArray | None = None) -> float:
+                targets: list[list[int]] | None = None, rig_offset: FloatArray | None = None,
+                rig_hold_x: float | None = None) -> float:
     """The window cost E at the keyframes' current state, computed the hand-rolled way (W at this state)."""
     targets = visible_targets(camera, keyframes, config) if targets is None else targets
     hosts = [_WindowHost(camera, baseline, keyframes, h, ts, config, rig_offset) for h, ts in enumerate(targets)]
@@ -163,17 +167,19 @@ def window_cost(camera: PinholeCamera, baseline: float | None, keyframes: Sequen
     off = None if rig_offset is None else np.asarray(rig_offset, dtype=float).reshape(2)
     E = sum(host.start[0] for host in hosts)
     E += _prior_terms(keyframes, poses, affines, config, marginal is None)
-    E += _rig_prior_terms(config, off, needs_rig_prior(off, marginal))
+    E += _rig_prior_terms(config, off, needs_rig_prior(off, marginal), hold_x=rig_hold_x)
     return E + _marginal_terms(marginal, keyframes, poses, affines, offset=off)
 
 
 def solve_handrolled(camera: PinholeCamera, baseline: float | None, keyframes: Sequence[WindowKeyframe],
                      config: WindowConfig, marginal: MarginalPrior | None = None,
-                     targets: list[list[int]] | None = None, rig_offset: FloatArray | None = None) -> WindowResult:
+                     targets: list[list[int]] | None = None, rig_offset: FloatArray | None = None,
+                     rig_hold_x: float | None = None) -> WindowResult:
     """Levenberg-Marquardt on the reduced camera system; updates ``keyframes`` in place.
 
     ``rig_offset``: the rig offset's current estimate when it is a variable (2 more state entries
-    after the keyframes'; the result's ``rig_offset`` is the optimised one).
+    after the keyframes'; the result's ``rig_offset`` is the optimised one); ``rig_hold_x``: its
+    ``delta_x`` held at this value (:func:`gtvo.window.problem.rig_prior_mean_sigmas`).
 
     Per iteration: every host's Gauss-Newton blocks over (poses, affines) ``x`` (8 per keyframe)
     and its inverse depths ``d`` (diagonal ``H_dd``), the Schur complement
@@ -200,12 +206,12 @@ def solve_handrolled(camera: PinholeCamera, baseline: float | None, keyframes: S
             e, D[host.h], L[host.h] = host.evaluate_safeguarded(P, A, systems[host.h], D_new[host.h], O)
             E += e
         E += _prior_terms(keyframes, P, A, config, with_gauge, motion=motion)
-        E += _rig_prior_terms(config, O, rig_prior_on)
+        E += _rig_prior_terms(config, O, rig_prior_on, hold_x=rig_hold_x)
         return E + _marginal_terms(marginal, keyframes, P, A, offset=O), D, L
 
     E = sum(host.start[0] for host in hosts) \
         + _prior_terms(keyframes, poses, affines, config, with_gauge, motion=motion) \
-        + _rig_prior_terms(config, off, rig_prior_on) \
+        + _rig_prior_terms(config, off, rig_prior_on, hold_x=rig_hold_x) \
         + _marginal_terms(marginal, keyframes, poses, affines, offset=off)
     state_lins = {host.h: host.start[1] for host in hosts}
     initial = E
@@ -216,7 +222,7 @@ def solve_handrolled(camera: PinholeCamera, baseline: float | None, keyframes: S
         g = np.zeros(M)
         systems = {host.h: host.linearize(depths[host.h], H, g, state_lins[host.h]) for host in hosts}
         _prior_terms(keyframes, poses, affines, config, with_gauge, H, g, motion)
-        _rig_prior_terms(config, off, rig_prior_on, H, g)
+        _rig_prior_terms(config, off, rig_prior_on, H, g, rig_hold_x)
         _marginal_terms(marginal, keyframes, poses, affines, H, g, off)
         H = 0.5 * (H + H.T)
         diag = np.maximum(np.diag(H), 1e-12 * max(float(np.max(np.diag(H))), 1e-300))

@@ -165,8 +165,12 @@ class LMBackend:
         if solve is None:
             raise InputError(f"unknown window solver {solver!r}: use 'gtsam' or 'handrolled'")
         rig = getattr(window, "rig_offset", None)
+        # delta_x trades against the scale unless many keyframes see points at many depths: it is
+        # held at its value until the window is full (its first marginalisation carries the rest)
+        hold = None if rig is None or self.marginal is not None or len(window.keyframes) >= window.config.size \
+            else float(rig[0])
         res = solve(window.camera, window.baseline, window.keyframes, window.config, self.marginal, targets,
-                    rig_offset=rig)
+                    rig_offset=rig, rig_hold_x=hold)
         if rig is not None and res.rig_offset is not None:
             window.rig_offset = res.rig_offset.copy()  # type: ignore[attr-defined]
         return res

@@ -49,10 +49,25 @@ def needs_rig_prior(rig_offset: FloatArray | None, marginal: MarginalPrior | Non
     return rig_offset is not None and (marginal is None or rig_offset_key() not in marginal.keys)
 
 
-def rig_prior(config: WindowConfig) -> gtsam.PriorFactorVector:
-    """The rig offset's prior: zero mean, ``config.rig_offset_sigma`` px on each axis."""
-    return gtsam.PriorFactorVector(rig_offset_key(), np.zeros(2),
-                                   gtsam.noiseModel.Isotropic.Sigma(2, config.rig_offset_sigma))
+#: sigma (px) of the prior that holds ``delta_x`` at its start value while the window is not full
+RIG_HOLD_SIGMA = 1e-3
+
+
+def rig_prior_mean_sigmas(config: WindowConfig, hold_x: float | None) -> tuple[FloatArray, FloatArray]:
+    """Mean and sigmas of the rig offset's prior: zero mean, ``config.rig_offset_sigma`` px on each
+    axis; with ``hold_x`` (a value) ``delta_x`` is held there (:data:`RIG_HOLD_SIGMA`): the window
+    is not full yet and cannot tell ``delta_x`` from the scale (docs/window.md, "Rig calibration")."""
+    mean = np.zeros(2)
+    sigmas = np.full(2, float(config.rig_offset_sigma))
+    if hold_x is not None:
+        mean[0], sigmas[0] = float(hold_x), RIG_HOLD_SIGMA
+    return mean, sigmas
+
+
+def rig_prior(config: WindowConfig, hold_x: float | None = None) -> gtsam.PriorFactorVector:
+    """The rig offset's prior (:func:`rig_prior_mean_sigmas`) as a GTSAM factor."""
+    mean, sigmas = rig_prior_mean_sigmas(config, hold_x)
+    return gtsam.PriorFactorVector(rig_offset_key(), mean, gtsam.noiseModel.Diagonal.Sigmas(sigmas))
 
 
 def visible_targets(camera: PinholeCamera, keyframes: Sequence[WindowKeyframe], config: WindowConfig
@@ -157,11 +172,13 @@ def host_factor(camera: PinholeCamera, baseline: float | None, keyframes: Sequen
 
 def build_graph(camera: PinholeCamera, baseline: float | None, keyframes: Sequence[WindowKeyframe],
                 config: WindowConfig, marginal: MarginalPrior | None,
-                targets: list[list[int]] | None = None, rig_offset: FloatArray | None = None
+                targets: list[list[int]] | None = None, rig_offset: FloatArray | None = None,
+                rig_hold_x: float | None = None
                 ) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values, dict[int, HostPointsFactor]]:
     """The window's factor graph: one smart factor per host with targets, priors, motion prior,
     marginal prior; with ``rig_offset`` (its current estimate) the rig offset is a variable of
-    every stereo host factor, with :func:`rig_prior` until the marginal prior carries it.
+    every stereo host factor, with :func:`rig_prior` until the marginal prior carries it
+    (``rig_hold_x``: its ``delta_x`` held at that value).
 
     Returns ``(graph, values, host_factors)`` with ``host_factors[position] = factor``.
     """
@@ -179,5 +196,5 @@ def build_graph(camera: PinholeCamera, baseline: float | None, keyframes: Sequen
         for f in marginal.nonlinear_factors():
             graph.add(f)
     if needs_rig_prior(rig_offset, marginal):
-        graph.add(rig_prior(config))
+        graph.add(rig_prior(config, rig_hold_x))
     return graph, window_values(keyframes, rig_offset), hosts
