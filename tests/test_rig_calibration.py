@@ -268,3 +268,21 @@ def test_report_has_the_offset_and_the_scale(seq, tmp_path):
     assert saved["ate_sim3_rmse_m"] <= saved["ate_rmse_m"] + 1e-12
     assert saved["scale_ratio"] == pytest.approx(1.0, abs=0.05)
     assert report["rig_offset_px"] == saved["rig_offset_px"]
+
+
+def test_delta_x_is_held_until_the_window_is_full(seq):
+    """With fewer keyframes than the window's size, delta_x stays at its start value (both solvers)
+    while delta_y is estimated; once the window is full delta_x moves."""
+    cam = seq.camera
+    kfs = _keyframes(seq, [0, 3, 6], (0.0, 1.0), points=150, seed=4)
+    for solver in ("gtsam", "handrolled"):
+        w = SlidingWindowOptimizer(cam.left, cam.baseline, WindowConfig(size=3, max_iterations=10),
+                                   rig_offset=np.array([0.4, 0.0]))
+        for k in copy.deepcopy(kfs[:2]):
+            w.add_keyframe(k)
+        w.optimize(solver)
+        assert w.rig_offset[0] == pytest.approx(0.4, abs=1e-4)
+        assert w.rig_offset[1] == pytest.approx(1.0, abs=0.1)
+        w.add_keyframe(copy.deepcopy(kfs[2]))
+        w.optimize(solver)
+        assert abs(w.rig_offset[0] - 0.4) > 1e-2
