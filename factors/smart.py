@@ -57,7 +57,8 @@ class HostPointsFactor(PythonFactor):
     """All points hosted in one keyframe, observed in several targets; inverse depths Schur-eliminated.
 
     Keys, in this order: ``host_key``, ``target_keys...``, then (if given) ``affine_host_key`` and
-    ``affine_target_keys...``. Error dimension M + 1, M = 6 (1 + T) (+ 2 (1 + T) with affines).
+    ``affine_target_keys...``, then (if given) ``rig_key``. Error dimension M + 1,
+    M = 6 (1 + T) (+ 2 (1 + T) with affines) (+ 2 with the rig offset).
 
     Args:
         host_key: the host keyframe's pose key.
