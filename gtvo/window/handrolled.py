@@ -253,7 +253,7 @@ def solve_handrolled(camera: PinholeCamera, baseline: float | None, keyframes: S
         for host in hosts:
             host.linearize(depths[host.h], H, g, state_lins[host.h])
         _prior_terms(keyframes, poses, affines, config, with_gauge, H, g, motion)
-        _rig_prior_terms(config, off, rig_prior_on, H, g)
+        _rig_prior_terms(config, off, rig_prior_on, H, g, rig_hold_x)
         _marginal_terms(marginal, keyframes, poses, affines, H, g, off)
         covs = marginals_of_hessian(H, [kf.index for kf in keyframes])
     t_cov = time.perf_counter() - t_cov
