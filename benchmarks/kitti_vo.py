@@ -40,7 +40,8 @@ from gtvo.io.atomic import write_json  # noqa: E402
 from gtvo.datasets import open_sequence  # noqa: E402
 
 PEERS = {"open3d": Open3DColorOdometryPeer, "orb": OrbPnPPeer}
-HEADER = ["method", "frames", "ATE RMSE (m)", "Sim(3) ATE (m)", "scale", "drift %", "seg t %", "seg r (deg/100 m)", "RPE t (m)", "RPE r (deg)",
+HEADER = ["method", "frames", "ATE RMSE (m)", "Sim(3) ATE (m)", "scale", "drift %", "seg t %", "seg r (deg/100 m)",
+          "RPE t (m)", "RPE r (deg)",
           "max disp (m)", "ms/frame", "x ref", "frames/s", "keyframes", "failures"]
 
 

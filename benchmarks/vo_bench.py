@@ -141,7 +141,8 @@ def score(est: Trajectory, seq: Sequence) -> dict[str, float | None]:
     """ATE, drift, RPE and max displacement of ``est`` (one pose per frame of ``seq``)."""
     out: dict[str, float | None] = {
         "max_disp_m": float(np.max(np.linalg.norm(est.positions - est.positions[0], axis=1)))}
-    out.update(ate_m=None, ate_sim3_m=None, scale=None, drift_pct=None, rpe_t_m=None, rpe_r_deg=None, seg_t_pct=None, seg_r_deg_per_100m=None)
+    out.update(ate_m=None, ate_sim3_m=None, scale=None, drift_pct=None, rpe_t_m=None, rpe_r_deg=None, seg_t_pct=None,
+               seg_r_deg_per_100m=None)
     if seq.gt_poses is None:
         return out
     has = np.isfinite(seq.gt_poses[:, 0, 0])[: len(est)]
