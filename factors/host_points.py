@@ -285,10 +285,11 @@ class HostPoints:
                     raise InputError("HostPoints.linearize: a rig offset variable needs rig_columns and "
                                      "residuals with offset Jacobians")
                 rc = np.asarray(rig_columns, dtype=np.intp)
-                Jo = st.J_offset
-                H[np.ix_(rc, rc)] += np.einsum("np,npi,npj->ij", ww, Jo, Jo)
-                g[rc] += np.einsum("np,npi->i", ww * st.residual, Jo)
-                H_pd[:, rc] += np.einsum("np,npi->ni", ww * st.J_depth, Jo)
+                Jo = st.J_offset.reshape(-1, 2)
+                wJo = ww.reshape(-1, 1) * Jo
+                H[np.ix_(rc, rc)] += Jo.T @ wJo
+                g[rc] += wJo.T @ st.residual.reshape(-1)
+                H_pd[:, rc] += np.sum((wJo * st.J_depth.reshape(-1, 1)).reshape(n, -1, 2), axis=1)
         if self.depth_prior:
             H_dd += 1.0 / self.variance
             g_d += (d - self.prior) / self.variance
