@@ -226,15 +226,22 @@ def test_odometry_estimates_a_vertical_offset_and_off_switch(seq):
     assert all(r.rig_offset is None for r in off.window_results)
 
 
-def test_cli_switch_turns_the_rig_calibration_off():
-    import argparse
+def test_cli_switch_turns_the_rig_calibration_off(monkeypatch):
+    """``gtvo run --no-rig-calibration`` runs with ``window.rig_calibration=False``; without it, True."""
+    import gtvo.pipeline
+    from gtvo.cli import build_parser
 
-    from gtvo.commands._common import add_odometry_options, odometry_config
+    seen = []
 
-    p = argparse.ArgumentParser()
-    add_odometry_options(p)
-    assert odometry_config(p.parse_args([])).window.rig_calibration is True
-    assert odometry_config(p.parse_args(["--no-rig-calibration"])).window.rig_calibration is False
+    def fake_run(path, out=None, config=None, **kw):
+        seen.append(config.window.rig_calibration)
+        return {"sequence": "s", "mode": "window", "tracker_solver": "handrolled", "out": "o"}
+
+    monkeypatch.setattr(gtvo.pipeline, "run", fake_run)
+    for argv in (["run", "SEQ"], ["run", "SEQ", "--no-rig-calibration"]):
+        args = build_parser().parse_args(argv)
+        args.func(args)
+    assert seen == [True, False]
 
 
 def test_rig_warning_only_for_a_large_clear_offset():

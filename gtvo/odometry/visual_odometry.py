@@ -369,8 +369,9 @@ class VisualOdometry:
             _TooFewPoints: no stereo match survives at any row shift (an InputError on the first frame).
         """
         assert self.rig_offset is not None and isinstance(self.camera, StereoCamera)
-        pixels = select_points(left, self.config.points_per_keyframe, **dataclasses.asdict(self.config.points))
-        est = estimate_vertical_offset(left, right, self.camera, pixels, max_disparity=self.config.stereo.max_disparity)
+        fcfg = self.config.frontend
+        pixels = select_points(left, fcfg.points_per_keyframe, **dataclasses.asdict(fcfg.points))
+        est = estimate_vertical_offset(left, right, self.camera, pixels, max_disparity=fcfg.stereo.max_disparity)
         self.rig_initial = est
         if est is None:
             raise _TooFewPoints("the first stereo pair has no stereo match at any vertical offset within "
