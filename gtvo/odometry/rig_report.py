@@ -24,13 +24,20 @@ WARN_SIGMAS = 3.0
 
 def rig_report(vo: VisualOdometry) -> dict[str, Any]:
     """``rig_calibration`` (bool), and when estimated ``rig_offset_px`` ``[delta_x, delta_y]``,
-    ``rig_offset_sigma_px`` (from the final window's marginal covariance, None if it has none) and
-    ``rig_initial_delta_y_px`` (the first pair's 2-D search, None when it found no matches)."""
+    ``rig_offset_sigma_px`` (from the final window's marginal covariance, None if it has none; its
+    ``delta_x`` entry None while ``delta_x`` was never estimated), ``rig_offset_x_estimated`` (False:
+    the window never filled, ``delta_x`` stayed held at 0) and ``rig_initial_delta_y_px`` (the
+    first pair's 2-D search)."""
     if vo.rig_offset is None:
         return {"rig_calibration": False}
     out: dict[str, Any] = {"rig_calibration": True, "rig_offset_px": [float(x) for x in vo.rig_offset]}
     cov = vo.window.rig_offset_covariance() if vo.window is not None else None
-    out["rig_offset_sigma_px"] = None if cov is None else [float(np.sqrt(max(cov[i, i], 0.0))) for i in range(2)]
+    sigma = None if cov is None else [float(np.sqrt(max(cov[i, i], 0.0))) for i in range(2)]
+    x_estimated = vo.window is not None and vo.window.rig_x_estimated
+    if sigma is not None and not x_estimated:
+        sigma[0] = None  # delta_x was held at 0 (the window never filled): not measured
+    out["rig_offset_sigma_px"] = sigma
+    out["rig_offset_x_estimated"] = bool(x_estimated)
     out["rig_initial_delta_y_px"] = None if vo.rig_initial is None else float(vo.rig_initial.delta_y)
     return out
 
@@ -43,7 +50,7 @@ def rig_warning(report: dict[str, Any]) -> str | None:
     sigma = report.get("rig_offset_sigma_px") or [0.0, 0.0]
     parts = []
     for value, s, axis in zip(offset, sigma, ("horizontally", "vertically")):
-        if abs(value) > WARN_OFFSET_PX and abs(value) > WARN_SIGMAS * s:
+        if s is not None and abs(value) > WARN_OFFSET_PX and abs(value) > WARN_SIGMAS * s:
             parts.append(f"{value:+.1f} px {axis}")
     if not parts:
         return None

@@ -55,6 +55,8 @@ class SlidingWindowOptimizer:
             if self.config.backend != "lm":
                 raise InputError("the rig offset is estimated by the 'lm' window backend only")
             self.rig_offset = np.asarray(rig_offset, dtype=float).reshape(2).copy()
+        #: whether an optimisation has estimated ``delta_x`` yet (it is held until the window is full)
+        self.rig_x_estimated = False
         self.keyframes: list[WindowKeyframe] = []
         self.n_removed = 0  # keyframes that left the window (not kept: they hold images)
         self.results: list[WindowResult] = []
@@ -173,4 +175,6 @@ class LMBackend:
                     rig_offset=rig, rig_hold_x=hold)
         if rig is not None and res.rig_offset is not None:
             window.rig_offset = res.rig_offset.copy()  # type: ignore[attr-defined]
+            if hold is None:
+                window.rig_x_estimated = True  # type: ignore[attr-defined]
         return res
