@@ -40,7 +40,8 @@ from gtvo.io.atomic import write_json  # noqa: E402
 from gtvo.datasets import open_sequence  # noqa: E402
 
 PEERS = {"open3d": Open3DColorOdometryPeer, "orb": OrbPnPPeer}
-HEADER = ["method", "frames", "ATE RMSE (m)", "drift %", "seg t %", "seg r (deg/100 m)", "RPE t (m)", "RPE r (deg)",
+HEADER = ["method", "frames", "ATE RMSE (m)", "Sim(3) ATE (m)", "scale", "drift %", "seg t %", "seg r (deg/100 m)",
+          "RPE t (m)", "RPE r (deg)",
           "max disp (m)", "ms/frame", "x ref", "frames/s", "keyframes", "failures"]
 
 
@@ -103,7 +104,8 @@ def bench_sequence(path: Path, max_frames: int | None, solvers: list[str], modes
 
 def table(result: dict[str, Any]) -> str:
     """The markdown table of one sequence's rows."""
-    rows = [[r["method"], str(r["frames"]), fmt(r["ate_m"], ".3f"), fmt(r["drift_pct"], ".2f"),
+    rows = [[r["method"], str(r["frames"]), fmt(r["ate_m"], ".3f"), fmt(r.get("ate_sim3_m"), ".3f"),
+             fmt(r.get("scale"), ".4f"), fmt(r["drift_pct"], ".2f"),
              fmt(r["seg_t_pct"], ".2f"), fmt(r["seg_r_deg_per_100m"], ".2f"),
              fmt(r["rpe_t_m"], ".3f"), fmt(r["rpe_r_deg"], ".3f"), fmt(r["max_disp_m"], ".4f"),
              fmt(r["ms_per_frame"], ".0f"), fmt(r["x_ref"], ".2f"), fmt(r["frames_per_second"], ".2f"),

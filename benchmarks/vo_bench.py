@@ -5,6 +5,8 @@ timing, and markdown tables.
 Scores (``gtvo.evaluation.metrics``, on the frames that have a ground-truth pose):
 
 * ``ate_m``: ATE RMSE after SE(3) (Umeyama) alignment, metres;
+* ``ate_sim3_m``: ATE RMSE after Sim(3) alignment (the shape: a wrong scale does not count);
+* ``scale``: estimated / ground-truth path length (1 when the stereo baseline sets the scale right);
 * ``drift_pct``: final position error after aligning the first pose, % of the GT path length
   (None when the GT path is shorter than :data:`MIN_DRIFT_PATH_M`: a static clip has no drift %);
 * ``rpe_t_m``, ``rpe_r_deg``: RPE RMSE over 1-frame pairs, translation (m) and rotation (deg);
@@ -139,7 +141,8 @@ def score(est: Trajectory, seq: Sequence) -> dict[str, float | None]:
     """ATE, drift, RPE and max displacement of ``est`` (one pose per frame of ``seq``)."""
     out: dict[str, float | None] = {
         "max_disp_m": float(np.max(np.linalg.norm(est.positions - est.positions[0], axis=1)))}
-    out.update(ate_m=None, drift_pct=None, rpe_t_m=None, rpe_r_deg=None, seg_t_pct=None, seg_r_deg_per_100m=None)
+    out.update(ate_m=None, ate_sim3_m=None, scale=None, drift_pct=None, rpe_t_m=None, rpe_r_deg=None, seg_t_pct=None,
+               seg_r_deg_per_100m=None)
     if seq.gt_poses is None:
         return out
     has = np.isfinite(seq.gt_poses[:, 0, 0])[: len(est)]
@@ -149,6 +152,7 @@ def score(est: Trajectory, seq: Sequence) -> dict[str, float | None]:
     g = Trajectory(seq.timestamps[: len(est)][has], seq.gt_poses[: len(est)][has], "gt")
     try:
         out["ate_m"] = ate(e, g, "se3").rmse
+        out["ate_sim3_m"] = ate(e, g, "sim3").rmse
     except InputError:  # degenerate (e.g. a static clip): no unique alignment
         pass
     r = rpe(e, g, 1)
@@ -159,6 +163,8 @@ def score(est: Trajectory, seq: Sequence) -> dict[str, float | None]:
         if seg is not None:
             out["seg_t_pct"], out["seg_r_deg_per_100m"] = seg.translation_percent, seg.rotation_deg_per_100m
     out["gt_path_m"] = float(g.path_length())
+    if out["gt_path_m"] > 0:
+        out["scale"] = float(e.path_length()) / out["gt_path_m"]
     return out
 
 

@@ -141,7 +141,12 @@ class HostPoints:
         with_affine: the affines are variables (16 Jacobian columns per target, else 12).
         right_image, baseline, lambda_stereo, stereo_affine: the host frame's stereo energy
             ``lambda E_s`` (:func:`factors.photometric.stereo_residuals`, right image's ``(a, b)``
-            relative to the left one held fixed); it involves only the depths.
+            relative to the left one held fixed); it involves the depths (and the rig offset).
+        rig: the stereo term's rig offset ``(delta_x, delta_y)`` (px, :func:`stereo_residuals`'
+            ``offset``) is a variable: :meth:`residuals` take it as ``offset`` and
+            :meth:`linearize` adds its two columns (``rig_columns``) to the reduced system, a
+            non-depth parameter like a pose (the Schur complement over the depths is unchanged).
+            Without it the stereo term uses ``offset`` (default zero) as a constant.
 
     The variance weights W are frozen at their first evaluation (:meth:`weights`) and released by
     :meth:`release_weights`: with W moving with the state the Gauss-Newton model would not match
@@ -153,7 +158,7 @@ class HostPoints:
                  prior_inverse_depth: ArrayLike, *, sigma_intensity: float, huber_k: float | None,
                  pattern: ArrayLike, depth_prior: bool, with_affine: bool = True,
                  right_image: GradientSampler | None = None, baseline: float | None = None,
-                 lambda_stereo: float = 1.0, stereo_affine: ArrayLike = (0.0, 0.0)) -> None:
+                 lambda_stereo: float = 1.0, stereo_affine: ArrayLike = (0.0, 0.0), rig: bool = False) -> None:
         self.camera = camera
         self.pixels = np.asarray(pixels, dtype=float).reshape(-1, 2)
         n = self.pixels.shape[0]
@@ -182,6 +187,8 @@ class HostPoints:
         self.baseline = None if baseline is None else float(baseline)
         self.lambda_stereo = float(lambda_stereo)
         self.stereo_affine = np.asarray(stereo_affine, dtype=float).reshape(2)
+        #: the rig offset (delta_x, delta_y) of the stereo term is a variable (its 2 columns in the state)
+        self.rig = bool(rig) and right_image is not None
         self.W: list[FloatArray] | None = None
 
     def __len__(self) -> int:
@@ -189,9 +196,10 @@ class HostPoints:
 
     # --- residuals and weights ---------------------------------------------------------------
     def residuals(self, poses: Sequence, affines: Sequence | None, d: FloatArray,
-                  rows: NDArray[np.intp] | None = None) -> list:
+                  rows: NDArray[np.intp] | None = None, offset: ArrayLike | None = None) -> list:
         """Linearisations (with Jacobians) of every target, then the stereo term (or None), of all
-        points or of the points ``rows`` (``d`` is always the full (N,) vector).
+        points or of the points ``rows`` (``d`` is always the full (N,) vector); ``offset``: the
+        rig offset of the stereo term (None: zero, the rectified model).
 
         An optimiser evaluates the cost at a trial state and, when it accepts it, linearises at the
         same state: the Jacobians cost about a third of a pass (the bilinear gathers being the
@@ -208,7 +216,8 @@ class HostPoints:
                                              self.pattern, jacobians=True, host_jacobians=True, bearings=f))
         out.append(None if self.right_image is None else
                    stereo_residuals(self.camera, self.baseline, Ih, hv, px, ds, self.right_image, (0.0, 0.0),
-                                    self.stereo_affine, self.pattern, jacobians=False, bearings=f))
+                                    self.stereo_affine, self.pattern, jacobians=False, bearings=f, offset=offset,
+                                    offset_jacobians=self.rig))
         return out
 
     def weights(self, lins: list) -> list[FloatArray]:
@@ -240,12 +249,13 @@ class HostPoints:
 
     # --- linearisation -----------------------------------------------------------------------
     def linearize(self, lins: list, d: FloatArray, H: FloatArray, g: FloatArray,
-                  columns: Sequence[NDArray[np.intp]]) -> DepthSystem:
+                  columns: Sequence[NDArray[np.intp]], rig_columns: ArrayLike | None = None) -> DepthSystem:
         """Add this host's Gauss-Newton terms, depths eliminated, to the caller's ``H`` (M, M), ``g`` (M,).
 
         ``lins``: :meth:`residuals` at this state (all points); ``columns[t]``: the entries of the
         caller's state vector of target t's :func:`gauss_newton_sums` block (host pose, [host
-        affine,] target pose[, target affine]). Returns the per-point blocks and costs.
+        affine,] target pose[, target affine]); ``rig_columns``: the two entries of the rig offset
+        (needed with ``rig``). Returns the per-point blocks and costs.
         """
         n = d.shape[0]
         H_pd = np.zeros((n, H.shape[0]))
@@ -270,6 +280,16 @@ class HostPoints:
             H_dd += np.sum(ww * st.J_depth ** 2, axis=1)
             g_d += np.sum(ww * st.J_depth * st.residual, axis=1)
             c += loss
+            if self.rig:
+                if rig_columns is None or st.J_offset is None:
+                    raise InputError("HostPoints.linearize: a rig offset variable needs rig_columns and "
+                                     "residuals with offset Jacobians")
+                rc = np.asarray(rig_columns, dtype=np.intp)
+                Jo = st.J_offset.reshape(-1, 2)
+                wJo = ww.reshape(-1, 1) * Jo
+                H[np.ix_(rc, rc)] += Jo.T @ wJo
+                g[rc] += wJo.T @ st.residual.reshape(-1)
+                H_pd[:, rc] += np.sum((wJo * st.J_depth.reshape(-1, 1)).reshape(n, -1, 2), axis=1)
         if self.depth_prior:
             H_dd += 1.0 / self.variance
             g_d += (d - self.prior) / self.variance
@@ -290,7 +310,7 @@ class HostPoints:
         return system
 
     def safeguard(self, poses: Sequence, affines: Sequence | None, system: DepthSystem, d: FloatArray,
-                  lins: list) -> tuple[FloatArray, FloatArray, list]:
+                  lins: list, offset: ArrayLike | None = None) -> tuple[FloatArray, FloatArray, list]:
         """The safeguarded depth step at a trial state: ``d`` are :meth:`DepthSystem.back_substitute`'s
         depths and ``lins`` the :meth:`residuals` there; the points whose cost rose above their cost
         at ``system``'s linearisation point and that cost less at their depth there keep it.
@@ -298,7 +318,7 @@ class HostPoints:
         c = self.point_costs(lins, d)
         rows = np.flatnonzero(c > system.point_cost)
         if rows.size:
-            lins_old = self.residuals(poses, affines, system.d, rows)
+            lins_old = self.residuals(poses, affines, system.d, rows, offset)
             d, c, lins = keep_cheaper_depths(d, c, lins, rows, system.d, self.point_costs(lins_old, system.d, rows),
                                              lins_old)
         return c, d, lins

@@ -28,6 +28,7 @@ pixel the sensor clipped (:class:`GradientImage`'s ``clip_range``) is invalid to
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -212,6 +213,9 @@ class PhotometricLinearization:
     n_behind: int  #: pattern pixels behind the target camera (of points with good depth)
     #: pattern pixels outside the target or host image or next to a clipped pixel (in front, good depth)
     n_outside: int
+    #: (N, P, 2) dr/d(delta_x, delta_y) of a stereo residual's rig offset (:func:`stereo_residuals`
+    #: with ``offset_jacobians``), else None
+    J_offset: FloatArray | None = None
 
 
 def replace_rows(lin: PhotometricLinearization, rows: NDArray[np.intp], other: PhotometricLinearization,
@@ -234,7 +238,7 @@ def replace_rows(lin: PhotometricLinearization, rows: NDArray[np.intp], other: P
                                     put(lin.J_affine_host, other.J_affine_host),
                                     put(lin.J_affine_target, other.J_affine_target),
                                     put(lin.uv_target, other.uv_target), lin.n_bad_depth, lin.n_behind,
-                                    lin.n_outside)
+                                    lin.n_outside, put(lin.J_offset, other.J_offset))
 
 
 def photometric_residuals(camera: PinholeCamera, host_intensity: ArrayLike, host_valid: ArrayLike | None,
@@ -351,7 +355,8 @@ def stereo_residuals(camera: PinholeCamera, baseline: float, left_intensity: Arr
                      right: GradientSampler, affine_left: ArrayLike = (0.0, 0.0),
                      affine_right: ArrayLike = (0.0, 0.0),
                      pattern: ArrayLike = PATTERN_DSO8, jacobians: bool = True,
-                     bearings: ArrayLike | None = None) -> PhotometricLinearization:
+                     bearings: ArrayLike | None = None, offset: ArrayLike | None = None,
+                     offset_jacobians: bool = False) -> PhotometricLinearization:
     """Left-right residual of points of a rectified stereo frame.
 
     ``p' = d^R K T_RL (d^L)^-1 K^-1 p`` with ``T_RL`` a translation ``(-b, 0, 0)``: the right
@@ -360,12 +365,40 @@ def stereo_residuals(camera: PinholeCamera, baseline: float, left_intensity: Arr
     the left image and "target" the right image (pose Jacobians are None).
     ``jacobians=False``: residuals, masks and ``J_depth`` only (affine Jacobians None too);
     ``bearings``: precomputed :func:`pattern_bearings` of the left pixels.
+
+    ``offset``: the rig's rectification error ``(delta_x, delta_y)`` (px): the right image is
+    sampled at ``(u - fx b d + delta_x, v + delta_y)`` (a right image shifted right by ``s`` px
+    has ``delta_x = s``; docs/factors.md §5). None or zero: the rectified model above.
+    ``offset_jacobians``: also return ``J_offset = dr/d(delta_x, delta_y) = (gx_R, gy_R)``, the right
+    image's gradient at the match (the residual's right intensity carries no gain: the stereo
+    affine multiplies the left one).
     """
     T_world_right = np.eye(4)
     T_world_right[0, 3] = float(baseline)  # right camera at +b along the left x axis
-    lin = photometric_residuals(camera, left_intensity, left_valid, pixels, inverse_depth, np.eye(4),
-                                T_world_right, right, affine_left, affine_right, pattern, jacobians=jacobians,
+    projection = camera
+    if offset is not None:
+        dx, dy = (float(x) for x in np.asarray(offset, dtype=float).reshape(2))
+        if not (np.isfinite(dx) and np.isfinite(dy)):
+            raise InputError(f"stereo_residuals: rig offset must be finite, got {(dx, dy)!r}")
+        if dx != 0.0 or dy != 0.0:
+            if bearings is None:  # the bearings are the left camera's; only the projection moves
+                bearings = pattern_bearings(camera, pixels, pattern)
+            # the warp's q_z is 1 (no rotation, no z translation): shifting the principal point
+            # shifts the sampled right pixel by exactly (delta_x, delta_y)
+            projection = dataclasses.replace(camera, cx=camera.cx + dx, cy=camera.cy + dy)
+    full = jacobians or offset_jacobians
+    lin = photometric_residuals(projection, left_intensity, left_valid, pixels, inverse_depth, np.eye(4),
+                                T_world_right, right, affine_left, affine_right, pattern, jacobians=full,
                                 host_jacobians=jacobians, bearings=bearings)
+    if offset_jacobians:
+        assert lin.J_target is not None
+        # J_target[..., 3:5] = -d a_xy with a = (gx fx, gy fy) / q_z and q_z = 1
+        d = np.asarray(inverse_depth, dtype=float).reshape(-1, 1)
+        scale = np.where(lin.valid, -1.0 / np.where(lin.valid, d, 1.0), 0.0)
+        lin.J_offset = np.stack([lin.J_target[..., 3] * scale / camera.fx,
+                                 lin.J_target[..., 4] * scale / camera.fy], axis=-1)
+    if not jacobians:
+        lin.J_affine_host = lin.J_affine_target = None
     lin.J_host = None
     lin.J_target = None
     return lin

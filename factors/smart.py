@@ -57,7 +57,8 @@ class HostPointsFactor(PythonFactor):
     """All points hosted in one keyframe, observed in several targets; inverse depths Schur-eliminated.
 
     Keys, in this order: ``host_key``, ``target_keys...``, then (if given) ``affine_host_key`` and
-    ``affine_target_keys...``. Error dimension M + 1, M = 6 (1 + T) (+ 2 (1 + T) with affines).
+    ``affine_target_keys...``, then (if given) ``rig_key``. Error dimension M + 1,
+    M = 6 (1 + T) (+ 2 (1 + T) with affines) (+ 2 with the rig offset).
 
     Args:
         host_key: the host keyframe's pose key.
@@ -80,6 +81,9 @@ class HostPointsFactor(PythonFactor):
             stereo estimate when rebuilding a factor (new targets) from ``old.depths``.
         stereo_affine: the right image's brightness ``(a, b)`` relative to the host's left image,
             held fixed (the stereo residual is ``I_R(p') - b - exp(a) I_L(p)``).
+        rig_key: key of the rig offset ``(delta_x, delta_y)`` (Vector2, px) of the stereo term
+            (:func:`factors.photometric.stereo_residuals`' ``offset``), or None (rectified model).
+            Needs ``right_image``; it is the factor's last key and the last 2 entries of M.
 
     The variance weights W are frozen at the first linearisation of an optimisation run and
     released by :meth:`commit` (so the next run re-evaluates them): with W moving with the
@@ -94,7 +98,7 @@ class HostPointsFactor(PythonFactor):
                  depth_prior: bool = True, pattern: ArrayLike = PATTERN_DSO8,
                  right_image: GradientSampler | None = None, baseline: float | None = None,
                  lambda_stereo: float = 1.0, stereo_affine: ArrayLike = (0.0, 0.0),
-                 prior_inverse_depth: ArrayLike | None = None) -> None:
+                 prior_inverse_depth: ArrayLike | None = None, rig_key: int | None = None) -> None:
         self.target_keys = list(target_keys)
         if not self.target_keys:
             raise InputError("HostPointsFactor needs at least one target")
@@ -113,24 +117,37 @@ class HostPointsFactor(PythonFactor):
                                  d if prior_inverse_depth is None else prior_inverse_depth,
                                  sigma_intensity=sigma_intensity, huber_k=huber_k, pattern=pattern,
                                  depth_prior=depth_prior, with_affine=self.with_affine, right_image=right_image,
-                                 baseline=baseline, lambda_stereo=lambda_stereo, stereo_affine=stereo_affine)
+                                 baseline=baseline, lambda_stereo=lambda_stereo, stereo_affine=stereo_affine,
+                                 rig=rig_key is not None)
+        if rig_key is not None and right_image is None:
+            raise InputError("HostPointsFactor: a rig_key needs a right image (the stereo term)")
         self.depths = d.copy()
         self.pose_keys = [host_key] + self.target_keys
         self.affine_keys = ([affine_host_key] + list(affine_target_keys)) if self.with_affine else []
+        self.rig_key = rig_key
+        self.rig_keys = [] if rig_key is None else [rig_key]
         nt = len(self.target_keys)
-        self.dim = 6 * (1 + nt) + (2 * (1 + nt) if self.with_affine else 0)
+        self.dim = 6 * (1 + nt) + (2 * (1 + nt) if self.with_affine else 0) + 2 * len(self.rig_keys)
+        self._rig_columns = np.arange(self.dim - 2, self.dim, dtype=np.intp) if self.rig_keys else None
         self._column_blocks = [self._columns(t) for t in range(nt)]
         self._lin: _Linearization | None = None
         self._cached: tuple[FloatArray, list[FloatArray]] | None = None
         self._state_lins: tuple[FloatArray, list] | None = None  # (state, lins) of the last evaluation
         self._trial: tuple[FloatArray, FloatArray, float] | None = None  # (values, depths, cost) of _safeguarded
-        super().__init__(gtsam.noiseModel.Unit.Create(self.dim + 1), self.pose_keys + self.affine_keys)
+        super().__init__(gtsam.noiseModel.Unit.Create(self.dim + 1), self.pose_keys + self.affine_keys + self.rig_keys)
 
     # --- state -----------------------------------------------------------------------------
     def _read(self, values: gtsam.Values) -> tuple[list[gtsam.Pose3], list[FloatArray]]:
+        """Poses, and the vector variables: affines then (with ``rig_key``) the rig offset."""
         poses = [values.atPose3(k) for k in self.pose_keys]
-        affs = [np.asarray(values.atVector(k), dtype=float) for k in self.affine_keys]
+        affs = [np.asarray(values.atVector(k), dtype=float) for k in self.affine_keys + self.rig_keys]
         return poses, affs
+
+    def _split(self, affs: list[FloatArray]) -> tuple[list[FloatArray], FloatArray | None]:
+        """``(affines, rig offset or None)`` of :meth:`_read`'s vector variables."""
+        if self.rig_key is None:
+            return affs, None
+        return affs[:-1], affs[-1]
 
     def _delta(self, poses: list[gtsam.Pose3], affs: list[FloatArray]) -> FloatArray:
         lin = self._lin
@@ -161,7 +178,8 @@ class HostPointsFactor(PythonFactor):
         if self._trial is not None and np.array_equal(self._trial[0], key):
             return self._trial[1], self._trial[2]
         d = self._back_substitution(poses, affs)
-        c, d_safe, lins = self.points.safeguard(poses, affs, lin.system, d, self._lins(poses, affs, d))
+        A, offset = self._split(affs)
+        c, d_safe, lins = self.points.safeguard(poses, A, lin.system, d, self._lins(poses, affs, d), offset)
         if d_safe is not d:
             self._state_lins = (self._state(poses, affs, d_safe), lins)
         d = d_safe
@@ -204,7 +222,8 @@ class HostPointsFactor(PythonFactor):
         state = self._state(poses, affs, d)
         if self._state_lins is not None and np.array_equal(self._state_lins[0], state):
             return self._state_lins[1]
-        out = self.points.residuals(poses, affs, d)
+        A, offset = self._split(affs)
+        out = self.points.residuals(poses, A, d, offset=offset)
         self._state_lins = (state, out)
         return out
 
@@ -234,7 +253,8 @@ class HostPointsFactor(PythonFactor):
         d = self.depths
         H_red = np.zeros((self.dim, self.dim))
         g_red = np.zeros(self.dim)
-        system = self.points.linearize(self._lins(poses, affs, d), d, H_red, g_red, self._column_blocks)
+        system = self.points.linearize(self._lins(poses, affs, d), d, H_red, g_red, self._column_blocks,
+                                       self._rig_columns)
         E = float(system.point_cost.sum())
         self._lin = _Linearization(poses, affs, system)
         self._trial = None  # the safeguard compares against this linearisation's depths now
@@ -269,5 +289,9 @@ class HostPointsFactor(PythonFactor):
             base = 6 * (1 + nt)
             for i in range(1 + nt):
                 H[1 + nt + i] = Rfull[:, base + 2 * i:base + 2 * (i + 1)]
-        self._cached = (out.copy(), [np.array(H[i]) for i in range(len(self.pose_keys) + len(self.affine_keys))])
+        n_keys = len(self.pose_keys) + len(self.affine_keys)
+        if self.rig_key is not None:
+            H[n_keys] = Rfull[:, M - 2:M]
+            n_keys += 1
+        self._cached = (out.copy(), [np.array(H[i]) for i in range(n_keys)])
         return out

@@ -22,6 +22,7 @@ from gtvo.config import OdometryConfig, as_config, config_to_dict, config_to_yam
 from gtvo.io.observer import RunObserver
 from gtvo.odometry import VisualOdometry, frames_by_outcome
 from gtvo.io.covariances import KeyframeCovariances
+from gtvo.odometry.rig_report import rig_report, rig_warning
 from gtvo.io.outputs import check_run_output_dir, write_run_outputs
 from gtvo.datasets.sequence import Sequence
 from gtvo.evaluation.trajectory import Trajectory
@@ -110,6 +111,10 @@ def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progre
             "window_iterations_mean": _mean([r.iterations for r in vo.window_results]),
             "covariance_seconds": float(sum(r.covariance_seconds for r in vo.window_results)),
         })
+        info.update(rig_report(vo))
+        message = rig_warning(info)
+        if message is not None:
+            warn(message)
     info["covariances"] = ("not computed (--no-covariances)" if config.mode == "window" and not config.window.covariances
                            else "not computed (track mode: no window)" if config.mode != "window" else "computed")
     for o in observers:

@@ -18,6 +18,8 @@ INVERSE_DEPTH = "d"
 AFFINE = "a"
 #: Affine brightness ``(a, b)`` of a frame's right image (Vector2).
 RIGHT_AFFINE = "r"
+#: Rig offset ``(delta_x, delta_y)`` (px) of the right image against its rectification (Vector2).
+RIG_OFFSET = "o"
 #: Motion-model state (Vector).
 MOTION_STATE = "v"
 #: Wheel-odometry calibration parameters (Vector).
@@ -42,6 +44,12 @@ def affine_key(index: int) -> int:
 def right_affine_key(index: int) -> int:
     """Key of the affine brightness ``(a, b)`` of frame ``index``'s right image (``r<index>``)."""
     return gtsam.symbol(RIGHT_AFFINE, int(index))
+
+
+def rig_offset_key(index: int = 0) -> int:
+    """Key of the stereo rig's offset ``(delta_x, delta_y)`` of the right image (``o<index>``; one per
+    rig, shared by every keyframe of the window: docs/window.md, "Rig calibration")."""
+    return gtsam.symbol(RIG_OFFSET, int(index))
 
 
 def motion_state_key(index: int) -> int:

@@ -17,7 +17,8 @@ FloatArray = NDArray[np.float64]
 def estimate_stereo_affine(camera: PinholeCamera, baseline: float, left: GradientImage, right: GradientImage,
                            pixels: ArrayLike, inverse_depth: ArrayLike, inverse_depth_variance: ArrayLike,
                            pattern: ArrayLike = PATTERN_SINGLE,
-                           sigma_intensity: float = DEFAULT_SIGMA_INTENSITY) -> FloatArray:
+                           sigma_intensity: float = DEFAULT_SIGMA_INTENSITY, offset: ArrayLike | None = None
+                           ) -> FloatArray:
     """The right image's brightness ``(a, b)`` relative to the left one: ``I_R ~ exp(a) I_L + b``.
 
     Fitted by weighted least squares over the points' pattern pixels at their stereo matches,
@@ -28,11 +29,14 @@ def estimate_stereo_affine(camera: PinholeCamera, baseline: float, left: Gradien
     stereo term that ignores it pulls depths.
     The default pattern is the point's own pixel, where its stereo match was found (on the
     synthetic rig the 8-pixel pattern biases the log gain by 5e-3, the single pixel by 2e-3).
+    ``offset``: the rig's offset ``(delta_x, delta_y)`` of the right image (px;
+    :func:`factors.photometric.stereo_residuals`), None: the rectified model.
     Returns ``(0, 0)`` when fewer than 50 pixels are usable.
     """
     pat = np.asarray(pattern, dtype=float).reshape(-1, 2)
     I_L, ok_L = sample_host(left, pixels, pat)
-    lin = stereo_residuals(camera, baseline, I_L, ok_L, pixels, inverse_depth, right, (0.0, 0.0), (0.0, 0.0), pat)
+    lin = stereo_residuals(camera, baseline, I_L, ok_L, pixels, inverse_depth, right, (0.0, 0.0), (0.0, 0.0), pat,
+                           offset=offset)
     ok = lin.valid
     if np.count_nonzero(ok) < 50:
         return np.zeros(2)

@@ -49,6 +49,8 @@ def evaluate(est: Trajectory, ref: Trajectory) -> dict[str, Any]:
 
     ``ate_rmse_m``: SE(3)-aligned ATE (None, with the reason in ``ate_skipped``, when the
     alignment is not determined: fewer than 3 poses, or positions on a line or a point);
+    ``ate_sim3_rmse_m``: Sim(3)-aligned ATE (the shape; with ``ate_rmse_m`` it tells a scale error from
+    a shape error); ``scale_ratio``: estimated / ground-truth path length;
     ``rpe_trans_rmse_m`` / ``rpe_rot_rmse_deg``: frame-to-frame RPE; ``drift_percent``: final
     position error after aligning the first pose over the path length; ``kitti_*``: the devkit's
     segment metric on lengths that fit the path (None if none). When the ground-truth path is
@@ -60,8 +62,10 @@ def evaluate(est: Trajectory, ref: Trajectory) -> dict[str, Any]:
         a = ate(est, ref, "se3")
         out["ate_rmse_m"] = a.rmse
         out["ate_max_m"] = a.translation.max
+        # Sim(3)-aligned ATE: the shape alone (a wrong scale does not count)
+        out["ate_sim3_rmse_m"] = ate(est, ref, "sim3").rmse
     except InputError as exc:
-        out["ate_rmse_m"] = out["ate_max_m"] = None
+        out["ate_rmse_m"] = out["ate_max_m"] = out["ate_sim3_rmse_m"] = None
         out["ate_skipped"] = str(exc)
     if len(est) >= 2:
         r = rpe(est, ref, 1, "frames")
@@ -69,6 +73,8 @@ def evaluate(est: Trajectory, ref: Trajectory) -> dict[str, Any]:
         out["rpe_rot_rmse_deg"] = r.rotation_deg.rmse
     length = ref.path_length()
     out["path_length_m"] = length
+    # estimated / ground-truth path length: the scale (1 when the stereo baseline sets it right)
+    out["scale_ratio"] = est.path_length() / length if length > 0 else None
     moves = length >= MIN_DRIFT_PATH_M
     out["drift_percent"] = drift_percent(est, ref) if moves else None
     if moves:

@@ -50,6 +50,8 @@ from gtvo.config import OdometryConfig
 from gtvo.frontend.frame_checks import FrameChecker, measure_step
 from gtvo.frontend.keyframes import needs_keyframe
 from gtvo.frontend.rgbd import rgbd_keyframe_points
+from gtvo.frontend.rig_offset import correct_right_image, estimate_vertical_offset
+from gtvo.frontend.point_selection import select_points
 from gtvo.odometry.estimates import FrameEstimate, FrameOutcome, Keyframe
 from gtvo.window import SlidingWindowOptimizer, WindowKeyframe, WindowResult
 from gtvo.core.map_points import MapPoints, constrained_mask
@@ -99,9 +101,18 @@ class VisualOdometry:
         # keyframe index -> per point, the most other keyframes a window optimisation compared it with
         self._observed: dict[int, NDArray[np.int64]] = {}
         self.window: SlidingWindowOptimizer | None = None
+        #: the stereo rig's offset ``(delta_x, delta_y)`` of the right image (px) as estimated so
+        #: far (docs/window.md, "Rig calibration"), None when not estimated (RGB-D, track mode, the
+        #: fixed-lag backend or ``window.rig_calibration=False``)
+        self.rig_offset: NDArray[np.float64] | None = None
+        #: the first frame's vertical-offset search (:func:`gtvo.frontend.rig_offset.estimate_vertical_offset`)
+        self.rig_initial = None
         if self.config.mode == "window":
             baseline = camera.baseline if isinstance(camera, StereoCamera) else None
-            self.window = SlidingWindowOptimizer(self.pinhole, baseline, self.config.window)
+            wcfg = self.config.window
+            rig = baseline is not None and wcfg.rig_calibration and wcfg.backend == "lm"
+            self.rig_offset = np.zeros(2) if rig else None
+            self.window = SlidingWindowOptimizer(self.pinhole, baseline, wcfg, rig_offset=self.rig_offset)
         if self.config.motion_model.model == "kalman":
             from gtvo.motion.model import ConstantAccelerationFilter  # noqa: PLC0415
 
@@ -339,12 +350,36 @@ class VisualOdometry:
         if isinstance(self.camera, StereoCamera):
             if frame.right is None:
                 raise InputError(f"frame {frame.index}: stereo odometry needs a right image")
-            return init_keyframe_points(left, frame.right, self.camera, target=cfg.points_per_keyframe,
+            right = frame.right
+            if self.rig_offset is not None:
+                if not self.keyframes and self.rig_initial is None:
+                    self._initial_vertical_offset(left, right)
+                right = correct_right_image(right, self.rig_offset)
+            return init_keyframe_points(left, right, self.camera, target=cfg.points_per_keyframe,
                                         selection=cfg.points, stereo=cfg.stereo,
                                         clip_range=self.config.photometric.clip_range)
         if frame.depth is None:
             raise InputError(f"frame {frame.index}: RGB-D odometry needs a depth image")
         return rgbd_keyframe_points(left, frame.depth, cfg.points_per_keyframe, cfg.depth_sigma_model, cfg.points)
+
+    def _initial_vertical_offset(self, left: NDArray[np.float32], right: NDArray) -> None:
+        """The rig's vertical offset from the first stereo pair (a 2-D search), the window's starting value.
+
+        Raises:
+            _TooFewPoints: no stereo match survives at any row shift (an InputError on the first frame).
+        """
+        assert self.rig_offset is not None and isinstance(self.camera, StereoCamera)
+        fcfg = self.config.frontend
+        pixels = select_points(left, fcfg.points_per_keyframe, **dataclasses.asdict(fcfg.points))
+        est = estimate_vertical_offset(left, right, self.camera, pixels, max_disparity=fcfg.stereo.max_disparity)
+        self.rig_initial = est
+        if est is None:
+            raise _TooFewPoints("the first stereo pair has no stereo match at any vertical offset within "
+                                "+-2 rows: the right camera is offset too far from its calibration (or the "
+                                "images hold no texture); no rig offset can be estimated")
+        self.rig_offset = np.array([0.0, est.delta_y])
+        assert self.window is not None
+        self.window.rig_offset = self.rig_offset.copy()
 
     def _make_keyframe(self, frame: Frame, left: NDArray[np.float32], T_world_cam: gtsam.Pose3,
                        tracked: tuple[int, NDArray[np.float64]] | None = None) -> Keyframe:
@@ -407,12 +442,15 @@ class VisualOdometry:
             right = GradientImage(to_float_gray(frame.right, f"frame {frame.index} right image"), clip_range=clip)
             stereo_affine = estimate_stereo_affine(self.pinhole, self.camera.baseline, left_img, right, pts.pixels,
                                                    pts.inverse_depth, pts.variance,
-                                                   sigma_intensity=self.config.window.sigma_intensity)
+                                                   sigma_intensity=self.config.window.sigma_intensity,
+                                                   offset=self.rig_offset)
         wk = WindowKeyframe(frame.index, T_world_cam, affine, left_img, pts.pixels, pts.inverse_depth,
                             pts.variance, right=right, depth_prior=right is None, stereo_affine=stereo_affine,
                             timestamp=float(frame.timestamp) if np.isfinite(frame.timestamp) else None)
         self.window.add_keyframe(wk)
         res = self.window.optimize(self.config.solver.window)
+        if self.window.rig_offset is not None:
+            self.rig_offset = self.window.rig_offset.copy()
         self._window_affine = {w.index: w.affine.copy() for w in self.window.keyframes}
         if res is None:
             return T_world_cam, pts

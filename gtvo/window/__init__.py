@@ -32,6 +32,10 @@ touching it are linearised at the current estimate, it is eliminated
 is kept as a prior with a fixed linearisation point. Residuals of other hosts' points in the
 leaving keyframe are dropped (as DSO does). Details and the consistency choice: docs/window.md.
 
+With a ``rig_offset`` (stereo, LM backend) the stereo rig's rectification error ``(delta_x,
+delta_y)`` of the right image is one more variable of the window, shared by every host's stereo
+term and carried by the marginalisation prior (docs/window.md, "Rig calibration").
+
 ``WindowConfig(backend="fixed_lag")`` hands the window to ``gtsam.IncrementalFixedLagSmoother``
 instead (keyframe sequence number as timestamp, lag ``size - 0.5``): the smoother marginalises
 leaving keyframes with their host factor (depths frozen in the marginal); docs/window.md.

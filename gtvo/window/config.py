@@ -68,6 +68,13 @@ class WindowConfig:
         covariances: after each optimisation, keep every keyframe's 6x6 pose covariance at the
             optimum (:mod:`gtvo.window.covariance`; docs/window.md, "Pose covariances"); False: none
             are computed (no cost).
+        rig_calibration: stereo odometry estimates the right image's rectification error
+            ``(delta_x, delta_y)`` (px) online as a window variable (docs/window.md, "Rig
+            calibration"; LM backend only). It is used by :class:`gtvo.odometry.VisualOdometry`; a
+            :class:`gtvo.window.SlidingWindowOptimizer` estimates it when given a ``rig_offset``.
+            False: the rectified model, exactly the behaviour without the feature.
+        rig_offset_sigma: sigma (px) of the zero-mean prior on the rig offset, set once (with the
+            gauge prior); afterwards the marginalisation prior carries what the window learnt.
     """
 
     size: int = setting(7, ">= 2")
@@ -85,6 +92,8 @@ class WindowConfig:
     marginalize: bool = True
     backend: Literal["lm", "fixed_lag"] = "lm"
     covariances: bool = True
+    rig_calibration: bool = True
+    rig_offset_sigma: float = setting(2.0, "> 0")
 
     def __post_init__(self) -> None:
         check_settings(self)  # backend, size, max_iterations and the ranges declared above
@@ -210,6 +219,8 @@ class WindowResult:
     n_residuals: int
     covariances: dict[int, FloatArray] | None = None
     covariance_seconds: float = 0.0
+    #: the rig offset (delta_x, delta_y) after the optimisation (px), None when not estimated
+    rig_offset: FloatArray | None = None
 
 
 class WindowState(Protocol):

@@ -9,7 +9,7 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from gtvo.core.keys import affine_key, pose_key
+from gtvo.core.keys import affine_key, pose_key, rig_offset_key
 from gtvo.core.camera import PinholeCamera
 from gtvo.window.covariance import marginals_of_graph
 from gtvo.window.config import MarginalPrior, WindowConfig, WindowKeyframe, WindowResult
@@ -20,11 +20,17 @@ FloatArray = NDArray[np.float64]
 
 def solve_gtsam(camera: PinholeCamera, baseline: float | None, keyframes: Sequence[WindowKeyframe],
                 config: WindowConfig, marginal: MarginalPrior | None = None,
-                targets: list[list[int]] | None = None) -> WindowResult:
-    """Optimise the window with ``gtsam.LevenbergMarquardtOptimizer``; updates ``keyframes`` in place."""
+                targets: list[list[int]] | None = None, rig_offset: FloatArray | None = None,
+                rig_hold_x: float | None = None) -> WindowResult:
+    """Optimise the window with ``gtsam.LevenbergMarquardtOptimizer``; updates ``keyframes`` in place.
+
+    ``rig_offset``: the rig offset's current estimate when it is a variable (the result's
+    ``rig_offset`` is the optimised one), None: the rectified model; ``rig_hold_x``: its ``delta_x``
+    held at this value (:func:`gtvo.window.problem.rig_prior`)."""
     t0 = time.perf_counter()
     targets = visible_targets(camera, keyframes, config) if targets is None else targets
-    graph, values, hosts = build_graph(camera, baseline, keyframes, config, marginal, targets)
+    graph, values, hosts = build_graph(camera, baseline, keyframes, config, marginal, targets, rig_offset,
+                                       rig_hold_x)
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(config.max_iterations)
     params.setRelativeErrorTol(config.relative_tolerance)
@@ -45,5 +51,6 @@ def solve_gtsam(camera: PinholeCamera, baseline: float | None, keyframes: Sequen
         kf.pose = result.atPose3(pose_key(kf.index))
         kf.affine = np.asarray(result.atVector(affine_key(kf.index)), dtype=float).copy()
     n_res = sum(len(keyframes[h]) * len(ts) for h, ts in enumerate(targets))
+    rig = None if rig_offset is None else np.asarray(result.atVector(rig_offset_key()), dtype=float).copy()
     return WindowResult("gtsam", float(initial), float(cost), int(opt.iterations()), time.perf_counter() - t0, n_res,
-                        covs, t_cov if covs is not None else 0.0)
+                        covs, t_cov if covs is not None else 0.0, rig)

@@ -18,11 +18,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from factors.host_points import DepthSystem, HostPoints
-from gtvo.core.keys import affine_key, pose_key
+from gtvo.core.keys import affine_key, pose_key, rig_offset_key
 from gtvo.core.camera import PinholeCamera
 from gtvo.window.covariance import marginals_of_hessian
 from gtvo.window.config import MarginalPrior, WindowConfig, WindowKeyframe, WindowResult
-from gtvo.window.problem import motion_factors, visible_targets
+from gtvo.window.problem import motion_factors, needs_rig_prior, rig_prior_mean_sigmas, visible_targets
 
 FloatArray = NDArray[np.float64]
 
@@ -34,25 +34,28 @@ FloatArray = NDArray[np.float64]
 class _WindowHost:
     """One host of the hand-rolled solver: its :class:`factors.host_points.HostPoints` (the same
     linearisation as :class:`factors.smart.HostPointsFactor`'s) and where its blocks sit in the
-    window's state (8 entries per keyframe: pose, then affine).
+    window's state (8 entries per keyframe: pose, then affine; with ``rig`` the rig offset's 2
+    entries after all keyframes').
 
     W is frozen at the window's starting state, where the host is built, as the smart factor
     does at its first evaluation, so both solvers minimise the same fixed cost.
     """
 
     def __init__(self, camera: PinholeCamera, baseline: float | None, keyframes: Sequence[WindowKeyframe],
-                 h: int, targets: Sequence[int], config: WindowConfig) -> None:
+                 h: int, targets: Sequence[int], config: WindowConfig, rig_offset: FloatArray | None = None) -> None:
         kh = keyframes[h]
         self.h, self.targets = h, list(targets)
         self.points = HostPoints(camera, kh.pixels, kh.image, [keyframes[t].image for t in self.targets],
                                  kh.variance, kh.prior_inverse_depth, sigma_intensity=config.sigma_intensity,
                                  huber_k=config.huber_k, pattern=config.pattern, depth_prior=kh.depth_prior,
                                  right_image=kh.right, baseline=baseline, lambda_stereo=config.lambda_stereo,
-                                 stereo_affine=kh.stereo_affine)
+                                 stereo_affine=kh.stereo_affine, rig=rig_offset is not None)
+        K = len(keyframes)
+        self.rig_columns = np.arange(8 * K, 8 * K + 2) if self.points.rig else None
         # blocks [host pose, host affine, target pose, target affine]: 8 per keyframe
         self.columns = [np.r_[8 * h:8 * h + 8, 8 * t:8 * t + 8] for t in self.targets]
         poses, affines = self._local([k.pose for k in keyframes], [k.affine for k in keyframes])
-        lins = self.points.residuals(poses, affines, kh.inverse_depth)
+        lins = self.points.residuals(poses, affines, kh.inverse_depth, offset=rig_offset)
         #: (E, lins) at the window's starting state (W frozen there): the initial cost and the first linearisation
         self.start = (float(self.points.point_costs(lins, kh.inverse_depth).sum()), lins)
 
@@ -64,16 +67,17 @@ class _WindowHost:
     def linearize(self, d: FloatArray, H: FloatArray, g: FloatArray, lins: list) -> DepthSystem:
         """Add this host's reduced Gauss-Newton terms (depths eliminated) to the window's ``H``, ``g``;
         ``lins``: the residuals at this state (:meth:`evaluate_safeguarded`'s or :attr:`start`'s)."""
-        return self.points.linearize(lins, d, H, g, self.columns)
+        return self.points.linearize(lins, d, H, g, self.columns, self.rig_columns)
 
-    def evaluate_safeguarded(self, poses, affines, system: DepthSystem, d_new: FloatArray
-                             ) -> tuple[float, FloatArray, list]:
+    def evaluate_safeguarded(self, poses, affines, system: DepthSystem, d_new: FloatArray,
+                             offset: FloatArray | None = None) -> tuple[float, FloatArray, list]:
         """The cost at a trial state with the back-substituted inverse depths ``d_new``, except for
         points whose cost rose above their cost at ``system``'s linearisation point and that cost
         less at their depth there, which keep it (the safeguarded depth step, as the smart factor's):
         ``(cost, depths, linearisations)``."""
         P, A = self._local(poses, affines)
-        c, d, lins = self.points.safeguard(P, A, system, d_new, self.points.residuals(P, A, d_new))
+        c, d, lins = self.points.safeguard(P, A, system, d_new, self.points.residuals(P, A, d_new, offset=offset),
+                                           offset)
         return float(c.sum()), d, lins
 
 
@@ -113,19 +117,38 @@ def _prior_terms(keyframes, poses, affines, config, with_gauge, H=None, g=None, 
     return E
 
 
-def _marginal_terms(marginal: MarginalPrior | None, keyframes, poses, affines, H=None, g=None) -> float:
+def _rig_prior_terms(config: WindowConfig, offset: FloatArray | None, active: bool, H=None, g=None,
+                     hold_x: float | None = None) -> float:
+    """The rig offset's prior (``active``: :func:`needs_rig_prior`; mean and sigmas of
+    :func:`rig_prior_mean_sigmas`): cost, and (given H, g) its terms in the rig's entries (the last
+    two of the state)."""
+    if offset is None or not active:
+        return 0.0
+    mean, sigmas = rig_prior_mean_sigmas(config, hold_x)
+    e = (offset - mean) / sigmas
+    if H is not None:
+        H[-2:, -2:] += np.diag(1.0 / sigmas ** 2)
+        g[-2:] += e / sigmas
+    return 0.5 * float(e @ e)
+
+
+def _marginal_terms(marginal: MarginalPrior | None, keyframes, poses, affines, H=None, g=None,
+                    offset: FloatArray | None = None) -> float:
     """The marginalisation prior's cost, and (given H, g) its terms (Jacobian of delta taken as I,
-    as ``gtsam.LinearContainerFactor`` does)."""
+    as ``gtsam.LinearContainerFactor`` does); ``offset``: the rig offset (the state's last 2 entries)."""
     if marginal is None:
         return 0.0
     values = gtsam.Values()
     for k, kf in enumerate(keyframes):
         values.insert(pose_key(kf.index), poses[k])
         values.insert(affine_key(kf.index), affines[k])
+    if offset is not None:
+        values.insert(rig_offset_key(), np.asarray(offset, dtype=float))
     dl = marginal.delta(values)
     if H is not None:
         pos = {pose_key(kf.index): 8 * k for k, kf in enumerate(keyframes)}
         pos.update({affine_key(kf.index): 8 * k + 6 for k, kf in enumerate(keyframes)})
+        pos[rig_offset_key()] = 8 * len(keyframes)
         idx = np.concatenate([np.arange(pos[key], pos[key] + dim) for key, dim in zip(marginal.keys, marginal.dims)])
         H[np.ix_(idx, idx)] += marginal.H
         g[idx] += marginal.H @ dl - marginal.eta
@@ -134,21 +157,29 @@ def _marginal_terms(marginal: MarginalPrior | None, keyframes, poses, affines, H
 
 def window_cost(camera: PinholeCamera, baseline: float | None, keyframes: Sequence[WindowKeyframe],
                 config: WindowConfig, marginal: MarginalPrior | None = None,
-                targets: list[list[int]] | None = None) -> float:
+                targets: list[list[int]] | None = None, rig_offset: FloatArray | None = None,
+                rig_hold_x: float | None = None) -> float:
     """The window cost E at the keyframes' current state, computed the hand-rolled way (W at this state)."""
     targets = visible_targets(camera, keyframes, config) if targets is None else targets
-    hosts = [_WindowHost(camera, baseline, keyframes, h, ts, config) for h, ts in enumerate(targets)]
+    hosts = [_WindowHost(camera, baseline, keyframes, h, ts, config, rig_offset) for h, ts in enumerate(targets)]
     poses = [kf.pose for kf in keyframes]
     affines = [kf.affine for kf in keyframes]
+    off = None if rig_offset is None else np.asarray(rig_offset, dtype=float).reshape(2)
     E = sum(host.start[0] for host in hosts)
     E += _prior_terms(keyframes, poses, affines, config, marginal is None)
-    return E + _marginal_terms(marginal, keyframes, poses, affines)
+    E += _rig_prior_terms(config, off, needs_rig_prior(off, marginal), hold_x=rig_hold_x)
+    return E + _marginal_terms(marginal, keyframes, poses, affines, offset=off)
 
 
 def solve_handrolled(camera: PinholeCamera, baseline: float | None, keyframes: Sequence[WindowKeyframe],
                      config: WindowConfig, marginal: MarginalPrior | None = None,
-                     targets: list[list[int]] | None = None) -> WindowResult:
+                     targets: list[list[int]] | None = None, rig_offset: FloatArray | None = None,
+                     rig_hold_x: float | None = None) -> WindowResult:
     """Levenberg-Marquardt on the reduced camera system; updates ``keyframes`` in place.
+
+    ``rig_offset``: the rig offset's current estimate when it is a variable (2 more state entries
+    after the keyframes'; the result's ``rig_offset`` is the optimised one); ``rig_hold_x``: its
+    ``delta_x`` held at this value (:func:`gtvo.window.problem.rig_prior_mean_sigmas`).
 
     Per iteration: every host's Gauss-Newton blocks over (poses, affines) ``x`` (8 per keyframe)
     and its inverse depths ``d`` (diagonal ``H_dd``), the Schur complement
@@ -158,35 +189,41 @@ def solve_handrolled(camera: PinholeCamera, baseline: float | None, keyframes: S
     """
     t0 = time.perf_counter()
     targets = visible_targets(camera, keyframes, config) if targets is None else targets
-    hosts = [_WindowHost(camera, baseline, keyframes, h, ts, config) for h, ts in enumerate(targets) if ts]
+    off = None if rig_offset is None else np.asarray(rig_offset, dtype=float).reshape(2).copy()
+    hosts = [_WindowHost(camera, baseline, keyframes, h, ts, config, off) for h, ts in enumerate(targets) if ts]
     K = len(keyframes)
+    M = 8 * K + (0 if off is None else 2)
+    rig_prior_on = needs_rig_prior(off, marginal)
     with_gauge = marginal is None
     poses = [kf.pose for kf in keyframes]
     affines = [kf.affine.copy() for kf in keyframes]
     depths = {host.h: keyframes[host.h].inverse_depth.copy() for host in hosts}
     motion = motion_factors(keyframes, config)
 
-    def cost(P, A, D_new, systems) -> tuple[float, dict[int, FloatArray], dict[int, list]]:
+    def cost(P, A, O, D_new, systems) -> tuple[float, dict[int, FloatArray], dict[int, list]]:
         E, D, L = 0.0, {}, {}
         for host in hosts:
-            e, D[host.h], L[host.h] = host.evaluate_safeguarded(P, A, systems[host.h], D_new[host.h])
+            e, D[host.h], L[host.h] = host.evaluate_safeguarded(P, A, systems[host.h], D_new[host.h], O)
             E += e
         E += _prior_terms(keyframes, P, A, config, with_gauge, motion=motion)
-        return E + _marginal_terms(marginal, keyframes, P, A), D, L
+        E += _rig_prior_terms(config, O, rig_prior_on, hold_x=rig_hold_x)
+        return E + _marginal_terms(marginal, keyframes, P, A, offset=O), D, L
 
     E = sum(host.start[0] for host in hosts) \
         + _prior_terms(keyframes, poses, affines, config, with_gauge, motion=motion) \
-        + _marginal_terms(marginal, keyframes, poses, affines)
+        + _rig_prior_terms(config, off, rig_prior_on, hold_x=rig_hold_x) \
+        + _marginal_terms(marginal, keyframes, poses, affines, offset=off)
     state_lins = {host.h: host.start[1] for host in hosts}
     initial = E
     lam = 1e-5
     it = 0
     for it in range(1, config.max_iterations + 1):
-        H = np.zeros((8 * K, 8 * K))
-        g = np.zeros(8 * K)
+        H = np.zeros((M, M))
+        g = np.zeros(M)
         systems = {host.h: host.linearize(depths[host.h], H, g, state_lins[host.h]) for host in hosts}
         _prior_terms(keyframes, poses, affines, config, with_gauge, H, g, motion)
-        _marginal_terms(marginal, keyframes, poses, affines, H, g)
+        _rig_prior_terms(config, off, rig_prior_on, H, g, rig_hold_x)
+        _marginal_terms(marginal, keyframes, poses, affines, H, g, off)
         H = 0.5 * (H + H.T)
         diag = np.maximum(np.diag(H), 1e-12 * max(float(np.max(np.diag(H))), 1e-300))
         accepted = False
@@ -194,8 +231,9 @@ def solve_handrolled(camera: PinholeCamera, baseline: float | None, keyframes: S
             dx = np.linalg.solve(H + lam * np.diag(diag), -g)
             P = [p.retract(dx[8 * k:8 * k + 6]) for k, p in enumerate(poses)]
             A = [a + dx[8 * k + 6:8 * k + 8] for k, a in enumerate(affines)]
+            O = None if off is None else off + dx[8 * K:8 * K + 2]
             D = {h: system.back_substitute(dx) for h, system in systems.items()}
-            E_new, D, L_new = cost(P, A, D, systems)
+            E_new, D, L_new = cost(P, A, O, D, systems)
             if E_new < E:
                 accepted = True
                 break
@@ -203,19 +241,20 @@ def solve_handrolled(camera: PinholeCamera, baseline: float | None, keyframes: S
         if not accepted:
             break
         decrease = E - E_new
-        poses, affines, depths, E, state_lins = P, A, D, E_new, L_new
+        poses, affines, off, depths, E, state_lins = P, A, O, D, E_new, L_new
         lam = max(lam / 10.0, 1e-7)
         if decrease < config.relative_tolerance * max(E, 1e-300):
             break
     t_cov = time.perf_counter()
     covs = None
     if config.covariances:  # the undamped reduced system at the optimum (its residuals are kept: no new pass)
-        H = np.zeros((8 * K, 8 * K))
-        g = np.zeros(8 * K)
+        H = np.zeros((M, M))
+        g = np.zeros(M)
         for host in hosts:
             host.linearize(depths[host.h], H, g, state_lins[host.h])
         _prior_terms(keyframes, poses, affines, config, with_gauge, H, g, motion)
-        _marginal_terms(marginal, keyframes, poses, affines, H, g)
+        _rig_prior_terms(config, off, rig_prior_on, H, g, rig_hold_x)
+        _marginal_terms(marginal, keyframes, poses, affines, H, g, off)
         covs = marginals_of_hessian(H, [kf.index for kf in keyframes])
     t_cov = time.perf_counter() - t_cov
     for k, kf in enumerate(keyframes):
@@ -225,4 +264,4 @@ def solve_handrolled(camera: PinholeCamera, baseline: float | None, keyframes: S
             kf.inverse_depth = depths[k].copy()
     n_res = sum(len(keyframes[h]) * len(ts) for h, ts in enumerate(targets))
     return WindowResult("handrolled", float(initial), float(E), it, time.perf_counter() - t0, n_res,
-                        covs, t_cov if covs is not None else 0.0)
+                        covs, t_cov if covs is not None else 0.0, None if off is None else off.copy())

@@ -8,17 +8,19 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from gtvo.core.keys import affine_key, pose_key
+from gtvo.core.keys import affine_key, pose_key, rig_offset_key
 from gtvo.core.camera import PinholeCamera
 from gtvo.window.config import MarginalPrior, WindowConfig, WindowKeyframe
 from gtvo.window.config import values_subset
-from gtvo.window.problem import gauge_noise, key_ordering, host_factor, motion_factors, visible_targets, window_values
+from gtvo.window.problem import (gauge_noise, host_factor, key_ordering, motion_factors, needs_rig_prior, rig_prior,
+                                 visible_targets, window_values)
 
 FloatArray = NDArray[np.float64]
 
 
 def marginalize(camera: PinholeCamera, baseline: float | None, keyframes: Sequence[WindowKeyframe],
-                config: WindowConfig, marginal: MarginalPrior | None, position: int = 0) -> MarginalPrior:
+                config: WindowConfig, marginal: MarginalPrior | None, position: int = 0,
+                rig_offset: FloatArray | None = None) -> MarginalPrior:
     """Marginalise ``keyframes[position]`` and its points; return the prior on the others.
 
     The factors touching it (its host factor into the keyframes that see its points, its affine
@@ -27,12 +29,15 @@ def marginalize(camera: PinholeCamera, baseline: float | None, keyframes: Sequen
     its pose and affine are eliminated; what is left (a quadratic on the remaining keyframes) is
     the new prior, with the current state as its fixed linearisation point. Residuals of other
     hosts' points in the leaving keyframe are not part of it (they are dropped).
+    With ``rig_offset`` (its current estimate) the rig offset is a variable of the leaving host's
+    factor; it is never eliminated, so the prior carries what the leaving keyframe said about it
+    (and its zero-mean prior, added here the first time, as the gauge prior).
     """
     kf = keyframes[position]
     targets = visible_targets(camera, keyframes, config)[position]
     graph = gtsam.NonlinearFactorGraph()
     if targets:
-        graph.add(host_factor(camera, baseline, keyframes, position, targets, config))
+        graph.add(host_factor(camera, baseline, keyframes, position, targets, config, rig=rig_offset is not None))
     aff_noise = gtsam.noiseModel.Diagonal.Sigmas(np.asarray(config.affine_sigma, dtype=float))
     graph.add(gtsam.PriorFactorVector(affine_key(kf.index), np.asarray(kf.affine_prior, dtype=float), aff_noise))
     for k, f in motion_factors(keyframes, config):
@@ -44,7 +49,9 @@ def marginalize(camera: PinholeCamera, baseline: float | None, keyframes: Sequen
     else:
         for f in marginal.nonlinear_factors():
             graph.add(f)
-    values = window_values(keyframes)
+    if needs_rig_prior(rig_offset, marginal):
+        graph.add(rig_prior(config))
+    values = window_values(keyframes, rig_offset)
     linear = graph.linearize(values)
     leaving = [pose_key(kf.index), affine_key(kf.index)]
     _, remaining = linear.eliminatePartialMultifrontal(key_ordering(leaving))
@@ -55,6 +62,9 @@ def marginalize(camera: PinholeCamera, baseline: float | None, keyframes: Sequen
             if key in present:
                 keys.append(key)
                 dims.append(dim)
+    if rig_offset_key() in present:
+        keys.append(rig_offset_key())
+        dims.append(2)
     aug = remaining.augmentedHessian(key_ordering(keys))
     n = aug.shape[0] - 1
     H = 0.5 * (aug[:n, :n] + aug[:n, :n].T)

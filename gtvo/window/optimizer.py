@@ -9,17 +9,19 @@
 from __future__ import annotations
 
 
+import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
 from gtvo.core.camera import PinholeCamera
+from gtvo.core.keys import rig_offset_key
 from gtvo.errors import InputError
 from gtvo.window.config import MarginalPrior, WindowConfig, WindowKeyframe, WindowResult, WindowSolverName, WindowState
 from gtvo.window.gtsam_solver import solve_gtsam
 from gtvo.window.handrolled import solve_handrolled, window_cost
 from gtvo.window.marginal import marginalize
 from gtvo.window.fixed_lag import FixedLagBackend
-from gtvo.window.problem import observation_counts, visible_targets
+from gtvo.window.problem import build_graph, observation_counts, visible_targets
 
 FloatArray = NDArray[np.float64]
 
@@ -39,10 +41,22 @@ class SlidingWindowOptimizer:
         result = window.optimize("gtsam")          # keyframes updated in place
     """
 
-    def __init__(self, camera: PinholeCamera, baseline: float | None, config: WindowConfig | None = None) -> None:
+    def __init__(self, camera: PinholeCamera, baseline: float | None, config: WindowConfig | None = None,
+                 rig_offset: FloatArray | None = None) -> None:
         self.camera = camera
         self.baseline = baseline
         self.config = config or WindowConfig()
+        #: the stereo rig's offset (delta_x, delta_y) (px), estimated by every optimisation when
+        #: given (its starting value; docs/window.md, "Rig calibration"), else None (rectified model)
+        self.rig_offset: FloatArray | None = None
+        if rig_offset is not None:
+            if baseline is None:
+                raise InputError("a rig offset needs a stereo window (a baseline)")
+            if self.config.backend != "lm":
+                raise InputError("the rig offset is estimated by the 'lm' window backend only")
+            self.rig_offset = np.asarray(rig_offset, dtype=float).reshape(2).copy()
+        #: whether an optimisation has estimated ``delta_x`` yet (it is held until the window is full)
+        self.rig_x_estimated = False
         self.keyframes: list[WindowKeyframe] = []
         self.n_removed = 0  # keyframes that left the window (not kept: they hold images)
         self.results: list[WindowResult] = []
@@ -77,7 +91,21 @@ class SlidingWindowOptimizer:
 
     def cost(self) -> float:
         """The window cost at the current state (W evaluated at this state)."""
-        return window_cost(self.camera, self.baseline, self.keyframes, self.config, self.marginal)
+        return window_cost(self.camera, self.baseline, self.keyframes, self.config, self.marginal,
+                           rig_offset=self.rig_offset)
+
+    def rig_offset_covariance(self) -> FloatArray | None:
+        """The 2x2 marginal covariance (px^2) of the rig offset at the current state: the window's
+        graph (host factors, priors, marginal prior) linearised once, ``gtsam.Marginals``.
+        None when the rig offset is not estimated or the window has no host factor yet."""
+        if self.rig_offset is None or len(self.keyframes) < 2 or self.config.backend != "lm":
+            return None
+        targets = visible_targets(self.camera, self.keyframes, self.config)
+        if not any(targets):
+            return None
+        graph, values, _ = build_graph(self.camera, self.baseline, self.keyframes, self.config, self.marginal, targets,
+                                       self.rig_offset)
+        return np.asarray(gtsam.Marginals(graph, values).marginalCovariance(rig_offset_key()), dtype=float)
 
     def optimize(self, solver: WindowSolverName = "gtsam") -> WindowResult | None:
         """Optimise the window (None when fewer than two keyframes); keyframes are updated in place.
@@ -129,7 +157,7 @@ class LMBackend:
         """Marginalise the oldest keyframe into :attr:`marginal` (or drop it, ``marginalize=False``)."""
         if window.config.marginalize:
             self.marginal = marginalize(window.camera, window.baseline, window.keyframes, window.config,
-                                        self.marginal, 0)
+                                        self.marginal, 0, getattr(window, "rig_offset", None))
         return window.keyframes.pop(0)
 
     def optimize(self, window: WindowState, targets: list[list[int]],
@@ -138,4 +166,15 @@ class LMBackend:
         solve = {"gtsam": solve_gtsam, "handrolled": solve_handrolled}.get(solver)
         if solve is None:
             raise InputError(f"unknown window solver {solver!r}: use 'gtsam' or 'handrolled'")
-        return solve(window.camera, window.baseline, window.keyframes, window.config, self.marginal, targets)
+        rig = getattr(window, "rig_offset", None)
+        # delta_x trades against the scale unless many keyframes see points at many depths: it is
+        # held at its value until the window is full (its first marginalisation carries the rest)
+        hold = None if rig is None or self.marginal is not None or len(window.keyframes) >= window.config.size \
+            else float(rig[0])
+        res = solve(window.camera, window.baseline, window.keyframes, window.config, self.marginal, targets,
+                    rig_offset=rig, rig_hold_x=hold)
+        if rig is not None and res.rig_offset is not None:
+            window.rig_offset = res.rig_offset.copy()  # type: ignore[attr-defined]
+            if hold is None:
+                window.rig_x_estimated = True  # type: ignore[attr-defined]
+        return res

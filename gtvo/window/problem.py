@@ -12,7 +12,7 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from gtvo.core.keys import affine_key, pose_key
+from gtvo.core.keys import affine_key, pose_key, rig_offset_key
 from factors.smart import HostPointsFactor
 from factors.smoothness import ConstantVelocityFactor
 from gtvo.core.camera import MIN_DEPTH, PinholeCamera
@@ -32,13 +32,42 @@ def key_ordering(keys: Sequence[int]) -> gtsam.Ordering:
     return o
 
 
-def window_values(keyframes: Sequence[WindowKeyframe]) -> gtsam.Values:
-    """The keyframes' poses and affines as GTSAM ``Values``."""
+def window_values(keyframes: Sequence[WindowKeyframe], rig_offset: FloatArray | None = None) -> gtsam.Values:
+    """The keyframes' poses and affines (and the rig offset, if estimated) as GTSAM ``Values``."""
     v = gtsam.Values()
     for kf in keyframes:
         v.insert(pose_key(kf.index), kf.pose)
         v.insert(affine_key(kf.index), kf.affine)
+    if rig_offset is not None:
+        v.insert(rig_offset_key(), np.asarray(rig_offset, dtype=float).reshape(2))
     return v
+
+
+def needs_rig_prior(rig_offset: FloatArray | None, marginal: MarginalPrior | None) -> bool:
+    """Whether the window's graph gets the rig offset's zero-mean prior: the rig is estimated and no
+    marginalisation prior carries it yet (the prior is set once, like the gauge prior)."""
+    return rig_offset is not None and (marginal is None or rig_offset_key() not in marginal.keys)
+
+
+#: sigma (px) of the prior that holds ``delta_x`` at its start value while the window is not full
+RIG_HOLD_SIGMA = 1e-3
+
+
+def rig_prior_mean_sigmas(config: WindowConfig, hold_x: float | None) -> tuple[FloatArray, FloatArray]:
+    """Mean and sigmas of the rig offset's prior: zero mean, ``config.rig_offset_sigma`` px on each
+    axis; with ``hold_x`` (a value) ``delta_x`` is held there (:data:`RIG_HOLD_SIGMA`): the window
+    is not full yet and cannot tell ``delta_x`` from the scale (docs/window.md, "Rig calibration")."""
+    mean = np.zeros(2)
+    sigmas = np.full(2, float(config.rig_offset_sigma))
+    if hold_x is not None:
+        mean[0], sigmas[0] = float(hold_x), RIG_HOLD_SIGMA
+    return mean, sigmas
+
+
+def rig_prior(config: WindowConfig, hold_x: float | None = None) -> gtsam.PriorFactorVector:
+    """The rig offset's prior (:func:`rig_prior_mean_sigmas`) as a GTSAM factor."""
+    mean, sigmas = rig_prior_mean_sigmas(config, hold_x)
+    return gtsam.PriorFactorVector(rig_offset_key(), mean, gtsam.noiseModel.Diagonal.Sigmas(sigmas))
 
 
 def visible_targets(camera: PinholeCamera, keyframes: Sequence[WindowKeyframe], config: WindowConfig
@@ -126,8 +155,9 @@ def prior_factors(keyframes: Sequence[WindowKeyframe], config: WindowConfig, wit
 
 
 def host_factor(camera: PinholeCamera, baseline: float | None, keyframes: Sequence[WindowKeyframe], h: int,
-                targets: Sequence[int], config: WindowConfig) -> HostPointsFactor:
-    """The :class:`HostPointsFactor` of host ``keyframes[h]`` observed in ``targets`` (positions)."""
+                targets: Sequence[int], config: WindowConfig, rig: bool = False) -> HostPointsFactor:
+    """The :class:`HostPointsFactor` of host ``keyframes[h]`` observed in ``targets`` (positions);
+    ``rig``: its stereo term has the rig offset variable (:func:`gtvo.core.keys.rig_offset_key`)."""
     kh = keyframes[h]
     return HostPointsFactor(
         pose_key(kh.index), [pose_key(keyframes[t].index) for t in targets], camera, kh.pixels,
@@ -136,15 +166,19 @@ def host_factor(camera: PinholeCamera, baseline: float | None, keyframes: Sequen
         affine_target_keys=[affine_key(keyframes[t].index) for t in targets], depth_prior=kh.depth_prior,
         pattern=config.pattern, right_image=kh.right, baseline=baseline if kh.right is not None else None,
         lambda_stereo=config.lambda_stereo, stereo_affine=kh.stereo_affine,
-        prior_inverse_depth=kh.prior_inverse_depth)
+        prior_inverse_depth=kh.prior_inverse_depth,
+        rig_key=rig_offset_key() if rig and kh.right is not None else None)
 
 
 def build_graph(camera: PinholeCamera, baseline: float | None, keyframes: Sequence[WindowKeyframe],
                 config: WindowConfig, marginal: MarginalPrior | None,
-                targets: list[list[int]] | None = None
+                targets: list[list[int]] | None = None, rig_offset: FloatArray | None = None,
+                rig_hold_x: float | None = None
                 ) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values, dict[int, HostPointsFactor]]:
     """The window's factor graph: one smart factor per host with targets, priors, motion prior,
-    marginal prior.
+    marginal prior; with ``rig_offset`` (its current estimate) the rig offset is a variable of
+    every stereo host factor, with :func:`rig_prior` until the marginal prior carries it
+    (``rig_hold_x``: its ``delta_x`` held at that value).
 
     Returns ``(graph, values, host_factors)`` with ``host_factors[position] = factor``.
     """
@@ -155,10 +189,12 @@ def build_graph(camera: PinholeCamera, baseline: float | None, keyframes: Sequen
     hosts: dict[int, HostPointsFactor] = {}
     for h, ts in enumerate(targets):
         if ts:
-            f = host_factor(camera, baseline, keyframes, h, ts, config)
+            f = host_factor(camera, baseline, keyframes, h, ts, config, rig=rig_offset is not None)
             hosts[h] = f
             graph.add(f)
     if marginal is not None:
         for f in marginal.nonlinear_factors():
             graph.add(f)
-    return graph, window_values(keyframes), hosts
+    if needs_rig_prior(rig_offset, marginal):
+        graph.add(rig_prior(config, rig_hold_x))
+    return graph, window_values(keyframes, rig_offset), hosts

@@ -1,0 +1,299 @@
+"""The stereo rig's offset (issue 21): the stereo residual's offset and its Jacobians, the rig
+variable in HostPoints / HostPointsFactor / both window solvers / the marginal prior, the first
+pair's vertical offset, the odometry's estimate and its failure on hopeless input."""
+
+from __future__ import annotations
+
+import copy
+
+import gtsam
+import numpy as np
+import pytest
+
+from factors.host_points import HostPoints
+from factors.photometric import PATTERN_DSO8, GradientImage, sample_host, stereo_residuals
+from gtvo.config import OdometryConfig
+from gtvo.core.image import to_float_gray
+from gtvo.core.keys import rig_offset_key
+from gtvo.datasets.shifted import shift_image, shift_right_images
+from gtvo.datasets.synthetic import make_synthetic_sequence
+from gtvo.errors import InputError
+from gtvo.frontend import init_keyframe_points, select_points
+from gtvo.frontend.rig_offset import correct_right_image, estimate_vertical_offset
+from gtvo.odometry import VisualOdometry
+from gtvo.window import (SlidingWindowOptimizer, WindowConfig, WindowKeyframe, build_graph, solve_gtsam,
+                         solve_handrolled, window_cost)
+from tests._factors_synthetic import SinusoidImage, small_camera
+
+
+@pytest.fixture(scope="module")
+def seq():
+    return make_synthetic_sequence(10, width=240, height=180, step_m=0.1)
+
+
+def _stereo_setup(seed: int):
+    rng = np.random.default_rng(seed)
+    cam = small_camera()
+    left, right = SinusoidImage(seed=seed + 10), SinusoidImage(seed=seed + 20)
+    n = 12
+    px = np.c_[rng.uniform(40, 120, n), rng.uniform(25, 95, n)]
+    d = rng.uniform(0.1, 0.5, n)
+    Ih, hv = sample_host(left, px, PATTERN_DSO8)
+    return cam, left, right, px, d, Ih, hv, rng
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_stereo_offset_jacobian_matches_numerical(seed):
+    """dr/d(delta_x, delta_y) against central differences (analytic images: exact gradients), and
+    the offset moves the sampled right pixel by exactly (delta_x, delta_y)."""
+    cam, left, right, px, d, Ih, hv, rng = _stereo_setup(seed)
+    b = 0.5
+    off = rng.normal(0, 1.0, 2)
+
+    def res(o):
+        return stereo_residuals(cam, b, Ih, hv, px, d, right, (0.0, 0.0), (0.1, 2.0), offset=o).residual
+
+    lin = stereo_residuals(cam, b, Ih, hv, px, d, right, (0.0, 0.0), (0.1, 2.0), offset=off, offset_jacobians=True)
+    h = 1e-6
+    for i in range(2):
+        e = np.zeros(2)
+        e[i] = h
+        num = (res(off + e) - res(off - e)) / (2 * h)
+        scale = max(np.abs(num).max(), 1e-12)
+        assert np.abs(lin.J_offset[..., i] - num).max() < 1e-6 * scale
+    pp = px[:, None, :] + PATTERN_DSO8[None]
+    vals, _ = right.sample(pp[..., 0] - cam.fx * b * d[:, None] + off[0], pp[..., 1] + off[1])
+    np.testing.assert_allclose(lin.J_offset[..., 0], np.where(lin.valid, vals[..., 1], 0.0), rtol=1e-9, atol=1e-9)
+    # dr/dd is still -fx b gx_R at the offset match
+    np.testing.assert_allclose(lin.J_depth, np.where(lin.valid, -cam.fx * b * vals[..., 1], 0.0), rtol=1e-9, atol=1e-9)
+
+
+def test_stereo_offset_compiled_path_and_zero_offset_unchanged():
+    """GradientImage (compiled kernel): J_offset is the right gradient at the offset match; a zero
+    offset gives bit-identical output to no offset (the --no-rig-calibration path)."""
+    cam, left, right, px, d, Ih, hv, rng = _stereo_setup(7)
+    u, v = np.meshgrid(np.arange(cam.width), np.arange(cam.height))
+    img = GradientImage(right.value(u, v)[0])
+    base = stereo_residuals(cam, 0.5, Ih, hv, px, d, img, jacobians=False)
+    zero = stereo_residuals(cam, 0.5, Ih, hv, px, d, img, jacobians=False, offset=(0.0, 0.0))
+    assert np.array_equal(base.residual, zero.residual) and np.array_equal(base.J_depth, zero.J_depth)
+    off = np.array([0.7, -0.4])
+    lin = stereo_residuals(cam, 0.5, Ih, hv, px, d, img, jacobians=False, offset=off, offset_jacobians=True)
+    pp = px[:, None, :] + PATTERN_DSO8[None]
+    vals, ok = img.sample(pp[..., 0] - cam.fx * 0.5 * d[:, None] + off[0], pp[..., 1] + off[1])
+    assert lin.valid.any()
+    np.testing.assert_allclose(lin.J_offset, np.where(lin.valid[..., None], vals[..., 1:], 0.0), atol=1e-9)
+    assert not np.array_equal(lin.residual, base.residual)
+
+
+def test_host_points_rig_gradient_matches_numerical():
+    """HostPoints with the rig variable: the rig's gradient before the Schur complement, recovered as
+    ``g_red + sum_n H_pd g_d / H_dd``, equals the numerical gradient of the cost (W frozen, no kernel)."""
+    cam, left, right, px, d, Ih, hv, rng = _stereo_setup(3)
+    hp = HostPoints(cam, px, left, [], 1e-3, d, sigma_intensity=8.0, huber_k=None, pattern=PATTERN_DSO8,
+                    depth_prior=False, right_image=right, baseline=0.5, rig=True)
+    off = np.array([0.3, -0.2])
+    lins = hp.residuals([gtsam.Pose3()], [np.zeros(2)], d, offset=off)
+    H, g = np.zeros((2, 2)), np.zeros(2)
+    system = hp.linearize(lins, d, H, g, [], rig_columns=[0, 1])
+    a = system.active
+    g_full = g + system.H_pd[a].T @ (system.g_d[a] / system.H_dd[a])
+
+    def cost(o):
+        return float(hp.point_costs(hp.residuals([gtsam.Pose3()], [np.zeros(2)], d, offset=o), d).sum())
+
+    h = 1e-6
+    num = np.array([(cost(off + e) - cost(off - e)) / (2 * h) for e in np.eye(2) * h])
+    np.testing.assert_allclose(g_full, num, rtol=1e-6)
+    assert np.linalg.eigvalsh(H).min() >= -1e-9  # reduced rig block stays PSD
+
+
+def _keyframes(seq, frames, shift, points=200, seed=0):
+    """Window keyframes of the synthetic frames with the right images shifted by ``shift`` px; depths
+    initialised from the right image corrected by the shift (as the odometry does with its estimate)."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for i in frames:
+        fr = seq.frame(i)
+        left = to_float_gray(fr.left, "left")
+        right = shift_image(to_float_gray(fr.right, "right"), shift)
+        T = gtsam.Pose3(np.asarray(seq.gt_poses[i]))
+        if out:
+            T = T.retract(np.r_[rng.normal(0, 0.002, 3), rng.normal(0, 0.006, 3)])
+        pts = init_keyframe_points(left, correct_right_image(right, shift), seq.camera, target=points)
+        out.append(WindowKeyframe(i, T, np.zeros(2), GradientImage(left), pts.pixels, pts.inverse_depth,
+                                  pts.variance, right=GradientImage(right), timestamp=float(seq.timestamps[i])))
+    return out
+
+
+def test_solvers_agree_with_the_rig_offset(seq):
+    """Both window solvers with the rig variable: the same cost function (graph error == window_cost)
+    and the same optimum (cost, poses, offset), and the offset moves from its start."""
+    cam = seq.camera
+    kfs = _keyframes(seq, [0, 2, 4, 6], (0.0, 1.0))
+    cfg = WindowConfig(max_iterations=30, relative_tolerance=1e-12, huber_k=None)
+    start = np.array([0.3, 0.6])
+    graph, values, _ = build_graph(cam.left, cam.baseline, kfs, cfg, None, rig_offset=start)
+    assert values.exists(rig_offset_key())
+    assert graph.error(values) == pytest.approx(window_cost(cam.left, cam.baseline, kfs, cfg, rig_offset=start),
+                                                rel=1e-9)
+    a, b = copy.deepcopy(kfs), copy.deepcopy(kfs)
+    ra = solve_gtsam(cam.left, cam.baseline, a, cfg, rig_offset=start)
+    rb = solve_handrolled(cam.left, cam.baseline, b, cfg, rig_offset=start)
+    assert ra.cost < 0.5 * ra.initial_cost
+    assert ra.cost == pytest.approx(rb.cost, rel=1e-4)
+    np.testing.assert_allclose(ra.rig_offset, rb.rig_offset, atol=2e-3)
+    assert np.abs(ra.rig_offset - start).max() > 0.1
+    for ka, kb in zip(a, b):
+        assert np.abs(ka.pose.localCoordinates(kb.pose)).max() < 5e-5
+    # the vertical offset is what the rows say (a horizontal one trades against the scale in 4 keyframes)
+    assert ra.rig_offset[1] == pytest.approx(1.0, abs=0.05)
+
+
+def test_marginal_prior_carries_the_rig_offset(seq):
+    """A window of 2 fed 4 keyframes: the rig offset is never marginalised; the prior holds it (PSD,
+    positive information on it) and both solvers end at the same offset."""
+    cam = seq.camera
+    kfs = _keyframes(seq, [0, 2, 4, 6], (0.0, 1.0), points=150, seed=2)
+    ends = {}
+    for solver in ("gtsam", "handrolled"):
+        cfg = WindowConfig(size=2, max_iterations=20, relative_tolerance=1e-12, huber_k=None)
+        w = SlidingWindowOptimizer(cam.left, cam.baseline, cfg, rig_offset=np.zeros(2))
+        for k in copy.deepcopy(kfs):
+            w.add_keyframe(k)
+            w.optimize(solver)
+        assert w.n_removed == 2
+        assert rig_offset_key() in w.marginal.keys
+        i = w.marginal.keys.index(rig_offset_key())
+        off = sum(w.marginal.dims[:i])
+        assert np.linalg.eigvalsh(w.marginal.H[off:off + 2, off:off + 2]).min() > 1.0 / cfg.rig_offset_sigma ** 2
+        ends[solver] = w.rig_offset.copy()
+        cov = w.rig_offset_covariance()
+        assert cov.shape == (2, 2) and np.all(np.diag(cov) > 0)
+    np.testing.assert_allclose(ends["gtsam"], ends["handrolled"], atol=5e-3)
+    assert ends["gtsam"][1] == pytest.approx(1.0, abs=0.05)
+
+
+def test_rig_offset_needs_stereo_and_the_lm_backend(seq):
+    cam = seq.camera
+    with pytest.raises(InputError, match="baseline"):
+        SlidingWindowOptimizer(cam.left, None, WindowConfig(), rig_offset=np.zeros(2))
+    with pytest.raises(InputError, match="lm"):
+        SlidingWindowOptimizer(cam.left, cam.baseline, WindowConfig(backend="fixed_lag"), rig_offset=np.zeros(2))
+    with pytest.raises(InputError, match="rig_offset_sigma"):
+        WindowConfig(rig_offset_sigma=0.0)
+
+
+def test_vertical_offset_from_one_pair(seq):
+    """The 2-D search finds a whole-row offset of the synthetic pair (exact: an integer shift does not
+    resample) and a half-pixel one; a shift no match survives gives no estimate."""
+    fr = seq.frame(0)
+    left = to_float_gray(fr.left, "left")
+    right = to_float_gray(fr.right, "right")
+    px = select_points(left, target=300)
+    for dy in (-1.0, 1.0, 0.5):
+        est = estimate_vertical_offset(left, shift_image(right, (0.0, dy)), seq.camera, px)
+        assert est is not None and est.delta_y == pytest.approx(dy, abs=0.25)
+    assert estimate_vertical_offset(left, shift_image(right, (0.0, 40.0)), seq.camera, px) is None
+
+
+def test_odometry_reports_a_hopeless_rig_as_such(seq):
+    """A right image 40 rows off: the first frame fails with one line naming the rig, no estimate."""
+    bad = shift_right_images(seq, (0.0, 40.0))
+    vo = VisualOdometry(bad.camera)
+    with pytest.raises(InputError, match="offset too far"):
+        vo.process(bad.frame(0))
+
+
+def test_odometry_estimates_a_vertical_offset_and_off_switch(seq):
+    """Window odometry on a synthetic log whose right images are one row low: the estimate is the
+    offset; ``rig_calibration=False`` keeps no rig variable at all."""
+    shifted = shift_right_images(seq, (0.0, 1.0))
+    cfg = OdometryConfig(points_per_keyframe=200)
+    vo = VisualOdometry(shifted.camera, cfg)
+    seen = []
+    for i in range(8):
+        vo.process(shifted.frame(i))
+        seen.append(None if vo.rig_offset is None else vo.rig_offset.copy())
+    assert vo.rig_initial is not None and vo.rig_initial.delta_y == pytest.approx(1.0, abs=0.25)
+    assert vo.rig_offset[1] == pytest.approx(1.0, abs=0.05)
+    assert all(s is not None for s in seen)  # exposed as the run goes
+    off = VisualOdometry(seq.camera, OdometryConfig(points_per_keyframe=200,
+                                                    window=WindowConfig(rig_calibration=False)))
+    for i in range(3):
+        off.process(seq.frame(i))
+    assert off.rig_offset is None and off.window.rig_offset is None
+    assert all(r.rig_offset is None for r in off.window_results)
+
+
+def test_cli_switch_turns_the_rig_calibration_off(monkeypatch):
+    """``gtvo run --no-rig-calibration`` runs with ``window.rig_calibration=False``; without it, True."""
+    import gtvo.pipeline
+    from gtvo.cli import build_parser
+
+    seen = []
+
+    def fake_run(path, out=None, config=None, **kw):
+        seen.append(config.window.rig_calibration)
+        return {"sequence": "s", "mode": "window", "tracker_solver": "handrolled", "out": "o"}
+
+    monkeypatch.setattr(gtvo.pipeline, "run", fake_run)
+    for argv in (["run", "SEQ"], ["run", "SEQ", "--no-rig-calibration"]):
+        args = build_parser().parse_args(argv)
+        args.func(args)
+    assert seen == [True, False]
+
+
+def test_rig_warning_only_for_a_large_clear_offset():
+    from gtvo.odometry.rig_report import rig_warning
+
+    assert rig_warning({"rig_offset_px": [0.1, -0.1], "rig_offset_sigma_px": [0.01, 0.01]}) is None
+    assert rig_warning({"rig_offset_px": [1.4, 0.0], "rig_offset_sigma_px": [1.0, 0.01]}) is None  # not clear
+    msg = rig_warning({"rig_offset_px": [1.4, -0.1], "rig_offset_sigma_px": [0.01, 0.01]})
+    assert msg == "the right camera is offset by +1.4 px horizontally from its calibration: check the rig"
+    assert rig_warning({"rig_calibration": False}) is None
+    assert rig_warning({"rig_offset_px": [1.4, -0.1], "rig_offset_sigma_px": [None, 0.01]}) is None
+
+
+def test_rgbd_and_track_mode_have_no_rig_variable(seq):
+    """RGB-D input (no baseline) and the track mode keep today's path: no rig offset anywhere."""
+    assert VisualOdometry(seq.camera.left).rig_offset is None
+    assert VisualOdometry(seq.camera, OdometryConfig(mode="track")).rig_offset is None
+    assert VisualOdometry(seq.camera, OdometryConfig(window=WindowConfig(backend="fixed_lag"))).rig_offset is None
+
+
+def test_report_has_the_offset_and_the_scale(seq, tmp_path):
+    """report.json of a window run: the rig offset with its sigma, the Sim(3) ATE and the scale ratio."""
+    import json
+
+    from gtvo.pipeline import run
+
+    report = run(seq, out=tmp_path / "out", config=OdometryConfig(points_per_keyframe=200))
+    saved = json.loads((tmp_path / "out" / "report.json").read_text())
+    assert saved["window_optimisations"] >= 1
+    assert saved["rig_calibration"] is True and len(saved["rig_offset_px"]) == 2
+    # 10 frames never fill the 7-keyframe window: delta_x held at 0, not measured; delta_y measured
+    assert saved["rig_offset_x_estimated"] is False and abs(saved["rig_offset_px"][0]) < 1e-3
+    assert saved["rig_offset_sigma_px"][0] is None and saved["rig_offset_sigma_px"][1] > 0
+    assert saved["ate_sim3_rmse_m"] <= saved["ate_rmse_m"] + 1e-12
+    assert saved["scale_ratio"] == pytest.approx(1.0, abs=0.05)
+    assert report["rig_offset_px"] == saved["rig_offset_px"]
+
+
+def test_delta_x_is_held_until_the_window_is_full(seq):
+    """With fewer keyframes than the window's size, delta_x stays at its start value (both solvers)
+    while delta_y is estimated; once the window is full delta_x moves."""
+    cam = seq.camera
+    kfs = _keyframes(seq, [0, 3, 6], (0.0, 1.0), points=150, seed=4)
+    for solver in ("gtsam", "handrolled"):
+        w = SlidingWindowOptimizer(cam.left, cam.baseline, WindowConfig(size=3, max_iterations=10),
+                                   rig_offset=np.array([0.4, 0.0]))
+        for k in copy.deepcopy(kfs[:2]):
+            w.add_keyframe(k)
+        w.optimize(solver)
+        assert w.rig_offset[0] == pytest.approx(0.4, abs=1e-4)
+        assert w.rig_offset[1] == pytest.approx(1.0, abs=0.1)
+        assert not w.rig_x_estimated
+        w.add_keyframe(copy.deepcopy(kfs[2]))
+        w.optimize(solver)
+        assert abs(w.rig_offset[0] - 0.4) > 1e-2 and w.rig_x_estimated
