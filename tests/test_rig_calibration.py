@@ -200,7 +200,7 @@ def test_vertical_offset_from_one_pair(seq):
 def test_odometry_reports_a_hopeless_rig_as_such(seq):
     """A right image 40 rows off: the first frame fails with one line naming the rig, no estimate."""
     bad = shift_right_images(seq, (0.0, 40.0))
-    vo = VisualOdometry(bad.camera)
+    vo = VisualOdometry(bad.camera, OdometryConfig(window=WindowConfig(rig_calibration=True)))
     with pytest.raises(InputError, match="offset too far"):
         vo.process(bad.frame(0))
 
@@ -209,7 +209,7 @@ def test_odometry_estimates_a_vertical_offset_and_off_switch(seq):
     """Window odometry on a synthetic log whose right images are one row low: the estimate is the
     offset; ``rig_calibration=False`` keeps no rig variable at all."""
     shifted = shift_right_images(seq, (0.0, 1.0))
-    cfg = OdometryConfig(points_per_keyframe=200)
+    cfg = OdometryConfig(points_per_keyframe=200, window=WindowConfig(rig_calibration=True))
     vo = VisualOdometry(shifted.camera, cfg)
     seen = []
     for i in range(8):
@@ -227,7 +227,7 @@ def test_odometry_estimates_a_vertical_offset_and_off_switch(seq):
 
 
 def test_cli_switch_turns_the_rig_calibration_off(monkeypatch):
-    """``gtvo run --no-rig-calibration`` runs with ``window.rig_calibration=False``; without it, True."""
+    """``gtvo run`` runs without the rig variable (the default), ``--rig-calibration`` with it."""
     import gtvo.pipeline
     from gtvo.cli import build_parser
 
@@ -238,10 +238,10 @@ def test_cli_switch_turns_the_rig_calibration_off(monkeypatch):
         return {"sequence": "s", "mode": "window", "tracker_solver": "handrolled", "out": "o"}
 
     monkeypatch.setattr(gtvo.pipeline, "run", fake_run)
-    for argv in (["run", "SEQ"], ["run", "SEQ", "--no-rig-calibration"]):
+    for argv in (["run", "SEQ"], ["run", "SEQ", "--rig-calibration"], ["run", "SEQ", "--no-rig-calibration"]):
         args = build_parser().parse_args(argv)
         args.func(args)
-    assert seen == [True, False]
+    assert seen == [False, True, False]
 
 
 def test_rig_warning_only_for_a_large_clear_offset():
@@ -268,7 +268,8 @@ def test_report_has_the_offset_and_the_scale(seq, tmp_path):
 
     from gtvo.pipeline import run
 
-    report = run(seq, out=tmp_path / "out", config=OdometryConfig(points_per_keyframe=200))
+    report = run(seq, out=tmp_path / "out", config=OdometryConfig(points_per_keyframe=200,
+                                                                   window=WindowConfig(rig_calibration=True)))
     saved = json.loads((tmp_path / "out" / "report.json").read_text())
     assert saved["window_optimisations"] >= 1
     assert saved["rig_calibration"] is True and len(saved["rig_offset_px"]) == 2

@@ -34,9 +34,12 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "write DIR/trajectory_loop_closed.tum as a second output")
     p.add_argument("--no-covariances", action="store_true",
                    help="do not compute the keyframes' pose covariances (no DIR/covariances.npz, no ellipses)")
-    p.add_argument("--no-rig-calibration", action="store_true",
-                   help="do not estimate the stereo rig's rectification error (the right image's offset) in the "
-                        "window (config key window.rig_calibration): the rectified model, as before issue 21")
+    rig = p.add_mutually_exclusive_group()
+    rig.add_argument("--rig-calibration", action="store_true",
+                     help="estimate the stereo rig's rectification error (the right image's offset, px) in the "
+                          "window (config key window.rig_calibration; off by default: docs/window.md)")
+    rig.add_argument("--no-rig-calibration", action="store_true",
+                     help="the rectified model, the default (overrides window.rig_calibration of a --config file)")
     add_odometry_options(p)
     add_bag_options(p)
     add_viewer_options(p)
@@ -57,8 +60,9 @@ def main(args: argparse.Namespace) -> int:
     config = odometry_config(args)
     if args.no_covariances:
         config = dataclasses.replace(config, window=dataclasses.replace(config.window, covariances=False))
-    if args.no_rig_calibration:
-        config = dataclasses.replace(config, window=dataclasses.replace(config.window, rig_calibration=False))
+    if args.rig_calibration or args.no_rig_calibration:
+        config = dataclasses.replace(config, window=dataclasses.replace(config.window,
+                                                                        rig_calibration=bool(args.rig_calibration)))
     with viewer_observers(args) as observers:
         report = run(args.sequence, out=args.out, config=config, format=args.format,
                      max_frames=args.max_frames, progress=not args.no_progress, strict=args.strict,

@@ -72,7 +72,10 @@ class WindowConfig:
             ``(delta_x, delta_y)`` (px) online as a window variable (docs/window.md, "Rig
             calibration"; LM backend only). It is used by :class:`gtvo.odometry.VisualOdometry`; a
             :class:`gtvo.window.SlidingWindowOptimizer` estimates it when given a ``rig_offset``.
-            False: the rectified model, exactly the behaviour without the feature.
+            False (the default): the rectified model, exactly the behaviour without the feature. Off
+            by default for now: on logs without a rig error it costs accuracy (KITTI_sequence_1 ATE
+            0.0285 -> 0.0297 m, the synthetic log 0.0096 -> 0.0177 m) through a +0.09 px bias of
+            ``delta_x`` that is understood but not fixed (docs/window.md, "Rig calibration").
         rig_offset_sigma: sigma (px) of the zero-mean prior on the rig offset, set once (with the
             gauge prior); afterwards the marginalisation prior carries what the window learnt.
     """
@@ -92,7 +95,7 @@ class WindowConfig:
     marginalize: bool = True
     backend: Literal["lm", "fixed_lag"] = "lm"
     covariances: bool = True
-    rig_calibration: bool = True
+    rig_calibration: bool = False
     rig_offset_sigma: float = setting(2.0, "> 0")
 
     def __post_init__(self) -> None:
