@@ -230,6 +230,10 @@ class RerunLogger:
             a, b = (float(x) for x in window[-1].stereo_affine)
             self.rec.log("plots/rig/right_gain", rr.Scalars(float(np.exp(a))))
             self.rec.log("plots/rig/right_offset", rr.Scalars(b))
+        offset = getattr(vo, "rig_offset", None)  # the rig self-calibration's estimate (px), when it runs
+        if offset is not None:
+            self.rec.log("plots/rig/offset_x_px", rr.Scalars(float(offset[0])))
+            self.rec.log("plots/rig/offset_y_px", rr.Scalars(float(offset[1])))
 
     def _log_window(self, vo: "VisualOdometry", every_keyframe: bool = False) -> None:
         rr = self.rr

@@ -4,7 +4,7 @@
 :mod:`gtvo.odometry.estimates` what it says about each frame.
 """
 
-from gtvo.odometry.estimates import FrameEstimate, FrameOutcome, Keyframe, frames_by_outcome
-from gtvo.odometry.visual_odometry import VisualOdometry, rigid_pose
+from gtvo.odometry.estimates import FrameEstimate, FrameOutcome, Keyframe, frames_by_outcome, rigid_pose
+from gtvo.odometry.visual_odometry import VisualOdometry
 
 __all__ = ["FrameEstimate", "FrameOutcome", "Keyframe", "VisualOdometry", "frames_by_outcome", "rigid_pose"]

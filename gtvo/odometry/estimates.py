@@ -147,3 +147,17 @@ def frames_by_outcome(estimates: list[FrameEstimate], skipped: Iterable[tuple[in
     out["recovered"] = [{"index": e.index, "reason": e.reason} for e in estimates if e.recovered and not e.suspect]
     out["skipped"] = [{"index": int(i), "reason": r} for i, r in skipped]
     return out
+
+
+class TooFewPoints(Exception):
+    """Control flow: a frame cannot host a keyframe (too few points with a depth)."""
+
+
+def rigid_pose(T: NDArray[np.float64]) -> gtsam.Pose3:
+    """A ``Pose3`` from a 4x4 matrix, its rotation projected onto SO(3).
+
+    ``gtsam.Pose3(matrix)`` keeps a slightly non-orthonormal rotation as it is, and chaining
+    ``between``/``compose`` over hundreds of frames amplifies the error (measured: x3 per frame);
+    projecting each pose read back from a matrix keeps every pose rigid.
+    """
+    return gtsam.Pose3(gtsam.Rot3.ClosestTo(np.asarray(T[:3, :3], dtype=np.float64)), np.asarray(T[:3, 3], dtype=np.float64))

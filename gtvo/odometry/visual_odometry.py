@@ -36,27 +36,23 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from factors.photometric import GradientImage
 from gtvo.core.camera import PinholeCamera, StereoCamera
 from gtvo.errors import InputError
-from gtvo.frontend import KeyframePoints, init_keyframe_points, optical_flow_pose
+from gtvo.frontend import optical_flow_pose
 from gtvo.core.image import to_float_gray
 from gtvo.datasets.sequence import Frame
-from gtvo.frontend.tracking import (TrackingKeyframe, TrackingResult, frame_pyramid, track_gtsam, track_handrolled,
-                                    track_with_guesses)
+from gtvo.frontend.tracking import TrackingResult, frame_pyramid, track_gtsam, track_handrolled, track_with_guesses
 from gtvo.evaluation.trajectory import Trajectory
-from gtvo.frontend.stereo_affine import estimate_stereo_affine
 from gtvo.config import OdometryConfig
 from gtvo.frontend.frame_checks import FrameChecker, measure_step
 from gtvo.frontend.keyframes import needs_keyframe
-from gtvo.frontend.rgbd import rgbd_keyframe_points
-from gtvo.frontend.rig_offset import correct_right_image, estimate_vertical_offset
-from gtvo.frontend.point_selection import select_points
+from gtvo.odometry.keyframe_making import KeyframeMaking
+from gtvo.odometry.estimates import TooFewPoints, rigid_pose
 from gtvo.odometry.estimates import FrameEstimate, FrameOutcome, Keyframe
-from gtvo.window import SlidingWindowOptimizer, WindowKeyframe, WindowResult
+from gtvo.window import SlidingWindowOptimizer, WindowResult
 from gtvo.core.map_points import MapPoints, constrained_mask
 
-class VisualOdometry:
+class VisualOdometry(KeyframeMaking):
     """Frame-to-keyframe direct stereo (or RGB-D) odometry.
 
     Args:
@@ -137,7 +133,7 @@ class VisualOdometry:
         if not self.keyframes:
             try:
                 kf = self._make_keyframe(frame, left, gtsam.Pose3())
-            except _TooFewPoints as exc:  # nothing can start from the first frame
+            except TooFewPoints as exc:  # nothing can start from the first frame
                 raise InputError(str(exc)) from None
             return self._finish(frame, left, kf.T_world_cam, FrameOutcome.KEYFRAME, None, t0)
 
@@ -345,148 +341,6 @@ class VisualOdometry:
         previous = self.estimates[-1]
         return self._checker.check(step, good[1].index, previous.index if previous.suspect else None)
 
-    def _frame_points(self, frame: Frame, left: NDArray[np.float32]) -> KeyframePoints:
-        cfg = self.config.frontend
-        if isinstance(self.camera, StereoCamera):
-            if frame.right is None:
-                raise InputError(f"frame {frame.index}: stereo odometry needs a right image")
-            right = frame.right
-            if self.rig_offset is not None:
-                if not self.keyframes and self.rig_initial is None:
-                    self._initial_vertical_offset(left, right)
-                right = correct_right_image(right, self.rig_offset)
-            return init_keyframe_points(left, right, self.camera, target=cfg.points_per_keyframe,
-                                        selection=cfg.points, stereo=cfg.stereo,
-                                        clip_range=self.config.photometric.clip_range)
-        if frame.depth is None:
-            raise InputError(f"frame {frame.index}: RGB-D odometry needs a depth image")
-        return rgbd_keyframe_points(left, frame.depth, cfg.points_per_keyframe, cfg.depth_sigma_model, cfg.points)
-
-    def _initial_vertical_offset(self, left: NDArray[np.float32], right: NDArray) -> None:
-        """The rig's vertical offset from the first stereo pair (a 2-D search), the window's starting value.
-
-        Raises:
-            _TooFewPoints: no stereo match survives at any row shift (an InputError on the first frame).
-        """
-        assert self.rig_offset is not None and isinstance(self.camera, StereoCamera)
-        fcfg = self.config.frontend
-        pixels = select_points(left, fcfg.points_per_keyframe, **dataclasses.asdict(fcfg.points))
-        est = estimate_vertical_offset(left, right, self.camera, pixels, max_disparity=fcfg.stereo.max_disparity)
-        self.rig_initial = est
-        if est is None:
-            raise _TooFewPoints("the first stereo pair has no stereo match at any vertical offset within "
-                                "+-2 rows: the right camera is offset too far from its calibration (or the "
-                                "images hold no texture); no rig offset can be estimated")
-        self.rig_offset = np.array([0.0, est.delta_y])
-        assert self.window is not None
-        self.window.rig_offset = self.rig_offset.copy()
-
-    def _make_keyframe(self, frame: Frame, left: NDArray[np.float32], T_world_cam: gtsam.Pose3,
-                       tracked: tuple[int, NDArray[np.float64]] | None = None) -> Keyframe:
-        """Make ``frame`` a keyframe at ``T_world_cam``; in window mode, add it to the window and
-        optimise (``tracked``: the keyframe it was tracked against and its affine relative to it).
-
-        Raises:
-            InputError: the frame has fewer than ``tracking.min_valid_points`` points with a depth
-                (the first frame: nothing can start; later frames go through
-                :meth:`_make_keyframe_if_possible`).
-        """
-        pts = self._frame_points(frame, left)
-        if len(pts) < self.config.tracking.min_valid_points:
-            raise _TooFewPoints(f"frame {frame.index}: only {len(pts)} points with a valid depth; "
-                                "the images may be blank or the stereo calibration wrong")
-        if self.window is not None:
-            T_world_cam, pts = self._window_update(frame, left, T_world_cam, pts, tracked)
-        tracker = TrackingKeyframe(self.pinhole, left, pts.pixels, pts.inverse_depth, pts.variance, (0.0, 0.0),
-                                   self.config.tracking)
-        image = left if self.config.flow_fallback is not None else None  # converted only if the fallback runs
-        kf = Keyframe(frame.index, rigid_pose(T_world_cam.matrix()), pts, tracker, image)
-        if self.keyframes:
-            self.keyframes[-1].tracker = self.keyframes[-1].image = None
-        self.keyframes.append(kf)
-        self._keyframe_by_index[kf.index] = kf
-        if self.window is not None:
-            self._refresh_estimates()
-        return kf
-
-    def _make_keyframe_if_possible(self, frame: Frame, left: NDArray[np.float32], T_world_cam: gtsam.Pose3,
-                                   tracked: tuple[int, NDArray[np.float64]] | None = None) -> Keyframe | None:
-        """:meth:`_make_keyframe`, or None (nothing changed) when the frame has too few points."""
-        try:
-            return self._make_keyframe(frame, left, T_world_cam, tracked)
-        except _TooFewPoints:
-            return None
-
-    def _window_update(self, frame: Frame, left: NDArray[np.float32], T_world_cam: gtsam.Pose3,
-                       pts: KeyframePoints, tracked: tuple[int, NDArray[np.float64]] | None
-                       ) -> tuple[gtsam.Pose3, KeyframePoints]:
-        """Add a new keyframe to the window, optimise it, write the results back to the keyframes.
-
-        The new keyframe's affine in the window's brightness reference: a frame tracked with
-        ``(a, b)`` against a keyframe at ``(a_h, b_h)`` sees ``exp(a) I_h + b``, i.e.
-        ``a_t = a_h + a``, ``b_t = b + exp(a) b_h``.
-        """
-        assert self.window is not None
-        affine = np.zeros(2)
-        if tracked is not None and tracked[0] in self._window_affine:
-            a_h, b_h = self._window_affine[tracked[0]]
-            a, b = np.asarray(tracked[1], dtype=float)
-            affine = np.array([a_h + a, b + np.exp(a) * b_h])
-        elif self.window.keyframes:
-            affine = self.window.keyframes[-1].affine.copy()
-        right = None
-        clip = self.config.photometric.clip_range
-        left_img = GradientImage(left, clip_range=clip)
-        stereo_affine = np.zeros(2)
-        if isinstance(self.camera, StereoCamera):
-            right = GradientImage(to_float_gray(frame.right, f"frame {frame.index} right image"), clip_range=clip)
-            stereo_affine = estimate_stereo_affine(self.pinhole, self.camera.baseline, left_img, right, pts.pixels,
-                                                   pts.inverse_depth, pts.variance,
-                                                   sigma_intensity=self.config.window.sigma_intensity,
-                                                   offset=self.rig_offset)
-        wk = WindowKeyframe(frame.index, T_world_cam, affine, left_img, pts.pixels, pts.inverse_depth,
-                            pts.variance, right=right, depth_prior=right is None, stereo_affine=stereo_affine,
-                            timestamp=float(frame.timestamp) if np.isfinite(frame.timestamp) else None)
-        self.window.add_keyframe(wk)
-        res = self.window.optimize(self.config.solver.window)
-        if self.window.rig_offset is not None:
-            self.rig_offset = self.window.rig_offset.copy()
-        self._window_affine = {w.index: w.affine.copy() for w in self.window.keyframes}
-        if res is None:
-            return T_world_cam, pts
-        self.window_results.append(res)
-        for index, n in self.window.observation_counts().items():
-            prev = self._observed.get(index)
-            self._observed[index] = n if prev is None or len(prev) != len(n) else np.maximum(prev, n)
-        for w in self.window.keyframes:
-            old = self._keyframe_by_index.get(w.index)
-            if old is not None:
-                old.T_world_cam = w.pose
-                old.points = dataclasses.replace(old.points, inverse_depth=w.inverse_depth.copy())
-        return wk.pose, dataclasses.replace(pts, inverse_depth=wk.inverse_depth.copy())
-
-    def _refresh_estimates(self) -> None:
-        """Re-express the poses of frames whose keyframe the window moved.
-
-        A keyframe's pose is its (optimised) keyframe pose; any other frame's is
-        ``T_world_keyframe * T_keyframe_frame`` with its keyframe's current pose.
-        """
-        assert self.window is not None
-        if not self.window.keyframes:
-            return
-        first = self.window.keyframes[0].index
-        for i in range(len(self.estimates) - 1, -1, -1):
-            e = self.estimates[i]
-            if e.index < first:  # keyframe_index <= index: nothing older moved
-                break
-            if e.index in self._keyframe_by_index:
-                T = self._keyframe_by_index[e.index].T_world_cam
-            elif e.T_keyframe_frame is not None and e.keyframe_index in self._keyframe_by_index:
-                T = self._keyframe_by_index[e.keyframe_index].T_world_cam.compose(e.T_keyframe_frame)
-            else:
-                continue
-            self.estimates[i] = dataclasses.replace(e, T_world_cam=T.matrix())
-
     def _mark_last_as_keyframe(self) -> None:
         """Record that the last good frame (the candidate) was promoted to a keyframe."""
         i = next(i for i in range(len(self.estimates) - 1, -1, -1) if not self.estimates[i].suspect)
@@ -529,9 +383,6 @@ class VisualOdometry:
         return est
 
 
-class _TooFewPoints(Exception):
-    """Control flow: a frame cannot host a keyframe (too few points with a depth)."""
-
 
 _BLAS_CONTROLLER = None
 
@@ -544,15 +395,3 @@ def _single_threaded_blas():
 
         _BLAS_CONTROLLER = ThreadpoolController()
     return _BLAS_CONTROLLER.limit(limits=1, user_api="blas")
-
-
-def rigid_pose(T: NDArray[np.float64]) -> gtsam.Pose3:
-    """A ``Pose3`` from a 4x4 matrix, its rotation projected onto SO(3).
-
-    ``gtsam.Pose3(matrix)`` keeps a slightly non-orthonormal rotation as it is, and chaining
-    ``between``/``compose`` over hundreds of frames amplifies the error (measured: x3 per frame);
-    projecting each pose read back from a matrix keeps every pose rigid.
-    """
-    return gtsam.Pose3(gtsam.Rot3.ClosestTo(np.asarray(T[:3, :3], dtype=np.float64)), np.asarray(T[:3, 3], dtype=np.float64))
-
-
