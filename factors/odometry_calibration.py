@@ -103,14 +103,6 @@ def _kron_u(u: NDArray[np.float64]) -> NDArray[np.float64]:
     return k
 
 
-def linear_calibration_error(x: ArrayLike, odom_motion: ArrayLike, reference_motion: ArrayLike
-                             ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """``e = u* - X u`` and ``de/dx`` (3x9) for the row-major 9-vector ``x``."""
-    u = np.asarray(odom_motion, dtype=np.float64).reshape(3)
-    x = np.asarray(x, dtype=np.float64).reshape(3, 3)
-    return np.asarray(reference_motion, dtype=np.float64).reshape(3) - x @ u, -_kron_u(u)
-
-
 def linear_calibration_factor(key: int, odom_motion: ArrayLike, reference_motion: ArrayLike,
                               noise: gtsam.noiseModel.Base) -> gtsam.CustomFactor:
     """A unary factor on the 9-vector calibration: ``e = u* - X u`` for one motion pair."""

@@ -38,7 +38,7 @@ from numpy.typing import ArrayLike, NDArray
 from factors import _compiled
 from gtvo.core.camera import MIN_DEPTH, PinholeCamera
 from gtvo.errors import InputError
-from gtvo.core.image import bilinear_sample, image_gradients
+from gtvo.core.image import image_gradients
 from gtvo.core.lie import invert_poses
 
 FloatArray = NDArray[np.float64]
@@ -131,10 +131,6 @@ class GradientImage:
         values, valid = _compiled.sample_stack(*self._sampler_args(), np.ascontiguousarray(u).reshape(-1),
                                                np.ascontiguousarray(v).reshape(-1))
         return values.reshape(u.shape + (3,)), valid.reshape(u.shape)
-
-    def sample_intensity(self, u: NDArray, v: NDArray) -> tuple[FloatArray, BoolArray]:
-        """Bilinear intensity only."""
-        return bilinear_sample(self.image, u, v, border=self.border)
 
 
 def _relative_pose(T_world_a: object, T_world_b: object) -> FloatArray:

@@ -165,10 +165,6 @@ class StereoCamera:
         T[0, 3] = -self.baseline
         return T
 
-    def disparity_from_inverse_depth(self, inverse_depth: ArrayLike) -> FloatArray:
-        """Disparity in pixels, ``fx * b * d``."""
-        return self.left.fx * self.baseline * np.asarray(inverse_depth, dtype=float)
-
     def inverse_depth_from_disparity(self, disparity: ArrayLike) -> FloatArray:
         """Inverse depth ``d = disparity / (fx * b)``."""
         return np.asarray(disparity, dtype=float) / (self.left.fx * self.baseline)

@@ -45,13 +45,7 @@ def looks_like_kitti(path: Path) -> bool:
     return (path / "calib.txt").is_file() and any((path / d[0]).is_dir() for d in IMAGE_DIRS)
 
 
-def read_calibration(path: Path, cameras: tuple[str, str] = ("P0", "P1")) -> tuple[FloatArray, float]:
-    """``(K, baseline)`` of the rectified pair ``cameras`` (left, right) in a KITTI ``calib.txt``."""
-    K, baseline, _ = _rectified_pair(path, cameras)
-    return K, baseline
-
-
-def _rectified_pair(path: Path, cameras: tuple[str, str]) -> tuple[FloatArray, float, FloatArray]:
+def rectified_pair(path: Path, cameras: tuple[str, str]) -> tuple[FloatArray, float, FloatArray]:
     """``(K, baseline, t_left)``: ``t_left`` is the left camera's offset from cam0 (module docstring)."""
     PL, PR = read_projections(path, cameras)
     return rectified_from_projections(PL, PR, cameras, path)
@@ -169,7 +163,7 @@ def read_kitti(root: Path, max_frames: int | None = None, ground_truth: Path | N
     """
     require_dir(root, "KITTI sequence folder")
     left_dir, right_dir, cameras = _image_dirs(root)
-    K, baseline, t_left = _rectified_pair(root / "calib.txt", cameras)
+    K, baseline, t_left = rectified_pair(root / "calib.txt", cameras)
     lefts = sorted(p for p in left_dir.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
     if not lefts:
         raise InputError("empty sequence: no images", path=left_dir)

@@ -40,7 +40,7 @@ from gtvo.core.lie import rotation_block_error
 from gtvo.datasets._common import (FloatArray, GrayImageLoader, TextRow, image_size, parse_floats, read_rows,
                                    require_dir, require_file)
 from gtvo.datasets.kitti import DEFAULT_PERIOD_S, IMAGE_SUFFIXES
-from gtvo.datasets.kitti import _rectified_pair as rectified_pair  # the same P-matrix rules as KITTI odometry
+from gtvo.datasets.kitti import rectified_pair  # the same P-matrix rules as KITTI odometry
 from gtvo.errors import InputError
 from gtvo.datasets.sequence import Sequence
 

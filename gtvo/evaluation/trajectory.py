@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from gtvo.core.lie import invert_poses, make_poses, quaternions_to_rotations, rotations_to_quaternions
+from gtvo.core.lie import invert_poses, rotations_to_quaternions
 from gtvo.errors import InputError, show
 
 FloatArray = NDArray[np.float64]
@@ -70,13 +70,6 @@ class Trajectory:
                              f"({float(self.timestamps[k - 1])!r} -> {float(self.timestamps[k])!r})")
         if not np.allclose(self.poses[:, 3, :], [0.0, 0.0, 0.0, 1.0], rtol=0.0, atol=1e-12):
             raise InputError(f"{where}: the last row of every pose must be [0, 0, 0, 1]")
-
-    @classmethod
-    def from_positions_quaternions(cls, timestamps: ArrayLike, positions: ArrayLike,
-                                   quaternions_xyzw: ArrayLike, name: str = "") -> "Trajectory":
-        """Build from (N, 3) positions and (N, 4) quaternions ``qx qy qz qw`` (normalised here)."""
-        return cls(np.asarray(timestamps, dtype=np.float64),
-                   make_poses(quaternions_to_rotations(quaternions_xyzw), positions), name)
 
     def __len__(self) -> int:
         return int(self.timestamps.size)
