@@ -88,6 +88,7 @@ def main(argv: list[str] | None = None) -> int:
                                                        window=WindowConfig(max_iterations=args.iterations)))
         for i in range(len(seq)):
             vo.process(seq.frame(i))
+        vo.finish()
         errs = keyframe_errors(vo, np.asarray(seq.gt_poses))
         n_all = [nees(xi, args.inflation * P) for xi, P in errs]
         rows["all"] += n_all

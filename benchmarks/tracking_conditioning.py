@@ -48,6 +48,7 @@ def run(seq: Sequence, config: OdometryConfig, step: int = 1) -> VisualOdometry:
     vo = VisualOdometry(seq.camera, config)
     for i in range(0, len(seq), step):
         vo.process(seq.frame(i))
+    vo.finish()
     return vo
 
 

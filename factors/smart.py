@@ -46,6 +46,25 @@ from gtvo.errors import InputError
 FloatArray = NDArray[np.float64]
 
 
+def whitened_system(H: FloatArray, g: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """``R`` and ``e`` with ``R^T R = H + reg I`` and ``R^T e = g`` (the whitened linear part of a
+    host factor), ``reg = 1e-9 * mean(diag(H))``: a host's reduced system is singular along the
+    gauge (moving all its keyframes together changes no residual), which gets this tiny curvature.
+
+    A Cholesky factorisation (``R`` upper triangular); an eigen-decomposition with the eigenvalues
+    clamped at ``reg`` when round-off makes ``H`` indefinite beyond ``reg``.
+    """
+    m = H.shape[0]
+    reg = 1e-9 * max(float(np.trace(H)) / m, 1e-12)
+    try:
+        L = np.linalg.cholesky(H + reg * np.eye(m))
+    except np.linalg.LinAlgError:
+        evals, evecs = np.linalg.eigh(H)
+        evals = np.maximum(evals, reg)
+        return (evecs * np.sqrt(evals)).T, (evecs.T @ g) / np.sqrt(evals)
+    return L.T, np.linalg.solve(L, g)
+
+
 @dataclass
 class _Linearization:
     x_poses: list[gtsam.Pose3]
@@ -274,11 +293,7 @@ class HostPointsFactor(PythonFactor):
             return out.copy()
         H_red, g_red, E = self._linearize(poses, affs)  # E: the model's value at dx = 0
         M = self.dim
-        reg = 1e-9 * max(float(np.trace(H_red)) / M, 1e-12)
-        evals, evecs = np.linalg.eigh(H_red)
-        evals = np.maximum(evals, reg)  # PSD up to round-off; gauge directions get a tiny curvature
-        R = (evecs * np.sqrt(evals)).T  # R^T R = H_red (regularised)
-        e_red = (evecs.T @ g_red) / np.sqrt(evals)  # R^T e_red = g_red
+        R, e_red = whitened_system(H_red, g_red)
         c2 = max(2.0 * E - float(e_red @ e_red), 0.0)
         out = np.concatenate([e_red, [np.sqrt(c2)]])
         Rfull = np.vstack([R, np.zeros((1, M))])

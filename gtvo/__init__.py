@@ -15,6 +15,7 @@ The top-level names are the small API most users need (imported on first use, so
     vo = gtvo.VisualOdometry(seq.camera, gtvo.OdometryConfig(mode="window"))
     for frame in seq:
         vo.process(frame)
+    vo.finish()                                          # the last keyframes' window optimisation
     report = gtvo.run("KITTI_sequence_1", out="out/")   # the whole `gtvo run` job
 """
 

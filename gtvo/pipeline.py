@@ -75,6 +75,7 @@ def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progre
         if bar is not None:
             bar.set_postfix(kf=len(vo.keyframes), fail=vo.failures,
                             **({"win": len(vo.window_results)} if config.mode == "window" else {}))
+    vo.finish()  # the keyframes that joined the window since its last optimisation
     seconds = time.perf_counter() - t0
     traj = vo.trajectory(seq.name)
     n = len(vo.estimates)

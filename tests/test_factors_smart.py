@@ -148,3 +148,23 @@ def test_isam2_with_smart_factor_converges():
     for i in (1, 2):
         assert np.abs(gtsam.Pose3.Logmap(poses[i].between(est.atPose3(X(i))))).max() < 1e-9
     np.testing.assert_allclose(f.commit(est), d, rtol=1e-9)
+
+
+def test_whitened_system_factors_the_reduced_system():
+    """``R^T R = H + reg I`` and ``R^T e = g`` (Cholesky), also for a singular PSD ``H`` (a host's
+    gauge) and, through the eigen fallback, for an ``H`` made indefinite by round-off."""
+    from factors.smart import whitened_system  # noqa: PLC0415
+
+    rng = np.random.default_rng(0)
+    A = rng.normal(size=(20, 14))
+    for H in (A.T @ A, np.pad(A[:, :8].T @ A[:, :8], (0, 6))):
+        g = rng.normal(size=H.shape[0])
+        R, e = whitened_system(H, g)
+        reg = 1e-9 * np.trace(H) / H.shape[0]
+        assert np.allclose(R.T @ R, H + reg * np.eye(H.shape[0]), rtol=1e-9, atol=1e-9 * np.abs(H).max())
+        assert np.allclose(R.T @ e, g, rtol=1e-8, atol=1e-8)
+    H = A.T @ A
+    H[0, 0] = -1.0  # indefinite: the eigenvalues are clamped at reg
+    R, e = whitened_system(H, np.ones(14))
+    assert np.all(np.isfinite(R)) and np.all(np.isfinite(e))
+    assert np.all(np.linalg.eigvalsh(R.T @ R) > 0)

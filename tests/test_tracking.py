@@ -218,3 +218,22 @@ def test_track_with_guesses_falls_back_and_reports():
     assert not r3.success and r3.reason.startswith("all 2 initial guesses failed")
     with pytest.raises(InputError):
         track_with_guesses(kf, It, [])
+
+
+def test_a_keyframe_built_on_the_frames_pyramid_is_the_same_keyframe():
+    """A tracked frame that becomes a keyframe hands its pyramid to ``TrackingKeyframe`` (not built
+    twice); the host samples are those of a keyframe that builds its own, and a pyramid of another
+    image or clip range is refused."""
+    _, Ih, _, px, d = scene()
+    cfg = TrackingConfig()
+    own = TrackingKeyframe(CAM, Ih, px, d, np.full(len(d), 1e-4), config=cfg)
+    shared = TrackingKeyframe(CAM, Ih, px, d, np.full(len(d), 1e-4), config=cfg,
+                              pyramid=frame_pyramid(Ih, cfg.levels, cfg.clip_range))
+    assert own.levels == shared.levels
+    for (a, va), (b, vb) in zip(own.host_samples, shared.host_samples):
+        assert np.array_equal(a, b) and np.array_equal(va, vb)
+    with pytest.raises(InputError, match="pyramid"):
+        TrackingKeyframe(CAM, Ih, px, d, np.full(len(d), 1e-4), config=cfg,
+                         pyramid=frame_pyramid(Ih[:100, :100], cfg.levels, cfg.clip_range))
+    with pytest.raises(InputError, match="pyramid"):
+        TrackingKeyframe(CAM, Ih, px, d, np.full(len(d), 1e-4), config=cfg, pyramid=frame_pyramid(Ih, cfg.levels, None))

@@ -5,6 +5,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Sequence
 
 import gtsam
 import numpy as np
@@ -165,11 +166,13 @@ class TrackingKeyframe:
         inverse_depth_variance: (N,) variances V (>= 0).
         affine: the keyframe's affine brightness (a, b), held fixed.
         config: tracker settings (levels, pattern).
+        pyramid: the image's :func:`frame_pyramid` with ``config.levels`` and ``config.clip_range``
+            when the caller has it already (a tracked frame that becomes a keyframe); None: built here.
     """
 
     def __init__(self, camera: PinholeCamera, image: ArrayLike, pixels: ArrayLike, inverse_depth: ArrayLike,
                  inverse_depth_variance: ArrayLike, affine: ArrayLike = (0.0, 0.0),
-                 config: TrackingConfig | None = None) -> None:
+                 config: TrackingConfig | None = None, pyramid: Sequence[GradientImage] | None = None) -> None:
         self.config = config or TrackingConfig()
         px = np.asarray(pixels, dtype=float).reshape(-1, 2)
         n = px.shape[0]
@@ -190,7 +193,10 @@ class TrackingKeyframe:
         self.camera = camera
         self.pixels, self.inverse_depth, self.variance = px, d, V
         self.affine = np.asarray(affine, dtype=float).reshape(2)
-        pyr = build_pyramid(img, self.config.levels)
+        if pyramid is not None and not (len(pyramid) and pyramid[0].image.shape == img.shape
+                                        and pyramid[0].clip_range == self.config.clip_range):
+            raise InputError("TrackingKeyframe: the given pyramid is not the image's with the tracker's clip range")
+        pyr = [g.image for g in pyramid] if pyramid is not None else build_pyramid(img, self.config.levels)
         self.levels = len(pyr)
         self.cameras = [camera.scaled(lv) for lv in range(self.levels)]
         pat = self.config.pattern
@@ -206,7 +212,8 @@ class TrackingKeyframe:
             self.level_index.append(idx)
             self.level_pixels.append(lp)
             self.level_bearings.append(pattern_bearings(self.cameras[lv], lp, pat))
-            self.host_samples.append(sample_host(GradientImage(pyr[lv], clip_range=self.config.clip_range), lp, pat))
+            level = pyramid[lv] if pyramid is not None else GradientImage(pyr[lv], clip_range=self.config.clip_range)
+            self.host_samples.append(sample_host(level, lp, pat))
 
 
 def frame_pyramid(image: ArrayLike, levels: int,

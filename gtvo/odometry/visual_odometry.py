@@ -20,7 +20,8 @@ depth, keyframe rule), the residual math in :mod:`factors`, the window in :mod:`
 * when tracking fails, the frame is re-initialised from stereo at the predicted pose and the run
   goes on; a frame with too few points for that (a blank or covered view) is *lost*: it keeps the
   predicted pose and the next frames are tracked against the keyframe again; both are counted;
-* with ``mode="window"`` every new keyframe joins a :class:`gtvo.window.SlidingWindowOptimizer`:
+* with ``mode="window"`` every new keyframe joins a :class:`gtvo.window.SlidingWindowOptimizer`;
+  after every ``window.optimize_every``-th keyframe (and at :meth:`VisualOdometry.finish`)
   the window's keyframe poses, affine brightness and inverse depths are optimised jointly, the
   optimised keyframes replace the tracked ones (later frames are tracked against them, with the
   optimised depths) and every frame's pose is re-expressed relative to its keyframe's optimised
@@ -74,6 +75,7 @@ class VisualOdometry(KeyframeMaking):
         vo = VisualOdometry(seq.camera)
         for frame in seq:
             est = vo.process(frame)
+        vo.finish()
         traj = vo.trajectory()
     """
 
@@ -96,6 +98,7 @@ class VisualOdometry(KeyframeMaking):
         self._window_affine: dict[int, NDArray[np.float64]] = {}  # keyframe index -> (a, b) in the window
         # keyframe index -> per point, the most other keyframes a window optimisation compared it with
         self._observed: dict[int, NDArray[np.int64]] = {}
+        self._window_waiting = 0  # keyframes that joined the window since its last optimisation
         self.window: SlidingWindowOptimizer | None = None
         #: the stereo rig's offset ``(delta_x, delta_y)`` of the right image (px) as estimated so
         #: far (docs/window.md, "Rig calibration"), None when not estimated (RGB-D, track mode, the
@@ -166,7 +169,7 @@ class VisualOdometry(KeyframeMaking):
             # re-initialise: this frame becomes a keyframe at the motion model's prediction
             self.failures += 1
             self._checker.not_checked()
-            new_kf = self._make_keyframe_if_possible(frame, left, T_pred)
+            new_kf = self._make_keyframe_if_possible(frame, left, T_pred, pyramid=pyr)
             if new_kf is None:  # nothing to re-initialise from: the frame is lost
                 self.lost_frames += 1
                 return self._finish(frame, left, T_pred, FrameOutcome.LOST, result, t0,
@@ -183,15 +186,27 @@ class VisualOdometry(KeyframeMaking):
                                 T_keyframe_frame=kf.T_world_cam.between(T_pred))
         plain = FrameOutcome.TRACKED if self._flow_reason is None else FrameOutcome.RECOVERED
         if needs_keyframe(self.pinhole, kf.points, result, self._keyframe_rule):
-            new_kf = self._make_keyframe_if_possible(frame, left, T_world, (kf.index, result.affine))
+            new_kf = self._make_keyframe_if_possible(frame, left, T_world, (kf.index, result.affine), pyr)
             if new_kf is not None:
                 return self._finish(frame, left, new_kf.T_world_cam, FrameOutcome.KEYFRAME, result, t0)
             return self._finish(frame, left, T_world, plain, result, t0, candidate=False,
                                 T_keyframe_frame=result.T_keyframe_frame)
         return self._finish(frame, left, T_world, plain, result, t0, T_keyframe_frame=result.T_keyframe_frame)
 
+    def finish(self) -> None:
+        """Optimise the keyframes that joined the window since its last optimisation
+        (``WindowConfig.optimize_every`` > 1) and re-express their frames; nothing to do in track
+        mode or when none is waiting. Call it after the last frame (``gtvo.run`` does); frames may
+        still follow (the next keyframe joins the window as usual)."""
+        if self.window is None or not self._window_waiting:
+            return
+        with _single_threaded_blas():
+            if self._optimize_window():
+                self._refresh_estimates()
+
     def trajectory(self, name: str = "gtvo") -> Trajectory:
-        """The estimated left-camera trajectory so far (every frame)."""
+        """The estimated left-camera trajectory so far (every frame; window mode: call :meth:`finish`
+        after the last frame so that the last keyframes are optimised too)."""
         if not self.estimates:
             raise InputError("no frame has been processed yet")
         return Trajectory(np.array([e.timestamp for e in self.estimates]),

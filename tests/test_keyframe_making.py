@@ -1,0 +1,104 @@
+"""When the window is optimised (gtvo/odometry/keyframe_making.py, ``WindowConfig.optimize_every``).
+
+The window is optimised after every n-th keyframe that came from a successful track, at once for a
+keyframe that did not (the first), and by ``VisualOdometry.finish()`` for the keyframes still
+waiting at the end of the run; docs/window.md, "When the window is optimised".
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gtvo.config import OdometryConfig
+from gtvo.datasets.synthetic import make_synthetic_sequence
+from gtvo.odometry import VisualOdometry
+from gtvo.window import WindowConfig
+
+
+@pytest.fixture(scope="module")
+def forward():
+    return make_synthetic_sequence(n_frames=40, step_m=0.2, noise_sigma=1.0, seed=3)
+
+
+@pytest.fixture(scope="module")
+def kitti(shared_data):
+    from gtvo.datasets import open_sequence  # noqa: PLC0415
+
+    folder = shared_data / "kitti_stereo_sample" / "KITTI_sequence_1"
+    if not folder.is_dir():
+        pytest.skip(f"KITTI snippet not found at {folder}")
+    return open_sequence(folder, max_frames=12)  # 1.2 m per frame: every frame becomes a keyframe
+
+
+def _run(seq, every: int, finish: bool = True) -> VisualOdometry:
+    vo = VisualOdometry(seq.camera, OdometryConfig(mode="window", window=WindowConfig(optimize_every=every,
+                                                                                      covariances=False)))
+    for frame in seq:
+        vo.process(frame)
+    if finish:
+        vo.finish()
+    return vo
+
+
+def test_every_keyframe_is_optimised_with_one(forward):
+    vo = _run(forward, 1)
+    assert len(vo.keyframes) >= 5
+    # the first keyframe alone is no window; every later one triggered an optimisation
+    assert len(vo.window_results) == len(vo.keyframes) - 1
+
+
+def test_frames_tracked_against_a_keyframe_make_it_optimised_at_once(forward):
+    """On the synthetic room a keyframe comes every few frames: each has frames tracked against it,
+    so no optimisation waits and the run is the one of ``optimize_every=1``, bit for bit."""
+    one, three = _run(forward, 1), _run(forward, 3)
+    assert len(three.window_results) == len(one.window_results)
+    assert all(np.array_equal(a.T_world_cam, b.T_world_cam) for a, b in zip(one.estimates, three.estimates))
+
+
+@pytest.mark.realdata
+def test_keyframes_at_every_frame_wait_and_finish_optimises_the_rest(kitti):
+    vo = _run(kitti, 2, finish=False)
+    n_kf = len(vo.keyframes)
+    assert n_kf == len(kitti)  # every frame a keyframe
+    waiting = vo._window_waiting
+    # the first keyframe (not tracked) optimises at once (alone: no window), then every second one
+    assert len(vo.window_results) == (n_kf - 1) // 2 and waiting == (n_kf - 1) % 2
+    before = vo.keyframes[-1].T_world_cam.matrix().copy()
+    vo.finish()
+    assert vo._window_waiting == 0
+    assert len(vo.window_results) == (n_kf - 1) // 2 + waiting
+    if waiting:  # the waiting keyframe moved with the optimisation
+        assert not np.allclose(before, vo.keyframes[-1].T_world_cam.matrix())
+        assert np.array_equal(vo.estimates[-1].T_world_cam, vo.keyframes[-1].T_world_cam.matrix())
+    n = len(vo.window_results)
+    vo.finish()  # nothing waits: no new optimisation
+    assert len(vo.window_results) == n
+
+
+@pytest.mark.realdata
+def test_fewer_optimisations_keep_the_accuracy_on_kitti(kitti):
+    every, second = _run(kitti, 1), _run(kitti, 2)
+    assert len(second.window_results) < len(every.window_results)
+    assert kitti.has_ground_truth
+    err = {}
+    for name, vo in (("every", every), ("second", second)):
+        est = np.stack([e.T_world_cam for e in vo.estimates])[:, :3, 3]
+        err[name] = float(np.sqrt(np.mean(np.sum((est - kitti.gt_poses[:, :3, 3]) ** 2, axis=1))))
+    assert err["second"] < 1.5 * err["every"] + 0.01
+
+
+def test_finish_in_track_mode_does_nothing(forward):
+    vo = VisualOdometry(forward.camera, OdometryConfig(mode="track"))
+    for i in range(5):
+        vo.process(forward.frame(i))
+    poses = [e.T_world_cam.copy() for e in vo.estimates]
+    vo.finish()
+    assert all(np.array_equal(a, e.T_world_cam) for a, e in zip(poses, vo.estimates))
+
+
+def test_optimize_every_must_be_positive():
+    from gtvo.errors import InputError  # noqa: PLC0415
+
+    with pytest.raises(InputError, match="optimize_every"):
+        WindowConfig(optimize_every=0)
