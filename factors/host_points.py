@@ -32,9 +32,10 @@ from numpy.typing import ArrayLike, NDArray
 
 from factors import _compiled
 from factors.photometric import (GradientSampler, PhotometricLinearization, pattern_bearings, photometric_residuals,
-                                 replace_rows, sample_host, stereo_residuals)
+                                 put_rows, sample_host, stereo_residuals)
 from factors.weights import point_robust_terms, variance_weight
 from gtvo.core.camera import PinholeCamera
+from gtvo.core.threads import thread_map
 from gtvo.errors import InputError
 
 FloatArray = NDArray[np.float64]
@@ -79,15 +80,15 @@ def keep_cheaper_depths(d: FloatArray, c: FloatArray, lins: list, rows: NDArray[
                         c_old: FloatArray, lins_old: list) -> tuple[FloatArray, FloatArray, list]:
     """The safeguarded depth step's merge: of the points ``rows`` (whose cost at the new depths
     ``d`` rose), those that cost less at their old depth (``c_old``, ``lins_old``: evaluated for
-    ``rows`` only) take it back. Returns ``(depths, point costs, linearisations)``; the inputs
-    are not modified."""
+    ``rows`` only) take it back. Returns ``(depths, point costs, linearisations)``; ``d`` and ``c``
+    are not modified, ``lins`` (the caller's fresh residuals at ``d``) are updated in place."""
     keep = np.flatnonzero(c_old < c[rows])
     if not keep.size:
         return d, c, lins
     r = rows[keep]
     d, c = d.copy(), c.copy()
     d[r], c[r] = d_old[r], c_old[keep]
-    return d, c, [None if a is None else replace_rows(a, r, b, keep) for a, b in zip(lins, lins_old)]
+    return d, c, [None if a is None else put_rows(a, r, b, keep) for a, b in zip(lins, lins_old)]
 
 
 @dataclass
@@ -209,16 +210,19 @@ class HostPoints:
         Ih, hv, px, f, ds = self.host_intensity[sel], self.host_valid[sel], self.pixels[sel], self.bearings[sel], d[sel]
         zero = np.zeros(2)
         ah = affines[0] if self.with_affine else zero
-        out: list = []
-        for t, img in enumerate(self.target_images):
+
+        def target(t: int):  # one target's residuals, or (t = -1) the stereo term's
+            if t < 0:
+                return stereo_residuals(self.camera, self.baseline, Ih, hv, px, ds, self.right_image, (0.0, 0.0),
+                                        self.stereo_affine, self.pattern, jacobians=False, bearings=f, offset=offset,
+                                        offset_jacobians=self.rig)
             at = affines[1 + t] if self.with_affine else zero
-            out.append(photometric_residuals(self.camera, Ih, hv, px, ds, poses[0], poses[1 + t], img, ah, at,
-                                             self.pattern, jacobians=True, host_jacobians=True, bearings=f))
-        out.append(None if self.right_image is None else
-                   stereo_residuals(self.camera, self.baseline, Ih, hv, px, ds, self.right_image, (0.0, 0.0),
-                                    self.stereo_affine, self.pattern, jacobians=False, bearings=f, offset=offset,
-                                    offset_jacobians=self.rig))
-        return out
+            return photometric_residuals(self.camera, Ih, hv, px, ds, poses[0], poses[1 + t], self.target_images[t],
+                                         ah, at, self.pattern, jacobians=True, host_jacobians=True, bearings=f)
+
+        jobs = list(range(len(self.target_images))) + ([-1] if self.right_image is not None else [])
+        out = thread_map(target, jobs)  # independent targets on the pool's threads, results in order
+        return out if self.right_image is not None else out + [None]
 
     def weights(self, lins: list) -> list[FloatArray]:
         """W per target (then ``lambda`` W of the stereo term): frozen at the first call, from the
@@ -263,11 +267,14 @@ class HostPoints:
         g_d = np.zeros(n)
         c = np.zeros(n)
         Ws = self.weights(lins)
-        for t, cols in enumerate(columns):
-            lin, W = lins[t], Ws[t]
-            w, loss = point_robust_terms(W, lin.residual, self.huber_k)
+
+        def sums(t: int):  # one target's robust terms and Gauss-Newton sums
+            w, loss = point_robust_terms(Ws[t], lins[t].residual, self.huber_k)
+            return loss, gauss_newton_sums(lins[t], Ws[t] * w[:, None], self.with_affine)
+
+        # the targets' sums on the pool's threads, added in order below: the serial loop's sums exactly
+        for cols, (loss, (H_t, g_t, H_pd_t, H_dd_t, g_d_t)) in zip(columns, thread_map(sums, range(len(columns)))):
             c += loss
-            H_t, g_t, H_pd_t, H_dd_t, g_d_t = gauss_newton_sums(lin, W * w[:, None], self.with_affine)
             H[np.ix_(cols, cols)] += H_t
             g[cols] += g_t
             H_pd[:, cols] += H_pd_t

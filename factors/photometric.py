@@ -214,27 +214,20 @@ class PhotometricLinearization:
     J_offset: FloatArray | None = None
 
 
-def replace_rows(lin: PhotometricLinearization, rows: NDArray[np.intp], other: PhotometricLinearization,
-                 other_rows: NDArray[np.intp] | None = None) -> PhotometricLinearization:
-    """A copy of ``lin`` whose points ``rows`` are ``other``'s points ``other_rows`` (default: all
-    of them, in order): the same points evaluated elsewhere, e.g. at other inverse depths.
-    The counters (``n_bad_depth``, ...) are ``lin``'s."""
+def put_rows(lin: PhotometricLinearization, rows: NDArray[np.intp], other: PhotometricLinearization,
+             other_rows: NDArray[np.intp] | None = None) -> PhotometricLinearization:
+    """Overwrite ``lin``'s points ``rows`` with ``other``'s points ``other_rows`` (default: all of
+    them, in order), in place: the same points evaluated elsewhere, e.g. at other inverse depths.
+    The counters (``n_bad_depth``, ...) stay ``lin``'s. Returns ``lin``."""
     sel = slice(None) if other_rows is None else other_rows
-
-    def put(a, b):
-        if a is None or b is None:
-            return None
-        out = a.copy()
-        out[rows] = b[sel]
-        return out
-
-    return PhotometricLinearization(put(lin.residual, other.residual), put(lin.valid, other.valid),
-                                    put(lin.J_depth, other.J_depth), put(lin.J_host, other.J_host),
-                                    put(lin.J_target, other.J_target),
-                                    put(lin.J_affine_host, other.J_affine_host),
-                                    put(lin.J_affine_target, other.J_affine_target),
-                                    put(lin.uv_target, other.uv_target), lin.n_bad_depth, lin.n_behind,
-                                    lin.n_outside, put(lin.J_offset, other.J_offset))
+    for name in ("residual", "valid", "J_depth", "J_host", "J_target", "J_affine_host", "J_affine_target",
+                 "uv_target", "J_offset"):
+        a, b = getattr(lin, name), getattr(other, name)
+        if a is not None and b is not None:
+            a[rows] = b[sel]
+        elif a is not None:  # nothing to copy from: the array no longer describes every point
+            setattr(lin, name, None)
+    return lin
 
 
 def photometric_residuals(camera: PinholeCamera, host_intensity: ArrayLike, host_valid: ArrayLike | None,

@@ -13,8 +13,9 @@ import numba
 
 
 def jit(fn: Callable) -> Callable:
-    """``numba.njit`` with an on-disk cache when numba finds a writable place for one."""
+    """``numba.njit`` with an on-disk cache when numba finds a writable place for one. The compiled
+    loop releases the GIL (``nogil``): :func:`gtvo.core.threads.thread_map` runs several at once."""
     try:
-        return numba.njit(cache=True)(fn)
+        return numba.njit(cache=True, nogil=True)(fn)
     except RuntimeError:  # "cannot cache function ...: no locator available"
-        return numba.njit(cache=False)(fn)
+        return numba.njit(cache=False, nogil=True)(fn)

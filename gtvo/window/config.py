@@ -67,6 +67,10 @@ class WindowConfig:
             On KITTI_sequence_1 2 halves the window's time at the same ATE at 10 Hz, 2-19 %
             worse ATE at 5 and 3.3 Hz (docs/window.md, "When the window is optimised"). The ``lm``
             backend only.
+        threads: threads the window's hosts spread their targets over (:mod:`gtvo.core.threads`;
+            0: one per core this process may use, at most 4; 1: none besides the caller's). The
+            results do not depend on it (the targets' sums are added in order). Process-wide: the
+            last :class:`gtvo.odometry.VisualOdometry` made sets it.
         marginalize: keep leaving keyframes' information as a prior (False: simply drop them).
         backend: ``"lm"``: each window optimised by a solver (:func:`solve_gtsam` or
             :func:`solve_handrolled`) and leaving keyframes marginalised by :func:`marginalize`;
@@ -101,6 +105,7 @@ class WindowConfig:
     max_iterations: int = setting(3, ">= 1")
     relative_tolerance: float = setting(1e-4, ">= 0")
     optimize_every: int = setting(1, ">= 1")
+    threads: int = setting(0, ">= 0")
     marginalize: bool = True
     backend: Literal["lm", "fixed_lag"] = "lm"
     covariances: bool = True
