@@ -6,7 +6,11 @@
   arrays per level (about half of ``select_points``' time on KITTI);
 * :func:`zssd_costs`: the integer epipolar search of :mod:`gtvo.frontend.stereo_depth` (every
   candidate disparity's zero-mean SSD); the numpy form gathered a strip per point and made a
-  pass over points x candidates per pattern pixel.
+  pass over points x candidates per pattern pixel;
+* :func:`block_medians`: the per-block median of the point-selection threshold, exactly
+  ``np.median`` over each block (numpy partitioned a transposed copy of the whole image, the largest
+  cost of making a keyframe on KITTI): a histogram finds the bin of the middle values, a small sort
+  of that bin's values gives them.
 """
 
 from __future__ import annotations
@@ -93,3 +97,69 @@ def zssd_costs(dst, u, v, pu, pv, src_c, s_ll, disparities, sign):
             if inside:
                 cost[i, j] = max(np.float64(s_ll[i]) - 2.0 * s_lr + s_rr - s_r * s_r / p, 0.0)
     return cost
+
+
+@jit
+def block_medians(image, block):
+    """Per ``block`` x ``block`` tile of ``image`` ((nby * block, nbx * block) float32), its median
+    as ``np.median`` gives it: the middle value, or for an even count the float32 mean of the two.
+
+    Two passes per tile: a 256-bin histogram between the tile's min and max locates the bins of the
+    two middle ranks, then the values of those bins are sorted (a few dozen here).
+    """
+    nby = image.shape[0] // block
+    nbx = image.shape[1] // block
+    n = block * block
+    out = np.empty((nby, nbx), dtype=np.float32)
+    hist = np.zeros(257, dtype=np.int64)
+    lo_rank = (n - 1) // 2
+    hi_rank = n // 2
+    for by in range(nby):
+        for bx in range(nbx):
+            y0 = by * block
+            x0 = bx * block
+            vmin = image[y0, x0]
+            vmax = vmin
+            for y in range(y0, y0 + block):
+                for x in range(x0, x0 + block):
+                    v = image[y, x]
+                    if v < vmin:
+                        vmin = v
+                    if v > vmax:
+                        vmax = v
+            if vmax == vmin:
+                out[by, bx] = vmin
+                continue
+            scale = 256.0 / (float(vmax) - float(vmin))
+            hist[:] = 0
+            for y in range(y0, y0 + block):
+                for x in range(x0, x0 + block):
+                    hist[min(int((float(image[y, x]) - float(vmin)) * scale), 256)] += 1
+            # the bins holding ranks lo_rank and hi_rank, and the count below the first
+            below = 0
+            b_lo = 0
+            while below + hist[b_lo] <= lo_rank:
+                below += hist[b_lo]
+                b_lo += 1
+            b_hi = b_lo
+            upto = below + hist[b_lo]
+            while upto <= hi_rank:
+                b_hi += 1
+                upto += hist[b_hi]
+            m = 0
+            for b in range(b_lo, b_hi + 1):
+                m += hist[b]
+            vals = np.empty(m, dtype=np.float32)
+            k = 0
+            for y in range(y0, y0 + block):
+                for x in range(x0, x0 + block):
+                    v = image[y, x]
+                    b = min(int((float(v) - float(vmin)) * scale), 256)
+                    if b_lo <= b <= b_hi:
+                        vals[k] = v
+                        k += 1
+            vals.sort()
+            a = vals[lo_rank - below]
+            c = vals[hi_rank - below]
+            out[by, bx] = a if lo_rank == hi_rank else (a + c) * np.float32(0.5)
+    return out

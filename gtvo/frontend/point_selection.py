@@ -26,7 +26,7 @@ from numpy.typing import NDArray
 
 from gtvo.core.settings import check_settings, setting
 from gtvo.errors import InputError
-from gtvo.frontend._compiled import pick_cells
+from gtvo.frontend._compiled import block_medians, pick_cells
 from gtvo.core.image import image_gradients, to_float_gray
 
 #: Radius of the 8-pixel DSO pattern and of the 5x5 stereo patch.
@@ -88,11 +88,10 @@ def block_gradient_thresholds(grad_mag: NDArray, block: int = _DEFAULT.block,
         raise InputError(f"block size must be >= 1, got {block}")
     g = np.asarray(grad_mag, dtype=np.float32)
     h, w = g.shape
-    # partial blocks at the right/bottom edge are completed by mirroring (keeps np.median vectorised)
+    # partial blocks at the right/bottom edge are completed by mirroring
     padded = np.pad(g, ((0, (-h) % block), (0, (-w) % block)), mode="symmetric")
     nby, nbx = padded.shape[0] // block, padded.shape[1] // block
-    cells = padded.reshape(nby, block, nbx, block).transpose(0, 2, 1, 3).reshape(nby, nbx, block * block)
-    med = np.median(cells, axis=-1)
+    med = block_medians(np.ascontiguousarray(padded), int(block))  # np.median of each block, exactly
     # 3x3 smoothing over neighbouring blocks (edge blocks average over the blocks that exist).
     p = np.pad(med, 1, constant_values=np.nan)
     stack = np.stack([p[i:i + nby, j:j + nbx] for i in range(3) for j in range(3)])
