@@ -31,8 +31,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from factors import _compiled
-from factors.photometric import (GradientSampler, PhotometricLinearization, pattern_bearings, photometric_residuals,
-                                 put_rows, sample_host, stereo_residuals)
+from factors.photometric import (GradientImage, GradientSampler, PhotometricLinearization, compiled_residuals,
+                                 pattern_bearings, photometric_residuals, put_rows, sample_host, stereo_residuals)
 from factors.weights import point_robust_terms, variance_weight
 from gtvo.core.camera import PinholeCamera
 from gtvo.core.threads import thread_map
@@ -209,15 +209,22 @@ class HostPoints:
         sel = slice(None) if rows is None else rows
         Ih, hv, px, f, ds = self.host_intensity[sel], self.host_valid[sel], self.pixels[sel], self.bearings[sel], d[sel]
         zero = np.zeros(2)
-        ah = affines[0] if self.with_affine else zero
+        ah = np.asarray(affines[0] if self.with_affine else zero, dtype=float)
+        # laid out once for the compiled loops of every target (compiled_residuals skips the checks)
+        Ih_c, hv_c = np.ascontiguousarray(Ih, dtype=float), np.ascontiguousarray(hv, dtype=bool)
+        f_c, ds_c = np.ascontiguousarray(f, dtype=float), np.ascontiguousarray(ds, dtype=float)
 
         def target(t: int):  # one target's residuals, or (t = -1) the stereo term's
             if t < 0:
                 return stereo_residuals(self.camera, self.baseline, Ih, hv, px, ds, self.right_image, (0.0, 0.0),
                                         self.stereo_affine, self.pattern, jacobians=False, bearings=f, offset=offset,
                                         offset_jacobians=self.rig)
-            at = affines[1 + t] if self.with_affine else zero
-            return photometric_residuals(self.camera, Ih, hv, px, ds, poses[0], poses[1 + t], self.target_images[t],
+            at = np.asarray(affines[1 + t] if self.with_affine else zero, dtype=float)
+            img = self.target_images[t]
+            if isinstance(img, GradientImage):
+                return compiled_residuals(self.camera, Ih_c, hv_c, f_c, ds_c, poses[0], poses[1 + t], img,
+                                          float(at[0] - ah[0]), float(ah[1]), float(at[1]))
+            return photometric_residuals(self.camera, Ih, hv, px, ds, poses[0], poses[1 + t], img,
                                          ah, at, self.pattern, jacobians=True, host_jacobians=True, bearings=f)
 
         jobs = list(range(len(self.target_images))) + ([-1] if self.right_image is not None else [])

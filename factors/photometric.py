@@ -230,6 +230,29 @@ def put_rows(lin: PhotometricLinearization, rows: NDArray[np.intp], other: Photo
     return lin
 
 
+def compiled_residuals(camera: PinholeCamera, host_intensity: FloatArray, host_valid: NDArray[np.bool_],
+                       bearings: FloatArray, inverse_depth: FloatArray, T_world_host: object,
+                       T_world_target: object, target: GradientImage, log_gain: float, b_host: float, b_target: float,
+                       jacobians: bool = True, host_jacobians: bool = True) -> PhotometricLinearization:
+    """:func:`photometric_residuals` for a :class:`GradientImage` target on arguments already checked
+    and laid out (C-contiguous float64 ``(N, P)`` intensities, bool validity, ``(N, P, 3)``
+    bearings, ``(N,)`` inverse depths; poses as there; ``log_gain = a_t - a_h``): the
+    compiled loops without the per-call checks, for callers that evaluate the same points many
+    times (:class:`factors.host_points.HostPoints`)."""
+    T_target_host = _relative_pose(T_world_target, T_world_host)
+    r, valid, J_depth, uv, J_t, J_h, J_at, J_ah, counts = _compiled.warp_residuals(
+        *target._sampler_args(), float(camera.fx), float(camera.fy), float(camera.cx), float(camera.cy),
+        float(MIN_DEPTH), np.ascontiguousarray(T_target_host[:3, :3]), np.ascontiguousarray(T_target_host[:3, 3]),
+        bearings, inverse_depth, host_intensity, host_valid, float(np.exp(log_gain)), float(b_host), float(b_target),
+        bool(jacobians), bool(host_jacobians))
+    n_bad, n_behind, n_out = (int(c) for c in counts)
+    if not jacobians:
+        return PhotometricLinearization(r, valid, J_depth, None, None, None, None, uv, n_bad, n_behind, n_out)
+    if not host_jacobians:
+        J_h = J_ah = None
+    return PhotometricLinearization(r, valid, J_depth, J_h, J_t, J_ah, J_at, uv, n_bad, n_behind, n_out)
+
+
 def photometric_residuals(camera: PinholeCamera, host_intensity: ArrayLike, host_valid: ArrayLike | None,
                           pixels: ArrayLike, inverse_depth: ArrayLike, T_world_host: object,
                           T_world_target: object, target: GradientSampler,
@@ -277,18 +300,9 @@ def photometric_residuals(camera: PinholeCamera, host_intensity: ArrayLike, host
     f = f.reshape(n, p, 3)
     if isinstance(target, GradientImage):
         # the compiled loops (same outputs as the numpy form below, which other samplers take)
-        r, valid, J_depth, uv, J_t, J_h, J_at, J_ah, counts = _compiled.warp_residuals(
-            *target._sampler_args(), float(camera.fx), float(camera.fy), float(camera.cx), float(camera.cy),
-            float(MIN_DEPTH),
-            np.ascontiguousarray(R), np.ascontiguousarray(t), np.ascontiguousarray(f), np.ascontiguousarray(d),
-            np.ascontiguousarray(Ih), np.ascontiguousarray(hv), float(np.exp(a_t - a_h)), b_h, b_t,
-            bool(jacobians), bool(host_jacobians))
-        n_bad, n_behind, n_out = (int(c) for c in counts)
-        if not jacobians:
-            return PhotometricLinearization(r, valid, J_depth, None, None, None, None, uv, n_bad, n_behind, n_out)
-        if not host_jacobians:
-            J_h = J_ah = None
-        return PhotometricLinearization(r, valid, J_depth, J_h, J_t, J_ah, J_at, uv, n_bad, n_behind, n_out)
+        return compiled_residuals(camera, np.ascontiguousarray(Ih), np.ascontiguousarray(hv), np.ascontiguousarray(f),
+                                  np.ascontiguousarray(d), T_world_host, T_world_target, target, a_t - a_h, b_h, b_t,
+                                  jacobians, host_jacobians)
 
     good_d = np.isfinite(d) & (d > 0)
     ds = np.where(good_d, d, 1.0)

@@ -352,8 +352,8 @@ def test_smart_factor_evaluates_each_state_once(seq, monkeypatch):
     kfs = _keyframes(seq, [0, 2, 4], points=150)
     graph, values, hosts = build_graph(cam.left, cam.baseline, kfs, WindowConfig(), None)
     calls = []
-    real = host_points.photometric_residuals
-    monkeypatch.setattr(host_points, "photometric_residuals", lambda *a, **k: calls.append(1) or real(*a, **k))
+    real = host_points.compiled_residuals  # the targets' residuals (GradientImage targets)
+    monkeypatch.setattr(host_points, "compiled_residuals", lambda *a, **k: calls.append(1) or real(*a, **k))
     f = hosts[0]
     n_t = len(f.target_keys)
     e0 = f.error(values)
