@@ -102,3 +102,19 @@ def test_optimize_every_must_be_positive():
 
     with pytest.raises(InputError, match="optimize_every"):
         WindowConfig(optimize_every=0)
+
+
+@pytest.mark.realdata
+def test_large_steps_optimise_every_keyframe(shared_data):
+    """At 5 Hz (2.4 m per frame) the new keyframe's stereo depth error moves its points by more than
+    the pattern's radius over one step (about 2.5 px): each keyframe is optimised at once, and the
+    run is the one of ``optimize_every=1``, bit for bit."""
+    from gtvo.datasets import open_sequence  # noqa: PLC0415
+
+    folder = shared_data / "kitti_stereo_sample" / "KITTI_sequence_1"
+    if not folder.is_dir():
+        pytest.skip(f"KITTI snippet not found at {folder}")
+    seq = open_sequence(folder, max_frames=14).subsampled(2)
+    one, two = _run(seq, 1), _run(seq, 2)
+    assert len(two.window_results) == len(one.window_results) == len(seq) - 1
+    assert all(np.array_equal(a.T_world_cam, b.T_world_cam) for a, b in zip(one.estimates, two.estimates))

@@ -143,7 +143,7 @@ class KeyframeMaking:
         self._window_waiting += 1
         wcfg = self.config.window
         defer = (tracked is not None and wcfg.backend == "lm" and self._window_waiting < wcfg.optimize_every
-                 and self._follows_last_keyframe(frame.index))
+                 and self._follows_last_keyframe(frame.index) and self._stereo_depths_suffice(T_world_cam, pts))
         self._window_affine = {w.index: w.affine.copy() for w in self.window.keyframes}
         if defer or not self._optimize_window():
             return T_world_cam, pts
@@ -163,6 +163,19 @@ class KeyframeMaking:
                 continue
             return e.index == last
         return False
+
+    def _stereo_depths_suffice(self, T_world_cam: gtsam.Pose3, pts: KeyframePoints) -> bool:
+        """True when the new keyframe's own (unrefined) depths are good enough to track the next
+        frame against: their inverse-depth error moves a point by less than the residual pattern's
+        radius over one more step like the last one, ``fx |t| sqrt(median V) < max |pattern offset|``
+        (``t``: the translation from the last keyframe; 2 px for DSO's pattern). Then the tracker
+        still compares the right pixels, and the window may refine the keyframe later
+        (docs/window.md, "When the window is optimised")."""
+        last = self.keyframes[-1].T_world_cam
+        step = float(np.linalg.norm(last.between(T_world_cam).translation()))
+        error_px = float(self.pinhole.fx) * step * float(np.sqrt(np.median(pts.variance)))
+        radius = float(np.max(np.linalg.norm(np.asarray(self.config.window.pattern, dtype=float), axis=1)))
+        return error_px < radius
 
     def _optimize_window(self) -> bool:
         """Optimise the window and write its poses and depths back to the keyframes made so far

@@ -59,14 +59,14 @@ class WindowConfig:
             on KITTI 4 or 6 moved the ATE by < 1 mm for 33-82 % more time: docs/benchmarks.md,
             "Point density").
         relative_tolerance: stop when an iteration lowers the cost by less than this fraction.
-        optimize_every: while keyframes come at every frame (no frame was tracked against the last
-            one: a car at 10 Hz), the window's optimisation waits until this many keyframes have
-            joined it (1: after each, the default); it runs at once for a keyframe with frames
-            tracked against the one before, or not made from a successful track, and
-            :meth:`gtvo.odometry.VisualOdometry.finish` runs it for those still waiting at the end.
-            On KITTI_sequence_1 2 halves the window's time at the same ATE at 10 Hz, 2-19 %
-            worse ATE at 5 and 3.3 Hz (docs/window.md, "When the window is optimised"). The ``lm``
-            backend only.
+        optimize_every: the window's optimisation may wait until this many keyframes have joined
+            it (1: after each) while no frame was tracked against the last keyframe (keyframes at
+            every frame: a car at 10 Hz) and the new keyframe's stereo depth error moves its points
+            by less than the residual pattern's radius over one step; otherwise, for a keyframe not
+            made from a successful track and with the fixed-lag backend it runs at once, and
+            :meth:`gtvo.odometry.VisualOdometry.finish` runs it for those still waiting at the
+            end. On KITTI_sequence_1 at 10 Hz 2 halves the optimisations at the same ATE; at 5
+            and 3.3 Hz nothing waits (docs/window.md, "When the window is optimised").
         threads: threads the window's hosts spread their targets over (:mod:`gtvo.core.threads`;
             0: one per core this process may use, at most 4; 1: none besides the caller's). The
             results do not depend on it (the targets' sums are added in order). Process-wide: the
