@@ -35,7 +35,6 @@ from factors.photometric import (GradientImage, GradientSampler, PhotometricLine
                                  pattern_bearings, photometric_residuals, put_rows, sample_host, stereo_residuals)
 from factors.weights import point_robust_terms, variance_weight
 from gtvo.core.camera import PinholeCamera
-from gtvo.core.threads import thread_map
 from gtvo.errors import InputError
 
 FloatArray = NDArray[np.float64]
@@ -227,9 +226,8 @@ class HostPoints:
             return photometric_residuals(self.camera, Ih, hv, px, ds, poses[0], poses[1 + t], img,
                                          ah, at, self.pattern, jacobians=True, host_jacobians=True, bearings=f)
 
-        jobs = list(range(len(self.target_images))) + ([-1] if self.right_image is not None else [])
-        out = thread_map(target, jobs)  # independent targets on the pool's threads, results in order
-        return out if self.right_image is not None else out + [None]
+        out = [target(t) for t in range(len(self.target_images))]
+        return out + [target(-1) if self.right_image is not None else None]
 
     def weights(self, lins: list) -> list[FloatArray]:
         """W per target (then ``lambda`` W of the stereo term): frozen at the first call, from the
@@ -279,8 +277,8 @@ class HostPoints:
             w, loss = point_robust_terms(Ws[t], lins[t].residual, self.huber_k)
             return loss, gauss_newton_sums(lins[t], Ws[t] * w[:, None], self.with_affine)
 
-        # the targets' sums on the pool's threads, added in order below: the serial loop's sums exactly
-        for cols, (loss, (H_t, g_t, H_pd_t, H_dd_t, g_d_t)) in zip(columns, thread_map(sums, range(len(columns)))):
+        for t, cols in enumerate(columns):
+            loss, (H_t, g_t, H_pd_t, H_dd_t, g_d_t) = sums(t)
             c += loss
             H[np.ix_(cols, cols)] += H_t
             g[cols] += g_t

@@ -14,7 +14,7 @@ import numba
 
 def jit(fn: Callable) -> Callable:
     """``numba.njit`` with an on-disk cache when numba finds a writable place for one. The compiled
-    loop releases the GIL (``nogil``): :func:`gtvo.core.threads.thread_map` runs several at once."""
+    loop releases the GIL (``nogil``): a caller's other threads run while it does."""
     try:
         return numba.njit(cache=True, nogil=True)(fn)
     except RuntimeError:  # "cannot cache function ...: no locator available"

@@ -38,7 +38,6 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gtvo.core.camera import PinholeCamera, StereoCamera
-from gtvo.core.threads import set_threads
 from gtvo.errors import InputError
 from gtvo.frontend import optical_flow_pose
 from gtvo.core.image import to_float_gray
@@ -113,7 +112,6 @@ class VisualOdometry(KeyframeMaking):
             rig = baseline is not None and wcfg.rig_calibration and wcfg.backend == "lm"
             self.rig_offset = np.zeros(2) if rig else None
             self.window = SlidingWindowOptimizer(self.pinhole, baseline, wcfg, rig_offset=self.rig_offset)
-            set_threads(wcfg.threads)
         if self.config.motion_model.model == "kalman":
             from gtvo.motion.model import ConstantAccelerationFilter  # noqa: PLC0415
 

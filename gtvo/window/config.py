@@ -65,12 +65,9 @@ class WindowConfig:
             by less than the residual pattern's radius over one step; otherwise, for a keyframe not
             made from a successful track and with the fixed-lag backend it runs at once, and
             :meth:`gtvo.odometry.VisualOdometry.finish` runs it for those still waiting at the
-            end. On KITTI_sequence_1 at 10 Hz 2 halves the optimisations at the same ATE; at 5
-            and 3.3 Hz nothing waits (docs/window.md, "When the window is optimised").
-        threads: threads the window's hosts spread their targets over (:mod:`gtvo.core.threads`;
-            0: one per core this process may use, at most 4; 1: none besides the caller's). The
-            results do not depend on it (the targets' sums are added in order). Process-wide: the
-            last :class:`gtvo.odometry.VisualOdometry` made sets it.
+            end. On KITTI_sequence_1 at 10 Hz 2 (the default) halves the optimisations at the same
+            ATE; at 5 and 3.3 Hz, and on logs with frames between keyframes, nothing waits
+            (docs/window.md, "When the window is optimised").
         marginalize: keep leaving keyframes' information as a prior (False: simply drop them).
         backend: ``"lm"``: each window optimised by a solver (:func:`solve_gtsam` or
             :func:`solve_handrolled`) and leaving keyframes marginalised by :func:`marginalize`;
@@ -104,8 +101,7 @@ class WindowConfig:
     min_visible_fraction: float = setting(0.1, "[0, 1]")
     max_iterations: int = setting(3, ">= 1")
     relative_tolerance: float = setting(1e-4, ">= 0")
-    optimize_every: int = setting(1, ">= 1")
-    threads: int = setting(0, ">= 0")
+    optimize_every: int = setting(2, ">= 1")
     marginalize: bool = True
     backend: Literal["lm", "fixed_lag"] = "lm"
     covariances: bool = True
