@@ -1,4 +1,4 @@
-"""Image core: float conversion, pyramids, gradients and vectorised bilinear sampling.
+"""Image core: float conversion, pyramids, gradients and bilinear sampling (one compiled loop for float32 images).
 
 Pixel (0, 0) is the centre of the top-left pixel. A sample at (u, v) is valid when its four
 bilinear neighbours are inside the image, i.e. ``0 <= u <= W-1`` and ``0 <= v <= H-1``
@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from gtvo.core.jit import jit
 from gtvo.errors import InputError
 
 FloatImage = NDArray[np.float32]
@@ -106,6 +107,13 @@ def bilinear_sample(image: NDArray, u: ArrayLike, v: ArrayLike,
     u = np.asarray(u, dtype=np.float64)
     v = np.asarray(v, dtype=np.float64)
     h, w = img.shape[:2]
+    if img.dtype == np.float32 and img.ndim in (2, 3) and h >= 2 and w >= 2 and u.shape == v.shape:
+        # the loop form below (one compiled pass, the same arithmetic in the same order)
+        stack = np.ascontiguousarray(img.reshape(h, w, -1))
+        vals, ok = _bilinear_loop(stack, np.ascontiguousarray(u).reshape(-1), np.ascontiguousarray(v).reshape(-1),
+                                  float(border))
+        shape = u.shape + ((img.shape[2],) if img.ndim == 3 else ())
+        return vals.reshape(shape), ok.reshape(u.shape)
     valid = (np.isfinite(u) & np.isfinite(v)
              & (u >= border) & (u <= w - 1 - border) & (v >= border) & (v <= h - 1 - border))
     us = np.where(valid, u, 0.0)
@@ -134,3 +142,30 @@ def check_same_size(a: NDArray, b: NDArray, what: str) -> None:
     """Raise :class:`InputError` naming ``what`` when two images differ in size."""
     if a.shape[:2] != b.shape[:2]:
         raise InputError(f"{what}: image sizes differ, {a.shape[1]}x{a.shape[0]} vs {b.shape[1]}x{b.shape[0]}")
+
+
+@jit
+def _bilinear_loop(stack, u, v, border):
+    """:func:`bilinear_sample`'s numpy form as one loop over the samples of a (H, W, C) float32
+    stack: the same validity rule and the same float64 arithmetic, in the same order."""
+    h, w, c = stack.shape
+    m = u.shape[0]
+    out = np.zeros((m, c))
+    valid = np.zeros(m, dtype=np.bool_)
+    for k in range(m):
+        uk, vk = u[k], v[k]
+        if not (np.isfinite(uk) and np.isfinite(vk) and uk >= border and uk <= w - 1 - border
+                and vk >= border and vk <= h - 1 - border):
+            continue
+        valid[k] = True
+        x0 = max(min(int(np.floor(uk)), w - 2), 0)
+        y0 = max(min(int(np.floor(vk)), h - 2), 0)
+        ax = uk - x0
+        ay = vk - y0
+        for ch in range(c):
+            v00 = stack[y0, x0, ch]
+            v01 = stack[y0, x0 + 1, ch]
+            v10 = stack[y0 + 1, x0, ch]
+            v11 = stack[y0 + 1, x0 + 1, ch]
+            out[k, ch] = (1 - ay) * ((1 - ax) * v00 + ax * v01) + ay * ((1 - ax) * v10 + ax * v11)
+    return out, valid
