@@ -7,6 +7,8 @@ and to numerical derivatives through it):
   border and clipped-cell validity rule);
 * :func:`warp_residuals`: :func:`photometric_residuals` for a :class:`GradientImage` target in
   three tight loops (warp, gather, residuals and Jacobians) instead of about 40 numpy passes;
+* :func:`pack_gradient_image`: ``GradientImage``'s record array (intensity, central-difference
+  gradients as ``gtvo.core.image.image_gradients``, clipped-cell flag) in one pass over the image;
 * :func:`point_huber`: ``weights.point_robust_terms``, each point's Huber weight and loss
   on its whitened pattern norm;
 * :func:`accumulate_target`: ``host_points.gauss_newton_sums``, the Gauss-Newton sums of one
@@ -272,3 +274,44 @@ def point_huber(weight, residual, k, robust):
             loss[i] = k * x - 0.5 * k * k
             w_out[i] = k / x
     return w_out, loss
+
+
+@jit
+def pack_gradient_image(img, lo, hi, check_clip):
+    """``GradientImage``'s packed records of a (H, W) float32 image (H, W >= 2): per pixel the
+    intensity, ``image_gradients``' central differences (one-sided at the borders, the same float32
+    arithmetic) and, with ``check_clip``, 1.0 where the bilinear cell with this top-left corner
+    touches a pixel at or beyond ``lo`` / ``hi``. Returns ``(packed (H, W, 4), any pixel clipped,
+    all finite)``."""
+    h, w = img.shape
+    packed = np.zeros((h, w, 4), dtype=np.float32)
+    half = np.float32(0.5)
+    clipped_any = False
+    finite = True
+    for y in range(h):
+        for x in range(w):
+            c = img[y, x]
+            if not np.isfinite(c):
+                finite = False
+            packed[y, x, 0] = c
+            if x == 0:
+                packed[y, x, 1] = img[y, 1] - img[y, 0]
+            elif x == w - 1:
+                packed[y, x, 1] = img[y, w - 1] - img[y, w - 2]
+            else:
+                packed[y, x, 1] = half * (img[y, x + 1] - img[y, x - 1])
+            if y == 0:
+                packed[y, x, 2] = img[1, x] - img[0, x]
+            elif y == h - 1:
+                packed[y, x, 2] = img[h - 1, x] - img[h - 2, x]
+            else:
+                packed[y, x, 2] = half * (img[y + 1, x] - img[y - 1, x])
+            if check_clip and (c <= lo or c >= hi):
+                clipped_any = True
+                # this pixel is a corner of the cells whose top-left is (y, x), (y, x-1), (y-1, x), (y-1, x-1)
+                for dy in range(2):
+                    for dx in range(2):
+                        cy, cx = y - dy, x - dx
+                        if 0 <= cy < h - 1 and 0 <= cx < w - 1:
+                            packed[cy, cx, 3] = 1.0
+    return packed, clipped_any, finite

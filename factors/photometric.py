@@ -38,7 +38,6 @@ from numpy.typing import ArrayLike, NDArray
 from factors import _compiled
 from gtvo.core.camera import MIN_DEPTH, PinholeCamera
 from gtvo.errors import InputError
-from gtvo.core.image import image_gradients
 from gtvo.core.lie import invert_poses
 
 FloatArray = NDArray[np.float64]
@@ -85,29 +84,23 @@ class GradientImage:
         img = np.asarray(image, dtype=np.float32)
         if img.ndim != 2 or img.shape[0] < 2 or img.shape[1] < 2:
             raise InputError(f"GradientImage needs a 2-D image of at least 2x2, got shape {img.shape}")
-        if not np.all(np.isfinite(img)):
+        if clip_range is not None and (isinstance(clip_range, str) or len(clip_range) != 2):
+            raise InputError(f"GradientImage: clip_range must be (lo, hi) or None, got {clip_range!r}")
+        # per pixel: I, gx, gy (gtvo.core.image.image_gradients) and whether the bilinear cell with
+        # this top-left corner touches a clipped pixel (1.0) or not (0.0), one 16-byte record (the
+        # compiled sampler reads one cache line per corner; a separate mask array made it 3x
+        # slower), made in one compiled pass. Only the intensity's cell is checked; the gradients of
+        # its pixels reach one pixel further.
+        lo, hi = (0.0, 0.0) if clip_range is None else clip_range
+        packed, clipped, finite = _compiled.pack_gradient_image(np.ascontiguousarray(img), np.float32(lo),
+                                                                np.float32(hi), clip_range is not None)
+        if not finite:
             raise InputError("GradientImage: image contains NaN or infinite values")
-        gx, gy = image_gradients(img)
         self.image = img
         self.height, self.width = img.shape
         self.border = float(border)
-        if clip_range is not None and (isinstance(clip_range, str) or len(clip_range) != 2):
-            raise InputError(f"GradientImage: clip_range must be (lo, hi) or None, got {clip_range!r}")
         self.clip_range = clip_range
-        # per pixel: I, gx, gy and whether the bilinear cell with this top-left corner touches a
-        # clipped pixel (1.0) or not (0.0), one 16-byte record (the compiled sampler reads one
-        # cache line per corner; a separate mask array made it 3x slower). Only the intensity's
-        # cell is checked; the gradients of its pixels reach one pixel further.
-        packed = np.zeros(img.shape + (4,), dtype=np.float32)
-        packed[..., 0] = img
-        packed[..., 1] = gx
-        packed[..., 2] = gy
-        self.has_clipped = False
-        if clip_range is not None:
-            clipped = (img <= clip_range[0]) | (img >= clip_range[1])
-            if clipped.any():
-                packed[:-1, :-1, 3] = clipped[:-1, :-1] | clipped[1:, :-1] | clipped[:-1, 1:] | clipped[1:, 1:]
-                self.has_clipped = True
+        self.has_clipped = bool(clipped)
         self._packed = packed.reshape(-1, 4)
         #: (H, W, 3) float32: intensity and its central-difference gradients (a view)
         self.stack = packed[..., :3]

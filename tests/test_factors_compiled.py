@@ -211,3 +211,39 @@ def test_jit_compiles_without_a_cache_location():
     exec(compile("def twice(x):\n    return 2.0 * x\n", "<no file>", "exec"), namespace)
     fn = jit(namespace["twice"])
     assert fn(1.5) == 3.0
+
+
+def _packed_numpy(img, clip_range):
+    """GradientImage's record array as numpy made it (the reference of pack_gradient_image)."""
+    from gtvo.core.image import image_gradients  # noqa: PLC0415
+
+    gx, gy = image_gradients(img)
+    packed = np.zeros(img.shape + (4,), dtype=np.float32)
+    packed[..., 0], packed[..., 1], packed[..., 2] = img, gx, gy
+    clipped_any = False
+    if clip_range is not None:
+        clipped = (img <= clip_range[0]) | (img >= clip_range[1])
+        if clipped.any():
+            packed[:-1, :-1, 3] = clipped[:-1, :-1] | clipped[1:, :-1] | clipped[:-1, 1:] | clipped[1:, 1:]
+            clipped_any = True
+    return packed, clipped_any
+
+
+@pytest.mark.parametrize("clip_range", [None, (0.0, 255.0), (0.5, 254.7), (30.0, 200.0)])
+@pytest.mark.parametrize("shape", [(2, 2), (3, 7), (48, 64)])
+def test_gradient_image_records_equal_the_numpy_form(clip_range, shape):
+    """GradientImage packs intensity, gradients and the clipped-cell flag in one compiled pass: the
+    records of the numpy form, bit for bit (clip limits compared in float32 as numpy does)."""
+    from factors.photometric import GradientImage  # noqa: PLC0415
+
+    rng = np.random.default_rng(shape[1])
+    img = np.round(rng.random(shape) * 260.0 - 2.0).astype(np.float32)
+    img[0, 0] = 254.7  # on the float32 edge of a clip limit
+    g = GradientImage(img, clip_range=clip_range)
+    ref, clipped = _packed_numpy(img, clip_range)
+    assert np.array_equal(g._packed.reshape(ref.shape), ref)
+    assert g.has_clipped == clipped
+    bad = img.copy()
+    bad[-1, -1] = np.nan
+    with pytest.raises(InputError, match="NaN"):
+        GradientImage(bad, clip_range=clip_range)
