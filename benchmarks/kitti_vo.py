@@ -1,7 +1,7 @@
 """gtvo against the two peers a user would otherwise build, in one run on the same frames (issue 4, item 5).
 
     python benchmarks/kitti_vo.py [--sequence DIR ...] [--max-frames N] [--frame-step K]
-                                  [--solvers handrolled,gtsam] [--modes track,...] [--peers open3d,orb]
+                                  [--solvers handrolled,gtsam,default] [--modes track,...] [--peers open3d,orb]
                                   [--no-flow-fallback] [--json OUT] [--failure-detail]
 
 Rows: gtvo for every requested solver x mode (a mode the installed gtvo lacks is skipped with a
@@ -140,7 +140,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--max-frames", type=int, default=None, metavar="N")
     ap.add_argument("--frame-step", type=int, default=1, metavar="K",
                     help="use every K-th frame (the log at 1/K of its frame rate)")
-    ap.add_argument("--solvers", default="handrolled,gtsam", help="gtvo solvers (comma-separated)")
+    ap.add_argument("--solvers", default="handrolled,gtsam",
+                    help="gtvo solvers (comma-separated; 'default': the configuration's own, hand-rolled "
+                         "tracker and GTSAM window, i.e. a plain `gtvo run`)")
     ap.add_argument("--modes", default="track,window", help="gtvo modes (comma-separated; missing ones are skipped)")
     ap.add_argument("--peers", default="open3d,orb", help="peers to run: open3d, orb (comma-separated; '' for none)")
     ap.add_argument("--o3d-depth-diff-max", default=None, metavar="LIST",

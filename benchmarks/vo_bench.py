@@ -57,14 +57,15 @@ def gtvo_config(solver: str, mode: str = "track", **overrides: Any):
     """An ``OdometryConfig`` for ``solver`` and ``mode``.
 
     ``solver`` is the tracker's and the window's solver, as the CLI's ``--solver``
-    (``SolverConfig.both(solver)``). ``mode`` goes to the config's ``mode`` field when gtvo has
+    (``SolverConfig.both(solver)``); ``"default"``: the configuration's own (the hand-rolled
+    tracker and the GTSAM window: what a plain ``gtvo run`` runs). ``mode`` goes to the config's ``mode`` field when gtvo has
     one; without it only ``"track"`` (frame-to-keyframe tracking) exists and any other mode raises
     :class:`ModeUnavailable`.
     """
     from gtvo.config import OdometryConfig, SolverConfig  # noqa: PLC0415
 
     names = {f.name for f in dataclasses.fields(OdometryConfig)}
-    kwargs: dict[str, Any] = {"solver": SolverConfig.both(solver), **overrides}
+    kwargs: dict[str, Any] = {**({} if solver == "default" else {"solver": SolverConfig.both(solver)}), **overrides}
     if "mode" in names:
         kwargs["mode"] = mode
     elif mode != "track":
