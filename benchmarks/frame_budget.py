@@ -1,0 +1,240 @@
+"""Where a frame's time goes (issue 24): milliseconds per frame by stage of one gtvo run.
+
+    python benchmarks/frame_budget.py [--sequence DIR] [--mode window|track] [--solver gtsam|handrolled]
+                                      [--frame-step N] [--max-frames N] [--repeat N] [--json OUT]
+    python benchmarks/frame_budget.py --points 300,600,1200,2000 [...]   # scaling with the point budget
+    python benchmarks/frame_budget.py --overhead [...]                  # the timing's own cost
+
+The default run is ``gtvo run``'s: ``OdometryConfig()`` (window mode, GTSAM window solver) on the
+preloaded frames of KITTI_sequence_1 (images decoded before the clock starts). ``--solver`` sets
+the tracker's and the window's solver together, as the CLI's ``--solver``. Every run starts from a
+fresh ``VisualOdometry`` after one warm-up run on the first frames (numba's compiled kernels
+loaded), and the stages are the library's own always-on clock (``VisualOdometry.stage_seconds``,
+:mod:`gtvo.core.timing`; what each stage covers: docs/evaluation.md, "Where a frame's time goes").
+With ``--repeat N`` every figure is the median over N runs.
+
+The machine may be shared: each run also times one OpenCV StereoSGBM on the first frame
+(``benchmarks.vo_bench.reference_ms``), and the tables give times as multiples of that reference
+("x ref") beside the milliseconds, with the load average at the start and the end. Compare runs
+through the ratios.
+
+``--points`` runs the window with each point budget (``frontend.points_per_keyframe``) and fits
+``ms/frame = a + b * points`` (the points each keyframe kept after the stereo search, mean over
+keyframes) for the frame and each stage: ``max rel. residual`` is the largest
+``|measured - fit| / measured`` over the budgets (linear when small). ``--overhead`` alternates
+runs with the clock on and off (``VisualOdometry.clock = None``) and prints the ratio of the
+median frame times.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from benchmarks.vo_bench import KITTI_SEQUENCE_1, fmt, load_frames, markdown_table, reference_ms, score  # noqa: E402
+from gtvo.config import OdometryConfig, SolverConfig  # noqa: E402
+from gtvo.core.timing import FRAME_STAGES, StageClock  # noqa: E402
+from gtvo.datasets import open_sequence  # noqa: E402
+from gtvo.errors import InputError  # noqa: E402
+from gtvo.io.atomic import write_json  # noqa: E402
+from gtvo.odometry import VisualOdometry  # noqa: E402
+
+#: frames of the warm-up run (compiled kernels loaded; the window fills and marginalises once)
+WARMUP_FRAMES = 10
+
+
+def make_config(mode: str, solver: str | None, points: int | None = None) -> OdometryConfig:
+    """``OdometryConfig()`` with ``mode``, the CLI's ``--solver`` (None: the defaults) and a point budget."""
+    kwargs: dict[str, Any] = {"mode": mode}
+    if solver is not None:
+        kwargs["solver"] = SolverConfig.both(solver)
+    if points is not None:
+        kwargs["points_per_keyframe"] = points
+    return OdometryConfig(**kwargs)
+
+
+def run_once(camera: Any, frames: list, config: OdometryConfig, timed: bool = True) -> dict[str, Any]:
+    """One run over ``frames``: wall ms per frame, ms per frame by stage, counters and the trajectory."""
+    vo = VisualOdometry(camera, config)
+    if not timed:
+        vo.clock = None
+    t0 = time.perf_counter()
+    for f in frames:
+        vo.process(f)
+    seconds = time.perf_counter() - t0
+    n = len(frames)
+    stages = {k: 1000.0 * v / n for k, v in vo.stage_seconds.items()}
+    entries = 0 if vo.clock is None else sum(vo.clock.entries.values())
+    return {"frame_ms": 1000.0 * seconds / n, "stage_ms": stages, "keyframes": len(vo.keyframes),
+            "window_optimisations": len(vo.window_results), "failures": vo.failures,
+            "points_per_keyframe": float(np.mean([len(kf.points) for kf in vo.keyframes])),
+            "stage_entries_per_frame": entries / n, "trajectory": vo.trajectory("gtvo")}
+
+
+def hook_cost_us(n: int = 20000) -> float:
+    """Wall microseconds of one stage opened and closed inside another (the hooks' own cost)."""
+    clock = StageClock()
+    with clock.activate("other"):
+        t0 = time.perf_counter()
+        for _ in range(n):
+            clock.leave(clock.enter("linearisation"))
+        return 1e6 * (time.perf_counter() - t0) / n
+
+
+def measure(camera: Any, frames: list, config: OdometryConfig, repeat: int) -> dict[str, Any]:
+    """``repeat`` runs, each with a reference SGBM timing; medians of the times, the first run's rest."""
+    runs, refs = [], []
+    for _ in range(repeat):
+        refs.append(reference_ms(frames))
+        runs.append(run_once(camera, frames, config))
+    out = dict(runs[0])
+    out["frame_ms"] = statistics.median(r["frame_ms"] for r in runs)
+    out["stage_ms"] = {k: statistics.median(r["stage_ms"][k] for r in runs) for k in runs[0]["stage_ms"]}
+    out["reference_ms"] = statistics.median(refs)
+    out["frame_ms_runs"] = [r["frame_ms"] for r in runs]
+    return out
+
+
+def machine() -> dict[str, Any]:
+    """Load average, cores and the code's commit (the context of the figures)."""
+    try:
+        commit = subprocess.run(["git", "-C", str(Path(__file__).resolve().parents[1]), "rev-parse", "--short", "HEAD"],
+                                capture_output=True, text=True, timeout=10).stdout.strip() or None
+    except (OSError, subprocess.SubprocessError):
+        commit = None
+    return {"load_average_1_5_15": [round(x, 2) for x in os.getloadavg()], "cpus": os.cpu_count(), "commit": commit}
+
+
+def budget_table(res: dict[str, Any]) -> str:
+    """stage | ms per frame | % of frame | x ref, then the frame's total."""
+    frame, ref = res["frame_ms"], res["reference_ms"]
+    rows = []
+    for name in FRAME_STAGES:
+        ms = res["stage_ms"].get(name, 0.0)
+        if name in ("reading", "outputs") and ms == 0.0:
+            continue  # not part of a run on preloaded frames
+        rows.append([name, f"{ms:.1f}", f"{100.0 * ms / frame:.1f} %", f"{ms / ref:.2f}"])
+    staged = sum(res["stage_ms"].values())
+    rows.append(["**frame** (wall)", f"**{frame:.1f}**", "100 %", f"**{frame / ref:.2f}**"])
+    rows.append(["(stages' sum)", f"{staged:.1f}", f"{100.0 * staged / frame:.1f} %", f"{staged / ref:.2f}"])
+    return markdown_table(["stage", "ms per frame", "% of frame", "x ref"], rows)
+
+
+def linear_fit(x: list[float], y: list[float]) -> dict[str, float]:
+    """Least-squares ``y = a + b x``: slope per 100 x, intercept, R^2 and the largest relative residual."""
+    X, Y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
+    b, a = np.polyfit(X, Y, 1)
+    pred = a + b * X
+    ss = float(np.sum((Y - Y.mean()) ** 2))
+    r2 = 1.0 - float(np.sum((Y - pred) ** 2)) / ss if ss > 0 else 1.0
+    rel = np.abs(Y - pred) / np.maximum(np.abs(Y), 1e-9)
+    return {"per_100_points": 100.0 * float(b), "intercept": float(a), "r2": r2, "max_rel_residual": float(rel.max())}
+
+
+def scaling(camera: Any, frames: list, args: argparse.Namespace) -> dict[str, Any]:
+    """The window with each point budget of ``--points``: ms per frame and by stage, and linear fits."""
+    budgets = [int(p) for p in args.points.split(",") if p.strip()]
+    if len(budgets) < 3:
+        raise InputError(f"--points needs at least 3 budgets to test a line, got {args.points!r}")
+    rows = {p: measure(camera, frames, make_config(args.mode, args.solver, p), args.repeat) for p in budgets}
+    x = [rows[p]["points_per_keyframe"] for p in budgets]
+    cols = ["frame"] + [s for s in FRAME_STAGES if any(rows[p]["stage_ms"].get(s, 0.0) > 0 for p in budgets)]
+
+    def value(p: int, c: str) -> float:
+        return rows[p]["frame_ms"] if c == "frame" else rows[p]["stage_ms"].get(c, 0.0)
+
+    fits = {c: linear_fit(x, [value(p, c) for p in budgets]) for c in cols}
+    header = ["points (budget / kept)", "keyframes", "x ref"] + [f"{c} ms" for c in cols]
+    table = [[f"{p} / {rows[p]['points_per_keyframe']:.0f}", str(rows[p]["keyframes"]),
+              f"{rows[p]['frame_ms'] / rows[p]['reference_ms']:.2f}"] + [f"{value(p, c):.1f}" for c in cols]
+             for p in budgets]
+    table.append(["fit: ms per 100 points", "", ""] + [f"{fits[c]['per_100_points']:.2f}" for c in cols])
+    table.append(["fit: intercept ms", "", ""] + [f"{fits[c]['intercept']:.1f}" for c in cols])
+    table.append(["fit: R^2", "", ""] + [f"{fits[c]['r2']:.3f}" for c in cols])
+    table.append(["fit: max rel. residual", "", ""] + [f"{100 * fits[c]['max_rel_residual']:.1f} %" for c in cols])
+    print(markdown_table(header, table))
+    return {"budgets": budgets, "points_kept": x, "fits": fits,
+            "runs": {str(p): {k: v for k, v in rows[p].items() if k != "trajectory"} for p in budgets}}
+
+
+def overhead(camera: Any, frames: list, config: OdometryConfig, repeat: int) -> dict[str, Any]:
+    """Runs with the clock on and off, alternating; the ratio of the median frame times."""
+    on, off = [], []
+    for _ in range(max(repeat, 3)):
+        on.append(run_once(camera, frames, config, timed=True)["frame_ms"])
+        off.append(run_once(camera, frames, config, timed=False)["frame_ms"])
+    ratio = statistics.median(on) / statistics.median(off)
+    print(f"clock on: {statistics.median(on):.1f} ms/frame (runs {', '.join(f'{t:.1f}' for t in on)}); "
+          f"clock off: {statistics.median(off):.1f} ms/frame (runs {', '.join(f'{t:.1f}' for t in off)}); "
+          f"on / off = {ratio:.3f}")
+    return {"on_ms": on, "off_ms": off, "ratio": ratio}
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--sequence", type=Path, default=KITTI_SEQUENCE_1, metavar="DIR")
+    ap.add_argument("--mode", choices=("window", "track"), default="window")
+    ap.add_argument("--solver", choices=("gtsam", "handrolled"), default=None,
+                    help="tracker and window solver, as gtvo run --solver (default: the library's defaults)")
+    ap.add_argument("--frame-step", type=int, default=1, help="use every N-th frame (default 1)")
+    ap.add_argument("--max-frames", type=int, default=None)
+    ap.add_argument("--repeat", type=int, default=1, help="runs per figure; the median is printed (default 1)")
+    ap.add_argument("--points", default=None, metavar="P1,P2,...", help="scaling mode: these point budgets")
+    ap.add_argument("--overhead", action="store_true", help="compare runs with the stage clock on and off")
+    ap.add_argument("--json", type=Path, default=None, metavar="OUT", help="also write the figures as JSON")
+    args = ap.parse_args(argv)
+    try:
+        if args.repeat < 1 or args.frame_step < 1:
+            raise InputError(f"--repeat and --frame-step must be >= 1, got {args.repeat} and {args.frame_step}")
+        seq = open_sequence(args.sequence, max_frames=args.max_frames).subsampled(args.frame_step)
+        frames = load_frames(seq, progress=False)
+        config = make_config(args.mode, args.solver)
+    except InputError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    start = machine()
+    run_once(seq.camera, frames[:WARMUP_FRAMES], config)  # warm-up: compiled kernels loaded
+    what = (f"{seq.name}, {len(frames)} frames (frame step {args.frame_step}), mode {config.mode}, tracker solver "
+            f"{config.solver.tracker}, window solver {config.solver.window}, {args.repeat} run(s) per figure")
+    print(f"# gtvo frame budget: {what}\n\nload average at start {start['load_average_1_5_15']} on "
+          f"{start['cpus']} cores, commit {start['commit']}\n")
+    out: dict[str, Any] = {"what": what, "machine_start": start}
+    if args.points:
+        out["scaling"] = scaling(seq.camera, frames, args)
+    elif args.overhead:
+        out["overhead"] = overhead(seq.camera, frames, config, args.repeat)
+    else:
+        res = measure(seq.camera, frames, config, args.repeat)
+        acc = score(res["trajectory"], seq)
+        print(budget_table(res))
+        cost = hook_cost_us()
+        print(f"\n{1000.0 / res['frame_ms']:.1f} frames/s ({res['frame_ms']:.1f} ms/frame; runs "
+              f"{', '.join(f'{t:.1f}' for t in res['frame_ms_runs'])}); reference (one SGBM) {res['reference_ms']:.1f} ms: "
+              f"frame = {res['frame_ms'] / res['reference_ms']:.2f} x ref\n"
+              f"keyframes {res['keyframes']} of {len(frames)}, window optimisations {res['window_optimisations']}, "
+              f"tracking failures {res['failures']}, points per keyframe {res['points_per_keyframe']:.0f}\n"
+              f"ATE {fmt(acc['ate_m'], '.4f')} m (SE(3)), segment drift {fmt(acc['seg_t_pct'], '.2f')} %\n"
+              f"timing hooks: {res['stage_entries_per_frame']:.0f} stages opened per frame x {cost:.2f} us = "
+              f"{res['stage_entries_per_frame'] * cost / 1000.0:.3f} ms per frame "
+              f"({0.1 * res['stage_entries_per_frame'] * cost / res['frame_ms']:.2f} % of the frame)")
+        out["budget"] = {k: v for k, v in res.items() if k != "trajectory"} | {"accuracy": acc,
+                                                                              "hook_cost_us": cost}
+    out["machine_end"] = machine()
+    print(f"\nload average at the end {out['machine_end']['load_average_1_5_15']}")
+    if args.json is not None:
+        write_json(args.json, out)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
