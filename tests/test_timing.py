@@ -249,3 +249,13 @@ def test_frame_budget_script_smoke(shared_data, tmp_path, capsys) -> None:
     b = data["budget"]
     assert sum(b["stage_ms"].values()) == pytest.approx(b["frame_ms"], rel=0.05)
     assert main(["--sequence", str(tmp_path / "nothing")]) == 2
+
+
+def test_memory_slope_is_over_the_second_half() -> None:
+    from benchmarks.memory_vo import second_half_slope
+
+    # grows 10 MiB per 100 frames in the first half, flat in the second
+    samples = [(f, 500.0 + 0.1 * min(f, 500)) for f in range(50, 1001, 50)]
+    assert second_half_slope(samples) == pytest.approx(0.0, abs=1e-9)
+    assert second_half_slope([(f, 0.02 * f) for f in range(50, 1001, 50)]) == pytest.approx(2.0)
+    assert second_half_slope([(50, 1.0)]) is None and second_half_slope([]) is None

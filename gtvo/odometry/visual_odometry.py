@@ -134,17 +134,16 @@ class VisualOdometry(KeyframeMaking):
         BLAS runs single-threaded inside (threadpoolctl): the tracker's and the window's many
         small matrix products were up to 300x slower multithreaded on a busy 2-core machine.
         """
-        with _single_threaded_blas():
-            if self.clock is None:
+        if self.clock is None:
+            with _single_threaded_blas():
                 return self._process(frame)
-            with self.clock.activate("other"):  # the frame's time outside the named stages: "other"
-                return self._process(frame)
+        with self.clock.activate("other"), _single_threaded_blas():  # time outside the named stages: "other"
+            return self._process(frame)
 
     @property
     def stage_seconds(self) -> dict[str, float]:
-        """Seconds spent so far in each stage of the frames' work (:data:`gtvo.core.timing.FRAME_STAGES`:
-        ``tracking``, ``point_selection``, ..., ``other``; docs/evaluation.md, "Where a frame's time
-        goes"); they add up to the time spent in :meth:`process`. Empty when :attr:`clock` is None."""
+        """Seconds so far in each stage (:data:`gtvo.core.timing.FRAME_STAGES`, docs/evaluation.md): they
+        add up to the time spent in :meth:`process`. Empty when :attr:`clock` is None."""
         return {} if self.clock is None else self.clock.snapshot()
 
     def _process(self, frame: Frame) -> FrameEstimate:
