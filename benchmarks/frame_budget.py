@@ -20,8 +20,9 @@ through the ratios.
 
 ``--points`` runs the window with each point budget (``frontend.points_per_keyframe``) and fits
 ``ms/frame = a + b * points`` (the points each keyframe kept after the stereo search, mean over
-keyframes) for the frame and each stage: ``max rel. residual`` is the largest
-``|measured - fit| / measured`` over the budgets (linear when small). ``--overhead`` alternates
+keyframes) for the frame (also in multiples of the reference, which takes the machine's load
+out) and each stage: ``max rel. residual`` is the largest ``|measured - fit| / measured`` over
+the budgets (linear when small). ``--overhead`` alternates
 runs with the clock on and off (``VisualOdometry.clock = None``) and prints the ratio of the
 median frame times.
 """
@@ -75,8 +76,10 @@ def run_once(camera: Any, frames: list, config: OdometryConfig, timed: bool = Tr
     n = len(frames)
     stages = {k: 1000.0 * v / n for k, v in vo.stage_seconds.items()}
     entries = 0 if vo.clock is None else sum(vo.clock.entries.values())
+    iterations = [r.iterations for r in vo.window_results]
     return {"frame_ms": 1000.0 * seconds / n, "stage_ms": stages, "keyframes": len(vo.keyframes),
             "window_optimisations": len(vo.window_results), "failures": vo.failures,
+            "window_iterations_mean": float(np.mean(iterations)) if iterations else None,
             "points_per_keyframe": float(np.mean([len(kf.points) for kf in vo.keyframes])),
             "stage_entries_per_frame": entries / n, "trajectory": vo.trajectory("gtvo")}
 
@@ -148,20 +151,24 @@ def scaling(camera: Any, frames: list, args: argparse.Namespace) -> dict[str, An
         raise InputError(f"--points needs at least 3 budgets to test a line, got {args.points!r}")
     rows = {p: measure(camera, frames, make_config(args.mode, args.solver, p), args.repeat) for p in budgets}
     x = [rows[p]["points_per_keyframe"] for p in budgets]
-    cols = ["frame"] + [s for s in FRAME_STAGES if any(rows[p]["stage_ms"].get(s, 0.0) > 0 for p in budgets)]
+    cols = ["frame x ref", "frame"] + [s for s in FRAME_STAGES
+                                       if any(rows[p]["stage_ms"].get(s, 0.0) > 0 for p in budgets)]
 
     def value(p: int, c: str) -> float:
+        if c == "frame x ref":
+            return rows[p]["frame_ms"] / rows[p]["reference_ms"]
         return rows[p]["frame_ms"] if c == "frame" else rows[p]["stage_ms"].get(c, 0.0)
 
     fits = {c: linear_fit(x, [value(p, c) for p in budgets]) for c in cols}
-    header = ["points (budget / kept)", "keyframes", "x ref"] + [f"{c} ms" for c in cols]
+    header = ["points (budget / kept)", "keyframes", "window iterations", "ref ms"] + \
+        [c if c == "frame x ref" else f"{c} ms" for c in cols]
     table = [[f"{p} / {rows[p]['points_per_keyframe']:.0f}", str(rows[p]["keyframes"]),
-              f"{rows[p]['frame_ms'] / rows[p]['reference_ms']:.2f}"] + [f"{value(p, c):.1f}" for c in cols]
-             for p in budgets]
-    table.append(["fit: ms per 100 points", "", ""] + [f"{fits[c]['per_100_points']:.2f}" for c in cols])
-    table.append(["fit: intercept ms", "", ""] + [f"{fits[c]['intercept']:.1f}" for c in cols])
-    table.append(["fit: R^2", "", ""] + [f"{fits[c]['r2']:.3f}" for c in cols])
-    table.append(["fit: max rel. residual", "", ""] + [f"{100 * fits[c]['max_rel_residual']:.1f} %" for c in cols])
+              fmt(rows[p]["window_iterations_mean"], ".2f"), f"{rows[p]['reference_ms']:.1f}"]
+             + [f"{value(p, c):.2f}" if c == "frame x ref" else f"{value(p, c):.1f}" for c in cols] for p in budgets]
+    fit_rows = [("fit: per 100 points", "per_100_points", "{:.2f}"), ("fit: intercept", "intercept", "{:.1f}"),
+                ("fit: R^2", "r2", "{:.3f}"), ("fit: max rel. residual", "max_rel_residual", "{:.1%}")]
+    for label, key, spec in fit_rows:
+        table.append([label, "", "", ""] + [spec.format(fits[c][key]) for c in cols])
     print(markdown_table(header, table))
     return {"budgets": budgets, "points_kept": x, "fits": fits,
             "runs": {str(p): {k: v for k, v in rows[p].items() if k != "trajectory"} for p in budgets}}
