@@ -11,12 +11,16 @@ the tracker's and the window's solver together, as the CLI's ``--solver``. Every
 fresh ``VisualOdometry`` after one warm-up run on the first frames (numba's compiled kernels
 loaded), and the stages are the library's own always-on clock (``VisualOdometry.stage_seconds``,
 :mod:`gtvo.core.timing`; what each stage covers: docs/evaluation.md, "Where a frame's time goes").
-With ``--repeat N`` every figure is the median over N runs.
+With ``--repeat N`` every figure is the median over N runs (each stage's median on its own, so the
+stages' sum may differ a little from the frame's median). "opened per frame": how often the stage
+was entered (e.g. ``linearisation``: the host factors' evaluations), from the first run.
 
 The machine may be shared: each run also times one OpenCV StereoSGBM on the first frame
 (``benchmarks.vo_bench.reference_ms``), and the tables give times as multiples of that reference
-("x ref") beside the milliseconds, with the load average at the start and the end. Compare runs
-through the ratios.
+("x ref", each run's times over the mean of the reference timed just before and just after it)
+beside the milliseconds, with the load average at the start and the end. Compare runs through
+the ratios. ``--cpu`` times this process's CPU time instead of wall time (the stages, the frame
+and the reference alike; the odometry runs on one thread): other jobs disturb it less.
 
 ``--points`` runs the window with each point budget (``frontend.points_per_keyframe``) and fits
 ``ms/frame = a + b * points`` (the points each keyframe kept after the stereo search, mean over
@@ -42,7 +46,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from benchmarks.peers import make_sgbm  # noqa: E402
 from benchmarks.vo_bench import KITTI_SEQUENCE_1, fmt, load_frames, markdown_table, reference_ms, score  # noqa: E402
+from gtvo.core.image import to_uint8  # noqa: E402
 from gtvo.config import OdometryConfig, SolverConfig  # noqa: E402
 from gtvo.core.timing import FRAME_STAGES, StageClock  # noqa: E402
 from gtvo.datasets import open_sequence  # noqa: E402
@@ -64,24 +70,27 @@ def make_config(mode: str, solver: str | None, points: int | None = None) -> Odo
     return OdometryConfig(**kwargs)
 
 
-def run_once(camera: Any, frames: list, config: OdometryConfig, timed: bool = True) -> dict[str, Any]:
-    """One run over ``frames``: wall ms per frame, ms per frame by stage, counters and the trajectory."""
+def run_once(camera: Any, frames: list, config: OdometryConfig, timed: bool = True,
+             cpu: bool = False) -> dict[str, Any]:
+    """One run over ``frames``: ms per frame (wall, or with ``cpu`` this process's CPU time), by
+    stage too, counters and the trajectory."""
+    timer = time.process_time if cpu else time.perf_counter
     vo = VisualOdometry(camera, config)
-    if not timed:
-        vo.clock = None
-    t0 = time.perf_counter()
+    vo.clock = StageClock(timer=timer) if timed else None
+    t0 = timer()
     for f in frames:
         vo.process(f)
-    seconds = time.perf_counter() - t0
+    seconds = timer() - t0
     n = len(frames)
     stages = {k: 1000.0 * v / n for k, v in vo.stage_seconds.items()}
-    entries = 0 if vo.clock is None else sum(vo.clock.entries.values())
+    calls = {} if vo.clock is None else {k: c / n for k, c in vo.clock.entries.items()}
     iterations = [r.iterations for r in vo.window_results]
     return {"frame_ms": 1000.0 * seconds / n, "stage_ms": stages, "keyframes": len(vo.keyframes),
             "window_optimisations": len(vo.window_results), "failures": vo.failures,
             "window_iterations_mean": float(np.mean(iterations)) if iterations else None,
             "points_per_keyframe": float(np.mean([len(kf.points) for kf in vo.keyframes])),
-            "stage_entries_per_frame": entries / n, "trajectory": vo.trajectory("gtvo")}
+            "stage_calls_per_frame": calls, "stage_entries_per_frame": sum(calls.values()),
+            "trajectory": vo.trajectory("gtvo")}
 
 
 def hook_cost_us(n: int = 20000) -> float:
@@ -94,17 +103,38 @@ def hook_cost_us(n: int = 20000) -> float:
         return 1e6 * (time.perf_counter() - t0) / n
 
 
-def measure(camera: Any, frames: list, config: OdometryConfig, repeat: int) -> dict[str, Any]:
-    """``repeat`` runs, each with a reference SGBM timing; medians of the times, the first run's rest."""
-    runs, refs = [], []
+def reference_cpu_ms(frames: list, repeats: int = 5) -> float:
+    """:func:`benchmarks.vo_bench.reference_ms` in this process's CPU time (all threads'): median ms."""
+    f = frames[0]
+    left = to_uint8(f.left)
+    right = to_uint8(f.right) if f.right is not None else left
+    matcher = make_sgbm()
+    ts = []
+    for _ in range(repeats):
+        t0 = time.process_time()
+        matcher.compute(left, right)
+        ts.append(time.process_time() - t0)
+    return 1000.0 * float(np.median(ts))
+
+
+def measure(camera: Any, frames: list, config: OdometryConfig, repeat: int, cpu: bool = False) -> dict[str, Any]:
+    """``repeat`` runs, the reference timed before each and after the last (a run's reference: the
+    mean of the two around it); medians of the times and of the ratios, the first run's rest."""
+    reference = reference_cpu_ms if cpu else reference_ms
+    runs, refs = [], [reference(frames)]
     for _ in range(repeat):
-        refs.append(reference_ms(frames))
-        runs.append(run_once(camera, frames, config))
+        runs.append(run_once(camera, frames, config, cpu=cpu))
+        refs.append(reference(frames))
+    around = [0.5 * (refs[i] + refs[i + 1]) for i in range(repeat)]
     out = dict(runs[0])
     out["frame_ms"] = statistics.median(r["frame_ms"] for r in runs)
     out["stage_ms"] = {k: statistics.median(r["stage_ms"][k] for r in runs) for k in runs[0]["stage_ms"]}
-    out["reference_ms"] = statistics.median(refs)
+    out["reference_ms"] = statistics.median(around)
+    out["frame_x_ref"] = statistics.median(r["frame_ms"] / a for r, a in zip(runs, around))
+    out["stage_x_ref"] = {k: statistics.median(r["stage_ms"][k] / a for r, a in zip(runs, around))
+                          for k in runs[0]["stage_ms"]}
     out["frame_ms_runs"] = [r["frame_ms"] for r in runs]
+    out["clock"] = "cpu" if cpu else "wall"
     return out
 
 
@@ -119,18 +149,21 @@ def machine() -> dict[str, Any]:
 
 
 def budget_table(res: dict[str, Any]) -> str:
-    """stage | ms per frame | % of frame | x ref, then the frame's total."""
-    frame, ref = res["frame_ms"], res["reference_ms"]
+    """stage | ms per frame | % of frame | x ref | opened per frame, then the frame's total."""
+    frame = res["frame_ms"]
     rows = []
     for name in FRAME_STAGES:
         ms = res["stage_ms"].get(name, 0.0)
         if name in ("reading", "outputs") and ms == 0.0:
             continue  # not part of a run on preloaded frames
-        rows.append([name, f"{ms:.1f}", f"{100.0 * ms / frame:.1f} %", f"{ms / ref:.2f}"])
+        calls = res["stage_calls_per_frame"].get(name, 0.0)
+        rows.append([name, f"{ms:.1f}", f"{100.0 * ms / frame:.1f} %", f"{res['stage_x_ref'].get(name, 0.0):.2f}",
+                     f"{calls:.1f}"])
     staged = sum(res["stage_ms"].values())
-    rows.append(["**frame** (wall)", f"**{frame:.1f}**", "100 %", f"**{frame / ref:.2f}**"])
-    rows.append(["(stages' sum)", f"{staged:.1f}", f"{100.0 * staged / frame:.1f} %", f"{staged / ref:.2f}"])
-    return markdown_table(["stage", "ms per frame", "% of frame", "x ref"], rows)
+    rows.append([f"**frame** ({res['clock']})", f"**{frame:.1f}**", "100 %", f"**{res['frame_x_ref']:.2f}**", ""])
+    rows.append(["(stages' sum)", f"{staged:.1f}", f"{100.0 * staged / frame:.1f} %",
+                 f"{sum(res['stage_x_ref'].values()):.2f}", ""])
+    return markdown_table(["stage", "ms per frame", "% of frame", "x ref", "opened per frame"], rows)
 
 
 def linear_fit(x: list[float], y: list[float]) -> dict[str, float]:
@@ -149,14 +182,14 @@ def scaling(camera: Any, frames: list, args: argparse.Namespace) -> dict[str, An
     budgets = [int(p) for p in args.points.split(",") if p.strip()]
     if len(budgets) < 3:
         raise InputError(f"--points needs at least 3 budgets to test a line, got {args.points!r}")
-    rows = {p: measure(camera, frames, make_config(args.mode, args.solver, p), args.repeat) for p in budgets}
+    rows = {p: measure(camera, frames, make_config(args.mode, args.solver, p), args.repeat, args.cpu) for p in budgets}
     x = [rows[p]["points_per_keyframe"] for p in budgets]
     cols = ["frame x ref", "frame"] + [s for s in FRAME_STAGES
                                        if any(rows[p]["stage_ms"].get(s, 0.0) > 0 for p in budgets)]
 
     def value(p: int, c: str) -> float:
         if c == "frame x ref":
-            return rows[p]["frame_ms"] / rows[p]["reference_ms"]
+            return rows[p]["frame_x_ref"]
         return rows[p]["frame_ms"] if c == "frame" else rows[p]["stage_ms"].get(c, 0.0)
 
     fits = {c: linear_fit(x, [value(p, c) for p in budgets]) for c in cols}
@@ -198,6 +231,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--repeat", type=int, default=1, help="runs per figure; the median is printed (default 1)")
     ap.add_argument("--points", default=None, metavar="P1,P2,...", help="scaling mode: these point budgets")
     ap.add_argument("--overhead", action="store_true", help="compare runs with the stage clock on and off")
+    ap.add_argument("--cpu", action="store_true",
+                    help="time this process's CPU time instead of wall time (the reference too): less disturbed "
+                         "by other jobs on a shared machine")
     ap.add_argument("--json", type=Path, default=None, metavar="OUT", help="also write the figures as JSON")
     args = ap.parse_args(argv)
     try:
@@ -221,13 +257,13 @@ def main(argv: list[str] | None = None) -> int:
     elif args.overhead:
         out["overhead"] = overhead(seq.camera, frames, config, args.repeat)
     else:
-        res = measure(seq.camera, frames, config, args.repeat)
+        res = measure(seq.camera, frames, config, args.repeat, args.cpu)
         acc = score(res["trajectory"], seq)
         print(budget_table(res))
         cost = hook_cost_us()
         print(f"\n{1000.0 / res['frame_ms']:.1f} frames/s ({res['frame_ms']:.1f} ms/frame; runs "
-              f"{', '.join(f'{t:.1f}' for t in res['frame_ms_runs'])}); reference (one SGBM) {res['reference_ms']:.1f} ms: "
-              f"frame = {res['frame_ms'] / res['reference_ms']:.2f} x ref\n"
+              f"{', '.join(f'{t:.1f}' for t in res['frame_ms_runs'])}; {res['clock']} time); reference (one SGBM) "
+              f"{res['reference_ms']:.1f} ms: frame = {res['frame_x_ref']:.2f} x ref\n"
               f"keyframes {res['keyframes']} of {len(frames)}, window optimisations {res['window_optimisations']}, "
               f"tracking failures {res['failures']}, points per keyframe {res['points_per_keyframe']:.0f}\n"
               f"ATE {fmt(acc['ate_m'], '.4f')} m (SE(3)), segment drift {fmt(acc['seg_t_pct'], '.2f')} %\n"
