@@ -63,6 +63,7 @@ def test_same_stage_nested_in_itself_is_counted_once() -> None:
                 _busy(0.02)
     assert clock.seconds["linearisation"] == pytest.approx(0.02, abs=0.01)
     assert clock.total() == pytest.approx(clock.seconds["linearisation"])
+    assert clock.entries["linearisation"] == 1  # entered once: the call inside it is part of it
 
 
 def test_unknown_stage_is_refused_by_a_clock_with_fixed_stages_and_added_by_an_open_one() -> None:

@@ -64,7 +64,7 @@ class StageClock:
         self.timer = timer
         #: seconds charged to each stage (self time); every accepted stage is present, from 0.0
         self.seconds: dict[str, float] = {name: 0.0 for name in (stages or ())}
-        #: how many times each stage was opened (absorbed ones not counted)
+        #: how many times each stage was opened (not counted: inside an absorbing stage or inside itself)
         self.entries: dict[str, int] = {name: 0 for name in (stages or ())}
         self._stack: list[str] = []
         self._mark = 0.0  # start of the innermost open stage's running interval
@@ -72,9 +72,11 @@ class StageClock:
 
     # --- the low-level pair (the decorator's path: no context object) ---------------------
     def enter(self, name: str, absorb: bool = False) -> bool:
-        """Open stage ``name``; returns whether it was opened (False inside an absorbing stage),
-        which :meth:`leave` must be given."""
-        if self._absorber:
+        """Open stage ``name``; returns whether it was opened, which :meth:`leave` must be given: not
+        inside an absorbing stage, nor when ``name`` is the innermost open stage already (its time
+        goes there anyway; it is entered once)."""
+        stack = self._stack
+        if self._absorber or (stack and stack[-1] == name and not absorb):
             return False
         if name not in self.seconds:
             if self.fixed:
@@ -82,7 +84,6 @@ class StageClock:
             self.seconds[name] = 0.0
             self.entries[name] = 0
         now = self.timer()
-        stack = self._stack
         if stack:
             self.seconds[stack[-1]] += now - self._mark
         stack.append(name)
