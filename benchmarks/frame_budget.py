@@ -13,7 +13,8 @@ loaded), and the stages are the library's own always-on clock (``VisualOdometry.
 :mod:`gtvo.core.timing`; what each stage covers: docs/evaluation.md, "Where a frame's time goes").
 With ``--repeat N`` every figure is the median over N runs (each stage's median on its own, so the
 stages' sum may differ a little from the frame's median). "opened per frame": how often the stage
-was entered (e.g. ``linearisation``: the host factors' evaluations), from the first run.
+was entered from outside itself (``linearisation``: a host factor's evaluation by GTSAM, or a
+``HostPoints`` call from a solver), from the first run.
 
 The machine may be shared: each run also times one OpenCV StereoSGBM on the first frame
 (``benchmarks.vo_bench.reference_ms``), and the tables give times as multiples of that reference
