@@ -94,9 +94,10 @@ def run_once(camera: Any, frames: list, config: OdometryConfig, timed: bool = Tr
             "trajectory": vo.trajectory("gtvo")}
 
 
-def hook_cost_us(n: int = 20000) -> float:
-    """Wall microseconds of one stage opened and closed inside another (the hooks' own cost)."""
-    clock = StageClock()
+def hook_cost_us(cpu: bool = False, n: int = 20000) -> float:
+    """Wall microseconds of one stage opened and closed inside another (the hooks' own cost), with
+    the CPU-time timer when ``cpu``."""
+    clock = StageClock(timer=time.process_time if cpu else time.perf_counter)
     with clock.activate("other"):
         t0 = time.perf_counter()
         for _ in range(n):
@@ -240,6 +241,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.repeat < 1 or args.frame_step < 1:
             raise InputError(f"--repeat and --frame-step must be >= 1, got {args.repeat} and {args.frame_step}")
+        if args.json is not None and not args.json.resolve().parent.is_dir():
+            raise InputError("the folder of --json does not exist", path=args.json)
         seq = open_sequence(args.sequence, max_frames=args.max_frames).subsampled(args.frame_step)
         frames = load_frames(seq, progress=False)
         config = make_config(args.mode, args.solver)
@@ -261,7 +264,10 @@ def main(argv: list[str] | None = None) -> int:
         res = measure(seq.camera, frames, config, args.repeat, args.cpu)
         acc = score(res["trajectory"], seq)
         print(budget_table(res))
-        cost = hook_cost_us()
+        print(f"\n({res['clock']} time; x ref: over one OpenCV StereoSGBM of frame 0 timed just before and after each "
+              "run; 'opened per frame': entries of the stage from outside itself; what each stage covers: "
+              "docs/evaluation.md, \"Where a frame's time goes\")")
+        cost = hook_cost_us(args.cpu)
         print(f"\n{1000.0 / res['frame_ms']:.1f} frames/s ({res['frame_ms']:.1f} ms/frame; runs "
               f"{', '.join(f'{t:.1f}' for t in res['frame_ms_runs'])}; {res['clock']} time); reference (one SGBM) "
               f"{res['reference_ms']:.1f} ms: frame = {res['frame_x_ref']:.2f} x ref\n"
