@@ -21,7 +21,10 @@ The machine may be shared: each run also times one OpenCV StereoSGBM on the firs
 ("x ref", each run's times over the mean of the reference timed just before and just after it)
 beside the milliseconds, with the load average at the start and the end. Compare runs through
 the ratios. ``--cpu`` times this process's CPU time instead of wall time (the stages, the frame
-and the reference alike; the odometry runs on one thread): other jobs disturb it less.
+and the reference alike): other jobs disturb it less. It counts every thread's time: with the
+window's thread pool (``WindowConfig.threads``) it is the work done, not the time waited (a stage
+is charged the CPU time of all threads while the main thread is in it), and reading the process's
+CPU clock costs a few microseconds per stage then.
 
 ``--points`` runs the window with each point budget (``frontend.points_per_keyframe``) and fits
 ``ms/frame = a + b * points`` (the points each keyframe kept after the stereo search, mean over
@@ -81,6 +84,7 @@ def run_once(camera: Any, frames: list, config: OdometryConfig, timed: bool = Tr
     t0 = timer()
     for f in frames:
         vo.process(f)
+    vo.finish()  # the keyframes still waiting for the window (WindowConfig.optimize_every > 1)
     seconds = timer() - t0
     n = len(frames)
     stages = {k: 1000.0 * v / n for k, v in vo.stage_seconds.items()}
@@ -264,7 +268,7 @@ def main(argv: list[str] | None = None) -> int:
         res = measure(seq.camera, frames, config, args.repeat, args.cpu)
         acc = score(res["trajectory"], seq)
         print(budget_table(res))
-        print(f"\n({res['clock']} time; x ref: over one OpenCV StereoSGBM of frame 0 timed just before and after each "
+        print(f"\n({res['clock']} time{' of all threads' if args.cpu else ''}; x ref: over one OpenCV StereoSGBM of frame 0 timed just before and after each "
               "run; 'opened per frame': entries of the stage from outside itself; what each stage covers: "
               "docs/evaluation.md, \"Where a frame's time goes\")")
         cost = hook_cost_us(args.cpu)
