@@ -143,7 +143,7 @@ class VisualOdometry(KeyframeMaking):
     @property
     def stage_seconds(self) -> dict[str, float]:
         """Seconds so far in each stage (:data:`gtvo.core.timing.FRAME_STAGES`, docs/evaluation.md): they
-        add up to the time spent in :meth:`process`. Empty when :attr:`clock` is None."""
+        add up to the time spent in :meth:`process` and :meth:`finish`. Empty when :attr:`clock` is None."""
         return {} if self.clock is None else self.clock.snapshot()
 
     def _process(self, frame: Frame) -> FrameEstimate:
