@@ -38,6 +38,7 @@ median frame times.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import statistics
 import subprocess
@@ -64,14 +65,21 @@ from gtvo.odometry import VisualOdometry  # noqa: E402
 WARMUP_FRAMES = 10
 
 
-def make_config(mode: str, solver: str | None, points: int | None = None) -> OdometryConfig:
-    """``OdometryConfig()`` with ``mode``, the CLI's ``--solver`` (None: the defaults) and a point budget."""
+def make_config(mode: str, solver: str | None, points: int | None = None,
+                threads: int | None = None) -> OdometryConfig:
+    """``OdometryConfig()`` with ``mode``, the CLI's ``--solver`` (None: the defaults), a point
+    budget and the window's threads (``WindowConfig.threads``; None: the default)."""
     kwargs: dict[str, Any] = {"mode": mode}
     if solver is not None:
         kwargs["solver"] = SolverConfig.both(solver)
     if points is not None:
         kwargs["points_per_keyframe"] = points
-    return OdometryConfig(**kwargs)
+    config = OdometryConfig(**kwargs)
+    if threads is not None:
+        if not hasattr(config.window, "threads"):
+            raise InputError("--threads: this gtvo's WindowConfig has no 'threads' setting")
+        config = dataclasses.replace(config, window=dataclasses.replace(config.window, threads=threads))
+    return config
 
 
 def run_once(camera: Any, frames: list, config: OdometryConfig, timed: bool = True,
@@ -183,12 +191,22 @@ def linear_fit(x: list[float], y: list[float]) -> dict[str, float]:
     return {"per_100_points": 100.0 * float(b), "intercept": float(a), "r2": r2, "max_rel_residual": float(rel.max())}
 
 
+def point_budgets(text: str) -> list[int]:
+    """``--points``' budgets: at least 3 whole numbers, comma-separated."""
+    try:
+        budgets = [int(p) for p in text.split(",") if p.strip()]
+    except ValueError:
+        raise InputError(f"--points takes whole numbers separated by commas, got {text!r}") from None
+    if len(budgets) < 3:
+        raise InputError(f"--points needs at least 3 budgets to test a line, got {text!r}")
+    return budgets
+
+
 def scaling(camera: Any, frames: list, args: argparse.Namespace) -> dict[str, Any]:
     """The window with each point budget of ``--points``: ms per frame and by stage, and linear fits."""
-    budgets = [int(p) for p in args.points.split(",") if p.strip()]
-    if len(budgets) < 3:
-        raise InputError(f"--points needs at least 3 budgets to test a line, got {args.points!r}")
-    rows = {p: measure(camera, frames, make_config(args.mode, args.solver, p), args.repeat, args.cpu) for p in budgets}
+    budgets = point_budgets(args.points)
+    rows = {p: measure(camera, frames, make_config(args.mode, args.solver, p, args.threads), args.repeat, args.cpu)
+            for p in budgets}
     x = [rows[p]["points_per_keyframe"] for p in budgets]
     cols = ["frame x ref", "frame"] + [s for s in FRAME_STAGES
                                        if any(rows[p]["stage_ms"].get(s, 0.0) > 0 for p in budgets)]
@@ -240,23 +258,28 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cpu", action="store_true",
                     help="time this process's CPU time instead of wall time (the reference too): less disturbed "
                          "by other jobs on a shared machine")
+    ap.add_argument("--threads", type=int, default=None, metavar="N",
+                    help="the window's threads (WindowConfig.threads; default: the configuration's)")
     ap.add_argument("--json", type=Path, default=None, metavar="OUT", help="also write the figures as JSON")
     args = ap.parse_args(argv)
     try:
         if args.repeat < 1 or args.frame_step < 1:
             raise InputError(f"--repeat and --frame-step must be >= 1, got {args.repeat} and {args.frame_step}")
+        if args.points is not None:
+            point_budgets(args.points)
         if args.json is not None and not args.json.resolve().parent.is_dir():
             raise InputError("the folder of --json does not exist", path=args.json)
         seq = open_sequence(args.sequence, max_frames=args.max_frames).subsampled(args.frame_step)
         frames = load_frames(seq, progress=False)
-        config = make_config(args.mode, args.solver)
+        config = make_config(args.mode, args.solver, threads=args.threads)
     except InputError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     start = machine()
     run_once(seq.camera, frames[:WARMUP_FRAMES], config)  # warm-up: compiled kernels loaded
     what = (f"{seq.name}, {len(frames)} frames (frame step {args.frame_step}), mode {config.mode}, tracker solver "
-            f"{config.solver.tracker}, window solver {config.solver.window}, {args.repeat} run(s) per figure")
+            f"{config.solver.tracker}, window solver {config.solver.window}, window threads "
+            f"{getattr(config.window, 'threads', '-')}, {args.repeat} run(s) per figure")
     print(f"# gtvo frame budget: {what}\n\nload average at start {start['load_average_1_5_15']} on "
           f"{start['cpus']} cores, commit {start['commit']}\n")
     out: dict[str, Any] = {"what": what, "machine_start": start}

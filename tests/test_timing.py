@@ -275,6 +275,8 @@ def test_frame_budget_script_smoke(shared_data, tmp_path, capsys) -> None:
     b = data["budget"]
     assert sum(b["stage_ms"].values()) == pytest.approx(b["frame_ms"], rel=0.05)
     assert main(["--sequence", str(tmp_path / "nothing")]) == 2
+    assert main(["--sequence", str(seq), "--points", "300,600"]) == 2  # a line needs 3 budgets
+    assert main(["--sequence", str(seq), "--json", str(tmp_path / "no" / "b.json")]) == 2
 
 
 def test_memory_slope_is_over_the_second_half() -> None:
