@@ -14,7 +14,10 @@ loaded), and the stages are the library's own always-on clock (``VisualOdometry.
 With ``--repeat N`` every figure is the median over N runs (each stage's median on its own, so the
 stages' sum may differ a little from the frame's median). "opened per frame": how often the stage
 was entered from outside itself (``linearisation``: a host factor's evaluation by GTSAM, or a
-``HostPoints`` call from a solver), from the first run.
+``HostPoints`` call from a solver), from the first run. "frames by kind": how many frames ran a
+window optimisation, made a keyframe without one (the first frame; ``WindowConfig.optimize_every``)
+or were only tracked, and their mean ms (first run): what a keyframe rule that takes fewer frames
+would save.
 
 The machine may be shared: each run also times one OpenCV StereoSGBM on the first frame
 (``benchmarks.vo_bench.reference_ms``), and the tables give times as multiples of that reference
@@ -89,9 +92,14 @@ def run_once(camera: Any, frames: list, config: OdometryConfig, timed: bool = Tr
     timer = time.process_time if cpu else time.perf_counter
     vo = VisualOdometry(camera, config)
     vo.clock = StageClock(timer=timer) if timed else None
+    kinds: dict[str, list[float]] = {}  # frame kind -> ms of each such frame
     t0 = timer()
     for f in frames:
+        t_frame, n_kf, n_win = timer(), len(vo.keyframes), len(vo.window_results)
         vo.process(f)
+        kind = ("window optimised" if len(vo.window_results) > n_win else
+                "keyframe, no optimisation" if len(vo.keyframes) > n_kf else "tracked only")
+        kinds.setdefault(kind, []).append(1000.0 * (timer() - t_frame))
     vo.finish()  # the keyframes still waiting for the window (WindowConfig.optimize_every > 1)
     seconds = timer() - t0
     n = len(frames)
@@ -103,6 +111,7 @@ def run_once(camera: Any, frames: list, config: OdometryConfig, timed: bool = Tr
             "window_iterations_mean": float(np.mean(iterations)) if iterations else None,
             "points_per_keyframe": float(np.mean([len(kf.points) for kf in vo.keyframes])),
             "stage_calls_per_frame": calls, "stage_entries_per_frame": sum(calls.values()),
+            "frame_kinds_ms": {k: [len(v), float(np.mean(v))] for k, v in kinds.items()},
             "trajectory": vo.trajectory("gtvo")}
 
 
@@ -300,6 +309,8 @@ def main(argv: list[str] | None = None) -> int:
               f"{res['reference_ms']:.1f} ms: frame = {res['frame_x_ref']:.2f} x ref\n"
               f"keyframes {res['keyframes']} of {len(frames)}, window optimisations {res['window_optimisations']}, "
               f"tracking failures {res['failures']}, points per keyframe {res['points_per_keyframe']:.0f}\n"
+              f"frames by kind (first run; count, mean ms): "
+              f"{'; '.join(f'{k} {n}, {ms:.1f}' for k, (n, ms) in res['frame_kinds_ms'].items())}\n"
               f"ATE {fmt(acc['ate_m'], '.4f')} m (SE(3)), segment drift {fmt(acc['seg_t_pct'], '.2f')} %\n"
               f"timing hooks: {res['stage_entries_per_frame']:.0f} stages opened per frame x {cost:.2f} us = "
               f"{res['stage_entries_per_frame'] * cost / 1000.0:.3f} ms per frame "
