@@ -270,10 +270,11 @@ def test_frame_budget_script_smoke(shared_data, tmp_path, capsys) -> None:
         pytest.skip(f"{seq} is absent")
     assert main(["--sequence", str(seq), "--max-frames", "4", "--json", str(tmp_path / "b.json")]) == 0
     out = capsys.readouterr().out
-    assert "| linearisation |" in out and "x ref" in out and "frames/s" in out
+    assert "| linearisation |" in out and "x ref" in out and "frames/s" in out and "frames by kind" in out
     data = json.loads((tmp_path / "b.json").read_text())
     b = data["budget"]
     assert sum(b["stage_ms"].values()) == pytest.approx(b["frame_ms"], rel=0.05)
+    assert sum(n for n, _ in b["frame_kinds_ms"].values()) == 4
     assert main(["--sequence", str(tmp_path / "nothing")]) == 2
     assert main(["--sequence", str(seq), "--points", "300,600"]) == 2  # a line needs 3 budgets
     assert main(["--sequence", str(seq), "--json", str(tmp_path / "no" / "b.json")]) == 2
