@@ -24,10 +24,10 @@ The machine may be shared: each run also times one OpenCV StereoSGBM on the firs
 ("x ref", each run's times over the mean of the reference timed just before and just after it)
 beside the milliseconds, with the load average at the start and the end. Compare runs through
 the ratios. ``--cpu`` times this process's CPU time instead of wall time (the stages, the frame
-and the reference alike): other jobs disturb it less. It counts every thread's time: with the
-window's thread pool (``WindowConfig.threads``) it is the work done, not the time waited (a stage
-is charged the CPU time of all threads while the main thread is in it), and reading the process's
-CPU clock costs a few microseconds per stage then.
+and the reference alike): other jobs disturb it less. It counts every thread's time: with worker
+threads (the window's thread pool of main 0cf6c65, ``--threads``) it is the work done, not the
+time waited (a stage is charged the CPU time of all threads while the main thread is in it), and
+reading the process's CPU clock costs a few microseconds per stage then.
 
 ``--points`` runs the window with each point budget (``frontend.points_per_keyframe``) and fits
 ``ms/frame = a + b * points`` (the points each keyframe kept after the stereo search, mean over

@@ -39,11 +39,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gtvo.core.camera import PinholeCamera, StereoCamera
-<<<<<<< HEAD
-=======
-from gtvo.core.threads import set_threads
 from gtvo.core.timing import StageClock, stage, timed
->>>>>>> 1d0cabe (Per-stage timing (issue 24 item 4): gtvo/core/timing.py (StageClock: self time by stage, absorbing stages, an active clock per thread; stage/timed hooks that do nothing without one); hooks in the front end, window, factors and pipeline; VisualOdometry.stage_seconds; report.json seconds_by_stage / ms_per_frame_by_stage; benchmarks/frame_budget.py)
 from gtvo.errors import InputError
 from gtvo.frontend import optical_flow_pose
 from gtvo.core.image import to_float_gray
