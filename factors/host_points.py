@@ -35,6 +35,7 @@ from factors.photometric import (GradientImage, GradientSampler, PhotometricLine
                                  pattern_bearings, photometric_residuals, put_rows, sample_host, stereo_residuals)
 from factors.weights import point_robust_terms, variance_weight
 from gtvo.core.camera import PinholeCamera
+from gtvo.core.timing import timed
 from gtvo.errors import InputError
 
 FloatArray = NDArray[np.float64]
@@ -195,6 +196,7 @@ class HostPoints:
         return int(self.pixels.shape[0])
 
     # --- residuals and weights ---------------------------------------------------------------
+    @timed("linearisation")
     def residuals(self, poses: Sequence, affines: Sequence | None, d: FloatArray,
                   rows: NDArray[np.intp] | None = None, offset: ArrayLike | None = None) -> list:
         """Linearisations (with Jacobians) of every target, then the stereo term (or None), of all
@@ -243,6 +245,7 @@ class HostPoints:
         """Forget the frozen W: the next evaluation freezes them again at its state."""
         self.W = None
 
+    @timed("linearisation")
     def point_costs(self, lins: list, d: FloatArray, rows: NDArray[np.intp] | None = None) -> FloatArray:
         """Each point's cost from its :meth:`residuals`: robust photometric and stereo losses and
         the depth prior (``rows``: ``lins`` hold only these points; W must be frozen already)."""
@@ -257,6 +260,7 @@ class HostPoints:
         return c
 
     # --- linearisation -----------------------------------------------------------------------
+    @timed("linearisation")
     def linearize(self, lins: list, d: FloatArray, H: FloatArray, g: FloatArray,
                   columns: Sequence[NDArray[np.intp]], rig_columns: ArrayLike | None = None) -> DepthSystem:
         """Add this host's Gauss-Newton terms, depths eliminated, to the caller's ``H`` (M, M), ``g`` (M,).
@@ -321,6 +325,7 @@ class HostPoints:
         system.H_dd, system.active = Hdd, active
         return system
 
+    @timed("linearisation")
     def safeguard(self, poses: Sequence, affines: Sequence | None, system: DepthSystem, d: FloatArray,
                   lins: list, offset: ArrayLike | None = None) -> tuple[FloatArray, FloatArray, list]:
         """The safeguarded depth step at a trial state: ``d`` are :meth:`DepthSystem.back_substitute`'s

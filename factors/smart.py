@@ -41,6 +41,7 @@ from factors.gtsam_factors import DEFAULT_HUBER_K, DEFAULT_SIGMA_INTENSITY, Pyth
 from factors.host_points import DepthSystem, HostPoints
 from factors.photometric import PATTERN_DSO8, GradientSampler
 from gtvo.core.camera import PinholeCamera
+from gtvo.core.timing import timed
 from gtvo.errors import InputError
 
 FloatArray = NDArray[np.float64]
@@ -279,6 +280,7 @@ class HostPointsFactor(PythonFactor):
         self._trial = None  # the safeguard compares against this linearisation's depths now
         return 0.5 * (H_red + H_red.T), g_red, E - system.newton_decrease()
 
+    @timed("linearisation")  # GTSAM's every call of this factor: its cost or its linearisation
     def _evaluate(self, this: gtsam.CustomFactor, values: gtsam.Values, H: list | None) -> np.ndarray:
         poses, affs = self._read(values)
         if H is None:

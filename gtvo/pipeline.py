@@ -7,6 +7,7 @@ from __future__ import annotations
 import statistics
 import sys
 import time
+from contextlib import nullcontext
 from pathlib import Path
 from typing import Any, Callable, Iterable
 
@@ -17,6 +18,7 @@ from gtvo.io.atomic import ensure_output_dir, tidy_on_failure
 from gtvo.datasets import detect_format, open_sequence
 from gtvo.datasets.identity import sequence_identity
 from gtvo.core.interrupt import raise_if_interrupted
+from gtvo.core.timing import per_frame_ms, stage
 from gtvo.errors import InputError
 from gtvo.config import OdometryConfig, as_config, config_to_dict, config_to_yaml
 from gtvo.io.observer import RunObserver
@@ -61,20 +63,23 @@ def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progre
     t0 = time.perf_counter()
     for i in indices:
         raise_if_interrupted()  # a Ctrl-C that a library swallowed stops the run here
-        try:
-            frame = seq.frame(i)
-        except InputError as exc:
-            if strict or not vo.estimates:
-                raise
-            skipped.append((i, str(exc)))
-            warn(f"skipping frame {i}: {exc}")
-            continue
-        estimate = vo.process(frame)
-        for o in observers:
-            o.on_frame(frame, estimate, vo)
-        if bar is not None:
-            bar.set_postfix(kf=len(vo.keyframes), fail=vo.failures,
-                            **({"win": len(vo.window_results)} if config.mode == "window" else {}))
+        # the loop's time outside vo.process (observers, progress bar) is the stage "other"
+        with vo.clock.activate("other") if vo.clock is not None else nullcontext():
+            try:
+                with stage("reading"):
+                    frame = seq.frame(i)
+            except InputError as exc:
+                if strict or not vo.estimates:
+                    raise
+                skipped.append((i, str(exc)))
+                warn(f"skipping frame {i}: {exc}")
+                continue
+            estimate = vo.process(frame)
+            for o in observers:
+                o.on_frame(frame, estimate, vo)
+            if bar is not None:
+                bar.set_postfix(kf=len(vo.keyframes), fail=vo.failures,
+                                **({"win": len(vo.window_results)} if config.mode == "window" else {}))
     vo.finish()  # the keyframes that joined the window since its last optimisation
     seconds = time.perf_counter() - t0
     traj = vo.trajectory(seq.name)
@@ -116,6 +121,7 @@ def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progre
         message = rig_warning(info)
         if message is not None:
             warn(message)
+    info.update(stage_report(vo))
     info["covariances"] = ("not computed (--no-covariances)" if config.mode == "window" and not config.window.covariances
                            else "not computed (track mode: no window)" if config.mode != "window" else "computed")
     for o in observers:
@@ -188,11 +194,24 @@ def run(path: str | Path | Sequence, out: str | Path | None = None,
             info["loops_accepted"] = int(sum(res.accepted))
             info["loop_closure_solver"] = "gtsam_gnc_lm"  # GncLMOptimizer, then LM on the kept loops
         raise_if_interrupted()
-        report = write_run_outputs(out_dir, traj, seq, info, points=vo.map_points(), loop_closed=closed,
-                                   covariances=keyframe_covariances(vo),
-                                   config_yaml=config_to_yaml(config, f"gtvo {__version__}: gtvo run --config this file"))
+        with vo.clock.activate() if vo.clock is not None else nullcontext(), stage("outputs", absorb=True):
+            report = write_run_outputs(out_dir, traj, seq, info, points=vo.map_points(), loop_closed=closed,
+                                       covariances=keyframe_covariances(vo),
+                                       config_yaml=config_to_yaml(config, f"gtvo {__version__}: gtvo run --config this file"),
+                                       stage_figures=lambda: stage_report(vo))
     report["out"] = str(out_dir)
     return report
+
+
+def stage_report(vo: VisualOdometry) -> dict[str, Any]:
+    """The report's timing by stage (docs/evaluation.md, "Where a frame's time goes"):
+    ``seconds_by_stage`` (the run's seconds in each stage of :data:`gtvo.core.timing.FRAME_STAGES`,
+    an open stage's time so far included) and ``ms_per_frame_by_stage`` (the same per processed
+    frame, ms); empty when the run was not timed (``vo.clock`` None) or processed no frame."""
+    seconds = vo.stage_seconds
+    if not seconds or not vo.estimates:
+        return {}
+    return {"seconds_by_stage": seconds, "ms_per_frame_by_stage": per_frame_ms(seconds, len(vo.estimates))}
 
 
 def keyframe_covariances(vo: VisualOdometry, inflation: float = 1.0) -> KeyframeCovariances | None:

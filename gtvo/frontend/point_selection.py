@@ -25,6 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gtvo.core.settings import check_settings, setting
+from gtvo.core.timing import timed
 from gtvo.errors import InputError
 from gtvo.frontend._compiled import block_medians, pick_cells
 from gtvo.core.image import image_gradients, to_float_gray
@@ -100,6 +101,7 @@ def block_gradient_thresholds(grad_mag: NDArray, block: int = _DEFAULT.block,
     return full[:h, :w].astype(np.float32)
 
 
+@timed("point_selection")
 def select_points(image: NDArray, target: int = 2000, border: int = _DEFAULT.border, *,
                   block: int = _DEFAULT.block, threshold_offset: float = _DEFAULT.threshold_offset,
                   levels: int = _DEFAULT.levels, downweight: float = _DEFAULT.downweight,

@@ -7,6 +7,7 @@ import dataclasses
 import numpy as np
 from numpy.typing import NDArray
 
+from gtvo.core.timing import timed
 from gtvo.frontend.point_selection import PointSelectionConfig, select_points
 from gtvo.frontend.stereo_depth import KeyframePoints
 
@@ -15,6 +16,7 @@ from gtvo.frontend.stereo_depth import KeyframePoints
 DEPTH_SIGMA_MODEL: tuple[float, float] = (0.0012, 0.0019)
 
 
+@timed("stereo_search")  # the keyframe's depths (from the sensor): the stereo search's stage
 def rgbd_keyframe_points(image: NDArray[np.float32], depth: NDArray[np.float32], target: int,
                          sigma_model: tuple[float, float] = DEPTH_SIGMA_MODEL,
                          selection: PointSelectionConfig | None = None) -> KeyframePoints:

@@ -10,10 +10,12 @@ from factors.gtsam_factors import DEFAULT_SIGMA_INTENSITY
 from factors.photometric import PATTERN_SINGLE, GradientImage, sample_host, stereo_residuals
 from factors.weights import variance_weight
 from gtvo.core.camera import PinholeCamera
+from gtvo.core.timing import timed
 
 FloatArray = NDArray[np.float64]
 
 
+@timed("stereo_search")  # the right image's brightness: part of a new keyframe's stereo
 def estimate_stereo_affine(camera: PinholeCamera, baseline: float, left: GradientImage, right: GradientImage,
                            pixels: ArrayLike, inverse_depth: ArrayLike, inverse_depth_variance: ArrayLike,
                            pattern: ArrayLike = PATTERN_SINGLE,

@@ -35,6 +35,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from factors.photometric import DEFAULT_CLIP_RANGE, PATTERN_DSO8
 from gtvo.core.camera import StereoCamera
+from gtvo.core.timing import timed
 from gtvo.errors import InputError, show
 from gtvo.frontend._compiled import zssd_costs
 from gtvo.frontend.point_selection import DEFAULT_BORDER, PointSelectionConfig, select_points
@@ -148,6 +149,7 @@ def _integer_search(src: NDArray, dst: NDArray, u: NDArray, v: NDArray, pattern:
                       np.ascontiguousarray(disparities, dtype=np.int64), int(sign))
 
 
+@timed("stereo_search")
 def stereo_inverse_depth(left: NDArray, right: NDArray, stereo_camera: StereoCamera, pixels: ArrayLike, *,
                          min_disparity: int = DEFAULT_STEREO_SEARCH.min_disparity, max_disparity: int = DEFAULT_STEREO_SEARCH.max_disparity,
                          pattern: ArrayLike | str = DEFAULT_STEREO_SEARCH.pattern,

@@ -8,7 +8,7 @@ writes ``trajectory.tum``, ``report.json``, ``trajectory.png`` (and ``errors.png
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 from numpy.typing import NDArray
@@ -154,7 +154,8 @@ def write_run_outputs(out_dir: str | Path, est: Trajectory, seq: Sequence, run_i
                       points: MapPoints | tuple[NDArray[np.float64], NDArray[np.float64]] | None = None,
                       loop_closed: Trajectory | None = None,
                       covariances: KeyframeCovariances | None = None,
-                      config_yaml: str | None = None) -> dict[str, Any]:
+                      config_yaml: str | None = None,
+                      stage_figures: Callable[[], dict[str, Any]] | None = None) -> dict[str, Any]:
     """Write a run's outputs into ``out_dir`` as a set and return the report written to ``report.json``.
 
     ``run_info`` holds the run's own figures (frames, keyframes, seconds, ...); metrics are added
@@ -164,7 +165,9 @@ def write_run_outputs(out_dir: str | Path, est: Trajectory, seq: Sequence, run_i
     ``trajectory_loop_closed.tum`` and evaluated as ``loop_closed_*``. ``covariances``, when given,
     is written as ``covariances.npz``, summarised in the report and drawn as position ellipses in
     ``trajectory.png`` (:mod:`gtvo.io.covariances`). ``config_yaml``, when given, is written as
-    ``config.yaml`` (the run's configuration, for ``gtvo run --config``).
+    ``config.yaml`` (the run's configuration, for ``gtvo run --config``). ``stage_figures``, when
+    given, is called just before ``report.json`` is written and its keys go into the report (the
+    run's timing by stage, with the outputs' own time so far: ``gtvo.pipeline.stage_report``).
 
     The files are written into a temporary folder beside ``out_dir`` that then replaces it
     (:func:`gtvo.io.atomic.atomic_dir`): an interrupted or failed write leaves the earlier set as
@@ -224,6 +227,8 @@ def write_run_outputs(out_dir: str | Path, est: Trajectory, seq: Sequence, run_i
                 except DependencyError as exc:
                     report["map_points_written"] = None
                     report["map_points_skipped"] = str(exc)
+        if stage_figures is not None:
+            report.update(stage_figures())
         write_json(out / "report.json", _jsonable(report))
     return report
 

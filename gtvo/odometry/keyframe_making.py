@@ -16,6 +16,7 @@ from numpy.typing import NDArray
 
 from factors.photometric import GradientImage
 from gtvo.core.camera import StereoCamera
+from gtvo.core.timing import stage
 from gtvo.errors import InputError
 from gtvo.frontend import KeyframePoints, init_keyframe_points
 from gtvo.core.image import to_float_gray
@@ -88,8 +89,9 @@ class KeyframeMaking:
                                 "the images may be blank or the stereo calibration wrong")
         if self.window is not None:
             T_world_cam, pts = self._window_update(frame, left, T_world_cam, pts, tracked, pyramid)
-        tracker = TrackingKeyframe(self.pinhole, left, pts.pixels, pts.inverse_depth, pts.variance, (0.0, 0.0),
-                                   self.config.tracking, pyramid=pyramid)
+        with stage("keyframe_setup"):  # the new keyframe's tracker: its pyramid with gradients (or the frame's)
+            tracker = TrackingKeyframe(self.pinhole, left, pts.pixels, pts.inverse_depth, pts.variance, (0.0, 0.0),
+                                       self.config.tracking, pyramid=pyramid)
         image = left if self.config.flow_fallback is not None else None  # converted only if the fallback runs
         kf = Keyframe(frame.index, rigid_pose(T_world_cam.matrix()), pts, tracker, image)
         if self.keyframes:
@@ -128,10 +130,12 @@ class KeyframeMaking:
             affine = self.window.keyframes[-1].affine.copy()
         right = None
         clip = self.config.photometric.clip_range
-        left_img = pyramid[0] if pyramid is not None else GradientImage(left, clip_range=clip)
+        with stage("keyframe_setup"):  # the window keyframe's images with gradients
+            left_img = pyramid[0] if pyramid is not None else GradientImage(left, clip_range=clip)
+            if isinstance(self.camera, StereoCamera):
+                right = GradientImage(to_float_gray(frame.right, f"frame {frame.index} right image"), clip_range=clip)
         stereo_affine = np.zeros(2)
         if isinstance(self.camera, StereoCamera):
-            right = GradientImage(to_float_gray(frame.right, f"frame {frame.index} right image"), clip_range=clip)
             stereo_affine = estimate_stereo_affine(self.pinhole, self.camera.baseline, left_img, right, pts.pixels,
                                                    pts.inverse_depth, pts.variance,
                                                    sigma_intensity=self.config.window.sigma_intensity,

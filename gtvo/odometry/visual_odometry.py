@@ -32,12 +32,14 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from contextlib import nullcontext
 
 import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
 from gtvo.core.camera import PinholeCamera, StereoCamera
+from gtvo.core.timing import StageClock, stage, timed
 from gtvo.errors import InputError
 from gtvo.frontend import optical_flow_pose
 from gtvo.core.image import to_float_gray
@@ -69,6 +71,8 @@ class VisualOdometry(KeyframeMaking):
             the optical-flow guess (``config.flow_fallback``) instead of being lost.
         lost_frames: frames whose tracking failed and that had too few points to become a
             keyframe (:attr:`FrameEstimate.lost`); also counted in ``failures``.
+        clock: the :class:`gtvo.core.timing.StageClock` every :meth:`process` charges (where the
+            frames' time went, :attr:`stage_seconds`); set it to None to run untimed.
 
     Example::
 
@@ -89,6 +93,7 @@ class VisualOdometry(KeyframeMaking):
         self.flow_recoveries = 0
         self.lost_frames = 0
         self.window_results: list[WindowResult] = []
+        self.clock: StageClock | None = StageClock()
         self._keyframe_rule = self.config.keyframes
         self._previous: tuple[Frame, NDArray[np.float32]] | None = None
         self._checker = FrameChecker(self.config.frame_checks)
@@ -125,8 +130,17 @@ class VisualOdometry(KeyframeMaking):
         BLAS runs single-threaded inside (threadpoolctl): the tracker's and the window's many
         small matrix products were up to 300x slower multithreaded on a busy 2-core machine.
         """
-        with _single_threaded_blas():
+        if self.clock is None:
+            with _single_threaded_blas():
+                return self._process(frame)
+        with self.clock.activate("other"), _single_threaded_blas():  # time outside the named stages: "other"
             return self._process(frame)
+
+    @property
+    def stage_seconds(self) -> dict[str, float]:
+        """Seconds so far in each stage (:data:`gtvo.core.timing.FRAME_STAGES`, docs/evaluation.md): they
+        add up to the time spent in :meth:`process` and :meth:`finish`. Empty when :attr:`clock` is None."""
+        return {} if self.clock is None else self.clock.snapshot()
 
     def _process(self, frame: Frame) -> FrameEstimate:
         t0 = time.perf_counter()
@@ -144,7 +158,8 @@ class VisualOdometry(KeyframeMaking):
         assert kf.tracker is not None  # the latest keyframe keeps its tracker
         T_pred = self._predict(frame.timestamp)
         last = rigid_pose(self._good_estimates(1)[0].T_world_cam)
-        pyr = frame_pyramid(left, kf.tracker.levels, self.config.photometric.clip_range)
+        with stage("tracking", absorb=True):
+            pyr = frame_pyramid(left, kf.tracker.levels, self.config.photometric.clip_range)
         result = self._track(kf, pyr, T_pred, last, left)
         lost_view = result.n_valid < self.config.keyframes.min_visible * len(kf.points)
         if (not result.success or lost_view) and self._previous is not None and self._previous[0].index != kf.index:
@@ -200,7 +215,7 @@ class VisualOdometry(KeyframeMaking):
         still follow (the next keyframe joins the window as usual)."""
         if self.window is None or not self._window_waiting:
             return
-        with _single_threaded_blas():
+        with self.clock.activate("other") if self.clock is not None else nullcontext(), _single_threaded_blas():
             if self._optimize_window():
                 self._refresh_estimates()
 
@@ -272,6 +287,7 @@ class VisualOdometry(KeyframeMaking):
         return X @ T[:3, :3].T + T[:3, 3]
 
     # -- internals ------------------------------------------------------------------------------
+    @timed("tracking", absorb=True)
     def _track(self, kf: Keyframe, pyr, T_pred: gtsam.Pose3, last: gtsam.Pose3,
                left: NDArray[np.float32]) -> TrackingResult:
         """Track against ``kf`` from several initial guesses (motion model, no motion, keyframe);

@@ -21,6 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gtvo.core.keys import pose_key
+from gtvo.core.timing import timed
 
 FloatArray = NDArray[np.float64]
 
@@ -35,6 +36,7 @@ def undetermined(indices: Sequence[int]) -> dict[int, FloatArray]:
     return {int(i): np.full((6, 6), np.nan) for i in indices}
 
 
+@timed("covariances", absorb=True)  # gtsam.Marginals' linearisation included
 def marginals_of_graph(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
                        indices: Sequence[int]) -> dict[int, FloatArray]:
     """``gtsam.Marginals(graph, values)``: the 6x6 pose covariance of every keyframe index in ``indices``
@@ -46,6 +48,7 @@ def marginals_of_graph(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
         return undetermined(indices)
 
 
+@timed("covariances", absorb=True)
 def marginals_of_hessian(H: FloatArray, indices: Sequence[int], block: int = 8) -> dict[int, FloatArray]:
     """The pose blocks of ``H^-1`` for a state of ``block`` entries per keyframe (pose first).
 
@@ -67,6 +70,7 @@ def marginals_of_hessian(H: FloatArray, indices: Sequence[int], block: int = 8) 
     return {int(i): symmetric(C[block * k:block * k + 6, block * k:block * k + 6]) for k, i in enumerate(indices)}
 
 
+@timed("covariances", absorb=True)
 def marginals_of_smoother(smoother: gtsam.IncrementalFixedLagSmoother, indices: Sequence[int]
                           ) -> dict[int, FloatArray]:
     """The smoother's (iSAM2) marginal covariance of every keyframe pose in ``indices``."""

@@ -20,6 +20,7 @@ from numpy.typing import NDArray
 from factors.host_points import DepthSystem, HostPoints
 from gtvo.core.keys import affine_key, pose_key, rig_offset_key
 from gtvo.core.camera import PinholeCamera
+from gtvo.core.timing import stage, timed
 from gtvo.window.covariance import marginals_of_hessian
 from gtvo.window.config import MarginalPrior, WindowConfig, WindowKeyframe, WindowResult
 from gtvo.window.problem import motion_factors, needs_rig_prior, rig_prior_mean_sigmas, visible_targets
@@ -41,6 +42,7 @@ class _WindowHost:
     does at its first evaluation, so both solvers minimise the same fixed cost.
     """
 
+    @timed("window_build")  # the host's set-up (its first residuals: "linearisation")
     def __init__(self, camera: PinholeCamera, baseline: float | None, keyframes: Sequence[WindowKeyframe],
                  h: int, targets: Sequence[int], config: WindowConfig, rig_offset: FloatArray | None = None) -> None:
         kh = keyframes[h]
@@ -248,14 +250,15 @@ def solve_handrolled(camera: PinholeCamera, baseline: float | None, keyframes: S
     t_cov = time.perf_counter()
     covs = None
     if config.covariances:  # the undamped reduced system at the optimum (its residuals are kept: no new pass)
-        H = np.zeros((M, M))
-        g = np.zeros(M)
-        for host in hosts:
-            host.linearize(depths[host.h], H, g, state_lins[host.h])
-        _prior_terms(keyframes, poses, affines, config, with_gauge, H, g, motion)
-        _rig_prior_terms(config, off, rig_prior_on, H, g, rig_hold_x)
-        _marginal_terms(marginal, keyframes, poses, affines, H, g, off)
-        covs = marginals_of_hessian(H, [kf.index for kf in keyframes])
+        with stage("covariances", absorb=True):
+            H = np.zeros((M, M))
+            g = np.zeros(M)
+            for host in hosts:
+                host.linearize(depths[host.h], H, g, state_lins[host.h])
+            _prior_terms(keyframes, poses, affines, config, with_gauge, H, g, motion)
+            _rig_prior_terms(config, off, rig_prior_on, H, g, rig_hold_x)
+            _marginal_terms(marginal, keyframes, poses, affines, H, g, off)
+            covs = marginals_of_hessian(H, [kf.index for kf in keyframes])
     t_cov = time.perf_counter() - t_cov
     for k, kf in enumerate(keyframes):
         kf.pose = poses[k]

@@ -15,6 +15,7 @@ from numpy.typing import NDArray
 
 from gtvo.core.camera import PinholeCamera
 from gtvo.core.keys import rig_offset_key
+from gtvo.core.timing import stage
 from gtvo.errors import InputError
 from gtvo.window.config import MarginalPrior, WindowConfig, WindowKeyframe, WindowResult, WindowSolverName, WindowState
 from gtvo.window.gtsam_solver import solve_gtsam
@@ -80,7 +81,8 @@ class SlidingWindowOptimizer:
 
         With the fixed-lag backend the smoother marginalises it at the next :meth:`optimize`.
         """
-        kf = self.backend.remove_oldest(self)
+        with stage("marginalisation", absorb=True):
+            kf = self.backend.remove_oldest(self)
         self.n_removed += 1
         return kf
 
@@ -118,7 +120,8 @@ class SlidingWindowOptimizer:
         targets = visible_targets(self.camera, self.keyframes, self.config)
         if not any(targets):
             return None
-        res = self.backend.optimize(self, targets, solver)
+        with stage("solve"):  # less the stages inside: build, linearisation, covariances
+            res = self.backend.optimize(self, targets, solver)
         if res.covariances is not None:
             self.covariances.update(res.covariances)
         self.results.append(res)

@@ -16,6 +16,7 @@ from gtvo.core.keys import affine_key, pose_key, rig_offset_key
 from factors.smart import HostPointsFactor
 from factors.smoothness import ConstantVelocityFactor
 from gtvo.core.camera import MIN_DEPTH, PinholeCamera
+from gtvo.core.timing import timed
 from gtvo.window.config import MarginalPrior, WindowConfig, WindowKeyframe
 
 FloatArray = NDArray[np.float64]
@@ -70,6 +71,7 @@ def rig_prior(config: WindowConfig, hold_x: float | None = None) -> gtsam.PriorF
     return gtsam.PriorFactorVector(rig_offset_key(), mean, gtsam.noiseModel.Diagonal.Sigmas(sigmas))
 
 
+@timed("window_build")
 def visible_targets(camera: PinholeCamera, keyframes: Sequence[WindowKeyframe], config: WindowConfig
                     ) -> list[list[int]]:
     """For each host (position in ``keyframes``), the positions of the keyframes that see its points.
@@ -154,6 +156,7 @@ def prior_factors(keyframes: Sequence[WindowKeyframe], config: WindowConfig, wit
     return g
 
 
+@timed("window_build")
 def host_factor(camera: PinholeCamera, baseline: float | None, keyframes: Sequence[WindowKeyframe], h: int,
                 targets: Sequence[int], config: WindowConfig, rig: bool = False) -> HostPointsFactor:
     """The :class:`HostPointsFactor` of host ``keyframes[h]`` observed in ``targets`` (positions);
@@ -170,6 +173,7 @@ def host_factor(camera: PinholeCamera, baseline: float | None, keyframes: Sequen
         rig_key=rig_offset_key() if rig and kh.right is not None else None)
 
 
+@timed("window_build")
 def build_graph(camera: PinholeCamera, baseline: float | None, keyframes: Sequence[WindowKeyframe],
                 config: WindowConfig, marginal: MarginalPrior | None,
                 targets: list[list[int]] | None = None, rig_offset: FloatArray | None = None,
