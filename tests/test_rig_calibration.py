@@ -276,6 +276,14 @@ def test_report_has_the_offset_and_the_scale(seq, tmp_path):
     # 10 frames never fill the 7-keyframe window: delta_x held at 0, not measured; delta_y measured
     assert saved["rig_offset_x_estimated"] is False and abs(saved["rig_offset_px"][0]) < 1e-3
     assert saved["rig_offset_sigma_px"][0] is None and saved["rig_offset_sigma_px"][1] > 0
+    # the reported sigma is the marginal one with the method's measured error in quadrature: never
+    # below either (the marginal sigma alone is 10-30x below the real error, docs/window.md)
+    from gtvo.odometry.rig_report import METHOD_SIGMA_PX
+
+    marginal = saved["rig_offset_marginal_sigma_px"]
+    assert marginal[0] is None and 0 < marginal[1] < saved["rig_offset_sigma_px"][1]
+    assert saved["rig_offset_sigma_px"][1] == pytest.approx(np.hypot(marginal[1], METHOD_SIGMA_PX[1]))
+    assert saved["rig_offset_sigma_px"][1] >= METHOD_SIGMA_PX[1] > 0
     assert saved["ate_sim3_rmse_m"] <= saved["ate_rmse_m"] + 1e-12
     assert saved["scale_ratio"] == pytest.approx(1.0, abs=0.05)
     assert report["rig_offset_px"] == saved["rig_offset_px"]
