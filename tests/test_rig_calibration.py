@@ -349,3 +349,41 @@ def test_delta_x_stays_held_when_its_test_fails(seq, monkeypatch):
         assert calls == [3]  # windows 3, 4, 5 are full: tested at the first, next at the 4th full one
         assert w.rig_offset[0] == pytest.approx(0.0, abs=1e-3)
         assert w.rig_offset[1] == pytest.approx(1.0, abs=0.1)
+
+
+def test_window_depths_are_searched_again_once_delta_x_is_estimated(monkeypatch):
+    """Issue 21 item 2: when the window starts estimating delta_x, the depths of its keyframes (made
+    with delta_x = 0) are searched again against the right image corrected by the estimate, once;
+    a point whose new search matches takes its result, and the window is optimised again."""
+    from gtvo.frontend.stereo_depth import stereo_inverse_depth
+    from gtvo.odometry.keyframe_making import KeyframeMaking
+    from gtvo.pipeline import process_sequence
+
+    seq = shift_right_images(make_synthetic_sequence(24, width=240, height=180, step_m=0.15), (2.0, 0.0))
+    calls = []
+    original = KeyframeMaking._reinitialise_window_depths
+
+    def spy(self):
+        before = {w.index: w.inverse_depth.copy() for w in self.window.keyframes}
+        n_results = len(self.window.results)
+        original(self)
+        calls.append((self.rig_offset.copy(), before, {w.index: (w, w.inverse_depth.copy()) for w in self.window.keyframes},
+                      n_results))
+
+    monkeypatch.setattr(KeyframeMaking, "_reinitialise_window_depths", spy)
+    cfg = OdometryConfig(points_per_keyframe=200, window=WindowConfig(rig_calibration=True, size=4))
+    vo, _, _ = process_sequence(seq, cfg, warn=lambda m: None)
+    assert len(calls) == 1 and vo.window.rig_x_estimated
+    offset, before, after, n_results = calls[0]
+    assert offset[0] > 1.0
+    assert len(vo.window.results) > n_results  # optimised again after the new depths
+    changed = 0
+    for index, (w, d) in after.items():
+        res = stereo_inverse_depth(w.image.image, correct_right_image(w.right.image, offset), seq.camera, w.pixels,
+                                   **__import__("dataclasses").asdict(cfg.frontend.stereo),
+                                   clip_range=cfg.photometric.clip_range)
+        assert res.valid.mean() > 0.5
+        np.testing.assert_array_equal(d[res.valid], res.inverse_depth[res.valid])
+        np.testing.assert_array_equal(d[~res.valid], before[index][~res.valid])
+        changed += int(np.count_nonzero(d != before[index]))
+    assert changed > 0
