@@ -98,6 +98,8 @@ def run_one(seq, shift: tuple[float, float], rig: bool, solver: str) -> dict:
     row = {"shift": list(shift), "rig": rig, "seconds": info["seconds"], "frames": info["frames"],
            "failures": info["tracking_failures"], "warnings": warnings,
            "rig_offset_px": info.get("rig_offset_px"), "rig_offset_sigma_px": info.get("rig_offset_sigma_px"),
+           "rig_offset_marginal_sigma_px": info.get("rig_offset_marginal_sigma_px"),
+           "rig_offset_x_estimated": info.get("rig_offset_x_estimated"),
            "rig_initial_delta_y_px": info.get("rig_initial_delta_y_px")}
     pair = ground_truth(s, traj)
     if pair is not None:
@@ -110,21 +112,29 @@ def fmt(x, spec: str) -> str:
     return "-" if x is None else format(x, spec)
 
 
+def pair(v) -> str:
+    """A (x, y) sigma pair, '-' for a missing one."""
+    return "-" if v is None else ", ".join(fmt(x, ".3f") for x in v)
+
+
 def table(rows: list[dict]) -> str:
-    head = ("| shift (x, y) px | rig | estimate (x, y) px | sigma (x, y) px | ATE m | Sim(3) ATE m | scale | s |\n"
-            "|---|---|---|---|---|---|---|---|")
+    head = ("| shift (x, y) px | rig | estimate (x, y) px | x released | error bar (x, y) px | marginal sigma (x, y) px "
+            "| ATE m | Sim(3) ATE m | scale | s |\n"
+            "|---|---|---|---|---|---|---|---|---|---|")
     lines = [head]
     for r in rows:
         if "error" in r:
             lines.append(f"| {r['shift'][0]:+g}, {r['shift'][1]:+g} | {'on' if r['rig'] else 'off'} | "
-                         f"failed: {r['error']} | | | | | |")
+                         f"failed: {r['error']} | | | | | | | |")
             continue
         est = r.get("rig_offset_px")
         sig = r.get("rig_offset_sigma_px")
+        msig = r.get("rig_offset_marginal_sigma_px")
         lines.append(
             f"| {r['shift'][0]:+g}, {r['shift'][1]:+g} | {'on' if r['rig'] else 'off'} | "
             f"{'-' if est is None else f'{est[0]:+.2f}, {est[1]:+.2f}'} | "
-            f"{'-' if sig is None else f'{sig[0]:.3f}, {sig[1]:.3f}'} | {fmt(r.get('ate_rmse_m'), '.4f')} | "
+            f"{'-' if est is None else ('yes' if r.get('rig_offset_x_estimated') else 'no')} | {pair(sig)} | {pair(msig)} | "
+            f"{fmt(r.get('ate_rmse_m'), '.4f')} | "
             f"{fmt(r.get('ate_sim3_rmse_m'), '.4f')} | {fmt(r.get('scale_ratio'), '.4f')} | {r['seconds']:.1f} |")
     return "\n".join(lines)
 

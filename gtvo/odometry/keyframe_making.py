@@ -19,6 +19,7 @@ from gtvo.core.camera import StereoCamera
 from gtvo.core.timing import stage
 from gtvo.errors import InputError
 from gtvo.frontend import KeyframePoints, init_keyframe_points
+from gtvo.frontend.stereo_depth import stereo_inverse_depth
 from gtvo.core.image import to_float_gray
 from gtvo.datasets.sequence import Frame
 from gtvo.frontend.tracking import TrackingKeyframe
@@ -187,9 +188,14 @@ class KeyframeMaking:
         had nothing to optimise (fewer than two keyframes, no target)."""
         assert self.window is not None
         self._window_waiting = 0
+        x_was_estimated = self.window.rig_x_estimated
         res = self.window.optimize(self.config.solver.window)
         if self.window.rig_offset is not None:
             self.rig_offset = self.window.rig_offset.copy()
+            if self.window.rig_x_estimated and not x_was_estimated:
+                self._reinitialise_window_depths()
+                res = self.window.optimize(self.config.solver.window) or res
+                self.rig_offset = self.window.rig_offset.copy()
         self._window_affine = {w.index: w.affine.copy() for w in self.window.keyframes}
         if res is None:
             return False
@@ -203,6 +209,26 @@ class KeyframeMaking:
                 old.T_world_cam = w.pose
                 old.points = dataclasses.replace(old.points, inverse_depth=w.inverse_depth.copy())
         return True
+
+    def _reinitialise_window_depths(self) -> None:
+        """Once the window estimates ``delta_x`` (docs/window.md, "Rig calibration"), its keyframes'
+        depths, initialised with the right image corrected by the offset known then, are searched
+        again against the right image corrected by the estimate (and their stereo affine fitted
+        again): a point whose new search matches takes its inverse depth and variance."""
+        assert self.window is not None and self.rig_offset is not None and isinstance(self.camera, StereoCamera)
+        options = dataclasses.asdict(self.config.frontend.stereo)
+        for w in self.window.keyframes:
+            if w.right is None:
+                continue
+            right = correct_right_image(w.right.image, self.rig_offset)
+            res = stereo_inverse_depth(w.image.image, right, self.camera, w.pixels, **options,
+                                       clip_range=self.config.photometric.clip_range)
+            w.inverse_depth = np.where(res.valid, res.inverse_depth, w.inverse_depth)
+            w.variance = np.where(res.valid, res.variance, w.variance)
+            w.stereo_affine = estimate_stereo_affine(self.pinhole, self.camera.baseline, w.image, w.right, w.pixels,
+                                                     w.inverse_depth, w.variance,
+                                                     sigma_intensity=self.config.window.sigma_intensity,
+                                                     offset=self.rig_offset)
 
     def _refresh_estimates(self) -> None:
         """Re-express the poses of frames whose keyframe the window moved.

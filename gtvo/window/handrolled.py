@@ -23,7 +23,8 @@ from gtvo.core.camera import PinholeCamera
 from gtvo.core.timing import stage, timed
 from gtvo.window.covariance import marginals_of_hessian
 from gtvo.window.config import MarginalPrior, WindowConfig, WindowKeyframe, WindowResult
-from gtvo.window.problem import motion_factors, needs_rig_prior, rig_prior_mean_sigmas, visible_targets
+from gtvo.window.problem import (motion_factors, needs_rig_prior, rig_carried, rig_prior_mean_sigmas,
+                                 visible_targets)
 
 FloatArray = NDArray[np.float64]
 
@@ -120,13 +121,13 @@ def _prior_terms(keyframes, poses, affines, config, with_gauge, H=None, g=None, 
 
 
 def _rig_prior_terms(config: WindowConfig, offset: FloatArray | None, active: bool, H=None, g=None,
-                     hold_x: float | None = None) -> float:
+                     hold_x: float | None = None, carried: bool = False) -> float:
     """The rig offset's prior (``active``: :func:`needs_rig_prior`; mean and sigmas of
     :func:`rig_prior_mean_sigmas`): cost, and (given H, g) its terms in the rig's entries (the last
     two of the state)."""
     if offset is None or not active:
         return 0.0
-    mean, sigmas = rig_prior_mean_sigmas(config, hold_x)
+    mean, sigmas = rig_prior_mean_sigmas(config, hold_x, carried)
     e = (offset - mean) / sigmas
     if H is not None:
         H[-2:, -2:] += np.diag(1.0 / sigmas ** 2)
@@ -169,7 +170,8 @@ def window_cost(camera: PinholeCamera, baseline: float | None, keyframes: Sequen
     off = None if rig_offset is None else np.asarray(rig_offset, dtype=float).reshape(2)
     E = sum(host.start[0] for host in hosts)
     E += _prior_terms(keyframes, poses, affines, config, marginal is None)
-    E += _rig_prior_terms(config, off, needs_rig_prior(off, marginal), hold_x=rig_hold_x)
+    E += _rig_prior_terms(config, off, needs_rig_prior(off, marginal, rig_hold_x), hold_x=rig_hold_x,
+                          carried=rig_carried(marginal))
     return E + _marginal_terms(marginal, keyframes, poses, affines, offset=off)
 
 
@@ -195,7 +197,8 @@ def solve_handrolled(camera: PinholeCamera, baseline: float | None, keyframes: S
     hosts = [_WindowHost(camera, baseline, keyframes, h, ts, config, off) for h, ts in enumerate(targets) if ts]
     K = len(keyframes)
     M = 8 * K + (0 if off is None else 2)
-    rig_prior_on = needs_rig_prior(off, marginal)
+    rig_prior_on = needs_rig_prior(off, marginal, rig_hold_x)
+    carried = rig_carried(marginal)
     with_gauge = marginal is None
     poses = [kf.pose for kf in keyframes]
     affines = [kf.affine.copy() for kf in keyframes]
@@ -208,12 +211,12 @@ def solve_handrolled(camera: PinholeCamera, baseline: float | None, keyframes: S
             e, D[host.h], L[host.h] = host.evaluate_safeguarded(P, A, systems[host.h], D_new[host.h], O)
             E += e
         E += _prior_terms(keyframes, P, A, config, with_gauge, motion=motion)
-        E += _rig_prior_terms(config, O, rig_prior_on, hold_x=rig_hold_x)
+        E += _rig_prior_terms(config, O, rig_prior_on, hold_x=rig_hold_x, carried=carried)
         return E + _marginal_terms(marginal, keyframes, P, A, offset=O), D, L
 
     E = sum(host.start[0] for host in hosts) \
         + _prior_terms(keyframes, poses, affines, config, with_gauge, motion=motion) \
-        + _rig_prior_terms(config, off, rig_prior_on, hold_x=rig_hold_x) \
+        + _rig_prior_terms(config, off, rig_prior_on, hold_x=rig_hold_x, carried=carried) \
         + _marginal_terms(marginal, keyframes, poses, affines, offset=off)
     state_lins = {host.h: host.start[1] for host in hosts}
     initial = E
@@ -224,7 +227,7 @@ def solve_handrolled(camera: PinholeCamera, baseline: float | None, keyframes: S
         g = np.zeros(M)
         systems = {host.h: host.linearize(depths[host.h], H, g, state_lins[host.h]) for host in hosts}
         _prior_terms(keyframes, poses, affines, config, with_gauge, H, g, motion)
-        _rig_prior_terms(config, off, rig_prior_on, H, g, rig_hold_x)
+        _rig_prior_terms(config, off, rig_prior_on, H, g, rig_hold_x, carried)
         _marginal_terms(marginal, keyframes, poses, affines, H, g, off)
         H = 0.5 * (H + H.T)
         diag = np.maximum(np.diag(H), 1e-12 * max(float(np.max(np.diag(H))), 1e-300))
@@ -256,7 +259,7 @@ def solve_handrolled(camera: PinholeCamera, baseline: float | None, keyframes: S
             for host in hosts:
                 host.linearize(depths[host.h], H, g, state_lins[host.h])
             _prior_terms(keyframes, poses, affines, config, with_gauge, H, g, motion)
-            _rig_prior_terms(config, off, rig_prior_on, H, g, rig_hold_x)
+            _rig_prior_terms(config, off, rig_prior_on, H, g, rig_hold_x, carried)
             _marginal_terms(marginal, keyframes, poses, affines, H, g, off)
             covs = marginals_of_hessian(H, [kf.index for kf in keyframes])
     t_cov = time.perf_counter() - t_cov

@@ -22,7 +22,7 @@ from gtvo.window.gtsam_solver import solve_gtsam
 from gtvo.window.handrolled import solve_handrolled, window_cost
 from gtvo.window.marginal import marginalize
 from gtvo.window.fixed_lag import FixedLagBackend
-from gtvo.window.problem import build_graph, observation_counts, visible_targets
+from gtvo.window.problem import RIG_SIGNIFICANCE, build_graph, observation_counts, rig_honest_sigma, visible_targets
 
 FloatArray = NDArray[np.float64]
 
@@ -56,8 +56,14 @@ class SlidingWindowOptimizer:
             if self.config.backend != "lm":
                 raise InputError("the rig offset is estimated by the 'lm' window backend only")
             self.rig_offset = np.asarray(rig_offset, dtype=float).reshape(2).copy()
-        #: whether an optimisation has estimated ``delta_x`` yet (it is held until the window is full)
+        #: whether ``delta_x`` is estimated: it is held at its start value (:attr:`rig_x_start`)
+        #: until a full window's data put it significantly away from it (:meth:`LMBackend.optimize`)
         self.rig_x_estimated = False
+        self.rig_x_start = 0.0 if self.rig_offset is None else float(self.rig_offset[0])
+        #: the last test of ``delta_x`` while held: ``(free estimate, its marginal sigma)`` px, None
+        #: before the window is first full; and the number of full windows solved with it held
+        self.rig_x_test: tuple[float, float] | None = None
+        self.rig_x_held_windows = 0
         self.keyframes: list[WindowKeyframe] = []
         self.n_removed = 0  # keyframes that left the window (not kept: they hold images)
         self.results: list[WindowResult] = []
@@ -108,6 +114,22 @@ class SlidingWindowOptimizer:
         graph, values, _ = build_graph(self.camera, self.baseline, self.keyframes, self.config, self.marginal, targets,
                                        self.rig_offset)
         return np.asarray(gtsam.Marginals(graph, values).marginalCovariance(rig_offset_key()), dtype=float)
+
+    def rig_x_free_estimate(self) -> tuple[float, float] | None:
+        """What the window's data say about ``delta_x`` while it is held: one Gauss-Newton step from
+        the current state on the window's graph without the hold (the estimate), and the marginal
+        sigma there (px). None when the rig offset is not estimated or there is no host factor."""
+        if self.rig_offset is None or len(self.keyframes) < 2 or self.config.backend != "lm":
+            return None
+        targets = visible_targets(self.camera, self.keyframes, self.config)
+        if not any(targets):
+            return None
+        graph, values, _ = build_graph(self.camera, self.baseline, self.keyframes, self.config, self.marginal, targets,
+                                       self.rig_offset)
+        linear = graph.linearize(values)
+        step = float(linear.optimize().at(rig_offset_key())[0])
+        cov = gtsam.Marginals(linear, values).marginalCovariance(rig_offset_key())
+        return float(self.rig_offset[0]) + step, float(np.sqrt(max(cov[0, 0], 0.0)))
 
     def optimize(self, solver: WindowSolverName = "gtsam") -> WindowResult | None:
         """Optimise the window (None when fewer than two keyframes); keyframes are updated in place.
@@ -170,14 +192,38 @@ class LMBackend:
         if solve is None:
             raise InputError(f"unknown window solver {solver!r}: use 'gtsam' or 'handrolled'")
         rig = getattr(window, "rig_offset", None)
-        # delta_x trades against the scale unless many keyframes see points at many depths: it is
-        # held at its value until the window is full (its first marginalisation carries the rest)
-        hold = None if rig is None or self.marginal is not None or len(window.keyframes) >= window.config.size \
-            else float(rig[0])
+        # delta_x trades against the scale: it is held at its start value until a full window's data
+        # put it clearly away from it (docs/window.md, "Rig calibration": on a rectified rig,
+        # estimating it adds scale error; the marginalisation prior never holds the hold)
+        hold = None if rig is None or window.rig_x_estimated else window.rig_x_start  # type: ignore[attr-defined]
         res = solve(window.camera, window.baseline, window.keyframes, window.config, self.marginal, targets,
                     rig_offset=rig, rig_hold_x=hold)
-        if rig is not None and res.rig_offset is not None:
-            window.rig_offset = res.rig_offset.copy()  # type: ignore[attr-defined]
-            if hold is None:
-                window.rig_x_estimated = True  # type: ignore[attr-defined]
+        if rig is None or res.rig_offset is None:
+            return res
+        window.rig_offset = res.rig_offset.copy()  # type: ignore[attr-defined]
+        full = self.marginal is not None or len(window.keyframes) >= window.config.size
+        if hold is not None and full and self._rig_x_significant(window):
+            window.rig_x_estimated = True  # type: ignore[attr-defined]
+            # solved again with delta_x free, from the held state (LM's damping, not the test's
+            # linear step, decides how far it goes along the flat scale direction)
+            res = solve(window.camera, window.baseline, window.keyframes, window.config, self.marginal, targets,
+                        rig_offset=window.rig_offset, rig_hold_x=None)  # type: ignore[attr-defined]
+            window.rig_offset = res.rig_offset.copy()  # type: ignore[attr-defined, union-attr]
         return res
+
+    @staticmethod
+    def _rig_x_significant(window: WindowState) -> bool:
+        """Every ``config.size``-th full window solved with ``delta_x`` held (from the first), test it:
+        is the data's estimate (:meth:`SlidingWindowOptimizer.rig_x_free_estimate`, kept in
+        ``window.rig_x_test``) more than :data:`RIG_SIGNIFICANCE` error bars (:func:`rig_honest_sigma`)
+        from the start value?"""
+        n = window.rig_x_held_windows  # type: ignore[attr-defined]
+        window.rig_x_held_windows = n + 1  # type: ignore[attr-defined]
+        if n % window.config.size:
+            return False
+        test = window.rig_x_free_estimate()  # type: ignore[attr-defined]
+        if test is None:
+            return False
+        window.rig_x_test = test  # type: ignore[attr-defined]
+        estimate, sigma = test
+        return abs(estimate - window.rig_x_start) > RIG_SIGNIFICANCE * rig_honest_sigma(sigma, 0)  # type: ignore[attr-defined]
