@@ -88,12 +88,17 @@ def test_fusion_is_the_information_weighted_mean_and_huber_limits_an_outlier():
         fuse_pose_measurements([T], [Ca, Cb])
 
 
-def test_host_candidates_are_the_keyframes_within_the_motion_bound():
+def test_host_candidates_are_the_keyframes_within_the_motion_and_rotation_bounds():
     kfs = np.stack([_pose([0, 0, 0, 0, 0, z]) for z in (0.0, 1.0, 2.0, 5.0)])
     frame = _pose([0, 0, 0, 0, 0, 1.5])
     # median inverse depth 0.2 (5 m): 0.4 allows 2 m of baseline
     np.testing.assert_array_equal(host_candidates(frame, kfs, np.full(4, 0.2), 0.4), [0, 1, 2])
     np.testing.assert_array_equal(host_candidates(frame, kfs, np.full(4, 0.2), 0.15), [1, 2])
+    # a keyframe turned away by more than max_rotation_deg is no host
+    turned = kfs.copy()
+    turned[1] = turned[1] @ _pose([0, np.radians(20), 0, 0, 0, 0])
+    np.testing.assert_array_equal(host_candidates(frame, turned, np.full(4, 0.2), 0.4), [0, 2])
+    np.testing.assert_array_equal(host_candidates(frame, turned, np.full(4, 0.2), 0.4, max_rotation_deg=25), [0, 1, 2])
 
 
 @pytest.fixture(scope="module")
