@@ -11,8 +11,9 @@ graph touches it, so it bounds what loop closure can do.
 :func:`refine_frames` therefore measures each such frame again against **every** final keyframe
 within the tracker's range (``|t_q_f| * median(d_q) <= max_motion``, the bound of a loop edge,
 :data:`gtvo.loops.direct_refinement.MAX_LOOP_MOTION`, and at most :data:`MAX_ROTATION_DEG` turned
-away), by the frame tracker from the frame's current pose, and fuses the measurements ``T_world_q T_q_f`` into one pose
-(:func:`fuse_pose_measurements`: pose-only least squares, Huber at the 99 % chi-square quantile).
+away), by the frame tracker from the frame's current pose, and fuses the measurements
+``T_world_q T_q_f`` into one pose (:func:`fuse_pose_measurements`: pose-only least squares, Huber at
+the 99 % chi-square quantile).
 Each measurement's covariance is the tracker's plus the uncertainty of the host ``q`` relative to
 the frame's own keyframe ``k`` (:func:`chain_covariances`: the odometry edges' covariances composed
 along the keyframe chain from ``k`` to ``q``), so a far host counts less than a near one, and the
@@ -134,7 +135,8 @@ def fuse_pose_measurements(poses: Sequence[F64], covariances: Sequence[F64],
 
 
 def host_candidates(T_world_frame: F64, keyframe_poses: F64, median_inverse_depth: F64,
-                    max_motion: float = MAX_LOOP_MOTION, max_rotation_deg: float = MAX_ROTATION_DEG) -> NDArray[np.intp]:
+                    max_motion: float = MAX_LOOP_MOTION,
+                    max_rotation_deg: float = MAX_ROTATION_DEG) -> NDArray[np.intp]:
     """Keyframes (positions in ``keyframe_poses``) within the tracker's range of a frame at
     ``T_world_frame``: ``|t_q_f| * median(d_q) <= max_motion`` and a rotation of at most
     ``max_rotation_deg`` between them."""
