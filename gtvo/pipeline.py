@@ -23,11 +23,17 @@ from gtvo.errors import InputError
 from gtvo.config import OdometryConfig, as_config, config_to_dict, config_to_yaml
 from gtvo.io.observer import RunObserver
 from gtvo.odometry import VisualOdometry, frames_by_outcome
+from gtvo.odometry.estimates import FrameOutcome
 from gtvo.io.covariances import KeyframeCovariances
 from gtvo.odometry.rig_report import rig_report, rig_warning
 from gtvo.io.outputs import check_run_output_dir, write_run_outputs
 from gtvo.datasets.sequence import Sequence
 from gtvo.evaluation.trajectory import Trajectory
+
+
+#: Outcomes whose pose comes from tracking (the others are keyframes or predictions): the frames
+#: that ``--loop-closure`` re-estimates against the final keyframes.
+TRACKED_OUTCOMES = (FrameOutcome.TRACKED, FrameOutcome.RECOVERED)
 
 
 def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progress: bool = False,
@@ -147,8 +153,9 @@ def run(path: str | Path | Sequence, out: str | Path | None = None,
         progress: show a progress bar.
         strict: stop at the first unreadable frame instead of skipping it.
         loop_closure: after the run, detect loops among the keyframes, optimise the keyframe
-            pose graph robustly (GNC) and write ``trajectory_loop_closed.tum`` as a second
-            output (:mod:`gtvo.loops.closing`).
+            pose graph robustly (GNC), re-estimate every tracked frame against the final keyframes
+            and write ``trajectory_loop_closed.tum`` as a second output (:mod:`gtvo.loops.closing`);
+            ``points.ply`` then holds the map on the loop-closed keyframe poses.
         frame_step: use every ``frame_step``-th frame (after ``max_frames``): the log at a lower
             frame rate (:meth:`Sequence.subsampled`).
         observers: see the run as it goes (:func:`process_sequence`), e.g.
@@ -179,7 +186,7 @@ def run(path: str | Path | Sequence, out: str | Path | None = None,
                     config=config_to_dict(config))
         if getattr(seq, "unpaired", None) is not None:  # a ROS bag: messages that found no partner
             info["unpaired_messages"] = seq.unpaired  # type: ignore[attr-defined]
-        closed = None
+        closed = closed_keyframes = None
         if loop_closure:
             from gtvo.loops.closing import close_loops_of_run, odometry_covariances  # noqa: PLC0415
 
@@ -187,16 +194,21 @@ def run(path: str | Path | Sequence, out: str | Path | None = None,
             res = close_loops_of_run(seq, traj, [e.index for e in vo.estimates], keyframes, progress=progress,
                                      odometry_covariances=odometry_covariances(vo.estimates, keyframes),
                                      keyframe_points={kf.index: kf.points for kf in vo.keyframes},
-                                     tracking_config=vo.config.tracking)
+                                     tracking_config=vo.config.tracking, refine_frames=True,
+                                     refine=[e.outcome in TRACKED_OUTCOMES for e in vo.estimates])
             closed = res.trajectory
+            closed_keyframes = res.keyframe_poses
             info["loops_detected"] = len(res.candidates) + len(res.unrefined)
             info["loops_unrefined"] = len(res.unrefined)
             info["loops_accepted"] = int(sum(res.accepted))
             info["loop_closure_solver"] = "gtsam_gnc_lm"  # GncLMOptimizer, then LM on the kept loops
+            hosts = res.frame_hosts if res.frame_hosts is not None else np.zeros(0, np.int64)
+            info["frames_refined"] = int(np.count_nonzero(hosts))
+            info["frame_refinement_hosts_mean"] = float(hosts[hosts > 0].mean()) if np.any(hosts > 0) else None
         raise_if_interrupted()
         with vo.clock.activate() if vo.clock is not None else nullcontext(), stage("outputs", absorb=True):
-            report = write_run_outputs(out_dir, traj, seq, info, points=vo.map_points(), loop_closed=closed,
-                                       covariances=keyframe_covariances(vo),
+            report = write_run_outputs(out_dir, traj, seq, info, points=vo.map_points(closed_keyframes),
+                                       loop_closed=closed, covariances=keyframe_covariances(vo),
                                        config_yaml=config_to_yaml(config, f"gtvo {__version__}: gtvo run --config this file"),
                                        stage_figures=lambda: stage_report(vo))
     report["out"] = str(out_dir)

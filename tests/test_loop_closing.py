@@ -41,3 +41,45 @@ def test_synthetic_revisit_is_closed():
     assert drift_lc < drift_vo
     R = res.trajectory.poses[:, :3, :3]
     np.testing.assert_allclose(np.einsum("nji,njk->nik", R, R), np.broadcast_to(np.eye(3), R.shape), atol=1e-9)
+
+
+def test_map_points_follow_the_keyframe_poses_they_are_given():
+    seq = make_synthetic_sequence(n_frames=20, motion="forward")
+    vo, _, _ = process_sequence(seq)
+    assert len(vo.keyframes) >= 2
+    G = _pose(0.3, [1.0, -0.5, 2.0])
+    moved = vo.map_points({kf.index: G @ kf.T_world_cam.matrix() for kf in vo.keyframes})
+    own = vo.map_points()
+    assert moved.written == own.written and own.written > 0
+    np.testing.assert_allclose(moved.points, own.points @ G[:3, :3].T + G[:3, 3], atol=1e-9)
+    # a keyframe not in the mapping keeps its own pose
+    np.testing.assert_allclose(vo.map_points({}).points, own.points)
+
+
+def test_run_with_loop_closure_refines_frames_and_maps_on_the_closed_keyframes(tmp_path, monkeypatch):
+    from gtvo.io.trajectory_files import read_tum
+    from gtvo.odometry import VisualOdometry
+    from gtvo.pipeline import TRACKED_OUTCOMES, run
+
+    seq = make_synthetic_sequence(n_frames=60, motion="loop", seed=2)
+    seen = {}
+    own_map_points = VisualOdometry.map_points
+
+    def spy(self, keyframe_poses=None):
+        seen["poses"], seen["vo"] = keyframe_poses, self
+        return own_map_points(self, keyframe_poses)
+
+    monkeypatch.setattr(VisualOdometry, "map_points", spy)
+    report = run(seq, out=tmp_path / "out", loop_closure=True)
+    vo = seen["vo"]
+    assert report["loops_accepted"] >= 1
+    assert report["frames_refined"] == sum(e.outcome in TRACKED_OUTCOMES for e in vo.estimates) > 0
+    assert report["frame_refinement_hosts_mean"] >= 1
+    closed = read_tum(tmp_path / "out" / "trajectory_loop_closed.tum")
+    by_time = {round(float(t), 6): P for t, P in zip(closed.timestamps, closed.poses)}
+    moved = 0
+    for kf in vo.keyframes:  # the map's keyframe poses are the loop-closed trajectory's
+        T = seen["poses"][kf.index]
+        np.testing.assert_allclose(T, by_time[round(float(seq.timestamps[kf.index]), 6)], atol=1e-5)
+        moved += not np.allclose(T, kf.T_world_cam.matrix(), atol=1e-6)
+    assert moved > 0

@@ -30,8 +30,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="ground truth to use instead of the folder's (KITTI raw: an oxts folder)")
     p.add_argument("--strict", action="store_true", help="stop at an unreadable frame instead of skipping it")
     p.add_argument("--loop-closure", action="store_true",
-                   help="detect loops among the keyframes, optimise the keyframe pose graph robustly (GNC) and "
-                        "write DIR/trajectory_loop_closed.tum as a second output")
+                   help="detect loops among the keyframes, optimise the keyframe pose graph robustly (GNC), "
+                        "re-measure every tracked frame against the final keyframes and write "
+                        "DIR/trajectory_loop_closed.tum as a second output (the map on the loop-closed keyframes)")
     p.add_argument("--no-covariances", action="store_true",
                    help="do not compute the keyframes' pose covariances (no DIR/covariances.npz, no ellipses)")
     rig = p.add_mutually_exclusive_group()

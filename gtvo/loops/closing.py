@@ -11,7 +11,10 @@
    :func:`gtvo.loops.closure_graph.close_loops` optimises it with Graduated Non-Convexity, so
    that one false loop cannot bend the map. Both kinds of edge come from the same photometric
    model, so neither is on another scale of confidence than the other (docs/loop_closure.md).
-4. Every frame keeps its pose relative to its keyframe: ``T_world_f' = T_world_k' T_world_k^-1 T_world_f``.
+4. Every frame keeps its pose relative to its keyframe: ``T_world_f' = T_world_k' T_world_k^-1 T_world_f``;
+   with ``refine_frames``, every tracked frame is then re-estimated against all final keyframes
+   within the tracker's range (:func:`gtvo.loops.frame_refinement.refine_frames`): its single
+   alignment against one keyframe is its whole error relative to that keyframe otherwise.
 """
 
 from __future__ import annotations
@@ -33,6 +36,7 @@ from gtvo.frontend.tracking import TrackingConfig
 from gtvo.loops import LoopCandidate, LoopDetector
 from gtvo.loops.closure_graph import LoopEdge, close_loops
 from gtvo.loops.direct_refinement import refine_loop_both_ways
+from gtvo.loops.frame_refinement import refine_frames as refine_frame_poses
 
 #: Odometry edge standard deviations, rotation (rad) and translation (m), for consecutive keyframes
 #: that no successful tracking links (the first keyframe after a re-initialisation, or a run whose
@@ -53,18 +57,25 @@ class LoopClosingResult:
         candidates: verified loop candidates ``(i, j)`` as frame indices of the sequence.
         accepted: per candidate, True when the robust optimisation kept it.
         unrefined: verified loops ``(i, j)`` that direct alignment could not measure (not in the graph).
+        keyframe_poses: the keyframes' poses after loop closing, ``{frame index in seq: 4x4 T_world_cam}``
+            (the input's when no loop was closed).
+        frame_hosts: per pose of ``trajectory``, how many keyframes re-measured it (``refine_frames``;
+            0: moved with its keyframe), None when frames were not refined.
     """
 
     trajectory: Trajectory
     candidates: list[tuple[int, int]] = field(default_factory=list)
     accepted: list[bool] = field(default_factory=list)
     unrefined: list[tuple[int, int]] = field(default_factory=list)
+    keyframe_poses: dict[int, NDArray[np.float64]] = field(default_factory=dict)
+    frame_hosts: NDArray[np.int64] | None = None
 
 
 def close_loops_of_run(seq: Sequence, est: Trajectory, frame_indices: list[int], keyframes: list[int],
                        progress: bool = False, odometry_covariances: Seq[NDArray[np.float64] | None] | None = None,
                        keyframe_points: Mapping[int, KeyframePoints] | None = None,
-                       tracking_config: TrackingConfig | None = None) -> LoopClosingResult:
+                       tracking_config: TrackingConfig | None = None, refine_frames: bool = False,
+                       refine: Seq[bool] | None = None) -> LoopClosingResult:
     """Detect loops among a run's keyframes and return the loop-closed trajectory.
 
     Args:
@@ -82,15 +93,36 @@ def close_loops_of_run(seq: Sequence, est: Trajectory, frame_indices: list[int],
             made afresh from its stereo pair (less accurate: one pair's depths) or its depth image.
         tracking_config: the tracker's settings for the refinement (the VO's, default
             :class:`TrackingConfig`).
+        refine_frames: after loop closing (also when no loop was found), re-estimate every frame
+            that is not a keyframe against the final keyframes
+            (:func:`gtvo.loops.frame_refinement.refine_frames`, the keyframes' points from
+            ``keyframe_points`` or made afresh).
+        refine: with ``refine_frames``, per pose of ``est``, whether it may be re-estimated
+            (default every non-keyframe; leave out poses that are predictions: lost or suspect frames).
 
-    Returns the input trajectory unchanged when no loop is found.
+    Without ``refine_frames`` the input trajectory is returned unchanged when no loop is found.
     """
     kfs = sorted(set(int(k) for k in keyframes))
-    if len(kfs) < 2:
+    if not kfs:
         return LoopClosingResult(est)
+    result = _close(seq, est, frame_indices, kfs, progress, odometry_covariances, keyframe_points, tracking_config)
+    if refine_frames and len(kfs) >= 2:
+        _refine_frames(seq, result, frame_indices, kfs, progress, odometry_covariances, keyframe_points,
+                       tracking_config, refine)
+    return result
+
+
+def _close(seq: Sequence, est: Trajectory, frame_indices: list[int], kfs: list[int], progress: bool,
+           odometry_covariances: Seq[NDArray[np.float64] | None] | None,
+           keyframe_points: Mapping[int, KeyframePoints] | None,
+           tracking_config: TrackingConfig | None) -> LoopClosingResult:
+    """Detection, direct re-measurement and the robust keyframe pose graph (steps 1-3)."""
+    unchanged = {int(frame_indices[k]): est.poses[k].copy() for k in kfs}
+    if len(kfs) < 2:
+        return LoopClosingResult(est, keyframe_poses=unchanged)
     found = _detect(seq, est, frame_indices, kfs, progress)
     if not found:
-        return LoopClosingResult(est)
+        return LoopClosingResult(est, keyframe_poses=unchanged)
     rank = {k: r for r, k in enumerate(kfs)}
     edges, pairs, unrefined = [], [], []
     for c in found:
@@ -102,12 +134,32 @@ def close_loops_of_run(seq: Sequence, est: Trajectory, frame_indices: list[int],
             edges.append(LoopEdge(rank[c.i], rank[c.j], refined.T_i_j, refined.information))
             pairs.append((fi, fj))
     if not edges:
-        return LoopClosingResult(est, unrefined=unrefined)
+        return LoopClosingResult(est, unrefined=unrefined, keyframe_poses=unchanged)
     info = odometry_informations(len(kfs), odometry_covariances)
     result = close_loops(est.poses[kfs], edges, odometry_information=info)
     poses = relocate_frames(est.poses, kfs, result.poses)
     traj = Trajectory(est.timestamps.copy(), poses, name=f"{est.name} (loop closed)")
-    return LoopClosingResult(traj, pairs, [bool(a) for a in result.accepted], unrefined)
+    kf_poses = {int(frame_indices[k]): result.poses[r].copy() for r, k in enumerate(kfs)}
+    return LoopClosingResult(traj, pairs, [bool(a) for a in result.accepted], unrefined, kf_poses)
+
+
+def _refine_frames(seq: Sequence, result: LoopClosingResult, frame_indices: list[int], kfs: list[int],
+                   progress: bool, odometry_covariances: Seq[NDArray[np.float64] | None] | None,
+                   keyframe_points: Mapping[int, KeyframePoints] | None, tracking_config: TrackingConfig | None,
+                   refine: Seq[bool] | None) -> None:
+    """Step 4 with ``refine_frames``: ``result.trajectory`` re-estimated frame by frame (in place)."""
+    traj = result.trajectory
+    points = []
+    for k in kfs:
+        fi = int(frame_indices[k])
+        pts = keyframe_points.get(fi) if keyframe_points is not None else None
+        points.append(_fresh_points(seq, seq.frame(fi)) if pts is None else pts)
+    edge_cov = np.linalg.inv(odometry_informations(len(kfs), odometry_covariances))
+    refined = refine_frame_poses(seq.pinhole, lambda p: seq.frame(int(frame_indices[p])).left, traj.poses, kfs,
+                                 points, edge_cov, refine=refine, config=tracking_config, progress=progress)
+    name = traj.name if traj.name.endswith("(loop closed)") else f"{traj.name} (loop closed)"
+    result.trajectory = Trajectory(traj.timestamps.copy(), refined.poses, name=name)
+    result.frame_hosts = refined.hosts
 
 
 def _detect(seq: Sequence, est: Trajectory, frame_indices: list[int], kfs: list[int],

@@ -33,6 +33,7 @@ from __future__ import annotations
 import dataclasses
 import time
 from contextlib import nullcontext
+from typing import Mapping
 
 import gtsam
 import numpy as np
@@ -261,11 +262,15 @@ class VisualOdometry(KeyframeMaking):
             return None
         P = self.window.covariances.get(index)
         return None if P is None else float(inflation) * P
-    def map_points(self) -> MapPoints:
+    def map_points(self, keyframe_poses: Mapping[int, NDArray[np.float64]] | None = None) -> MapPoints:
         """The keyframe points whose depth the run constrains, in the world frame (what ``points.ply``
         holds): inverse depth positive, relative depth sigma bounded and, for keyframes that a window
         optimisation included, seen from enough keyframes in one (:mod:`gtvo.core.map_points`); the
-        rest counted."""
+        rest counted.
+
+        ``keyframe_poses``: ``{keyframe index: 4x4 T_world_cam}`` to place keyframes elsewhere than
+        at their odometry poses (e.g. after loop closing); a keyframe missing from it keeps its own.
+        """
         pts, vals = [np.zeros((0, 3))], [np.zeros(0)]
         left_out: dict[str, int] = {}
         for kf in self.keyframes:
@@ -276,14 +281,15 @@ class VisualOdometry(KeyframeMaking):
             keep, out = constrained_mask(kf.points.inverse_depth, kf.points.variance, seen)
             for k, v in out.items():
                 left_out[k] = left_out.get(k, 0) + v
-            pts.append(self._world_points(kf)[keep])
+            T = None if keyframe_poses is None else keyframe_poses.get(kf.index)
+            pts.append(self._world_points(kf, T)[keep])
             vals.append(np.asarray(kf.points.intensity, dtype=float)[keep])
         return MapPoints(np.concatenate(pts), np.concatenate(vals), left_out)
 
-    def _world_points(self, kf: Keyframe) -> NDArray[np.float64]:
+    def _world_points(self, kf: Keyframe, T_world_cam: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
         with np.errstate(divide="ignore", invalid="ignore"):
             X = self.pinhole.backproject_inverse_depth(kf.points.pixels, kf.points.inverse_depth)
-        T = kf.T_world_cam.matrix()
+        T = kf.T_world_cam.matrix() if T_world_cam is None else np.asarray(T_world_cam, dtype=float)
         return X @ T[:3, :3].T + T[:3, 3]
 
     # -- internals ------------------------------------------------------------------------------
