@@ -9,7 +9,8 @@ note), then the peers of ``benchmarks/peers.py``: (a) SGBM + Open3D RGB-D odomet
 colour term, (b) ORB + SGBM + solvePnPRansac. On an RGB-D sequence (TUM layout) the peers use the
 sensor's depth instead of SGBM. Every row runs on the same frames, preloaded in memory, so the
 timings count computation only; they are also given as multiples of a reference measured in the
-same run (one OpenCV StereoSGBM of the first frame, median of 5, taken before and after the rows).
+same run (one OpenCV StereoSGBM of the first frame, median of 5, taken before and after the rows);
+start-up is excluded (a short gtvo warm-up run first: numba loads its compiled loops at first call).
 
 Columns (benchmarks/vo_bench.py): ATE RMSE after SE(3) alignment, drift % (first pose aligned;
 '-' on a clip that does not move), the KITTI devkit's segment errors over 10-40 m segments from
@@ -58,6 +59,14 @@ def bench_sequence(path: Path, max_frames: int | None, solvers: list[str], modes
     ref_before = reference_ms(frames)
     rows: list[dict[str, Any]] = []
     notes: list[str] = []
+    # start-up excluded: the compiled loops are loaded from numba's cache (or compiled) at their
+    # first call, about a second that the first row would otherwise carry
+    for mode in modes:
+        try:
+            run_gtvo(seq.camera, frames[:4], gtvo_config(solvers[0] if solvers else "default", mode,
+                                                         motion_model=motion_model, **(gtvo_overrides or {})))
+        except ModeUnavailable:
+            pass
     for mode in modes:
         for solver in solvers:
             label = f"gtvo {mode}, {solver}"
