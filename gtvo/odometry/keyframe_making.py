@@ -9,6 +9,7 @@ they use (``config``, ``camera``, ``pinhole``, ``keyframes``, ``estimates``, ``w
 from __future__ import annotations
 
 import dataclasses
+from contextlib import nullcontext
 
 import gtsam
 import numpy as np
@@ -169,6 +170,17 @@ class KeyframeMaking:
             return e.index == last
         return False
 
+    def finish(self) -> None:
+        """Optimise the keyframes that joined the window since its last optimisation
+        (``WindowConfig.optimize_every`` > 1) and re-express their frames; nothing to do in track
+        mode or when none is waiting. Call it after the last frame (``gtvo.run`` does); frames may
+        still follow (the next keyframe joins the window as usual)."""
+        if self.window is None or not self._window_waiting:
+            return
+        with self.clock.activate("other") if self.clock is not None else nullcontext(), single_threaded_blas():
+            if self._optimize_window():
+                self._refresh_estimates()
+
     def _stereo_depths_suffice(self, T_world_cam: gtsam.Pose3, pts: KeyframePoints) -> bool:
         """True when the new keyframe's own (unrefined) depths are good enough to track the next
         frame against: their inverse-depth error moves a point by less than the residual pattern's
@@ -251,3 +263,16 @@ class KeyframeMaking:
             else:
                 continue
             self.estimates[i] = dataclasses.replace(e, T_world_cam=T.matrix())
+
+
+_BLAS_CONTROLLER = None
+
+
+def single_threaded_blas():
+    """A context that limits BLAS to one thread (the controller is built once: it scans libraries)."""
+    global _BLAS_CONTROLLER
+    if _BLAS_CONTROLLER is None:
+        from threadpoolctl import ThreadpoolController  # noqa: PLC0415
+
+        _BLAS_CONTROLLER = ThreadpoolController()
+    return _BLAS_CONTROLLER.limit(limits=1, user_api="blas")

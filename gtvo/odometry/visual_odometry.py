@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from contextlib import nullcontext
 from typing import Mapping
 
 import gtsam
@@ -50,7 +49,7 @@ from gtvo.evaluation.trajectory import Trajectory
 from gtvo.config import OdometryConfig
 from gtvo.frontend.frame_checks import FrameChecker, measure_step
 from gtvo.frontend.keyframes import needs_keyframe
-from gtvo.odometry.keyframe_making import KeyframeMaking
+from gtvo.odometry.keyframe_making import KeyframeMaking, single_threaded_blas
 from gtvo.odometry.estimates import TooFewPoints, rigid_pose
 from gtvo.odometry.estimates import FrameEstimate, FrameOutcome, Keyframe
 from gtvo.window import SlidingWindowOptimizer, WindowResult
@@ -132,9 +131,9 @@ class VisualOdometry(KeyframeMaking):
         small matrix products were up to 300x slower multithreaded on a busy 2-core machine.
         """
         if self.clock is None:
-            with _single_threaded_blas():
+            with single_threaded_blas():
                 return self._process(frame)
-        with self.clock.activate("other"), _single_threaded_blas():  # time outside the named stages: "other"
+        with self.clock.activate("other"), single_threaded_blas():  # time outside the named stages: "other"
             return self._process(frame)
 
     @property
@@ -208,17 +207,6 @@ class VisualOdometry(KeyframeMaking):
             return self._finish(frame, left, T_world, plain, result, t0, candidate=False,
                                 T_keyframe_frame=result.T_keyframe_frame)
         return self._finish(frame, left, T_world, plain, result, t0, T_keyframe_frame=result.T_keyframe_frame)
-
-    def finish(self) -> None:
-        """Optimise the keyframes that joined the window since its last optimisation
-        (``WindowConfig.optimize_every`` > 1) and re-express their frames; nothing to do in track
-        mode or when none is waiting. Call it after the last frame (``gtvo.run`` does); frames may
-        still follow (the next keyframe joins the window as usual)."""
-        if self.window is None or not self._window_waiting:
-            return
-        with self.clock.activate("other") if self.clock is not None else nullcontext(), _single_threaded_blas():
-            if self._optimize_window():
-                self._refresh_estimates()
 
     def trajectory(self, name: str = "gtvo") -> Trajectory:
         """The estimated left-camera trajectory so far (every frame; window mode: call :meth:`finish`
@@ -418,17 +406,3 @@ class VisualOdometry(KeyframeMaking):
                 else:
                     self._kalman.step(z, dt)
         return est
-
-
-
-_BLAS_CONTROLLER = None
-
-
-def _single_threaded_blas():
-    """A context that limits BLAS to one thread (the controller is built once: it scans libraries)."""
-    global _BLAS_CONTROLLER
-    if _BLAS_CONTROLLER is None:
-        from threadpoolctl import ThreadpoolController  # noqa: PLC0415
-
-        _BLAS_CONTROLLER = ThreadpoolController()
-    return _BLAS_CONTROLLER.limit(limits=1, user_api="blas")
