@@ -54,9 +54,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from benchmarks.peers import make_sgbm  # noqa: E402
 from benchmarks.vo_bench import KITTI_SEQUENCE_1, fmt, load_frames, markdown_table, reference_ms, score  # noqa: E402
-from gtvo.core.image import to_uint8  # noqa: E402
 from gtvo.config import OdometryConfig, SolverConfig  # noqa: E402
 from gtvo.core.timing import FRAME_STAGES, StageClock  # noqa: E402
 from gtvo.datasets import open_sequence  # noqa: E402
@@ -128,16 +126,7 @@ def hook_cost_us(cpu: bool = False, n: int = 20000) -> float:
 
 def reference_cpu_ms(frames: list, repeats: int = 5) -> float:
     """:func:`benchmarks.vo_bench.reference_ms` in this process's CPU time (all threads'): median ms."""
-    f = frames[0]
-    left = to_uint8(f.left)
-    right = to_uint8(f.right) if f.right is not None else left
-    matcher = make_sgbm()
-    ts = []
-    for _ in range(repeats):
-        t0 = time.process_time()
-        matcher.compute(left, right)
-        ts.append(time.process_time() - t0)
-    return 1000.0 * float(np.median(ts))
+    return reference_ms(frames, repeats, timer=time.process_time)
 
 
 def measure(camera: Any, frames: list, config: OdometryConfig, repeat: int, cpu: bool = False) -> dict[str, Any]:

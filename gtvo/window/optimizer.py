@@ -106,6 +106,15 @@ class SlidingWindowOptimizer:
         """The 2x2 marginal covariance (px^2) of the rig offset at the current state: the window's
         graph (host factors, priors, marginal prior) linearised once, ``gtsam.Marginals``.
         None when the rig offset is not estimated or the window has no host factor yet."""
+        built = self._rig_graph()
+        if built is None:
+            return None
+        graph, values = built
+        return np.asarray(gtsam.Marginals(graph, values).marginalCovariance(rig_offset_key()), dtype=float)
+
+    def _rig_graph(self) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values] | None:
+        """The window's graph and values at the current state with the rig offset a free variable,
+        or None when it is not estimated (or no host factor exists yet)."""
         if self.rig_offset is None or len(self.keyframes) < 2 or self.config.backend != "lm":
             return None
         targets = visible_targets(self.camera, self.keyframes, self.config)
@@ -113,19 +122,16 @@ class SlidingWindowOptimizer:
             return None
         graph, values, _ = build_graph(self.camera, self.baseline, self.keyframes, self.config, self.marginal, targets,
                                        self.rig_offset)
-        return np.asarray(gtsam.Marginals(graph, values).marginalCovariance(rig_offset_key()), dtype=float)
+        return graph, values
 
     def rig_x_free_estimate(self) -> tuple[float, float] | None:
         """What the window's data say about ``delta_x`` while it is held: one Gauss-Newton step from
         the current state on the window's graph without the hold (the estimate), and the marginal
         sigma there (px). None when the rig offset is not estimated or there is no host factor."""
-        if self.rig_offset is None or len(self.keyframes) < 2 or self.config.backend != "lm":
+        built = self._rig_graph()
+        if built is None:
             return None
-        targets = visible_targets(self.camera, self.keyframes, self.config)
-        if not any(targets):
-            return None
-        graph, values, _ = build_graph(self.camera, self.baseline, self.keyframes, self.config, self.marginal, targets,
-                                       self.rig_offset)
+        graph, values = built
         linear = graph.linearize(values)
         step = float(linear.optimize().at(rig_offset_key())[0])
         cov = gtsam.Marginals(linear, values).marginalCovariance(rig_offset_key())
