@@ -215,21 +215,20 @@ class HostPoints:
         Ih_c, hv_c = np.ascontiguousarray(Ih, dtype=float), np.ascontiguousarray(hv, dtype=bool)
         f_c, ds_c = np.ascontiguousarray(f, dtype=float), np.ascontiguousarray(ds, dtype=float)
 
-        def target(t: int):  # one target's residuals, or (t = -1) the stereo term's
-            if t < 0:
-                return stereo_residuals(self.camera, self.baseline, Ih, hv, px, ds, self.right_image, (0.0, 0.0),
-                                        self.stereo_affine, self.pattern, jacobians=False, bearings=f, offset=offset,
-                                        offset_jacobians=self.rig)
+        out: list = []
+        for t, img in enumerate(self.target_images):
             at = np.asarray(affines[1 + t] if self.with_affine else zero, dtype=float)
-            img = self.target_images[t]
             if isinstance(img, GradientImage):
-                return compiled_residuals(self.camera, Ih_c, hv_c, f_c, ds_c, poses[0], poses[1 + t], img,
-                                          float(at[0] - ah[0]), float(ah[1]), float(at[1]))
-            return photometric_residuals(self.camera, Ih, hv, px, ds, poses[0], poses[1 + t], img,
-                                         ah, at, self.pattern, jacobians=True, host_jacobians=True, bearings=f)
-
-        out = [target(t) for t in range(len(self.target_images))]
-        return out + [target(-1) if self.right_image is not None else None]
+                out.append(compiled_residuals(self.camera, Ih_c, hv_c, f_c, ds_c, poses[0], poses[1 + t], img,
+                                              float(at[0] - ah[0]), float(ah[1]), float(at[1])))
+            else:
+                out.append(photometric_residuals(self.camera, Ih, hv, px, ds, poses[0], poses[1 + t], img, ah, at,
+                                                 self.pattern, jacobians=True, host_jacobians=True, bearings=f))
+        out.append(None if self.right_image is None else
+                   stereo_residuals(self.camera, self.baseline, Ih, hv, px, ds, self.right_image, (0.0, 0.0),
+                                    self.stereo_affine, self.pattern, jacobians=False, bearings=f, offset=offset,
+                                    offset_jacobians=self.rig))
+        return out
 
     def weights(self, lins: list) -> list[FloatArray]:
         """W per target (then ``lambda`` W of the stereo term): frozen at the first call, from the
@@ -277,12 +276,10 @@ class HostPoints:
         c = np.zeros(n)
         Ws = self.weights(lins)
 
-        def sums(t: int):  # one target's robust terms and Gauss-Newton sums
-            w, loss = point_robust_terms(Ws[t], lins[t].residual, self.huber_k)
-            return loss, gauss_newton_sums(lins[t], Ws[t] * w[:, None], self.with_affine)
-
         for t, cols in enumerate(columns):
-            loss, (H_t, g_t, H_pd_t, H_dd_t, g_d_t) = sums(t)
+            lin, W = lins[t], Ws[t]
+            w, loss = point_robust_terms(W, lin.residual, self.huber_k)
+            H_t, g_t, H_pd_t, H_dd_t, g_d_t = gauss_newton_sums(lin, W * w[:, None], self.with_affine)
             c += loss
             H[np.ix_(cols, cols)] += H_t
             g[cols] += g_t

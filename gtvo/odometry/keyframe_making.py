@@ -150,8 +150,10 @@ class KeyframeMaking:
         wcfg = self.config.window
         defer = (tracked is not None and wcfg.backend == "lm" and self._window_waiting < wcfg.optimize_every
                  and self._follows_last_keyframe(frame.index) and self._stereo_depths_suffice(T_world_cam, pts))
-        self._window_affine = {w.index: w.affine.copy() for w in self.window.keyframes}
-        if defer or not self._optimize_window():
+        if defer:
+            self._window_affine = {w.index: w.affine.copy() for w in self.window.keyframes}
+            return T_world_cam, pts
+        if not self._optimize_window():  # sets _window_affine too
             return T_world_cam, pts
         return wk.pose, dataclasses.replace(pts, inverse_depth=wk.inverse_depth.copy())
 
