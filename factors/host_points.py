@@ -53,8 +53,12 @@ def gauss_newton_sums(lin: PhotometricLinearization, weight: ArrayLike, with_aff
         H = sum w J^T J   (16, 16 or 12, 12)      g = sum w J^T r
         H_pd[n] = sum_P w j J   (N, k)            H_dd[n] = sum_P w j^2    g_d[n] = sum_P w j r
 
-    The pose-depth blocks stay per point for the Schur complement. One compiled loop
-    (:func:`factors._compiled.accumulate_target`); tested against the numpy sums.
+    The pose-depth blocks stay per point for the Schur complement. One compiled loop: when the
+    linearisation carries its pair's ``T_target_host`` and brightness gain (the kernels of
+    :mod:`factors.photometric` set them), :func:`factors._compiled.accumulate_pair`, which sums
+    over the host Jacobians only and maps the sums to the target blocks
+    (:func:`target_jacobian_map`; 2x faster); else :func:`factors._compiled.accumulate_target`.
+    Both are tested against the numpy sums.
 
     Raises:
         InputError: the linearisation has no pose Jacobians (``jacobians=False`` or
@@ -72,8 +76,30 @@ def gauss_newton_sums(lin: PhotometricLinearization, weight: ArrayLike, with_aff
         ah, at = np.ascontiguousarray(lin.J_affine_host), np.ascontiguousarray(lin.J_affine_target)
     else:
         ah = at = np.zeros((0, p, 2))
+    if lin.T_target_host is not None and lin.brightness_gain is not None:
+        return _compiled.accumulate_pair(np.ascontiguousarray(lin.J_host), ah, target_jacobian_map(lin.T_target_host),
+                                         float(lin.brightness_gain), np.ascontiguousarray(lin.valid), w,
+                                         np.ascontiguousarray(lin.residual),
+                                         np.ascontiguousarray(lin.J_depth))
     return _compiled.accumulate_target(np.ascontiguousarray(lin.J_host), ah, np.ascontiguousarray(lin.J_target), at,
                                        w, np.ascontiguousarray(lin.residual), np.ascontiguousarray(lin.J_depth))
+
+
+def target_jacobian_map(T_target_host: ArrayLike) -> FloatArray:
+    """``B`` (6, 6) with ``J_target = J_host B^T`` for every photometric residual of a host-target pair
+    evaluated at ``T_target_host = (R, t)`` (poses right-perturbed, ``[rotation, translation]``):
+    ``B = -[[R, [t]x R], [0, R]]``, minus the adjoint of ``T_target_host``. The residual depends
+    on the two poses only through ``T_target_host = T_world_target^-1 T_world_host``; perturbing
+    the host by ``xi`` moves it like perturbing the target by ``-Ad(T_target_host) xi``
+    (docs/factors.md §7; tested against the kernel's own ``J_target``)."""
+    T = np.asarray(T_target_host, dtype=float)
+    R, t = T[:3, :3], T[:3, 3]
+    tx = np.array([[0.0, -t[2], t[1]], [t[2], 0.0, -t[0]], [-t[1], t[0], 0.0]])
+    B = np.zeros((6, 6))
+    B[:3, :3] = -R
+    B[:3, 3:] = -tx @ R
+    B[3:, 3:] = -R
+    return B
 
 
 def keep_cheaper_depths(d: FloatArray, c: FloatArray, lins: list, rows: NDArray[np.intp], d_old: FloatArray,

@@ -205,6 +205,11 @@ class PhotometricLinearization:
     #: (N, P, 2) dr/d(delta_x, delta_y) of a stereo residual's rig offset (:func:`stereo_residuals`
     #: with ``offset_jacobians``), else None
     J_offset: FloatArray | None = None
+    #: (4, 4) ``T_target_host`` the residuals were evaluated at, and the brightness gain
+    #: ``exp(a_t - a_h)``: with them the Gauss-Newton sums need only the host Jacobians
+    #: (:func:`factors.host_points.gauss_newton_sums`)
+    T_target_host: FloatArray | None = None
+    brightness_gain: float | None = None
 
 
 def put_rows(lin: PhotometricLinearization, rows: NDArray[np.intp], other: PhotometricLinearization,
@@ -243,7 +248,8 @@ def compiled_residuals(camera: PinholeCamera, host_intensity: FloatArray, host_v
         return PhotometricLinearization(r, valid, J_depth, None, None, None, None, uv, n_bad, n_behind, n_out)
     if not host_jacobians:
         J_h = J_ah = None
-    return PhotometricLinearization(r, valid, J_depth, J_h, J_t, J_ah, J_at, uv, n_bad, n_behind, n_out)
+    return PhotometricLinearization(r, valid, J_depth, J_h, J_t, J_ah, J_at, uv, n_bad, n_behind, n_out,
+                                    T_target_host=T_target_host, brightness_gain=float(np.exp(log_gain)))
 
 
 def photometric_residuals(camera: PinholeCamera, host_intensity: ArrayLike, host_valid: ArrayLike | None,
@@ -343,7 +349,7 @@ def photometric_residuals(camera: PinholeCamera, host_intensity: ArrayLike, host
         J_host[..., 3:] = dd * ap
         J_aff_h = np.stack([hb, e * vf], axis=-1)
     return PhotometricLinearization(r, valid, J_depth, J_host, J_target, J_aff_h, J_aff_t, uv,
-                                    n_bad, n_behind, n_out)
+                                    n_bad, n_behind, n_out, T_target_host=Tth, brightness_gain=float(e))
 
 
 def stereo_residuals(camera: PinholeCamera, baseline: float, left_intensity: ArrayLike,

@@ -5,16 +5,18 @@ numpy path for any other sampler; wrapping the same image in a plain sampler obj
 numpy path on identical samples, so every output must agree to rounding. The numpy path's
 Jacobians are checked against numerical derivatives in test_factors_jacobians.py; here the
 compiled path's are checked against them too, on a smooth raster. ``gauss_newton_sums`` (the
-window's Hessian accumulation) is checked against the numpy sums it replaced.
+window's Hessian accumulation) is checked against the numpy sums it replaced, in both its forms.
 """
 
 from __future__ import annotations
+
+import dataclasses
 
 import gtsam
 import numpy as np
 import pytest
 
-from factors.host_points import gauss_newton_sums
+from factors.host_points import gauss_newton_sums, target_jacobian_map
 from factors.photometric import (GradientImage, PhotometricLinearization, pattern_bearings, photometric_residuals,
                                  sample_host, stereo_residuals)
 from factors.weights import huber_loss, huber_weight, point_robust_terms
@@ -142,17 +144,27 @@ def test_sample_keeps_the_shape_and_rejects_mismatched_coordinates():
         g.sample(np.zeros(3), np.zeros(4))
 
 
+HOST_POSE = gtsam.Pose3(gtsam.Rot3.Expmap([0.3, -0.2, 0.1]), np.array([1.0, -0.5, 2.0]))
+
+
+@pytest.mark.parametrize("sums", ["pair", "general"])
 @pytest.mark.parametrize("with_affine", [True, False])
-def test_gauss_newton_sums_equal_the_numpy_sums(with_affine):
+def test_gauss_newton_sums_equal_the_numpy_sums(with_affine, sums):
+    """``pair``: the kernels' linearisation carries ``T_target_host`` and the gain, so the sums are
+    mapped from the host Jacobians (accumulate_pair); ``general``: without them (accumulate_target)."""
     rng = np.random.default_rng(11)
     cam = small_camera()
     host, target = GradientImage(textured(rng)), GradientImage(textured(rng))
     px = np.c_[rng.uniform(3, 157, 150), rng.uniform(3, 117, 150)]
     d = rng.uniform(0.1, 1.5, 150)
-    Tt = gtsam.Pose3(gtsam.Rot3.Expmap([0.01, 0.02, -0.01]), np.array([0.1, 0.0, 0.2]))
+    Tt = HOST_POSE.compose(gtsam.Pose3(gtsam.Rot3.Expmap([0.01, 0.02, -0.01]), np.array([0.1, 0.0, 0.2])))
     Ih, hv = sample_host(host, px)
-    lin = photometric_residuals(cam, Ih, hv, px, d, gtsam.Pose3(), Tt, target, (0.1, 1.0), (-0.2, 3.0))
-    weight = rng.uniform(0.0, 2.0, lin.residual.shape) * lin.valid
+    lin = photometric_residuals(cam, Ih, hv, px, d, HOST_POSE, Tt, target, (0.1, 1.0), (-0.2, 3.0))
+    assert lin.T_target_host is not None and lin.brightness_gain is not None
+    if sums == "general":
+        lin = dataclasses.replace(lin, T_target_host=None, brightness_gain=None)
+    weight = rng.uniform(0.0, 2.0, lin.residual.shape)  # not zero where invalid: as the window's W
+    assert not lin.valid.all()
     weight[:10] = 0.0
     H, g, H_pd, H_dd, g_d = gauss_newton_sums(lin, weight, with_affine)
     parts = [lin.J_host, lin.J_affine_host, lin.J_target, lin.J_affine_target] if with_affine \
@@ -168,6 +180,31 @@ def test_gauss_newton_sums_equal_the_numpy_sums(with_affine):
     np.testing.assert_allclose(g_d, np.sum(weight * lin.J_depth * lin.residual, axis=1), rtol=1e-10, atol=1e-9)
     assert np.all(H_pd[:10] == 0) and np.all(H_dd[:10] == 0)
     assert np.linalg.eigvalsh(H).min() > -1e-6 * np.abs(H).max()
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_target_jacobians_are_the_host_jacobians_mapped_by_the_pair(compiled):
+    """The fact accumulate_pair rests on: ``J_target = J_host B^T``, ``B`` of ``T_target_host``
+    alone, for both kernels, with both poses away from the identity; and the affine Jacobians
+    are ``(hb, gain)`` and ``(-hb, -1)``."""
+    rng = np.random.default_rng(5)
+    cam = small_camera()
+    host, target = GradientImage(textured(rng)), GradientImage(textured(rng))
+    px = np.c_[rng.uniform(3, 157, 100), rng.uniform(3, 117, 100)]
+    d = rng.uniform(0.1, 1.5, 100)
+    Tt = HOST_POSE.compose(gtsam.Pose3(gtsam.Rot3.Expmap([-0.02, 0.03, 0.01]), np.array([0.2, 0.1, -0.1])))
+    Ih, hv = sample_host(host, px)
+    sampler = target if compiled else NumpySampler(target)
+    lin = photometric_residuals(cam, Ih, hv, px, d, HOST_POSE, Tt, sampler, (0.1, 1.0), (-0.2, 3.0))
+    assert lin.valid.sum() > 300
+    np.testing.assert_allclose(lin.T_target_host, Tt.between(HOST_POSE).matrix(), atol=1e-12)
+    B = target_jacobian_map(lin.T_target_host)
+    scale = np.abs(lin.J_target).max()
+    np.testing.assert_allclose(lin.J_host @ B.T, lin.J_target, rtol=0, atol=1e-12 * scale)
+    assert lin.brightness_gain == pytest.approx(np.exp(-0.3))
+    np.testing.assert_allclose(lin.J_affine_target[..., 0], -lin.J_affine_host[..., 0], atol=0)
+    np.testing.assert_allclose(lin.J_affine_host[..., 1], lin.brightness_gain * lin.valid, rtol=1e-15)
+    np.testing.assert_allclose(lin.J_affine_target[..., 1], -1.0 * lin.valid, atol=0)
 
 
 @pytest.mark.parametrize("k", [None, 0.5, 3.0, 1e9])
