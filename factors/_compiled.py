@@ -80,7 +80,7 @@ def sample_stack(packed, has_clip, width, height, border, u, v):
 
 @jit
 def warp_residuals(packed, has_clip, width, height, border, fx, fy, cx, cy, min_depth, R, t, f, d,
-                   host_intensity, host_valid, e, b_h, b_t, jacobians, host_jacobians):
+                   host_intensity, host_valid, e, b_h, b_t, jacobians, host_jacobians, target_jacobians=True):
     """The loop form of ``photometric_residuals`` (same names, same outputs, same zeros).
 
     Args: the target's sampler arrays (see :func:`_bilinear`), the target camera's intrinsics,
@@ -93,15 +93,16 @@ def warp_residuals(packed, has_clip, width, height, border, fx, fy, cx, cy, min_
 
     Returns:
         ``(r, valid, J_depth, uv, J_target, J_host, J_affine_target, J_affine_host, counts)``;
-        the Jacobian arrays have 0 rows when not asked for; ``counts`` = (n_bad_depth, n_behind,
-        n_outside).
+        the Jacobian arrays have 0 rows when not asked for (``jacobians`` False: none;
+        ``host_jacobians`` / ``target_jacobians`` False: not those); ``counts`` = (n_bad_depth,
+        n_behind, n_outside).
     """
     n, p = host_intensity.shape
     r = np.zeros((n, p))
     valid = np.zeros((n, p), dtype=np.bool_)
     J_depth = np.zeros((n, p))
     uv = np.empty((n, p, 2))
-    nj = n if jacobians else 0
+    nj = n if (jacobians and target_jacobians) else 0
     nh = n if (jacobians and host_jacobians) else 0
     J_target = np.zeros((nj, p, 6))
     J_aff_t = np.zeros((nj, p, 2))
@@ -178,14 +179,15 @@ def warp_residuals(packed, has_clip, width, height, border, fx, fy, cx, cy, min_
             J_depth[i, k] = a0 * t0 + a1 * t1 + a2 * t2
             if not jacobians:
                 continue
-            J_target[i, k, 0] = a1 * q2 - a2 * q1
-            J_target[i, k, 1] = a2 * q0 - a0 * q2
-            J_target[i, k, 2] = a0 * q1 - a1 * q0
-            J_target[i, k, 3] = -ds * a0
-            J_target[i, k, 4] = -ds * a1
-            J_target[i, k, 5] = -ds * a2
-            J_aff_t[i, k, 0] = -hb
-            J_aff_t[i, k, 1] = -1.0
+            if target_jacobians:
+                J_target[i, k, 0] = a1 * q2 - a2 * q1
+                J_target[i, k, 1] = a2 * q0 - a0 * q2
+                J_target[i, k, 2] = a0 * q1 - a1 * q0
+                J_target[i, k, 3] = -ds * a0
+                J_target[i, k, 4] = -ds * a1
+                J_target[i, k, 5] = -ds * a2
+                J_aff_t[i, k, 0] = -hb
+                J_aff_t[i, k, 1] = -1.0
             if not host_jacobians:
                 continue
             # a' = R^T a

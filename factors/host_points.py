@@ -64,23 +64,26 @@ def gauss_newton_sums(lin: PhotometricLinearization, weight: ArrayLike, with_aff
         InputError: the linearisation has no pose Jacobians (``jacobians=False`` or
             ``host_jacobians=False``), or ``weight`` has the wrong shape.
     """
-    if lin.J_host is None or lin.J_target is None:
-        raise InputError("gauss_newton_sums needs a linearisation with host and target Jacobians")
+    pair = lin.T_target_host is not None and lin.brightness_gain is not None
+    if lin.J_host is None or (lin.J_target is None and not pair):
+        raise InputError("gauss_newton_sums needs a linearisation with host and target Jacobians (or host "
+                         "Jacobians and the pair's relative pose)")
     w = np.ascontiguousarray(weight, dtype=float)
     if w.shape != lin.residual.shape:
         raise InputError(f"gauss_newton_sums: weight has shape {w.shape}, residuals {lin.residual.shape}")
     p = lin.residual.shape[1]
     if with_affine:
-        if lin.J_affine_host is None or lin.J_affine_target is None:
+        if lin.J_affine_host is None or (lin.J_affine_target is None and not pair):
             raise InputError("gauss_newton_sums: with_affine needs the affine Jacobians")
-        ah, at = np.ascontiguousarray(lin.J_affine_host), np.ascontiguousarray(lin.J_affine_target)
+        ah = np.ascontiguousarray(lin.J_affine_host)
     else:
-        ah = at = np.zeros((0, p, 2))
-    if lin.T_target_host is not None and lin.brightness_gain is not None:
+        ah = np.zeros((0, p, 2))
+    if pair:
         return _compiled.accumulate_pair(np.ascontiguousarray(lin.J_host), ah, target_jacobian_map(lin.T_target_host),
                                          float(lin.brightness_gain), np.ascontiguousarray(lin.valid), w,
                                          np.ascontiguousarray(lin.residual),
                                          np.ascontiguousarray(lin.J_depth))
+    at = np.ascontiguousarray(lin.J_affine_target) if with_affine else ah
     return _compiled.accumulate_target(np.ascontiguousarray(lin.J_host), ah, np.ascontiguousarray(lin.J_target), at,
                                        w, np.ascontiguousarray(lin.residual), np.ascontiguousarray(lin.J_depth))
 
@@ -246,7 +249,8 @@ class HostPoints:
             at = np.asarray(affines[1 + t] if self.with_affine else zero, dtype=float)
             if isinstance(img, GradientImage):
                 out.append(compiled_residuals(self.camera, Ih_c, hv_c, f_c, ds_c, poses[0], poses[1 + t], img,
-                                              float(at[0] - ah[0]), float(ah[1]), float(at[1])))
+                                              float(at[0] - ah[0]), float(ah[1]), float(at[1]),
+                                              target_jacobians=False))  # mapped from J_host in the sums
             else:
                 out.append(photometric_residuals(self.camera, Ih, hv, px, ds, poses[0], poses[1 + t], img, ah, at,
                                                  self.pattern, jacobians=True, host_jacobians=True, bearings=f))

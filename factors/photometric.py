@@ -231,23 +231,28 @@ def put_rows(lin: PhotometricLinearization, rows: NDArray[np.intp], other: Photo
 def compiled_residuals(camera: PinholeCamera, host_intensity: FloatArray, host_valid: NDArray[np.bool_],
                        bearings: FloatArray, inverse_depth: FloatArray, T_world_host: object,
                        T_world_target: object, target: GradientImage, log_gain: float, b_host: float, b_target: float,
-                       jacobians: bool = True, host_jacobians: bool = True) -> PhotometricLinearization:
+                       jacobians: bool = True, host_jacobians: bool = True,
+                       target_jacobians: bool = True) -> PhotometricLinearization:
     """:func:`photometric_residuals` for a :class:`GradientImage` target on arguments already checked
     and laid out (C-contiguous float64 ``(N, P)`` intensities, bool validity, ``(N, P, 3)``
     bearings, ``(N,)`` inverse depths; poses as there; ``log_gain = a_t - a_h``): the
     compiled loops without the per-call checks, for callers that evaluate the same points many
-    times (:class:`factors.host_points.HostPoints`)."""
+    times (:class:`factors.host_points.HostPoints`). ``target_jacobians=False`` leaves ``J_target`` and
+    ``J_affine_target`` out (None): the window's Gauss-Newton sums map them from the host
+    Jacobians (:func:`factors.host_points.gauss_newton_sums`)."""
     T_target_host = _relative_pose(T_world_target, T_world_host)
     r, valid, J_depth, uv, J_t, J_h, J_at, J_ah, counts = _compiled.warp_residuals(
         *target._sampler_args(), float(camera.fx), float(camera.fy), float(camera.cx), float(camera.cy),
         float(MIN_DEPTH), np.ascontiguousarray(T_target_host[:3, :3]), np.ascontiguousarray(T_target_host[:3, 3]),
         bearings, inverse_depth, host_intensity, host_valid, float(np.exp(log_gain)), float(b_host), float(b_target),
-        bool(jacobians), bool(host_jacobians))
+        bool(jacobians), bool(host_jacobians), bool(target_jacobians))
     n_bad, n_behind, n_out = (int(c) for c in counts)
     if not jacobians:
         return PhotometricLinearization(r, valid, J_depth, None, None, None, None, uv, n_bad, n_behind, n_out)
     if not host_jacobians:
         J_h = J_ah = None
+    if not target_jacobians:
+        J_t = J_at = None
     return PhotometricLinearization(r, valid, J_depth, J_h, J_t, J_ah, J_at, uv, n_bad, n_behind, n_out,
                                     T_target_host=T_target_host, brightness_gain=float(np.exp(log_gain)))
 

@@ -17,8 +17,8 @@ import numpy as np
 import pytest
 
 from factors.host_points import gauss_newton_sums, target_jacobian_map
-from factors.photometric import (GradientImage, PhotometricLinearization, pattern_bearings, photometric_residuals,
-                                 sample_host, stereo_residuals)
+from factors.photometric import (GradientImage, PhotometricLinearization, compiled_residuals, pattern_bearings,
+                                 photometric_residuals, sample_host, stereo_residuals)
 from factors.weights import huber_loss, huber_weight, point_robust_terms
 from gtvo.errors import InputError
 from tests._factors_synthetic import SinusoidImage, small_camera
@@ -205,6 +205,30 @@ def test_target_jacobians_are_the_host_jacobians_mapped_by_the_pair(compiled):
     np.testing.assert_allclose(lin.J_affine_target[..., 0], -lin.J_affine_host[..., 0], atol=0)
     np.testing.assert_allclose(lin.J_affine_host[..., 1], lin.brightness_gain * lin.valid, rtol=1e-15)
     np.testing.assert_allclose(lin.J_affine_target[..., 1], -1.0 * lin.valid, atol=0)
+
+
+def test_compiled_residuals_without_target_jacobians_and_their_sums():
+    """``target_jacobians=False`` (the window's passes): the target blocks are left out, the rest is
+    the same to the bit, and the Gauss-Newton sums (mapped from the host Jacobians) are the same."""
+    rng = np.random.default_rng(8)
+    cam = small_camera()
+    host, target = GradientImage(textured(rng)), GradientImage(textured(rng))
+    px = np.c_[rng.uniform(3, 157, 80), rng.uniform(3, 117, 80)]
+    d = rng.uniform(0.1, 1.5, 80)
+    Tt = HOST_POSE.compose(gtsam.Pose3(gtsam.Rot3.Expmap([0.01, -0.02, 0.01]), np.array([0.1, 0.05, 0.1])))
+    Ih, hv = sample_host(host, px)
+    f = pattern_bearings(cam, px)
+    args = (cam, Ih, hv, f, d, HOST_POSE, Tt, target, 0.2, 1.0, 3.0)
+    full = compiled_residuals(*args)
+    lean = compiled_residuals(*args, target_jacobians=False)
+    assert lean.J_target is None and lean.J_affine_target is None
+    for name in ("residual", "valid", "J_depth", "J_host", "J_affine_host", "uv_target"):
+        np.testing.assert_array_equal(getattr(lean, name), getattr(full, name))
+    weight = rng.uniform(0.5, 2.0, full.residual.shape)
+    for a, b in zip(gauss_newton_sums(lean, weight), gauss_newton_sums(full, weight)):
+        np.testing.assert_array_equal(a, b)
+    with pytest.raises(InputError, match="Jacobians"):
+        gauss_newton_sums(dataclasses.replace(lean, T_target_host=None), weight)
 
 
 @pytest.mark.parametrize("k", [None, 0.5, 3.0, 1e9])
