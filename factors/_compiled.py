@@ -399,6 +399,35 @@ def point_huber(weight, residual, k, robust):
 
 
 @jit
+def add_pair_terms(J_host, J_affine_host, B, gain, valid, W, residual, J_depth, k, robust, cols,
+                   H, g, H_pd, H_dd, g_d, cost):
+    """One host-target pair's part of ``HostPoints.linearize``, in place: each point's Huber weight
+    and loss (:func:`point_huber` on ``W``), the pair's sums (:func:`accumulate_pair` with
+    ``W`` times the Huber weight) added to the caller's ``H[cols, cols]``, ``g[cols]``,
+    ``H_pd[:, cols]``, ``H_dd``, ``g_d``, and the losses to ``cost``. The numpy steps it fuses
+    (the weight product, the sums, five scattered additions) are the loop in
+    ``HostPoints.linearize`` that linearisations without the pair's pose take; tested equal."""
+    w, loss = point_huber(W, residual, k, robust)
+    n, p = residual.shape
+    weight = np.empty((n, p))
+    for i in range(n):
+        for m in range(p):
+            weight[i, m] = W[i, m] * w[i]
+    Ht, gt, Hpdt, Hddt, gdt = accumulate_pair(J_host, J_affine_host, B, gain, valid, weight, residual, J_depth)
+    kc = cols.shape[0]
+    for a in range(kc):
+        g[cols[a]] += gt[a]
+        for b in range(kc):
+            H[cols[a], cols[b]] += Ht[a, b]
+    for i in range(n):
+        for a in range(kc):
+            H_pd[i, cols[a]] += Hpdt[i, a]
+        H_dd[i] += Hddt[i]
+        g_d[i] += gdt[i]
+        cost[i] += loss[i]
+
+
+@jit
 def pack_gradient_image(img, lo, hi, check_clip):
     """``GradientImage``'s packed records of a (H, W) float32 image (H, W >= 2): per pixel the
     intensity, ``image_gradients``' central differences (one-sided at the borders, the same float32

@@ -39,6 +39,7 @@ from gtvo.core.timing import timed
 from gtvo.errors import InputError
 
 FloatArray = NDArray[np.float64]
+_NO_AFFINE = np.zeros((0, 1, 2))  # accumulate_pair's 'no affine columns'
 
 
 def gauss_newton_sums(lin: PhotometricLinearization, weight: ArrayLike, with_affine: bool = True
@@ -308,6 +309,14 @@ class HostPoints:
 
         for t, cols in enumerate(columns):
             lin, W = lins[t], Ws[t]
+            if lin.T_target_host is not None and lin.brightness_gain is not None and lin.J_host is not None:
+                # the loop below as one compiled call (the pair's sums from the host Jacobians)
+                _compiled.add_pair_terms(
+                    lin.J_host, lin.J_affine_host if self.with_affine else _NO_AFFINE,
+                    target_jacobian_map(lin.T_target_host), float(lin.brightness_gain), lin.valid, W, lin.residual,
+                    lin.J_depth, 0.0 if self.huber_k is None else float(self.huber_k), self.huber_k is not None,
+                    cols, H, g, H_pd, H_dd, g_d, c)
+                continue
             w, loss = point_robust_terms(W, lin.residual, self.huber_k)
             H_t, g_t, H_pd_t, H_dd_t, g_d_t = gauss_newton_sums(lin, W * w[:, None], self.with_affine)
             c += loss

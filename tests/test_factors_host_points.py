@@ -5,6 +5,8 @@ built on it against each other: tests/test_window.py.)"""
 
 from __future__ import annotations
 
+import dataclasses
+
 import gtsam
 import numpy as np
 import pytest
@@ -33,6 +35,27 @@ def _problem(seed: int = 0, stereo: bool = True, n: int = 40):
 def _local_columns(t: int) -> np.ndarray:
     """All poses, then all affines (the smart factor's order), for host + 2 targets."""
     return np.r_[0:6, 18:20, 6 * (1 + t):6 * (2 + t), 18 + 2 * (1 + t):20 + 2 * (1 + t)]
+
+
+@pytest.mark.parametrize("huber_k", [2.0, None])
+def test_fused_pair_terms_equal_the_numpy_loop(huber_k):
+    """``linearize``'s compiled per-pair call (the residuals carry their pair's pose and gain) adds
+    the same terms as its numpy loop (residuals without them: the general sums)."""
+    pts, poses, affines, d = _problem(stereo=False)
+    pts.huber_k = huber_k
+    lins = pts.residuals(poses, affines, d)
+    assert all(lin.T_target_host is not None for lin in lins[:-1])
+    plain = [dataclasses.replace(lin, T_target_host=None, brightness_gain=None) for lin in lins[:-1]] + [lins[-1]]
+    cols = [_local_columns(t) for t in range(2)]
+    H1, g1, H2, g2 = np.zeros((24, 24)), np.zeros(24), np.zeros((24, 24)), np.zeros(24)
+    s1 = pts.linearize(lins, d, H1, g1, cols)
+    s2 = pts.linearize(plain, d, H2, g2, cols)
+    np.testing.assert_allclose(H1, H2, rtol=0, atol=1e-12 * np.abs(H2).max())
+    np.testing.assert_allclose(g1, g2, rtol=0, atol=1e-12 * np.abs(g2).max())
+    for name in ("H_pd", "H_dd", "g_d", "point_cost"):
+        a, b = getattr(s1, name), getattr(s2, name)
+        np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-12 * np.abs(b).max())
+    assert np.array_equal(s1.active, s2.active)
 
 
 @pytest.mark.parametrize("stereo", [False, True])
