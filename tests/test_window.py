@@ -393,3 +393,21 @@ def test_safeguarded_depth_step_never_raises_the_cost_at_the_linearisation_point
         assert np.all((d1 == d0) | (d1 == d_full))
         assert np.any(d1 == d0) and np.any(d1 == d_full)
     assert worse >= 1
+
+
+def test_visible_targets_of_some_hosts_are_those_of_all(seq):
+    """``visible_targets(hosts=...)`` (the marginalisation asks for the leaving host only) gives
+    those hosts' lists of the full call, and ``seen_in`` with the host's world points given is
+    ``seen_in`` without them."""
+    from gtvo.window.problem import host_points_world, seen_in, visible_targets  # noqa: PLC0415
+
+    kfs = _keyframes(seq, [0, 2, 4, 6], points=150)
+    cam = seq.camera.left
+    cfg = WindowConfig()
+    full = visible_targets(cam, kfs, cfg)
+    assert any(full)
+    assert visible_targets(cam, kfs, cfg, hosts=[2, 0]) == [full[2], full[0]]
+    Xw = host_points_world(cam, kfs[1])
+    for t in (0, 2, 3):
+        seen = seen_in(cam, kfs[1], kfs[t])
+        assert seen.any() and np.array_equal(seen_in(cam, kfs[1], kfs[t], Xw), seen)

@@ -34,7 +34,7 @@ def marginalize(camera: PinholeCamera, baseline: float | None, keyframes: Sequen
     (and its zero-mean prior, added here the first time, as the gauge prior).
     """
     kf = keyframes[position]
-    targets = visible_targets(camera, keyframes, config)[position]
+    targets = visible_targets(camera, keyframes, config, hosts=[position])[0]
     graph = gtsam.NonlinearFactorGraph()
     if targets:
         graph.add(host_factor(camera, baseline, keyframes, position, targets, config, rig=rig_offset is not None))

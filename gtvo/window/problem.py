@@ -101,32 +101,42 @@ def rig_prior(config: WindowConfig, hold_x: float | None = None, carried: bool =
 
 
 @timed("window_build")
-def visible_targets(camera: PinholeCamera, keyframes: Sequence[WindowKeyframe], config: WindowConfig
-                    ) -> list[list[int]]:
+def visible_targets(camera: PinholeCamera, keyframes: Sequence[WindowKeyframe], config: WindowConfig,
+                    hosts: Sequence[int] | None = None) -> list[list[int]]:
     """For each host (position in ``keyframes``), the positions of the keyframes that see its points.
 
     A point counts as seen when it projects in front of the target and inside its image with a
     2-pixel border (:func:`seen_in`); a target needs ``min_visible_points`` and
-    ``min_visible_fraction`` of them.
+    ``min_visible_fraction`` of them. ``hosts``: only these hosts' lists (in this order; default
+    all).
     """
     out: list[list[int]] = []
-    for h, kh in enumerate(keyframes):
+    for h in range(len(keyframes)) if hosts is None else hosts:
+        kh = keyframes[h]
+        Xw = host_points_world(camera, kh)  # once per host, not per host and target
         ts: list[int] = []
         for t, kt in enumerate(keyframes):
             if t == h:
                 continue
-            n = int(np.count_nonzero(seen_in(camera, kh, kt)))
+            n = int(np.count_nonzero(seen_in(camera, kh, kt, Xw)))
             if n >= config.min_visible_points and n >= config.min_visible_fraction * len(kh):
                 ts.append(t)
         out.append(ts)
     return out
 
 
-def seen_in(camera: PinholeCamera, host: WindowKeyframe, target: WindowKeyframe) -> NDArray[np.bool_]:
-    """Per point of ``host``: does it project in front of ``target`` and inside its image (2-px border)?"""
+def host_points_world(camera: PinholeCamera, host: WindowKeyframe) -> FloatArray:
+    """The host's points in the world frame (N, 3), at their current inverse depths and host pose."""
     X = camera.backproject_inverse_depth(host.pixels, host.inverse_depth)
     Th = host.pose.matrix()
-    Xw = X @ Th[:3, :3].T + Th[:3, 3]
+    return X @ Th[:3, :3].T + Th[:3, 3]
+
+
+def seen_in(camera: PinholeCamera, host: WindowKeyframe, target: WindowKeyframe,
+            points_world: FloatArray | None = None) -> NDArray[np.bool_]:
+    """Per point of ``host``: does it project in front of ``target`` and inside its image (2-px border)?
+    ``points_world``: :func:`host_points_world` of ``host`` when the caller has it."""
+    Xw = host_points_world(camera, host) if points_world is None else points_world
     Tt = target.pose.inverse().matrix()
     Xt = Xw @ Tt[:3, :3].T + Tt[:3, 3]
     front = Xt[:, 2] > MIN_DEPTH
@@ -143,8 +153,9 @@ def observation_counts(camera: PinholeCamera, keyframes: Sequence[WindowKeyframe
     out: list[NDArray[np.int64]] = []
     for h, kh in enumerate(keyframes):
         n = np.zeros(len(kh), dtype=np.int64)
+        Xw = host_points_world(camera, kh) if targets[h] else None
         for t in targets[h]:
-            n += seen_in(camera, kh, keyframes[t])
+            n += seen_in(camera, kh, keyframes[t], Xw)
         out.append(n)
     return out
 
