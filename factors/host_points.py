@@ -62,8 +62,9 @@ def gauss_newton_sums(lin: PhotometricLinearization, weight: ArrayLike, with_aff
     Both are tested against the numpy sums.
 
     Raises:
-        InputError: the linearisation has no pose Jacobians (``jacobians=False`` or
-            ``host_jacobians=False``), or ``weight`` has the wrong shape.
+        InputError: the linearisation has no host Jacobians (``jacobians=False`` or
+            ``host_jacobians=False``), or no target Jacobians and no pair pose to map them by,
+            or ``weight`` has the wrong shape.
     """
     pair = lin.T_target_host is not None and lin.brightness_gain is not None
     if lin.J_host is None or (lin.J_target is None and not pair):
