@@ -30,7 +30,7 @@ from typing import Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from factors import _compiled
+from factors import _compiled_sums
 from factors.photometric import (GradientImage, GradientSampler, PhotometricLinearization, compiled_residuals,
                                  pattern_bearings, photometric_residuals, put_rows, sample_host, stereo_residuals)
 from factors.weights import point_robust_terms, variance_weight
@@ -56,9 +56,9 @@ def gauss_newton_sums(lin: PhotometricLinearization, weight: ArrayLike, with_aff
 
     The pose-depth blocks stay per point for the Schur complement. One compiled loop: when the
     linearisation carries its pair's ``T_target_host`` and brightness gain (the kernels of
-    :mod:`factors.photometric` set them), :func:`factors._compiled.accumulate_pair`, which sums
+    :mod:`factors.photometric` set them), :func:`factors._compiled_sums.accumulate_pair`, which sums
     over the host Jacobians only and maps the sums to the target blocks
-    (:func:`target_jacobian_map`; 2x faster); else :func:`factors._compiled.accumulate_target`.
+    (:func:`target_jacobian_map`; 2x faster); else :func:`factors._compiled_sums.accumulate_target`.
     Both are tested against the numpy sums.
 
     Raises:
@@ -81,13 +81,14 @@ def gauss_newton_sums(lin: PhotometricLinearization, weight: ArrayLike, with_aff
     else:
         ah = np.zeros((0, p, 2))
     if pair:
-        return _compiled.accumulate_pair(np.ascontiguousarray(lin.J_host), ah, target_jacobian_map(lin.T_target_host),
-                                         float(lin.brightness_gain), np.ascontiguousarray(lin.valid), w,
-                                         np.ascontiguousarray(lin.residual),
-                                         np.ascontiguousarray(lin.J_depth))
+        return _compiled_sums.accumulate_pair(np.ascontiguousarray(lin.J_host), ah,
+                                              target_jacobian_map(lin.T_target_host), float(lin.brightness_gain),
+                                              np.ascontiguousarray(lin.valid), w, np.ascontiguousarray(lin.residual),
+                                              np.ascontiguousarray(lin.J_depth))
     at = np.ascontiguousarray(lin.J_affine_target) if with_affine else ah
-    return _compiled.accumulate_target(np.ascontiguousarray(lin.J_host), ah, np.ascontiguousarray(lin.J_target), at,
-                                       w, np.ascontiguousarray(lin.residual), np.ascontiguousarray(lin.J_depth))
+    return _compiled_sums.accumulate_target(np.ascontiguousarray(lin.J_host), ah, np.ascontiguousarray(lin.J_target),
+                                            at, w, np.ascontiguousarray(lin.residual),
+                                            np.ascontiguousarray(lin.J_depth))
 
 
 def target_jacobian_map(T_target_host: ArrayLike) -> FloatArray:
@@ -312,7 +313,7 @@ class HostPoints:
             lin, W = lins[t], Ws[t]
             if lin.T_target_host is not None and lin.brightness_gain is not None and lin.J_host is not None:
                 # the loop below as one compiled call (the pair's sums from the host Jacobians)
-                _compiled.add_pair_terms(
+                _compiled_sums.add_pair_terms(
                     lin.J_host, lin.J_affine_host if self.with_affine else _NO_AFFINE,
                     target_jacobian_map(lin.T_target_host), float(lin.brightness_gain), lin.valid, W, lin.residual,
                     lin.J_depth, 0.0 if self.huber_k is None else float(self.huber_k), self.huber_k is not None,

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from factors import _compiled
+from factors import _compiled_sums
 from gtvo.errors import InputError
 
 FloatArray = NDArray[np.float64]
@@ -55,5 +55,5 @@ def point_robust_terms(weight: ArrayLike, residual: ArrayLike, k: float | None) 
     r = np.ascontiguousarray(residual, dtype=float)
     if W.shape != r.shape or r.ndim != 2:
         raise InputError(f"point_robust_terms: weight {W.shape} and residual {r.shape} must be equal (N, P)")
-    return _compiled.point_huber(W, r, 0.0 if k is None else float(k), k is not None)
+    return _compiled_sums.point_huber(W, r, 0.0 if k is None else float(k), k is not None)
 

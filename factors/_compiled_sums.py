@@ -1,0 +1,242 @@
+"""Compiled loops (numba) of the window's Gauss-Newton sums; each is the loop form of numpy code
+that stays the reference (tests compare them to it):
+
+* :func:`point_huber`: ``weights.point_robust_terms``, each point's Huber weight and loss
+  on its whitened pattern norm;
+* :func:`accumulate_target`: ``host_points.gauss_newton_sums``, the Gauss-Newton sums of one
+  host-target pair (the window's Hessian accumulation before the Schur complement);
+* :func:`accumulate_pair`: the same sums from the host Jacobians alone (the target ones mapped by
+  the pair's adjoint, docs/factors.md §7);
+* :func:`add_pair_terms`: ``HostPoints.linearize``'s per-pair loop (Huber terms, sums, scatter
+  into the caller's system) in one call.
+
+Compiled on first use and cached on disk (:func:`gtvo.core.jit.jit`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from gtvo.core.jit import jit
+
+
+@jit
+def point_huber(weight, residual, k, robust):
+    """Per point ``x = sqrt(sum_P w r^2)`` (``weight``, ``residual`` (N, P)): ``(IRLS weight,
+    loss)`` of the Huber kernel with threshold ``k`` (``robust`` False: 1 and ``x^2 / 2``), the
+    values of ``weights.huber_weight`` / ``huber_loss``."""
+    n, p = residual.shape
+    w_out = np.ones(n)
+    loss = np.empty(n)
+    for i in range(n):
+        s = 0.0
+        for m in range(p):
+            s += weight[i, m] * residual[i, m] * residual[i, m]
+        x = np.sqrt(s)
+        if not robust or x <= k:
+            loss[i] = 0.5 * x * x
+        else:
+            loss[i] = k * x - 0.5 * k * k
+            w_out[i] = k / x
+    return w_out, loss
+
+
+@jit
+def accumulate_target(J_host, J_affine_host, J_target, J_affine_target, weight, residual, J_depth):
+    """Gauss-Newton sums of one host-target pair, the block order ``[host pose, host affine,
+    target pose, target affine]`` (6 + 2 + 6 + 2 = 16 columns; without affine Jacobians, i.e.
+    ``J_affine_host`` of shape (0, P, 2), the 12 pose columns only).
+
+    With ``J = [J_host, J_affine_host, J_target, J_affine_target]`` per residual (N, P, k),
+    ``weight`` (N, P) (W times the point's Huber weight), ``r = residual`` and ``j = J_depth``:
+    ``H = sum w J^T J`` (k, k), ``g = sum w J^T r`` (k,), per point ``H_pd = sum_P w j J`` (N, k),
+    ``H_dd = sum_P w j^2`` and ``g_d = sum_P w j r`` (N,). The loop form of the numpy sums
+    (concatenate, weight, ``J^T J``, einsum) that ``gtvo.window`` and ``factors.smart`` used;
+    the tests compare the two. No temporaries: 1.2-1.3x on a whole window optimisation.
+    """
+    n, p = residual.shape
+    aff = J_affine_host.shape[0] == n and n > 0
+    k = 16 if aff else 12
+    H = np.zeros((k, k))
+    g = np.zeros(k)
+    H_pd = np.zeros((n, k))
+    H_dd = np.zeros(n)
+    g_d = np.zeros(n)
+    J = np.empty(k)
+    t_off = 8 if aff else 6
+    for i in range(n):
+        for m in range(p):
+            w = weight[i, m]
+            if w == 0.0:
+                continue
+            for c in range(6):
+                J[c] = J_host[i, m, c]
+                J[t_off + c] = J_target[i, m, c]
+            if aff:
+                J[6] = J_affine_host[i, m, 0]
+                J[7] = J_affine_host[i, m, 1]
+                J[14] = J_affine_target[i, m, 0]
+                J[15] = J_affine_target[i, m, 1]
+            r = residual[i, m]
+            jd = J_depth[i, m]
+            for a in range(k):
+                wa = w * J[a]
+                g[a] += wa * r
+                H_pd[i, a] += wa * jd
+                for b in range(a, k):
+                    H[a, b] += wa * J[b]
+            H_dd[i] += w * jd * jd
+            g_d[i] += w * jd * r
+    for a in range(k):
+        for b in range(a):
+            H[a, b] = H[b, a]
+    return H, g, H_pd, H_dd, g_d
+
+
+@jit
+def accumulate_pair(J_host, J_affine_host, B, gain, valid, weight, residual, J_depth):
+    """:func:`accumulate_target`'s sums (same outputs, same block order) from the host Jacobians alone.
+
+    A photometric residual depends on the two poses only through ``T_target_host``, so its target
+    pose Jacobian is its host pose Jacobian mapped by a matrix of the pair (the adjoint,
+    ``J_target = J_host B^T`` with ``B = -[[R, [t]x R], [0, R]]`` of ``T_target_host = (R, t)``,
+    :func:`factors.host_points.target_jacobian_map`), and its affine Jacobians are ``(hb, gain)``
+    (host) and ``(-hb, -1)`` (target) with ``hb = J_affine_host[..., 0]``. So ``J = T K`` with
+    the per-residual ``K = [J_host, hb, 1]`` (8 values; without affines, ``J_affine_host`` of
+    shape (0, P, 2), the 6 of ``J_host``) and a (16, 8) map ``T`` of the pair: the loop sums
+    ``w K K^T`` (36 products per residual instead of 136), ``w K r`` and per point ``w j K``, then
+    maps them by ``T``. Only ``valid`` residuals count (the others' Jacobians are zero, but
+    ``K``'s constant 1 is not). The sums are scalar locals, which numba keeps in registers (an array
+    accumulator is stored on every update: 2.5x slower). Equal to :func:`accumulate_target` up to
+    round-off (tested); ``J_target`` is not needed.
+    """
+    n, p = residual.shape
+    aff = J_affine_host.shape[0] == n and n > 0
+    kk = 8 if aff else 6
+    one = 1.0 if aff else 0.0
+    HpdK = np.zeros((n, 8))
+    H_dd = np.zeros(n)
+    g_d = np.zeros(n)
+    h00 = h01 = h02 = h03 = h04 = h05 = h06 = h07 = 0.0
+    h11 = h12 = h13 = h14 = h15 = h16 = h17 = 0.0
+    h22 = h23 = h24 = h25 = h26 = h27 = 0.0
+    h33 = h34 = h35 = h36 = h37 = 0.0
+    h44 = h45 = h46 = h47 = 0.0
+    h55 = h56 = h57 = 0.0
+    h66 = h67 = 0.0
+    h77 = 0.0
+    g0 = g1 = g2 = g3 = g4 = g5 = g6 = g7 = 0.0
+    for i in range(n):
+        hd = gd = 0.0
+        q0 = q1 = q2 = q3 = q4 = q5 = q6 = q7 = 0.0
+        for m in range(p):
+            if not valid[i, m]:
+                continue
+            w = weight[i, m]
+            r = residual[i, m]
+            jd = J_depth[i, m]
+            k0, k1, k2 = J_host[i, m, 0], J_host[i, m, 1], J_host[i, m, 2]
+            k3, k4, k5 = J_host[i, m, 3], J_host[i, m, 4], J_host[i, m, 5]
+            k6 = J_affine_host[i, m, 0] if aff else 0.0
+            k7 = one
+            w0 = w * k0
+            w1 = w * k1
+            w2 = w * k2
+            w3 = w * k3
+            w4 = w * k4
+            w5 = w * k5
+            w6 = w * k6
+            w7 = w * k7
+            g0 += w0 * r
+            q0 += w0 * jd
+            h00 += w0 * k0; h01 += w0 * k1; h02 += w0 * k2; h03 += w0 * k3
+            h04 += w0 * k4; h05 += w0 * k5; h06 += w0 * k6; h07 += w0 * k7
+            g1 += w1 * r
+            q1 += w1 * jd
+            h11 += w1 * k1; h12 += w1 * k2; h13 += w1 * k3; h14 += w1 * k4
+            h15 += w1 * k5; h16 += w1 * k6; h17 += w1 * k7
+            g2 += w2 * r
+            q2 += w2 * jd
+            h22 += w2 * k2; h23 += w2 * k3; h24 += w2 * k4; h25 += w2 * k5; h26 += w2 * k6; h27 += w2 * k7
+            g3 += w3 * r
+            q3 += w3 * jd
+            h33 += w3 * k3; h34 += w3 * k4; h35 += w3 * k5; h36 += w3 * k6; h37 += w3 * k7
+            g4 += w4 * r
+            q4 += w4 * jd
+            h44 += w4 * k4; h45 += w4 * k5; h46 += w4 * k6; h47 += w4 * k7
+            g5 += w5 * r
+            q5 += w5 * jd
+            h55 += w5 * k5; h56 += w5 * k6; h57 += w5 * k7
+            g6 += w6 * r
+            q6 += w6 * jd
+            h66 += w6 * k6; h67 += w6 * k7
+            g7 += w7 * r
+            q7 += w7 * jd
+            h77 += w7 * k7
+            hd += w * jd * jd
+            gd += w * jd * r
+        HpdK[i, 0], HpdK[i, 1], HpdK[i, 2], HpdK[i, 3] = q0, q1, q2, q3
+        HpdK[i, 4], HpdK[i, 5], HpdK[i, 6], HpdK[i, 7] = q4, q5, q6, q7
+        H_dd[i] = hd
+        g_d[i] = gd
+    HK = np.empty((8, 8))  # upper triangle from the sums, then mirrored
+    HK[0, 0:] = (h00, h01, h02, h03, h04, h05, h06, h07)
+    HK[1, 1:] = (h11, h12, h13, h14, h15, h16, h17)
+    HK[2, 2:] = (h22, h23, h24, h25, h26, h27)
+    HK[3, 3:] = (h33, h34, h35, h36, h37)
+    HK[4, 4:] = (h44, h45, h46, h47)
+    HK[5, 5:] = (h55, h56, h57)
+    HK[6, 6:] = (h66, h67)
+    HK[7, 7:] = (h77,)
+    for a in range(8):
+        for b in range(a):
+            HK[a, b] = HK[b, a]
+    gK = np.array([g0, g1, g2, g3, g4, g5, g6, g7])
+    # the map J = T K: host pose (identity), host affine (hb, gain), target pose (B), target affine (-hb, -1)
+    k = 16 if aff else 12
+    t_off = 8 if aff else 6
+    T = np.zeros((k, kk))
+    for c in range(6):
+        T[c, c] = 1.0
+        for j in range(6):
+            T[t_off + c, j] = B[c, j]
+    if aff:
+        T[6, 6] = 1.0
+        T[7, 7] = gain
+        T[14, 6] = -1.0
+        T[15, 7] = -1.0
+    TH = T @ np.ascontiguousarray(HK[:kk, :kk])
+    H = TH @ T.T
+    H = 0.5 * (H + H.T)
+    g = T @ np.ascontiguousarray(gK[:kk])
+    H_pd = np.ascontiguousarray(HpdK[:, :kk]) @ T.T
+    return H, g, H_pd, H_dd, g_d
+
+
+@jit
+def add_pair_terms(J_host, J_affine_host, B, gain, valid, W, residual, J_depth, k, robust, cols,
+                   H, g, H_pd, H_dd, g_d, cost):
+    """One host-target pair's part of ``HostPoints.linearize``, in place: each point's Huber weight
+    and loss (:func:`point_huber` on ``W``), the pair's sums (:func:`accumulate_pair` with
+    ``W`` times the Huber weight) added to the caller's ``H[cols, cols]``, ``g[cols]``,
+    ``H_pd[:, cols]``, ``H_dd``, ``g_d``, and the losses to ``cost``. The numpy steps it fuses
+    (the weight product, the sums, five scattered additions) are the loop in
+    ``HostPoints.linearize`` that linearisations without the pair's pose take; tested equal."""
+    w, loss = point_huber(W, residual, k, robust)
+    n, p = residual.shape
+    weight = np.empty((n, p))
+    for i in range(n):
+        for m in range(p):
+            weight[i, m] = W[i, m] * w[i]
+    Ht, gt, Hpdt, Hddt, gdt = accumulate_pair(J_host, J_affine_host, B, gain, valid, weight, residual, J_depth)
+    kc = cols.shape[0]
+    for a in range(kc):
+        g[cols[a]] += gt[a]
+        for b in range(kc):
+            H[cols[a], cols[b]] += Ht[a, b]
+    for i in range(n):
+        for a in range(kc):
+            H_pd[i, cols[a]] += Hpdt[i, a]
+        H_dd[i] += Hddt[i]
+        g_d[i] += gdt[i]
+        cost[i] += loss[i]
