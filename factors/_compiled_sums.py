@@ -1,4 +1,4 @@
-"""Compiled loops (numba) of the window's Gauss-Newton sums; each is the loop form of numpy code
+"""Compiled loops (numba) of the Gauss-Newton sums of the window and the tracker; each is the loop form of numpy code
 that stays the reference (tests compare them to it):
 
 * :func:`point_huber`: ``weights.point_robust_terms``, each point's Huber weight and loss
@@ -8,7 +8,8 @@ that stays the reference (tests compare them to it):
 * :func:`accumulate_pair`: the same sums from the host Jacobians alone (the target ones mapped by
   the pair's adjoint, docs/factors.md §7);
 * :func:`add_pair_terms`: ``HostPoints.linearize``'s per-pair loop (Huber terms, sums, scatter
-  into the caller's system) in one call.
+  into the caller's system) in one call;
+* :func:`target_normal_equations`: the tracker's normal equations of a frame pose (and affine).
 
 Compiled on first use and cached on disk (:func:`gtvo.core.jit.jit`).
 """
@@ -240,3 +241,77 @@ def add_pair_terms(J_host, J_affine_host, B, gain, valid, W, residual, J_depth, 
         H_dd[i] += Hddt[i]
         g_d[i] += gdt[i]
         cost[i] += loss[i]
+
+
+@jit
+def target_normal_equations(J_target, J_affine_target, weight, residual):
+    """The Gauss-Newton normal equations of a frame's pose (and affine) alone, the tracker's:
+    ``A = sum w J^T J``, ``b = sum w J^T r`` with ``J = [J_target, J_affine_target]`` per residual
+    (8 columns; 6 without affines, ``J_affine_target`` of shape (0, P, 2)). The numpy form
+    (concatenate, weight, two products) made four temporaries per evaluation; the sums are scalar
+    locals here, as in :func:`accumulate_pair`. Equal to it up to round-off (tested)."""
+    n, p = residual.shape
+    aff = J_affine_target.shape[0] == n and n > 0
+    k = 8 if aff else 6
+    h00 = h01 = h02 = h03 = h04 = h05 = h06 = h07 = 0.0
+    h11 = h12 = h13 = h14 = h15 = h16 = h17 = 0.0
+    h22 = h23 = h24 = h25 = h26 = h27 = 0.0
+    h33 = h34 = h35 = h36 = h37 = 0.0
+    h44 = h45 = h46 = h47 = 0.0
+    h55 = h56 = h57 = 0.0
+    h66 = h67 = 0.0
+    h77 = 0.0
+    g0 = g1 = g2 = g3 = g4 = g5 = g6 = g7 = 0.0
+    for i in range(n):
+        for m in range(p):
+            w = weight[i, m]
+            r = residual[i, m]
+            k0, k1, k2 = J_target[i, m, 0], J_target[i, m, 1], J_target[i, m, 2]
+            k3, k4, k5 = J_target[i, m, 3], J_target[i, m, 4], J_target[i, m, 5]
+            k6 = J_affine_target[i, m, 0] if aff else 0.0
+            k7 = J_affine_target[i, m, 1] if aff else 0.0
+            w0 = w * k0
+            w1 = w * k1
+            w2 = w * k2
+            w3 = w * k3
+            w4 = w * k4
+            w5 = w * k5
+            w6 = w * k6
+            w7 = w * k7
+            g0 += w0 * r
+            h00 += w0 * k0; h01 += w0 * k1; h02 += w0 * k2; h03 += w0 * k3
+            h04 += w0 * k4; h05 += w0 * k5; h06 += w0 * k6; h07 += w0 * k7
+            g1 += w1 * r
+            h11 += w1 * k1; h12 += w1 * k2; h13 += w1 * k3; h14 += w1 * k4
+            h15 += w1 * k5; h16 += w1 * k6; h17 += w1 * k7
+            g2 += w2 * r
+            h22 += w2 * k2; h23 += w2 * k3; h24 += w2 * k4
+            h25 += w2 * k5; h26 += w2 * k6; h27 += w2 * k7
+            g3 += w3 * r
+            h33 += w3 * k3; h34 += w3 * k4; h35 += w3 * k5
+            h36 += w3 * k6; h37 += w3 * k7
+            g4 += w4 * r
+            h44 += w4 * k4; h45 += w4 * k5
+            h46 += w4 * k6; h47 += w4 * k7
+            g5 += w5 * r
+            h55 += w5 * k5; h56 += w5 * k6
+            h57 += w5 * k7
+            g6 += w6 * r
+            h66 += w6 * k6
+            h67 += w6 * k7
+            g7 += w7 * r
+            h77 += w7 * k7
+    A = np.empty((8, 8))  # upper triangle from the sums, then mirrored
+    A[0, 0:] = (h00, h01, h02, h03, h04, h05, h06, h07)
+    A[1, 1:] = (h11, h12, h13, h14, h15, h16, h17)
+    A[2, 2:] = (h22, h23, h24, h25, h26, h27)
+    A[3, 3:] = (h33, h34, h35, h36, h37)
+    A[4, 4:] = (h44, h45, h46, h47)
+    A[5, 5:] = (h55, h56, h57)
+    A[6, 6:] = (h66, h67)
+    A[7, 7:] = (h77,)
+    for a in range(8):
+        for b in range(a):
+            A[a, b] = A[b, a]
+    b_out = np.array([g0, g1, g2, g3, g4, g5, g6, g7])
+    return np.ascontiguousarray(A[:k, :k]), np.ascontiguousarray(b_out[:k])

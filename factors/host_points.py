@@ -39,7 +39,7 @@ from gtvo.core.timing import timed
 from gtvo.errors import InputError
 
 FloatArray = NDArray[np.float64]
-_NO_AFFINE = np.zeros((0, 1, 2))  # accumulate_pair's 'no affine columns'
+_NO_AFFINE = np.zeros((0, 1, 2))  # the compiled sums' 'no affine columns'
 
 
 def gauss_newton_sums(lin: PhotometricLinearization, weight: ArrayLike, with_affine: bool = True
@@ -89,6 +89,26 @@ def gauss_newton_sums(lin: PhotometricLinearization, weight: ArrayLike, with_aff
     return _compiled_sums.accumulate_target(np.ascontiguousarray(lin.J_host), ah, np.ascontiguousarray(lin.J_target),
                                             at, w, np.ascontiguousarray(lin.residual),
                                             np.ascontiguousarray(lin.J_depth))
+
+
+def target_normal_equations(lin: PhotometricLinearization, weight: ArrayLike, with_affine: bool = True
+                            ) -> tuple[FloatArray, FloatArray]:
+    """The normal equations of the target's pose (and affine) alone, the tracker's Gauss-Newton step:
+    ``A = sum w J^T J`` (8, 8 or 6, 6), ``b = sum w J^T r`` with ``J = [J_target, J_affine_target]``
+    per residual and ``w = weight`` (N, P). One compiled loop
+    (:func:`factors._compiled_sums.target_normal_equations`), tested against the numpy sums.
+
+    Raises:
+        InputError: the linearisation has no target Jacobians, or ``weight`` has the wrong shape.
+    """
+    if lin.J_target is None or (with_affine and lin.J_affine_target is None):
+        raise InputError("target_normal_equations needs a linearisation with target Jacobians")
+    w = np.ascontiguousarray(weight, dtype=float)
+    if w.shape != lin.residual.shape:
+        raise InputError(f"target_normal_equations: weight has shape {w.shape}, residuals {lin.residual.shape}")
+    aff = np.ascontiguousarray(lin.J_affine_target) if with_affine else _NO_AFFINE
+    return _compiled_sums.target_normal_equations(np.ascontiguousarray(lin.J_target), aff, w,
+                                                  np.ascontiguousarray(lin.residual))
 
 
 def target_jacobian_map(T_target_host: ArrayLike) -> FloatArray:

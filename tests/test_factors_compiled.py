@@ -16,7 +16,7 @@ import gtsam
 import numpy as np
 import pytest
 
-from factors.host_points import gauss_newton_sums, target_jacobian_map
+from factors.host_points import gauss_newton_sums, target_jacobian_map, target_normal_equations
 from factors.photometric import (GradientImage, PhotometricLinearization, compiled_residuals, pattern_bearings,
                                  photometric_residuals, sample_host, stereo_residuals)
 from factors.weights import huber_loss, huber_weight, point_robust_terms
@@ -180,6 +180,34 @@ def test_gauss_newton_sums_equal_the_numpy_sums(with_affine, sums):
     np.testing.assert_allclose(g_d, np.sum(weight * lin.J_depth * lin.residual, axis=1), rtol=1e-10, atol=1e-9)
     assert np.all(H_pd[:10] == 0) and np.all(H_dd[:10] == 0)
     assert np.linalg.eigvalsh(H).min() > -1e-6 * np.abs(H).max()
+
+
+@pytest.mark.parametrize("with_affine", [True, False])
+def test_target_normal_equations_equal_the_numpy_sums(with_affine):
+    """The tracker's normal equations (frame pose and affine only) against the numpy products."""
+    rng = np.random.default_rng(12)
+    cam = small_camera()
+    host, target = GradientImage(textured(rng)), GradientImage(textured(rng))
+    px = np.c_[rng.uniform(3, 157, 120), rng.uniform(3, 117, 120)]
+    d = rng.uniform(0.1, 1.5, 120)
+    Tt = gtsam.Pose3(gtsam.Rot3.Expmap([0.01, 0.02, -0.01]), np.array([0.1, 0.0, 0.2]))
+    Ih, hv = sample_host(host, px)
+    lin = photometric_residuals(cam, Ih, hv, px, d, gtsam.Pose3(), Tt, target, (0.1, 1.0), (-0.2, 3.0),
+                                host_jacobians=False)
+    assert not lin.valid.all()
+    weight = rng.uniform(0.0, 2.0, lin.residual.shape)
+    A, b = target_normal_equations(lin, weight, with_affine)
+    J = np.concatenate([lin.J_target, lin.J_affine_target], axis=-1) if with_affine else lin.J_target
+    k = J.shape[-1]
+    J = J.reshape(-1, k)
+    Jw = J * weight.reshape(-1, 1)
+    assert A.shape == (k, k) and b.shape == (k,)
+    np.testing.assert_allclose(A, J.T @ Jw, rtol=1e-12, atol=1e-9 * np.abs(A).max())
+    np.testing.assert_allclose(b, Jw.T @ lin.residual.reshape(-1), rtol=1e-12, atol=1e-9 * np.abs(b).max())
+    with pytest.raises(InputError, match="target Jacobians"):
+        target_normal_equations(dataclasses.replace(lin, J_target=None), weight)
+    with pytest.raises(InputError, match="shape"):
+        target_normal_equations(lin, weight[:, :4])
 
 
 @pytest.mark.parametrize("compiled", [True, False])

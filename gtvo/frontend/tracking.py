@@ -33,6 +33,7 @@ import scipy.linalg
 from numpy.typing import ArrayLike, NDArray
 
 from factors.gtsam_factors import PhotometricBatchFactor
+from factors.host_points import target_normal_equations
 from factors.photometric import GradientImage, photometric_residuals
 from factors.weights import huber_loss, point_robust_terms, variance_weight
 from gtvo.core.keys import affine_key, pose_key
@@ -96,14 +97,7 @@ def _evaluate(kf: TrackingKeyframe, level: int, target: GradientImage, T: gtsam.
     n_out = int(np.count_nonzero(point_valid & (w < 1.0)))
     A = b = None
     if with_normal_equations:
-        ww = (W * w[:, None]).reshape(-1)
-        if cfg.estimate_affine:
-            J = np.concatenate([lin.J_target, lin.J_affine_target], axis=-1).reshape(-1, 8)
-        else:
-            J = lin.J_target.reshape(-1, 6)
-        Jw = J * ww[:, None]
-        A = J.T @ Jw
-        b = Jw.T @ lin.residual.reshape(-1)
+        A, b = target_normal_equations(lin, W * w[:, None], cfg.estimate_affine)
     return _Eval(cost, A, b, int(np.count_nonzero(point_valid)), n_out, int(np.count_nonzero(lin.valid)), W,
                  data_cost)
 
