@@ -34,7 +34,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from factors.gtsam_factors import PhotometricBatchFactor
 from factors.host_points import target_normal_equations
-from factors.photometric import GradientImage, photometric_residuals
+from factors.photometric import (GradientImage, PhotometricLinearization, compiled_residuals,
+                                 photometric_residuals)
 from factors.weights import huber_loss, point_robust_terms, variance_weight
 from gtvo.core.keys import affine_key, pose_key
 from gtvo.errors import InputError
@@ -67,26 +68,39 @@ class _Eval:
     data_cost: float  # without the lost-pixel cost
 
 
+_IDENTITY = np.eye(4)  # the keyframe's own pose: the tracker works in its frame
+
+
+def _residuals(kf: TrackingKeyframe, level: int, target: GradientImage, T: gtsam.Pose3, affine: NDArray,
+               jacobians: bool) -> PhotometricLinearization:
+    """The keyframe's points of a level in ``target`` at ``(T, affine)`` (target Jacobians only):
+    the compiled loops without ``photometric_residuals``' per-call checks and layout (the
+    keyframe's arrays are laid out once) for a :class:`GradientImage`, the same values."""
+    Ih, hv = kf.host_samples[level]
+    d = kf.inverse_depth[kf.level_index[level]]
+    if isinstance(target, GradientImage):
+        a_h, b_h = (float(x) for x in kf.affine)
+        a_t, b_t = (float(x) for x in np.asarray(affine, dtype=float).reshape(2))
+        return compiled_residuals(kf.cameras[level], Ih, hv, kf.level_bearings[level], np.ascontiguousarray(d),
+                                  _IDENTITY, T.matrix(), target, a_t - a_h, b_h, b_t, jacobians, False)
+    return photometric_residuals(kf.cameras[level], Ih, hv, kf.level_pixels[level], d, _IDENTITY, T.matrix(), target,
+                                 kf.affine, affine, kf.config.pattern, jacobians=jacobians, host_jacobians=False,
+                                 bearings=kf.level_bearings[level])
+
+
 def level_weights(kf: TrackingKeyframe, level: int, target: GradientImage, T: gtsam.Pose3,
                   affine: NDArray) -> NDArray[np.float64]:
     """The variance weights W (N, P) at state (T, affine) on a level; frozen for that level's LM."""
-    Ih, hv = kf.host_samples[level]
-    idx = kf.level_index[level]
-    lin = photometric_residuals(kf.cameras[level], Ih, hv, kf.level_pixels[level], kf.inverse_depth[idx], np.eye(4),
-                                T.matrix(), target, kf.affine, affine, kf.config.pattern, jacobians=False,
-                                bearings=kf.level_bearings[level])
-    return variance_weight(lin.J_depth, kf.variance[idx], kf.config.sigma_intensity)
+    lin = _residuals(kf, level, target, T, affine, False)
+    return variance_weight(lin.J_depth, kf.variance[kf.level_index[level]], kf.config.sigma_intensity)
 
 
 def _evaluate(kf: TrackingKeyframe, level: int, target: GradientImage, T: gtsam.Pose3, affine: NDArray,
               with_normal_equations: bool, W: NDArray | None = None) -> _Eval:
     cfg = kf.config
-    Ih, hv = kf.host_samples[level]
+    hv = kf.host_samples[level][1]
     idx = kf.level_index[level]
-    lin = photometric_residuals(kf.cameras[level], Ih, hv, kf.level_pixels[level], kf.inverse_depth[idx], np.eye(4),
-                                T.matrix(), target, kf.affine, affine, cfg.pattern,
-                                jacobians=with_normal_equations, host_jacobians=False,
-                                bearings=kf.level_bearings[level])
+    lin = _residuals(kf, level, target, T, affine, with_normal_equations)
     if W is None:
         W = variance_weight(lin.J_depth, kf.variance[idx], cfg.sigma_intensity)
     w, loss = point_robust_terms(W, lin.residual, cfg.huber_k)

@@ -213,7 +213,8 @@ class TrackingKeyframe:
             self.level_pixels.append(lp)
             self.level_bearings.append(pattern_bearings(self.cameras[lv], lp, pat))
             level = pyramid[lv] if pyramid is not None else GradientImage(pyr[lv], clip_range=self.config.clip_range)
-            self.host_samples.append(sample_host(level, lp, pat))
+            Ih, hv = sample_host(level, lp, pat)  # laid out once for the compiled residuals
+            self.host_samples.append((np.ascontiguousarray(Ih, dtype=float), np.ascontiguousarray(hv, dtype=bool)))
 
 
 def frame_pyramid(image: ArrayLike, levels: int,
