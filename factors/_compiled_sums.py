@@ -6,7 +6,7 @@ that stays the reference (tests compare them to it):
 * :func:`accumulate_target`: ``host_points.gauss_newton_sums``, the Gauss-Newton sums of one
   host-target pair (the window's Hessian accumulation before the Schur complement);
 * :func:`accumulate_pair`: the same sums from the host Jacobians alone (the target ones mapped by
-  the pair's adjoint, docs/factors.md §7);
+  the pair's ``-Ad^-T``, docs/factors.md §7);
 * :func:`add_pair_terms`: ``HostPoints.linearize``'s per-pair loop (Huber terms, sums, scatter
   into the caller's system) in one call;
 * :func:`target_normal_equations`: the tracker's normal equations of a frame pose (and affine).
@@ -99,7 +99,7 @@ def accumulate_pair(J_host, J_affine_host, B, gain, valid, weight, residual, J_d
     """:func:`accumulate_target`'s sums (same outputs, same block order) from the host Jacobians alone.
 
     A photometric residual depends on the two poses only through ``T_target_host``, so its target
-    pose Jacobian is its host pose Jacobian mapped by a matrix of the pair (the adjoint,
+    pose Jacobian is its host pose Jacobian mapped by a matrix of the pair (``-Ad^-T``,
     ``J_target = J_host B^T`` with ``B = -[[R, [t]x R], [0, R]]`` of ``T_target_host = (R, t)``,
     :func:`factors.host_points.target_jacobian_map`), and its affine Jacobians are ``(hb, gain)``
     (host) and ``(-hb, -1)`` (target) with ``hb = J_affine_host[..., 0]``. So ``J = T K`` with
@@ -249,7 +249,7 @@ def target_normal_equations(J_target, J_affine_target, weight, residual):
     ``A = sum w J^T J``, ``b = sum w J^T r`` with ``J = [J_target, J_affine_target]`` per residual
     (8 columns; 6 without affines, ``J_affine_target`` of shape (0, P, 2)). The numpy form
     (concatenate, weight, two products) made four temporaries per evaluation; the sums are scalar
-    locals here, as in :func:`accumulate_pair`. Equal to it up to round-off (tested)."""
+    locals here, as in :func:`accumulate_pair`. Equal to the numpy products up to round-off (tested)."""
     n, p = residual.shape
     aff = J_affine_target.shape[0] == n and n > 0
     k = 8 if aff else 6

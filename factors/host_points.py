@@ -1,4 +1,5 @@
-"""The points hosted in one keyframe, linearised with their inverse depths eliminated (pure numpy).
+"""The points hosted in one keyframe, linearised with their inverse depths eliminated (numpy and the
+compiled sums of :mod:`factors._compiled_sums`; no GTSAM).
 
 :class:`HostPoints` is the per-host core of both window solvers: the GTSAM adapter
 :class:`factors.smart.HostPointsFactor` and the hand-rolled solver of
@@ -58,7 +59,7 @@ def gauss_newton_sums(lin: PhotometricLinearization, weight: ArrayLike, with_aff
     linearisation carries its pair's ``T_target_host`` and brightness gain (the kernels of
     :mod:`factors.photometric` set them), :func:`factors._compiled_sums.accumulate_pair`, which sums
     over the host Jacobians only and maps the sums to the target blocks
-    (:func:`target_jacobian_map`; 2x faster); else :func:`factors._compiled_sums.accumulate_target`.
+    (:func:`target_jacobian_map`; 2-3x faster); else :func:`factors._compiled_sums.accumulate_target`.
     Both are tested against the numpy sums.
 
     Raises:
@@ -114,10 +115,11 @@ def target_normal_equations(lin: PhotometricLinearization, weight: ArrayLike, wi
 def target_jacobian_map(T_target_host: ArrayLike) -> FloatArray:
     """``B`` (6, 6) with ``J_target = J_host B^T`` for every photometric residual of a host-target pair
     evaluated at ``T_target_host = (R, t)`` (poses right-perturbed, ``[rotation, translation]``):
-    ``B = -[[R, [t]x R], [0, R]]``, minus the adjoint of ``T_target_host``. The residual depends
-    on the two poses only through ``T_target_host = T_world_target^-1 T_world_host``; perturbing
-    the host by ``xi`` moves it like perturbing the target by ``-Ad(T_target_host) xi``
-    (docs/factors.md §7; tested against the kernel's own ``J_target``)."""
+    ``B = -[[R, [t]x R], [0, R]] = -Ad(T_target_host)^-T`` (GTSAM's adjoint in this order). The
+    residual depends on the two poses only through ``T_target_host = T_world_target^-1
+    T_world_host``; perturbing the host by ``xi`` moves it like perturbing the target by
+    ``eta = -Ad(T_target_host) xi``, so ``J_host = -J_target Ad`` (docs/factors.md §7; tested
+    against the kernels' own ``J_target``)."""
     T = np.asarray(T_target_host, dtype=float)
     R, t = T[:3, :3], T[:3, 3]
     tx = np.array([[0.0, -t[2], t[1]], [t[2], 0.0, -t[0]], [-t[1], t[0], 0.0]])
@@ -253,7 +255,10 @@ class HostPoints:
                   rows: NDArray[np.intp] | None = None, offset: ArrayLike | None = None) -> list:
         """Linearisations (with Jacobians) of every target, then the stereo term (or None), of all
         points or of the points ``rows`` (``d`` is always the full (N,) vector); ``offset``: the
-        rig offset of the stereo term (None: zero, the rectified model).
+        rig offset of the stereo term (None: zero, the rectified model). For a
+        :class:`GradientImage` target ``J_target`` and ``J_affine_target`` are None (the sums map
+        them from the host Jacobians with the pair's pose, :func:`gauss_newton_sums`); other
+        samplers give them.
 
         An optimiser evaluates the cost at a trial state and, when it accepts it, linearises at the
         same state: the Jacobians cost about a third of a pass (the bilinear gathers being the
@@ -332,7 +337,11 @@ class HostPoints:
         for t, cols in enumerate(columns):
             lin, W = lins[t], Ws[t]
             if lin.T_target_host is not None and lin.brightness_gain is not None and lin.J_host is not None:
-                # the loop below as one compiled call (the pair's sums from the host Jacobians)
+                # the loop below as one compiled call (the pair's sums from the host Jacobians); it
+                # indexes without bounds checks, so the shapes are checked here
+                if len(cols) != (16 if self.with_affine else 12) or W.shape != lin.residual.shape:
+                    raise InputError(f"HostPoints.linearize: target {t} has {len(cols)} columns and weights "
+                                     f"{W.shape} for residuals {lin.residual.shape} (with_affine={self.with_affine})")
                 _compiled_sums.add_pair_terms(
                     lin.J_host, lin.J_affine_host if self.with_affine else _NO_AFFINE,
                     target_jacobian_map(lin.T_target_host), float(lin.brightness_gain), lin.valid, W, lin.residual,

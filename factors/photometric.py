@@ -216,7 +216,9 @@ def put_rows(lin: PhotometricLinearization, rows: NDArray[np.intp], other: Photo
              other_rows: NDArray[np.intp] | None = None) -> PhotometricLinearization:
     """Overwrite ``lin``'s points ``rows`` with ``other``'s points ``other_rows`` (default: all of
     them, in order), in place: the same points evaluated elsewhere, e.g. at other inverse depths.
-    The counters (``n_bad_depth``, ...) stay ``lin``'s. Returns ``lin``."""
+    The counters (``n_bad_depth``, ...) stay ``lin``'s. The pair's ``T_target_host`` and gain stay
+    only when ``other`` was evaluated at the same ones (else they are cleared: the rows no longer
+    share one pair pose, and the Gauss-Newton sums then need the target Jacobians). Returns ``lin``."""
     sel = slice(None) if other_rows is None else other_rows
     for name in ("residual", "valid", "J_depth", "J_host", "J_target", "J_affine_host", "J_affine_target",
                  "uv_target", "J_offset"):
@@ -225,6 +227,10 @@ def put_rows(lin: PhotometricLinearization, rows: NDArray[np.intp], other: Photo
             a[rows] = b[sel]
         elif a is not None:  # nothing to copy from: the array no longer describes every point
             setattr(lin, name, None)
+    if lin.T_target_host is not None and not (
+            other.T_target_host is not None and np.array_equal(lin.T_target_host, other.T_target_host)
+            and lin.brightness_gain == other.brightness_gain):
+        lin.T_target_host = lin.brightness_gain = None
     return lin
 
 

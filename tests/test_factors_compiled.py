@@ -18,7 +18,7 @@ import pytest
 
 from factors.host_points import gauss_newton_sums, target_jacobian_map, target_normal_equations
 from factors.photometric import (GradientImage, PhotometricLinearization, compiled_residuals, pattern_bearings,
-                                 photometric_residuals, sample_host, stereo_residuals)
+                                 photometric_residuals, put_rows, sample_host, stereo_residuals)
 from factors.weights import huber_loss, huber_weight, point_robust_terms
 from gtvo.errors import InputError
 from tests._factors_synthetic import SinusoidImage, small_camera
@@ -182,6 +182,26 @@ def test_gauss_newton_sums_equal_the_numpy_sums(with_affine, sums):
     assert np.linalg.eigvalsh(H).min() > -1e-6 * np.abs(H).max()
 
 
+def test_put_rows_keeps_the_pair_pose_only_when_both_share_it():
+    """Rows evaluated at another pair pose: the merged linearisation loses ``T_target_host`` (its
+    sums then need ``J_target``), at the same pose it keeps it."""
+    rng = np.random.default_rng(9)
+    cam = small_camera()
+    host, target = GradientImage(textured(rng)), GradientImage(textured(rng))
+    px = np.c_[rng.uniform(3, 157, 30), rng.uniform(3, 117, 30)]
+    Ih, hv = sample_host(host, px)
+    Tt = gtsam.Pose3(gtsam.Rot3(), np.array([0.1, 0.0, 0.0]))
+    a = photometric_residuals(cam, Ih, hv, px, np.full(30, 0.5), gtsam.Pose3(), Tt, target)
+    same = photometric_residuals(cam, Ih, hv, px, np.full(30, 0.6), gtsam.Pose3(), Tt, target)
+    other = photometric_residuals(cam, Ih, hv, px, np.full(30, 0.6), gtsam.Pose3(), Tt.compose(Tt), target)
+    rows = np.array([1, 4, 7])
+    merged = put_rows(dataclasses.replace(a), rows, same, rows)
+    assert merged.T_target_host is not None and merged.brightness_gain is not None
+    np.testing.assert_array_equal(merged.residual[rows], same.residual[rows])
+    mixed = put_rows(dataclasses.replace(a), rows, other, rows)
+    assert mixed.T_target_host is None and mixed.brightness_gain is None
+
+
 @pytest.mark.parametrize("with_affine", [True, False])
 def test_target_normal_equations_equal_the_numpy_sums(with_affine):
     """The tracker's normal equations (frame pose and affine only) against the numpy products."""
@@ -253,8 +273,9 @@ def test_compiled_residuals_without_target_jacobians_and_their_sums():
     for name in ("residual", "valid", "J_depth", "J_host", "J_affine_host", "uv_target"):
         np.testing.assert_array_equal(getattr(lean, name), getattr(full, name))
     weight = rng.uniform(0.5, 2.0, full.residual.shape)
-    for a, b in zip(gauss_newton_sums(lean, weight), gauss_newton_sums(full, weight)):
-        np.testing.assert_array_equal(a, b)
+    general = dataclasses.replace(full, T_target_host=None, brightness_gain=None)  # sums of J_target itself
+    for a, b in zip(gauss_newton_sums(lean, weight), gauss_newton_sums(general, weight)):
+        np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-12 * max(np.abs(b).max(), 1e-300))
     with pytest.raises(InputError, match="Jacobians"):
         gauss_newton_sums(dataclasses.replace(lean, T_target_host=None), weight)
 

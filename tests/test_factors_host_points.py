@@ -13,6 +13,7 @@ import pytest
 
 from factors.host_points import HostPoints
 from factors.photometric import PATTERN_DSO8
+from gtvo.errors import InputError
 from tests._factors_synthetic import SinusoidImage, small_camera
 
 
@@ -37,16 +38,24 @@ def _local_columns(t: int) -> np.ndarray:
     return np.r_[0:6, 18:20, 6 * (1 + t):6 * (2 + t), 18 + 2 * (1 + t):20 + 2 * (1 + t)]
 
 
-@pytest.mark.parametrize("huber_k", [2.0, None])
-def test_fused_pair_terms_equal_the_numpy_loop(huber_k):
+@pytest.mark.parametrize("huber_k,with_affine,stereo", [(2.0, True, False), (None, True, True), (2.0, False, True)])
+def test_fused_pair_terms_equal_the_numpy_loop(huber_k, with_affine, stereo):
     """``linearize``'s compiled per-pair call (the residuals carry their pair's pose and gain) adds
-    the same terms as its numpy loop (residuals without them: the general sums)."""
-    pts, poses, affines, d = _problem(stereo=False)
+    the same terms as its numpy loop (residuals without them: the general sums), with and
+    without affines; a caller's column blocks that do not fit are refused, not summed."""
+    pts, poses, affines, d = _problem(stereo=stereo)
     pts.huber_k = huber_k
+    pts.with_affine = with_affine
     lins = pts.residuals(poses, affines, d)
     assert all(lin.T_target_host is not None for lin in lins[:-1])
     plain = [dataclasses.replace(lin, T_target_host=None, brightness_gain=None) for lin in lins[:-1]] + [lins[-1]]
-    cols = [_local_columns(t) for t in range(2)]
+    if with_affine:
+        cols = [_local_columns(t) for t in range(2)]
+    else:  # poses only: host, then the target
+        cols = [np.r_[0:6, 6 * (1 + t):6 * (2 + t)] for t in range(2)]
+    if with_affine:
+        with pytest.raises(InputError, match="columns"):
+            pts.linearize(lins, d, np.zeros((24, 24)), np.zeros(24), [c[:12] for c in cols])
     H1, g1, H2, g2 = np.zeros((24, 24)), np.zeros(24), np.zeros((24, 24)), np.zeros(24)
     s1 = pts.linearize(lins, d, H1, g1, cols)
     s2 = pts.linearize(plain, d, H2, g2, cols)

@@ -411,3 +411,5 @@ def test_visible_targets_of_some_hosts_are_those_of_all(seq):
     for t in (0, 2, 3):
         seen = seen_in(cam, kfs[1], kfs[t])
         assert seen.any() and np.array_equal(seen_in(cam, kfs[1], kfs[t], Xw), seen)
+    with pytest.raises(InputError, match="host position"):
+        visible_targets(cam, kfs, cfg, hosts=[-1])

@@ -17,6 +17,7 @@ from factors.smart import HostPointsFactor
 from factors.smoothness import ConstantVelocityFactor
 from gtvo.core.camera import MIN_DEPTH, PinholeCamera
 from gtvo.core.timing import timed
+from gtvo.errors import InputError
 from gtvo.window.config import MarginalPrior, WindowConfig, WindowKeyframe
 
 FloatArray = NDArray[np.float64]
@@ -112,6 +113,8 @@ def visible_targets(camera: PinholeCamera, keyframes: Sequence[WindowKeyframe], 
     """
     out: list[list[int]] = []
     for h in range(len(keyframes)) if hosts is None else hosts:
+        if not 0 <= h < len(keyframes):
+            raise InputError(f"visible_targets: host position {h} is not in a window of {len(keyframes)} keyframes")
         kh = keyframes[h]
         Xw = host_points_world(camera, kh)  # once per host, not per host and target
         ts: list[int] = []
