@@ -340,14 +340,17 @@ def _packed_numpy(img, clip_range):
 
 
 @pytest.mark.parametrize("clip_range", [None, (0.0, 255.0), (0.5, 254.7), (30.0, 200.0)])
-@pytest.mark.parametrize("shape", [(2, 2), (3, 7), (48, 64)])
-def test_gradient_image_records_equal_the_numpy_form(clip_range, shape):
+@pytest.mark.parametrize("shape,whole", [((2, 2), True), ((3, 7), True), ((48, 64), True), ((2, 9), False),
+                                         ((37, 53), False)])
+def test_gradient_image_records_equal_the_numpy_form(clip_range, shape, whole):
     """GradientImage packs intensity, gradients and the clipped-cell flag in one compiled pass: the
-    records of the numpy form, bit for bit (clip limits compared in float32 as numpy does)."""
+    records of the numpy form, bit for bit (clip limits compared in float32 as numpy does), for
+    whole grey levels and for fractional ones (the halved central differences' rounding)."""
     from factors.photometric import GradientImage  # noqa: PLC0415
 
     rng = np.random.default_rng(shape[1])
-    img = np.round(rng.random(shape) * 260.0 - 2.0).astype(np.float32)
+    img = rng.random(shape) * 260.0 - 2.0
+    img = (np.round(img) if whole else img).astype(np.float32)
     img[0, 0] = 254.7  # on the float32 edge of a clip limit
     g = GradientImage(img, clip_range=clip_range)
     ref, clipped = _packed_numpy(img, clip_range)
