@@ -163,3 +163,33 @@ def test_compiled_block_medians_equal_numpy_median(kind, block):
          "kitti-like": lambda: np.abs(rng.normal(0, 1, shape)) ** 3}[kind]().astype(np.float32)
     cells = g.reshape(3, block, 5, block).transpose(0, 2, 1, 3).reshape(3, 5, block * block)
     assert np.array_equal(block_medians(g, block), np.median(cells, axis=-1))
+
+
+def _magnitude_numpy(img):
+    """The numpy form of gradient_magnitude (the reference of the compiled gradient_norm)."""
+    from gtvo.core.image import image_gradients  # noqa: PLC0415
+
+    gx, gy = image_gradients(np.asarray(img, dtype=np.float32))
+    return np.sqrt(gx * gx + gy * gy)
+
+
+@pytest.mark.parametrize("shape", [(2, 2), (2, 9), (9, 2), (3, 5), (97, 131), (240, 320)])
+@pytest.mark.parametrize("kind", ["texture", "uint8", "wide"])
+def test_compiled_gradient_magnitude_equals_the_numpy_form(shape, kind):
+    """One compiled pass gives np.sqrt(gx^2 + gy^2) of image_gradients bit for bit, borders included."""
+    rng = np.random.default_rng(sum(shape))
+    img = {"texture": lambda: textured(*shape, seed=sum(shape)),
+           "uint8": lambda: rng.integers(0, 256, shape).astype(np.uint8),
+           "wide": lambda: (rng.standard_normal(shape) * 1e4).astype(np.float32)}[kind]()
+    got = gradient_magnitude(img)
+    assert got.dtype == np.float32 and got.shape == shape
+    assert np.array_equal(got, _magnitude_numpy(img))
+
+
+@pytest.mark.realdata
+def test_compiled_gradient_magnitude_equals_the_numpy_form_on_kitti(shared_data):
+    cv2 = pytest.importorskip("cv2")
+    path = shared_data / "kitti_stereo_sample" / "KITTI_sequence_1" / "image_l" / "000010.png"
+    img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    assert img is not None, path
+    assert np.array_equal(gradient_magnitude(img), _magnitude_numpy(img))

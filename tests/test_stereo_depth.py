@@ -400,3 +400,39 @@ def test_dso8_is_the_factors_pattern():
     p = _as_pattern("dso8")
     assert p.dtype == np.int64
     np.testing.assert_array_equal(p, PATTERN_DSO8)
+
+
+@pytest.mark.parametrize("shape", [(2, 2), (3, 5), (41, 67)])
+def test_gradients_at_points_equal_image_gradients(shape):
+    """The search's left gradients at the pattern pixels, computed there only: image_gradients'
+    values gathered (0 outside the image), borders and corners included."""
+    from gtvo.core.image import image_gradients  # noqa: PLC0415
+    from gtvo.frontend.stereo_depth import _gradients_at  # noqa: PLC0415
+
+    rng = np.random.default_rng(sum(shape))
+    img = (rng.random(shape) * 255).astype(np.float32)
+    h, w = shape
+    v, u = np.meshgrid(np.arange(-2, h + 2), np.arange(-2, w + 2), indexing="ij")
+    got = _gradients_at(img, u, v)
+    for g, ref in zip(got, image_gradients(img)):
+        expected, _ = _gather_integer(ref, u, v)
+        assert g.dtype == expected.dtype and np.array_equal(g, expected)
+
+
+@pytest.mark.parametrize("shape", [(2, 2), (3, 5), (41, 67)])
+def test_compiled_sampling_with_gradient_equals_the_stack(shape):
+    """The refinement's samples of the right image and its x gradient: bilinear_sample of the
+    (image, gx) stack bit for bit, valid flags included (edges, outside, NaN)."""
+    from gtvo.core.image import bilinear_sample, image_gradients  # noqa: PLC0415
+    from gtvo.frontend.stereo_depth import _sample_with_gradient_x  # noqa: PLC0415
+
+    rng = np.random.default_rng(sum(shape))
+    img = (rng.random(shape) * 255).astype(np.float32)
+    h, w = shape
+    u = np.concatenate([rng.uniform(-1.5, w + 0.5, 500), [0.0, w - 1.0, w - 1.0 + 1e-9, -1e-9, np.nan, 2.0]])
+    v = np.concatenate([rng.uniform(-1.5, h + 0.5, 500), [0.0, h - 1.0, 0.5, 0.5, 1.0, np.inf]])
+    u, v = u.reshape(-1, 2), v.reshape(-1, 2)
+    ref_vals, ref_ok = bilinear_sample(np.dstack([img, image_gradients(img)[0]]), u, v)
+    vals, ok = _sample_with_gradient_x(img, u, v)
+    assert ref_ok.any() and not ref_ok.all()
+    assert np.array_equal(ok, ref_ok) and np.array_equal(vals, ref_vals)

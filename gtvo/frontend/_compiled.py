@@ -163,3 +163,81 @@ def block_medians(image, block):
             c = vals[hi_rank - below]
             out[by, bx] = a if lo_rank == hi_rank else (a + c) * np.float32(0.5)
     return out
+
+
+@jit
+def _gx(img, y, x):
+    """``image_gradients``' x gradient of ``img`` at ``(y, x)``: the float32 central difference,
+    one-sided at the left and right columns."""
+    w = img.shape[1]
+    if x == 0:
+        return img[y, 1] - img[y, 0]
+    if x == w - 1:
+        return img[y, w - 1] - img[y, w - 2]
+    return np.float32(0.5) * (img[y, x + 1] - img[y, x - 1])
+
+
+@jit
+def _gy(img, y, x):
+    """``image_gradients``' y gradient of ``img`` at ``(y, x)`` (one-sided at the top and bottom rows)."""
+    h = img.shape[0]
+    if y == 0:
+        return img[1, x] - img[0, x]
+    if y == h - 1:
+        return img[h - 1, x] - img[h - 2, x]
+    return np.float32(0.5) * (img[y + 1, x] - img[y - 1, x])
+
+
+@jit
+def gradient_norm(img):
+    """``sqrt(gx^2 + gy^2)`` (H, W) float32 of a (H, W >= 2) float32 image with ``image_gradients``'
+    gradients, in one pass and the same float32 arithmetic as ``np.sqrt(gx * gx + gy * gy)``
+    (``point_selection.gradient_magnitude``'s numpy form), so equal to the bit."""
+    h, w = img.shape
+    out = np.empty((h, w), dtype=np.float32)
+    half = np.float32(0.5)
+    for y in range(h):
+        for x in (0, w - 1):
+            gx = _gx(img, y, x)
+            gy = _gy(img, y, x)
+            out[y, x] = np.sqrt(gx * gx + gy * gy)
+        if 0 < y < h - 1:
+            for x in range(1, w - 1):  # the interior: no border cases
+                gx = half * (img[y, x + 1] - img[y, x - 1])
+                gy = half * (img[y + 1, x] - img[y - 1, x])
+                out[y, x] = np.sqrt(gx * gx + gy * gy)
+        else:
+            for x in range(1, w - 1):
+                gx = half * (img[y, x + 1] - img[y, x - 1])
+                gy = _gy(img, y, x)
+                out[y, x] = np.sqrt(gx * gx + gy * gy)
+    return out
+
+
+@jit
+def bilinear_with_gradient_x(img, u, v):
+    """``gtvo.core.image.bilinear_sample(np.dstack([img, gx]), u, v)`` (``gx`` the x gradient of
+    ``image_gradients``) of a (H >= 2, W >= 2) float32 image at M positions without making ``gx``
+    or the stack: the corners' gradients are computed where sampled, the same float32 values, and
+    interpolated with the same float64 arithmetic and validity rule as
+    ``gtvo.core.image._bilinear_loop``. Returns ``(values (M, 2), valid (M,))``."""
+    h, w = img.shape
+    m = u.shape[0]
+    out = np.zeros((m, 2))
+    valid = np.zeros(m, dtype=np.bool_)
+    for k in range(m):
+        uk, vk = u[k], v[k]
+        if not (np.isfinite(uk) and np.isfinite(vk) and uk >= 0.0 and uk <= w - 1 - 0.0
+                and vk >= 0.0 and vk <= h - 1 - 0.0):
+            continue
+        valid[k] = True
+        x0 = max(min(int(np.floor(uk)), w - 2), 0)
+        y0 = max(min(int(np.floor(vk)), h - 2), 0)
+        ax = uk - x0
+        ay = vk - y0
+        v00, v01, v10, v11 = img[y0, x0], img[y0, x0 + 1], img[y0 + 1, x0], img[y0 + 1, x0 + 1]
+        out[k, 0] = (1 - ay) * ((1 - ax) * v00 + ax * v01) + ay * ((1 - ax) * v10 + ax * v11)
+        v00, v01 = _gx(img, y0, x0), _gx(img, y0, x0 + 1)
+        v10, v11 = _gx(img, y0 + 1, x0), _gx(img, y0 + 1, x0 + 1)
+        out[k, 1] = (1 - ay) * ((1 - ax) * v00 + ax * v01) + ay * ((1 - ax) * v10 + ax * v11)
+    return out, valid

@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 from gtvo.core.settings import check_settings, setting
 from gtvo.core.timing import timed
 from gtvo.errors import InputError
-from gtvo.frontend._compiled import block_medians, pick_cells
+from gtvo.frontend._compiled import block_medians, gradient_norm, pick_cells
 from gtvo.core.image import image_gradients, to_float_gray
 
 #: Radius of the 8-pixel DSO pattern and of the 5x5 stereo patch.
@@ -71,9 +71,22 @@ _DEFAULT = PointSelectionConfig()
 
 
 def gradient_magnitude(image: NDArray) -> NDArray[np.float32]:
-    """``G = sqrt(gx^2 + gy^2)`` of a gray image, central differences, float32 (H, W)."""
-    gx, gy = image_gradients(to_float_gray(image))
-    return np.sqrt(gx * gx + gy * gy)
+    """``G = sqrt(gx^2 + gy^2)`` of a gray image, central differences, float32 (H, W).
+
+    One compiled pass (:func:`gtvo.frontend._compiled.gradient_norm`) without the gradient images:
+    the same float32 values as ``np.sqrt(gx * gx + gy * gy)`` of
+    :func:`gtvo.core.image.image_gradients`, its numpy form (kept for images under 2x2, for which
+    that raises).
+    """
+    return _magnitude(to_float_gray(image))
+
+
+def _magnitude(img: NDArray[np.float32]) -> NDArray[np.float32]:
+    """:func:`gradient_magnitude` of a float32 gray image (converted and checked by the caller)."""
+    if min(img.shape) < 2:
+        gx, gy = image_gradients(img)
+        return np.sqrt(gx * gx + gy * gy)
+    return gradient_norm(np.ascontiguousarray(img))
 
 
 def block_gradient_thresholds(grad_mag: NDArray, block: int = _DEFAULT.block,
@@ -140,7 +153,7 @@ def select_points(image: NDArray, target: int = 2000, border: int = _DEFAULT.bor
     if levels < 1 or not 0 < downweight <= 1:
         raise InputError(f"point selection needs levels >= 1 and 0 < downweight <= 1, got {levels}, {downweight}")
     target = int(target)
-    score = gradient_magnitude(img)
+    score = _magnitude(img)
     thr = block_gradient_thresholds(score, block, threshold_offset)
     # the threshold factor of each cell level, float32 as numpy's float32 x Python float product
     factors = np.array([downweight ** lvl for lvl in range(levels)], dtype=np.float32)
