@@ -193,3 +193,20 @@ def test_compiled_gradient_magnitude_equals_the_numpy_form_on_kitti(shared_data)
     img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
     assert img is not None, path
     assert np.array_equal(gradient_magnitude(img), _magnitude_numpy(img))
+
+
+@pytest.mark.realdata
+@pytest.mark.parametrize("cell", [7, 38, 45])
+def test_compiled_cell_pick_equals_the_numpy_rule_on_kitti(shared_data, cell):
+    """pick_cells on a KITTI frame (the cell sizes of a 300- and a 2000-point selection)."""
+    cv2 = pytest.importorskip("cv2")
+    path = shared_data / "kitti_stereo_sample" / "KITTI_sequence_1" / "image_l" / "000020.png"
+    img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    assert img is not None, path
+    score = gradient_magnitude(img)
+    thr = block_gradient_thresholds(score)
+    eligible = np.zeros(score.shape, dtype=bool)
+    eligible[DEFAULT_BORDER:-DEFAULT_BORDER, DEFAULT_BORDER:-DEFAULT_BORDER] = True
+    factors = np.array([0.75 ** lvl for lvl in range(3)], dtype=np.float32)
+    got = pick_cells(score, thr, DEFAULT_BORDER, cell, factors)
+    assert np.array_equal(got, _pick_hierarchical(score, thr, eligible, cell, 3, 0.75))

@@ -4,6 +4,9 @@
 * :func:`pick_cells`: step 3 of the point-selection rule, the hierarchical per-cell pick of the
   pixel of largest gradient above the threshold. The numpy form padded and reshaped two full-size
   arrays per level (about half of ``select_points``' time on KITTI);
+* :func:`gradient_norm`: the point selection's gradient magnitude in one pass;
+* :func:`bilinear_with_gradient_x`: the stereo refinement's samples of the right image and its x
+  gradient, the gradient computed at the sampled corners only;
 * :func:`zssd_costs`: the integer epipolar search of :mod:`gtvo.frontend.stereo_depth` (every
   candidate disparity's zero-mean SSD); the numpy form gathered a strip per point and made a
   pass over points x candidates per pattern pixel;
@@ -27,37 +30,58 @@ def pick_cells(score, thr, border, cell, level_factors):
     earlier level, the pixel of largest ``score`` with ``score > thr * level_factors[l]`` within
     ``border`` of no image edge; ties go to the first pixel in row-major order within the cell
     (``np.argmax``'s). ``score``, ``thr`` and ``level_factors`` are float32, compared in float32
-    as the numpy form does."""
+    as the numpy form does.
+
+    Which cells hold a pick is kept per level (a cell of level ``l`` is four of level ``l - 1``,
+    or the whole image once the side is clamped), so a cell with a pick is not scanned; a pixel is
+    compared with the cell's best so far before its threshold (rarely true, so the branch is
+    predictable: 3x faster than the threshold first on KITTI, the same picks).
+    """
     h, w = score.shape
     picked = np.zeros((h, w), dtype=np.bool_)
     c = cell
+    has = np.zeros((1, 1), dtype=np.bool_)
     for lvl in range(level_factors.shape[0]):
-        if lvl > 0:  # doubled, but no further than one cell over the whole image (no overflow)
-            c = min(2 * c, max(h, w, cell))
+        # doubled, but no further than one cell over the whole image (no overflow)
+        c_new = c if lvl == 0 else min(2 * c, max(h, w, cell))
+        ny = (h + c_new - 1) // c_new
+        nx = (w + c_new - 1) // c_new
+        has_new = np.zeros((ny, nx), dtype=np.bool_)
+        if lvl > 0:  # a cell holds a pick when one of the cells it is made of does
+            for cy in range(has.shape[0]):
+                for cx in range(has.shape[1]):
+                    if has[cy, cx]:
+                        if c_new == 2 * c:
+                            has_new[cy // 2, cx // 2] = True
+                        else:  # clamped: one cell over the whole image
+                            has_new[0, 0] = True
+        c = c_new
+        has = has_new
         f = level_factors[lvl]
-        for y0 in range(0, h, c):
+        for cy in range(ny):
+            y0 = cy * c
             y1 = min(y0 + c, h)
-            for x0 in range(0, w, c):
+            for cx in range(nx):
+                if has[cy, cx]:
+                    continue
+                x0 = cx * c
                 x1 = min(x0 + c, w)
-                has_pick = False
                 best = np.float32(-1.0)
                 by = -1
                 bx = -1
                 for y in range(y0, y1):
-                    inside_y = y >= border and y < h - border
+                    if y < border or y >= h - border:
+                        continue
                     for x in range(x0, x1):
-                        if picked[y, x]:
-                            has_pick = True
-                        if inside_y and x >= border and x < w - border:
+                        if x >= border and x < w - border:
                             s = score[y, x]
-                            if s > thr[y, x] * f and s > best:
+                            if s > best and s > thr[y, x] * f:
                                 best = s
                                 by = y
                                 bx = x
-                    if has_pick:
-                        break
-                if not has_pick and by >= 0:
+                if by >= 0:
                     picked[by, bx] = True
+                    has[cy, cx] = True
     return picked
 
 
