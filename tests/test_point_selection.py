@@ -210,3 +210,64 @@ def test_compiled_cell_pick_equals_the_numpy_rule_on_kitti(shared_data, cell):
     factors = np.array([0.75 ** lvl for lvl in range(3)], dtype=np.float32)
     got = pick_cells(score, thr, DEFAULT_BORDER, cell, factors)
     assert np.array_equal(got, _pick_hierarchical(score, thr, eligible, cell, 3, 0.75))
+
+
+def _thresholds_numpy(grad_mag, block, threshold_offset):
+    """block_gradient_thresholds as numpy made it (the reference of spread_block_thresholds): the
+    compiled block medians, then the 3x3 nanmean over the NaN-padded grid, the offset, np.repeat."""
+    g = np.asarray(grad_mag, dtype=np.float32)
+    h, w = g.shape
+    padded = np.pad(g, ((0, (-h) % block), (0, (-w) % block)), mode="symmetric")
+    med = block_medians(np.ascontiguousarray(padded), block)
+    return _smooth_and_spread_numpy(med, block, h, w, threshold_offset)
+
+
+def _smooth_and_spread_numpy(med, block, h, w, threshold_offset):
+    nby, nbx = med.shape
+    p = np.pad(med, 1, constant_values=np.nan)
+    stack = np.stack([p[i:i + nby, j:j + nbx] for i in range(3) for j in range(3)])
+    smooth = np.nanmean(stack, axis=0) + float(threshold_offset)
+    full = np.repeat(np.repeat(smooth, block, axis=0), block, axis=1)
+    return full[:h, :w].astype(np.float32)
+
+
+@pytest.mark.parametrize("shape,block", [((240, 320), 32), ((97, 131), 32), ((97, 131), 7), ((33, 65), 32),
+                                         ((5, 3), 2), ((1, 1), 1), ((31, 31), 32)])
+@pytest.mark.parametrize("kind", ["texture", "random", "wide"])
+def test_compiled_thresholds_equal_the_numpy_form(shape, block, kind):
+    """The smoothing and spreading of the block medians in one compiled pass: the numpy form's
+    float32 values bit for bit (odd sizes, partial blocks, one block, random magnitudes whose
+    float32 sums depend on their order)."""
+    rng = np.random.default_rng(sum(shape) + block)
+    g = {"texture": lambda: gradient_magnitude(np.pad(textured(max(shape[0], 3), max(shape[1], 3)), 0))[
+             :shape[0], :shape[1]],
+         "random": lambda: rng.exponential(5.0, shape),
+         "wide": lambda: rng.exponential(1.0, shape) * 10.0 ** rng.integers(-6, 7, shape)}[kind]()
+    for offset in (7.0, 0.0, 1e-3, 123.456):
+        got = block_gradient_thresholds(g, block, offset)
+        assert got.dtype == np.float32 and got.shape == shape
+        assert np.array_equal(got, _thresholds_numpy(g, block, offset))
+
+
+def test_compiled_spread_skips_nan_medians_as_nanmean():
+    from gtvo.frontend._compiled import spread_block_thresholds  # noqa: PLC0415
+
+    rng = np.random.default_rng(4)
+    med = rng.exponential(5.0, (6, 9)).astype(np.float32)
+    med[rng.random(med.shape) < 0.3] = np.nan
+    med[0, 0] = med[0, 1] = med[1, 0] = med[1, 1] = np.nan  # the corner block: no neighbour at all
+    with np.errstate(all="ignore"), pytest.warns(RuntimeWarning):
+        ref = _smooth_and_spread_numpy(med, 4, 23, 35, 7.0)
+    got = spread_block_thresholds(med, 4, 23, 35, np.float32(7.0))
+    assert np.array_equal(got, ref, equal_nan=True) and np.isnan(got[0, 0])
+
+
+@pytest.mark.realdata
+def test_compiled_thresholds_equal_the_numpy_form_on_kitti(shared_data):
+    cv2 = pytest.importorskip("cv2")
+    for name in ("000000.png", "000030.png"):
+        path = shared_data / "kitti_stereo_sample" / "KITTI_sequence_1" / "image_l" / name
+        img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+        assert img is not None, path
+        g = gradient_magnitude(img)
+        assert np.array_equal(block_gradient_thresholds(g), _thresholds_numpy(g, 32, 7.0))

@@ -265,3 +265,46 @@ def bilinear_with_gradient_x(img, u, v):
         v10, v11 = _gx(img, y0 + 1, x0), _gx(img, y0 + 1, x0 + 1)
         out[k, 1] = (1 - ay) * ((1 - ax) * v00 + ax * v01) + ay * ((1 - ax) * v10 + ax * v11)
     return out, valid
+
+
+@jit
+def spread_block_thresholds(med, block, h, w, offset):
+    """The threshold map (h, w) float32 of ``point_selection.block_gradient_thresholds`` from its
+    block medians ``med`` (nby, nbx) float32: each block's 3x3 neighbourhood mean of the medians that
+    exist (not NaN, inside the grid), plus ``offset`` (float32), spread over the block's pixels.
+
+    The same arithmetic as its numpy form (``np.nanmean`` over the stack of the 9 shifted, NaN-padded
+    grids, ``+ offset``, ``np.repeat``): a float32 sum in the stack's order (NaN and missing blocks
+    add 0), divided by the count in float64 and rounded to float32, then the float32 sum with the
+    offset.
+    """
+    nby, nbx = med.shape
+    smooth = np.empty((nby, nbx), dtype=np.float32)
+    zero = np.float32(0.0)
+    for by in range(nby):
+        for bx in range(nbx):
+            tot = zero
+            cnt = 0
+            first = True
+            for i in range(-1, 2):
+                for j in range(-1, 2):
+                    y, x = by + i, bx + j
+                    v = zero
+                    if 0 <= y < nby and 0 <= x < nbx and not np.isnan(med[y, x]):
+                        v = med[y, x]
+                        cnt += 1
+                    if first:
+                        tot = v
+                        first = False
+                    else:
+                        tot = tot + v
+            mean = np.float64(tot) / np.float64(cnt) if cnt > 0 else np.nan  # nanmean's 0 / 0
+            smooth[by, bx] = np.float32(mean) + offset
+    out = np.empty((h, w), dtype=np.float32)
+    for y in range(h):
+        row = smooth[y // block]
+        for bx in range(nbx):
+            t = row[bx]
+            for x in range(bx * block, min(bx * block + block, w)):
+                out[y, x] = t
+    return out

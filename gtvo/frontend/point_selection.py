@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 from gtvo.core.settings import check_settings, setting
 from gtvo.core.timing import timed
 from gtvo.errors import InputError
-from gtvo.frontend._compiled import block_medians, gradient_norm, pick_cells
+from gtvo.frontend._compiled import block_medians, gradient_norm, pick_cells, spread_block_thresholds
 from gtvo.core.image import image_gradients, to_float_gray
 
 #: Radius of the 8-pixel DSO pattern and of the 5x5 stereo patch.
@@ -104,14 +104,11 @@ def block_gradient_thresholds(grad_mag: NDArray, block: int = _DEFAULT.block,
     h, w = g.shape
     # partial blocks at the right/bottom edge are completed by mirroring
     padded = np.pad(g, ((0, (-h) % block), (0, (-w) % block)), mode="symmetric")
-    nby, nbx = padded.shape[0] // block, padded.shape[1] // block
     med = block_medians(np.ascontiguousarray(padded), int(block))  # np.median of each block, exactly
-    # 3x3 smoothing over neighbouring blocks (edge blocks average over the blocks that exist).
-    p = np.pad(med, 1, constant_values=np.nan)
-    stack = np.stack([p[i:i + nby, j:j + nbx] for i in range(3) for j in range(3)])
-    smooth = np.nanmean(stack, axis=0) + float(threshold_offset)
-    full = np.repeat(np.repeat(smooth, block, axis=0), block, axis=1)
-    return full[:h, :w].astype(np.float32)
+    # 3x3 smoothing over neighbouring blocks (edge blocks average over the blocks that exist), spread
+    # to the pixels: one compiled pass, the float32 values of the numpy form
+    # (np.nanmean over the 9 shifted grids + offset, np.repeat; the reference in the tests)
+    return spread_block_thresholds(med, int(block), h, w, np.float32(threshold_offset))
 
 
 @timed("point_selection")
