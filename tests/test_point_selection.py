@@ -151,7 +151,8 @@ def test_compiled_cell_pick_equals_the_numpy_rule(shape, cell, border):
             np.testing.assert_array_equal(got, ref)
 
 
-@pytest.mark.parametrize("kind", ["uniform", "integers", "constant", "exponential", "kitti-like"])
+@pytest.mark.parametrize("kind", ["uniform", "integers", "constant", "exponential", "kitti-like", "signed", "zeros",
+                                  "two-values", "wide"])
 @pytest.mark.parametrize("block", [1, 2, 7, 32])
 def test_compiled_block_medians_equal_numpy_median(kind, block):
     """block_medians against ``np.median`` over the transposed blocks (the numpy form it replaced):
@@ -160,7 +161,11 @@ def test_compiled_block_medians_equal_numpy_median(kind, block):
     shape = (3 * block, 5 * block)
     g = {"uniform": lambda: rng.random(shape) * 300, "integers": lambda: np.round(rng.random(shape) * 20),
          "constant": lambda: np.full(shape, 3.5), "exponential": lambda: rng.exponential(5.0, shape),
-         "kitti-like": lambda: np.abs(rng.normal(0, 1, shape)) ** 3}[kind]().astype(np.float32)
+         "kitti-like": lambda: np.abs(rng.normal(0, 1, shape)) ** 3,
+         "signed": lambda: rng.normal(0, 1, shape),  # negative values: compared as floats, not as bits
+         "zeros": lambda: np.where(rng.random(shape) < 0.6, 0.0, rng.exponential(5.0, shape)),
+         "two-values": lambda: np.where(rng.random(shape) < 0.5, 0.25, 1e6),  # the middle bins hold all
+         "wide": lambda: rng.exponential(1.0, shape) * 10.0 ** rng.integers(-30, 30, shape)}[kind]().astype(np.float32)
     cells = g.reshape(3, block, 5, block).transpose(0, 2, 1, 3).reshape(3, 5, block * block)
     assert np.array_equal(block_medians(g, block), np.median(cells, axis=-1))
 
@@ -271,3 +276,15 @@ def test_compiled_thresholds_equal_the_numpy_form_on_kitti(shared_data):
         assert img is not None, path
         g = gradient_magnitude(img)
         assert np.array_equal(block_gradient_thresholds(g), _thresholds_numpy(g, 32, 7.0))
+
+
+@pytest.mark.realdata
+def test_compiled_block_medians_equal_numpy_median_on_kitti(shared_data):
+    cv2 = pytest.importorskip("cv2")
+    for name in ("000000.png", "000040.png"):
+        path = shared_data / "kitti_stereo_sample" / "KITTI_sequence_1" / "image_l" / name
+        img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+        assert img is not None, path
+        g = gradient_magnitude(img)[:352, :1216]  # 11 x 38 blocks of 32
+        cells = g.reshape(11, 32, 38, 32).transpose(0, 2, 1, 3).reshape(11, 38, 32 * 32)
+        assert np.array_equal(block_medians(np.ascontiguousarray(g), 32), np.median(cells, axis=-1))

@@ -12,8 +12,9 @@
   pass over points x candidates per pattern pixel;
 * :func:`block_medians`: the per-block median of the point-selection threshold, exactly
   ``np.median`` over each block (numpy partitioned a transposed copy of the whole image, the largest
-  cost of making a keyframe on KITTI): a histogram finds the bin of the middle values, a small sort
-  of that bin's values gives them.
+  cost of making a keyframe on KITTI): histograms narrow the values down to the bins of the middle
+  ones, a small sort of those gives them;
+* :func:`spread_block_thresholds`: the thresholds' 3x3 smoothing and spreading to the pixels.
 """
 
 from __future__ import annotations
@@ -124,67 +125,106 @@ def zssd_costs(dst, u, v, pu, pv, src_c, s_ll, disparities, sign):
 
 
 @jit
+def _value_range(vals, m):
+    """``(min, max)`` of the float32 values ``vals[:m]``: from their int32 bit patterns when all are
+    ``>= +0.0`` and none is NaN (the patterns are ordered as the floats then, and an integer
+    reduction vectorises: gradient magnitudes), else by float comparisons."""
+    keys = vals[:m].view(np.int32)
+    kmin = keys[0]
+    kmax = kmin
+    for i in range(m):
+        k = keys[i]
+        kmin = min(kmin, k)
+        kmax = max(kmax, k)
+    if kmin >= 0 and kmax <= 0x7F800000:
+        pair = np.empty(2, dtype=np.int32)
+        pair[0] = kmin
+        pair[1] = kmax
+        f = pair.view(np.float32)
+        return f[0], f[1]
+    vmin = vals[0]
+    vmax = vmin
+    for i in range(m):
+        v = vals[i]
+        if v < vmin:
+            vmin = v
+        if v > vmax:
+            vmax = v
+    return vmin, vmax
+
+
+@jit
+def _middle_values(vals, m, lo, hi, hist, bins):
+    """The values of ranks ``lo <= hi`` (0-based, ascending) among the float32 ``vals[:m]``
+    (reordered in place), exactly: a 256-bin histogram between the min and the max locates the bins
+    of the two ranks, their values are kept and the step repeats on them while more than 32 remain
+    (equal values end it at once); the rest are sorted. ``hist`` (2, 257) and ``bins`` (m,) are
+    work arrays (two interleaved histograms: consecutive increments of one bin do not wait for
+    each other)."""
+    while m > 32:
+        vmin, vmax = _value_range(vals, m)
+        if vmax == vmin:
+            return vmin, vmin
+        scale = 256.0 / (float(vmax) - float(vmin))
+        fmin = float(vmin)
+        for i in range(m):
+            bins[i] = min(int((float(vals[i]) - fmin) * scale), 256)
+        hist[:] = 0
+        even = m - (m & 1)
+        for i in range(0, even, 2):
+            hist[0, bins[i]] += 1
+            hist[1, bins[i + 1]] += 1
+        if even < m:
+            hist[0, bins[m - 1]] += 1
+        below = 0  # the count below bin b_lo, which holds rank lo; b_hi holds rank hi
+        b_lo = 0
+        count = hist[0, 0] + hist[1, 0]
+        while below + count <= lo:
+            below += count
+            b_lo += 1
+            count = hist[0, b_lo] + hist[1, b_lo]
+        b_hi = b_lo
+        upto = below + count
+        while upto <= hi:
+            b_hi += 1
+            upto += hist[0, b_hi] + hist[1, b_hi]
+        kept = 0
+        for i in range(m):
+            b = bins[i]
+            if b_lo <= b <= b_hi:
+                vals[kept] = vals[i]
+                kept += 1
+        if kept == m:  # the two ranks' bins hold every value: sort them
+            break
+        m = kept
+        lo -= below
+        hi -= below
+    ordered = np.sort(vals[:m])
+    return ordered[lo], ordered[hi]
+
+
+@jit
 def block_medians(image, block):
     """Per ``block`` x ``block`` tile of ``image`` ((nby * block, nbx * block) float32), its median
-    as ``np.median`` gives it: the middle value, or for an even count the float32 mean of the two.
-
-    Two passes per tile: a 256-bin histogram between the tile's min and max locates the bins of the
-    two middle ranks, then the values of those bins are sorted (a few dozen here).
+    as ``np.median`` gives it: the middle value, or for an even count the float32 mean of the two
+    (:func:`_middle_values` on a copy of the tile).
     """
     nby = image.shape[0] // block
     nbx = image.shape[1] // block
     n = block * block
     out = np.empty((nby, nbx), dtype=np.float32)
-    hist = np.zeros(257, dtype=np.int64)
+    vals = np.empty(n, dtype=np.float32)
+    bins = np.empty(n, dtype=np.int32)
+    hist = np.zeros((2, 257), dtype=np.int32)
     lo_rank = (n - 1) // 2
     hi_rank = n // 2
     for by in range(nby):
         for bx in range(nbx):
-            y0 = by * block
-            x0 = bx * block
-            vmin = image[y0, x0]
-            vmax = vmin
-            for y in range(y0, y0 + block):
-                for x in range(x0, x0 + block):
-                    v = image[y, x]
-                    if v < vmin:
-                        vmin = v
-                    if v > vmax:
-                        vmax = v
-            if vmax == vmin:
-                out[by, bx] = vmin
-                continue
-            scale = 256.0 / (float(vmax) - float(vmin))
-            hist[:] = 0
-            for y in range(y0, y0 + block):
-                for x in range(x0, x0 + block):
-                    hist[min(int((float(image[y, x]) - float(vmin)) * scale), 256)] += 1
-            # the bins holding ranks lo_rank and hi_rank, and the count below the first
-            below = 0
-            b_lo = 0
-            while below + hist[b_lo] <= lo_rank:
-                below += hist[b_lo]
-                b_lo += 1
-            b_hi = b_lo
-            upto = below + hist[b_lo]
-            while upto <= hi_rank:
-                b_hi += 1
-                upto += hist[b_hi]
-            m = 0
-            for b in range(b_lo, b_hi + 1):
-                m += hist[b]
-            vals = np.empty(m, dtype=np.float32)
             k = 0
-            for y in range(y0, y0 + block):
-                for x in range(x0, x0 + block):
-                    v = image[y, x]
-                    b = min(int((float(v) - float(vmin)) * scale), 256)
-                    if b_lo <= b <= b_hi:
-                        vals[k] = v
-                        k += 1
-            vals.sort()
-            a = vals[lo_rank - below]
-            c = vals[hi_rank - below]
+            for y in range(by * block, by * block + block):
+                vals[k:k + block] = image[y, bx * block:bx * block + block]
+                k += block
+            a, c = _middle_values(vals, n, lo_rank, hi_rank, hist, bins)
             out[by, bx] = a if lo_rank == hi_rank else (a + c) * np.float32(0.5)
     return out
 
