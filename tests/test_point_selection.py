@@ -146,9 +146,11 @@ def test_compiled_cell_pick_equals_the_numpy_rule(shape, cell, border):
         for levels, downweight in ((3, 0.75), (1, 1.0), (4, 0.5), (70, 0.9)):  # 70: 2^69 cells, no overflow
             ref = _pick_hierarchical(score, thr, eligible, cell, levels, downweight)
             factors = np.array([downweight ** lvl for lvl in range(levels)], dtype=np.float32)
-            got = pick_cells(score, thr, border, cell, factors)
             assert ref.any()
-            np.testing.assert_array_equal(got, ref)
+            # the thresholds per pixel (block 1) and per 32x32 block (as select_points passes them)
+            assert np.array_equal(pick_cells(score, thr, 1, border, cell, factors), np.flatnonzero(ref))
+            grid = np.ascontiguousarray(thr[::32, ::32])
+            assert np.array_equal(pick_cells(score, grid, 32, border, cell, factors), np.flatnonzero(ref))
 
 
 @pytest.mark.parametrize("kind", ["uniform", "integers", "constant", "exponential", "kitti-like", "signed", "zeros",
@@ -213,18 +215,20 @@ def test_compiled_cell_pick_equals_the_numpy_rule_on_kitti(shared_data, cell):
     eligible = np.zeros(score.shape, dtype=bool)
     eligible[DEFAULT_BORDER:-DEFAULT_BORDER, DEFAULT_BORDER:-DEFAULT_BORDER] = True
     factors = np.array([0.75 ** lvl for lvl in range(3)], dtype=np.float32)
-    got = pick_cells(score, thr, DEFAULT_BORDER, cell, factors)
-    assert np.array_equal(got, _pick_hierarchical(score, thr, eligible, cell, 3, 0.75))
+    got = pick_cells(score, np.ascontiguousarray(thr[::32, ::32]), 32, DEFAULT_BORDER, cell, factors)
+    assert np.array_equal(got, np.flatnonzero(_pick_hierarchical(score, thr, eligible, cell, 3, 0.75)))
 
 
 def _thresholds_numpy(grad_mag, block, threshold_offset):
-    """block_gradient_thresholds as numpy made it (the reference of spread_block_thresholds): the
-    compiled block medians, then the 3x3 nanmean over the NaN-padded grid, the offset, np.repeat."""
+    """block_gradient_thresholds as numpy made it (the reference of block_medians on partial blocks
+    and of smooth_block_thresholds): np.median of each block of the mirror-padded magnitude, then
+    the 3x3 nanmean over the NaN-padded grid, the offset, np.repeat."""
     g = np.asarray(grad_mag, dtype=np.float32)
     h, w = g.shape
     padded = np.pad(g, ((0, (-h) % block), (0, (-w) % block)), mode="symmetric")
-    med = block_medians(np.ascontiguousarray(padded), block)
-    return _smooth_and_spread_numpy(med, block, h, w, threshold_offset)
+    nby, nbx = padded.shape[0] // block, padded.shape[1] // block
+    cells = padded.reshape(nby, block, nbx, block).transpose(0, 2, 1, 3).reshape(nby, nbx, block * block)
+    return _smooth_and_spread_numpy(np.median(cells, axis=-1), block, h, w, threshold_offset)
 
 
 def _smooth_and_spread_numpy(med, block, h, w, threshold_offset):
@@ -254,8 +258,8 @@ def test_compiled_thresholds_equal_the_numpy_form(shape, block, kind):
         assert np.array_equal(got, _thresholds_numpy(g, block, offset))
 
 
-def test_compiled_spread_skips_nan_medians_as_nanmean():
-    from gtvo.frontend._compiled import spread_block_thresholds  # noqa: PLC0415
+def test_compiled_smoothing_skips_nan_medians_as_nanmean():
+    from gtvo.frontend._compiled import smooth_block_thresholds  # noqa: PLC0415
 
     rng = np.random.default_rng(4)
     med = rng.exponential(5.0, (6, 9)).astype(np.float32)
@@ -263,7 +267,7 @@ def test_compiled_spread_skips_nan_medians_as_nanmean():
     med[0, 0] = med[0, 1] = med[1, 0] = med[1, 1] = np.nan  # the corner block: no neighbour at all
     with np.errstate(all="ignore"), pytest.warns(RuntimeWarning):
         ref = _smooth_and_spread_numpy(med, 4, 23, 35, 7.0)
-    got = spread_block_thresholds(med, 4, 23, 35, np.float32(7.0))
+    got = np.repeat(np.repeat(smooth_block_thresholds(med, np.float32(7.0)), 4, axis=0), 4, axis=1)[:23, :35]
     assert np.array_equal(got, ref, equal_nan=True) and np.isnan(got[0, 0])
 
 
@@ -288,3 +292,15 @@ def test_compiled_block_medians_equal_numpy_median_on_kitti(shared_data):
         g = gradient_magnitude(img)[:352, :1216]  # 11 x 38 blocks of 32
         cells = g.reshape(11, 32, 38, 32).transpose(0, 2, 1, 3).reshape(11, 38, 32 * 32)
         assert np.array_equal(block_medians(np.ascontiguousarray(g), 32), np.median(cells, axis=-1))
+
+
+@pytest.mark.parametrize("shape", [(1, 1), (2, 3), (5, 40), (33, 65), (97, 131)])
+@pytest.mark.parametrize("block", [2, 7, 32])
+def test_compiled_block_medians_mirror_partial_blocks_as_np_pad(shape, block):
+    """Partial blocks at the bottom / right are completed as np.pad(mode="symmetric") does (several
+    reflections when the image is smaller than the missing part), without the padded copy."""
+    g = np.random.default_rng(sum(shape) + block).exponential(5.0, shape).astype(np.float32)
+    padded = np.pad(g, ((0, (-shape[0]) % block), (0, (-shape[1]) % block)), mode="symmetric")
+    nby, nbx = padded.shape[0] // block, padded.shape[1] // block
+    cells = padded.reshape(nby, block, nbx, block).transpose(0, 2, 1, 3).reshape(nby, nbx, block * block)
+    assert np.array_equal(block_medians(g, block), np.median(cells, axis=-1))

@@ -14,7 +14,7 @@
   ``np.median`` over each block (numpy partitioned a transposed copy of the whole image, the largest
   cost of making a keyframe on KITTI): histograms narrow the values down to the bins of the middle
   ones, a small sort of those gives them;
-* :func:`spread_block_thresholds`: the thresholds' 3x3 smoothing and spreading to the pixels.
+* :func:`smooth_block_thresholds`: the block thresholds' 3x3 smoothing.
 """
 
 from __future__ import annotations
@@ -25,13 +25,15 @@ from gtvo.core.jit import jit
 
 
 @jit
-def pick_cells(score, thr, border, cell, level_factors):
-    """Boolean map (H, W) of picks: for each level ``l`` with side ``c = cell * 2^l`` and every
-    ``c x c`` cell (the last row / column of cells cut by the image edge) that holds no pick of an
-    earlier level, the pixel of largest ``score`` with ``score > thr * level_factors[l]`` within
-    ``border`` of no image edge; ties go to the first pixel in row-major order within the cell
-    (``np.argmax``'s). ``score``, ``thr`` and ``level_factors`` are float32, compared in float32
-    as the numpy form does.
+def pick_cells(score, thr, block, border, cell, level_factors):
+    """The picks of step 3 of the point-selection rule as flat indices ``y * W + x`` (row-major
+    order, as ``np.flatnonzero`` of a pick map): for each level ``l`` with side ``c = cell * 2^l``
+    and every ``c x c`` cell (the last row / column of cells cut by the image edge) that holds no
+    pick of an earlier level, the pixel of largest ``score`` (H, W) with
+    ``score > T * level_factors[l]`` within ``border`` of no image edge; ties go to the first pixel
+    in row-major order within the cell (``np.argmax``'s). ``T`` is the threshold of the pixel's
+    ``block x block`` block, ``thr[y // block, x // block]`` (``block = 1``: a per-pixel map).
+    ``score``, ``thr`` and ``level_factors`` are float32, compared in float32 as the numpy form does.
 
     Which cells hold a pick is kept per level (a cell of level ``l`` is four of level ``l - 1``,
     or the whole image once the side is clamped), so a cell with a pick is not scanned; a pixel is
@@ -39,7 +41,8 @@ def pick_cells(score, thr, border, cell, level_factors):
     predictable: 3x faster than the threshold first on KITTI, the same picks).
     """
     h, w = score.shape
-    picked = np.zeros((h, w), dtype=np.bool_)
+    picks = np.empty(16, dtype=np.int64)
+    count = 0
     c = cell
     has = np.zeros((1, 1), dtype=np.bool_)
     for lvl in range(level_factors.shape[0]):
@@ -73,17 +76,23 @@ def pick_cells(score, thr, border, cell, level_factors):
                 for y in range(y0, y1):
                     if y < border or y >= h - border:
                         continue
+                    trow = thr[y // block]
                     for x in range(x0, x1):
                         if x >= border and x < w - border:
                             s = score[y, x]
-                            if s > best and s > thr[y, x] * f:
+                            if s > best and s > trow[x // block] * f:
                                 best = s
                                 by = y
                                 bx = x
                 if by >= 0:
-                    picked[by, bx] = True
                     has[cy, cx] = True
-    return picked
+                    if count == picks.shape[0]:
+                        grown = np.empty(2 * count, dtype=np.int64)
+                        grown[:count] = picks
+                        picks = grown
+                    picks[count] = by * w + bx
+                    count += 1
+    return np.sort(picks[:count])
 
 
 @jit
@@ -204,13 +213,23 @@ def _middle_values(vals, m, lo, hi, hist, bins):
 
 
 @jit
+def _mirrored(i, n):
+    """Index ``i >= 0`` of a length-``n`` axis extended by ``np.pad(..., mode="symmetric")``."""
+    j = i % (2 * n)
+    return j if j < n else 2 * n - 1 - j
+
+
+@jit
 def block_medians(image, block):
-    """Per ``block`` x ``block`` tile of ``image`` ((nby * block, nbx * block) float32), its median
-    as ``np.median`` gives it: the middle value, or for an even count the float32 mean of the two
-    (:func:`_middle_values` on a copy of the tile).
+    """Per ``block`` x ``block`` tile of the float32 ``image`` (H, W), its median as ``np.median``
+    gives it: the middle value, or for an even count the float32 mean of the two
+    (:func:`_middle_values` on a copy of the tile). Partial tiles at the bottom / right are
+    completed as ``np.pad(image, ((0, -H % block), (0, -W % block)), mode="symmetric")`` would
+    (without making that copy): ``(ceil(H / block), ceil(W / block))`` medians.
     """
-    nby = image.shape[0] // block
-    nbx = image.shape[1] // block
+    h, w = image.shape
+    nby = (h + block - 1) // block
+    nbx = (w + block - 1) // block
     n = block * block
     out = np.empty((nby, nbx), dtype=np.float32)
     vals = np.empty(n, dtype=np.float32)
@@ -220,9 +239,15 @@ def block_medians(image, block):
     hi_rank = n // 2
     for by in range(nby):
         for bx in range(nbx):
+            x0 = bx * block
             k = 0
-            for y in range(by * block, by * block + block):
-                vals[k:k + block] = image[y, bx * block:bx * block + block]
+            for yy in range(by * block, by * block + block):
+                y = _mirrored(yy, h)
+                if x0 + block <= w:
+                    vals[k:k + block] = image[y, x0:x0 + block]
+                else:
+                    for xx in range(x0, x0 + block):
+                        vals[k + xx - x0] = image[y, _mirrored(xx, w)]
                 k += block
             a, c = _middle_values(vals, n, lo_rank, hi_rank, hist, bins)
             out[by, bx] = a if lo_rank == hi_rank else (a + c) * np.float32(0.5)
@@ -308,15 +333,14 @@ def bilinear_with_gradient_x(img, u, v):
 
 
 @jit
-def spread_block_thresholds(med, block, h, w, offset):
-    """The threshold map (h, w) float32 of ``point_selection.block_gradient_thresholds`` from its
-    block medians ``med`` (nby, nbx) float32: each block's 3x3 neighbourhood mean of the medians that
-    exist (not NaN, inside the grid), plus ``offset`` (float32), spread over the block's pixels.
+def smooth_block_thresholds(med, offset):
+    """The block thresholds (nby, nbx) float32 of ``point_selection.block_gradient_thresholds``
+    from the block medians ``med`` (nby, nbx) float32: each block's 3x3 neighbourhood mean of the
+    medians that exist (not NaN, inside the grid), plus ``offset`` (float32).
 
     The same arithmetic as its numpy form (``np.nanmean`` over the stack of the 9 shifted, NaN-padded
-    grids, ``+ offset``, ``np.repeat``): a float32 sum in the stack's order (NaN and missing blocks
-    add 0), divided by the count in float64 and rounded to float32, then the float32 sum with the
-    offset.
+    grids, ``+ offset``): a float32 sum in the stack's order (NaN and missing blocks add 0), divided
+    by the count in float64 and rounded to float32, then the float32 sum with the offset.
     """
     nby, nbx = med.shape
     smooth = np.empty((nby, nbx), dtype=np.float32)
@@ -340,11 +364,4 @@ def spread_block_thresholds(med, block, h, w, offset):
                         tot = tot + v
             mean = np.float64(tot) / np.float64(cnt) if cnt > 0 else np.nan  # nanmean's 0 / 0
             smooth[by, bx] = np.float32(mean) + offset
-    out = np.empty((h, w), dtype=np.float32)
-    for y in range(h):
-        row = smooth[y // block]
-        for bx in range(nbx):
-            t = row[bx]
-            for x in range(bx * block, min(bx * block + block, w)):
-                out[y, x] = t
-    return out
+    return smooth

@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 from gtvo.core.settings import check_settings, setting
 from gtvo.core.timing import timed
 from gtvo.errors import InputError
-from gtvo.frontend._compiled import block_medians, gradient_norm, pick_cells, spread_block_thresholds
+from gtvo.frontend._compiled import block_medians, gradient_norm, pick_cells, smooth_block_thresholds
 from gtvo.core.image import image_gradients, to_float_gray
 
 #: Radius of the 8-pixel DSO pattern and of the 5x5 stereo patch.
@@ -98,17 +98,21 @@ def block_gradient_thresholds(grad_mag: NDArray, block: int = _DEFAULT.block,
         block: block side in pixels (DSO: 32).
         threshold_offset: the constant added to the median (DSO's ``minGradHistAdd`` = 7).
     """
+    g = np.asarray(grad_mag, dtype=np.float32)
+    full = np.repeat(np.repeat(_threshold_grid(g, block, threshold_offset), block, axis=0), block, axis=1)
+    return np.ascontiguousarray(full[:g.shape[0], :g.shape[1]])
+
+
+def _threshold_grid(grad_mag: NDArray[np.float32], block: int, threshold_offset: float) -> NDArray[np.float32]:
+    """:func:`block_gradient_thresholds` per block, (ceil(H / block), ceil(W / block)) float32: what
+    the map holds for each block's pixels (compiled loops; the numpy form is the tests' reference:
+    ``np.median`` of each block of the mirror-padded image, ``np.nanmean`` over the 9 shifted grids)."""
     if block < 1:
         raise InputError(f"block size must be >= 1, got {block}")
-    g = np.asarray(grad_mag, dtype=np.float32)
-    h, w = g.shape
     # partial blocks at the right/bottom edge are completed by mirroring
-    padded = np.pad(g, ((0, (-h) % block), (0, (-w) % block)), mode="symmetric")
-    med = block_medians(np.ascontiguousarray(padded), int(block))  # np.median of each block, exactly
-    # 3x3 smoothing over neighbouring blocks (edge blocks average over the blocks that exist), spread
-    # to the pixels: one compiled pass, the float32 values of the numpy form
-    # (np.nanmean over the 9 shifted grids + offset, np.repeat; the reference in the tests)
-    return spread_block_thresholds(med, int(block), h, w, np.float32(threshold_offset))
+    med = block_medians(np.ascontiguousarray(grad_mag), int(block))  # np.median of each block, exactly
+    # 3x3 smoothing over neighbouring blocks (edge blocks average over the blocks that exist)
+    return smooth_block_thresholds(med, np.float32(threshold_offset))
 
 
 @timed("point_selection")
@@ -151,18 +155,18 @@ def select_points(image: NDArray, target: int = 2000, border: int = _DEFAULT.bor
         raise InputError(f"point selection needs levels >= 1 and 0 < downweight <= 1, got {levels}, {downweight}")
     target = int(target)
     score = _magnitude(img)
-    thr = block_gradient_thresholds(score, block, threshold_offset)
+    thr = _threshold_grid(score, block, threshold_offset)  # block_gradient_thresholds per block
     # the threshold factor of each cell level, float32 as numpy's float32 x Python float product
     factors = np.array([downweight ** lvl for lvl in range(levels)], dtype=np.float32)
 
     area = float((h - 2 * border) * (w - 2 * border))
     cell = max(1.0, np.sqrt(area / target))
-    tried: dict[int, NDArray[np.bool_]] = {}
+    tried: dict[int, NDArray[np.int64]] = {}  # cell size -> its picks (flat indices, row-major)
     for _ in range(max_iterations):
         c = int(max(1, round(cell)))
         if c not in tried:
-            tried[c] = pick_cells(score, thr, border, c, factors)
-        n = int(tried[c].sum())
+            tried[c] = pick_cells(score, thr, int(block), border, c, factors)
+        n = int(tried[c].size)
         if target <= n <= (1 + tolerance) * target or n == 0:
             break
         new_cell = cell * np.sqrt(n / target)
@@ -172,10 +176,10 @@ def select_points(image: NDArray, target: int = 2000, border: int = _DEFAULT.bor
                 break
         cell = new_cell
     # The best tried cell size: the smallest surplus, else the largest count.
-    counts = {c: int(m.sum()) for c, m in tried.items()}
+    counts = {c: int(m.size) for c, m in tried.items()}
     over = [c for c, n in counts.items() if n >= target]
     best_c = min(over, key=lambda c: counts[c]) if over else max(counts, key=lambda c: counts[c])
-    vs, us = np.nonzero(tried[best_c])
+    vs, us = np.divmod(tried[best_c], w)  # np.nonzero of the pick map
     if us.size > target:
         keep = np.sort(np.random.default_rng(seed).choice(us.size, size=target, replace=False))
         us, vs = us[keep], vs[keep]
