@@ -436,3 +436,44 @@ def test_compiled_sampling_with_gradient_equals_the_stack(shape):
     vals, ok = _sample_with_gradient_x(img, u, v)
     assert ref_ok.any() and not ref_ok.all()
     assert np.array_equal(ok, ref_ok) and np.array_equal(vals, ref_vals)
+
+
+def _zssd_per_sample(src, dst, u, v, pattern, disparities):
+    """The search's cost by its definition, one candidate and one sample at a time (float64 sums
+    in pattern order; inf when a sample leaves dst): the reference for any disparities."""
+    h, w = dst.shape
+    p = pattern.shape[0]
+    src_vals, _ = _gather_integer(src, u[:, None] + pattern[:, 0], v[:, None] + pattern[:, 1])
+    src_c = src_vals - src_vals.mean(axis=1, keepdims=True)
+    cost = np.full((u.size, disparities.size), np.inf)
+    for i in range(u.size):
+        s_ll = float(np.sum(src_c[i] * src_c[i]))
+        for j, d in enumerate(disparities):
+            xs, ys = u[i] + d + pattern[:, 0], v[i] + pattern[:, 1]
+            if xs.min() < 0 or xs.max() > w - 1 or ys.min() < 0 or ys.max() > h - 1:
+                continue
+            s_lr = s_r = s_rr = 0.0
+            for k in range(p):
+                r = float(dst[ys[k], xs[k]])
+                s_lr += float(src_c[i, k]) * r
+                s_r += r
+                s_rr += r * r
+            cost[i, j] = max(s_ll - 2.0 * s_lr + s_rr - s_r * s_r / p, 0.0)
+    return cost
+
+
+@pytest.mark.parametrize("sign", [-1, 1])
+def test_compiled_search_equals_the_definition_off_the_image(sign):
+    """Points off the image and unsorted, sparse disparities (the compiled search decides from the
+    pattern's extent whether a candidate stays inside, not per sample): the costs of the definition."""
+    rng = np.random.default_rng(11)
+    h, w = 23, 41
+    src = rng.random((h, w)).astype(np.float32) * 255
+    dst = rng.random((h, w)).astype(np.float32) * 255
+    u = rng.integers(-4, w + 4, 150)
+    v = rng.integers(-4, h + 4, 150)
+    disps = np.array([7, 0, 30, 2, 45, 1], dtype=np.int64)
+    for pattern in (PATCH_5X5, PATTERN_DSO8.astype(np.int64)):
+        ref = _zssd_per_sample(src, dst, u, v, pattern, sign * disps)
+        assert np.isinf(ref).any() and np.isfinite(ref).any()
+        np.testing.assert_array_equal(_integer_search(src, dst, u, v, pattern, disps, sign), ref)

@@ -104,32 +104,39 @@ def zssd_costs(dst, u, v, pu, pv, src_c, s_ll, disparities, sign):
     v[n] + pv)`` for every ``d`` of ``disparities``:
     ``s_ll - 2 sum src_c R + sum R^2 - (sum R)^2 / P``, clamped at 0; ``inf`` where a pattern
     sample leaves ``dst``. The sums run over the pattern in order, in float64, as the numpy form
-    accumulated them, so the costs are the same to the bit.
+    accumulated them, so the costs are the same to the bit. Whether a candidate's pattern stays
+    inside is decided once from the pattern's extent, not per sample.
     """
     h, w = dst.shape
     n = u.shape[0]
     d_count = disparities.shape[0]
     p = pu.shape[0]
     cost = np.full((n, d_count), np.inf)
+    if p == 0:
+        return cost
+    pu_min, pu_max, pv_min, pv_max = pu.min(), pu.max(), pv.min(), pv.max()
+    offsets = np.empty(p, dtype=np.int64)  # a sample's flat index minus the candidate's column
+    src = np.empty(p)
+    flat = dst.ravel()
     for i in range(n):
+        if v[i] + pv_min < 0 or v[i] + pv_max > h - 1:
+            continue  # every candidate's pattern leaves the image
+        for k in range(p):
+            offsets[k] = (v[i] + pv[k]) * w + pu[k]
+            src[k] = np.float64(src_c[i, k])
         for j in range(d_count):
             base = u[i] + sign * disparities[j]
-            inside = True
+            if base + pu_min < 0 or base + pu_max > w - 1:
+                continue
             s_lr = 0.0
             s_r = 0.0
             s_rr = 0.0
             for k in range(p):
-                x = base + pu[k]
-                y = v[i] + pv[k]
-                if x < 0 or x > w - 1 or y < 0 or y > h - 1:
-                    inside = False
-                    break
-                r = np.float64(dst[y, x])
-                s_lr += np.float64(src_c[i, k]) * r
+                r = np.float64(flat[offsets[k] + base])
+                s_lr += src[k] * r
                 s_r += r
                 s_rr += r * r
-            if inside:
-                cost[i, j] = max(np.float64(s_ll[i]) - 2.0 * s_lr + s_rr - s_r * s_r / p, 0.0)
+            cost[i, j] = max(np.float64(s_ll[i]) - 2.0 * s_lr + s_rr - s_r * s_r / p, 0.0)
     return cost
 
 
