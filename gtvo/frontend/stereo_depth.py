@@ -152,8 +152,8 @@ def _sample_with_gradient_x(image: NDArray[np.float32], u: NDArray, v: NDArray) 
     v = np.asarray(v, dtype=np.float64)
     if min(image.shape) < 2 or u.shape != v.shape:  # the numpy form (it raises as it did)
         return bilinear_sample(np.dstack([image, image_gradients(image)[0]]), u, v)
-    vals, ok = bilinear_with_gradient_x(np.ascontiguousarray(image, dtype=np.float32), np.ascontiguousarray(u).reshape(-1),
-                                        np.ascontiguousarray(v).reshape(-1))
+    vals, ok = bilinear_with_gradient_x(np.ascontiguousarray(image, dtype=np.float32),
+                                        np.ascontiguousarray(u).reshape(-1), np.ascontiguousarray(v).reshape(-1))
     return vals.reshape(u.shape + (2,)), ok.reshape(u.shape)
 
 
