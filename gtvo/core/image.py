@@ -56,9 +56,16 @@ def to_uint8(image: NDArray, name: str = "image") -> NDArray[np.uint8]:
 
 
 def downsample(image: NDArray) -> FloatImage:
-    """Halve an image by 2x2 block averaging (DSO's pyramid); odd last rows/columns are dropped."""
+    """Halve an image by 2x2 block averaging (DSO's pyramid); odd last rows/columns are dropped.
+
+    One compiled pass (:func:`_downsample_loop`) for a 2-D image, the float32 values of the numpy
+    form ``0.25 * (img[0::2, 0::2] + img[1::2, 0::2] + img[0::2, 1::2] + img[1::2, 1::2])``
+    (the sums in that order), which other shapes keep.
+    """
     img = np.asarray(image, dtype=np.float32)
     h, w = (img.shape[0] // 2) * 2, (img.shape[1] // 2) * 2
+    if img.ndim == 2:
+        return _downsample_loop(img, h // 2, w // 2)
     img = img[:h, :w]
     return 0.25 * (img[0::2, 0::2] + img[1::2, 0::2] + img[0::2, 1::2] + img[1::2, 1::2])
 
@@ -169,3 +176,16 @@ def _bilinear_loop(stack, u, v, border):
             v11 = stack[y0 + 1, x0 + 1, ch]
             out[k, ch] = (1 - ay) * ((1 - ax) * v00 + ax * v01) + ay * ((1 - ax) * v10 + ax * v11)
     return out, valid
+
+
+@jit
+def _downsample_loop(img, h2, w2):
+    """:func:`downsample` of a 2-D float32 image to (h2, w2): ``((a + b) + c) + d`` times 0.25 in
+    float32, ``a, b`` the left column of a 2x2 block (top, bottom), ``c, d`` its right one."""
+    out = np.empty((h2, w2), dtype=np.float32)
+    quarter = np.float32(0.25)
+    for y in range(h2):
+        for x in range(w2):
+            out[y, x] = quarter * (((img[2 * y, 2 * x] + img[2 * y + 1, 2 * x]) + img[2 * y, 2 * x + 1])
+                                   + img[2 * y + 1, 2 * x + 1])
+    return out
