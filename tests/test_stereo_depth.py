@@ -407,13 +407,13 @@ def test_gradients_at_points_equal_image_gradients(shape):
     """The search's left gradients at the pattern pixels, computed there only: image_gradients'
     values gathered (0 outside the image), borders and corners included."""
     from gtvo.core.image import image_gradients  # noqa: PLC0415
-    from gtvo.frontend.stereo_depth import _gradients_at  # noqa: PLC0415
+    from gtvo.frontend._compiled import gradients_at  # noqa: PLC0415
 
     rng = np.random.default_rng(sum(shape))
     img = (rng.random(shape) * 255).astype(np.float32)
     h, w = shape
     v, u = np.meshgrid(np.arange(-2, h + 2), np.arange(-2, w + 2), indexing="ij")
-    got = _gradients_at(img, u, v)
+    got = [g.reshape(u.shape) for g in gradients_at(img, u.reshape(-1), v.reshape(-1))]
     for g, ref in zip(got, image_gradients(img)):
         expected, _ = _gather_integer(ref, u, v)
         assert g.dtype == expected.dtype and np.array_equal(g, expected)

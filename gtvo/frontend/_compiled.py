@@ -7,6 +7,7 @@
 * :func:`gradient_norm`: the point selection's gradient magnitude in one pass;
 * :func:`bilinear_with_gradient_x`: the stereo refinement's samples of the right image and its x
   gradient, the gradient computed at the sampled corners only;
+* :func:`gradients_at`: the left image's gradients at the stereo patterns' pixels only;
 * :func:`zssd_costs`: the integer epipolar search of :mod:`gtvo.frontend.stereo_depth` (every
   candidate disparity's zero-mean SSD); the numpy form gathered a strip per point and made a
   pass over points x candidates per pattern pixel;
@@ -308,6 +309,25 @@ def gradient_norm(img):
                 gy = _gy(img, y, x)
                 out[y, x] = np.sqrt(gx * gx + gy * gy)
     return out
+
+
+@jit
+def gradients_at(img, u, v):
+    """``image_gradients`` ``(gx, gy)`` (float32 (M,) each) of a float32 image (H, W) at the integer
+    positions ``(u, v)`` (M,), 0 outside the image (and along an axis of length 1): the same float32
+    central differences, one-sided at the borders, computed only where asked."""
+    h, w = img.shape
+    m = u.shape[0]
+    gx = np.zeros(m, dtype=np.float32)
+    gy = np.zeros(m, dtype=np.float32)
+    for k in range(m):
+        x, y = u[k], v[k]
+        if 0 <= x < w and 0 <= y < h:
+            if w >= 2:
+                gx[k] = _gx(img, y, x)
+            if h >= 2:
+                gy[k] = _gy(img, y, x)
+    return gx, gy
 
 
 @jit

@@ -37,7 +37,7 @@ from factors.photometric import DEFAULT_CLIP_RANGE, PATTERN_DSO8
 from gtvo.core.camera import StereoCamera
 from gtvo.core.timing import timed
 from gtvo.errors import InputError, show
-from gtvo.frontend._compiled import bilinear_with_gradient_x, zssd_costs
+from gtvo.frontend._compiled import bilinear_with_gradient_x, gradients_at, zssd_costs
 from gtvo.frontend.point_selection import DEFAULT_BORDER, PointSelectionConfig, select_points
 from gtvo.core.image import bilinear_sample, check_same_size, image_gradients, to_float_gray
 from gtvo.frontend.stereo_types import (DEFAULT_STEREO_SEARCH, KeyframePoints, Rejection, StereoDepthResult,
@@ -129,25 +129,9 @@ def _gather_integer(image: NDArray, u: NDArray, v: NDArray) -> tuple[NDArray, ND
     return np.where(ok, image.reshape(-1)[idx], 0.0), ok
 
 
-def _gradients_at(image: NDArray[np.float32], u: NDArray, v: NDArray) -> tuple[NDArray, NDArray]:
-    """:func:`gtvo.core.image.image_gradients` ``(gx, gy)`` of ``image`` (H, W >= 2) at integer
-    positions (any equal shapes), 0 outside: the same float32 central differences (one-sided at
-    the borders), computed only where asked instead of over the whole image."""
-    h, w = image.shape
-    ok = (u >= 0) & (u <= w - 1) & (v >= 0) & (v <= h - 1)
-    uu, vv = np.where(ok, u, 0), np.where(ok, v, 0)
-    half = np.float32(0.5)
-    gx = image[vv, np.minimum(uu + 1, w - 1)] - image[vv, np.maximum(uu - 1, 0)]
-    gy = image[np.minimum(vv + 1, h - 1), uu] - image[np.maximum(vv - 1, 0), uu]
-    gx = np.where((uu > 0) & (uu < w - 1), half * gx, gx)
-    gy = np.where((vv > 0) & (vv < h - 1), half * gy, gy)
-    return np.where(ok, gx, 0.0), np.where(ok, gy, 0.0)
-
-
 def _sample_with_gradient_x(image: NDArray[np.float32], u: NDArray, v: NDArray) -> tuple[NDArray, NDArray]:
-    """``bilinear_sample(np.dstack([image, gx]), u, v)`` (``gx``: :func:`gtvo.core.image.image_gradients`'
-    x gradient) without the full-image gradient and stack
-    (:func:`gtvo.frontend._compiled.bilinear_with_gradient_x`): values ``u.shape + (2,)`` and validity."""
+    """``bilinear_sample(np.dstack([image, image_gradients(image)[0]]), u, v)`` without making the
+    gradient or the stack (:func:`gtvo.frontend._compiled.bilinear_with_gradient_x`)."""
     u = np.asarray(u, dtype=np.float64)
     v = np.asarray(v, dtype=np.float64)
     if min(image.shape) < 2 or u.shape != v.shape:  # the numpy form (it raises as it did)
@@ -262,7 +246,8 @@ def stereo_inverse_depth(left: NDArray, right: NDArray, stereo_camera: StereoCam
     left_vals, left_ok = _gather_integer(left_f, lu, lv)
     inside = left_ok.all(axis=1)
     rej[~inside] = Rejection.OUTSIDE
-    gx_p, gy_p = _gradients_at(left_f, lu, lv)  # image_gradients(left_f) at the pattern pixels
+    # image_gradients(left_f) at the pattern pixels only, 0 outside
+    gx_p, gy_p = (g.reshape(lu.shape) for g in gradients_at(left_f, lu.reshape(-1), lv.reshape(-1)))
 
     # --- 1. integer epipolar search ---------------------------------------------------------
     cost = _integer_search(left_f, right_f, u, v, pat, disps, sign=-1)
