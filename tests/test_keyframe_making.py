@@ -118,3 +118,23 @@ def test_large_steps_optimise_every_keyframe(shared_data):
     one, two = _run(seq, 1), _run(seq, 2)
     assert len(two.window_results) == len(one.window_results) == len(seq) - 1
     assert all(np.array_equal(a.T_world_cam, b.T_world_cam) for a, b in zip(one.estimates, two.estimates))
+
+
+def test_a_keyframe_without_a_tracked_pyramid_builds_one_for_window_and_tracker(forward, monkeypatch):
+    """The first keyframe (no tracking made its pyramid) builds the pyramid once: the window
+    keyframe's left image is its level 0, not a second full-size GradientImage."""
+    from factors.photometric import GradientImage  # noqa: PLC0415
+
+    full = []
+    init = GradientImage.__init__
+
+    def counted(self, image, *args, **kwargs):
+        if np.shape(image) == forward.camera.left.shape:
+            full.append(np.shape(image))
+        init(self, image, *args, **kwargs)
+
+    monkeypatch.setattr(GradientImage, "__init__", counted)
+    vo = VisualOdometry(forward.camera, OdometryConfig(mode="window", window=WindowConfig(covariances=False)))
+    vo.process(next(iter(forward)))
+    assert len(vo.keyframes) == 1
+    assert len(full) == 2  # the left image's level 0 and the right image

@@ -23,7 +23,7 @@ from gtvo.frontend import KeyframePoints, init_keyframe_points
 from gtvo.frontend.stereo_depth import stereo_inverse_depth
 from gtvo.core.image import to_float_gray
 from gtvo.datasets.sequence import Frame
-from gtvo.frontend.tracking import TrackingKeyframe
+from gtvo.frontend.tracking import TrackingKeyframe, frame_pyramid
 from gtvo.frontend.stereo_affine import estimate_stereo_affine
 from gtvo.frontend.rgbd import rgbd_keyframe_points
 from gtvo.frontend.rig_offset import correct_right_image, estimate_vertical_offset
@@ -90,6 +90,9 @@ class KeyframeMaking:
             raise TooFewPoints(f"frame {frame.index}: only {len(pts)} points with a valid depth; "
                                 "the images may be blank or the stereo calibration wrong")
         if self.window is not None:
+            if pyramid is None:  # one pyramid for the window keyframe's image and the tracker (no tracking made it)
+                with stage("keyframe_setup"):
+                    pyramid = frame_pyramid(left, self.config.tracking.levels, self.config.tracking.clip_range)
             T_world_cam, pts = self._window_update(frame, left, T_world_cam, pts, tracked, pyramid)
         with stage("keyframe_setup"):  # the new keyframe's tracker: its pyramid with gradients (or the frame's)
             tracker = TrackingKeyframe(self.pinhole, left, pts.pixels, pts.inverse_depth, pts.variance, (0.0, 0.0),
