@@ -304,3 +304,18 @@ def test_compiled_block_medians_mirror_partial_blocks_as_np_pad(shape, block):
     nby, nbx = padded.shape[0] // block, padded.shape[1] // block
     cells = padded.reshape(nby, block, nbx, block).transpose(0, 2, 1, 3).reshape(nby, nbx, block * block)
     assert np.array_equal(block_medians(g, block), np.median(cells, axis=-1))
+
+
+def test_compiled_block_medians_of_blocks_with_nan_or_infinity_are_np_median():
+    """A NaN makes the block's median NaN and infinities are ordered values, as np.median has them
+    (never an index out of the histogram)."""
+    rng = np.random.default_rng(3)
+    for block in (3, 8):
+        g = rng.exponential(5.0, (4 * block, 5 * block)).astype(np.float32)
+        g[0, 0] = np.nan
+        g[block, block + 1] = -np.nan
+        g[2 * block:3 * block, :2 * block] = np.inf  # a whole block (and half of the next) infinite
+        g[3 * block + 1, 3 * block] = -np.inf
+        g[3 * block + 2, 4 * block] = np.inf
+        cells = g.reshape(4, block, 5, block).transpose(0, 2, 1, 3).reshape(4, 5, block * block)
+        assert np.array_equal(block_medians(g, block), np.median(cells, axis=-1), equal_nan=True)

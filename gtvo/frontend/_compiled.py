@@ -143,9 +143,9 @@ def zssd_costs(dst, u, v, pu, pv, src_c, s_ll, disparities, sign):
 
 @jit
 def _value_range(vals, m):
-    """``(min, max)`` of the float32 values ``vals[:m]``: from their int32 bit patterns when all are
-    ``>= +0.0`` and none is NaN (the patterns are ordered as the floats then, and an integer
-    reduction vectorises: gradient magnitudes), else by float comparisons."""
+    """``(min, max)`` of the float32 values ``vals[:m]`` (``(nan, nan)`` when one is NaN): from their
+    int32 bit patterns when all are ``>= +0.0`` and none is NaN (the patterns are ordered as the
+    floats then, and an integer reduction vectorises: gradient magnitudes), else by comparisons."""
     keys = vals[:m].view(np.int32)
     kmin = keys[0]
     kmax = kmin
@@ -163,6 +163,8 @@ def _value_range(vals, m):
     vmax = vmin
     for i in range(m):
         v = vals[i]
+        if np.isnan(v):
+            return v, v
         if v < vmin:
             vmin = v
         if v > vmax:
@@ -175,13 +177,17 @@ def _middle_values(vals, m, lo, hi, hist, bins):
     """The values of ranks ``lo <= hi`` (0-based, ascending) among the float32 ``vals[:m]``
     (reordered in place), exactly: a 256-bin histogram between the min and the max locates the bins
     of the two ranks, their values are kept and the step repeats on them while more than 32 remain
-    (equal values end it at once); the rest are sorted. ``hist`` (2, 257) and ``bins`` (m,) are
-    work arrays (two interleaved histograms: consecutive increments of one bin do not wait for
-    each other)."""
-    while m > 32:
+    (equal values end it at once); the rest are sorted (so are values with an infinity). NaN for
+    both when a value is NaN (``np.median``'s). ``hist`` (2, 257) and ``bins`` (m,) are work arrays
+    (two interleaved histograms: consecutive increments of one bin do not wait for each other)."""
+    while True:
         vmin, vmax = _value_range(vals, m)
+        if np.isnan(vmin):
+            return vmin, vmin
         if vmax == vmin:
             return vmin, vmin
+        if m <= 32 or not (np.isfinite(vmin) and np.isfinite(vmax)):
+            break
         scale = 256.0 / (float(vmax) - float(vmin))
         fmin = float(vmin)
         for i in range(m):
