@@ -95,29 +95,20 @@ def accumulate_target(J_host, J_affine_host, J_target, J_affine_target, weight, 
 
 
 @jit
-def accumulate_pair(J_host, J_affine_host, B, gain, valid, weight, residual, J_depth):
-    """:func:`accumulate_target`'s sums (same outputs, same block order) from the host Jacobians alone.
-
-    A photometric residual depends on the two poses only through ``T_target_host``, so its target
-    pose Jacobian is its host pose Jacobian mapped by a matrix of the pair (``-Ad^-T``,
-    ``J_target = J_host B^T`` with ``B = -[[R, [t]x R], [0, R]]`` of ``T_target_host = (R, t)``,
-    :func:`factors.host_points.target_jacobian_map`), and its affine Jacobians are ``(hb, gain)``
-    (host) and ``(-hb, -1)`` (target) with ``hb = J_affine_host[..., 0]``. So ``J = T K`` with
-    the per-residual ``K = [J_host, hb, 1]`` (8 values; without affines, ``J_affine_host`` of
-    shape (0, P, 2), the 6 of ``J_host``) and a (16, 8) map ``T`` of the pair: the loop sums
-    ``w K K^T`` (36 products per residual instead of 136), ``w K r`` and per point ``w j K``, then
-    maps them by ``T``. Only ``valid`` residuals count (the others' Jacobians are zero, but
-    ``K``'s constant 1 is not). The sums are scalar locals, which numba keeps in registers (an array
-    accumulator is stored on every update: 2.5x slower). Equal to :func:`accumulate_target` up to
-    round-off (tested); ``J_target`` is not needed.
-    """
+def _gram8(J6, J2, weight, residual, J_depth, per_point):
+    """The scalar sums under :func:`accumulate_pair` and :func:`target_normal_equations`: with the
+    per-residual ``K = [J6, J2]`` (8 values; 6 and two zeros when ``J2`` has 0 rows),
+    ``HK = sum w K K^T`` (8, 8), ``gK = sum w K r`` and, with ``per_point``, per point
+    ``HpdK = sum_P w j K`` (N, 8), ``H_dd = sum_P w j^2``, ``g_d = sum_P w j r`` (``j = J_depth``;
+    else those three are empty). The sums are scalar locals, which numba keeps in registers (an
+    array accumulator is stored on every update: 2.5x slower). Residuals whose Jacobians are zero
+    (invalid) add nothing whatever their weight."""
     n, p = residual.shape
-    aff = J_affine_host.shape[0] == n and n > 0
-    kk = 8 if aff else 6
-    one = 1.0 if aff else 0.0
-    HpdK = np.zeros((n, 8))
-    H_dd = np.zeros(n)
-    g_d = np.zeros(n)
+    aff = J2.shape[0] == n and n > 0
+    m_pt = n if per_point else 0
+    HpdK = np.zeros((m_pt, 8))
+    H_dd = np.zeros(m_pt)
+    g_d = np.zeros(m_pt)
     h00 = h01 = h02 = h03 = h04 = h05 = h06 = h07 = 0.0
     h11 = h12 = h13 = h14 = h15 = h16 = h17 = 0.0
     h22 = h23 = h24 = h25 = h26 = h27 = 0.0
@@ -131,145 +122,12 @@ def accumulate_pair(J_host, J_affine_host, B, gain, valid, weight, residual, J_d
         hd = gd = 0.0
         q0 = q1 = q2 = q3 = q4 = q5 = q6 = q7 = 0.0
         for m in range(p):
-            if not valid[i, m]:
-                continue
             w = weight[i, m]
             r = residual[i, m]
-            jd = J_depth[i, m]
-            k0, k1, k2 = J_host[i, m, 0], J_host[i, m, 1], J_host[i, m, 2]
-            k3, k4, k5 = J_host[i, m, 3], J_host[i, m, 4], J_host[i, m, 5]
-            k6 = J_affine_host[i, m, 0] if aff else 0.0
-            k7 = one
-            w0 = w * k0
-            w1 = w * k1
-            w2 = w * k2
-            w3 = w * k3
-            w4 = w * k4
-            w5 = w * k5
-            w6 = w * k6
-            w7 = w * k7
-            g0 += w0 * r
-            q0 += w0 * jd
-            h00 += w0 * k0; h01 += w0 * k1; h02 += w0 * k2; h03 += w0 * k3
-            h04 += w0 * k4; h05 += w0 * k5; h06 += w0 * k6; h07 += w0 * k7
-            g1 += w1 * r
-            q1 += w1 * jd
-            h11 += w1 * k1; h12 += w1 * k2; h13 += w1 * k3; h14 += w1 * k4
-            h15 += w1 * k5; h16 += w1 * k6; h17 += w1 * k7
-            g2 += w2 * r
-            q2 += w2 * jd
-            h22 += w2 * k2; h23 += w2 * k3; h24 += w2 * k4; h25 += w2 * k5; h26 += w2 * k6; h27 += w2 * k7
-            g3 += w3 * r
-            q3 += w3 * jd
-            h33 += w3 * k3; h34 += w3 * k4; h35 += w3 * k5; h36 += w3 * k6; h37 += w3 * k7
-            g4 += w4 * r
-            q4 += w4 * jd
-            h44 += w4 * k4; h45 += w4 * k5; h46 += w4 * k6; h47 += w4 * k7
-            g5 += w5 * r
-            q5 += w5 * jd
-            h55 += w5 * k5; h56 += w5 * k6; h57 += w5 * k7
-            g6 += w6 * r
-            q6 += w6 * jd
-            h66 += w6 * k6; h67 += w6 * k7
-            g7 += w7 * r
-            q7 += w7 * jd
-            h77 += w7 * k7
-            hd += w * jd * jd
-            gd += w * jd * r
-        HpdK[i, 0], HpdK[i, 1], HpdK[i, 2], HpdK[i, 3] = q0, q1, q2, q3
-        HpdK[i, 4], HpdK[i, 5], HpdK[i, 6], HpdK[i, 7] = q4, q5, q6, q7
-        H_dd[i] = hd
-        g_d[i] = gd
-    HK = np.empty((8, 8))  # upper triangle from the sums, then mirrored
-    HK[0, 0:] = (h00, h01, h02, h03, h04, h05, h06, h07)
-    HK[1, 1:] = (h11, h12, h13, h14, h15, h16, h17)
-    HK[2, 2:] = (h22, h23, h24, h25, h26, h27)
-    HK[3, 3:] = (h33, h34, h35, h36, h37)
-    HK[4, 4:] = (h44, h45, h46, h47)
-    HK[5, 5:] = (h55, h56, h57)
-    HK[6, 6:] = (h66, h67)
-    HK[7, 7:] = (h77,)
-    for a in range(8):
-        for b in range(a):
-            HK[a, b] = HK[b, a]
-    gK = np.array([g0, g1, g2, g3, g4, g5, g6, g7])
-    # the map J = T K: host pose (identity), host affine (hb, gain), target pose (B), target affine (-hb, -1)
-    k = 16 if aff else 12
-    t_off = 8 if aff else 6
-    T = np.zeros((k, kk))
-    for c in range(6):
-        T[c, c] = 1.0
-        for j in range(6):
-            T[t_off + c, j] = B[c, j]
-    if aff:
-        T[6, 6] = 1.0
-        T[7, 7] = gain
-        T[14, 6] = -1.0
-        T[15, 7] = -1.0
-    TH = T @ np.ascontiguousarray(HK[:kk, :kk])
-    H = TH @ T.T
-    H = 0.5 * (H + H.T)
-    g = T @ np.ascontiguousarray(gK[:kk])
-    H_pd = np.ascontiguousarray(HpdK[:, :kk]) @ T.T
-    return H, g, H_pd, H_dd, g_d
-
-
-@jit
-def add_pair_terms(J_host, J_affine_host, B, gain, valid, W, residual, J_depth, k, robust, cols,
-                   H, g, H_pd, H_dd, g_d, cost):
-    """One host-target pair's part of ``HostPoints.linearize``, in place: each point's Huber weight
-    and loss (:func:`point_huber` on ``W``), the pair's sums (:func:`accumulate_pair` with
-    ``W`` times the Huber weight) added to the caller's ``H[cols, cols]``, ``g[cols]``,
-    ``H_pd[:, cols]``, ``H_dd``, ``g_d``, and the losses to ``cost``. The numpy steps it fuses
-    (the weight product, the sums, five scattered additions) are the loop in
-    ``HostPoints.linearize`` that linearisations without the pair's pose take; tested equal."""
-    w, loss = point_huber(W, residual, k, robust)
-    n, p = residual.shape
-    weight = np.empty((n, p))
-    for i in range(n):
-        for m in range(p):
-            weight[i, m] = W[i, m] * w[i]
-    Ht, gt, Hpdt, Hddt, gdt = accumulate_pair(J_host, J_affine_host, B, gain, valid, weight, residual, J_depth)
-    kc = cols.shape[0]
-    for a in range(kc):
-        g[cols[a]] += gt[a]
-        for b in range(kc):
-            H[cols[a], cols[b]] += Ht[a, b]
-    for i in range(n):
-        for a in range(kc):
-            H_pd[i, cols[a]] += Hpdt[i, a]
-        H_dd[i] += Hddt[i]
-        g_d[i] += gdt[i]
-        cost[i] += loss[i]
-
-
-@jit
-def target_normal_equations(J_target, J_affine_target, weight, residual):
-    """The Gauss-Newton normal equations of a frame's pose (and affine) alone, the tracker's:
-    ``A = sum w J^T J``, ``b = sum w J^T r`` with ``J = [J_target, J_affine_target]`` per residual
-    (8 columns; 6 without affines, ``J_affine_target`` of shape (0, P, 2)). The numpy form
-    (concatenate, weight, two products) made four temporaries per evaluation; the sums are scalar
-    locals here, as in :func:`accumulate_pair`. Equal to the numpy products up to round-off (tested)."""
-    n, p = residual.shape
-    aff = J_affine_target.shape[0] == n and n > 0
-    k = 8 if aff else 6
-    h00 = h01 = h02 = h03 = h04 = h05 = h06 = h07 = 0.0
-    h11 = h12 = h13 = h14 = h15 = h16 = h17 = 0.0
-    h22 = h23 = h24 = h25 = h26 = h27 = 0.0
-    h33 = h34 = h35 = h36 = h37 = 0.0
-    h44 = h45 = h46 = h47 = 0.0
-    h55 = h56 = h57 = 0.0
-    h66 = h67 = 0.0
-    h77 = 0.0
-    g0 = g1 = g2 = g3 = g4 = g5 = g6 = g7 = 0.0
-    for i in range(n):
-        for m in range(p):
-            w = weight[i, m]
-            r = residual[i, m]
-            k0, k1, k2 = J_target[i, m, 0], J_target[i, m, 1], J_target[i, m, 2]
-            k3, k4, k5 = J_target[i, m, 3], J_target[i, m, 4], J_target[i, m, 5]
-            k6 = J_affine_target[i, m, 0] if aff else 0.0
-            k7 = J_affine_target[i, m, 1] if aff else 0.0
+            k0, k1, k2 = J6[i, m, 0], J6[i, m, 1], J6[i, m, 2]
+            k3, k4, k5 = J6[i, m, 3], J6[i, m, 4], J6[i, m, 5]
+            k6 = J2[i, m, 0] if aff else 0.0
+            k7 = J2[i, m, 1] if aff else 0.0
             w0 = w * k0
             w1 = w * k1
             w2 = w * k2
@@ -301,17 +159,111 @@ def target_normal_equations(J_target, J_affine_target, weight, residual):
             h67 += w6 * k7
             g7 += w7 * r
             h77 += w7 * k7
-    A = np.empty((8, 8))  # upper triangle from the sums, then mirrored
-    A[0, 0:] = (h00, h01, h02, h03, h04, h05, h06, h07)
-    A[1, 1:] = (h11, h12, h13, h14, h15, h16, h17)
-    A[2, 2:] = (h22, h23, h24, h25, h26, h27)
-    A[3, 3:] = (h33, h34, h35, h36, h37)
-    A[4, 4:] = (h44, h45, h46, h47)
-    A[5, 5:] = (h55, h56, h57)
-    A[6, 6:] = (h66, h67)
-    A[7, 7:] = (h77,)
+            if per_point:
+                jd = J_depth[i, m]
+                q0 += w0 * jd; q1 += w1 * jd; q2 += w2 * jd; q3 += w3 * jd
+                q4 += w4 * jd; q5 += w5 * jd; q6 += w6 * jd; q7 += w7 * jd
+                hd += w * jd * jd
+                gd += w * jd * r
+        if per_point:
+            HpdK[i, 0], HpdK[i, 1], HpdK[i, 2], HpdK[i, 3] = q0, q1, q2, q3
+            HpdK[i, 4], HpdK[i, 5], HpdK[i, 6], HpdK[i, 7] = q4, q5, q6, q7
+            H_dd[i] = hd
+            g_d[i] = gd
+    HK = np.empty((8, 8))  # upper triangle from the sums, then mirrored
+    HK[0, 0:] = (h00, h01, h02, h03, h04, h05, h06, h07)
+    HK[1, 1:] = (h11, h12, h13, h14, h15, h16, h17)
+    HK[2, 2:] = (h22, h23, h24, h25, h26, h27)
+    HK[3, 3:] = (h33, h34, h35, h36, h37)
+    HK[4, 4:] = (h44, h45, h46, h47)
+    HK[5, 5:] = (h55, h56, h57)
+    HK[6, 6:] = (h66, h67)
+    HK[7, 7:] = (h77,)
     for a in range(8):
         for b in range(a):
-            A[a, b] = A[b, a]
-    b_out = np.array([g0, g1, g2, g3, g4, g5, g6, g7])
-    return np.ascontiguousarray(A[:k, :k]), np.ascontiguousarray(b_out[:k])
+            HK[a, b] = HK[b, a]
+    gK = np.array([g0, g1, g2, g3, g4, g5, g6, g7])
+    return HK, gK, HpdK, H_dd, g_d
+
+
+@jit
+def accumulate_pair(J_host, J_affine_host, B, gain, weight, residual, J_depth):
+    """:func:`accumulate_target`'s sums (same outputs, same block order) from the host Jacobians alone.
+
+    A photometric residual depends on the two poses only through ``T_target_host``, so its target
+    pose Jacobian is its host pose Jacobian mapped by a matrix of the pair (``-Ad^-T``,
+    ``J_target = J_host B^T`` with ``B = -[[R, [t]x R], [0, R]]`` of ``T_target_host = (R, t)``,
+    :func:`factors.host_points.target_jacobian_map`), and its affine Jacobians are
+    ``J_affine_host = (hb, gain)`` and ``J_affine_target = (-hb, -1) = -(J_affine_host[0],
+    J_affine_host[1] / gain)`` (zero where invalid, as all Jacobians). So ``J = T K`` with the
+    per-residual ``K = [J_host, J_affine_host]`` (8 values; without affines, ``J_affine_host`` of
+    shape (0, P, 2), the 6 of ``J_host``) and a (16, 8) map ``T`` of the pair: :func:`_gram8`
+    sums ``w K K^T`` (36 products per residual instead of 136), ``w K r`` and per point ``w j K``,
+    then the sums are mapped by ``T``. Equal to :func:`accumulate_target` up to round-off
+    (tested); ``J_target`` is not needed.
+    """
+    n = residual.shape[0]
+    aff = J_affine_host.shape[0] == n and n > 0
+    kk = 8 if aff else 6
+    HK, gK, HpdK, H_dd, g_d = _gram8(J_host, J_affine_host, weight, residual, J_depth, True)
+    # the map J = T K: host pose and affine (identity), target pose (B), target affine (-1, -1 / gain)
+    k = 16 if aff else 12
+    t_off = 8 if aff else 6
+    T = np.zeros((k, kk))
+    for c in range(6):
+        T[c, c] = 1.0
+        for j in range(6):
+            T[t_off + c, j] = B[c, j]
+    if aff:
+        T[6, 6] = 1.0
+        T[7, 7] = 1.0
+        T[14, 6] = -1.0
+        T[15, 7] = -1.0 / gain
+    TH = T @ np.ascontiguousarray(HK[:kk, :kk])
+    H = TH @ T.T
+    H = 0.5 * (H + H.T)
+    g = T @ np.ascontiguousarray(gK[:kk])
+    H_pd = np.ascontiguousarray(HpdK[:, :kk]) @ T.T
+    return H, g, H_pd, H_dd, g_d
+
+
+@jit
+def add_pair_terms(J_host, J_affine_host, B, gain, W, residual, J_depth, k, robust, cols,
+                   H, g, H_pd, H_dd, g_d, cost):
+    """One host-target pair's part of ``HostPoints.linearize``, in place: each point's Huber weight
+    and loss (:func:`point_huber` on ``W``), the pair's sums (:func:`accumulate_pair` with
+    ``W`` times the Huber weight) added to the caller's ``H[cols, cols]``, ``g[cols]``,
+    ``H_pd[:, cols]``, ``H_dd``, ``g_d``, and the losses to ``cost``. The numpy steps it fuses
+    (the weight product, the sums, five scattered additions) are the loop in
+    ``HostPoints.linearize`` that linearisations without the pair's pose take; tested equal."""
+    w, loss = point_huber(W, residual, k, robust)
+    n, p = residual.shape
+    weight = np.empty((n, p))
+    for i in range(n):
+        for m in range(p):
+            weight[i, m] = W[i, m] * w[i]
+    Ht, gt, Hpdt, Hddt, gdt = accumulate_pair(J_host, J_affine_host, B, gain, weight, residual, J_depth)
+    kc = cols.shape[0]
+    for a in range(kc):
+        g[cols[a]] += gt[a]
+        for b in range(kc):
+            H[cols[a], cols[b]] += Ht[a, b]
+    for i in range(n):
+        for a in range(kc):
+            H_pd[i, cols[a]] += Hpdt[i, a]
+        H_dd[i] += Hddt[i]
+        g_d[i] += gdt[i]
+        cost[i] += loss[i]
+
+
+@jit
+def target_normal_equations(J_target, J_affine_target, weight, residual):
+    """The Gauss-Newton normal equations of a frame's pose (and affine) alone, the tracker's:
+    ``A = sum w J^T J``, ``b = sum w J^T r`` with ``J = [J_target, J_affine_target]`` per residual
+    (8 columns; 6 without affines, ``J_affine_target`` of shape (0, P, 2)): :func:`_gram8`'s
+    sums (the numpy form, concatenate, weight and two products, made four temporaries per
+    evaluation). Equal to the numpy products up to round-off (tested)."""
+    n = residual.shape[0]
+    k = 8 if (J_affine_target.shape[0] == n and n > 0) else 6
+    HK, gK, _, _, _ = _gram8(J_target, J_affine_target, weight, residual, residual, False)
+    return np.ascontiguousarray(HK[:k, :k]), np.ascontiguousarray(gK[:k])

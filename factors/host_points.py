@@ -84,8 +84,7 @@ def gauss_newton_sums(lin: PhotometricLinearization, weight: ArrayLike, with_aff
     if pair:
         return _compiled_sums.accumulate_pair(np.ascontiguousarray(lin.J_host), ah,
                                               target_jacobian_map(lin.T_target_host), float(lin.brightness_gain),
-                                              np.ascontiguousarray(lin.valid), w, np.ascontiguousarray(lin.residual),
-                                              np.ascontiguousarray(lin.J_depth))
+                                              w, np.ascontiguousarray(lin.residual), np.ascontiguousarray(lin.J_depth))
     at = np.ascontiguousarray(lin.J_affine_target) if with_affine else ah
     return _compiled_sums.accumulate_target(np.ascontiguousarray(lin.J_host), ah, np.ascontiguousarray(lin.J_target),
                                             at, w, np.ascontiguousarray(lin.residual),
@@ -344,7 +343,7 @@ class HostPoints:
                                      f"{W.shape} for residuals {lin.residual.shape} (with_affine={self.with_affine})")
                 _compiled_sums.add_pair_terms(
                     lin.J_host, lin.J_affine_host if self.with_affine else _NO_AFFINE,
-                    target_jacobian_map(lin.T_target_host), float(lin.brightness_gain), lin.valid, W, lin.residual,
+                    target_jacobian_map(lin.T_target_host), float(lin.brightness_gain), W, lin.residual,
                     lin.J_depth, 0.0 if self.huber_k is None else float(self.huber_k), self.huber_k is not None,
                     cols, H, g, H_pd, H_dd, g_d, c)
                 continue
