@@ -152,6 +152,19 @@ def check_same_size(a: NDArray, b: NDArray, what: str) -> None:
 
 
 @jit
+def bilinear_cell(u, v, w, h, border):
+    """The bilinear cell of ``(u, v)`` in a (h, w) image under :func:`bilinear_sample`'s validity
+    rule (finite, within ``border`` of no edge): ``(valid, x0, y0, ax, ay)``, the cell's top-left
+    corner and the fractions (compiled; shared by the compiled samplers)."""
+    if not (np.isfinite(u) and np.isfinite(v) and u >= border and u <= w - 1 - border
+            and v >= border and v <= h - 1 - border):
+        return False, 0, 0, 0.0, 0.0
+    x0 = max(min(int(np.floor(u)), w - 2), 0)
+    y0 = max(min(int(np.floor(v)), h - 2), 0)
+    return True, x0, y0, u - x0, v - y0
+
+
+@jit
 def _bilinear_loop(stack, u, v, border):
     """:func:`bilinear_sample`'s numpy form as one loop over the samples of a (H, W, C) float32
     stack: the same validity rule and the same float64 arithmetic, in the same order."""
@@ -160,15 +173,10 @@ def _bilinear_loop(stack, u, v, border):
     out = np.zeros((m, c))
     valid = np.zeros(m, dtype=np.bool_)
     for k in range(m):
-        uk, vk = u[k], v[k]
-        if not (np.isfinite(uk) and np.isfinite(vk) and uk >= border and uk <= w - 1 - border
-                and vk >= border and vk <= h - 1 - border):
+        ok, x0, y0, ax, ay = bilinear_cell(u[k], v[k], w, h, border)
+        if not ok:
             continue
         valid[k] = True
-        x0 = max(min(int(np.floor(uk)), w - 2), 0)
-        y0 = max(min(int(np.floor(vk)), h - 2), 0)
-        ax = uk - x0
-        ay = vk - y0
         for ch in range(c):
             v00 = stack[y0, x0, ch]
             v01 = stack[y0, x0 + 1, ch]

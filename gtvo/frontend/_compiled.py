@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from gtvo.core.image import bilinear_cell
 from gtvo.core.jit import jit
 
 
@@ -348,15 +349,10 @@ def bilinear_with_gradient_x(img, u, v):
     out = np.zeros((m, 2))
     valid = np.zeros(m, dtype=np.bool_)
     for k in range(m):
-        uk, vk = u[k], v[k]
-        if not (np.isfinite(uk) and np.isfinite(vk) and uk >= 0.0 and uk <= w - 1 - 0.0
-                and vk >= 0.0 and vk <= h - 1 - 0.0):
+        ok, x0, y0, ax, ay = bilinear_cell(u[k], v[k], w, h, 0.0)
+        if not ok:
             continue
         valid[k] = True
-        x0 = max(min(int(np.floor(uk)), w - 2), 0)
-        y0 = max(min(int(np.floor(vk)), h - 2), 0)
-        ax = uk - x0
-        ay = vk - y0
         v00, v01, v10, v11 = img[y0, x0], img[y0, x0 + 1], img[y0 + 1, x0], img[y0 + 1, x0 + 1]
         out[k, 0] = (1 - ay) * ((1 - ax) * v00 + ax * v01) + ay * ((1 - ax) * v10 + ax * v11)
         v00, v01 = _gx(img, y0, x0), _gx(img, y0, x0 + 1)
