@@ -36,6 +36,7 @@ from factors.photometric import (GradientImage, GradientSampler, PhotometricLine
                                  pattern_bearings, photometric_residuals, put_rows, sample_host, stereo_residuals)
 from factors.weights import point_robust_terms, variance_weight
 from gtvo.core.camera import PinholeCamera
+from gtvo.core.lie import se3_adjoint
 from gtvo.core.timing import timed
 from gtvo.errors import InputError
 
@@ -67,7 +68,7 @@ def gauss_newton_sums(lin: PhotometricLinearization, weight: ArrayLike, with_aff
             ``host_jacobians=False``), or no target Jacobians and no pair pose to map them by,
             or ``weight`` has the wrong shape.
     """
-    pair = lin.T_target_host is not None and lin.brightness_gain is not None
+    pair = lin.has_pair_pose
     if lin.J_host is None or (lin.J_target is None and not pair):
         raise InputError("gauss_newton_sums needs a linearisation with host and target Jacobians (or host "
                          "Jacobians and the pair's relative pose)")
@@ -121,12 +122,7 @@ def target_jacobian_map(T_target_host: ArrayLike) -> FloatArray:
     against the kernels' own ``J_target``)."""
     T = np.asarray(T_target_host, dtype=float)
     R, t = T[:3, :3], T[:3, 3]
-    tx = np.array([[0.0, -t[2], t[1]], [t[2], 0.0, -t[0]], [-t[1], t[0], 0.0]])
-    B = np.zeros((6, 6))
-    B[:3, :3] = -R
-    B[:3, 3:] = -tx @ R
-    B[3:, 3:] = -R
-    return B
+    return -se3_adjoint(R.T, -R.T @ t).T  # Ad^-1 is the adjoint of the inverse pose
 
 
 def keep_cheaper_depths(d: FloatArray, c: FloatArray, lins: list, rows: NDArray[np.intp], d_old: FloatArray,
@@ -335,7 +331,7 @@ class HostPoints:
 
         for t, cols in enumerate(columns):
             lin, W = lins[t], Ws[t]
-            if lin.T_target_host is not None and lin.brightness_gain is not None and lin.J_host is not None:
+            if lin.has_pair_pose and lin.J_host is not None:
                 # the loop below as one compiled call (the pair's sums from the host Jacobians); it
                 # indexes without bounds checks, so the shapes are checked here
                 if len(cols) != (16 if self.with_affine else 12) or W.shape != lin.residual.shape:

@@ -211,6 +211,11 @@ class PhotometricLinearization:
     T_target_host: FloatArray | None = None
     brightness_gain: float | None = None
 
+    @property
+    def has_pair_pose(self) -> bool:
+        """``T_target_host`` and the gain are known: the target's Jacobians follow from the host's."""
+        return self.T_target_host is not None and self.brightness_gain is not None
+
 
 def put_rows(lin: PhotometricLinearization, rows: NDArray[np.intp], other: PhotometricLinearization,
              other_rows: NDArray[np.intp] | None = None) -> PhotometricLinearization:

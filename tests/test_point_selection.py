@@ -90,11 +90,17 @@ def test_nan_image_raises():
         select_points(img)
 
 
-def test_kitti_frame_spread(shared_data):
+def _kitti_left(shared_data, name: str) -> np.ndarray:
+    """A left image of KITTI_sequence_1, grey (skips without OpenCV)."""
     cv2 = pytest.importorskip("cv2")
-    path = shared_data / "kitti_stereo_sample" / "KITTI_sequence_1" / "image_l" / "000000.png"
+    path = shared_data / "kitti_stereo_sample" / "KITTI_sequence_1" / "image_l" / name
     img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
     assert img is not None, path
+    return img
+
+
+def test_kitti_frame_spread(shared_data):
+    img = _kitti_left(shared_data, "000000.png")
     px = select_points(img, target=2000)
     assert 1800 <= len(px) <= 2000
     h, w = img.shape
@@ -195,10 +201,7 @@ def test_compiled_gradient_magnitude_equals_the_numpy_form(shape, kind):
 
 @pytest.mark.realdata
 def test_compiled_gradient_magnitude_equals_the_numpy_form_on_kitti(shared_data):
-    cv2 = pytest.importorskip("cv2")
-    path = shared_data / "kitti_stereo_sample" / "KITTI_sequence_1" / "image_l" / "000010.png"
-    img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-    assert img is not None, path
+    img = _kitti_left(shared_data, "000010.png")
     assert np.array_equal(gradient_magnitude(img), _magnitude_numpy(img))
 
 
@@ -206,10 +209,7 @@ def test_compiled_gradient_magnitude_equals_the_numpy_form_on_kitti(shared_data)
 @pytest.mark.parametrize("cell", [7, 38, 45])
 def test_compiled_cell_pick_equals_the_numpy_rule_on_kitti(shared_data, cell):
     """pick_cells on a KITTI frame (the cell sizes of a 300- and a 2000-point selection)."""
-    cv2 = pytest.importorskip("cv2")
-    path = shared_data / "kitti_stereo_sample" / "KITTI_sequence_1" / "image_l" / "000020.png"
-    img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-    assert img is not None, path
+    img = _kitti_left(shared_data, "000020.png")
     score = gradient_magnitude(img)
     thr = block_gradient_thresholds(score)
     eligible = np.zeros(score.shape, dtype=bool)
@@ -273,23 +273,15 @@ def test_compiled_smoothing_skips_nan_medians_as_nanmean():
 
 @pytest.mark.realdata
 def test_compiled_thresholds_equal_the_numpy_form_on_kitti(shared_data):
-    cv2 = pytest.importorskip("cv2")
     for name in ("000000.png", "000030.png"):
-        path = shared_data / "kitti_stereo_sample" / "KITTI_sequence_1" / "image_l" / name
-        img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-        assert img is not None, path
-        g = gradient_magnitude(img)
+        g = gradient_magnitude(_kitti_left(shared_data, name))
         assert np.array_equal(block_gradient_thresholds(g), _thresholds_numpy(g, 32, 7.0))
 
 
 @pytest.mark.realdata
 def test_compiled_block_medians_equal_numpy_median_on_kitti(shared_data):
-    cv2 = pytest.importorskip("cv2")
     for name in ("000000.png", "000040.png"):
-        path = shared_data / "kitti_stereo_sample" / "KITTI_sequence_1" / "image_l" / name
-        img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-        assert img is not None, path
-        g = gradient_magnitude(img)[:352, :1216]  # 11 x 38 blocks of 32
+        g = gradient_magnitude(_kitti_left(shared_data, name))[:352, :1216]  # 11 x 38 blocks of 32
         cells = g.reshape(11, 32, 38, 32).transpose(0, 2, 1, 3).reshape(11, 38, 32 * 32)
         assert np.array_equal(block_medians(np.ascontiguousarray(g), 32), np.median(cells, axis=-1))
 
