@@ -9,7 +9,7 @@ The default run is ``gtvo run``'s: ``OdometryConfig()`` (window mode, GTSAM wind
 preloaded frames of KITTI_sequence_1 (images decoded before the clock starts). ``--solver`` sets
 the tracker's and the window's solver together, as the CLI's ``--solver``. Every run starts from a
 fresh ``VisualOdometry`` after one warm-up run on the first frames (numba's compiled kernels
-loaded), and the stages are the library's own always-on clock (``VisualOdometry.stage_seconds``,
+loaded), and the stages are the library's own always-on clock (``VisualOdometry.clock``,
 :mod:`gtvo.core.timing`; what each stage covers: docs/evaluation.md, "Where a frame's time goes").
 With ``--repeat N`` every figure is the median over N runs (each stage's median on its own, so the
 stages' sum may differ a little from the frame's median). "opened per frame": how often the stage
@@ -101,7 +101,7 @@ def run_once(camera: Any, frames: list, config: OdometryConfig, timed: bool = Tr
     vo.finish()  # the keyframes still waiting for the window (WindowConfig.optimize_every > 1)
     seconds = timer() - t0
     n = len(frames)
-    stages = {k: 1000.0 * v / n for k, v in vo.stage_seconds.items()}
+    stages = {k: 1000.0 * v / n for k, v in vo.clock.snapshot().items()}
     calls = {} if vo.clock is None else {k: c / n for k, c in vo.clock.entries.items()}
     iterations = [r.iterations for r in vo.window_results]
     return {"frame_ms": 1000.0 * seconds / n, "stage_ms": stages, "keyframes": len(vo.keyframes),

@@ -89,8 +89,8 @@ def run_gtvo(camera: Any, frames: list[Frame], config: Any, record_predictions: 
     times = np.empty(len(frames))
     predictions: dict[int, np.ndarray] = {}
     for k, frame in enumerate(frames):
-        if record_predictions and vo.estimates and hasattr(vo, "_predict"):
-            predictions[k] = np.asarray(vo._predict(frame.timestamp).matrix())
+        if record_predictions and vo.estimates:
+            predictions[k] = np.asarray(vo.motion.predict(frame.timestamp).matrix())
         t0 = time.perf_counter()
         vo.process(frame)
         if k == len(frames) - 1:

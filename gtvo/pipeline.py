@@ -56,7 +56,7 @@ def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progre
     vo = VisualOdometry(seq.camera, config)
     observers = list(observers)
     for o in observers:
-        o.on_start(seq, vo)
+        o.on_start(seq, config)
     warn = warn or (lambda msg: print(f"warning: {msg}", file=sys.stderr))
     skipped: list[tuple[int, str]] = []
     bar = None
@@ -81,8 +81,10 @@ def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progre
                 warn(f"skipping frame {i}: {exc}")
                 continue
             estimate = vo.process(frame)
-            for o in observers:
-                o.on_frame(frame, estimate, vo)
+            if observers:
+                view = vo.view()
+                for o in observers:
+                    o.on_frame(frame, estimate, view)
             if bar is not None:
                 bar.set_postfix(kf=len(vo.keyframes), fail=vo.failures,
                                 **({"win": len(vo.window_results)} if config.mode == "window" else {}))
@@ -102,7 +104,7 @@ def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progre
         "frames_per_second": n / seconds if seconds > 0 else None,
         "tracking_failures": vo.failures,
         "reinitialisations": sum(1 for e in vo.estimates if e.reinitialised),
-        "flow_recoveries": vo.flow_recoveries,
+        "flow_recoveries": vo.tracker.flow_recoveries,
         "lost_frames": vo.lost_frames,
         "suspect_frames": sum(1 for e in vo.estimates if e.suspect),
         "skipped_frames": [i for i, _ in skipped],
@@ -130,8 +132,10 @@ def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progre
     info.update(stage_report(vo))
     info["covariances"] = ("not computed (--no-covariances)" if config.mode == "window" and not config.window.covariances
                            else "not computed (track mode: no window)" if config.mode != "window" else "computed")
-    for o in observers:
-        o.on_finish(vo, traj, info)
+    if observers:
+        view = vo.view()
+        for o in observers:
+            o.on_finish(view, traj, info)
     return vo, traj, info
 
 
@@ -220,7 +224,7 @@ def stage_report(vo: VisualOdometry) -> dict[str, Any]:
     ``seconds_by_stage`` (the run's seconds in each stage of :data:`gtvo.core.timing.FRAME_STAGES`,
     an open stage's time so far included) and ``ms_per_frame_by_stage`` (the same per processed
     frame, ms); empty when the run was not timed (``vo.clock`` None) or processed no frame."""
-    seconds = vo.stage_seconds
+    seconds = {} if vo.clock is None else vo.clock.snapshot()
     if not seconds or not vo.estimates:
         return {}
     return {"seconds_by_stage": seconds, "ms_per_frame_by_stage": per_frame_ms(seconds, len(vo.estimates))}

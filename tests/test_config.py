@@ -323,7 +323,7 @@ def test_kalman_settings_reach_the_filter():
     mm = MotionModelConfig(model="kalman", kalman_noise=MotionNoise(accel_sigmas=(3.0, 3.0, 1.0)),
                            kalman_initial_rate_sigmas=(2.0, 2.0, 0.25))
     vo = VisualOdometry(seq.camera, OdometryConfig(motion_model=mm))
-    assert vo._kalman.noise.accel_sigmas == (3.0, 3.0, 1.0)
-    assert vo._kalman.initial_rate_sigmas == (2.0, 2.0, 0.25)
+    assert vo.motion.kalman.noise.accel_sigmas == (3.0, 3.0, 1.0)
+    assert vo.motion.kalman.initial_rate_sigmas == (2.0, 2.0, 0.25)
     with pytest.raises(InputError, match="key 'motion_model.kalman_initial_rate_sigmas': must be > 0"):
         config_from_dict({"motion_model": {"kalman_initial_rate_sigmas": [1, 1, 0]}})

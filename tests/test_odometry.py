@@ -43,7 +43,7 @@ def _run(seq, config: OdometryConfig) -> VisualOdometry:
 @pytest.mark.parametrize("solver", ["handrolled", "gtsam"])
 def test_flow_fallback_tracks_large_steps_from_rest(kitti_5hz, solver):
     vo = _run(kitti_5hz, OdometryConfig(mode="track", solver=solver))
-    assert vo.failures == 0 and vo.flow_recoveries >= 1
+    assert vo.failures == 0 and vo.tracker.flow_recoveries >= 1
     assert all(e.tracking is not None and e.tracking.success for e in vo.estimates[1:])
     P, G = vo.trajectory().poses, kitti_5hz.gt_poses
     steps_est = np.linalg.norm(np.diff(P[:, :3, 3], axis=0), axis=1)
@@ -55,7 +55,7 @@ def test_flow_fallback_tracks_large_steps_from_rest(kitti_5hz, solver):
 @pytest.mark.realdata
 def test_without_the_fallback_the_first_large_step_is_lost(kitti_5hz):
     vo = _run(kitti_5hz, OdometryConfig(mode="track", flow_fallback=None))
-    assert vo.failures >= 1 and vo.flow_recoveries == 0
+    assert vo.failures >= 1 and vo.tracker.flow_recoveries == 0
     assert vo.estimates[1].reinitialised
 
 

@@ -97,7 +97,7 @@ def test_map_points_leave_out_points_at_infinity_and_count_them(window_vo):
     try:
         kf.points = dataclasses.replace(old, inverse_depth=d)
         after = vo.map_points()
-        raw, _ = vo.point_cloud()
+        raw, _ = vo.keyframer.point_cloud()
     finally:
         kf.points = old
     assert np.max(np.linalg.norm(raw, axis=1)) > 1e9  # the unfiltered cloud holds them

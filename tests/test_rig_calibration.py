@@ -159,7 +159,7 @@ def test_marginal_prior_carries_the_rig_offset(seq):
     for solver in ("gtsam", "handrolled"):
         cfg = WindowConfig(size=2, max_iterations=20, relative_tolerance=1e-12, huber_k=None)
         w = SlidingWindowOptimizer(cam.left, cam.baseline, cfg, rig_offset=np.zeros(2))
-        w.rig_x_estimated = True  # delta_x free from the start: no hold, no test (the same problem for both)
+        w.rig.x_estimated = True  # delta_x free from the start: no hold, no test (the same problem for both)
         for k in copy.deepcopy(kfs):
             w.add_keyframe(k)
             w.optimize(solver)
@@ -168,7 +168,7 @@ def test_marginal_prior_carries_the_rig_offset(seq):
         i = w.marginal.keys.index(rig_offset_key())
         off = sum(w.marginal.dims[:i])
         assert np.linalg.eigvalsh(w.marginal.H[off:off + 2, off:off + 2]).min() > 1.0 / cfg.rig_offset_sigma ** 2
-        ends[solver] = w.rig_offset.copy()
+        ends[solver] = w.rig.offset.copy()
         cov = w.rig_offset_covariance()
         assert cov.shape == (2, 2) and np.all(np.diag(cov) > 0)
     np.testing.assert_allclose(ends["gtsam"], ends["handrolled"], atol=5e-3)
@@ -215,15 +215,15 @@ def test_odometry_estimates_a_vertical_offset_and_off_switch(seq):
     seen = []
     for i in range(8):
         vo.process(shifted.frame(i))
-        seen.append(None if vo.rig_offset is None else vo.rig_offset.copy())
-    assert vo.rig_initial is not None and vo.rig_initial.delta_y == pytest.approx(1.0, abs=0.25)
-    assert vo.rig_offset[1] == pytest.approx(1.0, abs=0.05)
+        seen.append(None if vo.window.rig is None else vo.window.rig.offset.copy())
+    assert vo.window.rig.initial is not None and vo.window.rig.initial.delta_y == pytest.approx(1.0, abs=0.25)
+    assert vo.window.rig.offset[1] == pytest.approx(1.0, abs=0.05)
     assert all(s is not None for s in seen)  # exposed as the run goes
     off = VisualOdometry(seq.camera, OdometryConfig(points_per_keyframe=200,
                                                     window=WindowConfig(rig_calibration=False)))
     for i in range(3):
         off.process(seq.frame(i))
-    assert off.rig_offset is None and off.window.rig_offset is None
+    assert off.window.rig is None
     assert all(r.rig_offset is None for r in off.window_results)
 
 
@@ -258,9 +258,9 @@ def test_rig_warning_only_for_a_large_clear_offset():
 
 def test_rgbd_and_track_mode_have_no_rig_variable(seq):
     """RGB-D input (no baseline) and the track mode keep today's path: no rig offset anywhere."""
-    assert VisualOdometry(seq.camera.left).rig_offset is None
-    assert VisualOdometry(seq.camera, OdometryConfig(mode="track")).rig_offset is None
-    assert VisualOdometry(seq.camera, OdometryConfig(window=WindowConfig(backend="fixed_lag"))).rig_offset is None
+    assert VisualOdometry(seq.camera.left).keyframer.rig is None
+    assert VisualOdometry(seq.camera, OdometryConfig(mode="track")).keyframer.rig is None
+    assert VisualOdometry(seq.camera, OdometryConfig(window=WindowConfig(backend="fixed_lag"))).keyframer.rig is None
 
 
 def test_report_has_the_offset_and_the_scale(seq, tmp_path):
@@ -279,7 +279,7 @@ def test_report_has_the_offset_and_the_scale(seq, tmp_path):
     assert saved["rig_offset_sigma_px"][0] is None and saved["rig_offset_sigma_px"][1] > 0
     # the reported sigma is the marginal one with the method's measured error in quadrature: never
     # below either (the marginal sigma alone is 10-30x below the real error, docs/window.md)
-    from gtvo.odometry.rig_report import METHOD_SIGMA_PX
+    from gtvo.window.rig import RIG_METHOD_SIGMA as METHOD_SIGMA_PX
 
     marginal = saved["rig_offset_marginal_sigma_px"]
     assert marginal[0] is None and 0 < marginal[1] < saved["rig_offset_sigma_px"][1]
@@ -302,15 +302,15 @@ def test_delta_x_is_held_until_the_data_put_it_clearly_away(seq):
         for k in copy.deepcopy(kfs[:2]):
             w.add_keyframe(k)
         w.optimize(solver)
-        assert w.rig_offset[0] == pytest.approx(1.0, abs=1e-4)
-        assert w.rig_offset[1] == pytest.approx(1.0, abs=0.1)
-        assert not w.rig_x_estimated and w.rig_x_test is None
+        assert w.rig.offset[0] == pytest.approx(1.0, abs=1e-4)
+        assert w.rig.offset[1] == pytest.approx(1.0, abs=0.1)
+        assert not w.rig.x_estimated and w.rig.x_test is None
         w.add_keyframe(copy.deepcopy(kfs[2]))
         w.optimize(solver)
-        assert w.rig_x_estimated and w.rig_x_test is not None
+        assert w.rig.x_estimated and w.rig.x_test is not None
         # the data pull it away from 1.0 (a window of 3 synthetic keyframes is a weak case: it may
         # overshoot the truth, docs/window.md); released, the window moves it
-        assert w.rig_x_test[0] < 0.5 and w.rig_offset[0] < 0.5, (w.rig_x_test, w.rig_offset)
+        assert w.rig.x_test[0] < 0.5 and w.rig.offset[0] < 0.5, (w.rig.x_test, w.rig.offset)
 
 
 def test_delta_x_stays_held_when_its_test_fails(seq, monkeypatch):
@@ -325,7 +325,7 @@ def test_delta_x_stays_held_when_its_test_fails(seq, monkeypatch):
 
     def not_significant(self):
         calls.append(len(self.keyframes))
-        return (self.rig_x_start + 0.01, 0.02)
+        return (self.rig.x_start + 0.01, 0.02)
 
     for solver in ("gtsam", "handrolled"):
         w = SlidingWindowOptimizer(cam.left, cam.baseline, WindowConfig(size=3, max_iterations=10),
@@ -345,10 +345,10 @@ def test_delta_x_stays_held_when_its_test_fails(seq, monkeypatch):
             w.optimize(solver)
         monkeypatch.undo()
         assert w.marginal is not None and rig_offset_key() in w.marginal.keys
-        assert not w.rig_x_estimated and w.rig_x_test == (0.01, 0.02)
+        assert not w.rig.x_estimated and w.rig.x_test == (0.01, 0.02)
         assert calls == [3]  # windows 3, 4, 5 are full: tested at the first, next at the 4th full one
-        assert w.rig_offset[0] == pytest.approx(0.0, abs=1e-3)
-        assert w.rig_offset[1] == pytest.approx(1.0, abs=0.1)
+        assert w.rig.offset[0] == pytest.approx(0.0, abs=1e-3)
+        assert w.rig.offset[1] == pytest.approx(1.0, abs=0.1)
 
 
 def test_window_depths_are_searched_again_once_delta_x_is_estimated(monkeypatch):
@@ -356,24 +356,24 @@ def test_window_depths_are_searched_again_once_delta_x_is_estimated(monkeypatch)
     with delta_x = 0) are searched again against the right image corrected by the estimate, once;
     a point whose new search matches takes its result, and the window is optimised again."""
     from gtvo.frontend.stereo_depth import stereo_inverse_depth
-    from gtvo.odometry.keyframe_making import KeyframeMaking
+    from gtvo.odometry.keyframer import Keyframer
     from gtvo.pipeline import process_sequence
 
     seq = shift_right_images(make_synthetic_sequence(24, width=240, height=180, step_m=0.15), (2.0, 0.0))
     calls = []
-    original = KeyframeMaking._reinitialise_window_depths
+    original = Keyframer._research_window_depths
 
-    def spy(self):
+    def spy(self, rig):
         before = {w.index: w.inverse_depth.copy() for w in self.window.keyframes}
         n_results = len(self.window.results)
-        original(self)
-        calls.append((self.rig_offset.copy(), before, {w.index: (w, w.inverse_depth.copy()) for w in self.window.keyframes},
+        original(self, rig)
+        calls.append((rig.offset.copy(), before, {w.index: (w, w.inverse_depth.copy()) for w in self.window.keyframes},
                       n_results))
 
-    monkeypatch.setattr(KeyframeMaking, "_reinitialise_window_depths", spy)
+    monkeypatch.setattr(Keyframer, "_research_window_depths", spy)
     cfg = OdometryConfig(points_per_keyframe=200, window=WindowConfig(rig_calibration=True, size=4))
     vo, _, _ = process_sequence(seq, cfg, warn=lambda m: None)
-    assert len(calls) == 1 and vo.window.rig_x_estimated
+    assert len(calls) == 1 and vo.window.rig.x_estimated
     offset, before, after, n_results = calls[0]
     assert offset[0] > 1.0
     assert len(vo.window.results) > n_results  # optimised again after the new depths

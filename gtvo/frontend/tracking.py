@@ -40,7 +40,7 @@ from factors.weights import huber_loss, point_robust_terms, variance_weight
 from gtvo.core.keys import affine_key, pose_key
 from gtvo.errors import InputError
 
-from gtvo.frontend.tracking_types import (TrackingConfig, TrackingKeyframe, TrackingResult, frame_pyramid, largest_sigma,
+from gtvo.frontend.tracking_types import (PointResiduals, TrackingConfig, TrackingKeyframe, TrackingResult, frame_pyramid, largest_sigma,
                                           pose_covariance)
 
 __all__ = ["AFFINE_KEY", "FRAME_KEY", "TrackingConfig", "TrackingKeyframe", "TrackingResult", "frame_pyramid",
@@ -66,6 +66,7 @@ class _Eval:
     n_pixels: int
     W: NDArray[np.float64]
     data_cost: float  # without the lost-pixel cost
+    lin: PhotometricLinearization  # the residuals it was computed from
 
 
 _IDENTITY = np.eye(4)  # the keyframe's own pose: the tracker works in its frame
@@ -113,7 +114,7 @@ def _evaluate(kf: TrackingKeyframe, level: int, target: GradientImage, T: gtsam.
     if with_normal_equations:
         A, b = target_normal_equations(lin, W * w[:, None], cfg.estimate_affine)
     return _Eval(cost, A, b, int(np.count_nonzero(point_valid)), n_out, int(np.count_nonzero(lin.valid)), W,
-                 data_cost)
+                 data_cost, lin)
 
 
 def _lost_pixel_loss(cfg: TrackingConfig) -> float:
@@ -208,7 +209,20 @@ def _finish(kf: TrackingKeyframe, target0: GradientImage, T: gtsam.Pose3, affine
         reason = (f"pose poorly constrained: rotation sigma {sigma_rot:.3g} deg > {cfg.max_rotation_sigma_deg} "
                   "(the images do not determine the rotation)")
     return TrackingResult(T, np.asarray(affine, dtype=float).copy(), ev.cost, initial_cost, iterations, ev.n_valid,
-                          ev.n_outliers, rms, reason == "", reason, cov)
+                          ev.n_outliers, rms, reason == "", reason, cov, _point_residuals(ev.lin, kf.level_index[0], kf.config.pattern))
+
+
+def _point_residuals(lin: PhotometricLinearization, index: NDArray[np.intp], pattern: ArrayLike) -> PointResiduals:
+    """Per point with a valid pattern pixel: where the frame sees it (its valid pattern pixels'
+    warps less their pattern offsets, averaged) and its RMS residual over them."""
+    n = lin.valid.sum(axis=1)
+    seen = n > 0
+    valid = lin.valid[seen]
+    count = n[seen, None]
+    centred = lin.uv_target[seen] - np.asarray(pattern, dtype=float)[None, :, :]
+    pixels = np.where(valid[:, :, None], centred, 0.0).sum(axis=1) / count
+    residual = np.sqrt(np.where(valid, np.square(lin.residual[seen]), 0.0).sum(axis=1) / count[:, 0])
+    return PointResiduals(np.asarray(index)[seen], pixels, residual)
 
 
 def _prepare(kf: TrackingKeyframe, frame: ArrayLike | list[GradientImage],

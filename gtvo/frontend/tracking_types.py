@@ -84,6 +84,22 @@ class TrackingConfig:
         check_settings(self)
 
 
+@dataclass(frozen=True)
+class PointResiduals:
+    """The tracker's photometric residuals at its solution (level 0), per keyframe point the frame sees.
+
+    Attributes:
+        index: (M,) the points' positions among the keyframe's points.
+        pixels: (M, 2) where the frame sees them (the mean of their valid pattern pixels' warps).
+        residual: (M,) the RMS over their valid pattern pixels of
+            ``r = I_frame(w) - b - exp(a - a_kf) (I_kf - b_kf)`` (grey levels, before weights).
+    """
+
+    index: NDArray[np.intp]
+    pixels: NDArray[np.float64]
+    residual: NDArray[np.float64]
+
+
 @dataclass
 class TrackingResult:
     """Outcome of tracking one frame against a keyframe.
@@ -106,6 +122,8 @@ class TrackingResult:
             level's optimisation froze and Huber's at the solution; residuals whitened by
             ``sigma_intensity``, so it is as good as that noise model). All infinite where the
             Hessian is singular.
+        residuals: the points' residuals at the solution (:class:`PointResiduals`), for viewers;
+            the odometry keeps them for the latest frame only.
     """
 
     T_keyframe_frame: gtsam.Pose3
@@ -119,6 +137,7 @@ class TrackingResult:
     success: bool
     reason: str = ""
     covariance: NDArray[np.float64] = field(default_factory=lambda: np.full((6, 6), np.inf))
+    residuals: PointResiduals | None = None
 
     @property
     def rotation_sigma_deg(self) -> float:

@@ -2,7 +2,8 @@
 once at the start, after every frame and once at the end (e.g.
 :class:`gtvo.io.rerun_log.RerunLogger`).
 
-An observer only reads: it must not change the odometry it is handed.
+Observers get data, not the system: each frame's :class:`gtvo.odometry.view.OdometryView`, made
+by the odometry (window poses and points, the rig offset, the tracker's residuals).
 """
 
 from __future__ import annotations
@@ -12,17 +13,18 @@ from typing import TYPE_CHECKING, Any, Protocol
 if TYPE_CHECKING:
     from gtvo.datasets.sequence import Frame, Sequence
     from gtvo.evaluation.trajectory import Trajectory
-    from gtvo.odometry import FrameEstimate, VisualOdometry
+    from gtvo.config import OdometryConfig
+    from gtvo.odometry import FrameEstimate, OdometryView
 
 
 class RunObserver(Protocol):
     """Called by the run loop; every method may be a no-op."""
 
-    def on_start(self, seq: "Sequence", vo: "VisualOdometry") -> None:
-        """Before the first frame: the sequence (camera, ground truth) and the odometry."""
+    def on_start(self, seq: "Sequence", config: "OdometryConfig") -> None:
+        """Before the first frame: the sequence (camera, ground truth) and the run's settings."""
 
-    def on_frame(self, frame: "Frame", estimate: "FrameEstimate", vo: "VisualOdometry") -> None:
-        """After ``vo.process(frame)`` returned ``estimate`` (``vo`` holds the keyframes and window)."""
+    def on_frame(self, frame: "Frame", estimate: "FrameEstimate", view: "OdometryView") -> None:
+        """After ``vo.process(frame)`` returned ``estimate``; ``view``: ``vo.view()``."""
 
-    def on_finish(self, vo: "VisualOdometry", trajectory: "Trajectory", info: dict[str, Any]) -> None:
-        """After the last frame, with the trajectory and the run's figures (``run_info``)."""
+    def on_finish(self, view: "OdometryView", trajectory: "Trajectory", info: dict[str, Any]) -> None:
+        """After the last frame (and ``vo.finish()``), with the trajectory and the run's figures."""

@@ -44,7 +44,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
-from gtvo.core.image import bilinear_sample, to_uint8
+from gtvo.core.image import to_uint8
 from gtvo.core.optional import require_rerun
 from gtvo.errors import InputError
 from gtvo.io.atomic import atomic_path
@@ -52,7 +52,8 @@ from gtvo.io.atomic import atomic_path
 if TYPE_CHECKING:
     from gtvo.datasets.sequence import Frame, Sequence
     from gtvo.evaluation.trajectory import Trajectory
-    from gtvo.odometry import FrameEstimate, Keyframe, VisualOdometry
+    from gtvo.config import OdometryConfig
+    from gtvo.odometry import FrameEstimate, OdometryView
 
 #: Times above this (s) are taken as Unix times (2001-09-09 onwards) and logged as dates.
 UNIX_TIME_THRESHOLD_S = 1e9
@@ -154,7 +155,7 @@ class RerunLogger:
         self.close(success=exc_type is None)
 
     # -- the observer ---------------------------------------------------------------------------
-    def on_start(self, seq: "Sequence", vo: "VisualOdometry") -> None:
+    def on_start(self, seq: "Sequence", config: "OdometryConfig") -> None:
         """Static data: view coordinates, the camera model; the timeline kind from the first time."""
         rr = self.rr
         self._seq = seq
@@ -165,25 +166,25 @@ class RerunLogger:
         self.rec.log("world/camera/image", rr.Pinhole(image_from_camera=cam.K, resolution=[cam.width, cam.height],
                                                       camera_xyz=rr.ViewCoordinates.RDF), static=True)
 
-    def on_frame(self, frame: "Frame", estimate: "FrameEstimate", vo: "VisualOdometry") -> None:
+    def on_frame(self, frame: "Frame", estimate: "FrameEstimate", view: "OdometryView") -> None:
         """The frame's camera, image, tracked points and plots; on a new keyframe the window,
         the map and the trajectory."""
         self._set_time(frame)
         self._log_camera(frame, estimate)
-        self._log_tracked(frame, estimate, vo)
-        self._log_plots(estimate, vo)
-        if len(vo.keyframes) != self._keyframe_count:
-            self._keyframe_count = len(vo.keyframes)
-            self._log_window(vo)
-            self._log_trajectory(vo)
+        self._log_tracked(view)
+        self._log_plots(estimate, view)
+        if view.keyframe_count != self._keyframe_count:
+            self._keyframe_count = view.keyframe_count
+            self._log_window(view)
+            self._log_trajectory(view)
         if not self._gt_logged and frame.gt_T_world_cam is not None:
             self._log_ground_truth(frame, estimate)
 
-    def on_finish(self, vo: "VisualOdometry", trajectory: "Trajectory", info: dict[str, Any]) -> None:
+    def on_finish(self, view: "OdometryView", trajectory: "Trajectory", info: dict[str, Any]) -> None:
         """The final trajectory and every keyframe's map points at the last frame (the recording
         is complete when :meth:`close` is called, or the ``with`` block ends)."""
-        self._log_trajectory(vo)
-        self._log_window(vo, every_keyframe=True)
+        self._log_trajectory(view)
+        self._log_window(view, every_keyframe=True)
 
     # -- what is logged -------------------------------------------------------------------------
     def _set_time(self, frame: "Frame") -> None:
@@ -201,20 +202,19 @@ class RerunLogger:
         self.rec.log("world/camera/image", image.compress(jpeg_quality=self.jpeg_quality)
                      if self.jpeg_quality is not None else image)
 
-    def _log_tracked(self, frame: "Frame", estimate: "FrameEstimate", vo: "VisualOdometry") -> None:
+    def _log_tracked(self, view: "OdometryView") -> None:
+        """The tracked points coloured by the residual the tracker computed at its solution."""
         rr = self.rr
-        tracked = tracked_point_residuals(frame, estimate, vo)
+        tracked = view.tracked
         if tracked is None:
             self.rec.log("world/camera/image/tracked", rr.Clear(recursive=False))
             self.rec.log("world/tracked", rr.Clear(recursive=False))
             return
-        uv, X_world, residual = tracked
-        scale = vo.config.tracking.huber_k * vo.config.tracking.sigma_intensity
-        colors = residual_colors(residual, scale)
-        self.rec.log("world/camera/image/tracked", rr.Points2D(uv, colors=colors, radii=2.0))
-        self.rec.log("world/tracked", rr.Points3D(X_world, colors=colors))
+        colors = residual_colors(tracked.residual, view.residual_scale)
+        self.rec.log("world/camera/image/tracked", rr.Points2D(tracked.pixels, colors=colors, radii=2.0))
+        self.rec.log("world/tracked", rr.Points3D(tracked.X_world, colors=colors))
 
-    def _log_plots(self, estimate: "FrameEstimate", vo: "VisualOdometry") -> None:
+    def _log_plots(self, estimate: "FrameEstimate", view: "OdometryView") -> None:
         rr = self.rr
         if estimate.tracking is not None:
             self.rec.log("plots/tracking/rms", rr.Scalars(float(estimate.tracking.rms)))
@@ -225,35 +225,31 @@ class RerunLogger:
             span = self._frame_clock[-1] - self._frame_clock[0]
             if span > 0:
                 self.rec.log("plots/frames_per_second", rr.Scalars((len(self._frame_clock) - 1) / span))
-        window = vo.window.keyframes if vo.window is not None else []
-        if window and window[-1].right is not None:
-            a, b = (float(x) for x in window[-1].stereo_affine)
+        if view.right_brightness is not None:
+            a, b = view.right_brightness
             self.rec.log("plots/rig/right_gain", rr.Scalars(float(np.exp(a))))
             self.rec.log("plots/rig/right_offset", rr.Scalars(b))
-        offset = getattr(vo, "rig_offset", None)  # the rig self-calibration's estimate (px), when it runs
-        if offset is not None:
-            self.rec.log("plots/rig/offset_x_px", rr.Scalars(float(offset[0])))
-            self.rec.log("plots/rig/offset_y_px", rr.Scalars(float(offset[1])))
+        if view.rig_offset is not None:  # the rig self-calibration's estimate (px), when it runs
+            self.rec.log("plots/rig/offset_x_px", rr.Scalars(float(view.rig_offset[0])))
+            self.rec.log("plots/rig/offset_y_px", rr.Scalars(float(view.rig_offset[1])))
 
-    def _log_window(self, vo: "VisualOdometry", every_keyframe: bool = False) -> None:
+    def _log_window(self, view: "OdometryView", every_keyframe: bool = False) -> None:
         rr = self.rr
-        keyframes = window_keyframes(vo)
-        if not keyframes:
+        if not view.window_indices:
             return
-        poses = np.stack([kf.T_world_cam.matrix() for kf in keyframes])
-        self.rec.log("world/window", rr.Points3D(poses[:, :3, 3], labels=[str(kf.index) for kf in keyframes],
+        poses = view.window_poses
+        self.rec.log("world/window", rr.Points3D(poses[:, :3, 3], labels=[str(i) for i in view.window_indices],
                                                  colors=[255, 160, 0], radii=rr.Radius.ui_points(6.0)))
-        axis = 0.5 * _step_length(vo)
+        axis = 0.5 * step_length(view.positions())
         self.rec.log("world/window/axes", rr.Arrows3D(origins=poses[:, :3, 3], vectors=axis * poses[:, :3, 2],
                                                       colors=[255, 160, 0]))
-        for kf in (vo.keyframes if every_keyframe else keyframes):
-            X, intensity = keyframe_points_world(vo, kf)
+        for index in (view.keyframe_indices() if every_keyframe else view.window_indices):
+            X, intensity = view.keyframe_points(index)
             grey = np.clip(np.rint(intensity), 0, 255).astype(np.uint8)
-            self.rec.log(f"world/map/kf_{kf.index:06d}", rr.Points3D(X, colors=np.repeat(grey[:, None], 3, axis=1)))
+            self.rec.log(f"world/map/kf_{index:06d}", rr.Points3D(X, colors=np.repeat(grey[:, None], 3, axis=1)))
 
-    def _log_trajectory(self, vo: "VisualOdometry") -> None:
-        positions = np.array([e.T_world_cam[:3, 3] for e in vo.estimates])
-        self.rec.log("world/trajectory/estimate", self.rr.LineStrips3D([positions], colors=[[40, 120, 255]]))
+    def _log_trajectory(self, view: "OdometryView") -> None:
+        self.rec.log("world/trajectory/estimate", self.rr.LineStrips3D([view.positions()], colors=[[40, 120, 255]]))
 
     def _log_ground_truth(self, frame: "Frame", estimate: "FrameEstimate") -> None:
         assert self._seq is not None and self._seq.gt_poses is not None and frame.gt_T_world_cam is not None
@@ -269,47 +265,6 @@ class RerunLogger:
 # ----------------------------------------------------------------------------------------------
 # what the plots are made of (no rerun needed)
 
-def window_keyframes(vo: "VisualOdometry") -> list["Keyframe"]:
-    """The keyframes of the window (window mode), else the latest keyframe, oldest first."""
-    if not vo.keyframes:
-        return []
-    if vo.window is None or not vo.window.keyframes:
-        return [vo.keyframes[-1]]
-    by_index = {kf.index: kf for kf in vo.keyframes}
-    return [by_index[w.index] for w in vo.window.keyframes if w.index in by_index]
-
-
-def keyframe_points_world(vo: "VisualOdometry", kf: "Keyframe") -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """A keyframe's points in the world (N, 3) with the current pose and depths, and their intensity."""
-    X = vo.pinhole.backproject_inverse_depth(kf.points.pixels, kf.points.inverse_depth)
-    T = kf.T_world_cam.matrix()
-    return X @ T[:3, :3].T + T[:3, 3], np.asarray(kf.points.intensity, dtype=np.float64)
-
-
-def tracked_point_residuals(frame: "Frame", estimate: "FrameEstimate", vo: "VisualOdometry"
-                            ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]] | None:
-    """``(uv, X_world, residual)`` of the points of the keyframe ``estimate`` was tracked against,
-    where the frame sees them: the pixel in the frame (N, 2), the point in the world (N, 3) and
-    the centre-pixel photometric residual ``I_frame(uv) - (exp(a) I_keyframe + b)`` (grey levels)
-    with the frame's tracked affine brightness ``(a, b)``. None when the frame was not tracked
-    (the first frame, a re-initialisation, a lost frame)."""
-    tracking = estimate.tracking
-    if tracking is None or not tracking.success or estimate.reinitialised or estimate.lost:
-        return None
-    kf = next((k for k in reversed(vo.keyframes) if k.index == estimate.keyframe_index), None)
-    if kf is None:
-        return None
-    X_kf = vo.pinhole.backproject_inverse_depth(kf.points.pixels, kf.points.inverse_depth)
-    T_frame_kf = np.linalg.inv(tracking.T_keyframe_frame.matrix())
-    uv, in_front = vo.pinhole.project(X_kf @ T_frame_kf[:3, :3].T + T_frame_kf[:3, 3])
-    values, inside = bilinear_sample(np.asarray(frame.left, dtype=np.float32), uv[:, 0], uv[:, 1])
-    ok = in_front & inside
-    a, b = (float(x) for x in tracking.affine)
-    residual = values[ok] - (np.exp(a) * np.asarray(kf.points.intensity)[ok] + b)
-    T_world_kf = kf.T_world_cam.matrix()
-    return uv[ok], X_kf[ok] @ T_world_kf[:3, :3].T + T_world_kf[:3, 3], residual
-
-
 def residual_colors(residual: NDArray[np.float64], scale: float) -> NDArray[np.uint8]:
     """RGB (N, 3): green for a zero residual, through yellow, to red at ``|residual| >= scale``."""
     s = np.clip(np.abs(np.asarray(residual, dtype=np.float64)) / scale, 0.0, 1.0)
@@ -317,11 +272,11 @@ def residual_colors(residual: NDArray[np.float64], scale: float) -> NDArray[np.u
     return np.rint(255 * rgb).astype(np.uint8)
 
 
-def _step_length(vo: "VisualOdometry") -> float:
-    """The median distance between consecutive frames (1 when unknown): the scale of the drawn axes."""
-    if len(vo.estimates) < 2:
+def step_length(positions: NDArray[np.float64]) -> float:
+    """The median distance between consecutive positions of the last 50 (1 when unknown): the
+    scale of the drawn axes."""
+    if len(positions) < 2:
         return 1.0
-    p = np.array([e.T_world_cam[:3, 3] for e in vo.estimates[-50:]])
-    steps = np.linalg.norm(np.diff(p, axis=0), axis=1)
+    steps = np.linalg.norm(np.diff(positions[-50:], axis=0), axis=1)
     median = float(np.median(steps))
     return median if median > 0 else 1.0

@@ -4,7 +4,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Literal, Protocol, Sequence
+from typing import TYPE_CHECKING, Literal, Protocol, Sequence
 
 import gtsam
 import numpy as np
@@ -16,6 +16,9 @@ from factors.photometric import PATTERN_DSO8, GradientImage
 from gtvo.core.camera import PinholeCamera
 from gtvo.core.settings import check_settings, setting
 from gtvo.errors import InputError, show
+
+if TYPE_CHECKING:
+    from gtvo.window.rig import RigOffset
 
 FloatArray = NDArray[np.float64]
 WindowSolverName = Literal["gtsam", "handrolled"]
@@ -245,3 +248,8 @@ class WindowState(Protocol):
     baseline: float | None
     config: WindowConfig
     keyframes: list[WindowKeyframe]
+    #: the rig offset's one owner (:class:`gtvo.window.rig.RigOffset`), None when not estimated
+    rig: "RigOffset | None"
+
+    def rig_x_free_estimate(self) -> tuple[float, float] | None:
+        """What the window's data say about ``delta_x`` while it is held: ``(estimate, marginal sigma)``."""

@@ -22,7 +22,8 @@ from gtvo.window.gtsam_solver import solve_gtsam
 from gtvo.window.handrolled import solve_handrolled, window_cost
 from gtvo.window.marginal import marginalize
 from gtvo.window.fixed_lag import FixedLagBackend
-from gtvo.window.problem import RIG_SIGNIFICANCE, build_graph, observation_counts, rig_honest_sigma, visible_targets
+from gtvo.window.problem import build_graph, observation_counts, visible_targets
+from gtvo.window.rig import RigOffset
 
 FloatArray = NDArray[np.float64]
 
@@ -47,23 +48,16 @@ class SlidingWindowOptimizer:
         self.camera = camera
         self.baseline = baseline
         self.config = config or WindowConfig()
-        #: the stereo rig's offset (delta_x, delta_y) (px), estimated by every optimisation when
-        #: given (its starting value; docs/window.md, "Rig calibration"), else None (rectified model)
-        self.rig_offset: FloatArray | None = None
+        #: the stereo rig's offset and its state (:class:`gtvo.window.rig.RigOffset`), estimated by
+        #: every optimisation when a ``rig_offset`` start is given (docs/window.md, "Rig
+        #: calibration"), else None (rectified model)
+        self.rig: RigOffset | None = None
         if rig_offset is not None:
             if baseline is None:
                 raise InputError("a rig offset needs a stereo window (a baseline)")
             if self.config.backend != "lm":
                 raise InputError("the rig offset is estimated by the 'lm' window backend only")
-            self.rig_offset = np.asarray(rig_offset, dtype=float).reshape(2).copy()
-        #: whether ``delta_x`` is estimated: it is held at its start value (:attr:`rig_x_start`)
-        #: until a full window's data put it significantly away from it (:meth:`LMBackend.optimize`)
-        self.rig_x_estimated = False
-        self.rig_x_start = 0.0 if self.rig_offset is None else float(self.rig_offset[0])
-        #: the last test of ``delta_x`` while held: ``(free estimate, its marginal sigma)`` px, None
-        #: before the window is first full; and the number of full windows solved with it held
-        self.rig_x_test: tuple[float, float] | None = None
-        self.rig_x_held_windows = 0
+            self.rig = RigOffset(rig_offset)
         self.keyframes: list[WindowKeyframe] = []
         self.n_removed = 0  # keyframes that left the window (not kept: they hold images)
         self.results: list[WindowResult] = []
@@ -100,7 +94,7 @@ class SlidingWindowOptimizer:
     def cost(self) -> float:
         """The window cost at the current state (W evaluated at this state)."""
         return window_cost(self.camera, self.baseline, self.keyframes, self.config, self.marginal,
-                           rig_offset=self.rig_offset)
+                           rig_offset=None if self.rig is None else self.rig.offset)
 
     def rig_offset_covariance(self) -> FloatArray | None:
         """The 2x2 marginal covariance (px^2) of the rig offset at the current state: the window's
@@ -115,13 +109,13 @@ class SlidingWindowOptimizer:
     def _rig_graph(self) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values] | None:
         """The window's graph and values at the current state with the rig offset a free variable,
         or None when it is not estimated (or no host factor exists yet)."""
-        if self.rig_offset is None or len(self.keyframes) < 2 or self.config.backend != "lm":
+        if self.rig is None or len(self.keyframes) < 2 or self.config.backend != "lm":
             return None
         targets = visible_targets(self.camera, self.keyframes, self.config)
         if not any(targets):
             return None
         graph, values, _ = build_graph(self.camera, self.baseline, self.keyframes, self.config, self.marginal, targets,
-                                       self.rig_offset)
+                                       self.rig.offset)
         return graph, values
 
     def rig_x_free_estimate(self) -> tuple[float, float] | None:
@@ -135,7 +129,8 @@ class SlidingWindowOptimizer:
         linear = graph.linearize(values)
         step = float(linear.optimize().at(rig_offset_key())[0])
         cov = gtsam.Marginals(linear, values).marginalCovariance(rig_offset_key())
-        return float(self.rig_offset[0]) + step, float(np.sqrt(max(cov[0, 0], 0.0)))
+        assert self.rig is not None
+        return float(self.rig.offset[0]) + step, float(np.sqrt(max(cov[0, 0], 0.0)))
 
     def optimize(self, solver: WindowSolverName = "gtsam") -> WindowResult | None:
         """Optimise the window (None when fewer than two keyframes); keyframes are updated in place.
@@ -188,7 +183,7 @@ class LMBackend:
         """Marginalise the oldest keyframe into :attr:`marginal` (or drop it, ``marginalize=False``)."""
         if window.config.marginalize:
             self.marginal = marginalize(window.camera, window.baseline, window.keyframes, window.config,
-                                        self.marginal, 0, getattr(window, "rig_offset", None))
+                                        self.marginal, 0, None if window.rig is None else window.rig.offset)
         return window.keyframes.pop(0)
 
     def optimize(self, window: WindowState, targets: list[list[int]],
@@ -197,39 +192,22 @@ class LMBackend:
         solve = {"gtsam": solve_gtsam, "handrolled": solve_handrolled}.get(solver)
         if solve is None:
             raise InputError(f"unknown window solver {solver!r}: use 'gtsam' or 'handrolled'")
-        rig = getattr(window, "rig_offset", None)
+        rig = window.rig
         # delta_x trades against the scale: it is held at its start value until a full window's data
-        # put it clearly away from it (docs/window.md, "Rig calibration": on a rectified rig,
-        # estimating it adds scale error; the marginalisation prior never holds the hold)
-        hold = None if rig is None or window.rig_x_estimated else window.rig_x_start  # type: ignore[attr-defined]
+        # put it clearly away from it (gtvo.window.rig; docs/window.md, "Rig calibration": on a
+        # rectified rig, estimating it adds scale error; the marginalisation prior never holds the hold)
+        hold = None if rig is None else rig.hold_x
         res = solve(window.camera, window.baseline, window.keyframes, window.config, self.marginal, targets,
-                    rig_offset=rig, rig_hold_x=hold)
+                    rig_offset=None if rig is None else rig.offset, rig_hold_x=hold)
         if rig is None or res.rig_offset is None:
             return res
-        window.rig_offset = res.rig_offset.copy()  # type: ignore[attr-defined]
+        rig.offset = res.rig_offset.copy()
         full = self.marginal is not None or len(window.keyframes) >= window.config.size
-        if hold is not None and full and self._rig_x_significant(window):
-            window.rig_x_estimated = True  # type: ignore[attr-defined]
+        if hold is not None and full and rig.test_release(window.config.size, window.rig_x_free_estimate):
             # solved again with delta_x free, from the held state (LM's damping, not the test's
             # linear step, decides how far it goes along the flat scale direction)
             res = solve(window.camera, window.baseline, window.keyframes, window.config, self.marginal, targets,
-                        rig_offset=window.rig_offset, rig_hold_x=None)  # type: ignore[attr-defined]
-            window.rig_offset = res.rig_offset.copy()  # type: ignore[attr-defined, union-attr]
+                        rig_offset=rig.offset, rig_hold_x=None)
+            assert res.rig_offset is not None
+            rig.offset = res.rig_offset.copy()
         return res
-
-    @staticmethod
-    def _rig_x_significant(window: WindowState) -> bool:
-        """Every ``config.size``-th full window solved with ``delta_x`` held (from the first), test it:
-        is the data's estimate (:meth:`SlidingWindowOptimizer.rig_x_free_estimate`, kept in
-        ``window.rig_x_test``) more than :data:`RIG_SIGNIFICANCE` error bars (:func:`rig_honest_sigma`)
-        from the start value?"""
-        n = window.rig_x_held_windows  # type: ignore[attr-defined]
-        window.rig_x_held_windows = n + 1  # type: ignore[attr-defined]
-        if n % window.config.size:
-            return False
-        test = window.rig_x_free_estimate()  # type: ignore[attr-defined]
-        if test is None:
-            return False
-        window.rig_x_test = test  # type: ignore[attr-defined]
-        estimate, sigma = test
-        return abs(estimate - window.rig_x_start) > RIG_SIGNIFICANCE * rig_honest_sigma(sigma, 0)  # type: ignore[attr-defined]

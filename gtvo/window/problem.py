@@ -62,23 +62,6 @@ def rig_carried(marginal: MarginalPrior | None) -> bool:
 RIG_HOLD_SIGMA = 1e-3
 
 
-#: The rig offset estimate's own error (px; delta_x, delta_y): what the marginal covariance does not
-#: see (it assumes independent residuals and an exact model). Measured on logs of known rig
-#: (docs/window.md, "Rig calibration", "Uncertainty"): the first full window's delta_x is off by
-#: -0.10 to +0.14 px (RMS about 0.09) on synthetic logs of exact rig and by +0.06 to +0.10 px on
-#: shifted KITTI_sequence_1, where its marginal sigma says 0.01-0.04 px; delta_y within 0.011 px on
-#: the synthetic logs and 0.04 px of an independent estimate on KITTI.
-RIG_METHOD_SIGMA = (0.10, 0.05)
-#: delta_x is kept when it is this many honest sigmas (:func:`rig_honest_sigma`) from its start value.
-RIG_SIGNIFICANCE = 3.0
-
-
-def rig_honest_sigma(marginal_sigma: float, axis: int) -> float:
-    """The rig offset's error bar on ``axis`` (0: x, 1: y): the marginal sigma and
-    :data:`RIG_METHOD_SIGMA` in quadrature."""
-    return float(np.hypot(marginal_sigma, RIG_METHOD_SIGMA[axis]))
-
-
 def rig_prior_mean_sigmas(config: WindowConfig, hold_x: float | None, carried: bool = False
                           ) -> tuple[FloatArray, FloatArray]:
     """Mean and sigmas of the rig offset's prior: zero mean, ``config.rig_offset_sigma`` px on each

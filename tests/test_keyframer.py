@@ -1,4 +1,4 @@
-"""When the window is optimised (gtvo/odometry/keyframe_making.py, ``WindowConfig.optimize_every``).
+"""When the window is optimised (gtvo/odometry/keyframer.py and window_schedule.py, ``WindowConfig.optimize_every``).
 
 The window is optimised after every n-th keyframe that came from a successful track, at once for a
 keyframe that did not (the first), and by ``VisualOdometry.finish()`` for the keyframes still
@@ -61,12 +61,12 @@ def test_keyframes_at_every_frame_wait_and_finish_optimises_the_rest(kitti):
     vo = _run(kitti, 2, finish=False)
     n_kf = len(vo.keyframes)
     assert n_kf == len(kitti)  # every frame a keyframe
-    waiting = vo._window_waiting
+    waiting = vo.keyframer.schedule.waiting
     # the first keyframe (not tracked) optimises at once (alone: no window), then every second one
     assert len(vo.window_results) == (n_kf - 1) // 2 and waiting == (n_kf - 1) % 2
     before = vo.keyframes[-1].T_world_cam.matrix().copy()
     vo.finish()
-    assert vo._window_waiting == 0
+    assert vo.keyframer.schedule.waiting == 0
     assert len(vo.window_results) == (n_kf - 1) // 2 + waiting
     if waiting:  # the waiting keyframe moved with the optimisation
         assert not np.allclose(before, vo.keyframes[-1].T_world_cam.matrix())
