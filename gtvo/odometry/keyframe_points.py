@@ -27,9 +27,11 @@ from gtvo.odometry.estimates import TooFewPoints
 from gtvo.window.rig import RigOffset
 
 
-def frame_points(frame: Frame, left: NDArray[np.float32], camera: StereoCamera | PinholeCamera,
-                 config: OdometryConfig, rig: RigOffset | None = None) -> KeyframePoints:
-    """The points ``frame`` would host as a keyframe (``left``: its left image in grey levels).
+def frame_points(frame: Frame, left: NDArray[np.float32], right: NDArray[np.float32] | None,
+                 camera: StereoCamera | PinholeCamera, config: OdometryConfig,
+                 rig: RigOffset | None = None) -> KeyframePoints:
+    """The points ``frame`` would host as a keyframe (``left``, ``right``: its images in grey
+    levels, converted once by the caller; ``right`` None for RGB-D).
 
     ``rig``: the rig offset the window estimates (stereo), None for the rectified model; the
     first call starts it from the pair's vertical-offset search.
@@ -40,9 +42,8 @@ def frame_points(frame: Frame, left: NDArray[np.float32], camera: StereoCamera |
     """
     cfg = config.frontend
     if isinstance(camera, StereoCamera):
-        if frame.right is None:
+        if right is None:
             raise InputError(f"frame {frame.index}: stereo odometry needs a right image")
-        right = frame.right
         if rig is not None:
             if rig.initial is None:
                 start_rig_offset(left, right, camera, config, rig)
@@ -54,7 +55,7 @@ def frame_points(frame: Frame, left: NDArray[np.float32], camera: StereoCamera |
     return rgbd_keyframe_points(left, frame.depth, cfg.points_per_keyframe, cfg.depth_sigma_model, cfg.points)
 
 
-def start_rig_offset(left: NDArray[np.float32], right: NDArray, camera: StereoCamera, config: OdometryConfig,
+def start_rig_offset(left: NDArray[np.float32], right: NDArray[np.float32], camera: StereoCamera, config: OdometryConfig,
                      rig: RigOffset) -> None:
     """Start ``rig``'s ``delta_y`` from the first stereo pair's vertical offset (a 2-D search).
 

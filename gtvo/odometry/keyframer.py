@@ -121,7 +121,10 @@ class Keyframer:
         Raises:
             TooFewPoints: the frame has fewer than ``tracking.min_valid_points`` points with a depth.
         """
-        pts = frame_points(frame, left, self.camera, self.config, self.rig)
+        right = None  # the right image in grey levels, converted once for the stereo search and the window
+        if isinstance(self.camera, StereoCamera) and frame.right is not None:
+            right = to_float_gray(frame.right, f"frame {frame.index} right image")
+        pts = frame_points(frame, left, right, self.camera, self.config, self.rig)
         if len(pts) < self.config.tracking.min_valid_points:
             raise TooFewPoints(f"frame {frame.index}: only {len(pts)} points with a valid depth; "
                                "the images may be blank or the stereo calibration wrong")
@@ -129,7 +132,7 @@ class Keyframer:
             if pyramid is None:  # one pyramid for the window keyframe's image and the tracker (no tracking made it)
                 with stage("keyframe_setup"):
                     pyramid = frame_pyramid(left, self.config.tracking.levels, self.config.tracking.clip_range)
-            T_world_cam, pts = self._join_window(frame, T_world_cam, pts, tracked, pyramid)
+            T_world_cam, pts = self._join_window(frame, right, T_world_cam, pts, tracked, pyramid)
         with stage("keyframe_setup"):  # the new keyframe's tracker: its pyramid with gradients (or the frame's)
             tracker = TrackingKeyframe(self.pinhole, left, pts.pixels, pts.inverse_depth, pts.variance, (0.0, 0.0),
                                        self.config.tracking, pyramid=pyramid)
@@ -159,7 +162,8 @@ class Keyframer:
             self._re_express()
 
     # -- the window link ------------------------------------------------------------------------
-    def _join_window(self, frame: Frame, T_world_cam: gtsam.Pose3, pts: KeyframePoints,
+    def _join_window(self, frame: Frame, right_image: NDArray[np.float32] | None, T_world_cam: gtsam.Pose3,
+                     pts: KeyframePoints,
                      tracked: tuple[int, NDArray[np.float64]] | None,
                      pyramid: list[GradientImage]) -> tuple[gtsam.Pose3, KeyframePoints]:
         """Add a new keyframe to the window and optimise on schedule; returns its pose and points
@@ -182,8 +186,9 @@ class Keyframer:
         stereo_affine = np.zeros(2)
         left_img = pyramid[0]  # the window keyframe's left image with gradients: the pyramid's level 0
         if isinstance(self.camera, StereoCamera):
+            assert right_image is not None
             with stage("keyframe_setup"):  # the right image with gradients
-                right = GradientImage(to_float_gray(frame.right, f"frame {frame.index} right image"), clip_range=clip)
+                right = GradientImage(right_image, clip_range=clip)
             rig = self.rig
             stereo_affine = estimate_stereo_affine(self.pinhole, self.camera.baseline, left_img, right, pts.pixels,
                                                    pts.inverse_depth, pts.variance,
