@@ -1,4 +1,4 @@
-"""The photometric model's parameters in one object: :class:`PhotometricParams`.
+"""The photometric model's parameters in one object: :class:`PhotometricConfig`.
 
 The tracker and the window weigh the same residuals (:mod:`factors.photometric`) with the same
 noise, robust kernel and pattern, on images clipped at the same grey levels: one frozen object
@@ -17,12 +17,12 @@ from factors.gtsam_factors import DEFAULT_HUBER_K, DEFAULT_SIGMA_INTENSITY
 from factors.photometric import DEFAULT_CLIP_RANGE, PATTERN_DSO8
 from gtvo.core.settings import SettingError, check_settings, setting
 
-#: DSO's 8-pixel pattern as a tuple of offsets (the default of :attr:`PhotometricParams.pattern`).
+#: DSO's 8-pixel pattern as a tuple of offsets (the default of :attr:`PhotometricConfig.pattern`).
 PATTERN_DSO8_OFFSETS: tuple[tuple[float, float], ...] = tuple((float(u), float(v)) for u, v in PATTERN_DSO8)
 
 
 @dataclass(frozen=True)
-class PhotometricParams:
+class PhotometricConfig:
     """Parameters of the photometric residuals shared by the tracker and the window.
 
     Attributes:

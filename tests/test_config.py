@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 import yaml
 
-from factors.params import PhotometricParams
+from factors.params import PhotometricConfig
 from gtvo import cli
-from gtvo.config import (FrontendConfig, KeyframeRule, MotionModelConfig, OdometryConfig, SolverConfig,
+from gtvo.config import (FrontendConfig, KeyframeConfig, MotionModelConfig, OdometryConfig, SolverConfig,
                          as_config, config_from_dict, config_reference, config_to_dict, config_to_yaml, field_docs,
                          load_config)
 from gtvo.core.settings import SettingError, in_range
@@ -29,7 +29,7 @@ from gtvo.frontend import PointSelectionConfig, StereoSearchConfig, select_point
 from gtvo.frontend.flow_pose import FlowPoseConfig
 from gtvo.frontend.stereo_depth import StereoDepthResult, matched_gain
 from gtvo.frontend.tracking import TrackingConfig
-from gtvo.motion.model import MotionNoise
+from gtvo.motion.model import MotionNoiseConfig
 from gtvo.window import WindowConfig
 
 DOCS = Path(__file__).resolve().parents[1] / "docs" / "configuration.md"
@@ -43,11 +43,11 @@ def _odd_config() -> OdometryConfig:
         frontend=FrontendConfig(points_per_keyframe=420, points=PointSelectionConfig(block=16, seed=3),
                                 stereo=StereoSearchConfig(max_disparity=64, pattern="dso8", max_disparity_std=math.inf),
                                 depth_sigma_model=(0.002, 0.003)),
-        keyframes=KeyframeRule(max_motion=0.1), tracking=TrackingConfig(max_rotation_sigma_deg=math.inf),
+        keyframes=KeyframeConfig(max_motion=0.1), tracking=TrackingConfig(max_rotation_sigma_deg=math.inf),
         window=WindowConfig(size=5, acceleration_sigma=None, backend="fixed_lag"), flow_fallback=None,
         motion_model=MotionModelConfig(model="kalman", accept_rms_factor=0.0,
-                                       kalman_noise=MotionNoise(accel_sigmas=(2.0, 2.0, 0.0))),
-        photometric=PhotometricParams(sigma_intensity=6.5, huber_k=None, pattern=((0, 0), (1, 0), (0, 1)),
+                                       kalman_noise=MotionNoiseConfig(accel_sigmas=(2.0, 2.0, 0.0))),
+        photometric=PhotometricConfig(sigma_intensity=6.5, huber_k=None, pattern=((0, 0), (1, 0), (0, 1)),
                                       clip_range=None))
 
 
@@ -110,7 +110,7 @@ def test_library_defaults_are_the_single_source():
         for f in dataclasses.fields(cls):
             assert params[f.name].default == getattr(cls(), f.name), (func.__name__, f.name)
     # the tracker's and the window's photometric settings are photometric's
-    p = PhotometricParams()
+    p = PhotometricConfig()
     for sub in (cfg.tracking, cfg.window):
         assert sub.sigma_intensity == p.sigma_intensity and sub.huber_k == p.huber_k
         np.testing.assert_array_equal(sub.pattern, p.pattern_array)
@@ -118,15 +118,15 @@ def test_library_defaults_are_the_single_source():
 
 
 def test_photometric_reaches_tracker_and_window_and_has_one_source():
-    p = PhotometricParams(sigma_intensity=5.0, huber_k=2.0, pattern=((0, 0), (1, 1)), clip_range=(2.0, 250.0))
+    p = PhotometricConfig(sigma_intensity=5.0, huber_k=2.0, pattern=((0, 0), (1, 1)), clip_range=(2.0, 250.0))
     cfg = OdometryConfig(photometric=p)
     for sub in (cfg.tracking, cfg.window):
         assert sub.sigma_intensity == 5.0 and sub.huber_k == 2.0 and sub.pattern.tolist() == [[0, 0], [1, 1]]
     assert cfg.tracking.clip_range == (2.0, 250.0)
     with pytest.raises(InputError, match="tracking.huber_k.*photometric.huber_k"):
         OdometryConfig(tracking=TrackingConfig(huber_k=2.0))
-    back = dataclasses.replace(cfg, photometric=PhotometricParams())  # the copies follow a new photometric
-    assert back.tracking.huber_k == back.window.huber_k == PhotometricParams().huber_k
+    back = dataclasses.replace(cfg, photometric=PhotometricConfig())  # the copies follow a new photometric
+    assert back.tracking.huber_k == back.window.huber_k == PhotometricConfig().huber_k
     with pytest.raises(InputError, match="key 'window.sigma_intensity': is set by photometric"):
         config_from_dict({"window": {"sigma_intensity": 4.0}})
 
@@ -136,7 +136,7 @@ def test_clip_range_of_the_config_reaches_every_image_of_a_run():
     from gtvo.odometry import VisualOdometry  # noqa: PLC0415
 
     for clip in ((0.0, 255.0), None, (10.0, 240.0)):
-        vo = VisualOdometry(seq.camera, OdometryConfig(photometric=PhotometricParams(clip_range=clip)))
+        vo = VisualOdometry(seq.camera, OdometryConfig(photometric=PhotometricConfig(clip_range=clip)))
         for frame in seq:
             vo.process(frame)
         assert vo.keyframes[-1].tracker is not None and vo.keyframes[-1].tracker.config.clip_range == clip
@@ -320,7 +320,7 @@ def test_kalman_settings_reach_the_filter():
     from gtvo.odometry import VisualOdometry  # noqa: PLC0415
 
     seq = make_synthetic_sequence(n_frames=1, width=160, height=120)
-    mm = MotionModelConfig(model="kalman", kalman_noise=MotionNoise(accel_sigmas=(3.0, 3.0, 1.0)),
+    mm = MotionModelConfig(model="kalman", kalman_noise=MotionNoiseConfig(accel_sigmas=(3.0, 3.0, 1.0)),
                            kalman_initial_rate_sigmas=(2.0, 2.0, 0.25))
     vo = VisualOdometry(seq.camera, OdometryConfig(motion_model=mm))
     assert vo._kalman.noise.accel_sigmas == (3.0, 3.0, 1.0)

@@ -13,7 +13,7 @@ from factors.photometric import GradientImage
 from gtvo.errors import InputError
 from gtvo.frontend import init_keyframe_points, select_points
 from gtvo.core.image import to_float_gray
-from gtvo.config import FrontendConfig, KeyframeRule, OdometryConfig, SolverConfig
+from gtvo.config import FrontendConfig, KeyframeConfig, OdometryConfig, SolverConfig
 from gtvo.odometry import VisualOdometry
 from gtvo.datasets.synthetic import make_synthetic_sequence
 from gtvo.frontend.tracking import TrackingKeyframe, frame_pyramid, track_handrolled
@@ -195,7 +195,7 @@ def test_visual_odometry_window_mode(seq):
     (measured 3.3 cm at most on this small aliased rendering, 0.1 m per frame; track mode: see
     benchmarks/window_kitti.py for the real-data comparison)."""
     cfg = OdometryConfig(mode="window", frontend=FrontendConfig(points_per_keyframe=300),
-                         keyframes=KeyframeRule(max_motion=0.02))
+                         keyframes=KeyframeConfig(max_motion=0.02))
     vo = VisualOdometry(seq.camera, cfg)
     for i in range(6):
         vo.process(seq.frame(i))
@@ -237,7 +237,7 @@ def test_pipeline_window_mode_report(seq, tmp_path):
 
     cfg = OdometryConfig(mode="window", solver=SolverConfig(window="handrolled"),
                          frontend=FrontendConfig(points_per_keyframe=200),
-                         keyframes=KeyframeRule(max_motion=0.02))
+                         keyframes=KeyframeConfig(max_motion=0.02))
     report = run(seq, out=tmp_path / "out", config=cfg, max_frames=4)
     assert report["mode"] == "window" and report["window_solver"] == "handrolled"
     assert report["window_optimisations"] >= 1 and report["window_seconds_mean"] > 0
@@ -257,7 +257,7 @@ def test_rgbd_window_on_tum_teddy(shared_data):
     seq = open_sequence(shared_data / "rgbd_dataset_freiburg3_teddy_first20", max_frames=8,
                         camera=(535.4, 539.2, 320.1, 247.6))
     cfg = OdometryConfig(mode="window", frontend=FrontendConfig(points_per_keyframe=600),
-                         keyframes=KeyframeRule(max_motion=0.01))
+                         keyframes=KeyframeConfig(max_motion=0.01))
     vo, traj, info = process_sequence(seq, cfg)
     assert info["window_optimisations"] >= 1
     assert all(w.right is None and w.depth_prior for w in vo.window.keyframes)

@@ -9,13 +9,13 @@ component, each field's default and allowed range declared once beside it
       solver               SolverConfig (tracker, window)
       frontend             FrontendConfig (points_per_keyframe, points: PointSelectionConfig,
                                            stereo: StereoSearchConfig, depth_sigma_model)
-      keyframes            gtvo.frontend.keyframes.KeyframeRule
+      keyframes            gtvo.frontend.keyframes.KeyframeConfig
       tracking             gtvo.frontend.tracking.TrackingConfig
       window               gtvo.window.WindowConfig
       flow_fallback        gtvo.frontend.flow_pose.FlowPoseConfig | None
-      frame_checks         gtvo.frontend.frame_checks.FrameCheckSettings
+      frame_checks         gtvo.frontend.frame_checks.FrameCheckConfig
       motion_model         MotionModelConfig
-      photometric          factors.params.PhotometricParams
+      photometric          factors.params.PhotometricConfig
 
 The photometric model (noise, Huber threshold, pattern, clipped range) is set once, in
 ``photometric``; the tracker's and the window's copies of it are filled from there (and are not
@@ -33,13 +33,13 @@ from gtvo.config.files import (ConfigKeyError, as_config, config_from_dict, conf
                                load_config)
 from gtvo.config.reference import config_reference, describe_key, field_docs
 from gtvo.config.tree import (LEGACY_NAMES, MIN_POINTS_PER_KEYFRAME, PHOTOMETRIC_COPIES, FlowPoseConfig,
-                              FrontendConfig, KeyframeRule, MotionModelConfig, MotionNoise, OdometryConfig,
-                              PhotometricParams, PointSelectionConfig, SolverConfig, StereoSearchConfig,
+                              FrontendConfig, KeyframeConfig, MotionModelConfig, MotionNoiseConfig, OdometryConfig,
+                              PhotometricConfig, PointSelectionConfig, SolverConfig, StereoSearchConfig,
                               TrackingConfig, WindowConfig)
 
 __all__ = [
     "LEGACY_NAMES", "MIN_POINTS_PER_KEYFRAME", "PHOTOMETRIC_COPIES", "ConfigKeyError", "FlowPoseConfig",
-    "FrontendConfig", "KeyframeRule", "MotionModelConfig", "MotionNoise", "OdometryConfig", "PhotometricParams",
+    "FrontendConfig", "KeyframeConfig", "MotionModelConfig", "MotionNoiseConfig", "OdometryConfig", "PhotometricConfig",
     "PointSelectionConfig", "SolverConfig", "StereoSearchConfig", "TrackingConfig", "WindowConfig", "as_config",
     "config_from_dict", "config_reference", "config_to_dict", "config_to_yaml", "describe_key", "field_docs",
     "load_config",

@@ -13,16 +13,16 @@ from typing import Any, Literal
 
 import numpy as np
 
-from factors.params import PhotometricParams
+from factors.params import PhotometricConfig
 from gtvo.core.settings import SettingError, check_settings, setting, type_hints
 from gtvo.frontend.flow_pose import FlowPoseConfig
-from gtvo.frontend.frame_checks import FrameCheckSettings
-from gtvo.frontend.keyframes import KeyframeRule
+from gtvo.frontend.frame_checks import FrameCheckConfig
+from gtvo.frontend.keyframes import KeyframeConfig
 from gtvo.frontend.point_selection import PointSelectionConfig
 from gtvo.frontend.rgbd import DEPTH_SIGMA_MODEL
 from gtvo.frontend.stereo_depth import StereoSearchConfig
 from gtvo.frontend.tracking import TrackingConfig
-from gtvo.motion.model import INITIAL_RATE_SIGMAS, MotionNoise
+from gtvo.motion.model import INITIAL_RATE_SIGMAS, MotionNoiseConfig
 from gtvo.window import WindowConfig
 
 SolverName = Literal["handrolled", "gtsam"]
@@ -94,7 +94,7 @@ class MotionModelConfig:
 
     model: MotionModelName = "constant-velocity"
     accept_rms_factor: float = setting(1.1, ">= 0")
-    kalman_noise: MotionNoise = field(default_factory=MotionNoise)
+    kalman_noise: MotionNoiseConfig = field(default_factory=MotionNoiseConfig)
     kalman_initial_rate_sigmas: tuple[float, float, float] = setting(INITIAL_RATE_SIGMAS, "> 0")
 
     def __post_init__(self) -> None:
@@ -139,13 +139,13 @@ class OdometryConfig:
     mode: ModeName = "window"
     solver: SolverConfig = field(default_factory=SolverConfig)
     frontend: FrontendConfig = field(default_factory=FrontendConfig)
-    keyframes: KeyframeRule = field(default_factory=KeyframeRule)
+    keyframes: KeyframeConfig = field(default_factory=KeyframeConfig)
     tracking: TrackingConfig = field(default_factory=TrackingConfig)
     window: WindowConfig = field(default_factory=WindowConfig)
     flow_fallback: FlowPoseConfig | None = field(default_factory=FlowPoseConfig)
-    frame_checks: FrameCheckSettings = field(default_factory=FrameCheckSettings)
+    frame_checks: FrameCheckConfig = field(default_factory=FrameCheckConfig)
     motion_model: MotionModelConfig = field(default_factory=MotionModelConfig)
-    photometric: PhotometricParams = field(default_factory=PhotometricParams)
+    photometric: PhotometricConfig = field(default_factory=PhotometricConfig)
 
     def __post_init__(self) -> None:
         if isinstance(self.solver, str):
@@ -233,7 +233,7 @@ def _check_nested(obj: Any) -> None:
             raise SettingError(f.name, f"must be a {cls.__name__}, got {value!r}")
 
 
-def _with_photometric(name: str, sub: Any, keys: tuple[str, ...], params: PhotometricParams) -> Any:
+def _with_photometric(name: str, sub: Any, keys: tuple[str, ...], params: PhotometricConfig) -> Any:
     """``sub`` with its photometric ``keys`` taken from ``params``. A value the caller set on
     ``sub`` (not a copy made here: ``dataclasses.replace(config, photometric=...)`` re-copies)
     that differs from both its default and ``params`` is an error: two sources for one setting."""

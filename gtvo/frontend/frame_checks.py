@@ -50,7 +50,7 @@ from gtvo.frontend.stereo_depth import KeyframePoints
 
 
 @dataclass(frozen=True)
-class FrameCheckSettings:
+class FrameCheckConfig:
     """Thresholds of the suspect-frame check (module docstring).
 
     Attributes:
@@ -136,7 +136,7 @@ class FrameChecker:
     they disarm the check until good frames agree with the model again.
     """
 
-    settings: FrameCheckSettings = field(default_factory=FrameCheckSettings)
+    settings: FrameCheckConfig = field(default_factory=FrameCheckConfig)
     recent: list[float] = field(default_factory=list)
     consecutive: int = 0
 

@@ -27,7 +27,7 @@ from gtvo.frontend.tracking import TrackingResult
 
 
 @dataclass(frozen=True)
-class KeyframeRule:
+class KeyframeConfig:
     """The thresholds of the keyframe rule (module docstring); the defaults are DSO's where DSO has
     one. Any one condition makes a keyframe; 0 for a ``max_*`` makes every tracked frame one.
 
@@ -52,7 +52,7 @@ class KeyframeRule:
         check_settings(self)
 
 
-def needs_keyframe(camera: PinholeCamera, points: KeyframePoints, result: TrackingResult, rule: KeyframeRule) -> bool:
+def needs_keyframe(camera: PinholeCamera, points: KeyframePoints, result: TrackingResult, rule: KeyframeConfig) -> bool:
     """True when a frame tracked against the keyframe hosting ``points`` (``result``) should become a keyframe."""
     n = len(points)
     if result.n_valid < rule.min_visible * n:

@@ -363,7 +363,7 @@ def matched_gain(left: NDArray, right: NDArray, pixels: ArrayLike, result: Stere
     """The right camera's gain against the left from the matched points: the median over accepted
     points of the ratio of their patches' intensity standard deviations (right patch at the
     rounded disparity). Patches that touch a clipped pixel (at or beyond ``clip_range``, the
-    run's :attr:`factors.params.PhotometricParams.clip_range`; None: no check) in either image
+    run's :attr:`factors.params.PhotometricConfig.clip_range`; None: no check) in either image
     are left out: a saturated patch's spread is not its scene's times the gain
     (with a fifth of the brighter image saturated the estimate fell from 1.6 to 1.2). None with
     fewer than :data:`MIN_GAIN_POINTS` accepted, unclipped points of contrast."""

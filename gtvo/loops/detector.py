@@ -32,9 +32,9 @@ from gtvo.core import keys
 from gtvo.core.camera import PinholeCamera, StereoCamera
 from gtvo.errors import InputError, show
 from gtvo.core.image import to_uint8
-from gtvo.loops.features import (KeypointPoints, OrbFeatures, OrbParams, depth_image_points, extract_orb,
+from gtvo.loops.features import (KeypointPoints, OrbFeatures, OrbConfig, depth_image_points, extract_orb,
                                  stereo_points)
-from gtvo.loops.verification import VerificationParams, match_descriptors, verify_pnp
+from gtvo.loops.verification import VerificationConfig, match_descriptors, verify_pnp
 from gtvo.loops.vocabulary import BinaryVocabulary, idf_weights, l1_scores, tfidf_vectors
 from gtvo.datasets.sequence import Sequence
 
@@ -54,7 +54,7 @@ class LoopCandidate:
         score: DBoW2's normalised score ``eta = s(i, j) / s_ref(i)`` (docs/loop_closure.md).
         information: 6x6 information of ``T_i_j``, GTSAM Pose3 tangent [rot, trans], right
             perturbation (``T_i_j * Exp(xi)``), with the covariance floor of
-            :class:`VerificationParams`.
+            :class:`VerificationConfig`.
         similarity: raw L1 bag-of-words score ``s(i, j)`` in [0, 1].
         n_matches: ORB matches tried by PnP.
         rmse_px: inlier reprojection RMSE after refinement (pixels).
@@ -109,8 +109,8 @@ class LoopDetectorConfig:
         seed: random seed of the vocabulary training.
     """
 
-    orb: OrbParams = field(default_factory=OrbParams)
-    verification: VerificationParams = field(default_factory=VerificationParams)
+    orb: OrbConfig = field(default_factory=OrbConfig)
+    verification: VerificationConfig = field(default_factory=VerificationConfig)
     n_words: int = 500
     vocabulary_iterations: int = 8
     min_training_keyframes: int = 4

@@ -29,7 +29,7 @@ ORB_BITS = 256
 
 
 @dataclass(frozen=True)
-class OrbParams:
+class OrbConfig:
     """ORB detector settings (``cv2.ORB_create``).
 
     Attributes:
@@ -95,7 +95,7 @@ class KeypointPoints:
     covariances: FloatArray
 
 
-def extract_orb(image: NDArray, params: OrbParams = OrbParams(), detector: cv2.ORB | None = None) -> OrbFeatures:
+def extract_orb(image: NDArray, params: OrbConfig = OrbConfig(), detector: cv2.ORB | None = None) -> OrbFeatures:
     """ORB keypoints and descriptors of a gray image.
 
     Keypoints of octave ``o`` are moved by ``+0.5 (s - 1)`` pixels, ``s = scale_factor ** o``, to
@@ -137,7 +137,7 @@ def _row_patches(image: NDArray[np.float32], rows: NDArray[np.int64], cols: NDAr
 
 
 def stereo_points(left: OrbFeatures, left_image: NDArray, right_image: NDArray, stereo: StereoCamera,
-                  params: OrbParams = OrbParams(), *, max_hamming: float = 75.0, row_tolerance_px: float = 2.0,
+                  params: OrbConfig = OrbConfig(), *, max_hamming: float = 75.0, row_tolerance_px: float = 2.0,
                   min_disparity_px: float = 0.5, sad_half_window: int = 5, sad_search_px: int = 5,
                   pixel_sigma_px: float = 1.0, disparity_sigma_px: float = 0.5,
                   detector: cv2.ORB | None = None) -> KeypointPoints:
@@ -221,7 +221,7 @@ def stereo_points(left: OrbFeatures, left_image: NDArray, right_image: NDArray, 
 
 
 def _points_from_disparity(cam: PinholeCamera, baseline: float, feats: OrbFeatures, valid: NDArray[np.bool_],
-                           disparity: FloatArray, params: OrbParams, pixel_sigma_px: float,
+                           disparity: FloatArray, params: OrbConfig, pixel_sigma_px: float,
                            disparity_sigma_px: float) -> KeypointPoints:
     n = len(feats)
     d = np.where(valid, disparity, 1.0)
@@ -240,7 +240,7 @@ def _points_from_disparity(cam: PinholeCamera, baseline: float, feats: OrbFeatur
     return KeypointPoints(valid, points, cov)
 
 
-def depth_image_points(feats: OrbFeatures, depth: NDArray, camera: PinholeCamera, params: OrbParams = OrbParams(),
+def depth_image_points(feats: OrbFeatures, depth: NDArray, camera: PinholeCamera, params: OrbConfig = OrbConfig(),
                        *, pixel_sigma_px: float = 1.0, depth_noise_per_m: float = 0.003) -> KeypointPoints:
     """3-D points at keypoints from a metric depth image (metres, 0 = unknown; e.g. RGB-D or a
     depth map the VO rendered from its own points), read at the nearest pixel.

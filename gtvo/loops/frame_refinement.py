@@ -32,7 +32,7 @@ from numpy.typing import NDArray
 from gtvo.core.camera import PinholeCamera
 from gtvo.core.image import to_float_gray
 from gtvo.errors import InputError
-from gtvo.frontend.keyframes import KeyframeRule
+from gtvo.frontend.keyframes import KeyframeConfig
 from gtvo.frontend.stereo_depth import KeyframePoints
 from gtvo.frontend.tracking import TrackingConfig, TrackingKeyframe, frame_pyramid, track_with_guesses
 from gtvo.loops.closure_graph import CHI2_6DOF_99
@@ -50,7 +50,7 @@ FUSION_HUBER_K = float(np.sqrt(CHI2_6DOF_99))
 #: look elsewhere (a camera turning on the spot stays within the motion bound of every keyframe)
 #: cost an alignment each and, measured on TUM fr3/teddy, made the fused poses worse (6.3 hosts per
 #: frame and 1.026x the open-loop ATE without this bound, 4.5 and 1.011x with it).
-MAX_ROTATION_DEG = KeyframeRule().max_rotation_deg
+MAX_ROTATION_DEG = KeyframeConfig().max_rotation_deg
 
 
 @dataclass

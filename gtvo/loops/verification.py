@@ -24,7 +24,7 @@ FloatArray = NDArray[np.float64]
 
 
 @dataclass(frozen=True)
-class VerificationParams:
+class VerificationConfig:
     """Thresholds of :func:`match_descriptors` and :func:`verify_pnp`.
 
     Attributes:
@@ -66,7 +66,7 @@ class PnPResult:
         rmse_px: reprojection RMSE of the inliers after refinement (pixels).
         information: 6x6 information of ``T_i_j`` in GTSAM's Pose3 tangent [rot, trans], right
             perturbation ``T_i_j * Exp(xi)``: ``inv(inv(Lambda) + floor)`` with Lambda from
-            :func:`pose_information` and the covariance floor of :class:`VerificationParams`.
+            :func:`pose_information` and the covariance floor of :class:`VerificationConfig`.
     """
 
     T_i_j: FloatArray
@@ -166,7 +166,7 @@ def _to_matrix(rvec: NDArray, tvec: NDArray) -> FloatArray:
 
 
 def verify_pnp(points_j: FloatArray, point_covariances: FloatArray, uv_i: FloatArray, pixel_sigmas: FloatArray,
-               camera: PinholeCamera, params: VerificationParams = VerificationParams()) -> PnPResult | None:
+               camera: PinholeCamera, params: VerificationConfig = VerificationConfig()) -> PnPResult | None:
     """Relative pose ``T_i_j`` from matched 3-D points of j (M, 3) and pixels of i (M, 2), or None.
 
     ``cv2.solvePnPRansac`` (threshold ``reprojection_threshold_px``), then ``cv2.solvePnPRefineLM``
