@@ -9,6 +9,7 @@ import gtsam
 import numpy as np
 import pytest
 
+from factors.params import PhotometricConfig
 from factors.photometric import GradientImage
 from gtvo.errors import InputError
 from gtvo.frontend import init_keyframe_points, select_points
@@ -20,6 +21,10 @@ from gtvo.frontend.tracking import TrackingKeyframe, frame_pyramid, track_handro
 from tests._factors_synthetic import PlaneSceneImage, small_camera
 from gtvo.window import (SlidingWindowOptimizer, WindowConfig, WindowKeyframe, affine_key, build_graph,
                          marginalize, motion_factors, pose_key, solve_gtsam, solve_handrolled, window_cost)
+
+
+#: the photometric model without a robust loss (the solvers' comparisons)
+NO_HUBER = PhotometricConfig(huber_k=None)
 
 
 @pytest.fixture(scope="module")
@@ -72,24 +77,27 @@ def test_handrolled_equals_gtsam(seq, huber_k, timed):
     cam = seq.camera
     kfs = _keyframes(seq, [0, 2, 4, 6, 8], perturb=(0.002, 0.006), timed=timed)
     # timed: a strong motion prior (the camera sways and wobbles) so that it matters here
-    cfg = WindowConfig(max_iterations=40, relative_tolerance=1e-12, huber_k=huber_k, acceleration_sigma=(0.01, 0.02))
+    cfg = WindowConfig(max_iterations=40, relative_tolerance=1e-12, acceleration_sigma=(0.01, 0.02))
+    model = PhotometricConfig(huber_k=huber_k)
     a, b = copy.deepcopy(kfs), copy.deepcopy(kfs)
     # the two cost functions agree at the starting point
-    graph, values, _ = build_graph(cam.left, cam.baseline, kfs, cfg, None)
-    assert graph.error(values) == pytest.approx(window_cost(cam.left, cam.baseline, kfs, cfg), rel=1e-9)
+    graph, values, _ = build_graph(cam.left, cam.baseline, kfs, cfg, None, photometric=model)
+    assert graph.error(values) == pytest.approx(window_cost(cam.left, cam.baseline, kfs, cfg, photometric=model),
+                                                rel=1e-9)
     no_motion = WindowConfig(**{**cfg.__dict__, "acceleration_sigma": None})
     if timed:  # the motion prior is in the hand-rolled cost as GTSAM's factors have it
-        values = build_graph(cam.left, cam.baseline, kfs, cfg, None)[1]
+        values = build_graph(cam.left, cam.baseline, kfs, cfg, None, photometric=model)[1]
         motion = sum(f.error(values) for _, f in motion_factors(kfs, cfg))
         assert len(motion_factors(kfs, cfg)) == 3 and motion > 1.0
-        assert window_cost(cam.left, cam.baseline, kfs, cfg) - window_cost(cam.left, cam.baseline, kfs, no_motion) \
+        with_prior = window_cost(cam.left, cam.baseline, kfs, cfg, photometric=model)
+        assert with_prior - window_cost(cam.left, cam.baseline, kfs, no_motion, photometric=model) \
             == pytest.approx(motion, rel=1e-6)
-    ra = solve_gtsam(cam.left, cam.baseline, a, cfg)
-    rb = solve_handrolled(cam.left, cam.baseline, b, cfg)
+    ra = solve_gtsam(cam.left, cam.baseline, a, cfg, photometric=model)
+    rb = solve_handrolled(cam.left, cam.baseline, b, cfg, photometric=model)
     assert ra.cost < 0.5 * ra.initial_cost
     if timed:  # and it moves the optimum (so the agreement below covers its Gauss-Newton terms)
         c = copy.deepcopy(kfs)
-        solve_gtsam(cam.left, cam.baseline, c, no_motion)
+        solve_gtsam(cam.left, cam.baseline, c, no_motion, photometric=model)
         assert max(np.abs(x.pose.localCoordinates(y.pose)).max() for x, y in zip(a, c)) > 1e-3
     tol_cost = 1e-4 if huber_k is None else 2e-3
     assert ra.cost == pytest.approx(rb.cost, rel=tol_cost)
@@ -160,9 +168,9 @@ def test_marginalisation_keeps_a_prior(seq):
             assert gt_err == pytest.approx(m.cost(values), rel=1e-9)
             # both solvers agree with the prior in the graph
             a, b = copy.deepcopy(w.keyframes), copy.deepcopy(w.keyframes)
-            c2 = WindowConfig(size=3, max_iterations=30, relative_tolerance=1e-12, huber_k=None)
-            ra = solve_gtsam(cam.left, cam.baseline, a, c2, m)
-            rb = solve_handrolled(cam.left, cam.baseline, b, c2, m)
+            c2 = WindowConfig(size=3, max_iterations=30, relative_tolerance=1e-12)
+            ra = solve_gtsam(cam.left, cam.baseline, a, c2, m, photometric=NO_HUBER)
+            rb = solve_handrolled(cam.left, cam.baseline, b, c2, m, photometric=NO_HUBER)
             assert ra.cost == pytest.approx(rb.cost, rel=2e-4)  # measured 6e-5
             assert max(np.abs(x.pose.localCoordinates(y.pose)).max() for x, y in zip(a, b)) < 2e-5
         else:
@@ -293,8 +301,8 @@ def test_repeated_marginalisation_same_for_both_solvers(seq):
     kfs = _keyframes(seq, [0, 2, 4, 6], perturb=(0.002, 0.006), points=150, seed=2, timed=True)
     ends = {}
     for solver, marg in (("gtsam", True), ("handrolled", True), ("gtsam", False)):
-        cfg = WindowConfig(size=2, max_iterations=30, relative_tolerance=1e-12, huber_k=None, marginalize=marg)
-        w = SlidingWindowOptimizer(cam.left, cam.baseline, cfg)
+        cfg = WindowConfig(size=2, max_iterations=30, relative_tolerance=1e-12, marginalize=marg)
+        w = SlidingWindowOptimizer(cam.left, cam.baseline, cfg, photometric=NO_HUBER)
         for k in copy.deepcopy(kfs):
             w.add_keyframe(k)
             w.optimize(solver)

@@ -43,10 +43,10 @@ class KeyframeConfig:
     """
 
     min_visible: float = setting(0.7, "[0, 1]")
-    max_motion: float = setting(0.3, ">= 0")
-    max_flow: float = setting(1.0 / 44.8, ">= 0")
-    max_rotation_deg: float = setting(8.0, ">= 0")
-    max_brightness: float = setting(0.3, ">= 0")
+    max_motion: float = setting(0.3, "[0, inf]")
+    max_flow: float = setting(1.0 / 44.8, "[0, inf]")
+    max_rotation_deg: float = setting(8.0, "[0, inf]")
+    max_brightness: float = setting(0.3, "[0, inf]")
 
     def __post_init__(self) -> None:
         check_settings(self)

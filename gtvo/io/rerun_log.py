@@ -209,7 +209,7 @@ class RerunLogger:
             self.rec.log("world/tracked", rr.Clear(recursive=False))
             return
         uv, X_world, residual = tracked
-        scale = vo.config.tracking.huber_k * vo.config.tracking.sigma_intensity
+        scale = vo.config.photometric.huber_k * vo.config.photometric.sigma_intensity
         colors = residual_colors(residual, scale)
         self.rec.log("world/camera/image/tracked", rr.Points2D(uv, colors=colors, radii=2.0))
         self.rec.log("world/tracked", rr.Points3D(X_world, colors=colors))

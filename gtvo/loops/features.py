@@ -22,44 +22,11 @@ from numpy.typing import NDArray
 from gtvo.core.camera import PinholeCamera, StereoCamera
 from gtvo.errors import InputError
 from gtvo.core.image import to_uint8
+from gtvo.loops.config import OrbConfig
 
 FloatArray = NDArray[np.float64]
 #: Bits in an ORB descriptor (32 bytes).
 ORB_BITS = 256
-
-
-@dataclass(frozen=True)
-class OrbConfig:
-    """ORB detector settings (``cv2.ORB_create``).
-
-    Attributes:
-        n_features: keypoints kept per image.
-        scale_factor: pyramid scale between ORB octaves; a keypoint of octave ``o`` is located to
-            about ``scale_factor ** o`` pixels, which sets its pixel noise.
-        n_levels: ORB pyramid levels.
-        fast_threshold: FAST corner threshold (8-bit intensity units).
-        edge_threshold: border (pixels) where no keypoint is detected (also ORB's patch size).
-    """
-
-    n_features: int = 1000
-    scale_factor: float = 1.2
-    n_levels: int = 8
-    fast_threshold: int = 20
-    edge_threshold: int = 31
-
-    def __post_init__(self) -> None:
-        if int(self.n_features) < 10:
-            raise InputError(f"ORB n_features must be >= 10, got {self.n_features}")
-        if not 1.0 < float(self.scale_factor) <= 2.0:
-            raise InputError(f"ORB scale_factor must be in (1, 2], got {self.scale_factor}")
-        if int(self.n_levels) < 1:
-            raise InputError(f"ORB n_levels must be >= 1, got {self.n_levels}")
-
-    def create(self) -> cv2.ORB:
-        """A configured ``cv2.ORB`` detector."""
-        return cv2.ORB_create(nfeatures=int(self.n_features), scaleFactor=float(self.scale_factor),
-                              nlevels=int(self.n_levels), edgeThreshold=int(self.edge_threshold),
-                              patchSize=int(self.edge_threshold), fastThreshold=int(self.fast_threshold))
 
 
 @dataclass(frozen=True)

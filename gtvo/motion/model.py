@@ -41,6 +41,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from factors.motion import POSE_MEASUREMENT_MATRIX, STATE_DIM, THETA_INDEX, X_INDEX, Z_INDEX, check_dt, transition_matrix
+from gtvo.core.settings import check_settings, setting
 from gtvo.errors import InputError
 
 FloatArray = NDArray[np.float64]
@@ -142,10 +143,11 @@ class MotionNoiseConfig:
             ``Q = diag(sigmas^2)``.
     """
 
-    accel_sigmas: tuple[float, float, float] = (1.0, 1.0, 0.5)
-    measurement_sigmas: tuple[float, float, float] = (0.05, 0.05, 0.01)
+    accel_sigmas: tuple[float, float, float] = setting((1.0, 1.0, 0.5), "[0, 1000]")
+    measurement_sigmas: tuple[float, float, float] = setting((0.05, 0.05, 0.01), "[1e-6, 1000]")
 
     def __post_init__(self) -> None:
+        check_settings(self)
         _check_sigmas("accel_sigmas", self.accel_sigmas, 3, allow_zero=True)
         _check_sigmas("measurement_sigmas", self.measurement_sigmas, 3)
 

@@ -46,9 +46,8 @@ class KeyframeMaking:
                 if not self.keyframes and self.rig_initial is None:
                     self._initial_vertical_offset(left, right)
                 right = correct_right_image(right, self.rig_offset)
-            return init_keyframe_points(left, right, self.camera, target=cfg.points_per_keyframe,
-                                        selection=cfg.points, stereo=cfg.stereo,
-                                        clip_range=self.config.photometric.clip_range)
+            return init_keyframe_points(left, right, self.camera, cfg.points_per_keyframe, cfg.points, cfg.stereo,
+                                        self.config.photometric.clip_range)
         if frame.depth is None:
             raise InputError(f"frame {frame.index}: RGB-D odometry needs a depth image")
         return rgbd_keyframe_points(left, frame.depth, cfg.points_per_keyframe, cfg.depth_sigma_model, cfg.points)
@@ -61,7 +60,7 @@ class KeyframeMaking:
         """
         assert self.rig_offset is not None and isinstance(self.camera, StereoCamera)
         fcfg = self.config.frontend
-        pixels = select_points(left, fcfg.points_per_keyframe, **dataclasses.asdict(fcfg.points))
+        pixels = select_points(left, fcfg.points_per_keyframe, fcfg.points)
         est = estimate_vertical_offset(left, right, self.camera, pixels, max_disparity=fcfg.stereo.max_disparity)
         self.rig_initial = est
         if est is None:
@@ -92,11 +91,11 @@ class KeyframeMaking:
         if self.window is not None:
             if pyramid is None:  # one pyramid for the window keyframe's image and the tracker (no tracking made it)
                 with stage("keyframe_setup"):
-                    pyramid = frame_pyramid(left, self.config.tracking.levels, self.config.tracking.clip_range)
+                    pyramid = frame_pyramid(left, self.config.tracking.levels, self.config.photometric.clip_range)
             T_world_cam, pts = self._window_update(frame, left, T_world_cam, pts, tracked, pyramid)
         with stage("keyframe_setup"):  # the new keyframe's tracker: its pyramid with gradients (or the frame's)
             tracker = TrackingKeyframe(self.pinhole, left, pts.pixels, pts.inverse_depth, pts.variance, (0.0, 0.0),
-                                       self.config.tracking, pyramid=pyramid)
+                                       self.config.tracking, pyramid=pyramid, photometric=self.config.photometric)
         image = left if self.config.flow_fallback is not None else None  # converted only if the fallback runs
         kf = Keyframe(frame.index, rigid_pose(T_world_cam.matrix()), pts, tracker, image)
         if self.keyframes:
@@ -143,7 +142,7 @@ class KeyframeMaking:
         if isinstance(self.camera, StereoCamera):
             stereo_affine = estimate_stereo_affine(self.pinhole, self.camera.baseline, left_img, right, pts.pixels,
                                                    pts.inverse_depth, pts.variance,
-                                                   sigma_intensity=self.config.window.sigma_intensity,
+                                                   sigma_intensity=self.config.photometric.sigma_intensity,
                                                    offset=self.rig_offset)
         wk = WindowKeyframe(frame.index, T_world_cam, affine, left_img, pts.pixels, pts.inverse_depth,
                             pts.variance, right=right, depth_prior=right is None, stereo_affine=stereo_affine,
@@ -196,7 +195,7 @@ class KeyframeMaking:
         last = self.keyframes[-1].T_world_cam
         step = float(np.linalg.norm(last.between(T_world_cam).translation()))
         error_px = float(self.pinhole.fx) * step * float(np.sqrt(np.median(pts.variance)))
-        radius = float(np.max(np.linalg.norm(np.asarray(self.config.window.pattern, dtype=float), axis=1)))
+        radius = float(np.max(np.linalg.norm(np.asarray(self.config.photometric.pattern, dtype=float), axis=1)))
         return error_px < radius
 
     def _optimize_window(self) -> bool:
@@ -233,18 +232,17 @@ class KeyframeMaking:
         again against the right image corrected by the estimate (and their stereo affine fitted
         again): a point whose new search matches takes its inverse depth and variance."""
         assert self.window is not None and self.rig_offset is not None and isinstance(self.camera, StereoCamera)
-        options = dataclasses.asdict(self.config.frontend.stereo)
         for w in self.window.keyframes:
             if w.right is None:
                 continue
             right = correct_right_image(w.right.image, self.rig_offset)
-            res = stereo_inverse_depth(w.image.image, right, self.camera, w.pixels, **options,
-                                       clip_range=self.config.photometric.clip_range)
+            res = stereo_inverse_depth(w.image.image, right, self.camera, w.pixels, self.config.frontend.stereo,
+                                       self.config.photometric.clip_range)
             w.inverse_depth = np.where(res.valid, res.inverse_depth, w.inverse_depth)
             w.variance = np.where(res.valid, res.variance, w.variance)
             w.stereo_affine = estimate_stereo_affine(self.pinhole, self.camera.baseline, w.image, w.right, w.pixels,
                                                      w.inverse_depth, w.variance,
-                                                     sigma_intensity=self.config.window.sigma_intensity,
+                                                     sigma_intensity=self.config.photometric.sigma_intensity,
                                                      offset=self.rig_offset)
 
     def _refresh_estimates(self) -> None:

@@ -116,7 +116,8 @@ class VisualOdometry(KeyframeMaking):
             wcfg = self.config.window
             rig = baseline is not None and wcfg.rig_calibration and wcfg.backend == "lm"
             self.rig_offset = np.zeros(2) if rig else None
-            self.window = SlidingWindowOptimizer(self.pinhole, baseline, wcfg, rig_offset=self.rig_offset)
+            self.window = SlidingWindowOptimizer(self.pinhole, baseline, wcfg, rig_offset=self.rig_offset,
+                                                 photometric=self.config.photometric)
         if self.config.motion_model.model == "kalman":
             from gtvo.motion.model import ConstantAccelerationFilter  # noqa: PLC0415
 

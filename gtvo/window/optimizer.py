@@ -17,6 +17,7 @@ from gtvo.core.camera import PinholeCamera
 from gtvo.core.keys import rig_offset_key
 from gtvo.core.timing import stage
 from gtvo.errors import InputError
+from factors.params import DEFAULT_PHOTOMETRIC, PhotometricConfig
 from gtvo.window.config import MarginalPrior, WindowConfig, WindowKeyframe, WindowResult, WindowSolverName, WindowState
 from gtvo.window.gtsam_solver import solve_gtsam
 from gtvo.window.handrolled import solve_handrolled, window_cost
@@ -34,6 +35,9 @@ class SlidingWindowOptimizer:
         camera: left-camera intrinsics (all keyframes share them).
         baseline: stereo baseline (m), or None for RGB-D input.
         config: window settings.
+        rig_offset: the rig offset's starting value when it is estimated (docs/window.md, "Rig calibration").
+        photometric: the photometric model of its residuals (noise, Huber threshold, pattern; a VO
+            run's ``OdometryConfig.photometric``); default :class:`factors.params.PhotometricConfig`'s.
 
     Example::
 
@@ -43,10 +47,11 @@ class SlidingWindowOptimizer:
     """
 
     def __init__(self, camera: PinholeCamera, baseline: float | None, config: WindowConfig | None = None,
-                 rig_offset: FloatArray | None = None) -> None:
+                 rig_offset: FloatArray | None = None, photometric: PhotometricConfig | None = None) -> None:
         self.camera = camera
         self.baseline = baseline
         self.config = config or WindowConfig()
+        self.photometric = photometric or DEFAULT_PHOTOMETRIC
         #: the stereo rig's offset (delta_x, delta_y) (px), estimated by every optimisation when
         #: given (its starting value; docs/window.md, "Rig calibration"), else None (rectified model)
         self.rig_offset: FloatArray | None = None
@@ -100,7 +105,7 @@ class SlidingWindowOptimizer:
     def cost(self) -> float:
         """The window cost at the current state (W evaluated at this state)."""
         return window_cost(self.camera, self.baseline, self.keyframes, self.config, self.marginal,
-                           rig_offset=self.rig_offset)
+                           rig_offset=self.rig_offset, photometric=self.photometric)
 
     def rig_offset_covariance(self) -> FloatArray | None:
         """The 2x2 marginal covariance (px^2) of the rig offset at the current state: the window's
@@ -121,7 +126,7 @@ class SlidingWindowOptimizer:
         if not any(targets):
             return None
         graph, values, _ = build_graph(self.camera, self.baseline, self.keyframes, self.config, self.marginal, targets,
-                                       self.rig_offset)
+                                       self.rig_offset, photometric=self.photometric)
         return graph, values
 
     def rig_x_free_estimate(self) -> tuple[float, float] | None:
@@ -188,7 +193,8 @@ class LMBackend:
         """Marginalise the oldest keyframe into :attr:`marginal` (or drop it, ``marginalize=False``)."""
         if window.config.marginalize:
             self.marginal = marginalize(window.camera, window.baseline, window.keyframes, window.config,
-                                        self.marginal, 0, getattr(window, "rig_offset", None))
+                                        self.marginal, 0, getattr(window, "rig_offset", None),
+                                        photometric=window.photometric)
         return window.keyframes.pop(0)
 
     def optimize(self, window: WindowState, targets: list[list[int]],
@@ -203,7 +209,7 @@ class LMBackend:
         # estimating it adds scale error; the marginalisation prior never holds the hold)
         hold = None if rig is None or window.rig_x_estimated else window.rig_x_start  # type: ignore[attr-defined]
         res = solve(window.camera, window.baseline, window.keyframes, window.config, self.marginal, targets,
-                    rig_offset=rig, rig_hold_x=hold)
+                    rig_offset=rig, rig_hold_x=hold, photometric=window.photometric)
         if rig is None or res.rig_offset is None:
             return res
         window.rig_offset = res.rig_offset.copy()  # type: ignore[attr-defined]
@@ -213,7 +219,8 @@ class LMBackend:
             # solved again with delta_x free, from the held state (LM's damping, not the test's
             # linear step, decides how far it goes along the flat scale direction)
             res = solve(window.camera, window.baseline, window.keyframes, window.config, self.marginal, targets,
-                        rig_offset=window.rig_offset, rig_hold_x=None)  # type: ignore[attr-defined]
+                        rig_offset=window.rig_offset, rig_hold_x=None,  # type: ignore[attr-defined]
+                        photometric=window.photometric)
             window.rig_offset = res.rig_offset.copy()  # type: ignore[attr-defined, union-attr]
         return res
 
