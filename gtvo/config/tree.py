@@ -124,7 +124,7 @@ class OdometryConfig:
         mode: ``window``: every new keyframe joins a sliding window of keyframes whose poses, affine
             brightness and inverse depths are optimised jointly (:mod:`gtvo.window`; later frames are
             tracked against the optimised keyframe); ``track``: frame-to-keyframe tracking only.
-        solver: the solvers of the tracker and of the window.
+        solver: the solvers of the tracker and of the window (a solver name sets both, as --solver does).
         frontend: point selection and stereo / RGB-D depths of new keyframes.
         keyframes: the rule that makes a tracked frame a keyframe.
         tracking: the coarse-to-fine tracker (its photometric model is ``photometric``).
