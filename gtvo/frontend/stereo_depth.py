@@ -39,6 +39,7 @@ from gtvo.core.timing import timed
 from gtvo.errors import InputError
 from gtvo.frontend._compiled import bilinear_with_gradient_x, gradients_at, zssd_costs
 from gtvo.frontend.point_selection import DEFAULT_POINT_SELECTION, PointSelectionConfig, select_points
+from gtvo.frontend.stereo_geometry import disparity_variance, epipolar_direction
 from gtvo.core.image import bilinear_sample, check_same_size, image_gradients, to_float_gray
 from gtvo.frontend.stereo_types import (DEFAULT_STEREO_SEARCH, KeyframePoints, Rejection, StereoDepthResult,
                                        StereoSearchConfig)
@@ -63,50 +64,6 @@ MIN_GAIN_POINTS = 10
 
 __all__ = ["KeyframePoints", "Rejection", "StereoDepthResult", "StereoSearchConfig", "disparity_variance",
            "epipolar_direction", "init_keyframe_points", "matched_gain", "stereo_inverse_depth"]
-
-
-def epipolar_direction(bearing: ArrayLike, translation: ArrayLike) -> FloatArray:
-    """Unit epipolar direction in the target image, the notes' ``(epx, epy)``, (N, 2).
-
-    ``(epx, epy) = (-a t3 + t1, -b t3 + t2)`` where ``(a, b, 1)`` is the (rotated) bearing of the
-    host pixel and ``t = (t1, t2, t3)`` the translation of ``T_target_host``: the direction in
-    which the projection moves as the inverse depth grows. For a rectified pair
-    (``t = (-baseline, 0, 0)``) it is ``(-1, 0)`` for every pixel: the search runs along the row.
-    Rows whose direction vanishes (pure forward motion at the epipole) are returned as 0.
-    """
-    b = np.asarray(bearing, dtype=float).reshape(-1, 3)
-    b = b / b[:, 2:3]
-    t = np.asarray(translation, dtype=float).reshape(3)
-    ep = np.column_stack([-b[:, 0] * t[2] + t[0], -b[:, 1] * t[2] + t[1]])
-    n = np.linalg.norm(ep, axis=1, keepdims=True)
-    return np.divide(ep, n, out=np.zeros_like(ep), where=n > 0)
-
-
-def disparity_variance(gx: ArrayLike, gy: ArrayLike, line: ArrayLike, sigma_intensity: float,
-                       sigma_line: float) -> FloatArray:
-    """LSD-SLAM disparity variance ``sigma_disp^2`` (px^2) of N points from their pattern gradients.
-
-    Args:
-        gx, gy: (N, P) host-image gradients at the P pattern pixels (grey levels per px).
-        line: (N, 2) unit epipolar directions ``l`` (:func:`epipolar_direction`).
-        sigma_intensity: image noise ``sigma_I`` (grey levels).
-        sigma_line: epipolar-line position error ``sigma_l`` (px).
-
-    Returns:
-        ``sigma_l^2 * g2 / g_ll + 2 sigma_I^2 / g_ll`` with ``g_ll = mean_k (g_k . l)^2`` and
-        ``g2 = mean_k |g_k|^2``: the geometric error ``sigma_l^2 / <g/|g|, l>^2`` plus the
-        photometric error ``2 sigma_I^2 / g_p^2`` (``g_p`` the gradient along the line), both
-        with pattern-averaged squared gradients. ``inf`` where ``g_ll`` is 0.
-    """
-    gx = np.atleast_2d(np.asarray(gx, dtype=float))
-    gy = np.atleast_2d(np.asarray(gy, dtype=float))
-    ln = np.asarray(line, dtype=float).reshape(-1, 2)
-    g_l = gx * ln[:, :1] + gy * ln[:, 1:]
-    g_ll = np.mean(g_l * g_l, axis=1)
-    g2 = np.mean(gx * gx + gy * gy, axis=1)
-    safe = g_ll > 1e-12
-    g_ll_s = np.where(safe, g_ll, 1.0)
-    return np.where(safe, (sigma_line ** 2) * g2 / g_ll_s + 2.0 * sigma_intensity ** 2 / g_ll_s, np.inf)
 
 
 def _as_pattern(pattern: ArrayLike | str) -> NDArray[np.int64]:
@@ -177,18 +134,7 @@ def stereo_inverse_depth(left: NDArray, right: NDArray, stereo_camera: StereoCam
         stereo_camera: the rectified rig; ``fx`` and ``baseline`` convert disparity to inverse depth.
         pixels: (N, 2) integer pixel positions ``(u, v)`` in the left image (from :func:`select_points`).
         config: the search's settings (:class:`StereoSearchConfig`: disparity range, pattern,
-            rejection thresholds, noise of the variance, gain equalisation). With ``equalize_gain``,
-            when the matched points say the right camera's gain against the left
-            (:func:`matched_gain`) differs from 1 by more than :data:`EQUALIZE_MIN_LOG_GAIN` in
-            log, the search runs again against the right image divided by that gain, the gain is
-            re-estimated from the new matches, and this repeats while it moves by more than that
-            (at most :data:`EQUALIZE_MAX_SEARCHES` extra searches); the search that accepts the
-            most points is returned, with the gain it used in ``right_gain``. The zero-mean SSD
-            absorbs an offset between the two cameras but not a gain, which two cameras with their
-            own auto exposure can have. Measured on a KITTI pair with a known gain applied
-            (docs/frontend.md): 1.3x and 1.6x brighter right images (8 % and 15 % of their pixels
-            saturated) are recovered to 1 %; at 2x ZSSD matches too few true points to start
-            from, and the gain stays unequalised.
+            rejection thresholds, noise of the variance, gain equalisation).
         clip_range: the grey levels at which the sensors clipped (:func:`matched_gain`; a run's
             ``OdometryConfig.photometric.clip_range``).
 
@@ -358,6 +304,16 @@ def _equalized_search(left_f: NDArray[np.float32], right_f: NDArray[np.float32],
                       px: FloatArray, pat: NDArray[np.int64], config: StereoSearchConfig,
                       clip_range: tuple[float, float] | None, result: StereoDepthResult) -> StereoDepthResult:
     """Stage 5, the gain equalisation (``equalize_gain``) after the first search's ``result``.
+
+    When the matched points say the right camera's gain against the left (:func:`matched_gain`)
+    differs from 1 by more than :data:`EQUALIZE_MIN_LOG_GAIN` in log, the search runs again
+    against the right image divided by that gain, and again while the re-estimated gain moves by
+    more than that (at most :data:`EQUALIZE_MAX_SEARCHES` extra searches); the search that accepts
+    the most points is returned, with the gain it used in ``right_gain``. The zero-mean SSD absorbs
+    an offset between the two cameras but not a gain, which two cameras with their own auto
+    exposure can have. Measured on a KITTI pair with a known gain applied (docs/frontend.md): 1.3x
+    and 1.6x brighter right images (8 % and 15 % of their pixels saturated) are recovered to 1 %;
+    at 2x ZSSD matches too few true points to start from, and the gain stays unequalised.
 
     ZSSD matches worse the further the gain is from 1 (at 2x a flat patch costs as much as the
     true match), so the first estimate falls short of a large gain: search again with the right
