@@ -91,7 +91,7 @@ def test_overrides_reach_nested_settings():
     ({"window": {"sise": 5}}, "'window.sise'"),
     ({"window": {"size": "5"}}, "'window.size': must be an integer"),
     ({"mode": "fast"}, "'mode': must be one of"),
-    ({"window": {"size": 1}}, "'window.size': must be >= 2"),
+    ({"window": {"size": 1}}, "'window.size': must be in [2, 100]"),
 ])
 def test_bad_overrides_name_the_key_and_the_file(overrides, needle):
     with pytest.raises(InputError) as e:
