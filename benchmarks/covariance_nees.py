@@ -28,7 +28,7 @@ if str(REPO_ROOT) not in sys.path:  # run as `python benchmarks/<script>.py`
 import gtsam  # noqa: E402
 import numpy as np  # noqa: E402
 
-from gtvo.config import OdometryConfig  # noqa: E402
+from gtvo.config import OdometryConfig, SolverConfig  # noqa: E402
 from gtvo.datasets.synthetic import make_synthetic_sequence  # noqa: E402
 from gtvo.odometry import VisualOdometry  # noqa: E402
 from gtvo.window import WindowConfig  # noqa: E402
@@ -84,7 +84,7 @@ def main(argv: list[str] | None = None) -> int:
     for seed in range(args.seeds):
         seq = make_synthetic_sequence(args.frames, width=w, height=h, noise_sigma=args.noise, seed=seed,
                                       motion=args.motion)
-        vo = VisualOdometry(seq.camera, OdometryConfig(mode="window", window_solver=args.solver,
+        vo = VisualOdometry(seq.camera, OdometryConfig(mode="window", solver=SolverConfig(window=args.solver),
                                                        window=WindowConfig(max_iterations=args.iterations)))
         for i in range(len(seq)):
             vo.process(seq.frame(i))

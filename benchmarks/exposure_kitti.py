@@ -27,7 +27,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from factors.params import PhotometricParams  # noqa: E402
+from factors.params import PhotometricConfig  # noqa: E402
 from benchmarks.vo_bench import KITTI_SEQUENCE_1, fmt, gtvo_config, markdown_table, run_gtvo, score  # noqa: E402
 from gtvo.io.atomic import write_json  # noqa: E402
 from gtvo.datasets import open_sequence  # noqa: E402
@@ -54,7 +54,7 @@ def with_exposure(seq: Sequence, amplitude: float, seed: int, per_image: bool = 
 
 
 def run(seq: Sequence, solver: str, clip: bool) -> dict[str, Any]:
-    photometric = PhotometricParams() if clip else PhotometricParams(clip_range=None)
+    photometric = PhotometricConfig() if clip else PhotometricConfig(clip_range=None)
     config = gtvo_config(solver, "window", photometric=photometric)
     out = run_gtvo(seq.camera, [seq.frame(i) for i in range(len(seq))], config)
     return {**score(out["trajectory"], seq), "failures": out["failures"], "failure_reasons": out["failure_reasons"]}

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gtvo.motion.model import ConstantAccelerationFilter, MotionNoise, planar_pose_from_T_world_cam, wrap_angle
+from gtvo.motion.model import ConstantAccelerationFilter, MotionNoiseConfig, planar_pose_from_T_world_cam, wrap_angle
 
 
 def read_kitti_poses(path: Path) -> np.ndarray:
@@ -28,7 +28,7 @@ def read_kitti_poses(path: Path) -> np.ndarray:
     return T
 
 
-def predictions(planar: np.ndarray, times: np.ndarray, noise: MotionNoise) -> dict[str, np.ndarray]:
+def predictions(planar: np.ndarray, times: np.ndarray, noise: MotionNoiseConfig) -> dict[str, np.ndarray]:
     """Predicted pose of frame t+1 made at frame t, for t = 1 .. N-2, by each method."""
     n = len(times)
     zero = planar[1:n - 1]
@@ -56,10 +56,10 @@ def main() -> None:
     orb = np.array([planar_pose_from_T_world_cam(T) for T in read_kitti_poses(args.data / "KITTI_00_ORB.txt")])
     rng = np.random.default_rng(args.seed)
     inputs = {
-        "ground truth": (gt, MotionNoise((2.0, 2.0, 0.5), (0.01, 0.01, 0.001))),
+        "ground truth": (gt, MotionNoiseConfig((2.0, 2.0, 0.5), (0.01, 0.01, 0.001))),
         "GT + noise 5 cm / 0.3 deg": (gt + rng.normal(0, 1, gt.shape) * [0.05, 0.05, np.radians(0.3)],
-                                      MotionNoise((2.0, 2.0, 0.5), (0.05, 0.05, np.radians(0.3)))),
-        "ORB-SLAM stereo estimate": (orb, MotionNoise((2.0, 2.0, 0.5), (0.01, 0.01, 0.001))),
+                                      MotionNoiseConfig((2.0, 2.0, 0.5), (0.05, 0.05, np.radians(0.3)))),
+        "ORB-SLAM stereo estimate": (orb, MotionNoiseConfig((2.0, 2.0, 0.5), (0.01, 0.01, 0.001))),
     }
     print("| input | predictor | position RMS (m) | heading RMS (deg) |")
     print("|---|---|---|---|")

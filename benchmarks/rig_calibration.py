@@ -28,7 +28,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import numpy as np  # noqa: E402
 
-from gtvo.config import OdometryConfig  # noqa: E402
+from gtvo.config import OdometryConfig, SolverConfig  # noqa: E402
 from gtvo.core.camera import PinholeCamera, StereoCamera  # noqa: E402
 from gtvo.datasets._common import read_image  # noqa: E402
 from gtvo.datasets.sequence import Sequence  # noqa: E402
@@ -71,13 +71,14 @@ def open_any(path: str) -> Sequence:
 
 def cost_ratio(seq, runs: int, solver: str) -> str:
     """CPU and wall time of ``runs`` alternating runs without / with the rig calibration."""
-    process_sequence(seq.truncated(3), OdometryConfig(window_solver=solver))  # compile the kernels
+    process_sequence(seq.truncated(3), OdometryConfig(solver=SolverConfig(window=solver)))  # compile the kernels
     cpu = {False: 0.0, True: 0.0}
     wall = {False: 0.0, True: 0.0}
     for _ in range(runs):
         for rig in (False, True):
             c, w = time.process_time(), time.perf_counter()
-            process_sequence(seq, OdometryConfig(window_solver=solver, window=WindowConfig(rig_calibration=rig)),
+            config = OdometryConfig(solver=SolverConfig(window=solver), window=WindowConfig(rig_calibration=rig))
+            process_sequence(seq, config,
                              warn=lambda m: None)
             cpu[rig] += time.process_time() - c
             wall[rig] += time.perf_counter() - w
@@ -89,7 +90,7 @@ def cost_ratio(seq, runs: int, solver: str) -> str:
 def run_one(seq, shift: tuple[float, float], rig: bool, solver: str) -> dict:
     """One odometry run on ``seq`` with its right images shifted by ``shift``."""
     s = shift_right_images(seq, shift) if any(shift) else seq
-    cfg = OdometryConfig(window_solver=solver, window=WindowConfig(rig_calibration=rig))
+    cfg = OdometryConfig(solver=SolverConfig(window=solver), window=WindowConfig(rig_calibration=rig))
     warnings: list[str] = []
     try:
         vo, traj, info = process_sequence(s, cfg, warn=warnings.append)

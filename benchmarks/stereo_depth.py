@@ -29,7 +29,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from gtvo.core.camera import PinholeCamera, StereoCamera  # noqa: E402
 from gtvo.errors import InputError  # noqa: E402
-from gtvo.frontend import select_points, stereo_inverse_depth  # noqa: E402
+from gtvo.frontend import StereoSearchConfig, select_points, stereo_inverse_depth  # noqa: E402
 from gtvo.core.image import to_float_gray  # noqa: E402
 
 TARGET = 2000
@@ -151,8 +151,9 @@ def exposure(data: Path, gains: tuple[float, ...] = (0.5, 0.7, 1.0, 1.4, 2.0, 2.
                 right_g = np.clip(gain * right, 0.0, 255.0)
                 clipped.append(np.mean((right_g <= 0) | (right_g >= 255)))
                 px = select_points(left, TARGET)
-                res = stereo_inverse_depth(left, right_g, cam, px, max_disparity=max_disp, disparity_offset=doffs,
-                                           sigma_line=0.5, equalize_gain=handling == "on")
+                search = StereoSearchConfig(max_disparity=max_disp, disparity_offset=doffs, sigma_line=0.5,
+                                            equalize_gain=handling == "on")
+                res = stereo_inverse_depth(left, right_g, cam, px, search)
                 g = at(gt, px)
                 good = at(nocc, px) & np.isfinite(g)
                 ours = res.valid & good
@@ -176,8 +177,8 @@ def middlebury(data: Path) -> None:
     all_ours, all_sg, all_z, acc = [], [], [], []
     for name, left, right, gt, nocc, cam, max_disp, doffs in scenes:
         px = select_points(left, TARGET)
-        res = stereo_inverse_depth(left, right, cam, px, max_disparity=max_disp, disparity_offset=doffs,
-                                   sigma_line=0.5)
+        res = stereo_inverse_depth(left, right, cam, px, StereoSearchConfig(max_disparity=max_disp,
+                                                                            disparity_offset=doffs, sigma_line=0.5))
         nd = int(np.ceil((max_disp + 1) / 16.0)) * 16
         l8 = np.clip(left, 0, 255).astype(np.uint8)
         r8 = np.clip(right, 0, 255).astype(np.uint8)

@@ -48,7 +48,7 @@ PATTERN_DSO8: FloatArray = np.array(
     [[0, -2], [-1, -1], [1, -1], [-2, 0], [0, 0], [2, 0], [-1, 1], [0, 2]], dtype=np.float64)
 
 #: Grey levels at or beyond which a sensor clipped, in 8-bit units: the default ``clip_range`` of
-#: :class:`GradientImage` and of :class:`factors.params.PhotometricParams` (a run sets its own there).
+#: :class:`GradientImage` and of :class:`factors.params.PhotometricConfig` (a run sets its own there).
 DEFAULT_CLIP_RANGE: tuple[float, float] = (0.0, 255.0)
 
 #: A single pixel (no pattern), e.g. for fast coarse levels or tests.

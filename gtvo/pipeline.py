@@ -4,6 +4,7 @@ and by Python users (:func:`run`).
 
 from __future__ import annotations
 
+import dataclasses
 import statistics
 import sys
 import time
@@ -156,7 +157,8 @@ def run(path: str | Path | Sequence, out: str | Path | None = None,
             also ``calib``, ``left_topic``, ``right_topic``, ``depth_topic``, ``ground_truth_topic``).
         progress: show a progress bar.
         strict: stop at the first unreadable frame instead of skipping it.
-        loop_closure: after the run, detect loops among the keyframes, optimise the keyframe
+        loop_closure: True sets ``loops.enabled`` of the config (as ``--loop-closure``; False leaves
+            the config's): after the run, detect loops among the keyframes, optimise the keyframe
             pose graph robustly (GNC), re-estimate every tracked frame against the final keyframes
             and write ``trajectory_loop_closed.tum`` as a second output (:mod:`gtvo.loops.closing`);
             ``points.ply`` then holds the map on the loop-closed keyframe poses.
@@ -182,6 +184,8 @@ def run(path: str | Path | Sequence, out: str | Path | None = None,
         seq = seq.truncated(max_frames)
     seq = seq.subsampled(frame_step)
     config = as_config(config)
+    if loop_closure:
+        config = dataclasses.replace(config, loops=dataclasses.replace(config.loops, enabled=True))
     fmt = None if isinstance(path, Sequence) else (detect_format(path) if format == "auto" else format)
     with tidy_on_failure():  # a run that fails leaves no empty output folder behind
         ensure_output_dir(out_dir)  # an unusable --out is reported before the long work
@@ -191,7 +195,7 @@ def run(path: str | Path | Sequence, out: str | Path | None = None,
         if getattr(seq, "unpaired", None) is not None:  # a ROS bag: messages that found no partner
             info["unpaired_messages"] = seq.unpaired  # type: ignore[attr-defined]
         closed = closed_keyframes = None
-        if loop_closure:
+        if config.loops.enabled:
             from gtvo.loops.closing import close_loops_of_run, odometry_covariances  # noqa: PLC0415
 
             keyframes = [p for p, e in enumerate(vo.estimates) if e.is_keyframe]
@@ -199,7 +203,8 @@ def run(path: str | Path | Sequence, out: str | Path | None = None,
                                      odometry_covariances=odometry_covariances(vo.estimates, keyframes),
                                      keyframe_points={kf.index: kf.points for kf in vo.keyframes},
                                      tracking_config=vo.config.tracking, refine_frames=True,
-                                     refine=[e.outcome in TRACKED_OUTCOMES for e in vo.estimates])
+                                     refine=[e.outcome in TRACKED_OUTCOMES for e in vo.estimates],
+                                     detector_config=config.loops.detector, photometric=config.photometric)
             closed = res.trajectory
             closed_keyframes = res.keyframe_poses
             info["loops_detected"] = len(res.candidates) + len(res.unrefined)

@@ -16,7 +16,7 @@ from gtvo import cli
 from gtvo.batching import read_spec
 from gtvo.batching.overrides import apply_overrides, config_identity
 from gtvo.errors import InputError
-from gtvo.config import OdometryConfig
+from gtvo.config import FrontendConfig, OdometryConfig
 from gtvo.datasets.synthetic import make_synthetic_sequence, write_sequence_kitti
 
 
@@ -91,7 +91,7 @@ def test_overrides_reach_nested_settings():
     ({"window": {"sise": 5}}, "'window.sise'"),
     ({"window": {"size": "5"}}, "'window.size': must be an integer"),
     ({"mode": "fast"}, "'mode': must be one of"),
-    ({"window": {"size": 1}}, "'window.size': must be >= 2"),
+    ({"window": {"size": 1}}, "'window.size': must be in [2, 100]"),
 ])
 def test_bad_overrides_name_the_key_and_the_file(overrides, needle):
     with pytest.raises(InputError) as e:
@@ -215,7 +215,7 @@ def test_resume_skips_complete_logs_and_reruns_the_rest(pool_run, logs, tmp_path
     assert (out / "seq2" / "trajectory.tum").read_bytes() == (pool_run.out / "seq2" / "trajectory.tum").read_bytes()
     # other settings are another job: nothing is resumed
     res = gtvo.batch(logs, out, jobs=1, resume=True, progress=False, max_frames=3,
-                     config=OdometryConfig(points_per_keyframe=200))
+                     config=OdometryConfig(frontend=FrontendConfig(points_per_keyframe=200)))
     assert res.resumed == [] and {r["name"]: r["frames"] for r in res.rows if r["status"] == "done"} == \
         {"drive": 3, "seq1": 3, "seq2": 3}
 

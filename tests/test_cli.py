@@ -75,8 +75,8 @@ def test_run_with_frame_step_uses_every_kth_frame(kitti_like, tmp_path):
 @pytest.mark.parametrize("argv,needle", [
     (["run", "SEQ", "--frame-step", "0"], "--frame-step must be >= 1, got 0"),
     (["run", "SEQ", "--max-frames", "0"], "--max-frames must be >= 1, got 0"),
-    (["run", "SEQ", "--points", "10"], "--points must be >= 50, got 10"),
-    (["demo", "--points", "-3"], "--points must be >= 50, got -3"),
+    (["run", "SEQ", "--points", "10"], "--points must be in [50, 100000], got 10"),
+    (["demo", "--points", "-3"], "--points must be in [50, 100000], got -3"),
     (["loops", "SEQ", "--max-frames", "-1"], "--max-frames must be >= 1, got -1"),
 ])
 def test_bad_counts_exit_2_naming_the_flag(kitti_like, tmp_path, capsys, argv, needle):

@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 import yaml
 
-from factors.params import PhotometricParams
+from factors.params import PhotometricConfig
 from gtvo import cli
-from gtvo.config import (FrontendConfig, KeyframeRule, MotionModelConfig, OdometryConfig, SolverConfig,
+from gtvo.config import (FrontendConfig, KeyframeConfig, MotionModelConfig, OdometryConfig, SolverConfig,
                          as_config, config_from_dict, config_reference, config_to_dict, config_to_yaml, field_docs,
                          load_config)
 from gtvo.core.settings import SettingError, in_range
@@ -29,7 +29,7 @@ from gtvo.frontend import PointSelectionConfig, StereoSearchConfig, select_point
 from gtvo.frontend.flow_pose import FlowPoseConfig
 from gtvo.frontend.stereo_depth import StereoDepthResult, matched_gain
 from gtvo.frontend.tracking import TrackingConfig
-from gtvo.motion.model import MotionNoise
+from gtvo.motion.model import MotionNoiseConfig
 from gtvo.window import WindowConfig
 
 DOCS = Path(__file__).resolve().parents[1] / "docs" / "configuration.md"
@@ -43,11 +43,11 @@ def _odd_config() -> OdometryConfig:
         frontend=FrontendConfig(points_per_keyframe=420, points=PointSelectionConfig(block=16, seed=3),
                                 stereo=StereoSearchConfig(max_disparity=64, pattern="dso8", max_disparity_std=math.inf),
                                 depth_sigma_model=(0.002, 0.003)),
-        keyframes=KeyframeRule(max_motion=0.1), tracking=TrackingConfig(max_rotation_sigma_deg=math.inf),
+        keyframes=KeyframeConfig(max_motion=0.1), tracking=TrackingConfig(max_rotation_sigma_deg=math.inf),
         window=WindowConfig(size=5, acceleration_sigma=None, backend="fixed_lag"), flow_fallback=None,
         motion_model=MotionModelConfig(model="kalman", accept_rms_factor=0.0,
-                                       kalman_noise=MotionNoise(accel_sigmas=(2.0, 2.0, 0.0))),
-        photometric=PhotometricParams(sigma_intensity=6.5, huber_k=None, pattern=((0, 0), (1, 0), (0, 1)),
+                                       kalman_noise=MotionNoiseConfig(accel_sigmas=(2.0, 2.0, 0.0))),
+        photometric=PhotometricConfig(sigma_intensity=6.5, huber_k=None, pattern=((0, 0), (1, 0), (0, 1)),
                                       clip_range=None))
 
 
@@ -67,68 +67,62 @@ def test_plain_data_round_trip_is_exact_through_json_and_yaml(tmp_path):
 
 
 def test_names_as_shorthands_and_the_readme_form():
-    # a solver name is the tracker's, as before the tree; the window keeps its default (GTSAM)
-    assert OdometryConfig(solver="handrolled").solver == SolverConfig("handrolled", "gtsam")
+    # a solver name is both solvers', as --solver NAME is (and a file's solver: NAME)
+    assert OdometryConfig(solver="handrolled").solver == SolverConfig("handrolled", "handrolled")
     assert SolverConfig.both("handrolled") == SolverConfig("handrolled", "handrolled")  # the CLI's --solver
+    assert config_from_dict({"solver": "handrolled"}).solver == SolverConfig("handrolled", "handrolled")
     assert OdometryConfig(motion_model="kalman").motion_model == MotionModelConfig(model="kalman")
     cfg = OdometryConfig(mode="window", solver="gtsam")  # README.md
     assert (cfg.mode, cfg.solver.tracker, cfg.solver.window) == ("window", "gtsam", "gtsam")
     assert config_from_dict({"motion_model": "kalman"}).motion_model.model == "kalman"
-    with pytest.raises(InputError, match="key 'solver': must be a mapping"):
-        config_from_dict({"solver": "handrolled"})  # a file names the tracker's and the window's
+    mixed = OdometryConfig(solver=SolverConfig(tracker="gtsam", window="handrolled"))  # mixed: the object
+    assert (mixed.solver.tracker, mixed.solver.window) == ("gtsam", "handrolled")
 
 
-def test_flat_names_before_the_tree_are_aliases_of_their_keys():
-    from gtvo.config import LEGACY_NAMES  # noqa: PLC0415
+@pytest.mark.parametrize("name", ["points_per_keyframe", "keyframe_max_motion", "window_solver", "max_disparity",
+                                  "accept_rms_factor"])
+def test_the_flat_names_before_the_tree_are_gone(tmp_path, capsys, name):
+    from gtvo.config import MOVED_KEYS  # noqa: PLC0415
 
-    cfg = OdometryConfig(mode="track", points_per_keyframe=150, keyframe_max_motion=0.02, window_solver="handrolled",
-                         max_disparity=64, depth_sigma_model=(0.001, 0.002), accept_rms_factor=0.0)
-    assert cfg.frontend.points_per_keyframe == cfg.points_per_keyframe == 150 and cfg.mode == "track"
-    assert cfg.keyframes.max_motion == cfg.keyframe_max_motion == 0.02
-    assert cfg.solver == SolverConfig("handrolled", "handrolled") and cfg.window_solver == "handrolled"
-    assert cfg.frontend.stereo.max_disparity == cfg.max_disparity == 64
-    assert cfg.frontend.depth_sigma_model == (0.001, 0.002) and cfg.motion_model.accept_rms_factor == 0.0
-    default = OdometryConfig()
-    for name, key in LEGACY_NAMES.items():  # every alias reads its key
-        value = default
-        for part in key.split("."):
-            value = getattr(value, part)
-        assert getattr(default, name) == value, name
-    with pytest.raises(InputError, match="frontend.points_per_keyframe: must be >= 50"):
-        OdometryConfig(points_per_keyframe=10)
-    with pytest.raises(InputError, match="key 'points_per_keyframe': unknown key"):
-        config_from_dict({"points_per_keyframe": 300})  # files use the keys
-    assert dataclasses.replace(cfg, mode="window").points_per_keyframe == 150
+    assert not hasattr(OdometryConfig(), name)
+    with pytest.raises(TypeError):
+        OdometryConfig(**{name: 1})
+    # a config file that still uses one is told the key that holds it now: one line, exit 2
+    bad = tmp_path / "old.yaml"
+    bad.write_text(f"{name}: 1\n")
+    assert cli.main(["demo", "--out", str(tmp_path / "o"), "--config", str(bad), "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(bad) in err[0] and f"key '{name}': is now key '{MOVED_KEYS[name]}'" in err[0], err
 
 
 def test_library_defaults_are_the_single_source():
     cfg = OdometryConfig()
     assert (cfg.solver.tracker, cfg.solver.window) == ("handrolled", "gtsam")
-    # the front-end functions' keyword defaults are their config's
+    # the front-end functions take their config whole, its defaults by default
     for func, cls in ((select_points, PointSelectionConfig), (stereo_inverse_depth, StereoSearchConfig)):
         params = inspect.signature(func).parameters
-        for f in dataclasses.fields(cls):
-            assert params[f.name].default == getattr(cls(), f.name), (func.__name__, f.name)
-    # the tracker's and the window's photometric settings are photometric's
-    p = PhotometricParams()
-    for sub in (cfg.tracking, cfg.window):
-        assert sub.sigma_intensity == p.sigma_intensity and sub.huber_k == p.huber_k
-        np.testing.assert_array_equal(sub.pattern, p.pattern_array)
-    assert cfg.tracking.clip_range == p.clip_range == (0.0, 255.0)
+        assert params["config"].default == cls() and not set(params) & {f.name for f in dataclasses.fields(cls)}
+    # the tracker and the window have no photometric settings of their own: photometric holds them
+    for section in (TrackingConfig, WindowConfig):
+        assert not {f.name for f in dataclasses.fields(section)} & {f.name for f in dataclasses.fields(PhotometricConfig)}
 
 
-def test_photometric_reaches_tracker_and_window_and_has_one_source():
-    p = PhotometricParams(sigma_intensity=5.0, huber_k=2.0, pattern=((0, 0), (1, 1)), clip_range=(2.0, 250.0))
-    cfg = OdometryConfig(photometric=p)
-    for sub in (cfg.tracking, cfg.window):
-        assert sub.sigma_intensity == 5.0 and sub.huber_k == 2.0 and sub.pattern.tolist() == [[0, 0], [1, 1]]
-    assert cfg.tracking.clip_range == (2.0, 250.0)
-    with pytest.raises(InputError, match="tracking.huber_k.*photometric.huber_k"):
-        OdometryConfig(tracking=TrackingConfig(huber_k=2.0))
-    back = dataclasses.replace(cfg, photometric=PhotometricParams())  # the copies follow a new photometric
-    assert back.tracking.huber_k == back.window.huber_k == PhotometricParams().huber_k
-    with pytest.raises(InputError, match="key 'window.sigma_intensity': is set by photometric"):
-        config_from_dict({"window": {"sigma_intensity": 4.0}})
+def test_photometric_reaches_tracker_and_window_as_one_object():
+    from gtvo.odometry import VisualOdometry  # noqa: PLC0415
+
+    seq = make_synthetic_sequence(n_frames=2, width=160, height=120)
+    p = PhotometricConfig(sigma_intensity=5.0, huber_k=2.0, pattern=((0, 0), (1, 1)), clip_range=(2.0, 250.0))
+    vo = VisualOdometry(seq.camera, OdometryConfig(photometric=p))
+    for frame in seq:
+        vo.process(frame)
+    assert vo.window is not None and vo.window.photometric is p
+    assert vo.keyframes[-1].tracker is not None and vo.keyframes[-1].tracker.photometric is p
+    assert vo.keyframes[-1].tracker.pattern.tolist() == [[0, 0], [1, 1]]
+    with pytest.raises(TypeError):
+        TrackingConfig(huber_k=2.0)  # type: ignore[call-arg]
+    for section in ("tracking", "window"):
+        with pytest.raises(InputError, match=f"key '{section}.sigma_intensity': is now key 'photometric.sigma_intensity'"):
+            config_from_dict({section: {"sigma_intensity": 4.0}})
 
 
 def test_clip_range_of_the_config_reaches_every_image_of_a_run():
@@ -136,10 +130,10 @@ def test_clip_range_of_the_config_reaches_every_image_of_a_run():
     from gtvo.odometry import VisualOdometry  # noqa: PLC0415
 
     for clip in ((0.0, 255.0), None, (10.0, 240.0)):
-        vo = VisualOdometry(seq.camera, OdometryConfig(photometric=PhotometricParams(clip_range=clip)))
+        vo = VisualOdometry(seq.camera, OdometryConfig(photometric=PhotometricConfig(clip_range=clip)))
         for frame in seq:
             vo.process(frame)
-        assert vo.keyframes[-1].tracker is not None and vo.keyframes[-1].tracker.config.clip_range == clip
+        assert vo.keyframes[-1].tracker is not None and vo.keyframes[-1].tracker.photometric.clip_range == clip
         assert all(w.image.clip_range == clip and w.right.clip_range == clip for w in vo.window.keyframes)
 
 
@@ -158,7 +152,7 @@ def test_matched_gain_leaves_out_clipped_patches_only_with_a_clip_range():
 
 
 def test_settings_name_the_field_and_ranges_parse():
-    with pytest.raises(SettingError, match="^size: must be >= 2, got 1$"):
+    with pytest.raises(SettingError, match="^size: must be in \\[2, 100\\], got 1$"):
         WindowConfig(size=1)
     with pytest.raises(SettingError, match="downweight: must be in \\(0, 1\\]"):
         PointSelectionConfig(downweight=0.0)
@@ -169,7 +163,72 @@ def test_settings_name_the_field_and_ranges_parse():
     with pytest.raises(InputError, match="frontend: must be a FrontendConfig"):
         OdometryConfig(frontend={"points_per_keyframe": 300})
     assert in_range(1.0, "(0, 1]") and not in_range(0.0, "(0, 1]") and not in_range(float("nan"), ">= 0")
-    assert in_range(math.inf, "> 0") and not in_range(2.0, "[0, 2)")
+    assert not in_range(2.0, "[0, 2)")
+    # infinity only where the range names it: "(0, inf]" (a check switched off), never "> 0"
+    assert not in_range(math.inf, "> 0") and not in_range(-math.inf, "<= 0") and in_range(math.inf, "(0, inf]")
+
+
+def test_every_numeric_setting_has_a_finite_range():
+    """Each number of the tree has a range with two finite ends, or infinity as a named, closed
+    end (``[0, inf]``: the check switched off); the pattern's offsets are checked by
+    PhotometricConfig (within +-8 px)."""
+    from gtvo.config.tree import _dataclass_of  # noqa: PLC0415
+    from gtvo.core.settings import parse_range, type_hints  # noqa: PLC0415
+
+    numeric, unbounded = [], []
+
+    def walk(cls, path):
+        hints = type_hints(cls)
+        for f in dataclasses.fields(cls):
+            sub = _dataclass_of(hints[f.name])
+            if sub is not None:
+                walk(sub, f"{path}{f.name}.")
+            elif {int, float} & set(_leaf_types(hints[f.name])) and f"{path}{f.name}" != "photometric.pattern":
+                numeric.append(f"{path}{f.name}")
+                rng = f.metadata.get("range")
+                lo, hi, lo_closed, hi_closed = parse_range(rng) if rng else (-math.inf, math.inf, False, False)
+                if not (math.isfinite(lo) or lo_closed) or not (math.isfinite(hi) or hi_closed):
+                    unbounded.append(f"{path}{f.name}")
+
+    walk(OdometryConfig, "")
+    assert len(numeric) > 80 and not unbounded, unbounded
+
+
+def _leaf_types(hint):
+    import typing  # noqa: PLC0415
+
+    args = typing.get_args(hint)
+    return [hint] if not args else [t for a in args for t in _leaf_types(a)]
+
+
+def test_loop_closure_is_a_section_of_the_tree(tmp_path, monkeypatch):
+    from gtvo.loops import LoopClosureConfig, LoopDetectorConfig  # noqa: PLC0415
+    import gtvo.loops.closing as closing  # noqa: PLC0415
+    from gtvo.pipeline import run  # noqa: PLC0415
+
+    cfg = config_from_dict({"loops": {"enabled": True, "detector": {"n_words": 300, "verification": {"min_inliers": 20}}}})
+    assert cfg.loops == LoopClosureConfig(True, LoopDetectorConfig(n_words=300, verification=cfg.loops.detector.verification))
+    assert cfg.loops.detector.verification.min_inliers == 20 and not OdometryConfig().loops.enabled
+    seen = []
+
+    def spy(seq, est, *args, **kwargs):  # what the run hands to loop closing
+        seen.append(kwargs)
+        return closing.LoopClosingResult(est)
+
+    monkeypatch.setattr(closing, "close_loops_of_run", spy)
+    seq = make_synthetic_sequence(n_frames=3, width=160, height=120)
+    (tmp_path / "c.yaml").write_text("loops: {enabled: true, detector: {n_words: 300}}\n")
+    rep = run(seq, out=tmp_path / "file", config=tmp_path / "c.yaml")  # from --config alone
+    assert len(seen) == 1 and seen[0]["detector_config"].n_words == 300
+    assert rep["config"]["loops"]["enabled"] is True and rep["config"]["loops"]["detector"]["n_words"] == 300
+    assert load_config(tmp_path / "file" / "config.yaml").loops == cfg.loops.__class__(True, LoopDetectorConfig(n_words=300))
+    rep = run(seq, out=tmp_path / "flag", loop_closure=True)  # gtvo.run(loop_closure=True), as --loop-closure
+    assert len(seen) == 2 and rep["config"]["loops"]["enabled"] is True
+    assert load_config(tmp_path / "flag" / "config.yaml").loops.enabled
+    rep = run(seq, out=tmp_path / "off")
+    assert len(seen) == 2 and rep["config"]["loops"]["enabled"] is False and "loops_detected" not in rep
+    args = cli.build_parser().parse_args(["run", "SEQ", "--loop-closure"])
+    assert args.loop_closure  # handed to gtvo.run(loop_closure=...), which sets loops.enabled
 
 
 def test_as_config_takes_a_tree_a_file_or_the_object(tmp_path):
@@ -191,11 +250,27 @@ def test_as_config_takes_a_tree_a_file_or_the_object(tmp_path):
     ("frontend: {stereo: {left_right_check: 1}}\n", "key 'frontend.stereo.left_right_check': must be true or false"),
     ("keyframes: {max_motion: [1, 2]}\n", "key 'keyframes.max_motion': must be a number"),
     ("window: 7\n", "key 'window': must be a mapping of keys"),
-    ("window:\n  size: 1\n", "key 'window.size': must be >= 2, got 1"),
+    ("window:\n  size: 1\n", "key 'window.size': must be in [2, 100], got 1"),
     ("keyframes: {min_visible: 1.5}\n", "key 'keyframes.min_visible': must be in [0, 1], got 1.5"),
     ("mode: batch\n", "key 'mode': must be one of 'track', 'window', got 'batch'"),
     ("solver: {window: ceres}\n", "key 'solver.window': must be one of 'handrolled', 'gtsam', got 'ceres'"),
-    ("frontend: {stereo: {min_disparity: 50, max_disparity: 40}}\n", "key 'frontend.stereo': min_disparity (50)"),
+    ("frontend: {stereo: {min_disparity: 50, max_disparity: 40}}\n",
+     "key 'frontend.stereo.max_disparity': must be above min_disparity (50), got 40"),
+    # ranges that mean something: finite, a sensible interval (issue 31)
+    ("photometric:\n  sigma_intensity: 1.0e-300\n", "key 'photometric.sigma_intensity': must be in [0.01, 100], got 1e-300"),
+    ("photometric: {huber_k: .inf}\n", "key 'photometric.huber_k': must be in [0.01, 100], got inf"),
+    ("keyframes: {max_motion: .nan}\n", "key 'keyframes.max_motion': must be in [0, inf], got nan"),
+    ("window: {gauge_sigma: 1.0e-300}\n", "key 'window.gauge_sigma': must be in [1e-9, 1], got 1e-300"),
+    ("frontend: {points: {seed: -1}}\n", "key 'frontend.points.seed': must be in [0, 4294967295], got -1"),
+    ("tracking: {levels: 40}\n", "key 'tracking.levels': must be in [1, 10], got 40"),
+    ("photometric: {pattern: [[0, 0], [30, 0]]}\n", "key 'photometric.pattern': must be a list of (du, dv) offsets"),
+    ("loops: {detector: {orb: {scale_factor: 3.0}}}\n", "key 'loops.detector.orb.scale_factor': must be in (1, 2]"),
+    # a key given twice: refused, naming its line (YAML keeps the last one silently)
+    ("window:\n  size: 5\n  size: 4\n", ":3: key 'window.size' given twice"),
+    ("mode: track\nwindow: {size: 5}\nmode: window\n", ":3: key 'mode' given twice"),
+    # a setting that moved
+    ("tracking: {huber_k: 2.0}\n", "key 'tracking.huber_k': is now key 'photometric.huber_k'"),
+    ("loop_closure: true\n", "key 'loop_closure': is now key 'loops.enabled'"),
     ("window: [size: 1\n", ":2: not valid YAML"),
     ("- 1\n- 2\n", "key '(top level)': must be a mapping of keys"),
 ])
@@ -320,10 +395,10 @@ def test_kalman_settings_reach_the_filter():
     from gtvo.odometry import VisualOdometry  # noqa: PLC0415
 
     seq = make_synthetic_sequence(n_frames=1, width=160, height=120)
-    mm = MotionModelConfig(model="kalman", kalman_noise=MotionNoise(accel_sigmas=(3.0, 3.0, 1.0)),
+    mm = MotionModelConfig(model="kalman", kalman_noise=MotionNoiseConfig(accel_sigmas=(3.0, 3.0, 1.0)),
                            kalman_initial_rate_sigmas=(2.0, 2.0, 0.25))
     vo = VisualOdometry(seq.camera, OdometryConfig(motion_model=mm))
     assert vo.motion.kalman.noise.accel_sigmas == (3.0, 3.0, 1.0)
     assert vo.motion.kalman.initial_rate_sigmas == (2.0, 2.0, 0.25)
-    with pytest.raises(InputError, match="key 'motion_model.kalman_initial_rate_sigmas': must be > 0"):
+    with pytest.raises(InputError, match="key 'motion_model.kalman_initial_rate_sigmas': must be in \\[1e-6, 1000\\]"):
         config_from_dict({"motion_model": {"kalman_initial_rate_sigmas": [1, 1, 0]}})

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import gtvo.posegraph as pg
-from gtvo.config import OdometryConfig
+from gtvo.config import FrontendConfig, KeyframeConfig, OdometryConfig
 from gtvo.datasets.synthetic import make_synthetic_sequence
 from gtvo.errors import InputError
 from gtvo.io.covariances import TANGENT_FRAME, TANGENT_ORDER, read_covariances, sigmas
@@ -136,7 +136,8 @@ def test_covariances_off_cost_nothing(seq):
 
 
 def test_visual_odometry_covariance_api(seq):
-    vo = VisualOdometry(seq.camera, OdometryConfig(mode="window", points_per_keyframe=150, keyframe_max_motion=0.02))
+    vo = VisualOdometry(seq.camera, OdometryConfig(mode="window", frontend=FrontendConfig(points_per_keyframe=150),
+                                                   keyframes=KeyframeConfig(max_motion=0.02)))
     for i in range(4):
         vo.process(seq.frame(i))
     assert len(vo.keyframes) >= 2
@@ -156,7 +157,7 @@ def test_visual_odometry_covariance_api(seq):
     if non_kf:
         with pytest.raises(InputError):
             vo.covariance(non_kf[0])
-    track = VisualOdometry(seq.camera, OdometryConfig(mode="track", points_per_keyframe=150))
+    track = VisualOdometry(seq.camera, OdometryConfig(mode="track", frontend=FrontendConfig(points_per_keyframe=150)))
     track.process(seq.frame(0))
     assert track.covariance(0) is None
 

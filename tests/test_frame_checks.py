@@ -22,7 +22,7 @@ from gtvo.core.camera import PinholeCamera
 from gtvo.datasets.sequence import Sequence
 from gtvo.datasets.synthetic import make_synthetic_sequence
 from gtvo.errors import InputError
-from gtvo.frontend.frame_checks import FrameChecker, FrameCheckSettings, StepCheck, measure_step, suspect_reason
+from gtvo.frontend.frame_checks import FrameChecker, FrameCheckConfig, StepCheck, measure_step, suspect_reason
 from gtvo.frontend.stereo_depth import KeyframePoints
 from gtvo.odometry import FrameEstimate, FrameOutcome, VisualOdometry, frames_by_outcome
 
@@ -85,7 +85,7 @@ def _step(deviation: float, step_px: float = 20.0, intervals: float = 1.0) -> St
 
 
 def test_the_check_arms_only_after_agreeing_frames_and_flags_a_large_deviation():
-    c = FrameChecker(FrameCheckSettings())
+    c = FrameChecker(FrameCheckConfig())
     assert c.check(_step(2.0), 0) is None  # no history: not armed, and it joins the history
     for _ in range(3):
         assert c.check(_step(0.05), 0) is None
@@ -99,7 +99,7 @@ def test_the_check_arms_only_after_agreeing_frames_and_flags_a_large_deviation()
 
 @pytest.mark.parametrize("spoiler", ["jerky", "slow", "gap", "untracked"])
 def test_the_check_stays_off_when_the_prediction_means_nothing(spoiler):
-    c = FrameChecker(FrameCheckSettings())
+    c = FrameChecker(FrameCheckConfig())
     for dev in (0.05, 0.05, 0.3 if spoiler == "jerky" else 0.05):  # handheld: the model was off lately
         c.check(_step(dev), 0)
     if spoiler == "untracked":
@@ -109,7 +109,7 @@ def test_the_check_stays_off_when_the_prediction_means_nothing(spoiler):
 
 
 def test_a_streak_of_suspect_frames_ends_after_max_consecutive():
-    c = FrameChecker(FrameCheckSettings(max_consecutive=2))
+    c = FrameChecker(FrameCheckConfig(max_consecutive=2))
     for _ in range(3):
         c.check(_step(0.01), 0)
     assert c.check(_step(1.0), 0) and c.check(_step(1.0), 0)
@@ -117,7 +117,7 @@ def test_a_streak_of_suspect_frames_ends_after_max_consecutive():
 
 
 def test_disabled_check_flags_nothing():
-    c = FrameChecker(FrameCheckSettings(enabled=False))
+    c = FrameChecker(FrameCheckConfig(enabled=False))
     for _ in range(4):
         c.check(_step(0.01), 0)
     assert c.check(_step(5.0), 0) is None
@@ -127,7 +127,7 @@ def test_disabled_check_flags_nothing():
                                          ("agree_frames", 0), ("max_consecutive", 0)])
 def test_bad_settings_are_input_errors(field, value):
     with pytest.raises(InputError, match=field):
-        FrameCheckSettings(**{field: value})
+        FrameCheckConfig(**{field: value})
 
 
 # -- the report and the console ----------------------------------------------------------------------
@@ -228,7 +228,7 @@ def test_a_camera_frozen_for_three_frames_is_flagged_on_each(room):
 
 def test_without_the_check_the_duplicate_is_tracked_where_it_is_not(room):
     vo = _run(_faulted(room, duplicate=9), OdometryConfig(mode="track",
-                                                          frame_checks=FrameCheckSettings(enabled=False)))
+                                                          frame_checks=FrameCheckConfig(enabled=False)))
     assert _flagged(vo)["suspect"] == [] and _errors(vo, room)[9] > 0.2
 
 

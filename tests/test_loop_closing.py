@@ -3,7 +3,7 @@
 import numpy as np
 
 from gtvo.loops.closing import close_loops_of_run, relocate_frames
-from gtvo.config import FrontendConfig, KeyframeRule, OdometryConfig
+from gtvo.config import FrontendConfig, KeyframeConfig, OdometryConfig
 from gtvo.pipeline import process_sequence
 from gtvo.io.outputs import evaluate, ground_truth
 from gtvo.datasets.synthetic import make_synthetic_sequence
@@ -30,7 +30,7 @@ def test_relocate_frames_moves_each_frame_with_its_keyframe():
 
 def test_synthetic_revisit_is_closed():
     seq = make_synthetic_sequence(n_frames=40, motion="loop", noise_sigma=1.0)
-    vo, traj, _ = process_sequence(seq, OdometryConfig(mode="track", keyframes=KeyframeRule(max_motion=0.0),
+    vo, traj, _ = process_sequence(seq, OdometryConfig(mode="track", keyframes=KeyframeConfig(max_motion=0.0),
                                                    frontend=FrontendConfig(points_per_keyframe=800)))
     keyframes = [p for p, e in enumerate(vo.estimates) if e.is_keyframe]
     res = close_loops_of_run(seq, traj, [e.index for e in vo.estimates], keyframes)

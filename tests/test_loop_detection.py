@@ -15,7 +15,7 @@ import pytest
 
 from gtvo.core.camera import PinholeCamera, StereoCamera
 from gtvo.errors import InputError
-from gtvo.loops import (BinaryVocabulary, LoopDetector, LoopDetectorConfig, OrbParams,
+from gtvo.loops import (BinaryVocabulary, LoopDetector, LoopDetectorConfig, OrbConfig,
                         depth_image_points, detect_loops, extract_orb, hamming_distances, idf_weights, l1_scores,
                         match_descriptors, pose_information, reprojection_jacobians, stereo_points, tfidf_vectors,
                         verify_pnp)
@@ -440,6 +440,6 @@ def test_bad_input_raises_input_error(revisit):
     with pytest.raises(InputError, match="temporal_window"):
         LoopDetectorConfig(temporal_window=-1)
     with pytest.raises(InputError, match="n_features"):
-        OrbParams(n_features=0)
+        OrbConfig(n_features=0)
     assert len(det) == 1  # failed insertions left the database unchanged
 

@@ -10,7 +10,7 @@ from gtvo.motion.graph import build_motion_graph, solve_motion_graph
 from gtvo.motion.model import (
     POSE_MEASUREMENT_MATRIX,
     ConstantAccelerationFilter,
-    MotionNoise,
+    MotionNoiseConfig,
     T_world_cam_from_planar_pose,
     filter_sequence,
     noise_gain,
@@ -23,7 +23,7 @@ from gtvo.motion.model import (
     wrap_angle,
 )
 
-NOISE = MotionNoise(accel_sigmas=(0.8, 1.2, 0.3), measurement_sigmas=(0.1, 0.15, 0.02))
+NOISE = MotionNoiseConfig(accel_sigmas=(0.8, 1.2, 0.3), measurement_sigmas=(0.1, 0.15, 0.02))
 
 
 def _trajectory(rng: np.random.Generator, n: int, theta0: float = 0.3) -> tuple[np.ndarray, np.ndarray]:
@@ -209,7 +209,7 @@ def test_bad_model_parameters():
     with pytest.raises(InputError):
         transition_matrix(0.0)
     with pytest.raises(InputError):
-        MotionNoise(measurement_sigmas=(0.1, 0.0, 0.1))
+        MotionNoiseConfig(measurement_sigmas=(0.1, 0.0, 0.1))
     with pytest.raises(InputError):
         filter_sequence(np.zeros((2, 3)), [0, 1], np.zeros(6), -np.eye(6))
     assert POSE_MEASUREMENT_MATRIX.shape == (3, 6)

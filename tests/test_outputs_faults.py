@@ -27,7 +27,7 @@ from gtvo.io.atomic import DIR_MARKER
 from gtvo.io.outputs import RUN_OUTPUT_NAMES, check_run_output_dir, top_view, write_run_outputs
 from gtvo.io.plots import CAMERA_WORLD_XZ_LABELS
 from gtvo.core.map_points import MAX_RELATIVE_DEPTH_SIGMA, MapPoints, constrained_mask
-from gtvo.config import OdometryConfig
+from gtvo.config import FrontendConfig, OdometryConfig
 from gtvo.odometry import VisualOdometry
 
 KITTI = Path("kitti_stereo_sample") / "KITTI_sequence_1"
@@ -77,7 +77,7 @@ def test_constrained_mask_rules():
 @pytest.fixture(scope="module")
 def window_vo():
     seq = make_synthetic_sequence(n_frames=12)
-    vo = VisualOdometry(seq.camera, OdometryConfig(points_per_keyframe=300))
+    vo = VisualOdometry(seq.camera, OdometryConfig(frontend=FrontendConfig(points_per_keyframe=300)))
     for f in seq:
         vo.process(f)
     assert len(vo.keyframes) >= 2
@@ -113,7 +113,7 @@ def test_observation_rule_applies_to_keyframes_a_window_optimisation_included(wi
     seq = make_synthetic_sequence(n_frames=2)
     written = {}
     for mode in ("window", "track"):
-        vo = VisualOdometry(seq.camera, OdometryConfig(points_per_keyframe=300, mode=mode))
+        vo = VisualOdometry(seq.camera, OdometryConfig(frontend=FrontendConfig(points_per_keyframe=300), mode=mode))
         for f in seq:
             vo.process(f)
         assert len(vo.keyframes) == 1

@@ -3,7 +3,8 @@ import pytest
 from numpy.typing import NDArray
 
 from gtvo.errors import InputError
-from gtvo.frontend import DEFAULT_BORDER, block_gradient_thresholds, gradient_magnitude, select_points
+from gtvo.frontend import (DEFAULT_BORDER, PointSelectionConfig, block_gradient_thresholds, gradient_magnitude,
+                           select_points)
 from gtvo.frontend._compiled import block_medians, pick_cells
 
 from _synthetic_stereo import texture
@@ -30,7 +31,7 @@ def test_count_near_target_and_spread_over_quadrants():
 def test_border_kept_free_integer_unique_and_finite():
     img = textured()
     for border in (DEFAULT_BORDER, 20):
-        px = select_points(img, target=800, border=border)
+        px = select_points(img, 800, PointSelectionConfig(border=border))
         h, w = img.shape
         assert np.all(np.isfinite(px))
         assert np.all(px == np.round(px))
@@ -70,17 +71,18 @@ def test_threshold_map_is_block_median_plus_offset():
 
 def test_deterministic_and_sorted():
     img = textured()
-    a = select_points(img, target=500, seed=3)
-    b = select_points(img, target=500, seed=3)
+    a = select_points(img, 500, PointSelectionConfig(seed=3))
+    b = select_points(img, 500, PointSelectionConfig(seed=3))
     np.testing.assert_array_equal(a, b)
     order = np.lexsort((a[:, 0], a[:, 1]))
     np.testing.assert_array_equal(order, np.arange(len(a)))
 
 
-@pytest.mark.parametrize("kwargs", [dict(target=0), dict(border=200), dict(border=-1), dict(downweight=0.0)])
-def test_bad_arguments_raise(kwargs):
+@pytest.mark.parametrize("target,kwargs", [(0, {}), (2000, dict(border=200)), (2000, dict(border=-1)),
+                                           (2000, dict(downweight=0.0))])
+def test_bad_arguments_raise(target, kwargs):
     with pytest.raises(InputError):
-        select_points(textured(), **kwargs)
+        select_points(textured(), target, PointSelectionConfig(**kwargs))
 
 
 def test_nan_image_raises():

@@ -11,8 +11,9 @@ import numpy as np
 import pytest
 
 from factors.host_points import HostPoints
+from factors.params import PhotometricConfig
 from factors.photometric import PATTERN_DSO8, GradientImage, sample_host, stereo_residuals
-from gtvo.config import OdometryConfig
+from gtvo.config import FrontendConfig, OdometryConfig
 from gtvo.core.image import to_float_gray
 from gtvo.core.keys import rig_offset_key
 from gtvo.datasets.shifted import shift_image, shift_right_images
@@ -24,6 +25,10 @@ from gtvo.odometry import VisualOdometry
 from gtvo.window import (SlidingWindowOptimizer, WindowConfig, WindowKeyframe, build_graph, solve_gtsam,
                          solve_handrolled, window_cost)
 from tests._factors_synthetic import SinusoidImage, small_camera
+
+
+#: the photometric model without a robust loss (the solvers' comparisons)
+NO_HUBER = PhotometricConfig(huber_k=None)
 
 
 @pytest.fixture(scope="module")
@@ -131,15 +136,16 @@ def test_solvers_agree_with_the_rig_offset(seq):
     and the same optimum (cost, poses, offset), and the offset moves from its start."""
     cam = seq.camera
     kfs = _keyframes(seq, [0, 2, 4, 6], (0.0, 1.0))
-    cfg = WindowConfig(max_iterations=30, relative_tolerance=1e-12, huber_k=None)
+    cfg = WindowConfig(max_iterations=30, relative_tolerance=1e-12)
     start = np.array([0.3, 0.6])
-    graph, values, _ = build_graph(cam.left, cam.baseline, kfs, cfg, None, rig_offset=start)
+    graph, values, _ = build_graph(cam.left, cam.baseline, kfs, cfg, None, rig_offset=start, photometric=NO_HUBER)
     assert values.exists(rig_offset_key())
-    assert graph.error(values) == pytest.approx(window_cost(cam.left, cam.baseline, kfs, cfg, rig_offset=start),
+    cost = window_cost(cam.left, cam.baseline, kfs, cfg, rig_offset=start, photometric=NO_HUBER)
+    assert graph.error(values) == pytest.approx(cost,
                                                 rel=1e-9)
     a, b = copy.deepcopy(kfs), copy.deepcopy(kfs)
-    ra = solve_gtsam(cam.left, cam.baseline, a, cfg, rig_offset=start)
-    rb = solve_handrolled(cam.left, cam.baseline, b, cfg, rig_offset=start)
+    ra = solve_gtsam(cam.left, cam.baseline, a, cfg, rig_offset=start, photometric=NO_HUBER)
+    rb = solve_handrolled(cam.left, cam.baseline, b, cfg, rig_offset=start, photometric=NO_HUBER)
     assert ra.cost < 0.5 * ra.initial_cost
     assert ra.cost == pytest.approx(rb.cost, rel=1e-4)
     np.testing.assert_allclose(ra.rig_offset, rb.rig_offset, atol=2e-3)
@@ -157,8 +163,8 @@ def test_marginal_prior_carries_the_rig_offset(seq):
     kfs = _keyframes(seq, [0, 2, 4, 6], (0.0, 1.0), points=150, seed=2)
     ends = {}
     for solver in ("gtsam", "handrolled"):
-        cfg = WindowConfig(size=2, max_iterations=20, relative_tolerance=1e-12, huber_k=None)
-        w = SlidingWindowOptimizer(cam.left, cam.baseline, cfg, rig_offset=np.zeros(2))
+        cfg = WindowConfig(size=2, max_iterations=20, relative_tolerance=1e-12)
+        w = SlidingWindowOptimizer(cam.left, cam.baseline, cfg, rig_offset=np.zeros(2), photometric=NO_HUBER)
         w.rig.x_estimated = True  # delta_x free from the start: no hold, no test (the same problem for both)
         for k in copy.deepcopy(kfs):
             w.add_keyframe(k)
@@ -210,7 +216,7 @@ def test_odometry_estimates_a_vertical_offset_and_off_switch(seq):
     """Window odometry on a synthetic log whose right images are one row low: the estimate is the
     offset; ``rig_calibration=False`` keeps no rig variable at all."""
     shifted = shift_right_images(seq, (0.0, 1.0))
-    cfg = OdometryConfig(points_per_keyframe=200, window=WindowConfig(rig_calibration=True))
+    cfg = OdometryConfig(frontend=FrontendConfig(points_per_keyframe=200), window=WindowConfig(rig_calibration=True))
     vo = VisualOdometry(shifted.camera, cfg)
     seen = []
     for i in range(8):
@@ -219,7 +225,7 @@ def test_odometry_estimates_a_vertical_offset_and_off_switch(seq):
     assert vo.window.rig.initial is not None and vo.window.rig.initial.delta_y == pytest.approx(1.0, abs=0.25)
     assert vo.window.rig.offset[1] == pytest.approx(1.0, abs=0.05)
     assert all(s is not None for s in seen)  # exposed as the run goes
-    off = VisualOdometry(seq.camera, OdometryConfig(points_per_keyframe=200,
+    off = VisualOdometry(seq.camera, OdometryConfig(frontend=FrontendConfig(points_per_keyframe=200),
                                                     window=WindowConfig(rig_calibration=False)))
     for i in range(3):
         off.process(seq.frame(i))
@@ -269,7 +275,7 @@ def test_report_has_the_offset_and_the_scale(seq, tmp_path):
 
     from gtvo.pipeline import run
 
-    report = run(seq, out=tmp_path / "out", config=OdometryConfig(points_per_keyframe=200,
+    report = run(seq, out=tmp_path / "out", config=OdometryConfig(frontend=FrontendConfig(points_per_keyframe=200),
                                                                    window=WindowConfig(rig_calibration=True)))
     saved = json.loads((tmp_path / "out" / "report.json").read_text())
     assert saved["window_optimisations"] >= 1
@@ -371,7 +377,8 @@ def test_window_depths_are_searched_again_once_delta_x_is_estimated(monkeypatch)
                       n_results))
 
     monkeypatch.setattr(Keyframer, "_research_window_depths", spy)
-    cfg = OdometryConfig(points_per_keyframe=200, window=WindowConfig(rig_calibration=True, size=4))
+    cfg = OdometryConfig(frontend=FrontendConfig(points_per_keyframe=200),
+                         window=WindowConfig(rig_calibration=True, size=4))
     vo, _, _ = process_sequence(seq, cfg, warn=lambda m: None)
     assert len(calls) == 1 and vo.window.rig.x_estimated
     offset, before, after, n_results = calls[0]
@@ -380,8 +387,7 @@ def test_window_depths_are_searched_again_once_delta_x_is_estimated(monkeypatch)
     changed = 0
     for index, (w, d) in after.items():
         res = stereo_inverse_depth(w.image.image, correct_right_image(w.right.image, offset), seq.camera, w.pixels,
-                                   **__import__("dataclasses").asdict(cfg.frontend.stereo),
-                                   clip_range=cfg.photometric.clip_range)
+                                   cfg.frontend.stereo, cfg.photometric.clip_range)
         assert res.valid.mean() > 0.5
         np.testing.assert_array_equal(d[res.valid], res.inverse_depth[res.valid])
         np.testing.assert_array_equal(d[~res.valid], before[index][~res.valid])

@@ -6,6 +6,7 @@ from gtvo.core.camera import PinholeCamera, StereoCamera
 from gtvo.errors import InputError
 from gtvo.frontend import (
     KeyframePoints,
+    StereoSearchConfig,
     Rejection,
     disparity_variance,
     epipolar_direction,
@@ -31,7 +32,7 @@ def true_disparity(disp_map, px):
 def test_subpixel_disparity_on_synthetic_planes(plane, noise):
     left, right, disp = stereo_pair(plane=plane, noise=noise)
     px = select_points(left, target=600)
-    res = stereo_inverse_depth(left, right, camera(), px, max_disparity=48)
+    res = stereo_inverse_depth(left, right, camera(), px, StereoSearchConfig(max_disparity=48))
     err = np.abs(res.disparity - true_disparity(disp, px))[res.valid]
     assert res.valid.mean() > 0.85
     # Bounds: measured medians 0.02 px (noise-free) and 0.04 px (sigma 2 grey levels); the
@@ -47,7 +48,8 @@ def test_gauss_newton_improves_on_parabola():
     px = select_points(left, target=600)
     errs = []
     for it in (0, 3):
-        res = stereo_inverse_depth(left, right, camera(), px, max_disparity=48, gauss_newton_iterations=it)
+        res = stereo_inverse_depth(left, right, camera(), px, StereoSearchConfig(max_disparity=48,
+                                                                                 gauss_newton_iterations=it))
         errs.append(np.median(np.abs(res.disparity - true_disparity(disp, px))[res.valid]))
     assert errs[1] < 0.6 * errs[0]
 
@@ -56,7 +58,7 @@ def test_outputs_never_nan_and_invalid_marked():
     left, right, _ = stereo_pair(plane=PLANES[0])
     h, w = left.shape
     px = np.array([[0, 0], [w - 1, h - 1], [3, 100], [100, 100], [200, 120]], dtype=float)
-    res = stereo_inverse_depth(left, right, camera(), px, max_disparity=48)
+    res = stereo_inverse_depth(left, right, camera(), px, StereoSearchConfig(max_disparity=48))
     for a in (res.inverse_depth, res.variance, res.disparity, res.cost, res.disparity_std):
         assert not np.any(np.isnan(a))
     assert res.rejection[0] == Rejection.OUTSIDE and res.rejection[1] == Rejection.OUTSIDE
@@ -72,8 +74,8 @@ def test_disparity_offset_for_unequal_principal_points():
     left, right, disp = stereo_pair(plane=PLANES[0])
     px = select_points(left, target=200)
     cam = camera()
-    a = stereo_inverse_depth(left, right, cam, px, max_disparity=48)
-    b = stereo_inverse_depth(left, right, cam, px, max_disparity=48, disparity_offset=5.0)
+    a = stereo_inverse_depth(left, right, cam, px, StereoSearchConfig(max_disparity=48))
+    b = stereo_inverse_depth(left, right, cam, px, StereoSearchConfig(max_disparity=48, disparity_offset=5.0))
     np.testing.assert_array_equal(a.valid, b.valid)
     fxb = cam.left.fx * cam.baseline
     np.testing.assert_allclose(b.inverse_depth[b.valid] - a.inverse_depth[a.valid], 5.0 / fxb)
@@ -85,7 +87,7 @@ def test_repetitive_texture_rejected_as_not_unique():
     left = (128 + 80 * np.sin(2 * np.pi * u / 8.0)).astype(np.float32)   # period 8 px along the row
     right = (128 + 80 * np.sin(2 * np.pi * (u + 10.0) / 8.0)).astype(np.float32)
     px = np.array([[60.0, 60.0], [100.0, 50.0], [150.0, 70.0]])
-    res = stereo_inverse_depth(left, right, camera(w, h), px, max_disparity=40)
+    res = stereo_inverse_depth(left, right, camera(w, h), px, StereoSearchConfig(max_disparity=40))
     assert not res.valid.any()
     assert np.all(res.rejection == Rejection.NOT_UNIQUE)
 
@@ -144,7 +146,8 @@ def test_variance_larger_when_gradient_turns_away_from_the_epipolar_line():
     for theta in (0.0, 45.0, 70.0):
         left, right = oriented_pair(theta)
         px = select_points(left, target=300)
-        res = stereo_inverse_depth(left, right, cam, px, max_disparity=32, max_disparity_std=np.inf)
+        res = stereo_inverse_depth(left, right, cam, px, StereoSearchConfig(max_disparity=32,
+                                                                            max_disparity_std=np.inf))
         ok = res.valid
         assert ok.sum() > 50
         assert np.median(np.abs(res.disparity[ok] - 10.0)) < 0.1
@@ -168,8 +171,8 @@ def test_variance_ranks_real_errors():
 
     left, right = scene(u).astype(np.float32), scene(u + d0).astype(np.float32)
     px = select_points(left, target=800)
-    res = stereo_inverse_depth(left, right, camera(), px, max_disparity=48, sigma_intensity=noise,
-                               sigma_line=0.0, max_disparity_std=np.inf)
+    search = StereoSearchConfig(max_disparity=48, sigma_intensity=noise, sigma_line=0.0, max_disparity_std=np.inf)
+    res = stereo_inverse_depth(left, right, camera(), px, search)
     ok = res.valid
     err = np.abs(res.disparity - d0)[ok]
     hi = res.variance[ok] > np.median(res.variance[ok])
@@ -182,7 +185,7 @@ def test_variance_ranks_real_errors():
 def test_init_keyframe_points():
     left, right, disp = stereo_pair(plane=PLANES[2])
     cam = camera()
-    kp = init_keyframe_points(left, right, cam, target=500, max_disparity=48)
+    kp = init_keyframe_points(left, right, cam, target=500, stereo=StereoSearchConfig(max_disparity=48))
     assert isinstance(kp, KeyframePoints)
     assert 0.8 * 500 <= len(kp) <= 500
     assert kp.pixels.shape == (len(kp), 2) and kp.inverse_depth.shape == kp.variance.shape == kp.intensity.shape
@@ -217,7 +220,7 @@ def test_bad_input_raises(case):
         left = left.copy()
         left[0, 0] = np.nan
     with pytest.raises(InputError):
-        stereo_inverse_depth(left, right, cam, px, **kwargs)
+        stereo_inverse_depth(left, right, cam, px, StereoSearchConfig(**kwargs))
 
 
 def kitti_frame(shared_data, i):
@@ -271,7 +274,8 @@ def test_empty_inputs_give_empty_outputs():
 
 def test_search_range_wider_than_the_image_still_finds_the_match():
     left, right, disp = stereo_pair(plane=PLANES[0])
-    res = stereo_inverse_depth(left, right, camera(), np.array([[100.0, 100.0]]), max_disparity=1000)
+    res = stereo_inverse_depth(left, right, camera(), np.array([[100.0, 100.0]]),
+                               StereoSearchConfig(max_disparity=1000))
     assert res.valid[0] and abs(res.disparity[0] - 12.3) < 0.05
 
 
@@ -285,10 +289,10 @@ def test_right_camera_gain_is_equalized_before_matching(gain, raw_loss):
     equalisation undoes.)"""
     left, right, disp = stereo_pair(plane=PLANES[1], noise=1.0)
     px = select_points(left, target=600)
-    equal = stereo_inverse_depth(left, right, camera(), px, max_disparity=48)
+    equal = stereo_inverse_depth(left, right, camera(), px, StereoSearchConfig(max_disparity=48))
     scaled = np.clip(right * gain + 7.0, 0, 255).astype(np.float32)
-    res = stereo_inverse_depth(left, scaled, camera(), px, max_disparity=48)
-    raw = stereo_inverse_depth(left, scaled, camera(), px, max_disparity=48, equalize_gain=False)
+    res = stereo_inverse_depth(left, scaled, camera(), px, StereoSearchConfig(max_disparity=48))
+    raw = stereo_inverse_depth(left, scaled, camera(), px, StereoSearchConfig(max_disparity=48, equalize_gain=False))
     assert res.valid.mean() > equal.valid.mean() - 0.03
     err = np.abs(res.disparity - true_disparity(disp, px))[res.valid]
     assert np.median(err) < 0.06
@@ -310,7 +314,7 @@ def test_brighter_saturating_right_camera_gain_is_recovered_on_kitti(shared_data
     px = select_points(left, target=2000)
     bright = np.clip(right * gain, 0, 255).astype(np.float32)
     equal = stereo_inverse_depth(left, right, cam, px)
-    raw = stereo_inverse_depth(left, bright, cam, px, equalize_gain=False)
+    raw = stereo_inverse_depth(left, bright, cam, px, StereoSearchConfig(equalize_gain=False))
     res = stereo_inverse_depth(left, bright, cam, px)
     assert equal.right_gain == 1.0 and raw.right_gain == 1.0
     assert res.right_gain == pytest.approx(gain, rel=0.04)

@@ -182,9 +182,9 @@ def _config(mode: str = "window", solver: str | None = None):
     """Every frame a keyframe and a window of 3: ten frames build, solve and marginalise."""
     import dataclasses
 
-    from gtvo.config import OdometryConfig, SolverConfig
+    from gtvo.config import KeyframeConfig, OdometryConfig, SolverConfig
 
-    config = OdometryConfig(mode=mode, keyframe_max_motion=1e-4,
+    config = OdometryConfig(mode=mode, keyframes=KeyframeConfig(max_motion=1e-4),
                             **({} if solver is None else {"solver": SolverConfig.both(solver)}))
     return dataclasses.replace(config, window=dataclasses.replace(config.window, size=3))
 

@@ -228,12 +228,12 @@ def test_a_keyframe_built_on_the_frames_pyramid_is_the_same_keyframe():
     cfg = TrackingConfig()
     own = TrackingKeyframe(CAM, Ih, px, d, np.full(len(d), 1e-4), config=cfg)
     shared = TrackingKeyframe(CAM, Ih, px, d, np.full(len(d), 1e-4), config=cfg,
-                              pyramid=frame_pyramid(Ih, cfg.levels, cfg.clip_range))
+                              pyramid=frame_pyramid(Ih, cfg.levels, own.photometric.clip_range))
     assert own.levels == shared.levels
     for (a, va), (b, vb) in zip(own.host_samples, shared.host_samples):
         assert np.array_equal(a, b) and np.array_equal(va, vb)
     with pytest.raises(InputError, match="pyramid"):
         TrackingKeyframe(CAM, Ih, px, d, np.full(len(d), 1e-4), config=cfg,
-                         pyramid=frame_pyramid(Ih[:100, :100], cfg.levels, cfg.clip_range))
+                         pyramid=frame_pyramid(Ih[:100, :100], cfg.levels, own.photometric.clip_range))
     with pytest.raises(InputError, match="pyramid"):
         TrackingKeyframe(CAM, Ih, px, d, np.full(len(d), 1e-4), config=cfg, pyramid=frame_pyramid(Ih, cfg.levels, None))

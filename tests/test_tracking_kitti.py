@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 
 from benchmarks._kitti_sgbm import load_kitti, read_gray, sgbm_keyframe_points
-from gtvo.frontend.tracking import TrackingConfig, TrackingKeyframe, frame_pyramid, track_gtsam, track_handrolled
+from gtvo.frontend.tracking import (PhotometricConfig, TrackingConfig, TrackingKeyframe, frame_pyramid, track_gtsam,
+                                   track_handrolled)
 
 pytestmark = pytest.mark.realdata
 
@@ -73,5 +74,5 @@ def test_exposure_jump_with_clipping_tracks(kitti, solver):
     assert np.linalg.norm(e[3:]) < 0.01 and np.degrees(np.linalg.norm(e[:3])) < 0.05
     assert 0.3 < r.affine[0] - clean.affine[0] < 0.6  # log 1.55 = 0.44, the offset takes some of it
     no_check = TrackingKeyframe(stereo.left, read_gray(lefts[0]), kf.pixels, kf.inverse_depth, kf.variance,
-                                config=TrackingConfig(clip_range=None))
+                                photometric=PhotometricConfig(clip_range=None))
     assert not solver(no_check, frame_pyramid(bright, kf.levels, clip_range=None), guess).success

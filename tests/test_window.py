@@ -9,17 +9,22 @@ import gtsam
 import numpy as np
 import pytest
 
+from factors.params import PhotometricConfig
 from factors.photometric import GradientImage
 from gtvo.errors import InputError
 from gtvo.frontend import init_keyframe_points, select_points
 from gtvo.core.image import to_float_gray
-from gtvo.config import FrontendConfig, KeyframeRule, OdometryConfig, SolverConfig
+from gtvo.config import FrontendConfig, KeyframeConfig, OdometryConfig, SolverConfig
 from gtvo.odometry import VisualOdometry
 from gtvo.datasets.synthetic import make_synthetic_sequence
 from gtvo.frontend.tracking import TrackingKeyframe, frame_pyramid, track_handrolled
 from tests._factors_synthetic import PlaneSceneImage, small_camera
 from gtvo.window import (SlidingWindowOptimizer, WindowConfig, WindowKeyframe, affine_key, build_graph,
                          marginalize, motion_factors, pose_key, solve_gtsam, solve_handrolled, window_cost)
+
+
+#: the photometric model without a robust loss (the solvers' comparisons)
+NO_HUBER = PhotometricConfig(huber_k=None)
 
 
 @pytest.fixture(scope="module")
@@ -72,24 +77,27 @@ def test_handrolled_equals_gtsam(seq, huber_k, timed):
     cam = seq.camera
     kfs = _keyframes(seq, [0, 2, 4, 6, 8], perturb=(0.002, 0.006), timed=timed)
     # timed: a strong motion prior (the camera sways and wobbles) so that it matters here
-    cfg = WindowConfig(max_iterations=40, relative_tolerance=1e-12, huber_k=huber_k, acceleration_sigma=(0.01, 0.02))
+    cfg = WindowConfig(max_iterations=40, relative_tolerance=1e-12, acceleration_sigma=(0.01, 0.02))
+    model = PhotometricConfig(huber_k=huber_k)
     a, b = copy.deepcopy(kfs), copy.deepcopy(kfs)
     # the two cost functions agree at the starting point
-    graph, values, _ = build_graph(cam.left, cam.baseline, kfs, cfg, None)
-    assert graph.error(values) == pytest.approx(window_cost(cam.left, cam.baseline, kfs, cfg), rel=1e-9)
+    graph, values, _ = build_graph(cam.left, cam.baseline, kfs, cfg, None, photometric=model)
+    assert graph.error(values) == pytest.approx(window_cost(cam.left, cam.baseline, kfs, cfg, photometric=model),
+                                                rel=1e-9)
     no_motion = WindowConfig(**{**cfg.__dict__, "acceleration_sigma": None})
     if timed:  # the motion prior is in the hand-rolled cost as GTSAM's factors have it
-        values = build_graph(cam.left, cam.baseline, kfs, cfg, None)[1]
+        values = build_graph(cam.left, cam.baseline, kfs, cfg, None, photometric=model)[1]
         motion = sum(f.error(values) for _, f in motion_factors(kfs, cfg))
         assert len(motion_factors(kfs, cfg)) == 3 and motion > 1.0
-        assert window_cost(cam.left, cam.baseline, kfs, cfg) - window_cost(cam.left, cam.baseline, kfs, no_motion) \
+        with_prior = window_cost(cam.left, cam.baseline, kfs, cfg, photometric=model)
+        assert with_prior - window_cost(cam.left, cam.baseline, kfs, no_motion, photometric=model) \
             == pytest.approx(motion, rel=1e-6)
-    ra = solve_gtsam(cam.left, cam.baseline, a, cfg)
-    rb = solve_handrolled(cam.left, cam.baseline, b, cfg)
+    ra = solve_gtsam(cam.left, cam.baseline, a, cfg, photometric=model)
+    rb = solve_handrolled(cam.left, cam.baseline, b, cfg, photometric=model)
     assert ra.cost < 0.5 * ra.initial_cost
     if timed:  # and it moves the optimum (so the agreement below covers its Gauss-Newton terms)
         c = copy.deepcopy(kfs)
-        solve_gtsam(cam.left, cam.baseline, c, no_motion)
+        solve_gtsam(cam.left, cam.baseline, c, no_motion, photometric=model)
         assert max(np.abs(x.pose.localCoordinates(y.pose)).max() for x, y in zip(a, c)) > 1e-3
     tol_cost = 1e-4 if huber_k is None else 2e-3
     assert ra.cost == pytest.approx(rb.cost, rel=tol_cost)
@@ -160,9 +168,9 @@ def test_marginalisation_keeps_a_prior(seq):
             assert gt_err == pytest.approx(m.cost(values), rel=1e-9)
             # both solvers agree with the prior in the graph
             a, b = copy.deepcopy(w.keyframes), copy.deepcopy(w.keyframes)
-            c2 = WindowConfig(size=3, max_iterations=30, relative_tolerance=1e-12, huber_k=None)
-            ra = solve_gtsam(cam.left, cam.baseline, a, c2, m)
-            rb = solve_handrolled(cam.left, cam.baseline, b, c2, m)
+            c2 = WindowConfig(size=3, max_iterations=30, relative_tolerance=1e-12)
+            ra = solve_gtsam(cam.left, cam.baseline, a, c2, m, photometric=NO_HUBER)
+            rb = solve_handrolled(cam.left, cam.baseline, b, c2, m, photometric=NO_HUBER)
             assert ra.cost == pytest.approx(rb.cost, rel=2e-4)  # measured 6e-5
             assert max(np.abs(x.pose.localCoordinates(y.pose)).max() for x, y in zip(a, b)) < 2e-5
         else:
@@ -195,7 +203,7 @@ def test_visual_odometry_window_mode(seq):
     (measured 3.3 cm at most on this small aliased rendering, 0.1 m per frame; track mode: see
     benchmarks/window_kitti.py for the real-data comparison)."""
     cfg = OdometryConfig(mode="window", frontend=FrontendConfig(points_per_keyframe=300),
-                         keyframes=KeyframeRule(max_motion=0.02))
+                         keyframes=KeyframeConfig(max_motion=0.02))
     vo = VisualOdometry(seq.camera, cfg)
     for i in range(6):
         vo.process(seq.frame(i))
@@ -237,7 +245,7 @@ def test_pipeline_window_mode_report(seq, tmp_path):
 
     cfg = OdometryConfig(mode="window", solver=SolverConfig(window="handrolled"),
                          frontend=FrontendConfig(points_per_keyframe=200),
-                         keyframes=KeyframeRule(max_motion=0.02))
+                         keyframes=KeyframeConfig(max_motion=0.02))
     report = run(seq, out=tmp_path / "out", config=cfg, max_frames=4)
     assert report["mode"] == "window" and report["window_solver"] == "handrolled"
     assert report["window_optimisations"] >= 1 and report["window_seconds_mean"] > 0
@@ -257,7 +265,7 @@ def test_rgbd_window_on_tum_teddy(shared_data):
     seq = open_sequence(shared_data / "rgbd_dataset_freiburg3_teddy_first20", max_frames=8,
                         camera=(535.4, 539.2, 320.1, 247.6))
     cfg = OdometryConfig(mode="window", frontend=FrontendConfig(points_per_keyframe=600),
-                         keyframes=KeyframeRule(max_motion=0.01))
+                         keyframes=KeyframeConfig(max_motion=0.01))
     vo, traj, info = process_sequence(seq, cfg)
     assert info["window_optimisations"] >= 1
     assert all(w.right is None and w.depth_prior for w in vo.window.keyframes)
@@ -293,8 +301,8 @@ def test_repeated_marginalisation_same_for_both_solvers(seq):
     kfs = _keyframes(seq, [0, 2, 4, 6], perturb=(0.002, 0.006), points=150, seed=2, timed=True)
     ends = {}
     for solver, marg in (("gtsam", True), ("handrolled", True), ("gtsam", False)):
-        cfg = WindowConfig(size=2, max_iterations=30, relative_tolerance=1e-12, huber_k=None, marginalize=marg)
-        w = SlidingWindowOptimizer(cam.left, cam.baseline, cfg)
+        cfg = WindowConfig(size=2, max_iterations=30, relative_tolerance=1e-12, marginalize=marg)
+        w = SlidingWindowOptimizer(cam.left, cam.baseline, cfg, photometric=NO_HUBER)
         for k in copy.deepcopy(kfs):
             w.add_keyframe(k)
             w.optimize(solver)

@@ -9,18 +9,20 @@ component, each field's default and allowed range declared once beside it
       solver               SolverConfig (tracker, window)
       frontend             FrontendConfig (points_per_keyframe, points: PointSelectionConfig,
                                            stereo: StereoSearchConfig, depth_sigma_model)
-      keyframes            gtvo.frontend.keyframes.KeyframeRule
+      keyframes            gtvo.frontend.keyframes.KeyframeConfig
       tracking             gtvo.frontend.tracking.TrackingConfig
       window               gtvo.window.WindowConfig
       flow_fallback        gtvo.frontend.flow_pose.FlowPoseConfig | None
-      frame_checks         gtvo.frontend.frame_checks.FrameCheckSettings
+      frame_checks         gtvo.frontend.frame_checks.FrameCheckConfig
       motion_model         MotionModelConfig
-      photometric          factors.params.PhotometricParams
+      photometric          factors.params.PhotometricConfig
+      loops                gtvo.loops.config.LoopClosureConfig (enabled, detector: LoopDetectorConfig
+                                           (orb: OrbConfig, verification: VerificationConfig, ...))
 
 The photometric model (noise, Huber threshold, pattern, clipped range) is set once, in
-``photometric``; the tracker's and the window's copies of it are filled from there (and are not
-keys of their own in a config file). The command line and the library share these defaults:
-``gtvo run`` and :func:`gtvo.run` run the same solvers.
+``photometric``, and the tracker and the window are given that one object. The command line and
+the library share these defaults: ``gtvo run`` and :func:`gtvo.run` run the same solvers, and a
+solver name means both solvers in each (``OdometryConfig(solver="handrolled")``, ``--solver handrolled``).
 
 The package: the tree (:mod:`gtvo.config.tree`); the configuration as plain data and files,
 :func:`config_to_dict` / :func:`config_from_dict` (the inverse, checking every key, type and range),
@@ -29,17 +31,17 @@ The package: the tree (:mod:`gtvo.config.tree`); the configuration as plain data
 :func:`config_reference` (:mod:`gtvo.config.reference`).
 """
 
-from gtvo.config.files import (ConfigKeyError, as_config, config_from_dict, config_to_dict, config_to_yaml,
+from gtvo.config.files import (MOVED_KEYS, ConfigKeyError, as_config, config_from_dict, config_to_dict, config_to_yaml,
                                load_config)
 from gtvo.config.reference import config_reference, describe_key, field_docs
-from gtvo.config.tree import (LEGACY_NAMES, MIN_POINTS_PER_KEYFRAME, PHOTOMETRIC_COPIES, FlowPoseConfig,
-                              FrontendConfig, KeyframeRule, MotionModelConfig, MotionNoise, OdometryConfig,
-                              PhotometricParams, PointSelectionConfig, SolverConfig, StereoSearchConfig,
+from gtvo.config.tree import (MIN_POINTS_PER_KEYFRAME, FlowPoseConfig,
+                              FrontendConfig, KeyframeConfig, MotionModelConfig, MotionNoiseConfig, OdometryConfig,
+                              PhotometricConfig, PointSelectionConfig, SolverConfig, StereoSearchConfig,
                               TrackingConfig, WindowConfig)
 
 __all__ = [
-    "LEGACY_NAMES", "MIN_POINTS_PER_KEYFRAME", "PHOTOMETRIC_COPIES", "ConfigKeyError", "FlowPoseConfig",
-    "FrontendConfig", "KeyframeRule", "MotionModelConfig", "MotionNoise", "OdometryConfig", "PhotometricParams",
+    "MIN_POINTS_PER_KEYFRAME", "MOVED_KEYS", "ConfigKeyError", "FlowPoseConfig",
+    "FrontendConfig", "KeyframeConfig", "MotionModelConfig", "MotionNoiseConfig", "OdometryConfig", "PhotometricConfig",
     "PointSelectionConfig", "SolverConfig", "StereoSearchConfig", "TrackingConfig", "WindowConfig", "as_config",
     "config_from_dict", "config_reference", "config_to_dict", "config_to_yaml", "describe_key", "field_docs",
     "load_config",

@@ -15,9 +15,30 @@ from typing import Any, Literal
 
 import numpy as np
 
-from gtvo.config.tree import _DERIVED, OdometryConfig
+from gtvo.config.tree import OdometryConfig
 from gtvo.core.settings import SettingError, type_hints
 from gtvo.errors import InputError
+
+#: Keys of earlier versions and the key that holds each setting now: a config file that uses one
+#: is told which key to set (they are not read: one name per setting).
+MOVED_KEYS: dict[str, str] = {
+    "points_per_keyframe": "frontend.points_per_keyframe",
+    "max_disparity": "frontend.stereo.max_disparity",
+    "depth_sigma_model": "frontend.depth_sigma_model",
+    "keyframe_min_visible": "keyframes.min_visible",
+    "keyframe_max_motion": "keyframes.max_motion",
+    "keyframe_max_flow": "keyframes.max_flow",
+    "keyframe_max_rotation_deg": "keyframes.max_rotation_deg",
+    "keyframe_max_brightness": "keyframes.max_brightness",
+    "accept_rms_factor": "motion_model.accept_rms_factor",
+    "window_solver": "solver.window",
+    "tracker_solver": "solver.tracker",
+    "loop_closure": "loops.enabled",
+    **{f"{section}.{key}": f"photometric.{key}" for section in ("tracking", "window")
+       for key in ("sigma_intensity", "huber_k", "pattern")},
+    "tracking.clip_range": "photometric.clip_range",
+}
+
 
 def config_to_dict(config: OdometryConfig) -> dict[str, Any]:
     """The whole tree as plain JSON/YAML data (dicts, lists, str, numbers, bools, None); infinite
@@ -27,8 +48,7 @@ def config_to_dict(config: OdometryConfig) -> dict[str, Any]:
 
 def _to_plain(obj: Any, path: str) -> Any:
     if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
-        return {f.name: _to_plain(getattr(obj, f.name), _join(path, f.name)) for f in dataclasses.fields(obj)
-                if _join(path, f.name) not in _DERIVED}
+        return {f.name: _to_plain(getattr(obj, f.name), _join(path, f.name)) for f in dataclasses.fields(obj)}
     if isinstance(obj, np.ndarray):
         return _to_plain(obj.tolist(), path)
     if isinstance(obj, (list, tuple)):
@@ -89,10 +109,10 @@ def _build(cls: type, data: Any, path: str) -> Any:
     if not isinstance(data, dict):
         raise SettingError(path or "(top level)", f"must be a mapping of keys, got {_show(data)}")
     hints = type_hints(cls)
-    names = [f.name for f in dataclasses.fields(cls) if _join(path, f.name) not in _DERIVED]
+    names = [f.name for f in dataclasses.fields(cls)]
     for key in data:
-        if _join(path, str(key)) in _DERIVED:
-            raise SettingError(_join(path, str(key)), f"is set by photometric.{key}; set it there")
+        if _join(path, str(key)) in MOVED_KEYS:
+            raise SettingError(_join(path, str(key)), f"is now key '{MOVED_KEYS[_join(path, str(key))]}'; set that")
         if key not in names:
             close = difflib.get_close_matches(str(key), names, n=1)
             hint = f" (did you mean '{close[0]}'?)" if close else f"; known: {', '.join(names)}"
@@ -177,8 +197,8 @@ def load_config(path: str | Path, base: OdometryConfig | None = None) -> Odometr
     their values in ``base`` (default: the defaults; docs/configuration.md).
 
     Raises:
-        InputError: one line naming the file (and the key): unreadable file, malformed YAML,
-            unknown key, wrong type, value out of range.
+        InputError: one line naming the file (and the key): unreadable file, malformed YAML, a
+            key given twice in one mapping (with its line), unknown key, wrong type, value out of range.
     """
     import yaml  # noqa: PLC0415
 
@@ -188,12 +208,33 @@ def load_config(path: str | Path, base: OdometryConfig | None = None) -> Odometr
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"cannot read the config file: {getattr(exc, 'strerror', None) or exc}", path=p) from None
     try:
-        data = yaml.load(text, Loader=_yaml_loader())  # noqa: S506 (a SafeLoader)
+        loader = _yaml_loader()
+        _refuse_duplicate_keys(yaml.compose(text, Loader=loader), "", p)  # noqa: S506 (a SafeLoader)
+        data = yaml.load(text, Loader=loader)  # noqa: S506 (a SafeLoader)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         problem = getattr(exc, "problem", None) or "malformed"
         raise InputError(f"not valid YAML: {problem}", path=p, line=None if mark is None else mark.line + 1) from None
     return config_from_dict(data, source=p, base=base)
+
+
+def _refuse_duplicate_keys(node: Any, path: str, source: Path) -> None:
+    """An :class:`InputError` naming the file, the dotted key and its line when a mapping of the
+    YAML ``node`` gives a key twice (YAML would keep the last one silently)."""
+    import yaml  # noqa: PLC0415
+
+    if isinstance(node, yaml.MappingNode):
+        seen: set[str] = set()
+        for key_node, value_node in node.value:
+            key = str(key_node.value)
+            if key in seen:
+                raise InputError(f"key '{_join(path, key)}' given twice", path=source,
+                                 line=key_node.start_mark.line + 1)
+            seen.add(key)
+            _refuse_duplicate_keys(value_node, _join(path, key), source)
+    elif isinstance(node, yaml.SequenceNode):
+        for item in node.value:
+            _refuse_duplicate_keys(item, path, source)
 
 
 def _yaml_loader() -> type:

@@ -13,7 +13,7 @@ import typing
 from typing import Any, Literal
 
 from gtvo.config.files import _join, _to_plain
-from gtvo.config.tree import _DERIVED, OdometryConfig, _dataclass_of
+from gtvo.config.tree import OdometryConfig, _dataclass_of
 from gtvo.core.settings import type_hints
 
 def field_docs(cls: type) -> dict[str, str]:
@@ -66,8 +66,6 @@ def _reference_rows(cls: type, obj: Any, path: str, lines: list[str]) -> None:
     docs, hints = field_docs(cls), type_hints(cls)
     for f in dataclasses.fields(cls):
         key = _join(path, f.name)
-        if key in _DERIVED:
-            continue
         value = getattr(obj, f.name)
         sub = _dataclass_of(hints[f.name])
         kind = _type_name(hints[f.name])

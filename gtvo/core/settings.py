@@ -8,10 +8,11 @@ A config field declares its range once, beside its default::
 and the dataclass calls :func:`check_settings` in ``__post_init__``: a value outside its range,
 or a ``Literal`` field given a value it does not list, raises :class:`SettingError`, an
 :class:`gtvo.errors.InputError` that names the field (``key``), so a config file's loader can
-name ``window.size`` and the file (:mod:`gtvo.config`). Ranges are ``> x``, ``>= x``, ``< x``,
-``<= x`` (infinity included: ``> 0`` admits ``inf``, "no limit") or an interval ``[a, b]``,
-``(a, b]``, ``[a, b)``, ``(a, b)``; a tuple is checked element by element; None always passes (an
-optional setting switched off).
+name ``window.size`` and the file (:mod:`gtvo.config`). Ranges are an interval ``[a, b]``,
+``(a, b]``, ``[a, b)``, ``(a, b)``, or ``> x``, ``>= x``, ``< x``, ``<= x``. A value must be a
+finite number inside it: infinity passes only where the range names it as a closed end
+(``(0, inf]``: "inf switches the check off"), NaN never. A tuple is checked element by element;
+None always passes (an optional setting switched off).
 """
 
 from __future__ import annotations
@@ -53,8 +54,8 @@ def parse_range(text: str) -> tuple[float, float, bool, bool]:
     t = text.strip()
     for op, closed in ((">=", True), ("<=", True), (">", False), ("<", False)):
         if t.startswith(op):
-            x = float(t[len(op):])
-            return (x, math.inf, closed, True) if op[0] == ">" else (-math.inf, x, True, closed)
+            x = float(t[len(op):])  # the other end open: infinity is not in the range
+            return (x, math.inf, closed, False) if op[0] == ">" else (-math.inf, x, False, closed)
     if len(t) >= 5 and t[0] in "[(" and t[-1] in "])" and "," in t:
         a, b = (float(s) for s in t[1:-1].split(","))
         return a, b, t[0] == "[", t[-1] == "]"

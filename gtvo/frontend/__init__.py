@@ -24,11 +24,10 @@ from gtvo.frontend.stereo_depth import (
     Rejection,
     StereoDepthResult,
     StereoSearchConfig,
-    disparity_variance,
-    epipolar_direction,
     init_keyframe_points,
     stereo_inverse_depth,
 )
+from gtvo.frontend.stereo_geometry import disparity_variance, epipolar_direction
 
 __all__ = [
     "DEFAULT_BORDER",

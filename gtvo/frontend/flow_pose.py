@@ -50,12 +50,12 @@ class FlowPoseConfig:
         min_inliers: fewest PnP inliers for a guess.
     """
 
-    window_px: int = setting(21, ">= 3")
-    pyramid_levels: int = setting(5, ">= 0")
-    max_forward_backward_px: float = setting(1.0, "> 0")
-    ransac_threshold_px: float = setting(2.0, "> 0")
-    ransac_iterations: int = setting(200, ">= 1")
-    min_inliers: int = setting(12, ">= 4")
+    window_px: int = setting(21, "[3, 101]")
+    pyramid_levels: int = setting(5, "[0, 10]")
+    max_forward_backward_px: float = setting(1.0, "(0, 100]")
+    ransac_threshold_px: float = setting(2.0, "(0, 100]")
+    ransac_iterations: int = setting(200, "[1, 100000]")
+    min_inliers: int = setting(12, "[4, 100000]")
 
     def __post_init__(self) -> None:
         check_settings(self)

@@ -50,7 +50,7 @@ from gtvo.frontend.stereo_depth import KeyframePoints
 
 
 @dataclass(frozen=True)
-class FrameCheckSettings:
+class FrameCheckConfig:
     """Thresholds of the suspect-frame check (module docstring).
 
     Attributes:
@@ -71,12 +71,12 @@ class FrameCheckSettings:
     """
 
     enabled: bool = True
-    max_deviation: float = setting(0.5, "> 0")
-    agree_deviation: float = setting(0.15, "> 0")
-    agree_frames: int = setting(3, ">= 1")
-    min_step_px: float = setting(3.0, "> 0")
-    max_intervals: float = setting(4.5, "> 0")
-    max_consecutive: int = setting(3, ">= 1")
+    max_deviation: float = setting(0.5, "(0, 100]")
+    agree_deviation: float = setting(0.15, "(0, 100]")
+    agree_frames: int = setting(3, "[1, 1000]")
+    min_step_px: float = setting(3.0, "(0, 10000]")
+    max_intervals: float = setting(4.5, "(0, 1000]")
+    max_consecutive: int = setting(3, "[1, 1000]")
 
     def __post_init__(self) -> None:
         check_settings(self)
@@ -136,7 +136,7 @@ class FrameChecker:
     they disarm the check until good frames agree with the model again.
     """
 
-    settings: FrameCheckSettings = field(default_factory=FrameCheckSettings)
+    settings: FrameCheckConfig = field(default_factory=FrameCheckConfig)
     recent: list[float] = field(default_factory=list)
     consecutive: int = 0
 

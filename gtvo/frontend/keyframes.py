@@ -27,7 +27,7 @@ from gtvo.frontend.tracking import TrackingResult
 
 
 @dataclass(frozen=True)
-class KeyframeRule:
+class KeyframeConfig:
     """The thresholds of the keyframe rule (module docstring); the defaults are DSO's where DSO has
     one. Any one condition makes a keyframe; 0 for a ``max_*`` makes every tracked frame one.
 
@@ -43,16 +43,16 @@ class KeyframeRule:
     """
 
     min_visible: float = setting(0.7, "[0, 1]")
-    max_motion: float = setting(0.3, ">= 0")
-    max_flow: float = setting(1.0 / 44.8, ">= 0")
-    max_rotation_deg: float = setting(8.0, ">= 0")
-    max_brightness: float = setting(0.3, ">= 0")
+    max_motion: float = setting(0.3, "[0, inf]")
+    max_flow: float = setting(1.0 / 44.8, "[0, inf]")
+    max_rotation_deg: float = setting(8.0, "[0, inf]")
+    max_brightness: float = setting(0.3, "[0, inf]")
 
     def __post_init__(self) -> None:
         check_settings(self)
 
 
-def needs_keyframe(camera: PinholeCamera, points: KeyframePoints, result: TrackingResult, rule: KeyframeRule) -> bool:
+def needs_keyframe(camera: PinholeCamera, points: KeyframePoints, result: TrackingResult, rule: KeyframeConfig) -> bool:
     """True when a frame tracked against the keyframe hosting ``points`` (``result``) should become a keyframe."""
     n = len(points)
     if result.n_valid < rule.min_visible * n:

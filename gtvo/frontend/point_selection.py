@@ -54,20 +54,22 @@ class PointSelectionConfig:
         seed: seed of the random subsample.
     """
 
-    border: int = setting(DEFAULT_BORDER, ">= 0")
-    block: int = setting(32, ">= 1")
-    threshold_offset: float = 7.0
-    levels: int = setting(3, ">= 1")
+    border: int = setting(DEFAULT_BORDER, "[0, 1000]")
+    block: int = setting(32, "[1, 1024]")
+    threshold_offset: float = setting(7.0, "[0, 255]")
+    levels: int = setting(3, "[1, 10]")
     downweight: float = setting(0.75, "(0, 1]")
-    max_iterations: int = setting(6, ">= 1")
-    tolerance: float = setting(0.25, ">= 0")
-    seed: int = 0
+    max_iterations: int = setting(6, "[1, 100]")
+    tolerance: float = setting(0.25, "[0, 10]")
+    seed: int = setting(0, "[0, 4294967295]")
 
     def __post_init__(self) -> None:
         check_settings(self)
 
 
-_DEFAULT = PointSelectionConfig()
+#: The default point selection (the default argument of :func:`select_points`).
+DEFAULT_POINT_SELECTION = PointSelectionConfig()
+_DEFAULT = DEFAULT_POINT_SELECTION
 
 
 def gradient_magnitude(image: NDArray) -> NDArray[np.float32]:
@@ -116,29 +118,16 @@ def _threshold_grid(grad_mag: NDArray[np.float32], block: int, threshold_offset:
 
 
 @timed("point_selection")
-def select_points(image: NDArray, target: int = 2000, border: int = _DEFAULT.border, *,
-                  block: int = _DEFAULT.block, threshold_offset: float = _DEFAULT.threshold_offset,
-                  levels: int = _DEFAULT.levels, downweight: float = _DEFAULT.downweight,
-                  max_iterations: int = _DEFAULT.max_iterations, tolerance: float = _DEFAULT.tolerance,
-                  seed: int = _DEFAULT.seed) -> NDArray[np.float64]:
+def select_points(image: NDArray, target: int = 2000,
+                  config: PointSelectionConfig = DEFAULT_POINT_SELECTION) -> NDArray[np.float64]:
     """Select about ``target`` well-spread high-gradient pixels of a gray image.
-
-    The keyword settings are :class:`PointSelectionConfig`'s (its defaults are theirs);
-    ``select_points(img, n, **dataclasses.asdict(config))`` applies a config.
 
     Args:
         image: gray (H, W) or BGR image, any dtype; converted by :func:`gtvo.core.image.to_float_gray`.
         target: wanted number of points; the result has at most ``target`` (fewer on images
             without enough texture).
-        border: pixels kept free at each image side (pattern radius + margin).
-        block: side of the threshold blocks (px).
-        threshold_offset: added to each block's median gradient magnitude (grey levels).
-        levels: number of cell levels (s, 2s, 4s, ...).
-        downweight: threshold factor per extra level.
-        max_iterations: iterations adapting the cell size.
-        tolerance: accept a count within ``[target, (1 + tolerance) target]`` without iterating
-            further (the surplus is then subsampled away).
-        seed: seed of the random subsample.
+        config: the selection's settings (:class:`PointSelectionConfig`: border, threshold
+            blocks, cell levels, iterations adapting the cell size, the subsample's seed).
 
     Returns:
         (N, 2) float64 pixel coordinates ``(u, v)`` (integers, pixel centres), sorted by row then
@@ -148,26 +137,24 @@ def select_points(image: NDArray, target: int = 2000, border: int = _DEFAULT.bor
     if int(target) < 1:
         raise InputError(f"point-selection target must be >= 1, got {target}")
     h, w = img.shape
-    border = int(border)
-    if border < 0 or 2 * border >= min(h, w):
+    border, block, levels, downweight = int(config.border), int(config.block), config.levels, config.downweight
+    if 2 * border >= min(h, w):
         raise InputError(f"point-selection border {border} does not fit a {w}x{h} image")
-    if levels < 1 or not 0 < downweight <= 1:
-        raise InputError(f"point selection needs levels >= 1 and 0 < downweight <= 1, got {levels}, {downweight}")
     target = int(target)
     score = _magnitude(img)
-    thr = _threshold_grid(score, block, threshold_offset)  # block_gradient_thresholds per block
+    thr = _threshold_grid(score, block, config.threshold_offset)  # block_gradient_thresholds per block
     # the threshold factor of each cell level, float32 as numpy's float32 x Python float product
     factors = np.array([downweight ** lvl for lvl in range(levels)], dtype=np.float32)
 
     area = float((h - 2 * border) * (w - 2 * border))
     cell = max(1.0, np.sqrt(area / target))
     tried: dict[int, NDArray[np.int64]] = {}  # cell size -> its picks (flat indices, row-major)
-    for _ in range(max_iterations):
+    for _ in range(config.max_iterations):
         c = int(max(1, round(cell)))
         if c not in tried:
             tried[c] = pick_cells(score, thr, int(block), border, c, factors)
         n = int(tried[c].size)
-        if target <= n <= (1 + tolerance) * target or n == 0:
+        if target <= n <= (1 + config.tolerance) * target or n == 0:
             break
         new_cell = cell * np.sqrt(n / target)
         if int(max(1, round(new_cell))) == c:  # no integer change possible: nudge one step
@@ -181,6 +168,6 @@ def select_points(image: NDArray, target: int = 2000, border: int = _DEFAULT.bor
     best_c = min(over, key=lambda c: counts[c]) if over else max(counts, key=lambda c: counts[c])
     vs, us = np.divmod(tried[best_c], w)  # np.nonzero of the pick map
     if us.size > target:
-        keep = np.sort(np.random.default_rng(seed).choice(us.size, size=target, replace=False))
+        keep = np.sort(np.random.default_rng(config.seed).choice(us.size, size=target, replace=False))
         us, vs = us[keep], vs[keep]
     return np.column_stack([us, vs]).astype(np.float64)

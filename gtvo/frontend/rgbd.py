@@ -2,13 +2,11 @@
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 from numpy.typing import NDArray
 
 from gtvo.core.timing import timed
-from gtvo.frontend.point_selection import PointSelectionConfig, select_points
+from gtvo.frontend.point_selection import DEFAULT_POINT_SELECTION, PointSelectionConfig, select_points
 from gtvo.frontend.stereo_depth import KeyframePoints
 
 #: ``(s0, s2)`` of a structured-light sensor's depth noise ``sigma_z = s0 + s2 z^2`` (m): the
@@ -19,14 +17,14 @@ DEPTH_SIGMA_MODEL: tuple[float, float] = (0.0012, 0.0019)
 @timed("stereo_search")  # the keyframe's depths (from the sensor): the stereo search's stage
 def rgbd_keyframe_points(image: NDArray[np.float32], depth: NDArray[np.float32], target: int,
                          sigma_model: tuple[float, float] = DEPTH_SIGMA_MODEL,
-                         selection: PointSelectionConfig | None = None) -> KeyframePoints:
+                         selection: PointSelectionConfig = DEFAULT_POINT_SELECTION) -> KeyframePoints:
     """Keyframe points from an RGB-D frame: selected pixels with the sensor's depth.
 
     The depth noise ``sigma_z = s0 + s2 z^2`` (structured-light sensors) becomes an inverse-depth
     variance ``V = sigma_z^2 / z^4`` (first-order propagation through ``d = 1/z``). ``selection``:
     the point selection's settings (default :class:`PointSelectionConfig`'s).
     """
-    px = select_points(image, target, **dataclasses.asdict(selection or PointSelectionConfig()))
+    px = select_points(image, target, selection)
     iu = np.rint(px[:, 0]).astype(np.intp)
     iv = np.rint(px[:, 1]).astype(np.intp)
     z = np.asarray(depth, dtype=np.float64)[iv, iu]

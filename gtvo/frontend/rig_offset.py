@@ -21,7 +21,7 @@ from numpy.typing import ArrayLike, NDArray
 from gtvo.core.camera import StereoCamera
 from gtvo.core.image import bilinear_sample, image_gradients, to_float_gray
 from gtvo.errors import InputError
-from gtvo.frontend.stereo_depth import PATCH_5X5, stereo_inverse_depth
+from gtvo.frontend.stereo_depth import PATCH_5X5, StereoSearchConfig, stereo_inverse_depth
 
 FloatArray = NDArray[np.float64]
 
@@ -136,7 +136,7 @@ def estimate_vertical_offset(left: ArrayLike, right: ArrayLike, stereo_camera: S
 
     def search(k: int) -> None:
         results[k] = stereo_inverse_depth(left_f, correct_right_image(right_f, (0.0, k)), stereo_camera, px,
-                                          max_disparity=max_disparity)
+                                          StereoSearchConfig(max_disparity=max_disparity))
         counts[k] = int(np.count_nonzero(results[k].valid))
 
     for k in (-1, 0, 1)[1 - min(int(search_rows), 1):2 + min(int(search_rows), 1)]:

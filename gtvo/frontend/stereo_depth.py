@@ -28,7 +28,7 @@ For each selected left pixel ``p = (u, v)`` of a rectified pair (docs/frontend.m
 
 from __future__ import annotations
 
-from dataclasses import asdict, replace
+from dataclasses import replace
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -36,9 +36,10 @@ from numpy.typing import ArrayLike, NDArray
 from factors.photometric import DEFAULT_CLIP_RANGE, PATTERN_DSO8
 from gtvo.core.camera import StereoCamera
 from gtvo.core.timing import timed
-from gtvo.errors import InputError, show
+from gtvo.errors import InputError
 from gtvo.frontend._compiled import bilinear_with_gradient_x, gradients_at, zssd_costs
-from gtvo.frontend.point_selection import DEFAULT_BORDER, PointSelectionConfig, select_points
+from gtvo.frontend.point_selection import DEFAULT_POINT_SELECTION, PointSelectionConfig, select_points
+from gtvo.frontend.stereo_geometry import disparity_variance, epipolar_direction
 from gtvo.core.image import bilinear_sample, check_same_size, image_gradients, to_float_gray
 from gtvo.frontend.stereo_types import (DEFAULT_STEREO_SEARCH, KeyframePoints, Rejection, StereoDepthResult,
                                        StereoSearchConfig)
@@ -63,50 +64,6 @@ MIN_GAIN_POINTS = 10
 
 __all__ = ["KeyframePoints", "Rejection", "StereoDepthResult", "StereoSearchConfig", "disparity_variance",
            "epipolar_direction", "init_keyframe_points", "matched_gain", "stereo_inverse_depth"]
-
-
-def epipolar_direction(bearing: ArrayLike, translation: ArrayLike) -> FloatArray:
-    """Unit epipolar direction in the target image, the notes' ``(epx, epy)``, (N, 2).
-
-    ``(epx, epy) = (-a t3 + t1, -b t3 + t2)`` where ``(a, b, 1)`` is the (rotated) bearing of the
-    host pixel and ``t = (t1, t2, t3)`` the translation of ``T_target_host``: the direction in
-    which the projection moves as the inverse depth grows. For a rectified pair
-    (``t = (-baseline, 0, 0)``) it is ``(-1, 0)`` for every pixel: the search runs along the row.
-    Rows whose direction vanishes (pure forward motion at the epipole) are returned as 0.
-    """
-    b = np.asarray(bearing, dtype=float).reshape(-1, 3)
-    b = b / b[:, 2:3]
-    t = np.asarray(translation, dtype=float).reshape(3)
-    ep = np.column_stack([-b[:, 0] * t[2] + t[0], -b[:, 1] * t[2] + t[1]])
-    n = np.linalg.norm(ep, axis=1, keepdims=True)
-    return np.divide(ep, n, out=np.zeros_like(ep), where=n > 0)
-
-
-def disparity_variance(gx: ArrayLike, gy: ArrayLike, line: ArrayLike, sigma_intensity: float,
-                       sigma_line: float) -> FloatArray:
-    """LSD-SLAM disparity variance ``sigma_disp^2`` (px^2) of N points from their pattern gradients.
-
-    Args:
-        gx, gy: (N, P) host-image gradients at the P pattern pixels (grey levels per px).
-        line: (N, 2) unit epipolar directions ``l`` (:func:`epipolar_direction`).
-        sigma_intensity: image noise ``sigma_I`` (grey levels).
-        sigma_line: epipolar-line position error ``sigma_l`` (px).
-
-    Returns:
-        ``sigma_l^2 * g2 / g_ll + 2 sigma_I^2 / g_ll`` with ``g_ll = mean_k (g_k . l)^2`` and
-        ``g2 = mean_k |g_k|^2``: the geometric error ``sigma_l^2 / <g/|g|, l>^2`` plus the
-        photometric error ``2 sigma_I^2 / g_p^2`` (``g_p`` the gradient along the line), both
-        with pattern-averaged squared gradients. ``inf`` where ``g_ll`` is 0.
-    """
-    gx = np.atleast_2d(np.asarray(gx, dtype=float))
-    gy = np.atleast_2d(np.asarray(gy, dtype=float))
-    ln = np.asarray(line, dtype=float).reshape(-1, 2)
-    g_l = gx * ln[:, :1] + gy * ln[:, 1:]
-    g_ll = np.mean(g_l * g_l, axis=1)
-    g2 = np.mean(gx * gx + gy * gy, axis=1)
-    safe = g_ll > 1e-12
-    g_ll_s = np.where(safe, g_ll, 1.0)
-    return np.where(safe, (sigma_line ** 2) * g2 / g_ll_s + 2.0 * sigma_intensity ** 2 / g_ll_s, np.inf)
 
 
 def _as_pattern(pattern: ArrayLike | str) -> NDArray[np.int64]:
@@ -162,58 +119,39 @@ def _integer_search(src: NDArray, dst: NDArray, u: NDArray, v: NDArray, pattern:
 
 
 @timed("stereo_search")
-def stereo_inverse_depth(left: NDArray, right: NDArray, stereo_camera: StereoCamera, pixels: ArrayLike, *,
-                         min_disparity: int = DEFAULT_STEREO_SEARCH.min_disparity, max_disparity: int = DEFAULT_STEREO_SEARCH.max_disparity,
-                         pattern: ArrayLike | str = DEFAULT_STEREO_SEARCH.pattern,
-                         disparity_offset: float = DEFAULT_STEREO_SEARCH.disparity_offset,
-                         uniqueness_ratio: float = DEFAULT_STEREO_SEARCH.uniqueness_ratio,
-                         max_relative_cost: float = DEFAULT_STEREO_SEARCH.max_relative_cost,
-                         gauss_newton_iterations: int = DEFAULT_STEREO_SEARCH.gauss_newton_iterations,
-                         left_right_check: bool = DEFAULT_STEREO_SEARCH.left_right_check,
-                         lr_tolerance: float = DEFAULT_STEREO_SEARCH.lr_tolerance, sigma_intensity: float = DEFAULT_STEREO_SEARCH.sigma_intensity,
-                         sigma_line: float = DEFAULT_STEREO_SEARCH.sigma_line, max_disparity_std: float = DEFAULT_STEREO_SEARCH.max_disparity_std,
-                         equalize_gain: bool = DEFAULT_STEREO_SEARCH.equalize_gain,
+def stereo_inverse_depth(left: NDArray, right: NDArray, stereo_camera: StereoCamera, pixels: ArrayLike,
+                         config: StereoSearchConfig = DEFAULT_STEREO_SEARCH,
                          clip_range: tuple[float, float] | None = DEFAULT_CLIP_RANGE) -> StereoDepthResult:
     """Inverse depth and its variance ``V`` of left pixels by a search along the right image row.
 
-    The keyword settings but ``clip_range`` are :class:`StereoSearchConfig`'s (its defaults are
-    theirs); ``stereo_inverse_depth(..., **dataclasses.asdict(config))`` applies a config.
+    The stages of the module docstring, one function each: the integer search
+    (:func:`_integer_search_stage`), the sub-pixel refinement (:func:`_subpixel_stage`), the
+    left-right check (:func:`_left_right_stage`), the inverse depth and its variance
+    (:func:`_inverse_depth_stage`), and the gain equalisation (:func:`_equalized_search`).
 
     Args:
         left, right: the rectified gray (or BGR) pair, same size as the camera.
         stereo_camera: the rectified rig; ``fx`` and ``baseline`` convert disparity to inverse depth.
         pixels: (N, 2) integer pixel positions ``(u, v)`` in the left image (from :func:`select_points`).
-        min_disparity, max_disparity: the integer search range (px), inclusive.
-        pattern: ``"patch5x5"`` (default), ``"dso8"`` or (P, 2) integer offsets.
-        disparity_offset: added to the disparity before the conversion, for pairs whose principal
-            points differ (Middlebury's ``doffs = cx1 - cx0``); 0 for KITTI-style rectification.
-        uniqueness_ratio: reject when ``best >= uniqueness_ratio * second`` (second best at least
-            2 px from the best).
-        max_relative_cost: reject when the refined mean squared residual per pattern pixel
-            exceeds ``2 sigma_intensity^2 + max_relative_cost * var(L)`` (``var(L)`` the left
-            pattern's intensity variance): the residual is judged against the patch's contrast.
-        gauss_newton_iterations: 1-D Gauss-Newton steps after the parabola fit (0 = parabola only).
-        left_right_check: search back from the right match into the left image.
-        lr_tolerance: allowed left-right discrepancy (px).
-        sigma_intensity: image noise standard deviation ``sigma_I`` (grey levels).
-        sigma_line: epipolar-line position standard deviation ``sigma_l`` (px; rectification error).
-        max_disparity_std: reject when ``sigma_disp`` exceeds this (px); ``inf`` keeps all.
-        equalize_gain: when the matched points say the right camera's gain against the left
-            (:func:`matched_gain`) differs from 1 by more than :data:`EQUALIZE_MIN_LOG_GAIN` in
-            log, match again against the right image divided by that gain, re-estimate the gain
-            from the new matches and repeat while it moves by more than that (at most
-            :data:`EQUALIZE_MAX_SEARCHES` extra searches); the search that accepts the most points
-            is returned, with the gain it used in ``right_gain``. The zero-mean SSD absorbs an
-            offset between the two cameras but not a gain, which two cameras with their own auto
-            exposure can have. Measured on a KITTI pair with a known gain applied (docs/frontend.md):
-            1.3x and 1.6x brighter right images (8 % and 15 % of their pixels saturated) are
-            recovered to 1 %; at 2x ZSSD matches too few true points to start from, and the gain
-            stays unequalised.
-        clip_range: the grey levels at which the sensors clipped (:func:`matched_gain`).
+        config: the search's settings (:class:`StereoSearchConfig`: disparity range, pattern,
+            rejection thresholds, noise of the variance, gain equalisation).
+        clip_range: the grey levels at which the sensors clipped (:func:`matched_gain`; a run's
+            ``OdometryConfig.photometric.clip_range``).
 
     Returns:
         A :class:`StereoDepthResult`; never NaN.
     """
+    left_f, right_f, px = _checked_pair(left, right, stereo_camera, pixels)
+    pat = _as_pattern(config.pattern)
+    result = _match(left_f, right_f, stereo_camera, px, pat, config)
+    if not config.equalize_gain:
+        return result
+    return _equalized_search(left_f, right_f, stereo_camera, px, pat, config, clip_range, result)
+
+
+def _checked_pair(left: NDArray, right: NDArray, stereo_camera: StereoCamera,
+                  pixels: ArrayLike) -> tuple[NDArray[np.float32], NDArray[np.float32], FloatArray]:
+    """The pair as float gray images and the pixels as an (N, 2) array, checked (one-line errors)."""
     left_f = to_float_gray(left, "left image")
     right_f = to_float_gray(right, "right image")
     check_same_size(left_f, right_f, "stereo pair")
@@ -227,18 +165,17 @@ def stereo_inverse_depth(left: NDArray, right: NDArray, stereo_camera: StereoCam
         raise InputError("pixels contain NaN or infinite values")
     if not np.all(px == np.round(px)):
         raise InputError("pixels must be integer pixel centres (as select_points returns)")
-    if not 0 <= int(min_disparity) < int(max_disparity):
-        raise InputError(f"disparity range must satisfy 0 <= min < max, got [{min_disparity}, {max_disparity}]")
-    for name, val in (("sigma_intensity", sigma_intensity), ("sigma_line", sigma_line)):
-        if not np.isfinite(val) or val < 0:
-            raise InputError(f"{name} must be finite and >= 0, got {show(val)}")
-    pat = _as_pattern(pattern)
+    return left_f, right_f, px
+
+
+def _match(left_f: NDArray[np.float32], right_f: NDArray[np.float32], stereo_camera: StereoCamera, px: FloatArray,
+           pat: NDArray[np.int64], config: StereoSearchConfig) -> StereoDepthResult:
+    """Stages 1-4 of the module docstring on one right image."""
     n = px.shape[0]
     u = px[:, 0].astype(np.int64)
     v = px[:, 1].astype(np.int64)
-    disps = np.arange(int(min_disparity), int(max_disparity) + 1, dtype=np.int64)
+    disps = np.arange(int(config.min_disparity), int(config.max_disparity) + 1, dtype=np.int64)
     rej = np.zeros(n, dtype=np.int8)
-    fxb = stereo_camera.left.fx * stereo_camera.baseline
 
     # --- left patch, gradients --------------------------------------------------------------
     pu, pv = pat[:, 0], pat[:, 1]
@@ -249,7 +186,20 @@ def stereo_inverse_depth(left: NDArray, right: NDArray, stereo_camera: StereoCam
     # image_gradients(left_f) at the pattern pixels only, 0 outside
     gx_p, gy_p = (g.reshape(lu.shape) for g in gradients_at(left_f, lu.reshape(-1), lv.reshape(-1)))
 
-    # --- 1. integer epipolar search ---------------------------------------------------------
+    k, best, c_m, c_p = _integer_search_stage(left_f, right_f, u, v, pat, disps, inside, rej, config)
+    disp, d_int, mse = _subpixel_stage(right_f, u, v, pat, left_vals, disps, k, best, c_m, c_p, rej, config)
+    if config.left_right_check:
+        _left_right_stage(left_f, right_f, u, v, pat, disps, disp, rej, config)
+    return _inverse_depth_stage(stereo_camera, px, gx_p, gy_p, disp, mse, rej, config)
+
+
+def _integer_search_stage(left_f: NDArray, right_f: NDArray, u: NDArray, v: NDArray, pat: NDArray,
+                          disps: NDArray, inside: NDArray, rej: NDArray, config: StereoSearchConfig
+                          ) -> tuple[NDArray, NDArray, NDArray, NDArray]:
+    """Stage 1, the integer epipolar search: per point the best disparity's position ``k`` in
+    ``disps``, its cost and its neighbours' costs; ``rej`` marks points outside, at the range's
+    boundary and not unique."""
+    n = u.shape[0]
     cost = _integer_search(left_f, right_f, u, v, pat, disps, sign=-1)
     cost[~inside] = np.inf
     k = np.argmin(cost, axis=1)
@@ -265,10 +215,17 @@ def stereo_inverse_depth(left: NDArray, right: NDArray, stereo_camera: StereoCam
     rej[(rej == 0) & boundary] = Rejection.RANGE_BOUNDARY
     far = np.abs(np.arange(d_count)[None, :] - k[:, None]) > 1
     second = np.min(np.where(far, cost, np.inf), axis=1)
-    unique = best < uniqueness_ratio * second
+    unique = best < config.uniqueness_ratio * second
     rej[(rej == 0) & ~unique] = Rejection.NOT_UNIQUE
+    return k, best, c_m, c_p
 
-    # --- 2. sub-pixel: parabola, then 1-D Gauss-Newton ----------------------------------------
+
+def _subpixel_stage(right_f: NDArray, u: NDArray, v: NDArray, pat: NDArray, left_vals: NDArray, disps: NDArray,
+                    k: NDArray, best: NDArray, c_m: NDArray, c_p: NDArray, rej: NDArray,
+                    config: StereoSearchConfig) -> tuple[NDArray, NDArray, NDArray]:
+    """Stage 2, sub-pixel: a parabola, then 1-D Gauss-Newton steps. Returns the disparity, the
+    integer one it started from and the refined mean squared residual; ``rej`` marks points whose
+    refinement wandered and whose residual is too high for their contrast."""
     work = rej == 0
     c0 = np.where(work, best, 0.0).astype(np.float64)
     cm = np.where(work, c_m, 0.0).astype(np.float64)
@@ -279,9 +236,10 @@ def stereo_inverse_depth(left: NDArray, right: NDArray, stereo_camera: StereoCam
     disp = d_int + np.clip(delta, -0.5, 0.5)
     disp = np.where(work, disp, 0.0)
 
+    pu, pv = pat[:, 0], pat[:, 1]
     left_c = left_vals - left_vals.mean(axis=1, keepdims=True)
     fu, fv = u[:, None] + pu, v[:, None] + pv
-    for _ in range(int(gauss_newton_iterations)):
+    for _ in range(int(config.gauss_newton_iterations)):
         vals, ok = _sample_with_gradient_x(right_f, fu - disp[:, None], fv)
         ok_all = ok.all(axis=1)
         r_img, r_gx = vals[..., 0], vals[..., 1]
@@ -298,31 +256,40 @@ def stereo_inverse_depth(left: NDArray, right: NDArray, stereo_camera: StereoCam
     mse = np.where(ok.all(axis=1), np.mean(res * res, axis=1), np.inf)
     wandered = (np.abs(disp - d_int) > 1.0) | ~ok.all(axis=1)
     rej[(rej == 0) & wandered] = Rejection.REFINEMENT
-    max_mse = 2.0 * sigma_intensity ** 2 + max_relative_cost * np.mean(left_c * left_c, axis=1)
+    max_mse = 2.0 * config.sigma_intensity ** 2 + config.max_relative_cost * np.mean(left_c * left_c, axis=1)
     rej[(rej == 0) & ~(mse <= max_mse)] = Rejection.HIGH_COST
+    return disp, d_int, mse
 
-    # --- 3. left-right check ----------------------------------------------------------------
-    if left_right_check:
-        cand = np.nonzero(rej == 0)[0]
-        if cand.size:
-            ur = np.rint(u[cand] - disp[cand]).astype(np.int64)
-            back = _integer_search(right_f, left_f, ur, v[cand], pat, disps, sign=+1)
-            kb = np.argmin(back, axis=1)
-            u_back = ur + disps[kb]
-            bad = (np.abs(u_back - u[cand]) > lr_tolerance) | ~np.isfinite(back[np.arange(cand.size), kb])
-            rej[cand[bad]] = Rejection.LEFT_RIGHT
 
-    # --- 4. inverse depth and LSD-SLAM variance ---------------------------------------------
-    total = disp + float(disparity_offset)
+def _left_right_stage(left_f: NDArray, right_f: NDArray, u: NDArray, v: NDArray, pat: NDArray, disps: NDArray,
+                      disp: NDArray, rej: NDArray, config: StereoSearchConfig) -> None:
+    """Stage 3, the left-right check: ``rej`` marks the points whose search back from the right
+    match into the left image does not return within ``lr_tolerance``."""
+    cand = np.nonzero(rej == 0)[0]
+    if cand.size:
+        ur = np.rint(u[cand] - disp[cand]).astype(np.int64)
+        back = _integer_search(right_f, left_f, ur, v[cand], pat, disps, sign=+1)
+        kb = np.argmin(back, axis=1)
+        u_back = ur + disps[kb]
+        bad = (np.abs(u_back - u[cand]) > config.lr_tolerance) | ~np.isfinite(back[np.arange(cand.size), kb])
+        rej[cand[bad]] = Rejection.LEFT_RIGHT
+
+
+def _inverse_depth_stage(stereo_camera: StereoCamera, px: FloatArray, gx_p: NDArray, gy_p: NDArray, disp: NDArray,
+                         mse: NDArray, rej: NDArray, config: StereoSearchConfig) -> StereoDepthResult:
+    """Stage 4, the inverse depth and its LSD-SLAM variance; ``rej`` marks non-positive and
+    too uncertain disparities. The search's result."""
+    fxb = stereo_camera.left.fx * stereo_camera.baseline
+    total = disp + float(config.disparity_offset)
     rej[(rej == 0) & (total <= 0)] = Rejection.NON_POSITIVE
     line = epipolar_direction(stereo_camera.left.bearing(px), stereo_camera.T_right_left[:3, 3])
-    var_disp = disparity_variance(gx_p, gy_p, line, sigma_intensity, sigma_line)
+    var_disp = disparity_variance(gx_p, gy_p, line, config.sigma_intensity, config.sigma_line)
     std_disp = np.sqrt(var_disp)
-    rej[(rej == 0) & ~(std_disp <= max_disparity_std)] = Rejection.UNCERTAIN
+    rej[(rej == 0) & ~(std_disp <= config.max_disparity_std)] = Rejection.UNCERTAIN
 
     valid = rej == 0
     computed = np.isfinite(mse) & (rej != Rejection.OUTSIDE)
-    result = StereoDepthResult(
+    return StereoDepthResult(
         inverse_depth=np.where(valid, total / fxb, 0.0),
         variance=np.where(valid, var_disp / fxb ** 2, np.inf),
         valid=valid,
@@ -331,25 +298,34 @@ def stereo_inverse_depth(left: NDArray, right: NDArray, stereo_camera: StereoCam
         disparity_std=np.where(valid, std_disp, np.inf),
         rejection=rej,
     )
-    if not equalize_gain:
-        return result
-    # ZSSD matches worse the further the gain is from 1 (at 2x a flat patch costs as much as the
-    # true match), so the first estimate falls short of a large gain: search again with the
-    # right image equalised by the estimate, and re-estimate from the new matches (always against
-    # the raw right image, whose clipped pixels are still recognisable) until it settles.
+
+
+def _equalized_search(left_f: NDArray[np.float32], right_f: NDArray[np.float32], stereo_camera: StereoCamera,
+                      px: FloatArray, pat: NDArray[np.int64], config: StereoSearchConfig,
+                      clip_range: tuple[float, float] | None, result: StereoDepthResult) -> StereoDepthResult:
+    """Stage 5, the gain equalisation (``equalize_gain``) after the first search's ``result``.
+
+    When the matched points say the right camera's gain against the left (:func:`matched_gain`)
+    differs from 1 by more than :data:`EQUALIZE_MIN_LOG_GAIN` in log, the search runs again
+    against the right image divided by that gain, and again while the re-estimated gain moves by
+    more than that (at most :data:`EQUALIZE_MAX_SEARCHES` extra searches); the search that accepts
+    the most points is returned, with the gain it used in ``right_gain``. The zero-mean SSD absorbs
+    an offset between the two cameras but not a gain, which two cameras with their own auto
+    exposure can have. Measured on a KITTI pair with a known gain applied (docs/frontend.md): 1.3x
+    and 1.6x brighter right images (8 % and 15 % of their pixels saturated) are recovered to 1 %;
+    at 2x ZSSD matches too few true points to start from, and the gain stays unequalised.
+
+    ZSSD matches worse the further the gain is from 1 (at 2x a flat patch costs as much as the
+    true match), so the first estimate falls short of a large gain: search again with the right
+    image equalised by the estimate, and re-estimate from the new matches (always against the raw
+    right image, whose clipped pixels are still recognisable) until it settles."""
     best, applied = result, 1.0
     gain = matched_gain(left_f, right_f, px, result, pat, clip_range)
     for _ in range(EQUALIZE_MAX_SEARCHES):
         if gain is None or abs(np.log(gain / applied)) <= EQUALIZE_MIN_LOG_GAIN:
             break
         applied = gain
-        again = stereo_inverse_depth(
-            left_f, right_f / np.float32(applied), stereo_camera, px, min_disparity=min_disparity,
-            max_disparity=max_disparity, pattern=pat, disparity_offset=disparity_offset,
-            uniqueness_ratio=uniqueness_ratio, max_relative_cost=max_relative_cost,
-            gauss_newton_iterations=gauss_newton_iterations, left_right_check=left_right_check,
-            lr_tolerance=lr_tolerance, sigma_intensity=sigma_intensity, sigma_line=sigma_line,
-            max_disparity_std=max_disparity_std, equalize_gain=False, clip_range=clip_range)
+        again = _match(left_f, right_f / np.float32(applied), stereo_camera, px, pat, config)
         # a contrast ratio can also be a difference in sharpness: keep the search that accepts more
         if np.count_nonzero(again.valid) >= np.count_nonzero(best.valid):
             best = replace(again, right_gain=applied)
@@ -363,7 +339,7 @@ def matched_gain(left: NDArray, right: NDArray, pixels: ArrayLike, result: Stere
     """The right camera's gain against the left from the matched points: the median over accepted
     points of the ratio of their patches' intensity standard deviations (right patch at the
     rounded disparity). Patches that touch a clipped pixel (at or beyond ``clip_range``, the
-    run's :attr:`factors.params.PhotometricParams.clip_range`; None: no check) in either image
+    run's :attr:`factors.params.PhotometricConfig.clip_range`; None: no check) in either image
     are left out: a saturated patch's spread is not its scene's times the gain
     (with a fifth of the brighter image saturated the estimate fell from 1.6 to 1.2). None with
     fewer than :data:`MIN_GAIN_POINTS` accepted, unclipped points of contrast."""
@@ -386,22 +362,19 @@ def matched_gain(left: NDArray, right: NDArray, pixels: ArrayLike, result: Stere
     return float(np.median(sr[ok] / sl[ok]))
 
 
-def init_keyframe_points(left: NDArray, right: NDArray, stereo_camera: StereoCamera, target: int = 2000, *,
-                         border: int = DEFAULT_BORDER, selection_seed: int = 0,
-                         selection: PointSelectionConfig | None = None, stereo: StereoSearchConfig | None = None,
-                         **stereo_options: object) -> KeyframePoints:
+def init_keyframe_points(left: NDArray, right: NDArray, stereo_camera: StereoCamera, target: int = 2000,
+                         selection: PointSelectionConfig = DEFAULT_POINT_SELECTION,
+                         stereo: StereoSearchConfig = DEFAULT_STEREO_SEARCH,
+                         clip_range: tuple[float, float] | None = DEFAULT_CLIP_RANGE) -> KeyframePoints:
     """Select about ``target`` points in the left image and keep those with a valid stereo depth.
 
-    ``selection`` (default: ``border`` and ``selection_seed`` with the other defaults) sets the
-    point selection; ``stereo`` the search, and ``stereo_options`` are passed to
-    :func:`stereo_inverse_depth` on top of it (e.g. ``max_disparity``, ``clip_range``).
-    Typically 60-80 % of the selected points survive on KITTI (docs/frontend.md).
+    ``selection``: the point selection's settings (:func:`select_points`); ``stereo`` and
+    ``clip_range``: the search's (:func:`stereo_inverse_depth`). Typically 60-80 % of the
+    selected points survive on KITTI (docs/frontend.md).
     """
     left_f = to_float_gray(left, "left image")
-    selection = selection or PointSelectionConfig(border=border, seed=selection_seed)
-    pixels = select_points(left_f, target, **asdict(selection))
-    options = {**(asdict(stereo) if stereo is not None else {}), **stereo_options}
-    res = stereo_inverse_depth(left_f, right, stereo_camera, pixels, **options)  # type: ignore[arg-type]
+    pixels = select_points(left_f, target, selection)
+    res = stereo_inverse_depth(left_f, right, stereo_camera, pixels, stereo, clip_range)
     keep = res.valid
     px = pixels[keep]
     return KeyframePoints(

@@ -11,8 +11,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from gtvo.core.settings import check_settings, setting
-from gtvo.errors import InputError
+from gtvo.core.settings import SettingError, check_settings, setting
 
 FloatArray = NDArray[np.float64]
 
@@ -43,24 +42,25 @@ class StereoSearchConfig:
             by more than 10 %, match again against the right image divided by that gain.
     """
 
-    min_disparity: int = setting(0, ">= 0")
-    max_disparity: int = setting(128, ">= 1")
+    min_disparity: int = setting(0, "[0, 10000]")
+    max_disparity: int = setting(128, "[1, 10000]")
     pattern: Literal["patch5x5", "dso8"] = "patch5x5"
-    disparity_offset: float = 0.0
+    disparity_offset: float = setting(0.0, "[-10000, 10000]")
     uniqueness_ratio: float = setting(0.9, "(0, 1]")
-    max_relative_cost: float = setting(0.4, ">= 0")
-    gauss_newton_iterations: int = setting(3, ">= 0")
+    max_relative_cost: float = setting(0.4, "[0, 100]")
+    gauss_newton_iterations: int = setting(3, "[0, 100]")
     left_right_check: bool = True
-    lr_tolerance: float = setting(1.0, ">= 0")
-    sigma_intensity: float = setting(2.0, ">= 0")
-    sigma_line: float = setting(0.3, ">= 0")
-    max_disparity_std: float = setting(2.0, "> 0")
+    lr_tolerance: float = setting(1.0, "[0, 100]")
+    sigma_intensity: float = setting(2.0, "[0, 100]")
+    sigma_line: float = setting(0.3, "[0, 100]")
+    max_disparity_std: float = setting(2.0, "(0, inf]")
     equalize_gain: bool = True
 
     def __post_init__(self) -> None:
         check_settings(self)
         if self.min_disparity >= self.max_disparity:
-            raise InputError(f"min_disparity ({self.min_disparity}) must be below max_disparity ({self.max_disparity})")
+            raise SettingError("max_disparity", f"must be above min_disparity ({self.min_disparity}), "
+                                                f"got {self.max_disparity}")
 
 
 DEFAULT_STEREO_SEARCH = StereoSearchConfig()

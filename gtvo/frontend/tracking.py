@@ -40,10 +40,10 @@ from factors.weights import huber_loss, point_robust_terms, variance_weight
 from gtvo.core.keys import affine_key, pose_key
 from gtvo.errors import InputError
 
-from gtvo.frontend.tracking_types import (PointResiduals, TrackingConfig, TrackingKeyframe, TrackingResult, frame_pyramid, largest_sigma,
-                                          pose_covariance)
+from gtvo.frontend.tracking_types import (PhotometricConfig, PointResiduals, TrackingConfig, TrackingKeyframe,
+                                          TrackingResult, frame_pyramid, largest_sigma, pose_covariance)
 
-__all__ = ["AFFINE_KEY", "FRAME_KEY", "TrackingConfig", "TrackingKeyframe", "TrackingResult", "frame_pyramid",
+__all__ = ["AFFINE_KEY", "FRAME_KEY", "PhotometricConfig", "TrackingConfig", "TrackingKeyframe", "TrackingResult", "frame_pyramid",
            "level_weights", "pose_covariance", "predict_constant_velocity", "track_gtsam", "track_handrolled",
            "track_with_guesses"]
 
@@ -85,7 +85,7 @@ def _residuals(kf: TrackingKeyframe, level: int, target: GradientImage, T: gtsam
         return compiled_residuals(kf.cameras[level], Ih, hv, kf.level_bearings[level], np.ascontiguousarray(d),
                                   _IDENTITY, T.matrix(), target, a_t - a_h, b_h, b_t, jacobians, False)
     return photometric_residuals(kf.cameras[level], Ih, hv, kf.level_pixels[level], d, _IDENTITY, T.matrix(), target,
-                                 kf.affine, affine, kf.config.pattern, jacobians=jacobians, host_jacobians=False,
+                                 kf.affine, affine, kf.pattern, jacobians=jacobians, host_jacobians=False,
                                  bearings=kf.level_bearings[level])
 
 
@@ -93,22 +93,22 @@ def level_weights(kf: TrackingKeyframe, level: int, target: GradientImage, T: gt
                   affine: NDArray) -> NDArray[np.float64]:
     """The variance weights W (N, P) at state (T, affine) on a level; frozen for that level's LM."""
     lin = _residuals(kf, level, target, T, affine, False)
-    return variance_weight(lin.J_depth, kf.variance[kf.level_index[level]], kf.config.sigma_intensity)
+    return variance_weight(lin.J_depth, kf.variance[kf.level_index[level]], kf.photometric.sigma_intensity)
 
 
 def _evaluate(kf: TrackingKeyframe, level: int, target: GradientImage, T: gtsam.Pose3, affine: NDArray,
               with_normal_equations: bool, W: NDArray | None = None) -> _Eval:
-    cfg = kf.config
+    cfg, model = kf.config, kf.photometric
     hv = kf.host_samples[level][1]
     idx = kf.level_index[level]
     lin = _residuals(kf, level, target, T, affine, with_normal_equations)
     if W is None:
-        W = variance_weight(lin.J_depth, kf.variance[idx], cfg.sigma_intensity)
-    w, loss = point_robust_terms(W, lin.residual, cfg.huber_k)
+        W = variance_weight(lin.J_depth, kf.variance[idx], model.sigma_intensity)
+    w, loss = point_robust_terms(W, lin.residual, model.huber_k)
     point_valid = lin.valid.any(axis=1)
     lost = int(np.count_nonzero(hv & (kf.inverse_depth[idx] > 0)[:, None] & ~lin.valid))
     data_cost = float(loss.sum())
-    cost = data_cost + lost * _lost_pixel_loss(cfg)
+    cost = data_cost + lost * _lost_pixel_loss(kf)
     n_out = int(np.count_nonzero(point_valid & (w < 1.0)))
     A = b = None
     if with_normal_equations:
@@ -117,9 +117,9 @@ def _evaluate(kf: TrackingKeyframe, level: int, target: GradientImage, T: gtsam.
                  data_cost, lin)
 
 
-def _lost_pixel_loss(cfg: TrackingConfig) -> float:
+def _lost_pixel_loss(kf: TrackingKeyframe) -> float:
     """Constant cost of a pattern pixel that the state pushes out of the frame (or behind it)."""
-    return float(huber_loss(cfg.lost_point_norm, cfg.huber_k)) / cfg.pattern.shape[0]
+    return float(huber_loss(kf.config.lost_point_norm, kf.photometric.huber_k)) / kf.pattern.shape[0]
 
 
 def _apply(T: gtsam.Pose3, affine: NDArray, dx: NDArray) -> tuple[gtsam.Pose3, NDArray]:
@@ -209,7 +209,7 @@ def _finish(kf: TrackingKeyframe, target0: GradientImage, T: gtsam.Pose3, affine
         reason = (f"pose poorly constrained: rotation sigma {sigma_rot:.3g} deg > {cfg.max_rotation_sigma_deg} "
                   "(the images do not determine the rotation)")
     return TrackingResult(T, np.asarray(affine, dtype=float).copy(), ev.cost, initial_cost, iterations, ev.n_valid,
-                          ev.n_outliers, rms, reason == "", reason, cov, _point_residuals(ev.lin, kf.level_index[0], kf.config.pattern))
+                          ev.n_outliers, rms, reason == "", reason, cov, _point_residuals(ev.lin, kf.level_index[0], kf.pattern))
 
 
 def _point_residuals(lin: PhotometricLinearization, index: NDArray[np.intp], pattern: ArrayLike) -> PointResiduals:
@@ -227,7 +227,7 @@ def _point_residuals(lin: PhotometricLinearization, index: NDArray[np.intp], pat
 
 def _prepare(kf: TrackingKeyframe, frame: ArrayLike | list[GradientImage],
              T_keyframe_frame_init: gtsam.Pose3 | None, affine_init: ArrayLike | None):
-    pyr = frame if isinstance(frame, list) else frame_pyramid(frame, kf.levels, kf.config.clip_range)
+    pyr = frame if isinstance(frame, list) else frame_pyramid(frame, kf.levels, kf.photometric.clip_range)
     if len(pyr) < kf.levels:
         raise InputError(f"frame pyramid has {len(pyr)} levels, keyframe {kf.levels}")
     if (pyr[0].height, pyr[0].width) != kf.camera.shape:
@@ -284,9 +284,10 @@ def track_gtsam(keyframe: TrackingKeyframe, frame: ArrayLike | list[GradientImag
             FRAME_KEY, keyframe.cameras[level], keyframe.level_pixels[level], keyframe.inverse_depth[idx],
             None, pyr[level], keyframe.variance[idx], affine_host=keyframe.affine,
             affine_target_key=AFFINE_KEY if cfg.estimate_affine else None, affine_target=affine,
-            sigma_intensity=cfg.sigma_intensity, huber_k=cfg.huber_k, pattern=cfg.pattern,
+            sigma_intensity=keyframe.photometric.sigma_intensity, huber_k=keyframe.photometric.huber_k,
+            pattern=keyframe.pattern,
             host_intensity=keyframe.host_samples[level],
-            weights=W, bearings=keyframe.level_bearings[level], lost_pixel_loss=_lost_pixel_loss(cfg))
+            weights=W, bearings=keyframe.level_bearings[level], lost_pixel_loss=_lost_pixel_loss(keyframe))
         graph = gtsam.NonlinearFactorGraph()
         graph.add(factor)
         values = gtsam.Values()
@@ -336,7 +337,7 @@ def track_with_guesses(keyframe: TrackingKeyframe, frame: ArrayLike | list[Gradi
     """
     if len(guesses) == 0:
         raise InputError("track_with_guesses needs at least one initial guess")
-    pyr = frame if isinstance(frame, list) else frame_pyramid(frame, keyframe.levels, keyframe.config.clip_range)
+    pyr = frame if isinstance(frame, list) else frame_pyramid(frame, keyframe.levels, keyframe.photometric.clip_range)
     best_ok: TrackingResult | None = None
     best_failed: TrackingResult | None = None
     for guess in guesses:

@@ -1,6 +1,7 @@
 """The tracker's data: its settings (:class:`TrackingConfig`), a keyframe prepared for tracking
-(:class:`TrackingKeyframe`: pyramid samples of its points), and what tracking a frame gives
-(:class:`TrackingResult`, with the pose covariance). The solvers: :mod:`gtvo.frontend.tracking`."""
+(:class:`TrackingKeyframe`: pyramid samples of its points, with the photometric model it is
+tracked with), and what tracking a frame gives (:class:`TrackingResult`, with the pose
+covariance). The solvers: :mod:`gtvo.frontend.tracking`."""
 
 from __future__ import annotations
 
@@ -11,8 +12,8 @@ import gtsam
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from factors.gtsam_factors import DEFAULT_HUBER_K, DEFAULT_SIGMA_INTENSITY
-from factors.photometric import DEFAULT_CLIP_RANGE, PATTERN_DSO8, GradientImage, pattern_bearings, sample_host
+from factors.params import PhotometricConfig
+from factors.photometric import DEFAULT_CLIP_RANGE, GradientImage, pattern_bearings, sample_host
 from gtvo.core.camera import PinholeCamera
 from gtvo.core.settings import check_settings, setting
 from gtvo.errors import InputError, TrackingFailure
@@ -21,16 +22,13 @@ from gtvo.core.image import build_pyramid
 
 @dataclass(frozen=True)
 class TrackingConfig:
-    """Settings of the coarse-to-fine tracker (shared by both solvers).
+    """Settings of the coarse-to-fine tracker (shared by both solvers; its photometric model,
+    pattern, noise, Huber threshold and clipped range, is the :class:`factors.params.PhotometricConfig`
+    its :class:`TrackingKeyframe` is given).
 
     Attributes:
         levels: pyramid levels used (level 0 = full resolution).
         max_iterations: LM iterations per level.
-        pattern: residual pattern (P, 2) in pixels of each level.
-        sigma_intensity: sigma_I of the weight W.
-        huber_k: Huber threshold on the whitened pattern norm of a point.
-        clip_range: grey levels at which the sensor clipped (the images' ``GradientImage`` check;
-            None: no check). In a VO run these four come from ``OdometryConfig.photometric``.
         estimate_affine: include the frame's affine brightness (a, b) in the state.
         step_tolerance: stop when the step is below this (pose in rad and m, log gain, offset b
             in units of 100 grey levels): 1e-5 rad moves a KITTI pixel by 0.007 px.
@@ -60,25 +58,21 @@ class TrackingConfig:
         min_coarse_points: lower bound of the points used on a coarse level.
     """
 
-    levels: int = setting(4, ">= 1")
-    max_iterations: int = setting(12, ">= 1")
-    pattern: NDArray[np.float64] = field(default_factory=lambda: PATTERN_DSO8.copy())
-    sigma_intensity: float = DEFAULT_SIGMA_INTENSITY
-    huber_k: float = DEFAULT_HUBER_K
-    clip_range: tuple[float, float] | None = DEFAULT_CLIP_RANGE
+    levels: int = setting(4, "[1, 10]")
+    max_iterations: int = setting(12, "[1, 1000]")
     estimate_affine: bool = True
-    step_tolerance: float = setting(1e-5, ">= 0")
-    cost_tolerance: float = setting(1e-3, ">= 0")
-    max_rejections: int = setting(2, ">= 0")
-    min_valid_points: int = setting(30, ">= 0")
+    step_tolerance: float = setting(1e-5, "[0, 1]")
+    cost_tolerance: float = setting(1e-3, "[0, 1]")
+    max_rejections: int = setting(2, "[0, 100]")
+    min_valid_points: int = setting(30, "[0, 100000]")
     min_valid_fraction: float = setting(0.1, "[0, 1]")
-    max_rms: float = setting(2.0, "> 0")
+    max_rms: float = setting(2.0, "(0, inf]")
     max_outlier_fraction: float = setting(0.6, "[0, 1]")
-    max_abs_log_gain: float = setting(1.0, "> 0")
-    max_rotation_sigma_deg: float = setting(1.0, "> 0")
-    lost_point_norm: float = setting(6.0, ">= 0")
-    coarse_decay: float = setting(2.0, ">= 1")
-    min_coarse_points: int = setting(300, ">= 1")
+    max_abs_log_gain: float = setting(1.0, "(0, inf]")
+    max_rotation_sigma_deg: float = setting(1.0, "(0, inf]")
+    lost_point_norm: float = setting(6.0, "[0, 100]")
+    coarse_decay: float = setting(2.0, "[1, 10]")
+    min_coarse_points: int = setting(300, "[1, 100000]")
 
     def __post_init__(self) -> None:
         check_settings(self)
@@ -90,7 +84,7 @@ class PointResiduals:
 
     Attributes:
         index: (M,) the points' positions among the keyframe's points.
-        pixels: (M, 2) where the frame sees them (the mean of their valid pattern pixels' warps).
+        pixels: (M, 2) where the frame sees them (their valid pattern pixels' warps less their pattern offsets, averaged).
         residual: (M,) the RMS over their valid pattern pixels of
             ``r = I_frame(w) - b - exp(a - a_kf) (I_kf - b_kf)`` (grey levels, before weights).
     """
@@ -184,15 +178,23 @@ class TrackingKeyframe:
         inverse_depth: (N,) inverse depths (> 0).
         inverse_depth_variance: (N,) variances V (>= 0).
         affine: the keyframe's affine brightness (a, b), held fixed.
-        config: tracker settings (levels, pattern).
-        pyramid: the image's :func:`frame_pyramid` with ``config.levels`` and ``config.clip_range``
+        config: tracker settings (levels, iterations, failure checks).
+        pyramid: the image's :func:`frame_pyramid` with ``config.levels`` and ``photometric.clip_range``
             when the caller has it already (a tracked frame that becomes a keyframe); None: built here.
+        photometric: the photometric model (pattern, noise, Huber threshold, clipped range; a VO
+            run's ``OdometryConfig.photometric``); default :class:`factors.params.PhotometricConfig`'s.
+
+    Attributes:
+        pattern: ``photometric.pattern`` as a (P, 2) array.
     """
 
     def __init__(self, camera: PinholeCamera, image: ArrayLike, pixels: ArrayLike, inverse_depth: ArrayLike,
                  inverse_depth_variance: ArrayLike, affine: ArrayLike = (0.0, 0.0),
-                 config: TrackingConfig | None = None, pyramid: Sequence[GradientImage] | None = None) -> None:
+                 config: TrackingConfig | None = None, pyramid: Sequence[GradientImage] | None = None,
+                 photometric: PhotometricConfig | None = None) -> None:
         self.config = config or TrackingConfig()
+        self.photometric = photometric or PhotometricConfig()
+        self.pattern = self.photometric.pattern_array
         px = np.asarray(pixels, dtype=float).reshape(-1, 2)
         n = px.shape[0]
         d = np.asarray(inverse_depth, dtype=float).reshape(-1)
@@ -213,12 +215,12 @@ class TrackingKeyframe:
         self.pixels, self.inverse_depth, self.variance = px, d, V
         self.affine = np.asarray(affine, dtype=float).reshape(2)
         if pyramid is not None and not (len(pyramid) and pyramid[0].image.shape == img.shape
-                                        and pyramid[0].clip_range == self.config.clip_range):
+                                        and pyramid[0].clip_range == self.photometric.clip_range):
             raise InputError("TrackingKeyframe: the given pyramid is not the image's with the tracker's clip range")
         pyr = [g.image for g in pyramid] if pyramid is not None else build_pyramid(img, self.config.levels)
         self.levels = len(pyr)
         self.cameras = [camera.scaled(lv) for lv in range(self.levels)]
-        pat = self.config.pattern
+        pat = self.pattern
         self.level_index: list[NDArray[np.intp]] = []
         self.level_pixels: list[NDArray[np.float64]] = []
         self.level_bearings: list[NDArray[np.float64]] = []
@@ -231,7 +233,7 @@ class TrackingKeyframe:
             self.level_index.append(idx)
             self.level_pixels.append(lp)
             self.level_bearings.append(pattern_bearings(self.cameras[lv], lp, pat))
-            level = pyramid[lv] if pyramid is not None else GradientImage(pyr[lv], clip_range=self.config.clip_range)
+            level = pyramid[lv] if pyramid is not None else GradientImage(pyr[lv], clip_range=self.photometric.clip_range)
             Ih, hv = sample_host(level, lp, pat)  # laid out once for the compiled residuals
             self.host_samples.append((np.ascontiguousarray(Ih, dtype=float), np.ascontiguousarray(hv, dtype=bool)))
 
@@ -239,5 +241,5 @@ class TrackingKeyframe:
 def frame_pyramid(image: ArrayLike, levels: int,
                   clip_range: tuple[float, float] | None = DEFAULT_CLIP_RANGE) -> list[GradientImage]:
     """The frame's pyramid with gradients, one :class:`GradientImage` per level (``clip_range``:
-    the keyframe's, ``TrackingConfig.clip_range``)."""
+    the keyframe's, ``TrackingKeyframe.photometric.clip_range``)."""
     return [GradientImage(p, clip_range=clip_range) for p in build_pyramid(np.asarray(image, dtype=np.float32), levels)]

@@ -4,14 +4,16 @@ geometric verification by PnP RANSAC on stereo/depth points. Math and convention
 ``docs/loop_closure.md``. The pose graph that consumes :class:`LoopCandidate` lives elsewhere.
 """
 
-from gtvo.loops.detector import Keyframe, LoopCandidate, LoopDetector, LoopDetectorConfig, detect_loops
-from gtvo.loops.features import (KeypointPoints, OrbFeatures, OrbParams, depth_image_points, extract_orb,
+from gtvo.loops.config import LoopClosureConfig, LoopDetectorConfig, OrbConfig, VerificationConfig
+from gtvo.loops.detector import Keyframe, LoopCandidate, LoopDetector, detect_loops
+from gtvo.loops.features import (KeypointPoints, OrbFeatures, depth_image_points, extract_orb,
                                  hamming_distances, stereo_points)
-from gtvo.loops.verification import (PnPResult, VerificationParams, match_descriptors, pose_information,
+from gtvo.loops.verification import (PnPResult, match_descriptors, pose_information,
                                      reprojection_jacobians, verify_pnp)
 from gtvo.loops.vocabulary import BinaryVocabulary, idf_weights, l1_scores, tfidf_vectors
 
-__all__ = ["BinaryVocabulary", "KeypointPoints", "Keyframe", "LoopCandidate", "LoopDetector", "LoopDetectorConfig",
-           "OrbFeatures", "OrbParams", "PnPResult", "VerificationParams", "depth_image_points", "detect_loops", "extract_orb",
+__all__ = ["BinaryVocabulary", "KeypointPoints", "Keyframe", "LoopCandidate", "LoopClosureConfig", "LoopDetector",
+           "LoopDetectorConfig",
+           "OrbFeatures", "OrbConfig", "PnPResult", "VerificationConfig", "depth_image_points", "detect_loops", "extract_orb",
            "hamming_distances", "idf_weights", "l1_scores", "match_descriptors", "pose_information",
            "reprojection_jacobians", "stereo_points", "tfidf_vectors", "verify_pnp"]

@@ -32,8 +32,9 @@ from gtvo.errors import InputError
 from gtvo.evaluation.trajectory import Trajectory
 from gtvo.frontend.rgbd import rgbd_keyframe_points
 from gtvo.frontend.stereo_depth import KeyframePoints, init_keyframe_points
-from gtvo.frontend.tracking import TrackingConfig
+from gtvo.frontend.tracking import PhotometricConfig, TrackingConfig
 from gtvo.loops import LoopCandidate, LoopDetector
+from gtvo.loops.config import LoopDetectorConfig
 from gtvo.loops.closure_graph import LoopEdge, close_loops
 from gtvo.loops.direct_refinement import refine_loop_both_ways
 from gtvo.loops.frame_refinement import refine_frames as refine_frame_poses
@@ -71,11 +72,20 @@ class LoopClosingResult:
     frame_hosts: NDArray[np.int64] | None = None
 
 
+@dataclass(frozen=True)
+class _Tracker:
+    """The tracker's settings and photometric model that re-measure loops and frames."""
+
+    config: TrackingConfig | None
+    photometric: PhotometricConfig | None
+
+
 def close_loops_of_run(seq: Sequence, est: Trajectory, frame_indices: list[int], keyframes: list[int],
                        progress: bool = False, odometry_covariances: Seq[NDArray[np.float64] | None] | None = None,
                        keyframe_points: Mapping[int, KeyframePoints] | None = None,
                        tracking_config: TrackingConfig | None = None, refine_frames: bool = False,
-                       refine: Seq[bool] | None = None) -> LoopClosingResult:
+                       refine: Seq[bool] | None = None, *, detector_config: LoopDetectorConfig | None = None,
+                       photometric: PhotometricConfig | None = None) -> LoopClosingResult:
     """Detect loops among a run's keyframes and return the loop-closed trajectory.
 
     Args:
@@ -91,43 +101,47 @@ def close_loops_of_run(seq: Sequence, est: Trajectory, frame_indices: list[int],
         keyframe_points: the VO's points of each keyframe (window-refined depths), by frame index
             in ``seq``, hosting the direct refinement of a loop; a keyframe missing here gets points
             made afresh from its stereo pair (less accurate: one pair's depths) or its depth image.
-        tracking_config: the tracker's settings for the refinement (the VO's, default
-            :class:`TrackingConfig`).
+        tracking_config, photometric: the tracker's settings and photometric model for the
+            refinement (the VO's ``OdometryConfig.tracking`` and ``.photometric``; default their defaults).
         refine_frames: after loop closing (also when no loop was found), re-estimate every frame
             that is not a keyframe against the final keyframes
             (:func:`gtvo.loops.frame_refinement.refine_frames`, the keyframes' points from
             ``keyframe_points`` or made afresh).
         refine: with ``refine_frames``, per pose of ``est``, whether it may be re-estimated
             (default every non-keyframe; leave out poses that are predictions: lost or suspect frames).
+        detector_config: the place recognition's settings (a run's ``OdometryConfig.loops.detector``;
+            default :class:`LoopDetectorConfig`).
 
     Without ``refine_frames`` the input trajectory is returned unchanged when no loop is found.
     """
     kfs = sorted(set(int(k) for k in keyframes))
     if not kfs:
         return LoopClosingResult(est)
-    result = _close(seq, est, frame_indices, kfs, progress, odometry_covariances, keyframe_points, tracking_config)
+    tracker = _Tracker(tracking_config, photometric)
+    result = _close(seq, est, frame_indices, kfs, progress, odometry_covariances, keyframe_points, tracker,
+                    detector_config)
     if refine_frames and len(kfs) >= 2:
-        _refine_frames(seq, result, frame_indices, kfs, progress, odometry_covariances, keyframe_points,
-                       tracking_config, refine)
+        _refine_frames(seq, result, frame_indices, kfs, progress, odometry_covariances, keyframe_points, tracker,
+                       refine)
     return result
 
 
 def _close(seq: Sequence, est: Trajectory, frame_indices: list[int], kfs: list[int], progress: bool,
            odometry_covariances: Seq[NDArray[np.float64] | None] | None,
-           keyframe_points: Mapping[int, KeyframePoints] | None,
-           tracking_config: TrackingConfig | None) -> LoopClosingResult:
+           keyframe_points: Mapping[int, KeyframePoints] | None, tracker: _Tracker,
+           detector_config: LoopDetectorConfig | None) -> LoopClosingResult:
     """Detection, direct re-measurement and the robust keyframe pose graph (steps 1-3)."""
     unchanged = {int(frame_indices[k]): est.poses[k].copy() for k in kfs}
     if len(kfs) < 2:
         return LoopClosingResult(est, keyframe_poses=unchanged)
-    found = _detect(seq, est, frame_indices, kfs, progress)
+    found = _detect(seq, est, frame_indices, kfs, progress, detector_config)
     if not found:
         return LoopClosingResult(est, keyframe_poses=unchanged)
     rank = {k: r for r, k in enumerate(kfs)}
     edges, pairs, unrefined = [], [], []
     for c in found:
         fi, fj = int(frame_indices[c.i]), int(frame_indices[c.j])
-        refined = _refine(seq, c, fi, fj, keyframe_points, tracking_config)
+        refined = _refine(seq, c, fi, fj, keyframe_points, tracker)
         if refined is None:
             unrefined.append((fi, fj))
         else:
@@ -145,7 +159,7 @@ def _close(seq: Sequence, est: Trajectory, frame_indices: list[int], kfs: list[i
 
 def _refine_frames(seq: Sequence, result: LoopClosingResult, frame_indices: list[int], kfs: list[int],
                    progress: bool, odometry_covariances: Seq[NDArray[np.float64] | None] | None,
-                   keyframe_points: Mapping[int, KeyframePoints] | None, tracking_config: TrackingConfig | None,
+                   keyframe_points: Mapping[int, KeyframePoints] | None, tracker: _Tracker,
                    refine: Seq[bool] | None) -> None:
     """Step 4 with ``refine_frames``: ``result.trajectory`` re-estimated frame by frame (in place)."""
     traj = result.trajectory
@@ -156,16 +170,17 @@ def _refine_frames(seq: Sequence, result: LoopClosingResult, frame_indices: list
         points.append(_fresh_points(seq, seq.frame(fi)) if pts is None else pts)
     edge_cov = np.linalg.inv(odometry_informations(len(kfs), odometry_covariances))
     refined = refine_frame_poses(seq.pinhole, lambda p: seq.frame(int(frame_indices[p])).left, traj.poses, kfs,
-                                 points, edge_cov, refine=refine, config=tracking_config, progress=progress)
+                                 points, edge_cov, refine=refine, config=tracker.config, progress=progress,
+                                 photometric=tracker.photometric)
     name = traj.name if traj.name.endswith("(loop closed)") else f"{traj.name} (loop closed)"
     result.trajectory = Trajectory(traj.timestamps.copy(), refined.poses, name=name)
     result.frame_hosts = refined.hosts
 
 
 def _detect(seq: Sequence, est: Trajectory, frame_indices: list[int], kfs: list[int],
-            progress: bool) -> list[LoopCandidate]:
+            progress: bool, config: LoopDetectorConfig | None = None) -> list[LoopCandidate]:
     """Every keyframe added to a :class:`LoopDetector` and queried: the verified loops (PnP)."""
-    detector = LoopDetector(seq.camera)
+    detector = LoopDetector(seq.camera, config)
     found: list[LoopCandidate] = []
     it: Seq[int] = kfs
     if progress:
@@ -183,7 +198,7 @@ def _detect(seq: Sequence, est: Trajectory, frame_indices: list[int], kfs: list[
 
 
 def _refine(seq: Sequence, c: LoopCandidate, fi: int, fj: int, points: Mapping[int, KeyframePoints] | None,
-            config: TrackingConfig | None):
+            tracker: _Tracker):
     """The loop ``c`` (query frame ``fi``, candidate ``fj``) re-measured by direct alignment both
     ways (:func:`refine_loop_both_ways`), or None."""
     host, target = seq.frame(fi), seq.frame(fj)
@@ -191,7 +206,8 @@ def _refine(seq: Sequence, c: LoopCandidate, fi: int, fj: int, points: Mapping[i
     pj = points.get(fj) if points is not None else None
     pi = _fresh_points(seq, host) if pi is None else pi
     pj = _fresh_points(seq, target) if pj is None else pj
-    return refine_loop_both_ways(seq.pinhole, host.left, pi, target.left, pj, c.T_i_j, config)
+    return refine_loop_both_ways(seq.pinhole, host.left, pi, target.left, pj, c.T_i_j, tracker.config,
+                                 photometric=tracker.photometric)
 
 
 def _fresh_points(seq: Sequence, frame: Frame) -> KeyframePoints:

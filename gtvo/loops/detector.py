@@ -32,9 +32,10 @@ from gtvo.core import keys
 from gtvo.core.camera import PinholeCamera, StereoCamera
 from gtvo.errors import InputError, show
 from gtvo.core.image import to_uint8
-from gtvo.loops.features import (KeypointPoints, OrbFeatures, OrbParams, depth_image_points, extract_orb,
+from gtvo.loops.config import LoopDetectorConfig, OrbConfig, VerificationConfig
+from gtvo.loops.features import (KeypointPoints, OrbFeatures, depth_image_points, extract_orb,
                                  stereo_points)
-from gtvo.loops.verification import VerificationParams, match_descriptors, verify_pnp
+from gtvo.loops.verification import match_descriptors, verify_pnp
 from gtvo.loops.vocabulary import BinaryVocabulary, idf_weights, l1_scores, tfidf_vectors
 from gtvo.datasets.sequence import Sequence
 
@@ -54,7 +55,7 @@ class LoopCandidate:
         score: DBoW2's normalised score ``eta = s(i, j) / s_ref(i)`` (docs/loop_closure.md).
         information: 6x6 information of ``T_i_j``, GTSAM Pose3 tangent [rot, trans], right
             perturbation (``T_i_j * Exp(xi)``), with the covariance floor of
-            :class:`VerificationParams`.
+            :class:`VerificationConfig`.
         similarity: raw L1 bag-of-words score ``s(i, j)`` in [0, 1].
         n_matches: ORB matches tried by PnP.
         rmse_px: inlier reprojection RMSE after refinement (pixels).
@@ -82,63 +83,6 @@ class LoopCandidate:
         return {"i": self.i, "j": self.j, "inliers": self.inliers, "n_matches": self.n_matches,
                 "score": self.score, "similarity": self.similarity, "rmse_px": self.rmse_px,
                 "T_i_j": np.asarray(self.T_i_j).tolist(), "information": np.asarray(self.information).tolist()}
-
-
-@dataclass(frozen=True)
-class LoopDetectorConfig:
-    """Settings of :class:`LoopDetector` (defaults follow DBoW2 / ORB-SLAM2 where they exist).
-
-    Attributes:
-        orb: ORB detector settings.
-        verification: matching and PnP thresholds.
-        n_words: vocabulary size (flat k-majority vocabulary).
-        vocabulary_iterations: k-majority iterations per training.
-        min_training_keyframes: the vocabulary is first trained once this many keyframes exist.
-        max_training_descriptors: descriptors sampled (uniformly, seeded) for a training.
-        temporal_window: the last N keyframes inserted before a query are never candidates.
-        reference_neighbours: the reference score is the best score of the query with its
-            this-many immediately preceding keyframes.
-        min_reference_score: floor on the reference score (avoids dividing by ~0 after a
-            sudden view change).
-        min_normalised_score: DBoW2's alpha; a candidate needs ``eta`` at least this.
-        island_gap: candidates whose insertion ranks differ by at most this form one island.
-        max_candidates: islands verified per query (best island score first).
-        stereo_max_hamming: Hamming threshold of left-right ORB matching.
-        disparity_sigma_px: disparity noise of stereo points (pixels).
-        depth_noise_per_m: depth-image noise ``sigma_z = depth_noise_per_m * z^2``.
-        seed: random seed of the vocabulary training.
-    """
-
-    orb: OrbParams = field(default_factory=OrbParams)
-    verification: VerificationParams = field(default_factory=VerificationParams)
-    n_words: int = 500
-    vocabulary_iterations: int = 8
-    min_training_keyframes: int = 4
-    max_training_descriptors: int = 20000
-    temporal_window: int = 10
-    reference_neighbours: int = 3
-    min_reference_score: float = 0.02
-    min_normalised_score: float = 0.3
-    island_gap: int = 2
-    max_candidates: int = 3
-    stereo_max_hamming: float = 75.0
-    disparity_sigma_px: float = 0.5
-    depth_noise_per_m: float = 0.003
-    seed: int = 0
-
-    def __post_init__(self) -> None:
-        for name in ("n_words", "vocabulary_iterations", "min_training_keyframes", "max_training_descriptors",
-                     "reference_neighbours", "max_candidates"):
-            if int(getattr(self, name)) < 1:
-                raise InputError(f"loop detector {name} must be >= 1, got {show(getattr(self, name))}")
-        for name in ("temporal_window", "island_gap"):
-            if int(getattr(self, name)) < 0:
-                raise InputError(f"loop detector {name} must be >= 0, got {show(getattr(self, name))}")
-        for name in ("min_reference_score", "min_normalised_score", "disparity_sigma_px", "depth_noise_per_m",
-                     "stereo_max_hamming"):
-            v = float(getattr(self, name))
-            if not np.isfinite(v) or v < 0:
-                raise InputError(f"loop detector {name} must be finite and >= 0, got {show(v)}")
 
 
 @dataclass

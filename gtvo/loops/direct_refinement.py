@@ -28,7 +28,8 @@ from numpy.typing import NDArray
 from gtvo.core.camera import PinholeCamera
 from gtvo.core.image import to_float_gray
 from gtvo.frontend.stereo_depth import KeyframePoints
-from gtvo.frontend.tracking import TrackingConfig, TrackingKeyframe, TrackingResult, track_with_guesses
+from gtvo.frontend.tracking import (PhotometricConfig, TrackingConfig, TrackingKeyframe, TrackingResult,
+                                   track_with_guesses)
 
 F64 = NDArray[np.float64]
 
@@ -58,7 +59,8 @@ class RefinedLoop:
 
 
 def refine_loop(camera: PinholeCamera, host_image: NDArray, host_points: KeyframePoints, target_image: NDArray,
-                T_i_j_guess: F64, config: TrackingConfig | None = None) -> RefinedLoop | None:
+                T_i_j_guess: F64, config: TrackingConfig | None = None,
+                photometric: PhotometricConfig | None = None) -> RefinedLoop | None:
     """Direct alignment of keyframe ``j``'s image to keyframe ``i``'s points, from ``T_i_j_guess``.
 
     Args:
@@ -68,6 +70,7 @@ def refine_loop(camera: PinholeCamera, host_image: NDArray, host_points: Keyfram
         target_image: keyframe ``j``'s left image.
         T_i_j_guess: initial 4x4 ``T_i_j`` (e.g. the PnP verification's).
         config: tracker settings (default :class:`TrackingConfig`).
+        photometric: the tracker's photometric model (the run's; default :class:`PhotometricConfig`).
 
     Returns None when the tracker fails (too few valid points, residuals that say the pose is
     wrong) or its covariance is singular: such a loop has no metric measurement.
@@ -76,7 +79,8 @@ def refine_loop(camera: PinholeCamera, host_image: NDArray, host_points: Keyfram
         return None
     cfg = config or TrackingConfig()
     host = TrackingKeyframe(camera, to_float_gray(host_image, "loop keyframe image"), host_points.pixels,
-                            host_points.inverse_depth, host_points.variance, (0.0, 0.0), cfg)
+                            host_points.inverse_depth, host_points.variance, (0.0, 0.0), cfg,
+                            photometric=photometric)
     target = to_float_gray(target_image, "loop candidate image")
     T0 = np.asarray(T_i_j_guess, dtype=float)
     guess = gtsam.Pose3(gtsam.Rot3.ClosestTo(T0[:3, :3]), T0[:3, 3])
@@ -118,7 +122,8 @@ def loop_motion(T_i_j: F64, points_i: KeyframePoints) -> float:
 
 def refine_loop_both_ways(camera: PinholeCamera, image_i: NDArray, points_i: KeyframePoints, image_j: NDArray,
                           points_j: KeyframePoints, T_i_j_guess: F64, config: TrackingConfig | None = None,
-                          max_chi2: float = 16.812, max_motion: float = MAX_LOOP_MOTION) -> RefinedLoop | None:
+                          max_chi2: float = 16.812, max_motion: float = MAX_LOOP_MOTION,
+                          photometric: PhotometricConfig | None = None) -> RefinedLoop | None:
     """:func:`refine_loop` with ``i`` as the host, checked by the same alignment with ``j`` as the host.
 
     The two alignments use different points, depths and images as reference; a loop whose
@@ -128,10 +133,10 @@ def refine_loop_both_ways(camera: PinholeCamera, image_i: NDArray, points_i: Key
     ``max_chi2`` (default: the 99 % quantile of chi-square with 6 degrees of freedom) and
     :func:`loop_motion` is at most ``max_motion``, else None.
     """
-    forward = refine_loop(camera, image_i, points_i, image_j, T_i_j_guess, config)
+    forward = refine_loop(camera, image_i, points_i, image_j, T_i_j_guess, config, photometric)
     if forward is None or loop_motion(forward.T_i_j, points_i) > max_motion:
         return None
-    backward = refine_loop(camera, image_j, points_j, image_i, np.linalg.inv(forward.T_i_j), config)
+    backward = refine_loop(camera, image_j, points_j, image_i, np.linalg.inv(forward.T_i_j), config, photometric)
     if backward is None or consistency_chi2(forward, backward) > max_chi2:
         return None
     return forward

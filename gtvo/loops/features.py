@@ -22,44 +22,11 @@ from numpy.typing import NDArray
 from gtvo.core.camera import PinholeCamera, StereoCamera
 from gtvo.errors import InputError
 from gtvo.core.image import to_uint8
+from gtvo.loops.config import OrbConfig
 
 FloatArray = NDArray[np.float64]
 #: Bits in an ORB descriptor (32 bytes).
 ORB_BITS = 256
-
-
-@dataclass(frozen=True)
-class OrbParams:
-    """ORB detector settings (``cv2.ORB_create``).
-
-    Attributes:
-        n_features: keypoints kept per image.
-        scale_factor: pyramid scale between ORB octaves; a keypoint of octave ``o`` is located to
-            about ``scale_factor ** o`` pixels, which sets its pixel noise.
-        n_levels: ORB pyramid levels.
-        fast_threshold: FAST corner threshold (8-bit intensity units).
-        edge_threshold: border (pixels) where no keypoint is detected (also ORB's patch size).
-    """
-
-    n_features: int = 1000
-    scale_factor: float = 1.2
-    n_levels: int = 8
-    fast_threshold: int = 20
-    edge_threshold: int = 31
-
-    def __post_init__(self) -> None:
-        if int(self.n_features) < 10:
-            raise InputError(f"ORB n_features must be >= 10, got {self.n_features}")
-        if not 1.0 < float(self.scale_factor) <= 2.0:
-            raise InputError(f"ORB scale_factor must be in (1, 2], got {self.scale_factor}")
-        if int(self.n_levels) < 1:
-            raise InputError(f"ORB n_levels must be >= 1, got {self.n_levels}")
-
-    def create(self) -> cv2.ORB:
-        """A configured ``cv2.ORB`` detector."""
-        return cv2.ORB_create(nfeatures=int(self.n_features), scaleFactor=float(self.scale_factor),
-                              nlevels=int(self.n_levels), edgeThreshold=int(self.edge_threshold),
-                              patchSize=int(self.edge_threshold), fastThreshold=int(self.fast_threshold))
 
 
 @dataclass(frozen=True)
@@ -95,7 +62,7 @@ class KeypointPoints:
     covariances: FloatArray
 
 
-def extract_orb(image: NDArray, params: OrbParams = OrbParams(), detector: cv2.ORB | None = None) -> OrbFeatures:
+def extract_orb(image: NDArray, params: OrbConfig = OrbConfig(), detector: cv2.ORB | None = None) -> OrbFeatures:
     """ORB keypoints and descriptors of a gray image.
 
     Keypoints of octave ``o`` are moved by ``+0.5 (s - 1)`` pixels, ``s = scale_factor ** o``, to
@@ -137,7 +104,7 @@ def _row_patches(image: NDArray[np.float32], rows: NDArray[np.int64], cols: NDAr
 
 
 def stereo_points(left: OrbFeatures, left_image: NDArray, right_image: NDArray, stereo: StereoCamera,
-                  params: OrbParams = OrbParams(), *, max_hamming: float = 75.0, row_tolerance_px: float = 2.0,
+                  params: OrbConfig = OrbConfig(), *, max_hamming: float = 75.0, row_tolerance_px: float = 2.0,
                   min_disparity_px: float = 0.5, sad_half_window: int = 5, sad_search_px: int = 5,
                   pixel_sigma_px: float = 1.0, disparity_sigma_px: float = 0.5,
                   detector: cv2.ORB | None = None) -> KeypointPoints:
@@ -221,7 +188,7 @@ def stereo_points(left: OrbFeatures, left_image: NDArray, right_image: NDArray, 
 
 
 def _points_from_disparity(cam: PinholeCamera, baseline: float, feats: OrbFeatures, valid: NDArray[np.bool_],
-                           disparity: FloatArray, params: OrbParams, pixel_sigma_px: float,
+                           disparity: FloatArray, params: OrbConfig, pixel_sigma_px: float,
                            disparity_sigma_px: float) -> KeypointPoints:
     n = len(feats)
     d = np.where(valid, disparity, 1.0)
@@ -240,7 +207,7 @@ def _points_from_disparity(cam: PinholeCamera, baseline: float, feats: OrbFeatur
     return KeypointPoints(valid, points, cov)
 
 
-def depth_image_points(feats: OrbFeatures, depth: NDArray, camera: PinholeCamera, params: OrbParams = OrbParams(),
+def depth_image_points(feats: OrbFeatures, depth: NDArray, camera: PinholeCamera, params: OrbConfig = OrbConfig(),
                        *, pixel_sigma_px: float = 1.0, depth_noise_per_m: float = 0.003) -> KeypointPoints:
     """3-D points at keypoints from a metric depth image (metres, 0 = unknown; e.g. RGB-D or a
     depth map the VO rendered from its own points), read at the nearest pixel.

@@ -32,9 +32,10 @@ from numpy.typing import NDArray
 from gtvo.core.camera import PinholeCamera
 from gtvo.core.image import to_float_gray
 from gtvo.errors import InputError
-from gtvo.frontend.keyframes import KeyframeRule
+from gtvo.frontend.keyframes import KeyframeConfig
 from gtvo.frontend.stereo_depth import KeyframePoints
-from gtvo.frontend.tracking import TrackingConfig, TrackingKeyframe, frame_pyramid, track_with_guesses
+from gtvo.frontend.tracking import (PhotometricConfig, TrackingConfig, TrackingKeyframe, frame_pyramid,
+                                   track_with_guesses)
 from gtvo.loops.closure_graph import CHI2_6DOF_99
 from gtvo.loops.direct_refinement import MAX_LOOP_MOTION, inverse_covariance_transport
 
@@ -50,7 +51,7 @@ FUSION_HUBER_K = float(np.sqrt(CHI2_6DOF_99))
 #: look elsewhere (a camera turning on the spot stays within the motion bound of every keyframe)
 #: cost an alignment each and, measured on TUM fr3/teddy, made the fused poses worse (6.3 hosts per
 #: frame and 1.026x the open-loop ATE without this bound, 4.5 and 1.011x with it).
-MAX_ROTATION_DEG = KeyframeRule().max_rotation_deg
+MAX_ROTATION_DEG = KeyframeConfig().max_rotation_deg
 
 
 @dataclass
@@ -149,7 +150,8 @@ def host_candidates(T_world_frame: F64, keyframe_poses: F64, median_inverse_dept
 def refine_frames(camera: PinholeCamera, frame_image: Callable[[int], NDArray], poses: F64, keyframes: Sequence[int],
                   keyframe_points: Sequence[KeyframePoints], edge_covariances: F64,
                   refine: Sequence[bool] | None = None, config: TrackingConfig | None = None,
-                  max_motion: float = MAX_LOOP_MOTION, progress: bool = False) -> FrameRefinement:
+                  max_motion: float = MAX_LOOP_MOTION, progress: bool = False,
+                  photometric: PhotometricConfig | None = None) -> FrameRefinement:
     """Re-estimate every non-keyframe against the final keyframes (module docstring).
 
     Args:
@@ -165,6 +167,7 @@ def refine_frames(camera: PinholeCamera, frame_image: Callable[[int], NDArray], 
         config: the tracker's settings (default :class:`TrackingConfig`).
         max_motion: the largest ``|t_q_f| * median(d_q)`` of a host ``q``.
         progress: show a progress bar.
+        photometric: the tracker's photometric model (the run's; default :class:`PhotometricConfig`).
 
     A frame keeps its pose when no host measures it (every alignment failed or left the range).
     """
@@ -178,6 +181,7 @@ def refine_frames(camera: PinholeCamera, frame_image: Callable[[int], NDArray], 
         raise InputError(f"refine has {mask.shape[0]} entries for {len(P)} poses")
     mask[kfs] = False
     cfg = config or TrackingConfig()
+    model = photometric or PhotometricConfig()
     K = P[kfs]
     med_d = np.array([float(np.median(p.inverse_depth)) if len(p) else np.inf for p in keyframe_points])
     owner = np.maximum(np.searchsorted(np.asarray(kfs), np.arange(len(P)), side="right") - 1, 0)
@@ -194,7 +198,7 @@ def refine_frames(camera: PinholeCamera, frame_image: Callable[[int], NDArray], 
         cand = [int(q) for q in host_candidates(P[p], K, med_d, max_motion) if len(keyframe_points[q])]
         if not cand:
             continue
-        pyr = frame_pyramid(to_float_gray(frame_image(p), f"frame {p} image"), cfg.levels, cfg.clip_range)
+        pyr = frame_pyramid(to_float_gray(frame_image(p), f"frame {p} image"), cfg.levels, model.clip_range)
         if k not in chains:
             chains[k] = chain_covariances(K, edge_covariances, k)
         meas, covs = [], []
@@ -202,7 +206,8 @@ def refine_frames(camera: PinholeCamera, frame_image: Callable[[int], NDArray], 
             if q not in trackers:
                 pts = keyframe_points[q]
                 trackers[q] = TrackingKeyframe(camera, to_float_gray(frame_image(kfs[q]), f"keyframe {kfs[q]} image"),
-                                               pts.pixels, pts.inverse_depth, pts.variance, (0.0, 0.0), cfg)
+                                               pts.pixels, pts.inverse_depth, pts.variance, (0.0, 0.0), cfg,
+                                               photometric=model)
             r = track_with_guesses(trackers[q], pyr, [_pose3(np.linalg.inv(K[q]) @ P[p])])
             T_q_f = r.T_keyframe_frame.matrix()
             if (not r.success or not np.all(np.isfinite(r.covariance))

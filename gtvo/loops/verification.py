@@ -18,41 +18,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gtvo.core.camera import PinholeCamera
+from gtvo.loops.config import VerificationConfig
 from gtvo.loops.features import hamming_distances
 
 FloatArray = NDArray[np.float64]
-
-
-@dataclass(frozen=True)
-class VerificationParams:
-    """Thresholds of :func:`match_descriptors` and :func:`verify_pnp`.
-
-    Attributes:
-        ratio: Lowe ratio test, best / second-best Hamming distance must be below it.
-        max_hamming: largest accepted Hamming distance of a match (of 256 bits).
-        reprojection_threshold_px: RANSAC and final inlier threshold (pixels).
-        ransac_iterations: RANSAC iterations of ``cv2.solvePnPRansac``.
-        ransac_confidence: RANSAC confidence.
-        min_inliers: a loop needs at least this many PnP inliers.
-        min_inlier_ratio: and at least this fraction of the matches as inliers.
-        pixel_sigma_px: keypoint noise at octave 0; octave ``o`` has ``pixel_sigma_px * s**o``.
-        ransac_seed: seed of OpenCV's global RNG set before each RANSAC (reproducible results).
-        min_rotation_sigma_rad, min_translation_sigma_m: a covariance floor
-            ``diag(sr^2 I3, st^2 I3)`` added to ``inv(Lambda)`` for the errors the reprojection model
-            leaves out (calibration, rolling shutter, keypoint bias); see docs/loop_closure.md.
-    """
-
-    ratio: float = 0.8
-    max_hamming: float = 64.0
-    reprojection_threshold_px: float = 3.0
-    ransac_iterations: int = 300
-    ransac_confidence: float = 0.999
-    min_inliers: int = 30
-    min_inlier_ratio: float = 0.3
-    pixel_sigma_px: float = 1.0
-    ransac_seed: int = 0
-    min_rotation_sigma_rad: float = 0.002
-    min_translation_sigma_m: float = 0.01
 
 
 @dataclass(frozen=True)
@@ -66,7 +35,7 @@ class PnPResult:
         rmse_px: reprojection RMSE of the inliers after refinement (pixels).
         information: 6x6 information of ``T_i_j`` in GTSAM's Pose3 tangent [rot, trans], right
             perturbation ``T_i_j * Exp(xi)``: ``inv(inv(Lambda) + floor)`` with Lambda from
-            :func:`pose_information` and the covariance floor of :class:`VerificationParams`.
+            :func:`pose_information` and the covariance floor of :class:`VerificationConfig`.
     """
 
     T_i_j: FloatArray
@@ -166,7 +135,7 @@ def _to_matrix(rvec: NDArray, tvec: NDArray) -> FloatArray:
 
 
 def verify_pnp(points_j: FloatArray, point_covariances: FloatArray, uv_i: FloatArray, pixel_sigmas: FloatArray,
-               camera: PinholeCamera, params: VerificationParams = VerificationParams()) -> PnPResult | None:
+               camera: PinholeCamera, params: VerificationConfig = VerificationConfig()) -> PnPResult | None:
     """Relative pose ``T_i_j`` from matched 3-D points of j (M, 3) and pixels of i (M, 2), or None.
 
     ``cv2.solvePnPRansac`` (threshold ``reprojection_threshold_px``), then ``cv2.solvePnPRefineLM``

@@ -16,11 +16,11 @@ from numpy.typing import ArrayLike, NDArray
 from gtvo.core.keys import motion_state_key
 from factors.motion import pose_measurement_factor, process_factor, state_prior_factor
 from gtvo.errors import InputError
-from gtvo.motion.model import STATE_DIM, MotionNoise, _check_prior
+from gtvo.motion.model import STATE_DIM, MotionNoiseConfig, _check_prior
 
 
 def build_motion_graph(measurements: ArrayLike, times: ArrayLike, prior_mean: ArrayLike, prior_cov: ArrayLike,
-                       noise: MotionNoise = MotionNoise()) -> gtsam.GaussianFactorGraph:
+                       noise: MotionNoiseConfig = MotionNoiseConfig()) -> gtsam.GaussianFactorGraph:
     """The linear-Gaussian graph of the same problem :func:`gtvo.motion.model.filter_sequence` solves."""
     z = np.asarray(measurements, dtype=np.float64)
     t = np.asarray(times, dtype=np.float64).reshape(-1)

@@ -41,6 +41,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from factors.motion import POSE_MEASUREMENT_MATRIX, STATE_DIM, THETA_INDEX, X_INDEX, Z_INDEX, check_dt, transition_matrix
+from gtvo.core.settings import check_settings, setting
 from gtvo.errors import InputError
 
 FloatArray = NDArray[np.float64]
@@ -132,7 +133,7 @@ INITIAL_RATE_SIGMAS: tuple[float, float, float] = (1.0, 1.0, 0.5)
 
 
 @dataclass(frozen=True)
-class MotionNoise:
+class MotionNoiseConfig:
     """Noise of the planar model.
 
     Attributes:
@@ -142,10 +143,11 @@ class MotionNoise:
             ``Q = diag(sigmas^2)``.
     """
 
-    accel_sigmas: tuple[float, float, float] = (1.0, 1.0, 0.5)
-    measurement_sigmas: tuple[float, float, float] = (0.05, 0.05, 0.01)
+    accel_sigmas: tuple[float, float, float] = setting((1.0, 1.0, 0.5), "[0, 1000]")
+    measurement_sigmas: tuple[float, float, float] = setting((0.05, 0.05, 0.01), "[1e-6, 1000]")
 
     def __post_init__(self) -> None:
+        check_settings(self)
         _check_sigmas("accel_sigmas", self.accel_sigmas, 3, allow_zero=True)
         _check_sigmas("measurement_sigmas", self.measurement_sigmas, 3)
 
@@ -186,7 +188,7 @@ def _check_prior(mean: ArrayLike, cov: ArrayLike) -> tuple[FloatArray, FloatArra
 
 
 def filter_sequence(measurements: ArrayLike, times: ArrayLike, prior_mean: ArrayLike, prior_cov: ArrayLike,
-                    noise: MotionNoise = MotionNoise()) -> FilterResult:
+                    noise: MotionNoiseConfig = MotionNoiseConfig()) -> FilterResult:
     """Run the filter over ``N`` pose measurements ``(X, Z, theta)`` taken at ``times`` (seconds).
 
     The prior ``(prior_mean, prior_cov)`` is on the state at ``times[0]``; measurement 0 updates it,
@@ -248,7 +250,7 @@ class ConstantAccelerationFilter:
 
     Usage in the VO (the tracker's initial guess)::
 
-        f = ConstantAccelerationFilter(MotionNoise(...))
+        f = ConstantAccelerationFilter(MotionNoiseConfig(...))
         f.initialize(planar_pose_from_T_world_cam(T0))
         ...
         X, Z, theta = f.predict_pose(dt)                          # guess for the next frame
@@ -257,7 +259,7 @@ class ConstantAccelerationFilter:
         f.step(planar_pose_from_T_world_cam(T_new), dt)             # predict + update
     """
 
-    def __init__(self, noise: MotionNoise = MotionNoise(),
+    def __init__(self, noise: MotionNoiseConfig = MotionNoiseConfig(),
                  initial_rate_sigmas: tuple[float, float, float] = INITIAL_RATE_SIGMAS) -> None:
         self.noise = noise
         self.initial_rate_sigmas = tuple(_check_sigmas("initial_rate_sigmas", initial_rate_sigmas, 3))

@@ -14,7 +14,7 @@ import numpy as np
 
 from gtvo.core.camera import PinholeCamera
 from gtvo.datasets.sequence import Frame
-from gtvo.frontend.frame_checks import FrameCheckSettings, FrameChecker, measure_step
+from gtvo.frontend.frame_checks import FrameCheckConfig, FrameChecker, measure_step
 from gtvo.odometry.estimates import Keyframe
 from gtvo.odometry.history import FrameHistory
 
@@ -28,7 +28,7 @@ class FrameChecks:
         history: the run's frames (read only).
     """
 
-    def __init__(self, config: FrameCheckSettings, camera: PinholeCamera, history: FrameHistory) -> None:
+    def __init__(self, config: FrameCheckConfig, camera: PinholeCamera, history: FrameHistory) -> None:
         self.camera = camera
         self.history = history
         self._checker = FrameChecker(config)

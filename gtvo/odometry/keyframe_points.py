@@ -10,8 +10,6 @@ current estimate, and the first pair also gives the estimate's starting ``delta_
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 from numpy.typing import NDArray
 
@@ -48,8 +46,8 @@ def frame_points(frame: Frame, left: NDArray[np.float32], right: NDArray[np.floa
             if rig.initial is None:
                 start_rig_offset(left, right, camera, config, rig)
             right = correct_right_image(right, rig.offset)
-        return init_keyframe_points(left, right, camera, target=cfg.points_per_keyframe, selection=cfg.points,
-                                    stereo=cfg.stereo, clip_range=config.photometric.clip_range)
+        return init_keyframe_points(left, right, camera, cfg.points_per_keyframe, cfg.points, cfg.stereo,
+                                    config.photometric.clip_range)
     if frame.depth is None:
         raise InputError(f"frame {frame.index}: RGB-D odometry needs a depth image")
     return rgbd_keyframe_points(left, frame.depth, cfg.points_per_keyframe, cfg.depth_sigma_model, cfg.points)
@@ -63,7 +61,7 @@ def start_rig_offset(left: NDArray[np.float32], right: NDArray[np.float32], came
         TooFewPoints: no stereo match survives at any row shift (an InputError on the first frame).
     """
     fcfg = config.frontend
-    pixels = select_points(left, fcfg.points_per_keyframe, **dataclasses.asdict(fcfg.points))
+    pixels = select_points(left, fcfg.points_per_keyframe, fcfg.points)
     est = estimate_vertical_offset(left, right, camera, pixels, max_disparity=fcfg.stereo.max_disparity)
     if est is None:
         raise TooFewPoints("the first stereo pair has no stereo match at any vertical offset within "

@@ -63,7 +63,7 @@ class Keyframer:
         self.keyframes: list[Keyframe] = []
         self.window: SlidingWindowOptimizer | None = None
         self.window_results: list[WindowResult] = []
-        self.schedule = WindowSchedule(config.window, self.pinhole)
+        self.schedule = WindowSchedule(config.window, config.photometric, self.pinhole)
         self.candidate: tuple[Frame, NDArray[np.float32]] | None = None
         self._by_index: dict[int, Keyframe] = {}
         self._window_affine: dict[int, NDArray[np.float64]] = {}  # keyframe index -> (a, b) in the window
@@ -73,7 +73,8 @@ class Keyframer:
             baseline = camera.baseline if isinstance(camera, StereoCamera) else None
             wcfg = config.window
             rig = baseline is not None and wcfg.rig_calibration and wcfg.backend == "lm"
-            self.window = SlidingWindowOptimizer(self.pinhole, baseline, wcfg, rig_offset=np.zeros(2) if rig else None)
+            self.window = SlidingWindowOptimizer(self.pinhole, baseline, wcfg, rig_offset=np.zeros(2) if rig else None,
+                                                 photometric=config.photometric)
 
     @property
     def rig(self) -> RigOffset | None:
@@ -131,11 +132,11 @@ class Keyframer:
         if self.window is not None:
             if pyramid is None:  # one pyramid for the window keyframe's image and the tracker (no tracking made it)
                 with stage("keyframe_setup"):
-                    pyramid = frame_pyramid(left, self.config.tracking.levels, self.config.tracking.clip_range)
+                    pyramid = frame_pyramid(left, self.config.tracking.levels, self.config.photometric.clip_range)
             T_world_cam, pts = self._join_window(frame, right, T_world_cam, pts, tracked, pyramid)
         with stage("keyframe_setup"):  # the new keyframe's tracker: its pyramid with gradients (or the frame's)
             tracker = TrackingKeyframe(self.pinhole, left, pts.pixels, pts.inverse_depth, pts.variance, (0.0, 0.0),
-                                       self.config.tracking, pyramid=pyramid)
+                                       self.config.tracking, pyramid=pyramid, photometric=self.config.photometric)
         image = left if self.config.flow_fallback is not None else None  # converted only if the fallback runs
         kf = Keyframe(frame.index, rigid_pose(T_world_cam.matrix()), pts, tracker, image)
         if self.keyframes:
@@ -192,7 +193,7 @@ class Keyframer:
             rig = self.rig
             stereo_affine = estimate_stereo_affine(self.pinhole, self.camera.baseline, left_img, right, pts.pixels,
                                                    pts.inverse_depth, pts.variance,
-                                                   sigma_intensity=self.config.window.sigma_intensity,
+                                                   sigma_intensity=self.config.photometric.sigma_intensity,
                                                    offset=None if rig is None else rig.offset)
         wk = WindowKeyframe(frame.index, T_world_cam, affine, left_img, pts.pixels, pts.inverse_depth,
                             pts.variance, right=right, depth_prior=right is None, stereo_affine=stereo_affine,
@@ -240,18 +241,17 @@ class Keyframer:
         again against the right image corrected by the estimate (and their stereo affine fitted
         again): a point whose new search matches takes its inverse depth and variance."""
         assert self.window is not None and isinstance(self.camera, StereoCamera)
-        options = dataclasses.asdict(self.config.frontend.stereo)
         for w in self.window.keyframes:
             if w.right is None:
                 continue
             right = correct_right_image(w.right.image, rig.offset)
-            res = stereo_inverse_depth(w.image.image, right, self.camera, w.pixels, **options,
-                                       clip_range=self.config.photometric.clip_range)
+            res = stereo_inverse_depth(w.image.image, right, self.camera, w.pixels, self.config.frontend.stereo,
+                                       self.config.photometric.clip_range)
             w.inverse_depth = np.where(res.valid, res.inverse_depth, w.inverse_depth)
             w.variance = np.where(res.valid, res.variance, w.variance)
             w.stereo_affine = estimate_stereo_affine(self.pinhole, self.camera.baseline, w.image, w.right, w.pixels,
                                                      w.inverse_depth, w.variance,
-                                                     sigma_intensity=self.config.window.sigma_intensity,
+                                                     sigma_intensity=self.config.photometric.sigma_intensity,
                                                      offset=rig.offset)
 
     def _re_express(self) -> None:

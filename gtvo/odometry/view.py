@@ -19,7 +19,7 @@ from gtvo.frontend.tracking_types import TrackingResult
 from gtvo.odometry.estimates import Keyframe
 
 if TYPE_CHECKING:
-    from gtvo.frontend.tracking_types import TrackingConfig
+    from factors.params import PhotometricConfig
     from gtvo.odometry.history import FrameHistory
     from gtvo.odometry.keyframer import Keyframer
 
@@ -62,7 +62,7 @@ class OdometryView:
             ``I_R = exp(a) I_L + b``, from the newest window keyframe (None: no stereo window keyframe).
     """
 
-    def __init__(self, history: "FrameHistory", keyframer: "Keyframer", tracking: "TrackingConfig",
+    def __init__(self, history: "FrameHistory", keyframer: "Keyframer", photometric: "PhotometricConfig",
                  tracked: TrackedPoints | None) -> None:
         self._history = history
         self._keyframer = keyframer
@@ -73,7 +73,7 @@ class OdometryView:
         self.window_poses: FloatArray = (np.stack([kf.T_world_cam.matrix() for kf in window]) if window
                                          else np.zeros((0, 4, 4)))
         self.tracked = tracked
-        self.residual_scale = float(tracking.huber_k * tracking.sigma_intensity)
+        self.residual_scale = float(photometric.huber_k * photometric.sigma_intensity)
         rig = keyframer.rig
         self.rig_offset: FloatArray | None = None if rig is None else rig.offset.copy()
         wk = keyframer.window.keyframes if keyframer.window is not None else []
@@ -81,7 +81,7 @@ class OdometryView:
             None if not wk or wk[-1].right is None else (float(wk[-1].stereo_affine[0]), float(wk[-1].stereo_affine[1])))
 
     @classmethod
-    def after(cls, history: "FrameHistory", keyframer: "Keyframer", tracking: "TrackingConfig",
+    def after(cls, history: "FrameHistory", keyframer: "Keyframer", photometric: "PhotometricConfig",
               result: TrackingResult | None, keyframe: Keyframe | None) -> "OdometryView":
         """The view after the latest frame, tracked with ``result`` against ``keyframe`` (None: not tracked)."""
         tracked = None
@@ -89,7 +89,7 @@ class OdometryView:
             r = result.residuals
             X = keyframer.world_points(keyframe)[r.index]
             tracked = TrackedPoints(keyframe.index, r.pixels.copy(), X, r.residual.copy())
-        return cls(history, keyframer, tracking, tracked)
+        return cls(history, keyframer, photometric, tracked)
 
     def positions(self) -> FloatArray:
         """(N, 3) every frame's camera position so far (window mode: as the window has moved them)."""

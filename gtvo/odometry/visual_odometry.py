@@ -196,7 +196,7 @@ class VisualOdometry:
         """What an observer may read after the latest frame (:class:`gtvo.odometry.view.OdometryView`):
         copies, so that nothing an observer does changes the odometry."""
         track, kf = self._last
-        return OdometryView.after(self.history, self.keyframer, self.config.tracking,
+        return OdometryView.after(self.history, self.keyframer, self.config.photometric,
                                   None if track is None else track.result, kf)
 
     # -- the algorithm --------------------------------------------------------------------------

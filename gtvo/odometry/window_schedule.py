@@ -13,6 +13,7 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
+from factors.params import PhotometricConfig
 from gtvo.core.camera import PinholeCamera
 from gtvo.frontend import KeyframePoints
 from gtvo.window import WindowConfig
@@ -22,15 +23,17 @@ class WindowSchedule:
     """Counts the keyframes waiting for the window's optimisation and decides whether the next may wait.
 
     Args:
-        config: the window's settings (``optimize_every``, ``backend``, ``pattern``).
+        config: the window's settings (``optimize_every``, ``backend``).
+        photometric: the residuals' model (its ``pattern``).
         camera: the left camera.
 
     Attributes:
         waiting: keyframes that joined the window since its last optimisation.
     """
 
-    def __init__(self, config: WindowConfig, camera: PinholeCamera) -> None:
+    def __init__(self, config: WindowConfig, photometric: PhotometricConfig, camera: PinholeCamera) -> None:
         self.config = config
+        self.photometric = photometric
         self.camera = camera
         self.waiting = 0
 
@@ -49,5 +52,5 @@ class WindowSchedule:
         still compares the right pixels, and the window may refine the keyframe later."""
         step = float(np.linalg.norm(T_last_keyframe.between(T_new).translation()))
         error_px = float(self.camera.fx) * step * float(np.sqrt(np.median(points.variance)))
-        radius = float(np.max(np.linalg.norm(np.asarray(self.config.pattern, dtype=float), axis=1)))
+        radius = float(np.max(np.linalg.norm(np.asarray(self.photometric.pattern, dtype=float), axis=1)))
         return error_px < radius

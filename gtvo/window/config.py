@@ -10,11 +10,11 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from factors.gtsam_factors import DEFAULT_HUBER_K, DEFAULT_SIGMA_INTENSITY
 from gtvo.core.keys import is_pose_key
-from factors.photometric import PATTERN_DSO8, GradientImage
+from factors.params import PhotometricConfig
+from factors.photometric import GradientImage
 from gtvo.core.camera import PinholeCamera
-from gtvo.core.settings import check_settings, setting
+from gtvo.core.settings import SettingError, check_settings, setting
 from gtvo.errors import InputError, show
 
 if TYPE_CHECKING:
@@ -36,13 +36,12 @@ def values_subset(values: gtsam.Values, keys: Sequence[int]) -> gtsam.Values:
 
 @dataclass(frozen=True)
 class WindowConfig:
-    """Settings of the window (defaults follow DSO where DSO has one).
+    """Settings of the window (defaults follow DSO where DSO has one; its photometric model, the
+    noise of the weight ``W``, the Huber threshold and the pattern, is the
+    :class:`factors.params.PhotometricConfig` the :class:`gtvo.window.SlidingWindowOptimizer` is given).
 
     Attributes:
         size: keyframes in the window (DSO: 7).
-        sigma_intensity, huber_k, pattern: the photometric weight ``W``, the Huber threshold on a
-            point's whitened pattern norm and the residual pattern (the factors' defaults: 8 grey
-            levels, k = 3, DSO's 8-pixel pattern).
         lambda_stereo: weight of the host's stereo energy ``lambda E_s`` (the notes'
             ``E = E_d + lambda E_s``); 1 treats a left-right residual like a temporal one: both
             compare two images of the same sensor type with the same noise.
@@ -94,34 +93,28 @@ class WindowConfig:
             gauge prior); afterwards the marginalisation prior carries what the window learnt.
     """
 
-    size: int = setting(7, ">= 2")
-    sigma_intensity: float = DEFAULT_SIGMA_INTENSITY
-    huber_k: float | None = DEFAULT_HUBER_K
-    pattern: FloatArray = field(default_factory=lambda: PATTERN_DSO8.copy())
-    lambda_stereo: float = setting(1.0, "> 0")
-    affine_sigma: tuple[float, float] = setting((1.0, 100.0), "> 0")
-    acceleration_sigma: tuple[float, float] | None = setting((1.0, 2.0), "> 0")
-    gauge_sigma: float = setting(1e-6, "> 0")
-    min_visible_points: int = setting(30, ">= 0")
+    size: int = setting(7, "[2, 100]")
+    lambda_stereo: float = setting(1.0, "(0, 1000]")
+    affine_sigma: tuple[float, float] = setting((1.0, 100.0), "(0, 1000000]")
+    acceleration_sigma: tuple[float, float] | None = setting((1.0, 2.0), "(0, 1000000]")
+    gauge_sigma: float = setting(1e-6, "[1e-9, 1]")
+    min_visible_points: int = setting(30, "[0, 100000]")
     min_visible_fraction: float = setting(0.1, "[0, 1]")
-    max_iterations: int = setting(3, ">= 1")
-    relative_tolerance: float = setting(1e-4, ">= 0")
-    optimize_every: int = setting(2, ">= 1")
+    max_iterations: int = setting(3, "[1, 1000]")
+    relative_tolerance: float = setting(1e-4, "[0, 1]")
+    optimize_every: int = setting(2, "[1, 100]")
     marginalize: bool = True
     backend: Literal["lm", "fixed_lag"] = "lm"
     covariances: bool = True
     rig_calibration: bool = False
-    rig_offset_sigma: float = setting(2.0, "> 0")
+    rig_offset_sigma: float = setting(2.0, "[0.01, 100]")
 
     def __post_init__(self) -> None:
-        check_settings(self)  # backend, size, max_iterations and the ranges declared above
-        if not (self.lambda_stereo > 0 and np.isfinite(self.lambda_stereo)):
-            raise InputError(f"lambda_stereo must be positive, got {show(self.lambda_stereo)}")
-        if not all(s > 0 and np.isfinite(s) for s in self.affine_sigma):
-            raise InputError(f"affine_sigma must be positive, got {show(self.affine_sigma)}")
-        acc = self.acceleration_sigma
-        if acc is not None and (len(acc) != 2 or not all(s > 0 and np.isfinite(s) for s in acc)):
-            raise InputError(f"acceleration_sigma must be two positive numbers or None, got {show(acc)}")
+        check_settings(self)  # backend and the ranges declared above
+        for name in ("affine_sigma", "acceleration_sigma"):
+            value = getattr(self, name)
+            if value is not None and len(value) != 2:
+                raise SettingError(name, f"must be two numbers, got {show(value)}")
 
 
 @dataclass
@@ -247,6 +240,7 @@ class WindowState(Protocol):
     camera: PinholeCamera
     baseline: float | None
     config: WindowConfig
+    photometric: PhotometricConfig
     keyframes: list[WindowKeyframe]
     #: the rig offset's one owner (:class:`gtvo.window.rig.RigOffset`), None when not estimated
     rig: "RigOffset | None"

@@ -88,7 +88,8 @@ class FixedLagBackend:
         added: list[tuple[int, HostPointsFactor]] = []
         for h, ts in enumerate(targets):
             if ts:
-                f = host_factor(window.camera, window.baseline, window.keyframes, h, ts, cfg)
+                f = host_factor(window.camera, window.baseline, window.keyframes, h, ts, cfg,
+                                photometric=window.photometric)
                 graph.add(f)
                 added.append((window.keyframes[h].index, f))
         n_prior = graph.size() - len(added)

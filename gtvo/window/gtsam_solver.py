@@ -12,6 +12,7 @@ from numpy.typing import NDArray
 from gtvo.core.keys import affine_key, pose_key, rig_offset_key
 from gtvo.core.camera import PinholeCamera
 from gtvo.window.covariance import marginals_of_graph
+from factors.params import DEFAULT_PHOTOMETRIC, PhotometricConfig
 from gtvo.window.config import MarginalPrior, WindowConfig, WindowKeyframe, WindowResult
 from gtvo.window.problem import build_graph, visible_targets
 
@@ -21,8 +22,10 @@ FloatArray = NDArray[np.float64]
 def solve_gtsam(camera: PinholeCamera, baseline: float | None, keyframes: Sequence[WindowKeyframe],
                 config: WindowConfig, marginal: MarginalPrior | None = None,
                 targets: list[list[int]] | None = None, rig_offset: FloatArray | None = None,
-                rig_hold_x: float | None = None) -> WindowResult:
-    """Optimise the window with ``gtsam.LevenbergMarquardtOptimizer``; updates ``keyframes`` in place.
+                rig_hold_x: float | None = None, *,
+                photometric: PhotometricConfig = DEFAULT_PHOTOMETRIC) -> WindowResult:
+    """Optimise the window with ``gtsam.LevenbergMarquardtOptimizer`` (residuals of the
+    ``photometric`` model); updates ``keyframes`` in place.
 
     ``rig_offset``: the rig offset's current estimate when it is a variable (the result's
     ``rig_offset`` is the optimised one), None: the rectified model; ``rig_hold_x``: its ``delta_x``
@@ -30,7 +33,7 @@ def solve_gtsam(camera: PinholeCamera, baseline: float | None, keyframes: Sequen
     t0 = time.perf_counter()
     targets = visible_targets(camera, keyframes, config) if targets is None else targets
     graph, values, hosts = build_graph(camera, baseline, keyframes, config, marginal, targets, rig_offset,
-                                       rig_hold_x)
+                                       rig_hold_x, photometric=photometric)
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(config.max_iterations)
     params.setRelativeErrorTol(config.relative_tolerance)

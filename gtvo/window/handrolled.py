@@ -22,6 +22,7 @@ from gtvo.core.keys import affine_key, pose_key, rig_offset_key
 from gtvo.core.camera import PinholeCamera
 from gtvo.core.timing import stage, timed
 from gtvo.window.covariance import marginals_of_hessian
+from factors.params import DEFAULT_PHOTOMETRIC, PhotometricConfig
 from gtvo.window.config import MarginalPrior, WindowConfig, WindowKeyframe, WindowResult
 from gtvo.window.problem import (motion_factors, needs_rig_prior, rig_carried, rig_prior_mean_sigmas,
                                  visible_targets)
@@ -45,12 +46,14 @@ class _WindowHost:
 
     @timed("window_build")  # the host's set-up (its first residuals: "linearisation")
     def __init__(self, camera: PinholeCamera, baseline: float | None, keyframes: Sequence[WindowKeyframe],
-                 h: int, targets: Sequence[int], config: WindowConfig, rig_offset: FloatArray | None = None) -> None:
+                 h: int, targets: Sequence[int], config: WindowConfig, rig_offset: FloatArray | None = None,
+                 photometric: PhotometricConfig = DEFAULT_PHOTOMETRIC) -> None:
         kh = keyframes[h]
         self.h, self.targets = h, list(targets)
         self.points = HostPoints(camera, kh.pixels, kh.image, [keyframes[t].image for t in self.targets],
-                                 kh.variance, kh.prior_inverse_depth, sigma_intensity=config.sigma_intensity,
-                                 huber_k=config.huber_k, pattern=config.pattern, depth_prior=kh.depth_prior,
+                                 kh.variance, kh.prior_inverse_depth, sigma_intensity=photometric.sigma_intensity,
+                                 huber_k=photometric.huber_k, pattern=photometric.pattern_array,
+                                 depth_prior=kh.depth_prior,
                                  right_image=kh.right, baseline=baseline, lambda_stereo=config.lambda_stereo,
                                  stereo_affine=kh.stereo_affine, rig=rig_offset is not None)
         K = len(keyframes)
@@ -161,10 +164,12 @@ def _marginal_terms(marginal: MarginalPrior | None, keyframes, poses, affines, H
 def window_cost(camera: PinholeCamera, baseline: float | None, keyframes: Sequence[WindowKeyframe],
                 config: WindowConfig, marginal: MarginalPrior | None = None,
                 targets: list[list[int]] | None = None, rig_offset: FloatArray | None = None,
-                rig_hold_x: float | None = None) -> float:
-    """The window cost E at the keyframes' current state, computed the hand-rolled way (W at this state)."""
+                rig_hold_x: float | None = None, *, photometric: PhotometricConfig = DEFAULT_PHOTOMETRIC) -> float:
+    """The window cost E at the keyframes' current state, computed the hand-rolled way (W at this
+    state), with the ``photometric`` model."""
     targets = visible_targets(camera, keyframes, config) if targets is None else targets
-    hosts = [_WindowHost(camera, baseline, keyframes, h, ts, config, rig_offset) for h, ts in enumerate(targets)]
+    hosts = [_WindowHost(camera, baseline, keyframes, h, ts, config, rig_offset, photometric)
+             for h, ts in enumerate(targets)]
     poses = [kf.pose for kf in keyframes]
     affines = [kf.affine for kf in keyframes]
     off = None if rig_offset is None else np.asarray(rig_offset, dtype=float).reshape(2)
@@ -178,8 +183,10 @@ def window_cost(camera: PinholeCamera, baseline: float | None, keyframes: Sequen
 def solve_handrolled(camera: PinholeCamera, baseline: float | None, keyframes: Sequence[WindowKeyframe],
                      config: WindowConfig, marginal: MarginalPrior | None = None,
                      targets: list[list[int]] | None = None, rig_offset: FloatArray | None = None,
-                     rig_hold_x: float | None = None) -> WindowResult:
-    """Levenberg-Marquardt on the reduced camera system; updates ``keyframes`` in place.
+                     rig_hold_x: float | None = None, *,
+                     photometric: PhotometricConfig = DEFAULT_PHOTOMETRIC) -> WindowResult:
+    """Levenberg-Marquardt on the reduced camera system (residuals of the ``photometric`` model);
+    updates ``keyframes`` in place.
 
     ``rig_offset``: the rig offset's current estimate when it is a variable (2 more state entries
     after the keyframes'; the result's ``rig_offset`` is the optimised one); ``rig_hold_x``: its
@@ -194,7 +201,8 @@ def solve_handrolled(camera: PinholeCamera, baseline: float | None, keyframes: S
     t0 = time.perf_counter()
     targets = visible_targets(camera, keyframes, config) if targets is None else targets
     off = None if rig_offset is None else np.asarray(rig_offset, dtype=float).reshape(2).copy()
-    hosts = [_WindowHost(camera, baseline, keyframes, h, ts, config, off) for h, ts in enumerate(targets) if ts]
+    hosts = [_WindowHost(camera, baseline, keyframes, h, ts, config, off, photometric)
+             for h, ts in enumerate(targets) if ts]
     K = len(keyframes)
     M = 8 * K + (0 if off is None else 2)
     rig_prior_on = needs_rig_prior(off, marginal, rig_hold_x)

@@ -10,6 +10,7 @@ from numpy.typing import NDArray
 
 from gtvo.core.keys import affine_key, pose_key, rig_offset_key
 from gtvo.core.camera import PinholeCamera
+from factors.params import DEFAULT_PHOTOMETRIC, PhotometricConfig
 from gtvo.window.config import MarginalPrior, WindowConfig, WindowKeyframe
 from gtvo.window.config import values_subset
 from gtvo.window.problem import (gauge_noise, host_factor, key_ordering, motion_factors, needs_rig_prior, rig_prior,
@@ -20,8 +21,10 @@ FloatArray = NDArray[np.float64]
 
 def marginalize(camera: PinholeCamera, baseline: float | None, keyframes: Sequence[WindowKeyframe],
                 config: WindowConfig, marginal: MarginalPrior | None, position: int = 0,
-                rig_offset: FloatArray | None = None) -> MarginalPrior:
-    """Marginalise ``keyframes[position]`` and its points; return the prior on the others.
+                rig_offset: FloatArray | None = None, *,
+                photometric: PhotometricConfig = DEFAULT_PHOTOMETRIC) -> MarginalPrior:
+    """Marginalise ``keyframes[position]`` and its points (residuals of the ``photometric`` model);
+    return the prior on the others.
 
     The factors touching it (its host factor into the keyframes that see its points, its affine
     prior, the motion priors it is part of, the gauge prior or the previous marginal prior) are
@@ -37,7 +40,8 @@ def marginalize(camera: PinholeCamera, baseline: float | None, keyframes: Sequen
     targets = visible_targets(camera, keyframes, config, hosts=[position])[0]
     graph = gtsam.NonlinearFactorGraph()
     if targets:
-        graph.add(host_factor(camera, baseline, keyframes, position, targets, config, rig=rig_offset is not None))
+        graph.add(host_factor(camera, baseline, keyframes, position, targets, config, rig=rig_offset is not None,
+                              photometric=photometric))
     aff_noise = gtsam.noiseModel.Diagonal.Sigmas(np.asarray(config.affine_sigma, dtype=float))
     graph.add(gtsam.PriorFactorVector(affine_key(kf.index), np.asarray(kf.affine_prior, dtype=float), aff_noise))
     for k, f in motion_factors(keyframes, config):

@@ -17,6 +17,7 @@ from gtvo.core.camera import PinholeCamera
 from gtvo.core.keys import rig_offset_key
 from gtvo.core.timing import stage
 from gtvo.errors import InputError
+from factors.params import DEFAULT_PHOTOMETRIC, PhotometricConfig
 from gtvo.window.config import MarginalPrior, WindowConfig, WindowKeyframe, WindowResult, WindowSolverName, WindowState
 from gtvo.window.gtsam_solver import solve_gtsam
 from gtvo.window.handrolled import solve_handrolled, window_cost
@@ -35,6 +36,9 @@ class SlidingWindowOptimizer:
         camera: left-camera intrinsics (all keyframes share them).
         baseline: stereo baseline (m), or None for RGB-D input.
         config: window settings.
+        rig_offset: the rig offset's starting value when it is estimated (docs/window.md, "Rig calibration").
+        photometric: the photometric model of its residuals (noise, Huber threshold, pattern; a VO
+            run's ``OdometryConfig.photometric``); default :class:`factors.params.PhotometricConfig`'s.
 
     Example::
 
@@ -44,10 +48,11 @@ class SlidingWindowOptimizer:
     """
 
     def __init__(self, camera: PinholeCamera, baseline: float | None, config: WindowConfig | None = None,
-                 rig_offset: FloatArray | None = None) -> None:
+                 rig_offset: FloatArray | None = None, photometric: PhotometricConfig | None = None) -> None:
         self.camera = camera
         self.baseline = baseline
         self.config = config or WindowConfig()
+        self.photometric = photometric or DEFAULT_PHOTOMETRIC
         #: the stereo rig's offset and its state (:class:`gtvo.window.rig.RigOffset`), estimated by
         #: every optimisation when a ``rig_offset`` start is given (docs/window.md, "Rig
         #: calibration"), else None (rectified model)
@@ -94,7 +99,7 @@ class SlidingWindowOptimizer:
     def cost(self) -> float:
         """The window cost at the current state (W evaluated at this state)."""
         return window_cost(self.camera, self.baseline, self.keyframes, self.config, self.marginal,
-                           rig_offset=None if self.rig is None else self.rig.offset)
+                           rig_offset=None if self.rig is None else self.rig.offset, photometric=self.photometric)
 
     def rig_offset_covariance(self) -> FloatArray | None:
         """The 2x2 marginal covariance (px^2) of the rig offset at the current state: the window's
@@ -115,7 +120,7 @@ class SlidingWindowOptimizer:
         if not any(targets):
             return None
         graph, values, _ = build_graph(self.camera, self.baseline, self.keyframes, self.config, self.marginal, targets,
-                                       self.rig.offset)
+                                       self.rig.offset, photometric=self.photometric)
         return graph, values
 
     def rig_x_free_estimate(self) -> tuple[float, float] | None:
@@ -183,7 +188,8 @@ class LMBackend:
         """Marginalise the oldest keyframe into :attr:`marginal` (or drop it, ``marginalize=False``)."""
         if window.config.marginalize:
             self.marginal = marginalize(window.camera, window.baseline, window.keyframes, window.config,
-                                        self.marginal, 0, None if window.rig is None else window.rig.offset)
+                                        self.marginal, 0, None if window.rig is None else window.rig.offset,
+                                        photometric=window.photometric)
         return window.keyframes.pop(0)
 
     def optimize(self, window: WindowState, targets: list[list[int]],
@@ -198,7 +204,7 @@ class LMBackend:
         # rectified rig, estimating it adds scale error; the marginalisation prior never holds the hold)
         hold = None if rig is None else rig.hold_x
         res = solve(window.camera, window.baseline, window.keyframes, window.config, self.marginal, targets,
-                    rig_offset=None if rig is None else rig.offset, rig_hold_x=hold)
+                    rig_offset=None if rig is None else rig.offset, rig_hold_x=hold, photometric=window.photometric)
         if rig is None or res.rig_offset is None:
             return res
         rig.offset = res.rig_offset.copy()
@@ -207,7 +213,7 @@ class LMBackend:
             # solved again with delta_x free, from the held state (LM's damping, not the test's
             # linear step, decides how far it goes along the flat scale direction)
             res = solve(window.camera, window.baseline, window.keyframes, window.config, self.marginal, targets,
-                        rig_offset=rig.offset, rig_hold_x=None)
+                        rig_offset=rig.offset, rig_hold_x=None, photometric=window.photometric)
             assert res.rig_offset is not None
             rig.offset = res.rig_offset.copy()
         return res

@@ -13,6 +13,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gtvo.core.keys import affine_key, pose_key, rig_offset_key
+from factors.params import DEFAULT_PHOTOMETRIC, PhotometricConfig
 from factors.smart import HostPointsFactor
 from factors.smoothness import ConstantVelocityFactor
 from gtvo.core.camera import MIN_DEPTH, PinholeCamera
@@ -184,16 +185,18 @@ def prior_factors(keyframes: Sequence[WindowKeyframe], config: WindowConfig, wit
 
 @timed("window_build")
 def host_factor(camera: PinholeCamera, baseline: float | None, keyframes: Sequence[WindowKeyframe], h: int,
-                targets: Sequence[int], config: WindowConfig, rig: bool = False) -> HostPointsFactor:
-    """The :class:`HostPointsFactor` of host ``keyframes[h]`` observed in ``targets`` (positions);
-    ``rig``: its stereo term has the rig offset variable (:func:`gtvo.core.keys.rig_offset_key`)."""
+                targets: Sequence[int], config: WindowConfig, rig: bool = False, *,
+                photometric: PhotometricConfig = DEFAULT_PHOTOMETRIC) -> HostPointsFactor:
+    """The :class:`HostPointsFactor` of host ``keyframes[h]`` observed in ``targets`` (positions),
+    weighed by the ``photometric`` model; ``rig``: its stereo term has the rig offset variable
+    (:func:`gtvo.core.keys.rig_offset_key`)."""
     kh = keyframes[h]
     return HostPointsFactor(
         pose_key(kh.index), [pose_key(keyframes[t].index) for t in targets], camera, kh.pixels,
         kh.inverse_depth, kh.image, [keyframes[t].image for t in targets], kh.variance,
-        sigma_intensity=config.sigma_intensity, huber_k=config.huber_k, affine_host_key=affine_key(kh.index),
+        sigma_intensity=photometric.sigma_intensity, huber_k=photometric.huber_k, affine_host_key=affine_key(kh.index),
         affine_target_keys=[affine_key(keyframes[t].index) for t in targets], depth_prior=kh.depth_prior,
-        pattern=config.pattern, right_image=kh.right, baseline=baseline if kh.right is not None else None,
+        pattern=photometric.pattern_array, right_image=kh.right, baseline=baseline if kh.right is not None else None,
         lambda_stereo=config.lambda_stereo, stereo_affine=kh.stereo_affine,
         prior_inverse_depth=kh.prior_inverse_depth,
         rig_key=rig_offset_key() if rig and kh.right is not None else None)
@@ -203,7 +206,7 @@ def host_factor(camera: PinholeCamera, baseline: float | None, keyframes: Sequen
 def build_graph(camera: PinholeCamera, baseline: float | None, keyframes: Sequence[WindowKeyframe],
                 config: WindowConfig, marginal: MarginalPrior | None,
                 targets: list[list[int]] | None = None, rig_offset: FloatArray | None = None,
-                rig_hold_x: float | None = None
+                rig_hold_x: float | None = None, *, photometric: PhotometricConfig = DEFAULT_PHOTOMETRIC
                 ) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values, dict[int, HostPointsFactor]]:
     """The window's factor graph: one smart factor per host with targets, priors, motion prior,
     marginal prior; with ``rig_offset`` (its current estimate) the rig offset is a variable of
@@ -219,7 +222,8 @@ def build_graph(camera: PinholeCamera, baseline: float | None, keyframes: Sequen
     hosts: dict[int, HostPointsFactor] = {}
     for h, ts in enumerate(targets):
         if ts:
-            f = host_factor(camera, baseline, keyframes, h, ts, config, rig=rig_offset is not None)
+            f = host_factor(camera, baseline, keyframes, h, ts, config, rig=rig_offset is not None,
+                            photometric=photometric)
             hosts[h] = f
             graph.add(f)
     if marginal is not None:
