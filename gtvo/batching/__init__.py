@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from gtvo.io.atomic import ensure_output_dir, tidy_on_failure
+from gtvo.core.atomic import ensure_output_dir, tidy_on_failure
 from gtvo.batching.overrides import apply_overrides, canonical, config_identity
 from gtvo.batching.runners import RECORD_NAME, failure, require_ray, run_in_pool, run_on_ray, start_ray
 from gtvo.batching.spec import LogSpec, read_spec

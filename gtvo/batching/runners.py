@@ -56,7 +56,7 @@ def run_log(job: dict[str, Any]) -> dict[str, Any]:
 
         cv2.setRNGSeed(0)  # OpenCV's global RNG (PnP RANSAC) as in a fresh `gtvo run` process
         from gtvo.datasets import open_sequence  # noqa: PLC0415
-        from gtvo.io.atomic import write_json  # noqa: PLC0415
+        from gtvo.core.atomic import write_json  # noqa: PLC0415
         from gtvo.pipeline import run  # noqa: PLC0415
 
         opts = job["options"]

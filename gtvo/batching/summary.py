@@ -7,7 +7,7 @@ import math
 from pathlib import Path
 from typing import Any
 
-from gtvo.io.atomic import write_json, write_text
+from gtvo.core.atomic import write_json, write_text
 
 #: The figures of a log's ``report.json`` copied into its summary row.
 REPORT_FIELDS: tuple[str, ...] = ("sequence", "mode", "solver", "frames", "keyframes", "seconds", "frames_per_second",

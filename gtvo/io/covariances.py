@@ -25,7 +25,7 @@ from numpy.typing import NDArray
 
 from gtvo.errors import InputError
 from gtvo.evaluation.trajectory import Trajectory
-from gtvo.io.atomic import atomic_path
+from gtvo.core.atomic import atomic_path
 
 FloatArray = NDArray[np.float64]
 

@@ -14,7 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gtvo.core.optional import require_open3d
-from gtvo.io.atomic import atomic_dir, atomic_path, check_replaceable_dir, write_json
+from gtvo.core.atomic import atomic_dir, atomic_path, check_replaceable_dir, write_json
 from gtvo.errors import DependencyError, InputError
 from gtvo.evaluation.metrics import align_trajectory, ate, drift_percent, kitti_segment_errors, rpe
 from gtvo.io.covariances import KeyframeCovariances, covariance_summary, position_ellipses, write_covariances
@@ -104,7 +104,7 @@ def write_point_cloud(path: str | Path, points: NDArray[np.float64], intensity: 
 #: Every entry ``gtvo run`` writes into its output folder (an earlier run's set may be replaced).
 RUN_OUTPUT_NAMES = frozenset({"trajectory.tum", "trajectory_loop_closed.tum", "report.json", "trajectory.png",
                               "errors.png", "points.ply", "covariances.npz", "config.yaml"})
-#: Who writes run output folders (recorded in their :data:`gtvo.io.atomic.DIR_MARKER`).
+#: Who writes run output folders (recorded in their :data:`gtvo.core.atomic.DIR_MARKER`).
 RUN_WRITER = "gtvo run"
 
 
@@ -135,7 +135,7 @@ def check_run_output_dir(out_dir: str | Path, inputs: tuple[Path | None, set[Pat
 
     Refused: the input folder itself, an image folder of the input or a folder inside one
     (``inputs``: the sequence or its :func:`input_folders`), and a folder that is neither new,
-    empty nor an earlier run's output set (:func:`gtvo.io.atomic.check_replaceable_dir`).
+    empty nor an earlier run's output set (:func:`gtvo.core.atomic.check_replaceable_dir`).
     """
     source, images = input_folders(inputs) if isinstance(inputs, Sequence) else inputs
     out = Path(out_dir).resolve()
@@ -170,7 +170,7 @@ def write_run_outputs(out_dir: str | Path, est: Trajectory, seq: Sequence, run_i
     run's timing by stage, with the outputs' own time so far: ``gtvo.pipeline.stage_report``).
 
     The files are written into a temporary folder beside ``out_dir`` that then replaces it
-    (:func:`gtvo.io.atomic.atomic_dir`): an interrupted or failed write leaves the earlier set as
+    (:func:`gtvo.core.atomic.atomic_dir`): an interrupted or failed write leaves the earlier set as
     it was, and no file of an earlier run is left beside the new ones. ``out_dir`` must be new,
     empty or an earlier run's output folder, and not the input's (:func:`check_run_output_dir`).
     """
