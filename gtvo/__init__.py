@@ -36,6 +36,7 @@ _EXPORTS = {
     "OdometryConfig": "gtvo.config",
     "SlidingWindowOptimizer": "gtvo.window",
     "Trajectory": "gtvo.evaluation.trajectory",
+    "RunReport": "gtvo.report",
     "run": "gtvo.pipeline",
     "batch": "gtvo.batching",
     "InputError": "gtvo.errors",

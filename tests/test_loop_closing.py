@@ -5,7 +5,7 @@ import numpy as np
 from gtvo.loops.closing import close_loops_of_run, relocate_frames
 from gtvo.config import FrontendConfig, KeyframeRule, OdometryConfig
 from gtvo.pipeline import process_sequence
-from gtvo.io.outputs import evaluate, ground_truth
+from gtvo.evaluation.accuracy import evaluate, ground_truth
 from gtvo.datasets.synthetic import make_synthetic_sequence
 
 

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, NotRequired, TypedDict
 
 import numpy as np
 from numpy.typing import NDArray
@@ -84,12 +84,28 @@ def sigmas(covariance: FloatArray) -> tuple[FloatArray, FloatArray]:
     return pos, rot
 
 
-def covariance_summary(cov: KeyframeCovariances) -> dict[str, Any]:
+class CovarianceSummary(TypedDict):
+    """A run's covariances in ``report.json`` (:func:`covariance_summary`); all but
+    ``covariances`` absent when none were computed."""
+
+    covariances: str
+    covariances_file: NotRequired[str]
+    covariance_keyframes: NotRequired[int]
+    covariance_source: NotRequired[str]
+    covariance_inflation: NotRequired[float]
+    covariance_undetermined: NotRequired[int]
+    covariance_position_sigma_m_median: NotRequired[float | None]
+    covariance_position_sigma_m_max: NotRequired[float | None]
+    covariance_rotation_sigma_deg_median: NotRequired[float | None]
+    covariance_rotation_sigma_deg_max: NotRequired[float | None]
+
+
+def covariance_summary(cov: KeyframeCovariances) -> CovarianceSummary:
     """The ``report.json`` keys of a run's covariances: ``covariances`` = ``"written"``,
     ``covariances_file``, ``covariance_keyframes``, ``covariance_source``, ``covariance_inflation``
     and the median and largest position sigma (m) and rotation sigma (deg) over the keyframes but
     the first (the gauge, whose covariance is the gauge prior's). A run without covariances has
-    ``covariances`` = the reason instead (set by :func:`gtvo.run`).
+    ``covariances`` = the reason instead (:func:`gtvo.odometry.summary.summarize_odometry`).
     """
     if not len(cov):
         return {"covariances": "none computed (no window optimisation)"}
@@ -104,7 +120,7 @@ def covariance_summary(cov: KeyframeCovariances) -> dict[str, Any]:
     for name, v in (("position_sigma_m", pos[ok]), ("rotation_sigma_deg", rot[ok])):
         out[f"covariance_{name}_median"] = float(np.median(v)) if v.size else None
         out[f"covariance_{name}_max"] = float(np.max(v)) if v.size else None
-    return out
+    return out  # type: ignore[return-value]
 
 
 def write_covariances(path: str | Path, cov: KeyframeCovariances) -> Path:

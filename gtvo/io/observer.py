@@ -7,12 +7,13 @@ An observer only reads: it must not change the odometry it is handed.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Protocol
 
 if TYPE_CHECKING:
     from gtvo.datasets.sequence import Frame, Sequence
     from gtvo.evaluation.trajectory import Trajectory
     from gtvo.odometry import FrameEstimate, VisualOdometry
+    from gtvo.odometry.summary import OdometrySummary
 
 
 class RunObserver(Protocol):
@@ -24,5 +25,6 @@ class RunObserver(Protocol):
     def on_frame(self, frame: "Frame", estimate: "FrameEstimate", vo: "VisualOdometry") -> None:
         """After ``vo.process(frame)`` returned ``estimate`` (``vo`` holds the keyframes and window)."""
 
-    def on_finish(self, vo: "VisualOdometry", trajectory: "Trajectory", info: dict[str, Any]) -> None:
-        """After the last frame, with the trajectory and the run's figures (``run_info``)."""
+    def on_finish(self, vo: "VisualOdometry", trajectory: "Trajectory", info: "OdometrySummary") -> None:
+        """After the last frame, with the trajectory and the odometry's summary
+        (:func:`gtvo.odometry.summary.summarize_odometry`)."""

@@ -1,8 +1,8 @@
-"""gtvo.io.outputs: the run report's metrics on short and static logs."""
+"""gtvo.evaluation.accuracy: the run report's metrics on short and static logs."""
 
 import numpy as np
 
-from gtvo.io.outputs import MIN_DRIFT_PATH_M, evaluate
+from gtvo.evaluation.accuracy import MIN_DRIFT_PATH_M, evaluate
 from gtvo.evaluation.trajectory import Trajectory
 
 
