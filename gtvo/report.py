@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any, NotRequired
+from typing import Any, TypedDict
 
 from gtvo import __version__
 from gtvo.config import OdometryConfig, config_to_dict
@@ -26,8 +26,15 @@ from gtvo.loops.closing import LoopClosureSummary
 from gtvo.odometry.summary import OdometrySummary
 
 
+class RunExtras(TypedDict, total=False):
+    """The keys of :class:`RunReport` that only some runs have."""
+
+    unpaired_messages: dict[str, int]  # a ROS bag: per image topic, the messages that found no partner
+    out: str  # the output folder: in what gtvo.run returns, not in report.json
+
+
 class RunReport(OdometrySummary, LoopClosureSummary, TrajectoryMetrics, LoopClosedMetrics, CovarianceSummary,
-                MapPointsFigures):
+                MapPointsFigures, RunExtras):
     """A run's report: the keys of ``report.json`` (docs/evaluation.md, "report.json").
 
     In file order: ``sequence`` and ``source``; the odometry's figures (:class:`OdometrySummary`);
@@ -47,8 +54,6 @@ class RunReport(OdometrySummary, LoopClosureSummary, TrajectoryMetrics, LoopClos
     gtvo_version: str
     input: dict[str, Any]
     config: dict[str, Any]
-    unpaired_messages: NotRequired[dict[str, int]]
-    out: NotRequired[str]
 
 
 #: The report's headline figures, in the order the console summary of ``gtvo run`` prints them.

@@ -48,6 +48,7 @@ def test_run_report_fields_are_the_keys_report_json_has(reports):
     seen: set[str] = set()
     for name, (_, written) in reports.items():
         assert set(written) <= declared, f"{name}: report.json keys RunReport does not declare"
+        assert RunReport.__required_keys__ <= set(written), f"{name}: required keys missing"
         seen |= set(written)
     assert declared - RARE_KEYS <= seen, f"declared but never written: {declared - RARE_KEYS - seen}"
     assert {k for k in seen if k.startswith("loop")} == {"loops_detected", "loops_unrefined", "loops_accepted",

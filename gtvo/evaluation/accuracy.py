@@ -8,7 +8,7 @@ keys are documented in docs/evaluation.md, "report.json"). Pure math, no I/O.
 
 from __future__ import annotations
 
-from typing import NotRequired, Protocol, TypedDict
+from typing import Protocol, TypedDict
 
 import numpy as np
 from numpy.typing import NDArray
@@ -37,30 +37,30 @@ class GroundTruthSource(Protocol):
     def __len__(self) -> int: ...
 
 
-class TrajectoryMetrics(TypedDict):
+class TrajectoryMetrics(TypedDict, total=False):
     """The metrics of an estimate against its ground truth (:func:`evaluate`), as ``report.json``
     keys; a run without ground truth has only ``ground_truth`` = False (:func:`run_accuracy`)."""
 
-    ground_truth: NotRequired[bool]
-    ate_rmse_m: NotRequired[float | None]
-    ate_max_m: NotRequired[float | None]
-    ate_sim3_rmse_m: NotRequired[float | None]
-    ate_skipped: NotRequired[str]
-    rpe_trans_rmse_m: NotRequired[float]
-    rpe_rot_rmse_deg: NotRequired[float]
-    path_length_m: NotRequired[float]
-    scale_ratio: NotRequired[float | None]
-    drift_percent: NotRequired[float | None]
-    kitti_segment_lengths_m: NotRequired[list[float]]
-    kitti_translation_percent: NotRequired[float | None]
-    kitti_rotation_deg_per_100m: NotRequired[float | None]
+    ground_truth: bool
+    ate_rmse_m: float | None
+    ate_max_m: float | None
+    ate_sim3_rmse_m: float | None
+    ate_skipped: str
+    rpe_trans_rmse_m: float
+    rpe_rot_rmse_deg: float
+    path_length_m: float
+    scale_ratio: float | None
+    drift_percent: float | None
+    kitti_segment_lengths_m: list[float]
+    kitti_translation_percent: float | None
+    kitti_rotation_deg_per_100m: float | None
 
 
-class LoopClosedMetrics(TypedDict):
+class LoopClosedMetrics(TypedDict, total=False):
     """The loop-closed trajectory's ATE and drift (:func:`loop_closed_accuracy`)."""
 
-    loop_closed_ate_rmse_m: NotRequired[float | None]
-    loop_closed_drift_percent: NotRequired[float | None]
+    loop_closed_ate_rmse_m: float | None
+    loop_closed_drift_percent: float | None
 
 
 def ground_truth(seq: GroundTruthSource, est: Trajectory) -> tuple[Trajectory, Trajectory] | None:

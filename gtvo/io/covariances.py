@@ -18,7 +18,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, NotRequired, TypedDict
+from typing import Any, TypedDict
 
 import numpy as np
 from numpy.typing import NDArray
@@ -84,20 +84,25 @@ def sigmas(covariance: FloatArray) -> tuple[FloatArray, FloatArray]:
     return pos, rot
 
 
-class CovarianceSummary(TypedDict):
-    """A run's covariances in ``report.json`` (:func:`covariance_summary`); all but
-    ``covariances`` absent when none were computed."""
+class WrittenCovariances(TypedDict, total=False):
+    """The keys of :class:`CovarianceSummary` present when covariances were written."""
+
+    covariances_file: str
+    covariance_keyframes: int
+    covariance_source: str
+    covariance_inflation: float
+    covariance_undetermined: int
+    covariance_position_sigma_m_median: float | None
+    covariance_position_sigma_m_max: float | None
+    covariance_rotation_sigma_deg_median: float | None
+    covariance_rotation_sigma_deg_max: float | None
+
+
+class CovarianceSummary(WrittenCovariances):
+    """A run's covariances in ``report.json`` (:func:`covariance_summary`): ``covariances`` says
+    whether they were written, the other keys only when they were."""
 
     covariances: str
-    covariances_file: NotRequired[str]
-    covariance_keyframes: NotRequired[int]
-    covariance_source: NotRequired[str]
-    covariance_inflation: NotRequired[float]
-    covariance_undetermined: NotRequired[int]
-    covariance_position_sigma_m_median: NotRequired[float | None]
-    covariance_position_sigma_m_max: NotRequired[float | None]
-    covariance_rotation_sigma_deg_median: NotRequired[float | None]
-    covariance_rotation_sigma_deg_max: NotRequired[float | None]
 
 
 def covariance_summary(cov: KeyframeCovariances) -> CovarianceSummary:

@@ -9,7 +9,7 @@ records only what writing tells: the map's counts (:class:`MapPointsFigures`).
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Callable, Mapping, NotRequired, TypedDict
+from typing import Any, Callable, Mapping, TypedDict
 
 import numpy as np
 from numpy.typing import NDArray
@@ -40,14 +40,14 @@ def write_point_cloud(path: str | Path, points: NDArray[np.float64], intensity: 
     return Path(path)
 
 
-class MapPointsFigures(TypedDict):
+class MapPointsFigures(TypedDict, total=False):
     """The map's counts in ``report.json``, added by :func:`write_run_outputs` when it writes
     ``points.ply`` (docs/evaluation.md, "The map")."""
 
-    map_points_written: NotRequired[int | None]
-    map_points_left_out: NotRequired[int]
-    map_points_left_out_by_reason: NotRequired[dict[str, int]]
-    map_points_skipped: NotRequired[str]
+    map_points_written: int | None
+    map_points_left_out: int
+    map_points_left_out_by_reason: dict[str, int]
+    map_points_skipped: str
 
 
 #: Every entry ``gtvo run`` writes into its output folder (an earlier run's set may be replaced).

@@ -51,8 +51,9 @@ REFINEMENT_POINTS = 300
 LOOP_CLOSURE_SOLVER = "gtsam_gnc_lm"
 
 
-class LoopClosureSummary(TypedDict):
-    """What loop closing found and did, as ``report.json`` keys (:meth:`LoopClosingResult.summary`)."""
+class LoopClosureSummary(TypedDict, total=False):
+    """What loop closing found and did, as ``report.json`` keys (:meth:`LoopClosingResult.summary`
+    gives all six; not required keys because a run's report has them only with ``--loop-closure``)."""
 
     loops_detected: int
     loops_unrefined: int

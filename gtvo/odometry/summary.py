@@ -8,7 +8,7 @@ under the same keys and in the same order; docs/evaluation.md ("report.json") do
 from __future__ import annotations
 
 import statistics
-from typing import Any, NotRequired, Sequence, TypedDict
+from typing import Any, Sequence, TypedDict
 
 from gtvo.core.timing import per_frame_ms
 from gtvo.odometry.estimates import frames_by_outcome
@@ -16,15 +16,35 @@ from gtvo.odometry.rig_report import rig_report
 from gtvo.odometry.visual_odometry import VisualOdometry
 
 
-class StageTiming(TypedDict):
+class StageTiming(TypedDict, total=False):
     """A run's time by stage (docs/evaluation.md, "Where a frame's time goes"); both keys absent
     when the run was not timed (``vo.clock`` None) or processed no frame."""
 
-    seconds_by_stage: NotRequired[dict[str, float]]
-    ms_per_frame_by_stage: NotRequired[dict[str, float]]
+    seconds_by_stage: dict[str, float]
+    ms_per_frame_by_stage: dict[str, float]
 
 
-class OdometrySummary(StageTiming):
+class WindowFigures(TypedDict, total=False):
+    """The window's and the rig's figures of a run, present in window mode (the ``rig_offset_*``
+    keys when the rig offset was estimated: :func:`gtvo.odometry.rig_report.rig_report`)."""
+
+    window_backend: str | None
+    window_solver: str | None
+    window_size: int
+    window_optimisations: int
+    window_seconds_mean: float | None
+    window_iterations_mean: float | None
+    covariance_seconds: float
+    rig_calibration: bool
+    rig_offset_px: list[float]
+    rig_offset_marginal_sigma_px: list[float | None] | None
+    rig_offset_sigma_px: list[float | None] | None
+    rig_offset_x_estimated: bool
+    rig_offset_x_tested_px: float | None
+    rig_initial_delta_y_px: float | None
+
+
+class OdometrySummary(StageTiming, WindowFigures):
     """The odometry's figures of a run, in ``report.json`` order (:func:`summarize_odometry`).
 
     Always: what ran (``mode``, ``tracker_solver``, ``motion_model``), the counts, the frame
@@ -50,20 +70,6 @@ class OdometrySummary(StageTiming):
     tracking_iterations_mean: float | None
     tracking_rotation_sigma_deg_median: float | None
     tracking_rotation_sigma_deg_max: float | None
-    window_backend: NotRequired[str | None]
-    window_solver: NotRequired[str | None]
-    window_size: NotRequired[int]
-    window_optimisations: NotRequired[int]
-    window_seconds_mean: NotRequired[float | None]
-    window_iterations_mean: NotRequired[float | None]
-    covariance_seconds: NotRequired[float]
-    rig_calibration: NotRequired[bool]
-    rig_offset_px: NotRequired[list[float]]
-    rig_offset_marginal_sigma_px: NotRequired[list[float | None] | None]
-    rig_offset_sigma_px: NotRequired[list[float | None] | None]
-    rig_offset_x_estimated: NotRequired[bool]
-    rig_offset_x_tested_px: NotRequired[float | None]
-    rig_initial_delta_y_px: NotRequired[float | None]
     covariances: str
 
 
