@@ -88,6 +88,10 @@ def test_odometry_summary_is_the_reports_odometry_part_in_order():
     assert untimed["seconds"] is None and untimed["frames_per_second"] is None
 
 
+def test_run_report_is_exported():
+    assert gtvo.RunReport is RunReport and "RunReport" in gtvo.__all__
+
+
 def test_headline_keeps_the_order_and_drops_what_is_absent_or_none():
     report = {"ate_rmse_m": 0.1, "frames": 3, "scale_ratio": None, "sequence": "s"}
     assert headline(report) == [("frames", 3), ("ate_rmse_m", 0.1)]  # type: ignore[arg-type]
