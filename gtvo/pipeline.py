@@ -15,7 +15,6 @@ import numpy as np
 from gtvo import __version__
 from gtvo.core.atomic import ensure_output_dir, tidy_on_failure
 from gtvo.datasets import detect_format, open_sequence
-from gtvo.datasets.identity import sequence_identity
 from gtvo.core.interrupt import raise_if_interrupted
 from gtvo.core.timing import stage
 from gtvo.errors import InputError
