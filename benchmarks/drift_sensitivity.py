@@ -37,7 +37,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks.peers import OrbPnPPeer, run_peer  # noqa: E402
 from benchmarks.vo_bench import KITTI_SEQUENCE_1, fmt, load_frames, markdown_table, run_gtvo, score  # noqa: E402
-from gtvo.io.atomic import write_json  # noqa: E402
+from gtvo.core.atomic import write_json  # noqa: E402
 from gtvo.datasets import open_sequence  # noqa: E402
 from gtvo.evaluation.metrics import drift_percent  # noqa: E402
 from gtvo.config import FrontendConfig, OdometryConfig, SolverConfig  # noqa: E402

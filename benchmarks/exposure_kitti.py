@@ -29,7 +29,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from factors.params import PhotometricConfig  # noqa: E402
 from benchmarks.vo_bench import KITTI_SEQUENCE_1, fmt, gtvo_config, markdown_table, run_gtvo, score  # noqa: E402
-from gtvo.io.atomic import write_json  # noqa: E402
+from gtvo.core.atomic import write_json  # noqa: E402
 from gtvo.datasets import open_sequence  # noqa: E402
 from gtvo.datasets.sequence import Sequence  # noqa: E402
 

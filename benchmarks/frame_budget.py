@@ -59,7 +59,7 @@ from gtvo.config import OdometryConfig, SolverConfig  # noqa: E402
 from gtvo.core.timing import FRAME_STAGES, StageClock  # noqa: E402
 from gtvo.datasets import open_sequence  # noqa: E402
 from gtvo.errors import InputError  # noqa: E402
-from gtvo.io.atomic import write_json  # noqa: E402
+from gtvo.core.atomic import write_json  # noqa: E402
 from gtvo.odometry import VisualOdometry  # noqa: E402
 
 #: frames of the warm-up run (compiled kernels loaded; the window fills and marginalises once)

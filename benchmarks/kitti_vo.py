@@ -37,7 +37,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from benchmarks.peers import Open3DColorOdometryPeer, OrbPnPPeer, run_peer  # noqa: E402
 from benchmarks.vo_bench import (KITTI_SEQUENCE_1, ModeUnavailable, failure_details, fmt, gtvo_config,  # noqa: E402
                                  load_frames, markdown_table, reference_ms, run_gtvo, score)
-from gtvo.io.atomic import write_json  # noqa: E402
+from gtvo.core.atomic import write_json  # noqa: E402
 from gtvo.datasets import open_sequence  # noqa: E402
 
 PEERS = {"open3d": Open3DColorOdometryPeer, "orb": OrbPnPPeer}

@@ -32,7 +32,7 @@ from gtvo.datasets import open_sequence
 from gtvo.datasets.sequence import Sequence
 from gtvo.datasets.synthetic import make_synthetic_sequence
 from gtvo.evaluation.trajectory import Trajectory
-from gtvo.io.outputs import evaluate, ground_truth
+from gtvo.evaluation.accuracy import evaluate, ground_truth
 from gtvo.loops.closing import close_loops_of_run, odometry_covariances, odometry_informations, relocate_frames
 from gtvo.loops.frame_refinement import refine_frames
 from gtvo.pipeline import TRACKED_OUTCOMES, process_sequence

@@ -39,7 +39,7 @@ from benchmarks.vo_bench import KITTI_SEQUENCE_1, gtvo_config, load_frames  # no
 from gtvo.config import OdometryConfig  # noqa: E402
 from gtvo.datasets import open_sequence  # noqa: E402
 from gtvo.datasets.sequence import Frame  # noqa: E402
-from gtvo.io.atomic import write_json  # noqa: E402
+from gtvo.core.atomic import write_json  # noqa: E402
 from gtvo.odometry import VisualOdometry  # noqa: E402
 
 

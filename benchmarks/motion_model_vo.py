@@ -32,7 +32,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from benchmarks.vo_bench import (KITTI_SEQUENCE_1, fmt, gtvo_config, load_frames, markdown_table,  # noqa: E402
                                  run_gtvo, score)
 from gtvo.core.lie import invert_poses, rotation_angle  # noqa: E402
-from gtvo.io.atomic import write_json  # noqa: E402
+from gtvo.core.atomic import write_json  # noqa: E402
 from gtvo.datasets import open_sequence  # noqa: E402
 
 MODELS = ("constant-velocity", "kalman")

@@ -34,7 +34,7 @@ from gtvo.datasets._common import read_image  # noqa: E402
 from gtvo.datasets.sequence import Sequence  # noqa: E402
 from gtvo.datasets import open_sequence  # noqa: E402
 from gtvo.datasets.shifted import shift_right_images  # noqa: E402
-from gtvo.io.outputs import evaluate, ground_truth  # noqa: E402
+from gtvo.evaluation.accuracy import evaluate, ground_truth  # noqa: E402
 from gtvo.pipeline import process_sequence  # noqa: E402
 from gtvo.window import WindowConfig  # noqa: E402
 

@@ -27,7 +27,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks.vo_bench import KITTI_SEQUENCE_1, SHARED_DATA, fmt, gtvo_config, markdown_table  # noqa: E402
-from gtvo.io.atomic import write_json  # noqa: E402
+from gtvo.core.atomic import write_json  # noqa: E402
 from gtvo.datasets import open_sequence  # noqa: E402
 from gtvo.evaluation.metrics import ate  # noqa: E402
 from gtvo.config import OdometryConfig

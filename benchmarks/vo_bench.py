@@ -38,7 +38,7 @@ from benchmarks.peers import make_sgbm  # noqa: E402
 from gtvo.errors import InputError  # noqa: E402
 from gtvo.core.image import to_uint8  # noqa: E402
 from gtvo.evaluation.metrics import ate, drift_percent, kitti_segment_errors, rpe  # noqa: E402
-from gtvo.io.outputs import MIN_DRIFT_PATH_M  # noqa: E402
+from gtvo.evaluation.accuracy import MIN_DRIFT_PATH_M  # noqa: E402
 from gtvo.datasets.sequence import Frame, Sequence  # noqa: E402
 from gtvo.evaluation.trajectory import Trajectory  # noqa: E402
 

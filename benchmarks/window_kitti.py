@@ -46,7 +46,7 @@ from gtvo.frontend import init_keyframe_points  # noqa: E402
 from gtvo.core.image import to_float_gray  # noqa: E402
 from gtvo.config import OdometryConfig, SolverConfig  # noqa: E402
 from gtvo.pipeline import process_sequence  # noqa: E402
-from gtvo.io.outputs import evaluate  # noqa: E402
+from gtvo.evaluation.accuracy import evaluate  # noqa: E402
 from gtvo.evaluation.trajectory import Trajectory  # noqa: E402
 from gtvo.window import WindowConfig, WindowKeyframe, solve_gtsam, solve_handrolled  # noqa: E402
 

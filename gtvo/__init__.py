@@ -16,7 +16,7 @@ The top-level names are the small API most users need (imported on first use, so
     for frame in seq:
         vo.process(frame)
     vo.finish()                                          # the last keyframes' window optimisation
-    report = gtvo.run("KITTI_sequence_1", out="out/")   # the whole `gtvo run` job
+    report = gtvo.run("KITTI_sequence_1", out="out/")   # the whole `gtvo run` job: a gtvo.RunReport
 """
 
 from __future__ import annotations
@@ -36,6 +36,7 @@ _EXPORTS = {
     "OdometryConfig": "gtvo.config",
     "SlidingWindowOptimizer": "gtvo.window",
     "Trajectory": "gtvo.evaluation.trajectory",
+    "RunReport": "gtvo.report",
     "run": "gtvo.pipeline",
     "batch": "gtvo.batching",
     "InputError": "gtvo.errors",

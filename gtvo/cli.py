@@ -26,7 +26,7 @@ from typing import Any, Callable, Sequence
 
 from gtvo import __version__
 from gtvo.core.interrupt import interrupt_requested, note_interrupt, raise_if_interrupted
-from gtvo.io.atomic import tidy_on_failure
+from gtvo.core.atomic import tidy_on_failure
 from gtvo.errors import DependencyError, InputError, TrackingFailure, caused_by_interrupt
 
 # One module per subcommand, in the order `gtvo --help` lists them.

@@ -5,7 +5,6 @@ and by Python users (:func:`run`).
 from __future__ import annotations
 
 import dataclasses
-import statistics
 import sys
 import time
 from contextlib import nullcontext
@@ -15,21 +14,22 @@ from typing import Any, Callable, Iterable
 import numpy as np
 
 from gtvo import __version__
-from gtvo.io.atomic import ensure_output_dir, tidy_on_failure
+from gtvo.core.atomic import ensure_output_dir, tidy_on_failure
 from gtvo.datasets import detect_format, open_sequence
-from gtvo.datasets.identity import sequence_identity
 from gtvo.core.interrupt import raise_if_interrupted
-from gtvo.core.timing import per_frame_ms, stage
+from gtvo.core.timing import stage
 from gtvo.errors import InputError
-from gtvo.config import OdometryConfig, as_config, config_to_dict, config_to_yaml
+from gtvo.config import OdometryConfig, as_config, config_to_yaml
 from gtvo.io.observer import RunObserver
-from gtvo.odometry import VisualOdometry, frames_by_outcome
+from gtvo.odometry import VisualOdometry
 from gtvo.odometry.estimates import FrameOutcome
 from gtvo.io.covariances import KeyframeCovariances
-from gtvo.odometry.rig_report import rig_report, rig_warning
+from gtvo.odometry.rig_report import rig_warning
+from gtvo.odometry.summary import OdometrySummary, stage_timing, summarize_odometry
 from gtvo.io.outputs import check_run_output_dir, write_run_outputs
 from gtvo.datasets.sequence import Sequence
 from gtvo.evaluation.trajectory import Trajectory
+from gtvo.report import RunReport, run_report
 
 
 #: Outcomes whose pose comes from tracking (the others are keyframes or predictions): the frames
@@ -40,7 +40,7 @@ TRACKED_OUTCOMES = (FrameOutcome.TRACKED, FrameOutcome.RECOVERED)
 def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progress: bool = False,
                      strict: bool = False, warn: Callable[[str], None] | None = None,
                      observers: Iterable[RunObserver] = (),
-                     ) -> tuple[VisualOdometry, Trajectory, dict[str, Any]]:
+                     ) -> tuple[VisualOdometry, Trajectory, OdometrySummary]:
     """Run the odometry over ``seq``.
 
     A frame whose images cannot be read is skipped with a warning (and counted), unless
@@ -49,9 +49,9 @@ def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progre
     every processed frame and the end.
 
     Returns:
-        ``(vo, trajectory, run_info)`` where ``run_info`` holds frames, keyframes, seconds,
-        frames per second, failures, skipped frames and ``frame_outcomes`` (the flagged frames
-        by index with their reasons: :func:`gtvo.odometry.frames_by_outcome`).
+        ``(vo, trajectory, summary)``: the odometry's summary
+        (:func:`gtvo.odometry.summary.summarize_odometry`: frames, keyframes, seconds, frames per
+        second, failures, skipped frames, ``frame_outcomes``, window and rig figures, timing).
     """
     config = config or OdometryConfig()
     vo = VisualOdometry(seq.camera, config)
@@ -92,47 +92,10 @@ def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progre
     vo.finish()  # the keyframes that joined the window since its last optimisation
     seconds = time.perf_counter() - t0
     traj = vo.trajectory(seq.name)
-    n = len(vo.estimates)
-    sigmas = [e.tracking.rotation_sigma_deg for e in vo.estimates
-              if e.tracking is not None and e.tracking.success and not e.suspect]
-    info: dict[str, Any] = {
-        "mode": config.mode,
-        "tracker_solver": config.solver.tracker,
-        "motion_model": config.motion_model.model,
-        "frames": n,
-        "keyframes": len(vo.keyframes),
-        "seconds": seconds,
-        "frames_per_second": n / seconds if seconds > 0 else None,
-        "tracking_failures": vo.failures,
-        "reinitialisations": sum(1 for e in vo.estimates if e.reinitialised),
-        "flow_recoveries": vo.tracker.flow_recoveries,
-        "lost_frames": vo.lost_frames,
-        "suspect_frames": sum(1 for e in vo.estimates if e.suspect),
-        "skipped_frames": [i for i, _ in skipped],
-        # every flagged frame by index with its reason (docs/evaluation.md, "Frame outcomes")
-        "frame_outcomes": frames_by_outcome(vo.estimates, skipped),
-        "tracking_iterations_mean": _mean([e.tracking.iterations for e in vo.estimates if e.tracking is not None]),
-        # how well the images determined each tracked frame's rotation (TrackingResult.rotation_sigma_deg)
-        "tracking_rotation_sigma_deg_median": _median(sigmas),
-        "tracking_rotation_sigma_deg_max": max(sigmas) if sigmas else None,
-    }
-    if config.mode == "window":
-        info.update({
-            "window_backend": vo.window.backend.name if vo.window is not None else None,
-            "window_solver": vo.window.solver_name(config.solver.window) if vo.window is not None else None,
-            "window_size": config.window.size,
-            "window_optimisations": len(vo.window_results),
-            "window_seconds_mean": _mean([r.seconds for r in vo.window_results]),
-            "window_iterations_mean": _mean([r.iterations for r in vo.window_results]),
-            "covariance_seconds": float(sum(r.covariance_seconds for r in vo.window_results)),
-        })
-        info.update(rig_report(vo))
-        message = rig_warning(info)
-        if message is not None:
-            warn(message)
-    info.update(stage_report(vo))
-    info["covariances"] = ("not computed (--no-covariances)" if config.mode == "window" and not config.window.covariances
-                           else "not computed (track mode: no window)" if config.mode != "window" else "computed")
+    info = summarize_odometry(vo, seconds, skipped)
+    message = rig_warning(dict(info))
+    if message is not None:
+        warn(message)
     if observers:
         view = vo.view()
         for o in observers:
@@ -144,7 +107,7 @@ def run(path: str | Path | Sequence, out: str | Path | None = None,
         config: OdometryConfig | dict[str, Any] | str | Path | None = None,
         format: str = "auto", max_frames: int | None = None, progress: bool = False,
         strict: bool = False, loop_closure: bool = False, frame_step: int = 1,
-        observers: Iterable[RunObserver] = (), **open_options: Any) -> dict[str, Any]:
+        observers: Iterable[RunObserver] = (), **open_options: Any) -> RunReport:
     """Run gtvo on a sequence folder (or an opened :class:`Sequence`) and write its outputs.
 
     Args:
@@ -168,10 +131,10 @@ def run(path: str | Path | Sequence, out: str | Path | None = None,
             :class:`gtvo.io.rerun_log.RerunLogger`.
 
     Returns:
-        The report (also written to ``out/report.json``), with ``"out"`` added. Besides the run's
-        figures it records ``"config"`` (the whole resolved tree, :func:`gtvo.config.config_to_dict`;
-        ``gtvo run --config`` reads it back), ``"gtvo_version"`` and ``"input"``
-        (:func:`gtvo.datasets.identity.sequence_identity`).
+        The report (:class:`gtvo.report.RunReport`, also written to ``out/report.json``), with
+        ``"out"`` added. Besides the run's figures it records ``"config"`` (the whole resolved
+        tree, :func:`gtvo.config.config_to_dict`; ``gtvo run --config`` reads it back),
+        ``"gtvo_version"`` and ``"input"`` (:func:`gtvo.datasets.identity.sequence_identity`).
 
     Raises:
         InputError: bad input (unreadable folder, ``frame_step < 1``, ...).
@@ -189,12 +152,8 @@ def run(path: str | Path | Sequence, out: str | Path | None = None,
     fmt = None if isinstance(path, Sequence) else (detect_format(path) if format == "auto" else format)
     with tidy_on_failure():  # a run that fails leaves no empty output folder behind
         ensure_output_dir(out_dir)  # an unusable --out is reported before the long work
-        vo, traj, info = process_sequence(seq, config, progress=progress, strict=strict, observers=observers)
-        info.update(frame_step=int(frame_step), gtvo_version=__version__, input=sequence_identity(seq, fmt),
-                    config=config_to_dict(config))
-        if getattr(seq, "unpaired", None) is not None:  # a ROS bag: messages that found no partner
-            info["unpaired_messages"] = seq.unpaired  # type: ignore[attr-defined]
-        closed = closed_keyframes = None
+        vo, traj, summary = process_sequence(seq, config, progress=progress, strict=strict, observers=observers)
+        closed = closed_keyframes = loops = None
         if config.loops.enabled:
             from gtvo.loops.closing import close_loops_of_run, odometry_covariances  # noqa: PLC0415
 
@@ -205,34 +164,18 @@ def run(path: str | Path | Sequence, out: str | Path | None = None,
                                      tracking_config=vo.config.tracking, refine_frames=True,
                                      refine=[e.outcome in TRACKED_OUTCOMES for e in vo.estimates],
                                      detector_config=config.loops.detector, photometric=config.photometric)
-            closed = res.trajectory
-            closed_keyframes = res.keyframe_poses
-            info["loops_detected"] = len(res.candidates) + len(res.unrefined)
-            info["loops_unrefined"] = len(res.unrefined)
-            info["loops_accepted"] = int(sum(res.accepted))
-            info["loop_closure_solver"] = "gtsam_gnc_lm"  # GncLMOptimizer, then LM on the kept loops
-            hosts = res.frame_hosts if res.frame_hosts is not None else np.zeros(0, np.int64)
-            info["frames_refined"] = int(np.count_nonzero(hosts))
-            info["frame_refinement_hosts_mean"] = float(hosts[hosts > 0].mean()) if np.any(hosts > 0) else None
+            closed, closed_keyframes, loops = res.trajectory, res.keyframe_poses, res.summary()
         raise_if_interrupted()
         with vo.clock.activate() if vo.clock is not None else nullcontext(), stage("outputs", absorb=True):
+            covariances = keyframe_covariances(vo)
+            info = run_report(seq, traj, summary, config, format=fmt, frame_step=frame_step, loop_closure=loops,
+                              loop_closed=closed, covariances=covariances)
             report = write_run_outputs(out_dir, traj, seq, info, points=vo.map_points(closed_keyframes),
-                                       loop_closed=closed, covariances=keyframe_covariances(vo),
+                                       loop_closed=closed, covariances=covariances,
                                        config_yaml=config_to_yaml(config, f"gtvo {__version__}: gtvo run --config this file"),
-                                       stage_figures=lambda: stage_report(vo))
+                                       stage_figures=lambda: stage_timing(vo))
     report["out"] = str(out_dir)
-    return report
-
-
-def stage_report(vo: VisualOdometry) -> dict[str, Any]:
-    """The report's timing by stage (docs/evaluation.md, "Where a frame's time goes"):
-    ``seconds_by_stage`` (the run's seconds in each stage of :data:`gtvo.core.timing.FRAME_STAGES`,
-    an open stage's time so far included) and ``ms_per_frame_by_stage`` (the same per processed
-    frame, ms); empty when the run was not timed (``vo.clock`` None) or processed no frame."""
-    seconds = {} if vo.clock is None else vo.clock.snapshot()
-    if not seconds or not vo.estimates:
-        return {}
-    return {"seconds_by_stage": seconds, "ms_per_frame_by_stage": per_frame_ms(seconds, len(vo.estimates))}
+    return report  # type: ignore[return-value]
 
 
 def keyframe_covariances(vo: VisualOdometry, inflation: float = 1.0) -> KeyframeCovariances | None:
@@ -249,11 +192,3 @@ def keyframe_covariances(vo: VisualOdometry, inflation: float = 1.0) -> Keyframe
               "inverse of the window's reduced Hessian (hand-rolled)")
     return KeyframeCovariances(np.array([i for i, _ in rows], dtype=np.int64), np.array([stamp[i] for i, _ in rows]),
                                np.array([P for _, P in rows]).reshape(-1, 6, 6), source, float(inflation))
-
-
-def _mean(xs: list[float]) -> float | None:
-    return float(sum(xs) / len(xs)) if xs else None
-
-
-def _median(xs: list[float]) -> float | None:
-    return float(statistics.median(xs)) if xs else None

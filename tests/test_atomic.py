@@ -4,7 +4,7 @@ import stat
 
 import pytest
 
-from gtvo.io.atomic import (DIR_MARKER, atomic_dir, atomic_open, check_output_file, ensure_output_dir,
+from gtvo.core.atomic import (DIR_MARKER, atomic_dir, atomic_open, check_output_file, ensure_output_dir,
                          tidy_on_failure, write_json, write_text)
 from gtvo.errors import InputError
 

@@ -326,3 +326,26 @@ def test_ray_local_equals_the_pool_to_the_bit(pool_run, logs, tmp_path):
 def _write(path: Path, text: str) -> Path:
     path.write_text(text)
     return path
+
+
+def test_a_logs_row_takes_the_sim3_ate_from_its_report_not_from_trajectory_tum(tmp_path, monkeypatch):
+    """The record and the summary row hold the report's ``ate_sim3_rmse_m``; nothing re-reads
+    ``trajectory.tum`` (this run writes none) to recompute it."""
+    import gtvo.datasets
+    import gtvo.pipeline
+    from gtvo.batching.runners import run_log
+    from gtvo.batching.spec import LogSpec
+    from gtvo.batching.summary import summary_row
+
+    monkeypatch.setattr(gtvo.datasets, "open_sequence", lambda *a, **k: make_synthetic_sequence(n_frames=3))
+    monkeypatch.setattr(gtvo.pipeline, "run", lambda *a, **k: {"ate_sim3_rmse_m": 0.123, "seconds": 1.5})
+    job = {"name": "fake", "path": str(tmp_path), "format": "kitti", "out": str(tmp_path / "out"),
+           "config": OdometryConfig(), "options": {}, "key": {"config_id": "x"}}
+    (tmp_path / "out").mkdir()
+    result = run_log(job)
+    assert result["status"] == "done", result
+    assert result["record"]["sim3_ate_rmse_m"] == 0.123 and result["record"]["run_seconds"] == 1.5
+    log = LogSpec(name="fake", path=tmp_path, format="kitti")
+    row = summary_row(log, "x", tmp_path / "out", {"status": "done", "record": {}},
+                      {"ate_sim3_rmse_m": 0.456, "ate_rmse_m": 0.5}, resumed=False)  # type: ignore[arg-type]
+    assert row["sim3_ate_rmse_m"] == 0.456 and row["ate_rmse_m"] == 0.5

@@ -11,7 +11,7 @@ import pytest
 from gtvo import cli
 from gtvo.datasets.synthetic import make_synthetic_sequence, write_sequence_kitti
 from gtvo.io.trajectory_files import read_tum
-from gtvo.io.atomic import DIR_MARKER
+from gtvo.core.atomic import DIR_MARKER
 
 
 def run_cli(*args, cwd=None):

@@ -17,15 +17,12 @@ DOC = ROOT / "docs" / "architecture.md"
 
 
 def layer_of(module: str) -> str:
-    """The layer of a dotted module name: ``factors``, ``gtvo`` (the package's top), ``gtvo.X``,
-    or ``gtvo.io.atomic`` (atomic writes sit at the bottom, beside the errors)."""
+    """The layer of a dotted module name: ``factors``, ``gtvo`` (the package's top) or ``gtvo.X``."""
     parts = module.split(".")
     if parts[0] == "factors":
         return "factors"
     if module == "gtvo":
         return "gtvo"
-    if module.startswith("gtvo.io.atomic"):
-        return "gtvo.io.atomic"
     return "gtvo." + parts[1]
 
 

@@ -2,11 +2,12 @@
 
 import numpy as np
 
-from gtvo.loops.closing import close_loops_of_run, relocate_frames
+from gtvo.loops.closing import LoopClosingResult, close_loops_of_run, relocate_frames
 from gtvo.config import FrontendConfig, KeyframeConfig, OdometryConfig
 from gtvo.pipeline import process_sequence
-from gtvo.io.outputs import evaluate, ground_truth
+from gtvo.evaluation.accuracy import evaluate, ground_truth
 from gtvo.datasets.synthetic import make_synthetic_sequence
+from gtvo.evaluation.trajectory import Trajectory
 
 
 def _pose(yaw, t):
@@ -26,6 +27,17 @@ def test_relocate_frames_moves_each_frame_with_its_keyframe():
     np.testing.assert_allclose(out[3], new_kf[1], atol=1e-12)
     for i in (4, 5):  # relative pose to the keyframe is kept
         np.testing.assert_allclose(np.linalg.inv(out[3]) @ out[i], np.linalg.inv(poses[3]) @ poses[i], atol=1e-12)
+
+
+def test_the_summary_counts_what_loop_closing_found_and_did():
+    traj = Trajectory(np.arange(4.0), np.tile(np.eye(4), (4, 1, 1)))
+    res = LoopClosingResult(traj, candidates=[(3, 0), (2, 0)], accepted=[True, False], unrefined=[(3, 1)],
+                            frame_hosts=np.array([0, 2, 1, 0]))
+    assert res.summary() == {"loops_detected": 3, "loops_unrefined": 1, "loops_accepted": 1,
+                             "loop_closure_solver": "gtsam_gnc_lm", "frames_refined": 2,
+                             "frame_refinement_hosts_mean": 1.5}
+    none = LoopClosingResult(traj).summary()
+    assert none["loops_detected"] == 0 and none["frames_refined"] == 0 and none["frame_refinement_hosts_mean"] is None
 
 
 def test_synthetic_revisit_is_closed():

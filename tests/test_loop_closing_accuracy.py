@@ -9,7 +9,7 @@ from gtvo.config import OdometryConfig
 from gtvo.datasets.synthetic import make_synthetic_sequence
 from gtvo.errors import InputError
 from gtvo.frontend.stereo_depth import init_keyframe_points
-from gtvo.io.outputs import evaluate, ground_truth
+from gtvo.evaluation.accuracy import evaluate, ground_truth
 from gtvo.loops.closing import ODOMETRY_SIGMAS, close_loops_of_run, odometry_covariances, odometry_informations
 from gtvo.loops.closure_graph import LoopEdge, close_loops
 from gtvo.loops.direct_refinement import (consistency_chi2, inverse_covariance_transport, loop_motion, refine_loop,

@@ -23,7 +23,7 @@ from gtvo.datasets.synthetic import make_synthetic_sequence, write_sequence_kitt
 from gtvo.errors import InputError, caused_by_interrupt
 from gtvo.evaluation.trajectory import Trajectory
 from gtvo.io import outputs
-from gtvo.io.atomic import DIR_MARKER
+from gtvo.core.atomic import DIR_MARKER
 from gtvo.io.outputs import RUN_OUTPUT_NAMES, check_run_output_dir, top_view, write_run_outputs
 from gtvo.io.plots import CAMERA_WORLD_XZ_LABELS
 from gtvo.core.map_points import MAX_RELATIVE_DEPTH_SIGMA, MapPoints, constrained_mask
@@ -209,7 +209,7 @@ def test_interrupt_at_every_step_of_the_output_phase_keeps_the_old_set(small_seq
     for name in ("write_tum", "plot_trajectory_top_view", "plot_errors_over_time", "write_point_cloud",
                  "write_json", "check_replaceable_dir"):
         monkeypatch.setattr(outputs, name, interrupting(getattr(outputs, name)))
-    import gtvo.io.atomic as atomic
+    import gtvo.core.atomic as atomic
 
     monkeypatch.setattr(atomic, "_swap_in", interrupting(atomic._swap_in))
     monkeypatch.setattr(atomic, "check_replaceable_dir", interrupting(atomic.check_replaceable_dir))
@@ -230,7 +230,7 @@ def test_interrupt_at_every_step_of_the_output_phase_keeps_the_old_set(small_seq
 
 def test_interrupt_during_the_swap_is_held_back_until_the_new_set_is_in(small_seq, tmp_path, monkeypatch):
     """A SIGINT between the two renames of the swap: the new set is in place, then the interrupt."""
-    import gtvo.io.atomic as atomic
+    import gtvo.core.atomic as atomic
 
     out = tmp_path / "out"
     write_run_outputs(out, _estimate(small_seq, 0.01), small_seq, {"frames": 6}, loop_closed=_estimate(small_seq, 0))

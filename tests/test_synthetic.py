@@ -9,7 +9,7 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 import gtvo.datasets.synthetic_scene as synthetic_scene
-from gtvo.io.atomic import DIR_MARKER
+from gtvo.core.atomic import DIR_MARKER
 from gtvo.core.camera import PinholeCamera
 from gtvo.errors import InputError
 from gtvo.core.image import bilinear_sample

@@ -259,8 +259,8 @@ def test_rgbd_window_on_tum_teddy(shared_data):
     (measured over 20 frames: ATE 2.14 mm window vs 2.16 mm track)."""
     from gtvo.datasets import open_sequence  # noqa: PLC0415
     from gtvo.pipeline import process_sequence  # noqa: PLC0415
-    from gtvo.io.outputs import evaluate  # noqa: PLC0415
-    from gtvo.io.outputs import ground_truth as gt_pair  # noqa: PLC0415
+    from gtvo.evaluation.accuracy import evaluate  # noqa: PLC0415
+    from gtvo.evaluation.accuracy import ground_truth as gt_pair  # noqa: PLC0415
 
     seq = open_sequence(shared_data / "rgbd_dataset_freiburg3_teddy_first20", max_frames=8,
                         camera=(535.4, 539.2, 320.1, 247.6))

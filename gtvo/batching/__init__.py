@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from gtvo.io.atomic import ensure_output_dir, tidy_on_failure
+from gtvo.core.atomic import ensure_output_dir, tidy_on_failure
 from gtvo.batching.overrides import apply_overrides, canonical, config_identity
 from gtvo.batching.runners import RECORD_NAME, failure, require_ray, run_in_pool, run_on_ray, start_ray
 from gtvo.batching.spec import LogSpec, read_spec
@@ -188,10 +188,17 @@ def _complete(out: Path, key: dict[str, Any]) -> bool:
 
 
 def _row_of(log: LogSpec, job: dict[str, Any], result: dict[str, Any], resumed: bool) -> dict[str, Any]:
+    """The log's summary row, from its run's report (:func:`gtvo.report.read_report`)."""
+    from gtvo.report import read_report  # noqa: PLC0415 - heavy: imported when a log has finished
+
     out = Path(job["out"])
-    report = _read_json(out / "report.json") if result["status"] == "done" else None
-    if result["status"] == "done" and report is None:
-        result = failure(InputError("the run finished but its report.json cannot be read", path=out / "report.json"))
+    report = None
+    if result["status"] == "done":
+        try:
+            report = read_report(out / "report.json")
+        except InputError:
+            result = failure(InputError("the run finished but its report.json cannot be read",
+                                        path=out / "report.json"))
     return summary_row(log, job["key"]["config_id"], out, result, report, resumed)
 
 

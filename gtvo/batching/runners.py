@@ -41,8 +41,8 @@ def run_log(job: dict[str, Any]) -> dict[str, Any]:
     :class:`gtvo.config.OdometryConfig`), ``options`` (``max_frames``, ``frame_step``,
     ``loop_closure``; the others go to :func:`gtvo.datasets.open_sequence`) and ``key`` (what
     makes the outputs this job's, for ``--resume``). On success the log's record (``batch.json``:
-    the key, the Sim(3) ATE, the wall time, the worker's pid and BLAS threads) is written last
-    into the output folder.
+    the key, the Sim(3) ATE from the run's report (``ate_sim3_rmse_m``), the wall time, the
+    worker's pid and BLAS threads) is written last into the output folder.
 
     Returns:
         ``{"status": "done", "record": {...}}`` or ``{"status": "failed", "error": "one line",
@@ -56,7 +56,7 @@ def run_log(job: dict[str, Any]) -> dict[str, Any]:
 
         cv2.setRNGSeed(0)  # OpenCV's global RNG (PnP RANSAC) as in a fresh `gtvo run` process
         from gtvo.datasets import open_sequence  # noqa: PLC0415
-        from gtvo.io.atomic import write_json  # noqa: PLC0415
+        from gtvo.core.atomic import write_json  # noqa: PLC0415
         from gtvo.pipeline import run  # noqa: PLC0415
 
         opts = job["options"]
@@ -65,8 +65,8 @@ def run_log(job: dict[str, Any]) -> dict[str, Any]:
         seq = open_sequence(job["path"], format=job["format"], max_frames=opts.get("max_frames"), **open_opts)
         report = run(seq, out=out, config=job["config"], progress=False, frame_step=opts.get("frame_step", 1),
                      loop_closure=bool(opts.get("loop_closure", False)))
-        record = {"name": job["name"], "key": job["key"], "sim3_ate_rmse_m": sim3_ate(seq, out / "trajectory.tum"),
-                  "run_seconds": report.get("seconds"), "wall_seconds": time.perf_counter() - t0,
+        record = {"name": job["name"], "key": job["key"], "sim3_ate_rmse_m": report.get("ate_sim3_rmse_m"),
+                  "run_seconds": report["seconds"], "wall_seconds": time.perf_counter() - t0,
                   "worker_pid": os.getpid(), "blas_threads": blas_threads()}
         write_json(out / RECORD_NAME, record)
         return {"status": "done", "record": record}
@@ -94,23 +94,6 @@ def failure(exc: BaseException, seconds: float | None = None) -> dict[str, Any]:
     if not isinstance(exc, (GtvoError, OSError)):
         result["traceback"] = "".join(traceback.format_exception(exc))
     return result
-
-
-def sim3_ate(seq: Any, trajectory_file: Path) -> float | None:
-    """Sim(3)-aligned ATE RMSE (m) of the written trajectory against the log's ground truth, or
-    None (no ground truth, or an alignment the positions do not determine)."""
-    from gtvo.errors import InputError  # noqa: PLC0415
-    from gtvo.evaluation.metrics import ate  # noqa: PLC0415
-    from gtvo.io.outputs import ground_truth  # noqa: PLC0415
-    from gtvo.io.trajectory_files import read_tum  # noqa: PLC0415
-
-    pair = ground_truth(seq, read_tum(trajectory_file))
-    if pair is None:
-        return None
-    try:
-        return float(ate(*pair, "sim3").rmse)
-    except InputError:
-        return None
 
 
 def run_in_pool(jobs: list[dict[str, Any]], workers: int, on_done: OnDone,

@@ -5,12 +5,15 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from gtvo.io.atomic import write_json, write_text
+from gtvo.core.atomic import write_json, write_text
 
-#: The figures of a log's ``report.json`` copied into its summary row.
-REPORT_FIELDS: tuple[str, ...] = ("sequence", "mode", "solver", "frames", "keyframes", "seconds", "frames_per_second",
+if TYPE_CHECKING:
+    from gtvo.report import RunReport
+
+#: The figures of a log's report (:class:`gtvo.report.RunReport`) copied into its summary row.
+REPORT_FIELDS: tuple[str, ...] = ("sequence", "mode", "tracker_solver", "frames", "keyframes", "seconds", "frames_per_second",
                                   "tracking_failures", "lost_frames", "ate_rmse_m", "drift_percent",
                                   "kitti_translation_percent", "kitti_rotation_deg_per_100m", "path_length_m")
 
@@ -24,17 +27,20 @@ TABLE: tuple[tuple[str, str, str], ...] = (
 )
 
 
-def summary_row(log: Any, config_id: str, out: Path, result: dict[str, Any], report: dict[str, Any] | None,
+def summary_row(log: Any, config_id: str, out: Path, result: dict[str, Any], report: RunReport | None,
                 resumed: bool) -> dict[str, Any]:
-    """One log's row: its identity, status, and the figures of its report (None where absent)."""
+    """One log's row: its identity, status, the figures of its report (:data:`REPORT_FIELDS`, None
+    where absent; ``sim3_ate_rmse_m`` is the report's ``ate_sim3_rmse_m``) and the worker's wall
+    time from its record (``batch.json``)."""
     row: dict[str, Any] = {"name": log.name, "path": str(log.path), "format": log.format, "config_id": config_id,
                            "config_overrides": log.config, "status": result["status"], "resumed": resumed,
                            "out": str(out)}
     if result["status"] == "done":
         record = result.get("record", {})
         for key in REPORT_FIELDS:
-            row[key] = (report or {}).get(key)
-        row["sim3_ate_rmse_m"] = record.get("sim3_ate_rmse_m")
+            row[key] = (report or {}).get(key)  # type: ignore[misc]
+        # the report's Sim(3)-aligned ATE, under the summary's older name
+        row["sim3_ate_rmse_m"] = (report or {}).get("ate_sim3_rmse_m")
         row["wall_seconds"] = record.get("wall_seconds")
     else:
         row["error"] = result.get("error")

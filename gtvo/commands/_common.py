@@ -3,9 +3,12 @@
 from __future__ import annotations
 
 import argparse
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from gtvo.errors import InputError
+
+if TYPE_CHECKING:
+    from gtvo.report import RunReport
 
 
 def parse_floats(text: str, n: int, what: str) -> tuple[float, ...]:
@@ -91,16 +94,7 @@ def odometry_config(args: Any):
     return config
 
 
-#: The report's headline figures, in the order the console summary prints them.
-SUMMARY_KEYS = ("frames", "keyframes", "seconds", "frames_per_second", "tracking_failures", "flow_recoveries",
-                "lost_frames", "suspect_frames", "window_optimisations", "window_seconds_mean", "ate_rmse_m",
-                "ate_sim3_rmse_m", "scale_ratio", "rig_offset_px", "rig_offset_sigma_px", "rpe_trans_rmse_m",
-                "ate_skipped", "drift_percent", "loops_detected", "loops_accepted", "frames_refined",
-                "loop_closed_ate_rmse_m", "loop_closed_drift_percent", "map_points_written", "map_points_left_out",
-                "map_points_skipped", "unpaired_messages")
-
-
-def describe_solvers(report: dict[str, Any]) -> str:
+def describe_solvers(report: RunReport) -> str:
     """What ran, from a run's report: mode, the tracker's solver and the window's back end and solver."""
     text = f"{report['mode']}, tracker {report['tracker_solver']}"
     if report.get("window_backend") is not None:
@@ -110,12 +104,14 @@ def describe_solvers(report: dict[str, Any]) -> str:
     return text
 
 
-def print_report(report: dict[str, Any]) -> None:
-    """Print the headline figures of a run's report, one per line, values in one column."""
-    shown = [k for k in SUMMARY_KEYS if report.get(k) is not None]
-    width = max((len(k) for k in shown), default=0) + 1
-    for k in shown:
-        v = report[k]
+def print_report(report: RunReport) -> None:
+    """Print the headline figures of a run's report (:func:`gtvo.report.headline`), one per line,
+    values in one column."""
+    from gtvo.report import headline  # noqa: PLC0415
+
+    shown = headline(report)
+    width = max((len(k) for k, _ in shown), default=0) + 1
+    for k, v in shown:
         print(f"  {k:<{width}} {v:.4g}" if isinstance(v, float) else f"  {k:<{width}} {v}")
     for line in flagged_frame_lines(report.get("frame_outcomes") or {}):
         print(f"  {line}")

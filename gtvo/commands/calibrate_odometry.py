@@ -7,7 +7,7 @@ import json
 
 import numpy as np
 
-from gtvo.io.atomic import check_output_file
+from gtvo.core.atomic import check_output_file
 from gtvo.wheel_calibration import calibrate, read_motion_pair
 from gtvo.wheel_calibration.plot import plot_trajectories
 

@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from gtvo.io.atomic import check_output_file, write_json
+from gtvo.core.atomic import check_output_file, write_json
 from gtvo.commands._common import parse_floats
 from gtvo.datasets import FORMATS, open_sequence
 from gtvo.errors import InputError

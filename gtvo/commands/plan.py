@@ -7,7 +7,7 @@ import json
 import math
 import sys
 
-from gtvo.io.atomic import check_output_file
+from gtvo.core.atomic import check_output_file
 from gtvo.errors import InputError
 
 

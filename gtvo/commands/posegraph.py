@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 from gtvo import posegraph as pg
-from gtvo.io.atomic import check_output_file
+from gtvo.core.atomic import check_output_file
 from gtvo.errors import InputError
 
 

@@ -29,7 +29,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import ndimage
 
-from gtvo.io.atomic import atomic_dir
+from gtvo.core.atomic import atomic_dir
 from gtvo.core.camera import PinholeCamera, StereoCamera
 from gtvo.errors import InputError, show
 from gtvo.datasets.sequence import Sequence
@@ -315,9 +315,9 @@ def write_sequence_kitti(seq: Sequence, folder: str | Path, progress: bool = Fal
     """Write a stereo sequence in the KITTI odometry layout, the folder as a whole.
 
     The files are written into a new folder that replaces ``folder`` when complete
-    (:func:`gtvo.io.atomic.atomic_dir`): an interrupted write leaves the old folder intact, and a
+    (:func:`gtvo.core.atomic.atomic_dir`): an interrupted write leaves the old folder intact, and a
     shorter sequence leaves none of a longer one's frames behind. An existing ``folder`` is
-    replaced only when it is empty or was written here (it carries ``gtvo.io.atomic.DIR_MARKER``)
+    replaced only when it is empty or was written here (it carries ``gtvo.core.atomic.DIR_MARKER``)
     and holds nothing else; a real dataset folder or one with other files is refused
     (:class:`InputError`), never overwritten.
 
@@ -339,7 +339,7 @@ KITTI_LAYOUT_ENTRIES = frozenset({"calib.txt", "times.txt", "poses.txt", "image_
 
 def _write_kitti_files(seq: Sequence, out: Path, shown: Path, progress: bool) -> None:
     """The files of :func:`write_sequence_kitti` into ``out``, a fresh temporary folder that
-    :func:`gtvo.io.atomic.atomic_dir` swaps in as a whole (so plain writes; ``shown``: the name
+    :func:`gtvo.core.atomic.atomic_dir` swaps in as a whole (so plain writes; ``shown``: the name
     the user gave, for the progress bar and errors)."""
     cam = seq.camera
     P0 = np.hstack([cam.left.K, np.zeros((3, 1))])

@@ -18,14 +18,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, TypedDict
 
 import numpy as np
 from numpy.typing import NDArray
 
 from gtvo.errors import InputError
 from gtvo.evaluation.trajectory import Trajectory
-from gtvo.io.atomic import atomic_path
+from gtvo.core.atomic import atomic_path
 
 FloatArray = NDArray[np.float64]
 
@@ -84,12 +84,33 @@ def sigmas(covariance: FloatArray) -> tuple[FloatArray, FloatArray]:
     return pos, rot
 
 
-def covariance_summary(cov: KeyframeCovariances) -> dict[str, Any]:
+class WrittenCovariances(TypedDict, total=False):
+    """The keys of :class:`CovarianceSummary` present when covariances were written."""
+
+    covariances_file: str
+    covariance_keyframes: int
+    covariance_source: str
+    covariance_inflation: float
+    covariance_undetermined: int
+    covariance_position_sigma_m_median: float | None
+    covariance_position_sigma_m_max: float | None
+    covariance_rotation_sigma_deg_median: float | None
+    covariance_rotation_sigma_deg_max: float | None
+
+
+class CovarianceSummary(WrittenCovariances):
+    """A run's covariances in ``report.json`` (:func:`covariance_summary`): ``covariances`` says
+    whether they were written, the other keys only when they were."""
+
+    covariances: str
+
+
+def covariance_summary(cov: KeyframeCovariances) -> CovarianceSummary:
     """The ``report.json`` keys of a run's covariances: ``covariances`` = ``"written"``,
     ``covariances_file``, ``covariance_keyframes``, ``covariance_source``, ``covariance_inflation``
     and the median and largest position sigma (m) and rotation sigma (deg) over the keyframes but
     the first (the gauge, whose covariance is the gauge prior's). A run without covariances has
-    ``covariances`` = the reason instead (set by :func:`gtvo.run`).
+    ``covariances`` = the reason instead (:func:`gtvo.odometry.summary.summarize_odometry`).
     """
     if not len(cov):
         return {"covariances": "none computed (no window optimisation)"}
@@ -104,7 +125,7 @@ def covariance_summary(cov: KeyframeCovariances) -> dict[str, Any]:
     for name, v in (("position_sigma_m", pos[ok]), ("rotation_sigma_deg", rot[ok])):
         out[f"covariance_{name}_median"] = float(np.median(v)) if v.size else None
         out[f"covariance_{name}_max"] = float(np.max(v)) if v.size else None
-    return out
+    return out  # type: ignore[return-value]
 
 
 def write_covariances(path: str | Path, cov: KeyframeCovariances) -> Path:

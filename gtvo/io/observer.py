@@ -8,13 +8,14 @@ by the odometry (window poses and points, the rig offset, the tracker's residual
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Protocol
 
 if TYPE_CHECKING:
     from gtvo.datasets.sequence import Frame, Sequence
     from gtvo.evaluation.trajectory import Trajectory
     from gtvo.config import OdometryConfig
     from gtvo.odometry import FrameEstimate, OdometryView
+    from gtvo.odometry.summary import OdometrySummary
 
 
 class RunObserver(Protocol):
@@ -26,5 +27,6 @@ class RunObserver(Protocol):
     def on_frame(self, frame: "Frame", estimate: "FrameEstimate", view: "OdometryView") -> None:
         """After ``vo.process(frame)`` returned ``estimate``; ``view``: ``vo.view()``."""
 
-    def on_finish(self, view: "OdometryView", trajectory: "Trajectory", info: dict[str, Any]) -> None:
-        """After the last frame (and ``vo.finish()``), with the trajectory and the run's figures."""
+    def on_finish(self, view: "OdometryView", trajectory: "Trajectory", info: "OdometrySummary") -> None:
+        """After the last frame (and ``vo.finish()``), with the trajectory and the odometry's summary
+        (:func:`gtvo.odometry.summary.summarize_odometry`)."""

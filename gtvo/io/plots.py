@@ -24,7 +24,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike
 
-from gtvo.io.atomic import atomic_path
+from gtvo.core.atomic import atomic_path
 from gtvo.errors import InputError
 from gtvo.evaluation.trajectory import FloatArray, Trajectory
 

@@ -47,7 +47,7 @@ from numpy.typing import NDArray
 from gtvo.core.image import to_uint8
 from gtvo.core.optional import require_rerun
 from gtvo.errors import InputError
-from gtvo.io.atomic import atomic_path
+from gtvo.core.atomic import atomic_path
 
 if TYPE_CHECKING:
     from gtvo.datasets.sequence import Frame, Sequence

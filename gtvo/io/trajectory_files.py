@@ -29,7 +29,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from gtvo.io.atomic import write_text
+from gtvo.core.atomic import write_text
 from gtvo.errors import InputError, not_a_file
 from gtvo.evaluation.trajectory import Trajectory
 from gtvo.core.lie import (QUATERNION_NORM_TOLERANCE, ROTATION_TOLERANCE, make_poses, not_a_rotation,

@@ -20,7 +20,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Mapping, Sequence as Seq
+from typing import Mapping, Sequence as Seq, TypedDict
 
 import numpy as np
 from numpy.typing import NDArray
@@ -48,6 +48,21 @@ ODOMETRY_SIGMAS = (0.005, 0.05)
 #: (the VO's default, OdometryConfig.frontend.points_per_keyframe).
 REFINEMENT_POINTS = 300
 
+#: How the loops are closed, for the report: GTSAM's GncLMOptimizer, then LM on the kept loops.
+LOOP_CLOSURE_SOLVER = "gtsam_gnc_lm"
+
+
+class LoopClosureSummary(TypedDict, total=False):
+    """What loop closing found and did, as ``report.json`` keys (:meth:`LoopClosingResult.summary`
+    gives all six; not required keys because a run's report has them only with ``--loop-closure``)."""
+
+    loops_detected: int
+    loops_unrefined: int
+    loops_accepted: int
+    loop_closure_solver: str
+    frames_refined: int
+    frame_refinement_hosts_mean: float | None
+
 
 @dataclass
 class LoopClosingResult:
@@ -70,6 +85,20 @@ class LoopClosingResult:
     unrefined: list[tuple[int, int]] = field(default_factory=list)
     keyframe_poses: dict[int, NDArray[np.float64]] = field(default_factory=dict)
     frame_hosts: NDArray[np.int64] | None = None
+
+    def summary(self) -> LoopClosureSummary:
+        """``loops_detected`` (verified loops, measured or not), ``loops_unrefined`` (those direct
+        alignment could not measure), ``loops_accepted`` (kept by the robust optimisation),
+        ``loop_closure_solver`` (:data:`LOOP_CLOSURE_SOLVER`), ``frames_refined`` (frames that at
+        least one keyframe re-measured) and ``frame_refinement_hosts_mean`` (over those, how many
+        keyframes did; None if none)."""
+        hosts = self.frame_hosts if self.frame_hosts is not None else np.zeros(0, np.int64)
+        return {"loops_detected": len(self.candidates) + len(self.unrefined),
+                "loops_unrefined": len(self.unrefined),
+                "loops_accepted": int(sum(self.accepted)),
+                "loop_closure_solver": LOOP_CLOSURE_SOLVER,
+                "frames_refined": int(np.count_nonzero(hosts)),
+                "frame_refinement_hosts_mean": float(hosts[hosts > 0].mean()) if np.any(hosts > 0) else None}
 
 
 @dataclass(frozen=True)

@@ -18,7 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gtvo.errors import InputError
-from gtvo.io.atomic import atomic_path
+from gtvo.core.atomic import atomic_path
 from gtvo.posegraph import information
 from gtvo.posegraph.graph import PoseGraph
 from gtvo.posegraph.gtsam_solver import _prior, indeterminate_near, key, objective_graph, to_values

@@ -27,7 +27,7 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import breadth_first_order, connected_components, minimum_spanning_tree
 
-from gtvo.io.atomic import atomic_open
+from gtvo.core.atomic import atomic_open
 from gtvo.errors import InputError, not_a_file
 from gtvo.core import lie
 from gtvo.posegraph.graph import PoseGraph

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gtvo.io.atomic import write_with
+from gtvo.core.atomic import write_with
 from gtvo.posegraph.graph import PoseGraph
 
 

@@ -8,7 +8,7 @@ from typing import Mapping
 import numpy as np
 from numpy.typing import ArrayLike
 
-from gtvo.io.atomic import write_with
+from gtvo.core.atomic import write_with
 from gtvo.wheel_calibration.motions import integrate_motions
 
 

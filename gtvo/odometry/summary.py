@@ -1,0 +1,145 @@
+"""What a finished odometry run says about itself: :class:`OdometrySummary`, made by
+:func:`summarize_odometry` from the public members of :class:`VisualOdometry`.
+
+The summary is the odometry's part of a run's ``report.json`` (:class:`gtvo.report.RunReport`),
+under the same keys and in the same order; docs/evaluation.md ("report.json") documents each.
+"""
+
+from __future__ import annotations
+
+import statistics
+from typing import Any, Sequence, TypedDict
+
+from gtvo.core.timing import per_frame_ms
+from gtvo.odometry.estimates import frames_by_outcome
+from gtvo.odometry.rig_report import rig_report
+from gtvo.odometry.visual_odometry import VisualOdometry
+
+
+class StageTiming(TypedDict, total=False):
+    """A run's time by stage (docs/evaluation.md, "Where a frame's time goes"); both keys absent
+    when the run was not timed (``vo.clock`` None) or processed no frame."""
+
+    seconds_by_stage: dict[str, float]
+    ms_per_frame_by_stage: dict[str, float]
+
+
+class WindowFigures(TypedDict, total=False):
+    """The window's and the rig's figures of a run, present in window mode (the ``rig_offset_*``
+    keys when the rig offset was estimated: :func:`gtvo.odometry.rig_report.rig_report`)."""
+
+    window_backend: str | None
+    window_solver: str | None
+    window_size: int
+    window_optimisations: int
+    window_seconds_mean: float | None
+    window_iterations_mean: float | None
+    covariance_seconds: float
+    rig_calibration: bool
+    rig_offset_px: list[float]
+    rig_offset_marginal_sigma_px: list[float | None] | None
+    rig_offset_sigma_px: list[float | None] | None
+    rig_offset_x_estimated: bool
+    rig_offset_x_tested_px: float | None
+    rig_initial_delta_y_px: float | None
+
+
+class OdometrySummary(StageTiming, WindowFigures):
+    """The odometry's figures of a run, in ``report.json`` order (:func:`summarize_odometry`).
+
+    Always: what ran (``mode``, ``tracker_solver``, ``motion_model``), the counts, the frame
+    outcomes, the tracking statistics and ``covariances`` (whether the keyframes' covariances were
+    computed; the report replaces it by what was written). In window mode also the window's and
+    the rig's figures (:func:`gtvo.odometry.rig_report.rig_report`). Then the stage timing.
+    """
+
+    mode: str
+    tracker_solver: str
+    motion_model: str
+    frames: int
+    keyframes: int
+    seconds: float | None
+    frames_per_second: float | None
+    tracking_failures: int
+    reinitialisations: int
+    flow_recoveries: int
+    lost_frames: int
+    suspect_frames: int
+    skipped_frames: list[int]
+    frame_outcomes: dict[str, Any]
+    tracking_iterations_mean: float | None
+    tracking_rotation_sigma_deg_median: float | None
+    tracking_rotation_sigma_deg_max: float | None
+    covariances: str
+
+
+def summarize_odometry(vo: VisualOdometry, seconds: float | None = None,
+                       skipped: Sequence[tuple[int, str]] = ()) -> OdometrySummary:
+    """The summary of a finished run of ``vo`` (call :meth:`VisualOdometry.finish` first).
+
+    Args:
+        vo: the odometry; only its public members are read.
+        seconds: the run's wall time, measured by the caller around its loop over the frames
+            (with the reading of the frames); None: ``frames_per_second`` is None too.
+        skipped: ``(index, reason)`` of the frames the caller could not read (never given to ``vo``).
+    """
+    config = vo.config
+    estimates = vo.estimates
+    n = len(estimates)
+    sigmas = [e.tracking.rotation_sigma_deg for e in estimates
+              if e.tracking is not None and e.tracking.success and not e.suspect]
+    out: dict[str, Any] = {
+        "mode": config.mode,
+        "tracker_solver": config.solver.tracker,
+        "motion_model": config.motion_model.model,
+        "frames": n,
+        "keyframes": len(vo.keyframes),
+        "seconds": seconds,
+        "frames_per_second": n / seconds if seconds is not None and seconds > 0 else None,
+        "tracking_failures": vo.failures,
+        "reinitialisations": sum(1 for e in estimates if e.reinitialised),
+        "flow_recoveries": vo.tracker.flow_recoveries,
+        "lost_frames": vo.lost_frames,
+        "suspect_frames": sum(1 for e in estimates if e.suspect),
+        "skipped_frames": [i for i, _ in skipped],
+        # every flagged frame by index with its reason (docs/evaluation.md, "Frame outcomes")
+        "frame_outcomes": frames_by_outcome(estimates, skipped),
+        "tracking_iterations_mean": _mean([e.tracking.iterations for e in estimates if e.tracking is not None]),
+        # how well the images determined each tracked frame's rotation (TrackingResult.rotation_sigma_deg)
+        "tracking_rotation_sigma_deg_median": _median(sigmas),
+        "tracking_rotation_sigma_deg_max": max(sigmas) if sigmas else None,
+    }
+    if config.mode == "window":
+        window, results = vo.window, vo.window_results
+        out.update({
+            "window_backend": window.backend.name if window is not None else None,
+            "window_solver": window.solver_name(config.solver.window) if window is not None else None,
+            "window_size": config.window.size,
+            "window_optimisations": len(results),
+            "window_seconds_mean": _mean([r.seconds for r in results]),
+            "window_iterations_mean": _mean([r.iterations for r in results]),
+            "covariance_seconds": float(sum(r.covariance_seconds for r in results)),
+        })
+        out.update(rig_report(vo))
+    out.update(stage_timing(vo))
+    out["covariances"] = ("not computed (--no-covariances)" if config.mode == "window" and not config.window.covariances
+                          else "not computed (track mode: no window)" if config.mode != "window" else "computed")
+    return out  # type: ignore[return-value]  # built key by key in report order
+
+
+def stage_timing(vo: VisualOdometry) -> StageTiming:
+    """``seconds_by_stage`` (the run's seconds in each stage of :data:`gtvo.core.timing.FRAME_STAGES`,
+    an open stage's time so far included) and ``ms_per_frame_by_stage`` (the same per processed
+    frame, ms); empty when the run was not timed (``vo.clock`` None) or processed no frame."""
+    seconds = {} if vo.clock is None else vo.clock.snapshot()
+    if not seconds or not vo.estimates:
+        return {}
+    return {"seconds_by_stage": seconds, "ms_per_frame_by_stage": per_frame_ms(seconds, len(vo.estimates))}
+
+
+def _mean(xs: list[float]) -> float | None:
+    return float(sum(xs) / len(xs)) if xs else None
+
+
+def _median(xs: list[float]) -> float | None:
+    return float(statistics.median(xs)) if xs else None
