@@ -14,8 +14,6 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT / "examples"
 
-pytestmark = pytest.mark.slow  # each runs a fresh interpreter (imports, numba cache) and real work
-
 
 def run_example(name: str) -> str:
     """The example's stdout; fails with its stderr unless it exits 0."""
@@ -40,6 +38,7 @@ def test_every_example_is_numbered_and_run_here() -> None:
     assert set(names) <= tested, f"examples without a test: {set(names) - tested}"
 
 
+@pytest.mark.slow  # a fresh interpreter (imports, numba cache) and real work
 def test_01_factors_in_a_gtsam_graph() -> None:
     out = run_example("01_factors_in_a_gtsam_graph.py")
     assert number_after("translation error", out) < 10.0  # mm, of a 0.15 m step (measured 2.2)
@@ -48,6 +47,7 @@ def test_01_factors_in_a_gtsam_graph() -> None:
     assert number_after("HostPointsFactor depths: mean error", out) < 5.0  # % (measured 2.1, initial 5.3)
 
 
+@pytest.mark.slow  # a fresh interpreter (imports, numba cache) and real work
 def test_02_visual_odometry_frame_by_frame() -> None:
     out = run_example("02_visual_odometry_frame_by_frame.py")
     assert re.search(r"^frame +10 ", out, re.MULTILINE)  # frame by frame
@@ -56,6 +56,7 @@ def test_02_visual_odometry_frame_by_frame() -> None:
     assert number_after("last keyframe sigma: rotation", out) > 0
 
 
+@pytest.mark.slow  # a fresh interpreter (imports, numba cache) and real work
 def test_03_pose_graph_with_odometry_calibration() -> None:
     out = run_example("03_pose_graph_with_odometry_calibration.py")
     dead_reckoning = number_after("dead reckoning", out)
@@ -66,6 +67,7 @@ def test_03_pose_graph_with_odometry_calibration() -> None:
     assert abs(number_after("X found (true in brackets):", out) - 1.04) < 0.01  # the wheels' scale
 
 
+@pytest.mark.slow  # a fresh interpreter (imports, numba cache) and real work
 def test_04_read_a_run_report() -> None:
     out = run_example("04_read_a_run_report.py")
     assert "report.json" in out and "covariances.npz" in out
