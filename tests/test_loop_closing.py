@@ -1,6 +1,7 @@
 """Loop closing of a VO run: place recognition over keyframes + robust keyframe pose graph."""
 
 import numpy as np
+import pytest
 
 from gtvo.loops.closing import close_loops_of_run, relocate_frames
 from gtvo.config import FrontendConfig, KeyframeRule, OdometryConfig
@@ -28,6 +29,7 @@ def test_relocate_frames_moves_each_frame_with_its_keyframe():
         np.testing.assert_allclose(np.linalg.inv(out[3]) @ out[i], np.linalg.inv(poses[3]) @ poses[i], atol=1e-12)
 
 
+@pytest.mark.slow
 def test_synthetic_revisit_is_closed():
     seq = make_synthetic_sequence(n_frames=40, motion="loop", noise_sigma=1.0)
     vo, traj, _ = process_sequence(seq, OdometryConfig(mode="track", keyframes=KeyframeRule(max_motion=0.0),
@@ -43,6 +45,7 @@ def test_synthetic_revisit_is_closed():
     np.testing.assert_allclose(np.einsum("nji,njk->nik", R, R), np.broadcast_to(np.eye(3), R.shape), atol=1e-9)
 
 
+@pytest.mark.slow
 def test_map_points_follow_the_keyframe_poses_they_are_given():
     seq = make_synthetic_sequence(n_frames=20, motion="forward")
     vo, _, _ = process_sequence(seq)
@@ -56,6 +59,7 @@ def test_map_points_follow_the_keyframe_poses_they_are_given():
     np.testing.assert_allclose(vo.map_points({}).points, own.points)
 
 
+@pytest.mark.slow
 def test_run_with_loop_closure_refines_frames_and_maps_on_the_closed_keyframes(tmp_path, monkeypatch):
     from gtvo.io.trajectory_files import read_tum
     from gtvo.odometry import VisualOdometry

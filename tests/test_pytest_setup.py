@@ -18,6 +18,7 @@ ROOT = Path(__file__).resolve().parents[1]
 ALL_SLOW: set[str] = set()
 
 
+@pytest.mark.slow
 def test_plugins_neither_warn_nor_write_into_the_checkout(tmp_path: Path) -> None:
     """A trivial suite under this pyproject, warnings all shown: no plugin's warning, no ``.benchmarks/``."""
     plugins = [name for name in ("dash", "pytest_benchmark") if importlib.util.find_spec(name)]
@@ -44,8 +45,8 @@ def test_the_quick_lane_keeps_tests_of_every_module() -> None:
     without_quick_tests = []
     for path in sorted((ROOT / "tests").glob("test_*.py")):
         tree = ast.parse(path.read_text(encoding="utf-8"))
-        module_slow = any(isinstance(node, ast.Assign) and any(getattr(t, "id", "") == "pytestmark" for t in node.targets)
-                          and marked_slow([node.value]) for node in tree.body)
+        module_slow = any(isinstance(node, ast.Assign) and marked_slow([node.value])
+                          and any(getattr(t, "id", "") == "pytestmark" for t in node.targets) for node in tree.body)
         quick = [node.name for node in ast.walk(tree) if isinstance(node, ast.FunctionDef)
                  and node.name.startswith("test_") and not marked_slow(node.decorator_list)]
         if (module_slow or not quick) and path.name not in ALL_SLOW:
