@@ -14,8 +14,8 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-#: modules whose every test is slow on purpose (none today)
-ALL_SLOW: set[str] = set()
+#: modules whose every test is slow on purpose: the benchmark peers' one test runs each peer on KITTI
+ALL_SLOW = {"test_peers_benchmark.py"}
 
 
 @pytest.mark.slow
