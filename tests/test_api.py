@@ -1,6 +1,8 @@
 import subprocess
 import sys
 
+import pytest
+
 import gtvo
 
 
@@ -18,6 +20,7 @@ def test_import_gtvo_is_cheap():
     assert out.strip() == "False"
 
 
+@pytest.mark.slow
 def test_api_run_on_synthetic(tmp_path):
     from gtvo.datasets.synthetic import make_synthetic_sequence
 

@@ -73,6 +73,7 @@ def _run_cli(args: list[str], capsys) -> tuple[int, str, str]:
     return code, out, err
 
 
+@pytest.mark.slow
 def test_small_stereo_bag_ros1_ros2_mcap(tmp_path):
     seqs = [open_sequence(write_small_stereo(tmp_path / name, mcap=mcap))
             for name, mcap in (("a.bag", False), ("b", False), ("c", True))]
@@ -365,6 +366,7 @@ def kitti(shared_data, tmp_path_factory):
         _kitti_bag(root, ns, tmp / "kitti_ros2", compressed=True, mcap=True)
 
 
+@pytest.mark.slow
 @pytest.mark.realdata
 def test_kitti_bag_run_is_the_folder_run(kitti, tmp_path, capsys):
     root, ros1, _ = kitti
@@ -380,6 +382,7 @@ def test_kitti_bag_run_is_the_folder_run(kitti, tmp_path, capsys):
     assert b["unpaired_messages"] == {"/stereo/left/image_rect": 0, "/stereo/right/image_rect": 0}
 
 
+@pytest.mark.slow
 @pytest.mark.realdata
 def test_kitti_ros2_compressed_bag_is_the_folder(kitti):
     from gtvo.pipeline import process_sequence
@@ -395,6 +398,7 @@ def test_kitti_ros2_compressed_bag_is_the_folder(kitti):
     np.testing.assert_array_equal(tb.poses, ta.poses)
 
 
+@pytest.mark.slow
 @pytest.mark.realdata
 @pytest.mark.parametrize("name", ["tum.bag", "tum_ros2"])
 def test_tum_rgbd_bag_is_the_folder(shared_data, tmp_path, name):

@@ -111,6 +111,7 @@ def test_config_identity_follows_the_settings():
 # SPEC
 # ---------------------------------------------------------------------------------------------
 
+@pytest.mark.slow
 def test_spec_folder_takes_every_detected_log_and_flags_broken_folders(logs):
     specs = read_spec(logs)
     # notes.txt and .hidden are not logs; a bag is one (through gtvo.datasets.detect_format)
@@ -123,6 +124,7 @@ def test_spec_folder_takes_every_detected_log_and_flags_broken_folders(logs):
     assert [s.name for s in read_spec(logs, exclude=(logs / "broken",))] == ["drive", "seq1", "seq2"]
 
 
+@pytest.mark.slow
 def test_spec_yaml_entries(logs, tmp_path):
     spec = tmp_path / "fleet.yaml"
     spec.write_text(f"- {logs / 'seq1'}\n"
@@ -276,6 +278,7 @@ def test_ray_missing_is_one_line_naming_the_extra(tmp_path, capsys, monkeypatch)
     assert not (tmp_path / "o").exists()
 
 
+@pytest.mark.slow
 def test_a_log_that_kills_its_worker_fails_alone():
     from gtvo.batching.runners import run_in_pool
     from tests._batch_tasks import crash_or_pass
@@ -293,6 +296,7 @@ def test_a_log_that_kills_its_worker_fails_alone():
 # Ray
 # ---------------------------------------------------------------------------------------------
 
+@pytest.mark.slow
 def test_ray_address_where_nothing_answers_exit_2_at_once(logs, tmp_path, capsys):
     pytest.importorskip("ray", reason="Ray is not installed (pip install 'gtvo[ray]')")
     import socket

@@ -39,6 +39,7 @@ def test_help_of_every_subcommand(capsys):
         assert "usage: gtvo " + name in capsys.readouterr().out
 
 
+@pytest.mark.slow
 def test_run_writes_outputs_and_metrics(kitti_like, tmp_path):
     out = tmp_path / "out"
     r = run_cli("run", kitti_like, "--out", out, "--no-progress", "--points", "600")
@@ -61,6 +62,7 @@ def test_run_writes_outputs_and_metrics(kitti_like, tmp_path):
     assert [p.name for p in out.iterdir() if p.name.startswith(".")] == [DIR_MARKER]  # no temp files
 
 
+@pytest.mark.slow
 def test_run_with_frame_step_uses_every_kth_frame(kitti_like, tmp_path):
     out = tmp_path / "step2"
     r = run_cli("run", kitti_like, "--out", out, "--no-progress", "--frame-step", "2")
@@ -88,6 +90,7 @@ def test_bad_counts_exit_2_naming_the_flag(kitti_like, tmp_path, capsys, argv, n
     assert not (tmp_path / "o").exists()
 
 
+@pytest.mark.slow
 def test_run_missing_folder_exit_2(tmp_path):
     r = run_cli("run", tmp_path / "nope", "--out", tmp_path / "o")
     assert r.returncode == 2
@@ -95,6 +98,7 @@ def test_run_missing_folder_exit_2(tmp_path):
     assert len(r.stderr.strip().splitlines()) == 1
 
 
+@pytest.mark.slow
 def test_run_malformed_calibration_exit_2(kitti_like, tmp_path):
     bad = tmp_path / "bad"
     shutil.copytree(kitti_like, bad)
@@ -103,6 +107,7 @@ def test_run_malformed_calibration_exit_2(kitti_like, tmp_path):
     assert r.returncode == 2 and "calib.txt" in r.stderr and "Traceback" not in r.stderr
 
 
+@pytest.mark.slow
 def test_corrupt_frame_mid_sequence_is_skipped_unless_strict(kitti_like, tmp_path):
     bad = tmp_path / "bad"
     shutil.copytree(kitti_like, bad)
@@ -138,6 +143,7 @@ def test_loops_skips_a_corrupt_frame_unless_strict(kitti_like, tmp_path, capsys)
     assert "no frame of 2 could be read" in capsys.readouterr().err.strip().splitlines()[-1]
 
 
+@pytest.mark.slow
 def test_corrupt_first_frame_exit_2(kitti_like, tmp_path):
     bad = tmp_path / "bad"
     shutil.copytree(kitti_like, bad)
@@ -147,11 +153,13 @@ def test_corrupt_first_frame_exit_2(kitti_like, tmp_path):
     assert r.returncode == 2 and first.name in r.stderr and "Traceback" not in r.stderr
 
 
+@pytest.mark.slow
 def test_bad_camera_option_exit_2(tmp_path):
     r = run_cli("run", tmp_path, "--camera", "1,2,x,4")
     assert r.returncode == 2 and "--camera" in r.stderr
 
 
+@pytest.mark.slow
 def test_demo_runs(tmp_path):
     out = tmp_path / "demo"
     r = run_cli("demo", "--out", out, "--frames", "6", "--no-progress")
@@ -161,6 +169,7 @@ def test_demo_runs(tmp_path):
     assert rep["frames"] == 6 and rep["ate_rmse_m"] < 0.01
 
 
+@pytest.mark.slow
 @pytest.mark.realdata
 def test_run_on_kitti_snippet(shared_data, tmp_path):
     seq = shared_data / "kitti_stereo_sample" / "KITTI_sequence_1"
@@ -173,6 +182,7 @@ def test_run_on_kitti_snippet(shared_data, tmp_path):
     assert rep["ate_rmse_m"] < 0.05
 
 
+@pytest.mark.slow
 def test_demo_with_fixed_lag_backend(tmp_path):
     out = tmp_path / "demo_fl"
     r = run_cli("demo", "--out", out, "--frames", "12", "--no-progress", "--window-backend", "fixed-lag")
@@ -227,6 +237,7 @@ def test_no_progress_silences_the_bars(tmp_path, capsys):
         assert capsys.readouterr().err == "", argv
 
 
+@pytest.mark.slow
 def test_two_frame_run_reports_no_ate_instead_of_failing(kitti_like, tmp_path, capsys):
     out = tmp_path / "two"
     assert cli.main(["run", str(kitti_like), "--max-frames", "2", "--out", str(out), "--no-progress"]) == 0
@@ -235,6 +246,7 @@ def test_two_frame_run_reports_no_ate_instead_of_failing(kitti_like, tmp_path, c
     assert rep["rpe_trans_rmse_m"] is not None and (out / "trajectory.png").is_file()
 
 
+@pytest.mark.slow
 def test_synthetic_rewrite_leaves_no_stale_frames_and_keeps_foreign_files(tmp_path, capsys):
     out = tmp_path / "syn"
     assert cli.main(["synthetic", "--out", str(out), "--frames", "4"]) == 0

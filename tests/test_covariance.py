@@ -33,6 +33,7 @@ def _rel(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.linalg.norm(a - b) / np.linalg.norm(b))
 
 
+@pytest.mark.slow
 def test_gtsam_marginals_equal_the_inverse_reduced_hessian(seq):
     """One window (5 keyframes, gauge prior), solved to convergence by each solver: gtsam.Marginals
     on the GTSAM path and the inverse of the hand-rolled reduced Hessian agree.
@@ -162,6 +163,7 @@ def test_visual_odometry_covariance_api(seq):
     assert track.covariance(0) is None
 
 
+@pytest.mark.slow
 def test_run_writes_covariances_and_report(tmp_path):
     """`gtvo run` on a written synthetic sequence: covariances.npz with one covariance per keyframe,
     its metadata, the report's summary (recomputed from the file); `--no-covariances` writes none."""

@@ -255,6 +255,7 @@ def test_target_jacobians_are_the_host_jacobians_mapped_by_the_pair(compiled):
     np.testing.assert_allclose(lin.J_affine_target[..., 1], -1.0 * lin.valid, atol=0)
 
 
+@pytest.mark.slow
 def test_compiled_residuals_without_target_jacobians_and_their_sums():
     """``target_jacobians=False`` (the window's passes): the target blocks are left out, the rest is
     the same to the bit, and the Gauss-Newton sums (mapped from the host Jacobians) are the same."""

@@ -175,6 +175,7 @@ def _photometric_graph(target: GradientImage) -> tuple[gtsam.NonlinearFactorGrap
     return graph, v
 
 
+@pytest.mark.slow
 def test_python_factors_are_freed_with_their_graph():
     """GTSAM holds a factor's error function; bound to the factor itself it would form a cycle
     through C++ that Python never frees (with the images: 1 GB per 51 KITTI frames). A factor

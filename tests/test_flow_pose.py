@@ -32,6 +32,7 @@ def room():
     return seq, left, px, 1.0 / z
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("step", [2, 4, 8])
 def test_synthetic_steps_come_out_close_to_the_truth(room, step):
     seq, left, px, d = room

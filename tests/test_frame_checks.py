@@ -197,6 +197,7 @@ def room():
     return make_synthetic_sequence(n_frames=14, noise_sigma=1.0, step_m=0.3)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("mode", ["track", "window"])
 def test_synthetic_duplicate_is_suspect_and_a_clean_run_flags_nothing(room, mode):
     config = OdometryConfig(mode=mode)
@@ -212,6 +213,7 @@ def test_synthetic_duplicate_is_suspect_and_a_clean_run_flags_nothing(room, mode
     assert np.max(np.abs(err[10:] - err_clean[10:])) < 0.02
 
 
+@pytest.mark.slow
 def test_a_camera_frozen_for_three_frames_is_flagged_on_each(room):
     """Frames 8, 9 and 10 all show frame 7's images: each is suspect (the third is predicted over
     three frame steps from frame 7), and frame 11 tracks as on the clean run."""
@@ -247,6 +249,7 @@ def kitti45_clean(kitti45):
     return _run(kitti45, OdometryConfig(mode="window"))
 
 
+@pytest.mark.slow
 @pytest.mark.realdata
 def test_kitti_clean_run_flags_nothing(kitti45_clean):
     assert _flagged(kitti45_clean) == {"suspect": [], "lost": [], "reinitialised": []}
@@ -267,6 +270,7 @@ def kitti45_faulted(kitti45, tmp_path_factory):
     return vo, report, out
 
 
+@pytest.mark.slow
 @pytest.mark.realdata
 def test_kitti_injected_faults_are_flagged_exactly_in_the_report(kitti45_faulted, capsys):
     _, report, out = kitti45_faulted
@@ -281,6 +285,7 @@ def test_kitti_injected_faults_are_flagged_exactly_in_the_report(kitti45_faulted
     assert "suspect frames: 25, 30, 31 (no image motion while the rig moved" in capsys.readouterr().out
 
 
+@pytest.mark.slow
 @pytest.mark.realdata
 def test_kitti_errors_after_the_faults_return_to_the_clean_runs(kitti45, kitti45_clean, kitti45_faulted):
     vo = kitti45_faulted[0]
@@ -293,6 +298,7 @@ def test_kitti_errors_after_the_faults_return_to_the_clean_runs(kitti45, kitti45
     assert np.max(np.abs(err[after] - err_clean[after])) < 0.1
 
 
+@pytest.mark.slow
 @pytest.mark.realdata
 def test_kitti_duplicate_with_the_kalman_motion_model(kitti45):
     """The planar constant-acceleration filter predicts KITTI's motion well enough to arm the check
@@ -303,6 +309,7 @@ def test_kitti_duplicate_with_the_kalman_motion_model(kitti45):
     assert np.all(_errors(vo, seq)[25:] < 0.5)
 
 
+@pytest.mark.slow
 @pytest.mark.realdata
 @pytest.mark.parametrize("folder", ["rgbd_dataset_freiburg3_teddy_first20", "euroc_v101_static_stereo"])
 def test_handheld_and_static_clips_flag_nothing(shared_data, folder):
@@ -314,6 +321,7 @@ def test_handheld_and_static_clips_flag_nothing(shared_data, folder):
     assert _flagged(vo) == {"suspect": [], "lost": [], "reinitialised": []}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("motion", ["loop", "turn"])
 def test_synthetic_loop_and_turn_flag_nothing(motion):
     seq = make_synthetic_sequence(n_frames=16, noise_sigma=1.0, motion=motion)

@@ -119,6 +119,7 @@ def _frame_error(seq, vo, poses, kfs):
     return float(np.sqrt(np.mean(np.square(err))))
 
 
+@pytest.mark.slow
 def test_refined_frames_are_closer_to_the_truth(loop_run):
     """With the keyframes at their true poses, every frame re-measured against the keyframes around it
     is nearer the truth than the one alignment the run made (measured: 26 -> 15 mm RMS)."""
@@ -148,6 +149,7 @@ def test_refined_frames_are_closer_to_the_truth(loop_run):
         refine_frames(seq.pinhole, lambda p: seq.left(p), start, kfs, points[:-1], cov)
 
 
+@pytest.mark.slow
 def test_loop_closing_of_a_run_refines_its_frames(loop_run):
     seq, vo, traj, kfs = loop_run
     refine = [e.outcome in TRACKED_OUTCOMES for e in vo.estimates]

@@ -41,6 +41,7 @@ def _run(seq, every: int, finish: bool = True) -> VisualOdometry:
     return vo
 
 
+@pytest.mark.slow
 def test_every_keyframe_is_optimised_with_one(forward):
     vo = _run(forward, 1)
     assert len(vo.keyframes) >= 5
@@ -48,6 +49,7 @@ def test_every_keyframe_is_optimised_with_one(forward):
     assert len(vo.window_results) == len(vo.keyframes) - 1
 
 
+@pytest.mark.slow
 def test_frames_tracked_against_a_keyframe_make_it_optimised_at_once(forward):
     """On the synthetic room a keyframe comes every few frames: each has frames tracked against it,
     so no optimisation waits and the run is the one of ``optimize_every=1``, bit for bit."""
@@ -56,6 +58,7 @@ def test_frames_tracked_against_a_keyframe_make_it_optimised_at_once(forward):
     assert all(np.array_equal(a.T_world_cam, b.T_world_cam) for a, b in zip(one.estimates, three.estimates))
 
 
+@pytest.mark.slow
 @pytest.mark.realdata
 def test_keyframes_at_every_frame_wait_and_finish_optimises_the_rest(kitti):
     vo = _run(kitti, 2, finish=False)
@@ -76,6 +79,7 @@ def test_keyframes_at_every_frame_wait_and_finish_optimises_the_rest(kitti):
     assert len(vo.window_results) == n
 
 
+@pytest.mark.slow
 @pytest.mark.realdata
 def test_fewer_optimisations_keep_the_accuracy_on_kitti(kitti):
     every, second = _run(kitti, 1), _run(kitti, 2)
@@ -88,6 +92,7 @@ def test_fewer_optimisations_keep_the_accuracy_on_kitti(kitti):
     assert err["second"] < 1.5 * err["every"] + 0.01
 
 
+@pytest.mark.slow
 def test_finish_in_track_mode_does_nothing(forward):
     vo = VisualOdometry(forward.camera, OdometryConfig(mode="track"))
     for i in range(5):
@@ -104,6 +109,7 @@ def test_optimize_every_must_be_positive():
         WindowConfig(optimize_every=0)
 
 
+@pytest.mark.slow
 @pytest.mark.realdata
 def test_large_steps_optimise_every_keyframe(shared_data):
     """At 5 Hz (2.4 m per frame) the new keyframe's stereo depth error moves its points by more than
@@ -120,6 +126,7 @@ def test_large_steps_optimise_every_keyframe(shared_data):
     assert all(np.array_equal(a.T_world_cam, b.T_world_cam) for a, b in zip(one.estimates, two.estimates))
 
 
+@pytest.mark.slow
 def test_a_keyframe_without_a_tracked_pyramid_builds_one_for_window_and_tracker(forward, monkeypatch):
     """The first keyframe (no tracking made its pyramid) builds the pyramid once: the window
     keyframe's left image is its level 0, not a second full-size GradientImage."""

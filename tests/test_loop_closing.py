@@ -1,6 +1,7 @@
 """Loop closing of a VO run: place recognition over keyframes + robust keyframe pose graph."""
 
 import numpy as np
+import pytest
 
 from gtvo.loops.closing import LoopClosingResult, close_loops_of_run, relocate_frames
 from gtvo.config import FrontendConfig, KeyframeConfig, OdometryConfig
@@ -40,6 +41,7 @@ def test_the_summary_counts_what_loop_closing_found_and_did():
     assert none["loops_detected"] == 0 and none["frames_refined"] == 0 and none["frame_refinement_hosts_mean"] is None
 
 
+@pytest.mark.slow
 def test_synthetic_revisit_is_closed():
     seq = make_synthetic_sequence(n_frames=40, motion="loop", noise_sigma=1.0)
     vo, traj, _ = process_sequence(seq, OdometryConfig(mode="track", keyframes=KeyframeConfig(max_motion=0.0),
@@ -55,6 +57,7 @@ def test_synthetic_revisit_is_closed():
     np.testing.assert_allclose(np.einsum("nji,njk->nik", R, R), np.broadcast_to(np.eye(3), R.shape), atol=1e-9)
 
 
+@pytest.mark.slow
 def test_map_points_follow_the_keyframe_poses_they_are_given():
     seq = make_synthetic_sequence(n_frames=20, motion="forward")
     vo, _, _ = process_sequence(seq)
@@ -68,6 +71,7 @@ def test_map_points_follow_the_keyframe_poses_they_are_given():
     np.testing.assert_allclose(vo.map_points({}).points, own.points)
 
 
+@pytest.mark.slow
 def test_run_with_loop_closure_refines_frames_and_maps_on_the_closed_keyframes(tmp_path, monkeypatch):
     from gtvo.io.trajectory_files import read_tum
     from gtvo.odometry import VisualOdometry

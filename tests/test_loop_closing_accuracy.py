@@ -29,6 +29,7 @@ def _closed_and_open_ate(motion: str) -> tuple[float, float, list[bool]]:
     return closed, evaluate(*ground_truth(seq, traj))["ate_rmse_m"], res.accepted
 
 
+@pytest.mark.slow
 def test_loop_closure_lowers_the_ate_of_a_true_loop():
     # before the fix (PnP loop poses, 5 cm / 0.3 deg odometry edges) this loop ended 7 % worse
     closed, open_, accepted = _closed_and_open_ate("loop")
@@ -36,6 +37,7 @@ def test_loop_closure_lowers_the_ate_of_a_true_loop():
     assert closed < 0.95 * open_
 
 
+@pytest.mark.slow
 def test_loop_closure_does_not_hurt_a_run_without_a_loop():
     closed, open_, _ = _closed_and_open_ate("forward")
     assert closed <= 1.05 * open_

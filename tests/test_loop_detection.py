@@ -105,6 +105,7 @@ def _true_T_i_j(poses, i: int, j: int) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------------- synthetic revisit
+@pytest.mark.slow
 def test_synthetic_revisit_is_detected_with_the_true_relative_pose(revisit):
     det = LoopDetector(CAM, LoopDetectorConfig(temporal_window=3))
     found: dict[int, list] = {}
@@ -200,6 +201,7 @@ def kitti(shared_data):
     return seq, [(seq.left(k), seq.right(k)) for k in range(4)]
 
 
+@pytest.mark.slow
 @pytest.mark.realdata
 def test_kitti_frames_verify_to_the_ground_truth_and_the_window_excludes_them(kitti):
     seq, images = kitti

@@ -347,6 +347,7 @@ EVO_CASES = [
 ]
 
 
+@pytest.mark.slow
 @pytest.mark.realdata
 @pytest.mark.parametrize("ref_name, est_name, align, readme_rmse", EVO_CASES)
 def test_ate_rpe_match_evo_api(evo_dir, ref_name, est_name, align, readme_rmse):

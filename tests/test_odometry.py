@@ -59,6 +59,7 @@ def test_without_the_fallback_the_first_large_step_is_lost(kitti_5hz):
     assert vo.estimates[1].reinitialised
 
 
+@pytest.mark.slow
 def test_memory_stays_bounded_over_a_run():
     """Only the window's keyframes keep their images (left and right with gradients): a run of
     many keyframes must not accumulate them (the factors' cycle through GTSAM once kept every
@@ -130,6 +131,7 @@ def test_blank_right_images_track_on_without_new_keyframes(room):
     assert np.max(_position_errors(vo, seq)) < 0.03
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("motion_model", ["constant-velocity", "kalman"])
 def test_consecutive_blank_frames_in_window_mode(room, motion_model):
     seq = _edited(room, lambda i, img: np.full_like(img, 128.0) if 5 <= i <= 7 else img)

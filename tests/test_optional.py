@@ -30,6 +30,7 @@ def test_missing_libusb_is_named(open3d_missing_libusb):
     assert "libusb-1.0" in msg and "apt-get install libusb-1.0-0" in msg and "\n" not in msg
 
 
+@pytest.mark.slow
 def test_run_without_open3d_still_writes_everything_else(open3d_missing_libusb, tmp_path):
     from gtvo.config import FrontendConfig, OdometryConfig
     from gtvo.pipeline import run

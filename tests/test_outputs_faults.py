@@ -123,6 +123,7 @@ def test_observation_rule_applies_to_keyframes_a_window_optimisation_included(wi
     assert written["window"] == written["track"] > 0
 
 
+@pytest.mark.slow
 def test_readme_chain_run_then_plan_on_real_data(kitti_real, tmp_path, open3d):
     """README: `gtvo run SEQ --out out/` then `gtvo plan --map out/points.ply --start 0,5 --goal 0,30`."""
     out = tmp_path / "out"
@@ -139,6 +140,7 @@ def test_readme_chain_run_then_plan_on_real_data(kitti_real, tmp_path, open3d):
     assert (tmp_path / "p.png").is_file()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("options,backend", [(["--window-backend", "fixed-lag"], "fixed_lag"),
                                              (["--solver", "gtsam"], "lm"), (["--loop-closure"], "lm"),
                                              (["--mode", "track"], None)], ids=["fixed-lag", "gtsam", "loop-closure", "track"])
@@ -178,6 +180,7 @@ def _points(n: int = 50) -> MapPoints:
     return MapPoints(rng.normal(size=(n, 3)), rng.uniform(0, 255, n), {"depth_uncertain": 1})
 
 
+@pytest.mark.slow
 def test_a_plain_run_leaves_no_stale_file_of_an_earlier_loop_closure_run(small_seq, tmp_path):
     out = tmp_path / "out"
     est = _estimate(small_seq, 0.01)
@@ -189,6 +192,7 @@ def test_a_plain_run_leaves_no_stale_file_of_an_earlier_loop_closure_run(small_s
     assert not [p for p in tmp_path.iterdir() if p.name != "out"]  # no temporary folder left
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("step", range(10))
 def test_interrupt_at_every_step_of_the_output_phase_keeps_the_old_set(small_seq, tmp_path, monkeypatch, step):
     """Ctrl-C before each file of the output phase and around the swap: the old set, whole."""
@@ -228,6 +232,7 @@ def test_interrupt_at_every_step_of_the_output_phase_keeps_the_old_set(small_seq
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]  # no temporary folder left
 
 
+@pytest.mark.slow
 def test_interrupt_during_the_swap_is_held_back_until_the_new_set_is_in(small_seq, tmp_path, monkeypatch):
     """A SIGINT between the two renames of the swap: the new set is in place, then the interrupt."""
     import gtvo.core.atomic as atomic
@@ -293,6 +298,7 @@ def test_an_interrupt_while_open3d_loads_is_not_a_missing_open3d(monkeypatch):
         require_open3d()
 
 
+@pytest.mark.slow
 def test_sigint_at_random_moments_leaves_the_old_set_or_the_new_set(kitti_like, tmp_path):
     """A real `gtvo run` sent SIGINT after random delays (seeded): exit 130 with one line (or 0 when
     it finished first), and the output folder holds the earlier run's set or this run's, whole."""
@@ -342,6 +348,7 @@ def test_sigint_at_random_moments_leaves_the_old_set_or_the_new_set(kitti_like, 
 
 # -- 8. outputs never damage inputs or unrelated files ------------------------------------------
 
+@pytest.mark.slow
 def test_output_folder_in_the_input_is_refused(kitti_like, tmp_path):
     seq_copy = tmp_path / "seq"
     shutil.copytree(kitti_like, seq_copy)
@@ -359,6 +366,7 @@ def test_output_folder_in_the_input_is_refused(kitti_like, tmp_path):
     assert sorted(q.name for q in (seq_copy / "image_0").iterdir()) == before[seq_copy / "image_0"]
 
 
+@pytest.mark.slow
 def test_unrelated_files_in_the_output_folder_are_never_overwritten(kitti_like, tmp_path):
     out = tmp_path / "mine"
     out.mkdir()
@@ -381,6 +389,7 @@ def test_unrelated_files_in_the_output_folder_are_never_overwritten(kitti_like, 
 
 # -- 9. what ran is what is reported ------------------------------------------------------------
 
+@pytest.mark.slow
 def test_fixed_lag_run_reports_isam2_and_every_solver(kitti_like, tmp_path):
     out = tmp_path / "out"
     r = run_cli("run", kitti_like, "--out", out, "--no-progress", "--max-frames", "4", "--window-backend",
@@ -417,6 +426,7 @@ def test_top_view_of_a_camera_frame_world_names_its_axes(small_seq):
     assert top_view(Trajectory(ref.timestamps, moved)) == {"plane": "auto"}
 
 
+@pytest.mark.slow
 def test_corrupt_png_is_one_line_without_libpng_noise(kitti_like, tmp_path):
     seq_copy = tmp_path / "seq"
     shutil.copytree(kitti_like, seq_copy)
@@ -440,6 +450,7 @@ def test_corrupt_png_is_one_line_without_libpng_noise(kitti_like, tmp_path):
     assert len(lines) == 1 and lines[0].startswith("warning: skipping frame 2") and "CRC" in lines[0], lines
 
 
+@pytest.mark.slow
 def test_corrupt_ply_is_one_line_without_rply_noise(tmp_path, open3d):
     bad = tmp_path / "bad.ply"
     bad.write_text("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"

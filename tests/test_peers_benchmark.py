@@ -33,6 +33,7 @@ def kitti_frames(shared_data: Path):
     return seq, [seq.frame(i) for i in range(len(seq))]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("peer_name", ["orb", "open3d"])
 def test_peer_relative_motion_matches_ground_truth(kitti_frames, peer_name: str, request) -> None:
     if peer_name == "open3d":

@@ -58,6 +58,7 @@ def _write_ply(path, points):
     return path
 
 
+@pytest.mark.slow
 def test_ground_is_found_below_the_camera_not_the_bigger_wall():
     pts = synthetic_cloud()
     ground = fit_ground_plane(pts)
@@ -143,6 +144,7 @@ def plan_cli():
     return cli.main
 
 
+@pytest.mark.slow
 def test_cli_json_and_png(tmp_path, plan_cli, capsys):
     ply = _write_ply(tmp_path / "points.ply", synthetic_cloud())
     png = tmp_path / "out" / "path.png"

@@ -141,6 +141,7 @@ def _pick_hierarchical(score: NDArray, thr: NDArray, eligible: NDArray, cell: in
     return picked
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("shape,cell,border", [((240, 320), 5, DEFAULT_BORDER), ((97, 131), 3, 4), ((370, 1226), 11, 8),
                                                ((64, 64), 1, 0), ((50, 70), 40, 2)])
 def test_compiled_cell_pick_equals_the_numpy_rule(shape, cell, border):

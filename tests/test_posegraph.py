@@ -189,6 +189,7 @@ def test_geodesic_error_and_sesync_objective_match_gtsam_graphs(shared_data: Pat
 
 
 # ---------------------------------------------------------------- readers
+@pytest.mark.slow
 def test_g2o_information_matches_readg2o(shared_data: Path) -> None:
     for rel in ("se_sync/parking-garage.g2o", "gtsam/pose3example-offdiagonal.txt", "se_sync/intel.g2o"):
         path = pg_file(shared_data, rel)
@@ -199,6 +200,7 @@ def test_g2o_information_matches_readg2o(shared_data: Path) -> None:
         assert np.allclose(info, g.information, rtol=1e-12, atol=1e-12 * np.abs(info).max())
 
 
+@pytest.mark.slow
 def test_toro_readers_edge_counts_and_weights(shared_data: Path) -> None:
     w100 = io.read(pg_file(shared_data, "gtsam/w100.graph"))
     assert (w100.dim, w100.num_poses, w100.num_edges) == (2, 100, 300)
@@ -219,6 +221,7 @@ def test_toro_information_order(tmp_path: Path) -> None:
     assert np.allclose(g.information[0], [[10, 1, 2], [1, 20, 3], [2, 3, 30]])
 
 
+@pytest.mark.slow
 def test_isam_square_root_information(shared_data: Path, tmp_path: Path) -> None:
     s = io.read(pg_file(shared_data, "isam/sphere2500.txt"))
     assert (s.num_poses, s.num_edges) == (2500, 4949)
@@ -251,6 +254,7 @@ def test_isam_square_root_information(shared_data: Path, tmp_path: Path) -> None
     assert np.allclose(io.read(f2).information[0], U2.T @ U2)
 
 
+@pytest.mark.slow
 def test_w20000_isam_edges(shared_data: Path) -> None:
     g = io.read(pg_file(shared_data, "gtsam/w20000.txt"))
     assert g.num_edges == 26831 and io.detect_format(pg_file(shared_data, "gtsam/w20000.txt")) == "isam"
@@ -330,6 +334,7 @@ def test_odometry_init_reproduces_noise_free_graph() -> None:
 
 
 # ---------------------------------------------------------------- solvers vs reference optima
+@pytest.mark.slow
 @pytest.mark.parametrize("rel", sorted(GTSAM_REF))
 @pytest.mark.parametrize("solver", ["gtsam", "handrolled"])
 def test_reaches_gtsam_reference_error(shared_data: Path, rel: str, solver: str) -> None:
@@ -339,6 +344,7 @@ def test_reaches_gtsam_reference_error(shared_data: Path, rel: str, solver: str)
     assert res.gtsam_error == pytest.approx(GTSAM_REF[rel], rel=1e-6)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("rel", sorted(SESYNC_FSTAR))
 @pytest.mark.parametrize("solver", ["gtsam", "handrolled"])
 def test_reaches_sesync_fstar(shared_data: Path, rel: str, solver: str) -> None:

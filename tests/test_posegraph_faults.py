@@ -179,6 +179,7 @@ def with_cross_terms(g: PoseGraph, every: int = 3, factor: float = 1.5) -> tuple
     return g.with_information(info), edges
 
 
+@pytest.mark.slow
 def test_cross_terms_make_the_matrices_indefinite(shared_data: Path) -> None:
     g = io.read(pg_file(shared_data, "se_sync/parking-garage.g2o"))
     bad, edges = with_cross_terms(g)
@@ -186,6 +187,7 @@ def test_cross_terms_make_the_matrices_indefinite(shared_data: Path) -> None:
     assert len(edges) == -(-g.num_edges // 3)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("solver", ["gtsam", "handrolled"])
 def test_sesync_objective_solves_indefinite_information_to_fstar(shared_data: Path, tmp_path: Path,
                                                                   solver: str) -> None:
@@ -203,6 +205,7 @@ def test_sesync_objective_solves_indefinite_information_to_fstar(shared_data: Pa
         pg.optimize(read_back, solver=solver, objective="sesync", strict=True)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("rel", ["se_sync/smallGrid3D.g2o", "se_sync/parking-garage.g2o"])
 def test_geodesic_objective_repairs_to_nearest_positive_definite(shared_data: Path, rel: str) -> None:
     g = io.read(pg_file(shared_data, rel))

@@ -74,6 +74,7 @@ def demo_recording(rerun, tmp_path_factory):
 # ---------------------------------------------------------------------------------------------
 # the recording of `gtvo demo --rerun`
 
+@pytest.mark.slow
 def test_demo_recording_holds_every_entity_on_both_timelines(demo_recording):
     rows, _ = demo_recording
     for entity in ("/world", "/world/camera", "/world/camera/image", "/world/camera/image/tracked", "/world/tracked",
@@ -92,6 +93,7 @@ def test_demo_recording_holds_every_entity_on_both_timelines(demo_recording):
     assert pinhole["Pinhole:resolution"][0] == [seq.pinhole.width, seq.pinhole.height]
 
 
+@pytest.mark.slow
 def test_demo_recording_images_trajectories_map_and_plots(demo_recording):
     rows, out = demo_recording
     seq = make_synthetic_sequence(n_frames=FRAMES, noise_sigma=1.0)
@@ -128,6 +130,7 @@ def test_demo_recording_images_trajectories_map_and_plots(demo_recording):
 # ---------------------------------------------------------------------------------------------
 # the library: poses and plots equal what the odometry computed
 
+@pytest.mark.slow
 def test_track_mode_camera_poses_and_plots_are_the_estimates(rerun, tmp_path):
     from gtvo.pipeline import run
     from gtvo.io.rerun_log import RerunLogger
@@ -200,6 +203,7 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
+@pytest.mark.slow
 def test_connect_to_a_running_server(rerun, tmp_path, capsys):
     server = rerun.RecordingStream("viewer_stand_in")
     url = server.serve_grpc(grpc_port=_free_port())
@@ -227,6 +231,7 @@ def test_without_rerun_sdk_one_line_names_the_extra(tmp_path, monkeypatch, capsy
     assert not (tmp_path / "d.rrd").exists() and not (tmp_path / "o").exists()
 
 
+@pytest.mark.slow
 @pytest.mark.realdata
 def test_rgbd_run_is_recorded_with_unix_times_and_ground_truth(rerun, shared_data, tmp_path):
     root = shared_data / "rgbd_dataset_freiburg3_teddy_first20"

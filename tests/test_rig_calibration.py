@@ -131,6 +131,7 @@ def _keyframes(seq, frames, shift, points=200, seed=0):
     return out
 
 
+@pytest.mark.slow
 def test_solvers_agree_with_the_rig_offset(seq):
     """Both window solvers with the rig variable: the same cost function (graph error == window_cost)
     and the same optimum (cost, poses, offset), and the offset moves from its start."""
@@ -156,6 +157,7 @@ def test_solvers_agree_with_the_rig_offset(seq):
     assert ra.rig_offset[1] == pytest.approx(1.0, abs=0.05)
 
 
+@pytest.mark.slow
 def test_marginal_prior_carries_the_rig_offset(seq):
     """A window of 2 fed 4 keyframes: the rig offset is never marginalised; the prior holds it (PSD,
     positive information on it) and both solvers end at the same offset."""
@@ -212,6 +214,7 @@ def test_odometry_reports_a_hopeless_rig_as_such(seq):
         vo.process(bad.frame(0))
 
 
+@pytest.mark.slow
 def test_odometry_estimates_a_vertical_offset_and_off_switch(seq):
     """Window odometry on a synthetic log whose right images are one row low: the estimate is the
     offset; ``rig_calibration=False`` keeps no rig variable at all."""
@@ -319,6 +322,7 @@ def test_delta_x_is_held_until_the_data_put_it_clearly_away(seq):
         assert w.rig.x_test[0] < 0.5 and w.rig.offset[0] < 0.5, (w.rig.x_test, w.rig.offset)
 
 
+@pytest.mark.slow
 def test_delta_x_stays_held_when_its_test_fails(seq, monkeypatch):
     """When the full window's test finds delta_x within its error bars of the start value, it stays
     there, also after keyframes are marginalised (the hold is in every window; the marginalisation
@@ -357,6 +361,7 @@ def test_delta_x_stays_held_when_its_test_fails(seq, monkeypatch):
         assert w.rig.offset[1] == pytest.approx(1.0, abs=0.1)
 
 
+@pytest.mark.slow
 def test_window_depths_are_searched_again_once_delta_x_is_estimated(monkeypatch):
     """Issue 21 item 2: when the window starts estimating delta_x, the depths of its keyframes (made
     with delta_x = 0) are searched again against the right image corrected by the estimate, once;

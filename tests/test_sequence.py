@@ -9,6 +9,7 @@ from gtvo.errors import InputError
 from gtvo.datasets.synthetic import SyntheticSequence, make_synthetic_sequence
 
 
+@pytest.mark.slow
 def test_subsampled_keeps_every_step_th_frame():
     seq = make_synthetic_sequence(n_frames=7)
     sub = seq.subsampled(3)

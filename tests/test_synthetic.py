@@ -50,6 +50,7 @@ def warp_consistency(seq: SyntheticSequence, i: int, j: int) -> tuple[np.ndarray
 # ------------------------------------------------------------------------------------ determinism
 
 
+@pytest.mark.slow
 def test_same_seed_gives_byte_identical_images():
     a = make_synthetic_sequence(n_frames=4, seed=3, noise_sigma=2.0, exposure_change=True)
     synthetic_scene._cached_scene.cache_clear()  # rebuild the textures too, not only reuse the cached scene
@@ -64,6 +65,7 @@ def test_same_seed_gives_byte_identical_images():
     assert np.mean(np.abs(c.left(0) - a.left(0))) > 5.0
 
 
+@pytest.mark.slow
 def test_cached_images_are_copies(seq):
     img = seq.left(1)
     img[:] = 0
@@ -104,6 +106,7 @@ def test_poses_are_rigid_and_the_motion_is_moderate(seq):
     assert np.all(angles < 1.0) and angles.max() > 0.1  # rotates, a few degrees per second at most
 
 
+@pytest.mark.slow
 def test_loop_returns_to_the_start():
     T = synthetic_trajectory(40, "loop", step_m=0.15)
     steps = np.linalg.norm(np.diff(T[:, :3, 3], axis=0), axis=1)
@@ -172,6 +175,7 @@ def test_depth_of_hand_computed_pixels(seq):
     assert seq.true_depth(9, "right")[v, u] == pytest.approx((wall_z - T_r[2, 3]) / d_world[2], rel=1e-6)
 
 
+@pytest.mark.slow
 def test_box_faces_are_hit_with_the_right_depth():
     scene = SyntheticScene([-5, -5, -5], [5, 5, 20], [([-0.2, -0.2, 4], [0.2, 0.2, 6])], seed=0)
     cam = PinholeCamera(400, 400, 49.5, 49.5, 100, 100)  # corner rays: |x/z| = 0.124

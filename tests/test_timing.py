@@ -200,6 +200,7 @@ def _run(seq, mode: str, clock: bool = True):
     return vo
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("solver", ["gtsam", "handrolled"])
 def test_window_run_stages_add_up_to_the_frames_time(short_sequence, solver: str) -> None:
     from gtvo.odometry import VisualOdometry
@@ -262,6 +263,7 @@ def test_linear_fit_tells_a_line_from_a_curve() -> None:
     assert curve["max_rel_residual"] > 0.1 and curve["r2"] < 0.999
 
 
+@pytest.mark.slow
 def test_frame_budget_script_smoke(shared_data, tmp_path, capsys) -> None:
     from benchmarks.frame_budget import main
 

@@ -102,6 +102,7 @@ def test_evo_reads_our_files(tmp_path):
     np.testing.assert_array_equal(np.array(e_kitti.poses_se3), traj.poses)
 
 
+@pytest.mark.slow
 @pytest.mark.realdata
 def test_readers_agree_with_evo_on_real_files(shared_data):
     file_interface = pytest.importorskip("evo.tools.file_interface")

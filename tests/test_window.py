@@ -63,6 +63,7 @@ def _pos_errors(seq, kfs):
     return np.array([np.linalg.norm(k.pose.translation() - np.asarray(seq.gt_poses[k.index])[:3, 3]) for k in kfs])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("huber_k,timed", [(None, False), (3.0, False), (3.0, True)])
 def test_handrolled_equals_gtsam(seq, huber_k, timed):
     """Same window, same cost: both solvers reach the same cost, poses and inverse depths.
@@ -239,6 +240,7 @@ def test_bad_input_raises():
         OdometryConfig(solver=SolverConfig(window="ceres"))
 
 
+@pytest.mark.slow
 def test_pipeline_window_mode_report(seq, tmp_path):
     """`gtvo.pipeline.run` in window mode writes its outputs and the window's report fields."""
     from gtvo.pipeline import run  # noqa: PLC0415
@@ -253,6 +255,7 @@ def test_pipeline_window_mode_report(seq, tmp_path):
     assert report["ate_rmse_m"] < 0.05
 
 
+@pytest.mark.slow
 def test_rgbd_window_on_tum_teddy(shared_data):
     """RGB-D log (TUM fr3 teddy, first 8 frames): the sensor's depth initialises the inverse depths
     and a depth prior replaces the stereo term; the window runs and the trajectory stays accurate
@@ -288,6 +291,7 @@ def test_estimate_stereo_affine_finds_the_right_cameras_gain():
     assert b == pytest.approx(-2.0, abs=0.5)
 
 
+@pytest.mark.slow
 def test_repeated_marginalisation_same_for_both_solvers(seq):
     """Window of 2 fed 4 keyframes (two marginalisations, the second one folding the first prior
     in): both solvers, each with its own window, end at the same poses, much closer to each other
@@ -318,6 +322,7 @@ def test_repeated_marginalisation_same_for_both_solvers(seq):
     assert gap(("gtsam", True), ("gtsam", False)) > 3e-3
 
 
+@pytest.mark.slow
 def test_fixed_lag_backend_matches_lm_and_keeps_the_marginal(seq):
     """``WindowConfig(backend="fixed_lag")`` (gtsam.IncrementalFixedLagSmoother) against the LM path.
 
