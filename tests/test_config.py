@@ -201,6 +201,7 @@ def _leaf_types(hint):
     return [hint] if not args else [t for a in args for t in _leaf_types(a)]
 
 
+@pytest.mark.slow
 def test_loop_closure_is_a_section_of_the_tree(tmp_path, monkeypatch):
     from gtvo.loops import LoopClosureConfig, LoopDetectorConfig  # noqa: PLC0415
     import gtvo.loops.closing as closing  # noqa: PLC0415

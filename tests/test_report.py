@@ -43,6 +43,7 @@ def reports(tmp_path_factory) -> dict[str, tuple[dict, dict]]:
     return out
 
 
+@pytest.mark.slow
 def test_run_report_fields_are_the_keys_report_json_has(reports):
     declared = fields(RunReport)
     seen: set[str] = set()

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import gtsam
 import numpy as np
+import pytest
 
 from gtvo.config import OdometryConfig
 from gtvo.datasets.synthetic import make_synthetic_sequence
@@ -49,6 +50,7 @@ def test_residuals_grow_off_the_tracked_pose():
     assert np.median(off.residuals.residual) > 3 * np.median(good.residuals.residual)
 
 
+@pytest.mark.slow
 def test_observers_get_a_view_not_the_odometry():
     seq = make_synthetic_sequence(n_frames=16, step_m=0.15)
     seen: list = []
