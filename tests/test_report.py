@@ -57,12 +57,14 @@ def test_run_report_fields_are_the_keys_report_json_has(reports):
                                                           "loop_closed_drift_percent"}
 
 
+@pytest.mark.slow
 def test_the_returned_report_is_report_json_in_its_order_with_out(reports):
     for returned, written in reports.values():
         assert list(returned) == [*written, "out"]
         assert returned["frames"] == written["frames"] and returned["ate_rmse_m"] == written["ate_rmse_m"]
 
 
+@pytest.mark.slow
 def test_each_mode_has_its_sections(reports):
     track, window, loops = (reports[n][1] for n in ("track", "window", "loops"))
     assert "window_backend" not in track and "rig_calibration" not in track and "loops_detected" not in track
