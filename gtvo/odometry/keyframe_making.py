@@ -31,6 +31,7 @@ from gtvo.frontend.point_selection import select_points
 from gtvo.odometry.estimates import TooFewPoints, rigid_pose
 from gtvo.odometry.estimates import Keyframe
 from gtvo.window import WindowKeyframe
+from gtvo.window.depth_change import tracked_translation_scale
 
 
 class KeyframeMaking:
@@ -206,6 +207,8 @@ class KeyframeMaking:
         assert self.window is not None
         self._window_waiting = 0
         x_was_estimated = self.window.rig_x_estimated
+        held_depths = ({w.index: w.inverse_depth.copy() for w in self.window.keyframes}
+                       if self.window.rig_offset is not None and not x_was_estimated else None)
         res = self.window.optimize(self.config.solver.window)
         if self.window.rig_offset is not None:
             self.rig_offset = self.window.rig_offset.copy()
@@ -213,6 +216,8 @@ class KeyframeMaking:
                 self._reinitialise_window_depths()
                 res = self.window.optimize(self.config.solver.window) or res
                 self.rig_offset = self.window.rig_offset.copy()
+                assert held_depths is not None
+                self._rescale_tracked_frames(held_depths)
         self._window_affine = {w.index: w.affine.copy() for w in self.window.keyframes}
         if res is None:
             return False
@@ -226,6 +231,23 @@ class KeyframeMaking:
                 old.T_world_cam = w.pose
                 old.points = dataclasses.replace(old.points, inverse_depth=w.inverse_depth.copy())
         return True
+
+    def _rescale_tracked_frames(self, held_depths: dict[int, NDArray[np.float64]]) -> None:
+        """Once ``delta_x`` is released, the frames tracked against the window's keyframes while it was
+        held have translations in the scale of the depths then (``held_depths``, by keyframe index):
+        each is multiplied by :func:`gtvo.window.depth_change.tracked_translation_scale` of its
+        keyframe's depths before and after (docs/window.md, "Rig calibration", the hold's transient)."""
+        assert self.window is not None
+        scales = {w.index: tracked_translation_scale(held_depths[w.index], w.inverse_depth)
+                  for w in self.window.keyframes if w.index in held_depths
+                  and held_depths[w.index].shape == w.inverse_depth.shape}
+        for i, e in enumerate(self.estimates):
+            s = scales.get(e.keyframe_index)
+            if s is None or e.T_keyframe_frame is None or e.index in self._keyframe_by_index:
+                continue
+            T = e.T_keyframe_frame
+            self.estimates[i] = dataclasses.replace(
+                e, T_keyframe_frame=gtsam.Pose3(T.rotation(), s * np.asarray(T.translation())))
 
     def _reinitialise_window_depths(self) -> None:
         """Once the window estimates ``delta_x`` (docs/window.md, "Rig calibration"), its keyframes'
