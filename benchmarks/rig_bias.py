@@ -65,8 +65,10 @@ def run_one(seq, rig: bool, true_offset: tuple[float, float], label: str) -> dic
     except Exception as exc:  # noqa: BLE001 - a failed run is a row
         return {"label": label, "rig": rig, "true": list(true_offset), "error": str(exc)}
     row = {"label": label, "rig": rig, "true": list(true_offset), "cpu_s": time.process_time() - t0,
-           "failures": info["tracking_failures"], "rig_offset_px": info.get("rig_offset_px"),
+           "failures": info["tracking_failures"], "path_m": traj.path_length(), "rig_offset_px": info.get("rig_offset_px"),
            "x_released": info.get("rig_offset_x_estimated"), "x_tested_px": info.get("rig_offset_x_tested_px")}
+    test = getattr(vo.window, "rig_test", None) if vo.window is not None else None
+    row["tested_px"] = None if test is None else [float(v) for v in test[0]]
     pair = ground_truth(seq, traj)
     if pair is not None:
         m = evaluate(*pair)
@@ -79,19 +81,21 @@ def fmt(x, spec: str) -> str:
     return "-" if x is None else format(x, spec)
 
 
-HEAD = ("| run | rig | true (x, y) px | estimate (x, y) px | x released | Sim(3) scale | path ratio | ATE m "
-        "| Sim(3) ATE m | CPU s |\n|---|---|---|---|---|---|---|---|---|---|")
+HEAD = ("| run | rig | true (x, y) px | estimate (x, y) px | x released | Sim(3) scale | path ratio | path m | ATE m "
+        "| Sim(3) ATE m | CPU s |\n|---|---|---|---|---|---|---|---|---|---|---|")
 
 
 def line(r: dict) -> str:
     t = f"{r['true'][0]:+.2f}, {r['true'][1]:+.2f}"
     if "error" in r:
-        return f"| {r['label']} | {'on' if r['rig'] else 'off'} | {t} | failed: {r['error']} | | | | | | |"
+        return f"| {r['label']} | {'on' if r['rig'] else 'off'} | {t} | failed: {r['error']} | | | | | | | |"
     e = r.get("rig_offset_px")
     est = "-" if e is None else f"{e[0]:+.3f}, {e[1]:+.3f}"
-    rel = "-" if e is None else ("yes" if r.get("x_released") else f"no ({fmt(r.get('x_tested_px'), '+.3f')})")
+    t2 = r.get("tested_px")
+    tested = fmt(r.get("x_tested_px"), "+.3f") if not t2 else f"{t2[0]:+.3f}, {t2[1]:+.3f}"
+    rel = "-" if e is None else ("yes" if r.get("x_released") else f"no ({tested})")
     return (f"| {r['label']} | {'on' if r['rig'] else 'off'} | {t} | {est} | {rel} | {fmt(r.get('sim3_scale'), '.4f')} | "
-            f"{fmt(r.get('scale_ratio'), '.4f')} | {fmt(r.get('ate_rmse_m'), '.4f')} | "
+            f"{fmt(r.get('scale_ratio'), '.4f')} | {r['path_m']:.3f} | {fmt(r.get('ate_rmse_m'), '.4f')} | "
             f"{fmt(r.get('ate_sim3_rmse_m'), '.4f')} | {r['cpu_s']:.1f} |")
 
 

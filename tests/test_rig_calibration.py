@@ -404,3 +404,70 @@ def test_frames_tracked_while_delta_x_was_held_are_rescaled_at_its_release():
     assert info["rig_offset_x_estimated"]
     m = evaluate(*ground_truth(seq, traj))
     assert m["ate_sim3_rmse_m"] < 0.02, m
+
+
+def test_a_rectified_rig_runs_the_rectified_model_until_its_offset_is_significant():
+    """Issue 30: when the first pair's vertical offset is not significant, both offsets are held at 0
+    and the window solves the rectified model (no rig variable): the run is the uncalibrated one
+    bit for bit until a full window's test finds either axis significant."""
+    from gtvo.pipeline import process_sequence
+
+    seq12 = make_synthetic_sequence(12, width=240, height=180, step_m=0.12)
+    runs = {}
+    for rig in (False, True):
+        vo, traj, info = process_sequence(seq12, OdometryConfig(window=WindowConfig(rig_calibration=rig)),
+                                          warn=lambda m: None)
+        runs[rig] = (traj.poses, vo)
+    np.testing.assert_array_equal(runs[True][0], runs[False][0])
+    vo = runs[True][1]
+    assert vo.window.rig_rectified and not vo.window.rig_x_estimated
+    assert vo.rig_initial is not None and abs(vo.rig_initial.delta_y) < 0.1
+    assert list(vo.rig_offset) == [0.0, 0.0]
+
+
+def _full_window(seq, solver, monkeypatch, free_estimate, **state):
+    """A window of size 3 over four synthetic keyframes (right images moved 1 px down), the rig
+    offset's test replaced by ``free_estimate``; ``state``: the window's rig flags."""
+    cam = seq.camera
+    kfs = _keyframes(seq, [0, 2, 4, 6], (0.0, 1.0), points=150, seed=5)
+    monkeypatch.setattr(SlidingWindowOptimizer, "rig_free_estimate", free_estimate)
+    w = SlidingWindowOptimizer(cam.left, cam.baseline, WindowConfig(size=3, max_iterations=10),
+                               rig_offset=np.zeros(2))
+    for key, value in state.items():
+        setattr(w, key, value)
+    seen = []
+    for k in copy.deepcopy(kfs):
+        w.add_keyframe(k)
+        w.optimize(solver)
+        seen.append((w.rig_rectified, w.rig_x_estimated, w.rig_offset.copy()))
+    monkeypatch.undo()
+    return w, seen
+
+
+@pytest.mark.parametrize("solver", ["gtsam", "handrolled"])
+def test_rectified_window_releases_both_axes_when_either_is_significant(seq, solver, monkeypatch):
+    """Held at the rectified model, the offset is tested as a whole at the first full window: a
+    vertical estimate of 0.9 +- 0.01 px (horizontal 0.0) releases both axes, and the window then
+    estimates both (the right images here are 1 px down: delta_y moves towards 1)."""
+    def vertical_only(self):
+        return np.array([0.0, 0.9]), np.array([0.01, 0.01])
+
+    w, seen = _full_window(seq, solver, monkeypatch, vertical_only, rig_rectified=True)
+    assert [s[:2] for s in seen[:2]] == [(True, False), (True, False)]
+    assert all(np.array_equal(s[2], np.zeros(2)) for s in seen[:2])  # no rig variable while held
+    assert not w.rig_rectified and w.rig_x_estimated
+    assert w.rig_offset[1] > 0.5
+
+
+@pytest.mark.parametrize("solver", ["gtsam", "handrolled"])
+def test_a_known_vertical_offset_releases_delta_x_at_the_first_full_window(seq, solver, monkeypatch):
+    """With delta_y known from the first pair (corrected), delta_x is released at the first full
+    window even when its own test finds nothing: held at 0 it would bias the scale the corrected
+    delta_y moved (issue 30). Without ``rig_y_known`` the same window keeps it held."""
+    def nothing(self):
+        return np.array([0.01, 1.0]), np.array([0.02, 0.01])
+
+    w, _ = _full_window(seq, solver, monkeypatch, nothing, rig_y_known=True)
+    assert w.rig_x_estimated
+    w, _ = _full_window(seq, solver, monkeypatch, nothing)
+    assert not w.rig_x_estimated

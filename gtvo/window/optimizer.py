@@ -22,7 +22,8 @@ from gtvo.window.gtsam_solver import solve_gtsam
 from gtvo.window.handrolled import solve_handrolled, window_cost
 from gtvo.window.marginal import marginalize
 from gtvo.window.fixed_lag import FixedLagBackend
-from gtvo.window.problem import RIG_SIGNIFICANCE, build_graph, observation_counts, rig_honest_sigma, visible_targets
+from gtvo.window.problem import (RIG_SIGNIFICANCE, build_graph, observation_counts, rig_honest_sigma,
+                                 rig_offset_significant, visible_targets)
 
 FloatArray = NDArray[np.float64]
 
@@ -64,6 +65,15 @@ class SlidingWindowOptimizer:
         #: before the window is first full; and the number of full windows solved with it held
         self.rig_x_test: tuple[float, float] | None = None
         self.rig_x_held_windows = 0
+        #: both offsets held at 0: the window solves the rectified model (no rig variable) and tests
+        #: the offset as a whole, releasing both axes when either is significant (set by the
+        #: odometry when the first pair's vertical offset is not; docs/window.md, "Rig calibration")
+        self.rig_rectified = False
+        #: ``delta_y`` was known (significant) from the first stereo pair and is corrected: ``delta_x``
+        #: is then released at the first full window whatever its test says (set by the odometry)
+        self.rig_y_known = False
+        #: the last test of the offset as a whole while rectified: ``(free estimate, marginal sigmas)``
+        self.rig_test: tuple[FloatArray, FloatArray] | None = None
         self.keyframes: list[WindowKeyframe] = []
         self.n_removed = 0  # keyframes that left the window (not kept: they hold images)
         self.results: list[WindowResult] = []
@@ -100,7 +110,7 @@ class SlidingWindowOptimizer:
     def cost(self) -> float:
         """The window cost at the current state (W evaluated at this state)."""
         return window_cost(self.camera, self.baseline, self.keyframes, self.config, self.marginal,
-                           rig_offset=self.rig_offset)
+                           rig_offset=_solved_rig_offset(self))
 
     def rig_offset_covariance(self) -> FloatArray | None:
         """The 2x2 marginal covariance (px^2) of the rig offset at the current state: the window's
@@ -124,18 +134,25 @@ class SlidingWindowOptimizer:
                                        self.rig_offset)
         return graph, values
 
-    def rig_x_free_estimate(self) -> tuple[float, float] | None:
-        """What the window's data say about ``delta_x`` while it is held: one Gauss-Newton step from
-        the current state on the window's graph without the hold (the estimate), and the marginal
-        sigma there (px). None when the rig offset is not estimated or there is no host factor."""
+    def rig_free_estimate(self) -> tuple[FloatArray, FloatArray] | None:
+        """What the window's data say about the rig offset while it is held: one Gauss-Newton step
+        from the current state on the window's graph without the hold (the estimate ``(delta_x,
+        delta_y)``), and the marginal sigmas there (px). None when the rig offset is not estimated or
+        there is no host factor."""
         built = self._rig_graph()
         if built is None:
             return None
         graph, values = built
         linear = graph.linearize(values)
-        step = float(linear.optimize().at(rig_offset_key())[0])
+        step = np.asarray(linear.optimize().at(rig_offset_key()), dtype=float).reshape(2)
         cov = gtsam.Marginals(linear, values).marginalCovariance(rig_offset_key())
-        return float(self.rig_offset[0]) + step, float(np.sqrt(max(cov[0, 0], 0.0)))
+        assert self.rig_offset is not None
+        return self.rig_offset + step, np.sqrt(np.maximum(np.diag(cov), 0.0))
+
+    def rig_x_free_estimate(self) -> tuple[float, float] | None:
+        """:meth:`rig_free_estimate` for ``delta_x`` alone: ``(estimate, marginal sigma)`` px."""
+        test = self.rig_free_estimate()
+        return None if test is None else (float(test[0][0]), float(test[1][0]))
 
     def optimize(self, solver: WindowSolverName = "gtsam") -> WindowResult | None:
         """Optimise the window (None when fewer than two keyframes); keyframes are updated in place.
@@ -188,7 +205,7 @@ class LMBackend:
         """Marginalise the oldest keyframe into :attr:`marginal` (or drop it, ``marginalize=False``)."""
         if window.config.marginalize:
             self.marginal = marginalize(window.camera, window.baseline, window.keyframes, window.config,
-                                        self.marginal, 0, getattr(window, "rig_offset", None))
+                                        self.marginal, 0, _solved_rig_offset(window))
         return window.keyframes.pop(0)
 
     def optimize(self, window: WindowState, targets: list[list[int]],
@@ -197,18 +214,29 @@ class LMBackend:
         solve = {"gtsam": solve_gtsam, "handrolled": solve_handrolled}.get(solver)
         if solve is None:
             raise InputError(f"unknown window solver {solver!r}: use 'gtsam' or 'handrolled'")
-        rig = getattr(window, "rig_offset", None)
+        rig = _solved_rig_offset(window)
         # delta_x trades against the scale: it is held at its start value until a full window's data
         # put it clearly away from it (docs/window.md, "Rig calibration": on a rectified rig,
-        # estimating it adds scale error; the marginalisation prior never holds the hold)
+        # estimating it adds scale error; the marginalisation prior never holds the hold); with
+        # ``rig_rectified`` both offsets are held at 0: no rig variable, the rectified model
         hold = None if rig is None or window.rig_x_estimated else window.rig_x_start  # type: ignore[attr-defined]
         res = solve(window.camera, window.baseline, window.keyframes, window.config, self.marginal, targets,
                     rig_offset=rig, rig_hold_x=hold)
+        full = self.marginal is not None or len(window.keyframes) >= window.config.size
+        if getattr(window, "rig_offset", None) is not None and rig is None:  # rectified: test both axes
+            if full and self._rig_significant(window):
+                window.rig_rectified = False  # type: ignore[attr-defined]
+                window.rig_x_estimated = True  # type: ignore[attr-defined]
+                res = solve(window.camera, window.baseline, window.keyframes, window.config, self.marginal,
+                            targets, rig_offset=window.rig_offset, rig_hold_x=None)  # type: ignore[attr-defined]
+                window.rig_offset = res.rig_offset.copy()  # type: ignore[attr-defined, union-attr]
+            return res
         if rig is None or res.rig_offset is None:
             return res
         window.rig_offset = res.rig_offset.copy()  # type: ignore[attr-defined]
-        full = self.marginal is not None or len(window.keyframes) >= window.config.size
-        if hold is not None and full and self._rig_x_significant(window):
+        # a delta_y known and corrected from the first pair leaves delta_x held no longer than the
+        # first full window: held at 0 it would bias the scale the corrected delta_y moved
+        if hold is not None and full and (window.rig_y_known or self._rig_x_significant(window)):  # type: ignore[attr-defined]
             window.rig_x_estimated = True  # type: ignore[attr-defined]
             # solved again with delta_x free, from the held state (LM's damping, not the test's
             # linear step, decides how far it goes along the flat scale direction)
@@ -216,6 +244,24 @@ class LMBackend:
                         rig_offset=window.rig_offset, rig_hold_x=None)  # type: ignore[attr-defined]
             window.rig_offset = res.rig_offset.copy()  # type: ignore[attr-defined, union-attr]
         return res
+
+    @staticmethod
+    def _rig_significant(window: WindowState) -> bool:
+        """Every ``config.size``-th full window solved with the rig held at the rectified model (from
+        the first), test the offset as a whole: is either axis of the data's estimate
+        (:meth:`SlidingWindowOptimizer.rig_free_estimate`; ``delta_x``'s kept in ``window.rig_x_test``)
+        more than :data:`RIG_SIGNIFICANCE` error bars (:func:`rig_honest_sigma`) from 0?"""
+        n = window.rig_x_held_windows  # type: ignore[attr-defined]
+        window.rig_x_held_windows = n + 1  # type: ignore[attr-defined]
+        if n % window.config.size:
+            return False
+        test = window.rig_free_estimate()  # type: ignore[attr-defined]
+        if test is None:
+            return False
+        estimate, sigma = test
+        window.rig_x_test = (float(estimate[0]), float(sigma[0]))  # type: ignore[attr-defined]
+        window.rig_test = (estimate, sigma)  # type: ignore[attr-defined]
+        return any(rig_offset_significant(float(estimate[axis]), float(sigma[axis]), axis) for axis in (0, 1))
 
     @staticmethod
     def _rig_x_significant(window: WindowState) -> bool:
@@ -233,3 +279,10 @@ class LMBackend:
         window.rig_x_test = test  # type: ignore[attr-defined]
         estimate, sigma = test
         return abs(estimate - window.rig_x_start) > RIG_SIGNIFICANCE * rig_honest_sigma(sigma, 0)  # type: ignore[attr-defined]
+
+
+def _solved_rig_offset(window: WindowState) -> FloatArray | None:
+    """The rig offset the window's graph carries as a variable: None without rig calibration and
+    while both offsets are held at the rectified model (``rig_rectified``)."""
+    rig = getattr(window, "rig_offset", None)
+    return None if rig is None or getattr(window, "rig_rectified", False) else rig

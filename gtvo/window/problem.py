@@ -79,6 +79,12 @@ def rig_honest_sigma(marginal_sigma: float, axis: int) -> float:
     return float(np.hypot(marginal_sigma, RIG_METHOD_SIGMA[axis]))
 
 
+def rig_offset_significant(value: float, marginal_sigma: float, axis: int) -> bool:
+    """Whether an offset ``value`` (px, from 0) on ``axis`` (0: x, 1: y) is more than
+    :data:`RIG_SIGNIFICANCE` error bars (:func:`rig_honest_sigma` of ``marginal_sigma``) away."""
+    return abs(float(value)) > RIG_SIGNIFICANCE * rig_honest_sigma(marginal_sigma, axis)
+
+
 def rig_prior_mean_sigmas(config: WindowConfig, hold_x: float | None, carried: bool = False
                           ) -> tuple[FloatArray, FloatArray]:
     """Mean and sigmas of the rig offset's prior: zero mean, ``config.rig_offset_sigma`` px on each
