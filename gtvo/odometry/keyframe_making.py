@@ -32,6 +32,7 @@ from gtvo.odometry.estimates import TooFewPoints, rigid_pose
 from gtvo.odometry.estimates import Keyframe
 from gtvo.window import WindowKeyframe
 from gtvo.window.depth_change import tracked_translation_scale
+from gtvo.window.problem import rig_offset_significant
 
 
 class KeyframeMaking:
@@ -69,8 +70,13 @@ class KeyframeMaking:
             raise TooFewPoints("the first stereo pair has no stereo match at any vertical offset within "
                                 "+-2 rows: the right camera is offset too far from its calibration (or the "
                                 "images hold no texture); no rig offset can be estimated")
-        self.rig_offset = np.array([0.0, est.delta_y])
         assert self.window is not None
+        if rig_offset_significant(est.delta_y, est.sigma, 1):  # known: corrected, delta_x to follow
+            self.rig_offset = np.array([0.0, est.delta_y])
+            self.window.rig_y_known = True
+        else:  # the rectified model until the window's data say otherwise (both axes tested)
+            self.rig_offset = np.zeros(2)
+            self.window.rig_rectified = True
         self.window.rig_offset = self.rig_offset.copy()
 
     def _make_keyframe(self, frame: Frame, left: NDArray[np.float32], T_world_cam: gtsam.Pose3,
