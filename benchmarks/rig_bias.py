@@ -14,7 +14,7 @@ rig's own, unknown offset), the Sim(3) scale of the estimate against the ground 
 
     PYTHONPATH=. python benchmarks/rig_bias.py synthetic [--seeds 0,1,2] [--offsets "0,0;1,0;-2,0.5"]
         [--frames 60] [--rig off,on] [--json out.json]
-    PYTHONPATH=. python benchmarks/rig_bias.py kitti [--sequence DIR] [--shifts "0,0;1.5,0;..."]
+    PYTHONPATH=. python benchmarks/rig_bias.py kitti [--sequence DIR] [--shifts "0,0;1.5,0;..."] [--frame-step N]
 
 ``--stereo-sampling`` sets :attr:`gtvo.frontend.stereo_types.StereoSearchConfig` fields for the
 targeted measurements of docs/window.md ("Rig calibration", "Where the bias comes from").
@@ -108,6 +108,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--sequence", default=str(DEFAULT_SEQUENCE), help="kitti: the sequence (or a raw drive)")
     ap.add_argument("--shifts", default=KITTI_SHIFTS, help="kitti: resampled right-image shifts")
     ap.add_argument("--max-frames", type=int, default=0, help="kitti: first N frames only (0: all)")
+    ap.add_argument("--frame-step", type=int, default=1, help="kitti: every N-th frame (the log at 1/N its rate)")
     ap.add_argument("--rig", default="off,on", help="calibration settings to run: off, on or both")
     ap.add_argument("--json", default=None, help="write the rows here")
     args = ap.parse_args(argv)
@@ -125,6 +126,8 @@ def main(argv: list[str] | None = None) -> int:
         base = open_any(args.sequence)
         if args.max_frames:
             base = base.truncated(args.max_frames)
+        if args.frame_step > 1:
+            base = base.subsampled(args.frame_step)
         for sh in parse_pairs(args.shifts):
             seq = shift_right_images(base, sh) if any(sh) else base
             for rig in rigs:
