@@ -363,3 +363,16 @@ def test_cli_command_writes_a_kitti_folder(tmp_path, capsys):
     with pytest.raises(InputError):
         bad = parser.parse_args(["synthetic", "--out", str(tmp_path / "t"), "--frames", "0"])
         bad.func(bad)
+
+
+def test_right_principal_offset_renders_a_shifted_right_image():
+    """A right camera rendered with its principal point moved by (dx, dy) px sees the scene moved by
+    exactly that (integer offsets: the images agree pixel for pixel); the left image is unchanged."""
+    plain = make_synthetic_sequence(2, width=96, height=72)
+    moved = make_synthetic_sequence(2, width=96, height=72, right_principal_offset=(2.0, -1.0))
+    ra, rb = plain.right(1), moved.right(1)
+    np.testing.assert_array_equal(rb[5:-5, 5:-5], ra[6:-4, 3:-7])
+    np.testing.assert_array_equal(plain.left(1), moved.left(1))
+    assert moved.camera == plain.camera
+    with pytest.raises(InputError, match="right_principal_offset"):
+        make_synthetic_sequence(2, width=96, height=72, right_principal_offset=(np.nan, 0.0))

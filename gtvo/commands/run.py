@@ -38,9 +38,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     rig = p.add_mutually_exclusive_group()
     rig.add_argument("--rig-calibration", action="store_true",
                      help="estimate the stereo rig's rectification error (the right image's offset, px) in the "
-                          "window (config key window.rig_calibration; off by default: docs/window.md)")
+                          "window (config key window.rig_calibration; on by default: docs/window.md)")
     rig.add_argument("--no-rig-calibration", action="store_true",
-                     help="the rectified model, the default (overrides window.rig_calibration of a --config file)")
+                     help="the rectified model throughout (overrides window.rig_calibration of a --config file)")
     add_odometry_options(p)
     add_bag_options(p)
     add_viewer_options(p)

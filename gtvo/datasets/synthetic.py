@@ -143,9 +143,14 @@ class _FrameRenderer:
     """Renders (and LRU-caches) frame ``i``: one :class:`Rendering` per side, exposure and noise applied."""
 
     def __init__(self, scene: SyntheticScene, camera: StereoCamera, poses: FloatArray, affine_left: FloatArray,
-                 affine_right: FloatArray, noise_sigma: float, seed: int, supersample: int, cache_size: int):
+                 affine_right: FloatArray, noise_sigma: float, seed: int, supersample: int, cache_size: int,
+                 right_principal_offset: tuple[float, float] = (0.0, 0.0)):
         self.scene = scene
         self.camera = camera
+        dx, dy = (float(x) for x in right_principal_offset)
+        c = camera.left
+        #: the camera the right image is rendered with: the left intrinsics, principal point moved
+        self.right_camera = replace(c, cx=c.cx + dx, cy=c.cy + dy) if (dx, dy) != (0.0, 0.0) else c
         self.poses = poses
         self.affine = (affine_left, affine_right)
         self.noise_sigma = float(noise_sigma)
@@ -157,8 +162,8 @@ class _FrameRenderer:
         T_left = self.poses[i]
         T_right = T_left @ np.linalg.inv(self.camera.T_right_left)
         out = []
-        for side, T in enumerate((T_left, T_right)):
-            radiance, depth, face = self.scene.render(T, self.camera.left, self.supersample)
+        for side, (T, cam) in enumerate(((T_left, self.camera.left), (T_right, self.right_camera))):
+            radiance, depth, face = self.scene.render(T, cam, self.supersample)
             a, b = self.affine[side][i]
             img = np.exp(a) * radiance.astype(np.float64) + b
             if self.noise_sigma > 0:
@@ -269,7 +274,8 @@ def synthetic_camera(width: int = 320, height: int = 240, baseline: float = DEFA
 def make_synthetic_sequence(n_frames: int = 30, width: int = 320, height: int = 240,
                             baseline: float = DEFAULT_BASELINE, step_m: float = 0.15, noise_sigma: float = 0.0,
                             exposure_change: bool = False, seed: int = 0, motion: Motion = "forward",
-                            supersample: int = 1, cache_size: int = 32) -> SyntheticSequence:
+                            supersample: int = 1, cache_size: int = 32,
+                            right_principal_offset: tuple[float, float] = (0.0, 0.0)) -> SyntheticSequence:
     """A deterministic synthetic stereo sequence with exact poses and depth, rendered on demand.
 
     Args:
@@ -283,6 +289,10 @@ def make_synthetic_sequence(n_frames: int = 30, width: int = 320, height: int = 
         motion: ``"forward"``, ``"loop"`` or ``"turn"`` (see :func:`synthetic_trajectory`).
         supersample: rays per pixel side (1 = point sampling, the exact model; see docs/synthetic.md).
         cache_size: rendered frames kept (LRU; about 1.5 MB each at 320x240).
+        right_principal_offset: ``(dx, dy)`` px added to the right camera's principal point when
+            rendering its images (the sequence's ``camera`` stays the rectified one): a rig whose
+            right image is offset by exactly ``(delta_x, delta_y) = (dx, dy)`` against its
+            calibration, rendered rather than resampled (docs/window.md, "Rig calibration").
     """
     for name, value in (("noise_sigma", noise_sigma), ("baseline", baseline)):
         if not np.isfinite(value) or value < 0 or (name == "baseline" and value == 0):
@@ -290,15 +300,18 @@ def make_synthetic_sequence(n_frames: int = 30, width: int = 320, height: int = 
                              f"got {show(value)}")
     if int(supersample) < 1:
         raise InputError(f"supersample must be >= 1, got {supersample}")
+    offset = tuple(float(x) for x in np.asarray(right_principal_offset, dtype=float).reshape(-1))
+    if len(offset) != 2 or not all(np.isfinite(offset)):
+        raise InputError(f"right_principal_offset must be two finite numbers (px), got {right_principal_offset!r}")
     camera = synthetic_camera(width, height, baseline)
     poses = synthetic_trajectory(n_frames, motion, step_m)
     right_centres = poses[:, :3, 3] + poses[:, :3, 0] * baseline
     scene = make_scene(np.concatenate([poses[:, :3, 3], right_centres]), seed)
     affine_left, affine_right = synthetic_exposures(n_frames, exposure_change)
     renderer = _FrameRenderer(scene, camera, poses, affine_left, affine_right, noise_sigma, seed, supersample,
-                              max(1, int(cache_size)))
+                              max(1, int(cache_size)), (offset[0], offset[1]))
     n = poses.shape[0]
-    name = f"synthetic-{motion}-seed{int(seed)}"
+    name = f"synthetic-{motion}-seed{int(seed)}" + (f"+right-pp({offset[0]:+g},{offset[1]:+g})px" if any(offset) else "")
     return SyntheticSequence(name, "stereo", camera, np.arange(n) / FRAME_RATE_HZ, renderer.left, renderer.right,
                              None, poses, None, [], scene=scene, affine_left=affine_left,
                              affine_right=affine_right, noise_sigma=float(noise_sigma), _renderer=renderer)

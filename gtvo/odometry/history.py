@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Mapping
 
+import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
@@ -63,6 +64,19 @@ class FrameHistory:
         """Record that the last good frame (the keyframe candidate) was promoted to a keyframe."""
         i = next(i for i in range(len(self.estimates) - 1, -1, -1) if not self.estimates[i].suspect)
         self.estimates[i] = dataclasses.replace(self.estimates[i], outcome=FrameOutcome.KEYFRAME)
+
+    def rescale_tracked(self, scales: Mapping[int, float], keyframes: Mapping[int, Keyframe]) -> None:
+        """Scale the translation relative to its keyframe of every frame tracked against a keyframe
+        of ``scales`` (``{keyframe index: s}``; keyframes themselves, in ``keyframes``, are left
+        alone): the keyframe's depths changed scale, and a tracked translation is only known in
+        the scale of the depths it was tracked with (:mod:`gtvo.window.depth_change`)."""
+        for i, e in enumerate(self.estimates):
+            s = scales.get(e.keyframe_index)
+            if s is None or e.T_keyframe_frame is None or e.index in keyframes:
+                continue
+            T = e.T_keyframe_frame
+            self.estimates[i] = dataclasses.replace(
+                e, T_keyframe_frame=gtsam.Pose3(T.rotation(), s * np.asarray(T.translation())))
 
     def re_express(self, keyframes: Mapping[int, Keyframe], since: int) -> None:
         """Re-express the poses of the frames from frame ``since`` on against their keyframes'

@@ -35,6 +35,7 @@ from gtvo.odometry.history import FrameHistory
 from gtvo.odometry.keyframe_points import frame_points
 from gtvo.odometry.window_schedule import WindowSchedule
 from gtvo.window import SlidingWindowOptimizer, WindowKeyframe, WindowResult
+from gtvo.window.depth_change import tracked_translation_scale
 from gtvo.window.rig import RigOffset
 
 
@@ -217,10 +218,14 @@ class Keyframer:
         self.schedule.waiting = 0
         rig = self.window.rig
         x_was_estimated = rig is not None and rig.x_estimated
+        held_depths = ({w.index: w.inverse_depth.copy() for w in self.window.keyframes}
+                       if rig is not None and not x_was_estimated else None)
         res = self.window.optimize(self.config.solver.window)
         if rig is not None and rig.x_estimated and not x_was_estimated:
+            assert held_depths is not None
             self._research_window_depths(rig)
             res = self.window.optimize(self.config.solver.window) or res
+            self._rescale_tracked_frames(held_depths)
         self._window_affine = {w.index: w.affine.copy() for w in self.window.keyframes}
         if res is None:
             return False
@@ -234,6 +239,17 @@ class Keyframer:
                 old.T_world_cam = w.pose
                 old.points = dataclasses.replace(old.points, inverse_depth=w.inverse_depth.copy())
         return True
+
+    def _rescale_tracked_frames(self, held_depths: dict[int, NDArray[np.float64]]) -> None:
+        """Once the window releases ``delta_x``, the frames tracked against its keyframes while it
+        was held have translations in the scale of the depths then (``held_depths``, by keyframe
+        index): each is scaled by :func:`gtvo.window.depth_change.tracked_translation_scale` of its
+        keyframe's depths before and after (docs/window.md, "Rig calibration", the hold's transient)."""
+        assert self.window is not None
+        scales = {w.index: tracked_translation_scale(held_depths[w.index], w.inverse_depth)
+                  for w in self.window.keyframes
+                  if w.index in held_depths and held_depths[w.index].shape == w.inverse_depth.shape}
+        self.history.rescale_tracked(scales, self._by_index)
 
     def _research_window_depths(self, rig: RigOffset) -> None:
         """Once the window releases ``delta_x`` (docs/window.md, "Rig calibration"), its keyframes'

@@ -81,14 +81,12 @@ class WindowConfig:
             are computed (no cost).
         rig_calibration: stereo odometry estimates the right image's rectification error
             ``(delta_x, delta_y)`` (px) online as a window variable (docs/window.md, "Rig
-            calibration"; LM backend only). It is used by :class:`gtvo.odometry.VisualOdometry`; a
-            :class:`gtvo.window.SlidingWindowOptimizer` estimates it when given a ``rig_offset``.
-            False (the default): the rectified model, exactly the behaviour without the feature.
-            ``delta_x`` is held at 0 until a full window's data put it more than 3 error bars
-            away (a rectified rig then runs as without the feature horizontally: synthetic logs,
-            the same ATE). Off by default for now: on KITTI_sequence_1 unshifted the run's ATE is
-            0.0273 m off and 0.042 m on, a 0.07 % scale change from correcting the -0.12 px
-            vertical offset it finds there (docs/window.md, "Rig calibration").
+            calibration"; LM backend only; RGB-D input has no rig). It is used by
+            :class:`gtvo.odometry.VisualOdometry`; a :class:`gtvo.window.SlidingWindowOptimizer`
+            estimates it when given a ``rig_offset``. True (the default): while neither offset is
+            significant (the first pair's vertical one, then a full window's test of both every
+            ``size`` windows, 3 error bars) the window solves the rectified model, exactly as
+            False; once either is, both are estimated. False: the rectified model throughout.
         rig_offset_sigma: sigma (px) of the zero-mean prior on the rig offset, set once (with the
             gauge prior); afterwards the marginalisation prior carries what the window learnt.
     """
@@ -106,7 +104,7 @@ class WindowConfig:
     marginalize: bool = True
     backend: Literal["lm", "fixed_lag"] = "lm"
     covariances: bool = True
-    rig_calibration: bool = False
+    rig_calibration: bool = True
     rig_offset_sigma: float = setting(2.0, "[0.01, 100]")
 
     def __post_init__(self) -> None:
@@ -244,6 +242,9 @@ class WindowState(Protocol):
     keyframes: list[WindowKeyframe]
     #: the rig offset's one owner (:class:`gtvo.window.rig.RigOffset`), None when not estimated
     rig: "RigOffset | None"
+
+    def rig_free_estimate(self) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+        """What the window's data say about the rig offset while it is held: ``(estimate, marginal sigmas)``."""
 
     def rig_x_free_estimate(self) -> tuple[float, float] | None:
         """What the window's data say about ``delta_x`` while it is held: ``(estimate, marginal sigma)``."""

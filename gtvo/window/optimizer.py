@@ -99,7 +99,7 @@ class SlidingWindowOptimizer:
     def cost(self) -> float:
         """The window cost at the current state (W evaluated at this state)."""
         return window_cost(self.camera, self.baseline, self.keyframes, self.config, self.marginal,
-                           rig_offset=None if self.rig is None else self.rig.offset, photometric=self.photometric)
+                           rig_offset=None if self.rig is None else self.rig.solved_offset, photometric=self.photometric)
 
     def rig_offset_covariance(self) -> FloatArray | None:
         """The 2x2 marginal covariance (px^2) of the rig offset at the current state: the window's
@@ -123,19 +123,25 @@ class SlidingWindowOptimizer:
                                        self.rig.offset, photometric=self.photometric)
         return graph, values
 
-    def rig_x_free_estimate(self) -> tuple[float, float] | None:
-        """What the window's data say about ``delta_x`` while it is held: one Gauss-Newton step from
-        the current state on the window's graph without the hold (the estimate), and the marginal
-        sigma there (px). None when the rig offset is not estimated or there is no host factor."""
+    def rig_free_estimate(self) -> tuple[FloatArray, FloatArray] | None:
+        """What the window's data say about the rig offset while it is held: one Gauss-Newton step
+        from the current state on the window's graph without the hold (the estimate ``(delta_x,
+        delta_y)``), and the marginal sigmas there (px). None when the rig offset is not estimated or
+        there is no host factor."""
         built = self._rig_graph()
         if built is None:
             return None
         graph, values = built
         linear = graph.linearize(values)
-        step = float(linear.optimize().at(rig_offset_key())[0])
+        step = np.asarray(linear.optimize().at(rig_offset_key()), dtype=float).reshape(2)
         cov = gtsam.Marginals(linear, values).marginalCovariance(rig_offset_key())
         assert self.rig is not None
-        return float(self.rig.offset[0]) + step, float(np.sqrt(max(cov[0, 0], 0.0)))
+        return self.rig.offset + step, np.sqrt(np.maximum(np.diag(cov), 0.0))
+
+    def rig_x_free_estimate(self) -> tuple[float, float] | None:
+        """:meth:`rig_free_estimate` for ``delta_x`` alone: ``(estimate, marginal sigma)`` px."""
+        test = self.rig_free_estimate()
+        return None if test is None else (float(test[0][0]), float(test[1][0]))
 
     def optimize(self, solver: WindowSolverName = "gtsam") -> WindowResult | None:
         """Optimise the window (None when fewer than two keyframes); keyframes are updated in place.
@@ -188,7 +194,7 @@ class LMBackend:
         """Marginalise the oldest keyframe into :attr:`marginal` (or drop it, ``marginalize=False``)."""
         if window.config.marginalize:
             self.marginal = marginalize(window.camera, window.baseline, window.keyframes, window.config,
-                                        self.marginal, 0, None if window.rig is None else window.rig.offset,
+                                        self.marginal, 0, None if window.rig is None else window.rig.solved_offset,
                                         photometric=window.photometric)
         return window.keyframes.pop(0)
 
@@ -199,16 +205,25 @@ class LMBackend:
         if solve is None:
             raise InputError(f"unknown window solver {solver!r}: use 'gtsam' or 'handrolled'")
         rig = window.rig
-        # delta_x trades against the scale: it is held at its start value until a full window's data
-        # put it clearly away from it (gtvo.window.rig; docs/window.md, "Rig calibration": on a
-        # rectified rig, estimating it adds scale error; the marginalisation prior never holds the hold)
+        # the rig offset (gtvo.window.rig; docs/window.md, "Rig calibration"): none while rectified
+        # (tested as a whole); else delta_x, which trades against the scale, is held at its start
+        # value until the first full window (a corrected delta_y) or until a full window's data put
+        # it clearly away from it (the marginalisation prior never holds the hold)
+        solved = None if rig is None else rig.solved_offset
         hold = None if rig is None else rig.hold_x
         res = solve(window.camera, window.baseline, window.keyframes, window.config, self.marginal, targets,
-                    rig_offset=None if rig is None else rig.offset, rig_hold_x=hold, photometric=window.photometric)
+                    rig_offset=solved, rig_hold_x=hold, photometric=window.photometric)
+        full = self.marginal is not None or len(window.keyframes) >= window.config.size
+        if rig is not None and solved is None:  # rectified: the offset as a whole is tested
+            if full and rig.test_release_both(window.config.size, window.rig_free_estimate):
+                res = solve(window.camera, window.baseline, window.keyframes, window.config, self.marginal,
+                            targets, rig_offset=rig.offset, rig_hold_x=None, photometric=window.photometric)
+                assert res.rig_offset is not None
+                rig.offset = res.rig_offset.copy()
+            return res
         if rig is None or res.rig_offset is None:
             return res
         rig.offset = res.rig_offset.copy()
-        full = self.marginal is not None or len(window.keyframes) >= window.config.size
         if hold is not None and full and rig.test_release(window.config.size, window.rig_x_free_estimate):
             # solved again with delta_x free, from the held state (LM's damping, not the test's
             # linear step, decides how far it goes along the flat scale direction)

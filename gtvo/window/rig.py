@@ -5,11 +5,16 @@ The window estimates the right image's offset ``(delta_x, delta_y)`` (px) agains
 (:class:`gtvo.window.SlidingWindowOptimizer`, attribute ``rig``) updates it after every
 optimisation, the keyframes' stereo search and the report read it. Nobody keeps a copy.
 
-* ``delta_y`` starts from the first stereo pair's 2-D search (:meth:`RigOffset.start_from`) and is
-  a free variable of every window.
-* ``delta_x`` trades against the scale: it is held at its start value (:attr:`RigOffset.hold_x`)
-  until a full window's data put it more than :data:`RIG_SIGNIFICANCE` error bars away
-  (:meth:`RigOffset.test_release`), then released for the rest of the run.
+* The first stereo pair's 2-D search gives ``delta_y`` (:meth:`RigOffset.start_from`). When it is
+  not significant (:func:`offset_significant`), the window solves the rectified model (no rig
+  variable: :attr:`RigOffset.rectified`, :attr:`RigOffset.solved_offset` None) and every ``size``
+  full windows tests the offset as a whole (:meth:`RigOffset.test_release_both`): once either axis
+  is significant, both are released for the rest of the run. A rig that stays rectified runs bit
+  for bit as without calibration.
+* When it is significant, ``delta_y`` is corrected and a free variable of every window, and
+  ``delta_x`` (which trades against the scale) is held at its start value
+  (:attr:`RigOffset.hold_x`) until the first full window (:meth:`RigOffset.test_release`): held at
+  0 it would bias the scale the corrected ``delta_y`` moved.
 * The error bar (:func:`rig_honest_sigma`) is the window's marginal sigma and the method's measured
   error :data:`RIG_METHOD_SIGMA` in quadrature; :meth:`RigOffset.report` gives the figures
   ``report.json`` holds and :func:`rig_warning` the one line a run prints for a clearly large offset.
@@ -46,6 +51,12 @@ def rig_honest_sigma(marginal_sigma: float, axis: int) -> float:
     return float(np.hypot(marginal_sigma, RIG_METHOD_SIGMA[axis]))
 
 
+def offset_significant(value: float, marginal_sigma: float, axis: int, start: float = 0.0) -> bool:
+    """Whether an offset ``value`` (px) on ``axis`` (0: x, 1: y) is more than
+    :data:`RIG_SIGNIFICANCE` error bars (:func:`rig_honest_sigma` of ``marginal_sigma``) from ``start``."""
+    return abs(float(value) - float(start)) > RIG_SIGNIFICANCE * rig_honest_sigma(marginal_sigma, axis)
+
+
 class RigOffset:
     """The estimate of the right image's offset ``(delta_x, delta_y)`` (px) and its state.
 
@@ -55,10 +66,15 @@ class RigOffset:
 
     Attributes:
         offset: the current estimate ``[delta_x, delta_y]`` (px), updated by the window.
+        rectified: both offsets held at 0: the window solves the rectified model, no rig variable.
+        y_known: ``delta_y`` was significant in the first pair and is corrected: ``delta_x`` is
+            released at the first full window.
         x_estimated: whether ``delta_x`` has been released (it is held at :attr:`x_start` until then).
         x_start: the value ``delta_x`` is held at.
         x_test: the last test of ``delta_x`` while held, ``(free estimate, marginal sigma)`` px;
             None before the window is first full.
+        test: the last test of the offset as a whole while rectified, ``(free estimate, marginal
+            sigmas)`` (2,) each, px.
         x_held_windows: full windows solved with ``delta_x`` held.
         initial: the first stereo pair's vertical-offset search
             (:class:`gtvo.frontend.rig_offset.VerticalOffset`), None before it ran.
@@ -66,38 +82,80 @@ class RigOffset:
 
     def __init__(self, start: ArrayLike = (0.0, 0.0)) -> None:
         self.offset: FloatArray = np.asarray(start, dtype=float).reshape(2).copy()
+        self.rectified = False
+        self.y_known = False
         self.x_estimated = False
         self.x_start = float(self.offset[0])
         self.x_test: tuple[float, float] | None = None
+        self.test: tuple[FloatArray, FloatArray] | None = None
         self.x_held_windows = 0
         self.initial: Any = None
 
     @property
+    def solved_offset(self) -> FloatArray | None:
+        """The offset the window's graph carries as a variable; None while :attr:`rectified`."""
+        return None if self.rectified else self.offset
+
+    @property
     def hold_x(self) -> float | None:
-        """The value ``delta_x`` is held at in the next optimisation, None once it is released."""
-        return None if self.x_estimated else self.x_start
+        """The value ``delta_x`` is held at in the next optimisation, None once it is released (and
+        while :attr:`rectified`: there is no variable to hold)."""
+        return None if self.x_estimated or self.rectified else self.x_start
 
     def start_from(self, initial: Any) -> None:
-        """Start ``delta_y`` from the first stereo pair's vertical-offset search ``initial`` (which
-        has ``delta_y``), ``delta_x`` from 0."""
+        """Start from the first stereo pair's vertical-offset search ``initial`` (``delta_y`` and its
+        standard error ``sigma``): a significant ``delta_y`` is corrected (:attr:`y_known`),
+        otherwise the window starts rectified (:attr:`rectified`); ``delta_x`` from 0."""
         self.initial = initial
-        self.offset = np.array([0.0, float(initial.delta_y)])
+        if offset_significant(initial.delta_y, initial.sigma, 1):
+            self.offset = np.array([0.0, float(initial.delta_y)])
+            self.y_known = True
+        else:
+            self.offset = np.zeros(2)
+            self.rectified = True
 
-    def test_release(self, window_size: int, free_estimate: Callable[[], tuple[float, float] | None]) -> bool:
-        """Count a full window solved with ``delta_x`` held; every ``window_size``-th one (from the
-        first), test it: is the data's estimate (``free_estimate()``: ``(estimate, marginal
-        sigma)``, kept in :attr:`x_test`) more than :data:`RIG_SIGNIFICANCE` error bars from
-        :attr:`x_start`? Then ``delta_x`` is released (:attr:`x_estimated`) and True returned."""
+    def _due(self, window_size: int) -> bool:
+        """Count a full window solved while held; True at every ``window_size``-th (from the first)."""
         n = self.x_held_windows
         self.x_held_windows = n + 1
-        if n % window_size:
+        return n % window_size == 0
+
+    def test_release_both(self, window_size: int,
+                          free_estimate: Callable[[], tuple[FloatArray, FloatArray] | None]) -> bool:
+        """While :attr:`rectified`: count a full window; every ``window_size``-th one (from the
+        first), test the offset as a whole (``free_estimate()``: ``(estimate, marginal sigmas)``,
+        kept in :attr:`test`, ``delta_x``'s in :attr:`x_test`): is either axis more than
+        :data:`RIG_SIGNIFICANCE` error bars from 0? Then both are released and True returned."""
+        if not self._due(window_size):
+            return False
+        test = free_estimate()
+        if test is None:
+            return False
+        estimate, sigma = test
+        self.test = (estimate, sigma)
+        self.x_test = (float(estimate[0]), float(sigma[0]))
+        if any(offset_significant(float(estimate[axis]), float(sigma[axis]), axis) for axis in (0, 1)):
+            self.rectified = False
+            self.x_estimated = True
+        return self.x_estimated
+
+    def test_release(self, window_size: int, free_estimate: Callable[[], tuple[float, float] | None]) -> bool:
+        """With ``delta_x`` held at a full window: released at once when :attr:`y_known`; else every
+        ``window_size``-th such window (from the first), test it: is the data's estimate
+        (``free_estimate()``: ``(estimate, marginal sigma)``, kept in :attr:`x_test`) more than
+        :data:`RIG_SIGNIFICANCE` error bars from :attr:`x_start`? Then ``delta_x`` is released
+        (:attr:`x_estimated`) and True returned."""
+        if self.y_known:
+            self.x_estimated = True
+            return True
+        if not self._due(window_size):
             return False
         test = free_estimate()
         if test is None:
             return False
         self.x_test = test
         estimate, sigma = test
-        if abs(estimate - self.x_start) > RIG_SIGNIFICANCE * rig_honest_sigma(sigma, 0):
+        if offset_significant(estimate, sigma, 0, self.x_start):
             self.x_estimated = True
         return self.x_estimated
 
