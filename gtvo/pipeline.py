@@ -23,7 +23,7 @@ from gtvo.errors import InputError
 from gtvo.config import OdometryConfig, as_config, config_to_dict, config_to_yaml
 from gtvo.io.observer import RunObserver
 from gtvo.odometry import VisualOdometry, frames_by_outcome
-from gtvo.odometry.estimates import FrameOutcome
+from gtvo.odometry.estimates import FrameOutcome, trust_warning, trusted_fraction, undetermined_frames
 from gtvo.io.covariances import KeyframeCovariances
 from gtvo.odometry.rig_report import rig_report, rig_warning
 from gtvo.io.outputs import check_run_output_dir, write_run_outputs
@@ -107,6 +107,9 @@ def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progre
         "flow_recoveries": vo.tracker.flow_recoveries,
         "lost_frames": vo.lost_frames,
         "suspect_frames": sum(1 for e in vo.estimates if e.suspect),
+        # the frames whose pose the run trusts, and those the images did not determine (docs/evaluation.md)
+        "trusted_fraction": trusted_fraction(vo.estimates),
+        "undetermined_frames": undetermined_frames(vo.estimates, config.tracking.max_relative_rms),
         "skipped_frames": [i for i, _ in skipped],
         # every flagged frame by index with its reason (docs/evaluation.md, "Frame outcomes")
         "frame_outcomes": frames_by_outcome(vo.estimates, skipped),
@@ -129,6 +132,9 @@ def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progre
         message = rig_warning(info)
         if message is not None:
             warn(message)
+    message = trust_warning(n, info["undetermined_frames"], info["trusted_fraction"])
+    if message is not None:
+        warn(message)
     info.update(stage_report(vo))
     info["covariances"] = ("not computed (--no-covariances)" if config.mode == "window" and not config.window.covariances
                            else "not computed (track mode: no window)" if config.mode != "window" else "computed")
