@@ -65,7 +65,7 @@ def evaluate(seq: Sequence, factor: float) -> dict[str, Any]:
     bad = {k + 1 for k in np.flatnonzero(err > BAD_STEP_M)}
     failed = {e.index for e in vo.estimates if e.reinitialised or e.lost}
     flagged = failed | {e.index for e in vo.estimates if e.suspect}
-    undetermined = {e.index for e in vo.estimates if "images do not determine the pose" in e.reason}
+    undetermined = set(info["undetermined_frames"])
     ate_m = ate(traj, Trajectory(traj.timestamps, seq.gt_poses[:len(traj)], name="gt")).rmse
     return {"factor": factor, "frames": len(vo.estimates), "bad": sorted(bad), "flagged": sorted(flagged),
             "undetermined": sorted(undetermined), "bad_flagged": len(bad & flagged),
