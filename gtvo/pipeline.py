@@ -94,6 +94,8 @@ def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progre
     n = len(vo.estimates)
     sigmas = [e.tracking.rotation_sigma_deg for e in vo.estimates
               if e.tracking is not None and e.tracking.success and not e.suspect]
+    sigmas_t = [e.tracking.translation_sigma_m for e in vo.estimates
+                if e.tracking is not None and e.tracking.success and not e.suspect]
     info: dict[str, Any] = {
         "mode": config.mode,
         "tracker_solver": config.solver.tracker,
@@ -117,6 +119,9 @@ def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progre
         # how well the images determined each tracked frame's rotation (TrackingResult.rotation_sigma_deg)
         "tracking_rotation_sigma_deg_median": _median(sigmas),
         "tracking_rotation_sigma_deg_max": max(sigmas) if sigmas else None,
+        # and its translation (TrackingResult.translation_sigma_m): in a dark log it grows with the error
+        "tracking_translation_sigma_m_median": _median(sigmas_t),
+        "tracking_translation_sigma_m_max": max(sigmas_t) if sigmas_t else None,
     }
     if config.mode == "window":
         info.update({
