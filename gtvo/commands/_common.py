@@ -93,8 +93,8 @@ def odometry_config(args: Any):
 
 #: The report's headline figures, in the order the console summary prints them.
 SUMMARY_KEYS = ("frames", "keyframes", "seconds", "frames_per_second", "tracking_failures", "flow_recoveries",
-                "lost_frames", "suspect_frames", "trusted_fraction", "window_optimisations", "window_seconds_mean", "ate_rmse_m",
-                "ate_sim3_rmse_m", "scale_ratio", "rig_offset_px", "rig_offset_sigma_px", "rpe_trans_rmse_m",
+                "lost_frames", "suspect_frames", "trusted_fraction", "window_optimisations", "window_seconds_mean",
+                "ate_rmse_m", "ate_sim3_rmse_m", "scale_ratio", "rig_offset_px", "rig_offset_sigma_px", "rpe_trans_rmse_m",
                 "ate_skipped", "drift_percent", "loops_detected", "loops_accepted", "frames_refined",
                 "loop_closed_ate_rmse_m", "loop_closed_drift_percent", "map_points_written", "map_points_left_out",
                 "map_points_skipped", "unpaired_messages")

@@ -51,8 +51,8 @@ class TrackingConfig:
             the rotation (few points, texture along one direction); the converged pose can then be
             tens of degrees off at a low residual.
         max_relative_rms: a :attr:`TrackingResult.relative_rms` above this is a failure: the pose
-            leaves more than ``max_relative_rms ** 2`` of the residual an unrelated image would
-            leave, so the images do not determine it (a dark or flat log, whose whole contrast is
+            leaves more than ``max_relative_rms ** 2`` of the mean-square residual an unrelated image
+            would leave, so the images do not determine it (a dark or flat log, whose whole contrast is
             below ``sigma_intensity``: every pose passes ``max_rms`` there).
         lost_point_norm: a point whose pattern leaves the frame (or goes behind it) costs
             ``rho(lost_point_norm)`` (spread over its pattern pixels), like a strong outlier;
