@@ -22,7 +22,7 @@ from gtvo.errors import InputError
 from gtvo.config import OdometryConfig, as_config, config_to_yaml
 from gtvo.io.observer import RunObserver
 from gtvo.odometry import VisualOdometry
-from gtvo.odometry.estimates import FrameOutcome
+from gtvo.odometry.estimates import FrameOutcome, trust_warning
 from gtvo.io.covariances import KeyframeCovariances
 from gtvo.odometry.rig_report import rig_warning
 from gtvo.odometry.summary import OdometrySummary, stage_timing, summarize_odometry
@@ -93,9 +93,10 @@ def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progre
     seconds = time.perf_counter() - t0
     traj = vo.trajectory(seq.name)
     info = summarize_odometry(vo, seconds, skipped)
-    message = rig_warning(dict(info))
-    if message is not None:
-        warn(message)
+    for message in (rig_warning(dict(info)), trust_warning(info["frames"], info["undetermined_frames"],
+                                                           info["trusted_fraction"])):
+        if message is not None:
+            warn(message)
     if observers:
         view = vo.view()
         for o in observers:

@@ -59,7 +59,7 @@ class RunReport(OdometrySummary, LoopClosureSummary, TrajectoryMetrics, LoopClos
 #: The report's headline figures, in the order the console summary of ``gtvo run`` prints them.
 HEADLINE_FIELDS: tuple[str, ...] = (
     "frames", "keyframes", "seconds", "frames_per_second", "tracking_failures", "flow_recoveries", "lost_frames",
-    "suspect_frames", "window_optimisations", "window_seconds_mean", "ate_rmse_m", "ate_sim3_rmse_m", "scale_ratio",
+    "suspect_frames", "trusted_fraction", "window_optimisations", "window_seconds_mean", "ate_rmse_m", "ate_sim3_rmse_m", "scale_ratio",
     "rig_offset_px", "rig_offset_sigma_px", "rpe_trans_rmse_m", "ate_skipped", "drift_percent", "loops_detected",
     "loops_accepted", "frames_refined", "loop_closed_ate_rmse_m", "loop_closed_drift_percent", "map_points_written",
     "map_points_left_out", "map_points_skipped", "unpaired_messages")

@@ -190,6 +190,8 @@ def _finish(kf: TrackingKeyframe, target0: GradientImage, T: gtsam.Pose3, affine
     cov = pose_covariance(ev.A) if ev.n_pixels else np.full((6, 6), np.inf)
     sigma_rot = largest_sigma(cov[:3, :3], np.degrees(1.0))
     n = kf.pixels.shape[0]
+    unrelated = _unrelated_rms(kf, ev)
+    relative = rms / unrelated if unrelated > 0 else float("inf")
     reason = ""
     if not (np.all(np.isfinite(T.matrix())) and np.all(np.isfinite(affine)) and np.isfinite(ev.cost)):
         reason = "tracking diverged: non-finite pose or cost"
@@ -208,8 +210,23 @@ def _finish(kf: TrackingKeyframe, target0: GradientImage, T: gtsam.Pose3, affine
     elif not sigma_rot <= cfg.max_rotation_sigma_deg:
         reason = (f"pose poorly constrained: rotation sigma {sigma_rot:.3g} deg > {cfg.max_rotation_sigma_deg} "
                   "(the images do not determine the rotation)")
+    elif not relative <= cfg.max_relative_rms:
+        reason = (f"the images do not determine the pose: residual {relative:.2f} of an unrelated image's "
+                  f"(> {cfg.max_relative_rms}; too dark or too flat)")
     return TrackingResult(T, np.asarray(affine, dtype=float).copy(), ev.cost, initial_cost, iterations, ev.n_valid,
-                          ev.n_outliers, rms, reason == "", reason, cov, _point_residuals(ev.lin, kf.level_index[0], kf.pattern))
+                          ev.n_outliers, rms, reason == "", reason, cov,
+                          _point_residuals(ev.lin, kf.level_index[0], kf.pattern), relative)
+
+
+def _unrelated_rms(kf: TrackingKeyframe, ev: _Eval) -> float:
+    """The whitened RMS residual on level 0 of an image unrelated to the keyframe but of its contrast:
+    ``sqrt(2 Var(I_kf) mean(W))`` over the valid pattern pixels (two independent draws of the
+    keyframe's intensities differ by ``2 Var`` in the mean square); NaN without valid pixels."""
+    valid = ev.lin.valid
+    if not valid.any():
+        return float("nan")
+    host = kf.host_samples[0][0]
+    return float(np.sqrt(2.0 * np.var(host[valid]) * np.mean(ev.W[valid])))
 
 
 def _point_residuals(lin: PhotometricLinearization, index: NDArray[np.intp], pattern: ArrayLike) -> PointResiduals:

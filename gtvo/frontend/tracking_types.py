@@ -48,6 +48,10 @@ class TrackingConfig:
             :attr:`TrackingResult.covariance`) above this is a failure: the images do not determine
             the rotation (few points, texture along one direction); the converged pose can then be
             tens of degrees off at a low residual.
+        max_relative_rms: a :attr:`TrackingResult.relative_rms` above this is a failure: the pose
+            leaves more than ``max_relative_rms ** 2`` of the mean-square residual an unrelated image
+            would leave, so the images do not determine it (a dark or flat log, whose whole contrast is
+            below ``sigma_intensity``: every pose passes ``max_rms`` there).
         lost_point_norm: a point whose pattern leaves the frame (or goes behind it) costs
             ``rho(lost_point_norm)`` (spread over its pattern pixels), like a strong outlier;
             without it a solver lowers the cost by pushing points out of the image (seen on
@@ -70,6 +74,7 @@ class TrackingConfig:
     max_outlier_fraction: float = setting(0.6, "[0, 1]")
     max_abs_log_gain: float = setting(1.0, "(0, inf]")
     max_rotation_sigma_deg: float = setting(1.0, "(0, inf]")
+    max_relative_rms: float = setting(0.5, "(0, inf]")
     lost_point_norm: float = setting(6.0, "[0, 100]")
     coarse_decay: float = setting(2.0, "[1, 10]")
     min_coarse_points: int = setting(300, "[1, 100000]")
@@ -118,6 +123,11 @@ class TrackingResult:
             Hessian is singular.
         residuals: the points' residuals at the solution (:class:`PointResiduals`), for viewers;
             the odometry keeps them for the latest frame only.
+        relative_rms: ``rms`` over the whitened RMS that an image unrelated to the keyframe, of the
+            same contrast, would leave: ``sqrt(2 Var(I_kf) mean(W))`` over the valid pattern pixels
+            (two independent draws differ by ``2 Var`` in the mean square). Independent of
+            ``sigma_intensity``; about 0.2 on the real logs, 0.5 and more where the images do not
+            determine the pose (docs/tracking.md, "Dark and flat images"). NaN when not computed.
     """
 
     T_keyframe_frame: gtsam.Pose3
@@ -132,6 +142,7 @@ class TrackingResult:
     reason: str = ""
     covariance: NDArray[np.float64] = field(default_factory=lambda: np.full((6, 6), np.inf))
     residuals: PointResiduals | None = None
+    relative_rms: float = float("nan")
 
     @property
     def rotation_sigma_deg(self) -> float:

@@ -149,6 +149,43 @@ def frames_by_outcome(estimates: list[FrameEstimate], skipped: Iterable[tuple[in
     return out
 
 
+#: Outcomes whose pose the run trusts (tracked, or a keyframe made from a tracked frame or the first
+#: frame); the others are predictions (re-initialised, lost, suspect).
+TRUSTED_OUTCOMES = (FrameOutcome.TRACKED, FrameOutcome.KEYFRAME, FrameOutcome.RECOVERED)
+
+
+def trusted_fraction(estimates: list[FrameEstimate]) -> float | None:
+    """The fraction of the trajectory's frames whose pose the run trusts (:data:`TRUSTED_OUTCOMES`);
+    None without frames."""
+    if not estimates:
+        return None
+    return sum(1 for e in estimates if e.outcome in TRUSTED_OUTCOMES) / len(estimates)
+
+
+def undetermined_frames(estimates: list[FrameEstimate], max_relative_rms: float) -> list[int]:
+    """The frames whose tracking failed (re-initialised or lost) where the images did not determine
+    the pose: the tracker's best attempt left more than ``max_relative_rms`` of the residual of an
+    unrelated image (:attr:`gtvo.frontend.tracking.TrackingResult.relative_rms`)."""
+    return [e.index for e in estimates if (e.reinitialised or e.lost) and e.tracking is not None
+            and e.tracking.relative_rms > max_relative_rms]
+
+
+#: A log is "too dark or too flat to trust" when the images did not determine the pose of at least
+#: this fraction of its frames.
+UNDETERMINED_LOG_FRACTION = 0.05
+
+
+def trust_warning(frames: int, undetermined: list[int], trusted: float | None) -> str | None:
+    """The console's word on frames the images did not determine (None when there are none)."""
+    if not undetermined or trusted is None:
+        return None
+    what = ("the log is too dark or too flat to trust: " if len(undetermined) >= UNDETERMINED_LOG_FRACTION * frames
+            else "")
+    shown = ", ".join(str(i) for i in undetermined[:10]) + (", ..." if len(undetermined) > 10 else "")
+    return (f"{what}the images did not determine the pose of {len(undetermined)} of {frames} frames ({shown}: "
+            f"flagged as failed, their poses predicted); {trusted:.0%} of the trajectory is trustworthy")
+
+
 class TooFewPoints(Exception):
     """Control flow: a frame cannot host a keyframe (too few points with a depth)."""
 

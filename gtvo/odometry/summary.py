@@ -11,7 +11,7 @@ import statistics
 from typing import Any, Sequence, TypedDict
 
 from gtvo.core.timing import per_frame_ms
-from gtvo.odometry.estimates import frames_by_outcome
+from gtvo.odometry.estimates import frames_by_outcome, trusted_fraction, undetermined_frames
 from gtvo.odometry.rig_report import rig_report
 from gtvo.odometry.visual_odometry import VisualOdometry
 
@@ -65,11 +65,15 @@ class OdometrySummary(StageTiming, WindowFigures):
     flow_recoveries: int
     lost_frames: int
     suspect_frames: int
+    trusted_fraction: float | None
+    undetermined_frames: list[int]
     skipped_frames: list[int]
     frame_outcomes: dict[str, Any]
     tracking_iterations_mean: float | None
     tracking_rotation_sigma_deg_median: float | None
     tracking_rotation_sigma_deg_max: float | None
+    tracking_translation_sigma_m_median: float | None
+    tracking_translation_sigma_m_max: float | None
     covariances: str
 
 
@@ -86,8 +90,9 @@ def summarize_odometry(vo: VisualOdometry, seconds: float | None = None,
     config = vo.config
     estimates = vo.estimates
     n = len(estimates)
-    sigmas = [e.tracking.rotation_sigma_deg for e in estimates
-              if e.tracking is not None and e.tracking.success and not e.suspect]
+    tracked = [e.tracking for e in estimates if e.tracking is not None and e.tracking.success and not e.suspect]
+    sigmas = [t.rotation_sigma_deg for t in tracked]
+    sigmas_t = [t.translation_sigma_m for t in tracked]
     out: dict[str, Any] = {
         "mode": config.mode,
         "tracker_solver": config.solver.tracker,
@@ -101,6 +106,9 @@ def summarize_odometry(vo: VisualOdometry, seconds: float | None = None,
         "flow_recoveries": vo.tracker.flow_recoveries,
         "lost_frames": vo.lost_frames,
         "suspect_frames": sum(1 for e in estimates if e.suspect),
+        # the frames whose pose the run trusts, and those the images did not determine (docs/evaluation.md)
+        "trusted_fraction": trusted_fraction(estimates),
+        "undetermined_frames": undetermined_frames(estimates, config.tracking.max_relative_rms),
         "skipped_frames": [i for i, _ in skipped],
         # every flagged frame by index with its reason (docs/evaluation.md, "Frame outcomes")
         "frame_outcomes": frames_by_outcome(estimates, skipped),
@@ -108,6 +116,9 @@ def summarize_odometry(vo: VisualOdometry, seconds: float | None = None,
         # how well the images determined each tracked frame's rotation (TrackingResult.rotation_sigma_deg)
         "tracking_rotation_sigma_deg_median": _median(sigmas),
         "tracking_rotation_sigma_deg_max": max(sigmas) if sigmas else None,
+        # and its translation (TrackingResult.translation_sigma_m): in a dark log it grows with the error
+        "tracking_translation_sigma_m_median": _median(sigmas_t),
+        "tracking_translation_sigma_m_max": max(sigmas_t) if sigmas_t else None,
     }
     if config.mode == "window":
         window, results = vo.window, vo.window_results
