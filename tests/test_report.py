@@ -29,12 +29,13 @@ def fields(typed_dict) -> set[str]:
 
 @pytest.fixture(scope="module")
 def reports(tmp_path_factory) -> dict[str, tuple[dict, dict]]:
-    """A window run (with the rig calibration), a track run and a loop-closure run of 8 synthetic
-    frames: ``name -> (what gtvo.run returned, report.json)``."""
+    """A window run (with the rig calibration, the default), a track run and a loop-closure run without
+    it, of 8 synthetic frames: ``name -> (what gtvo.run returned, report.json)``."""
     seq = make_synthetic_sequence(n_frames=8)
     runs = {"window": {"config": OdometryConfig(mode="window", window=WindowConfig(rig_calibration=True))},
             "track": {"config": OdometryConfig(mode="track")},
-            "loops": {"config": OdometryConfig(mode="window"), "loop_closure": True}}
+            "loops": {"config": OdometryConfig(mode="window", window=WindowConfig(rig_calibration=False)),
+                      "loop_closure": True}}
     out: dict[str, tuple[dict, dict]] = {}
     for name, options in runs.items():
         folder = tmp_path_factory.mktemp(name)
