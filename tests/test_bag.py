@@ -135,6 +135,22 @@ def test_raw_camera_info_is_rectified_with_its_own_K_D_R_P(tmp_path):
     np.testing.assert_allclose(seq.gt_poses, raw.gt_poses @ T_raw_rect, atol=1e-12)
 
 
+@pytest.mark.parametrize("D, R, message", [
+    (np.array([0.1, 0.0, 0.0]), None, "D has 3 coefficients"),
+    (np.full(6, 0.01), None, "D has 6 coefficients"),
+    (np.array([0.1, 0, 0, 0, 0]), np.zeros((3, 3)), "R is not a rotation"),
+    (np.array([0.1, 0, 0, 0, 0]), np.diag([1.0, 1.0, -1.0]), "R is not a rotation"),
+])
+def test_raw_camera_info_opencv_cannot_rectify_is_one_line(tmp_path, capsys, D, R, message):
+    path = write_small_stereo(tmp_path / "a.bag", image_topic="image_raw", D=D, R=R)
+    code, out, err = _run_cli(["run", str(path), "--out", str(tmp_path / "out"), "--no-progress"], capsys)
+    assert code == 2
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and f"{path}: /cam/left/camera_info: camera calibration {message}" in lines[0], err
+    rectified = write_small_stereo(tmp_path / "b.bag", image_topic="image_rect", D=D, R=R)
+    assert len(open_sequence(rectified)) == 5  # rectified images: D and R are not used
+
+
 @pytest.mark.parametrize("msgtype", ["nav_msgs/msg/Odometry", "geometry_msgs/msg/TransformStamped"])
 def test_ground_truth_topic_types_agree(tmp_path, msgtype):
     ref = open_sequence(write_small_stereo(tmp_path / "p.bag", gt="geometry_msgs/msg/PoseStamped"),
