@@ -11,12 +11,13 @@ import contextlib
 import contextvars
 import json
 import os
+import re
 import shutil
 import signal
 import tempfile
 import threading
 from pathlib import Path
-from typing import IO, Any, Callable, Iterator
+from typing import IO, Any, Callable, Iterable, Iterator
 
 from gtvo.errors import InputError
 
@@ -220,6 +221,50 @@ def _swap_in(tmp: Path, path: Path, parent: Path) -> None:
     finally:
         if path.exists():
             shutil.rmtree(old, ignore_errors=True)
+
+
+#: The random part of the names :mod:`tempfile` gives (``mkstemp``, ``mkdtemp``).
+_TEMP_TAIL = r"[a-z0-9_]{8}"
+
+
+def discard_unfinished(paths: Iterable[str | Path], file_names: Iterable[str] = ()) -> list[Path]:
+    """Undo what writers ended mid-way (killed: no ``finally`` of theirs ran) left of
+    :func:`atomic_dir` ``(path)`` and of :func:`atomic_path` ``(path / name)`` for each of
+    ``file_names``; call it only once those writers are gone.
+
+    An earlier folder the writer had put aside (``.NAME.old.*``, killed between the two renames
+    of the swap) is put back when ``path`` is missing; the temporary folders beside ``path``
+    (``.NAME.*``) and the temporary files of ``file_names`` inside it are removed.
+
+    Returns:
+        The temporary folders and files removed.
+    """
+    removed: list[Path] = []
+    names = list(file_names)
+    by_parent: dict[Path, list[Path]] = {}
+    for path in map(Path, paths):
+        by_parent.setdefault(path.parent, []).append(path)
+    for parent, targets in by_parent.items():
+        try:
+            hidden = [entry for entry in parent.iterdir() if entry.name.startswith(".")]
+        except OSError:
+            continue
+        for path in targets:
+            name = re.escape(path.name)
+            aside = [e for e in hidden if re.fullmatch(rf"\.{name}\.old\.{_TEMP_TAIL}", e.name)]
+            for folder in aside:
+                if not path.exists() and (folder / path.name).is_dir():
+                    os.replace(folder / path.name, path)  # the earlier set, as it was
+            staging = [e for e in hidden if re.fullmatch(rf"\.{name}\.{_TEMP_TAIL}", e.name)]
+            for folder in aside + staging:
+                shutil.rmtree(folder, ignore_errors=True)
+                removed.append(folder)
+            patterns = [rf"\.{re.escape(f)}\.{_TEMP_TAIL}{re.escape(Path(f).suffix)}" for f in names]
+            for tmp in (path.iterdir() if patterns and path.is_dir() else ()):
+                if any(re.fullmatch(p, tmp.name) for p in patterns):
+                    tmp.unlink(missing_ok=True)
+                    removed.append(tmp)
+    return removed
 
 
 @contextlib.contextmanager
