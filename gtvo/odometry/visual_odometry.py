@@ -234,7 +234,8 @@ class VisualOdometry(KeyframeMaking):
         relative to the world frame fixed by the first keyframe (docs/window.md, "Pose covariances").
 
         None when no covariance was computed for it: track mode, ``WindowConfig.covariances=False``,
-        or a keyframe no window optimisation included. Raises :class:`InputError` for a frame index
+        or a keyframe no window optimisation included yet (the newest keyframes while frames are
+        still processed, until the next optimisation or :meth:`finish`). Raises :class:`InputError` for a frame index
         that is not a keyframe.
 
         ``inflation`` multiplies the window's covariance: the window's marginals are optimistic
