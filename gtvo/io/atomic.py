@@ -269,25 +269,29 @@ def discard_unfinished(paths: Iterable[str | Path], file_names: Iterable[str] = 
 
 @contextlib.contextmanager
 def deferred_interrupts() -> Iterator[None]:
-    """Hold back SIGINT (Ctrl-C) during the block; one that arrived is raised as
-    :class:`KeyboardInterrupt` when the block ends.
+    """Hold back SIGINT (Ctrl-C) during the block; one that arrived goes to the handler that was
+    in place when the block ends (Python's default, or ``gtvo``'s
+    :func:`gtvo.core.interrupt.note_interrupt`: :class:`KeyboardInterrupt`).
 
     For steps that must not stop half-way (two renames that swap an output folder). Only the
-    main thread can set signal handlers: elsewhere, or when SIGINT is not Python's default
-    handler (a caller chose its own), the block runs unprotected.
+    main thread can set signal handlers: elsewhere, or when the handler was not set from Python,
+    the block runs unprotected; under an ignored SIGINT there is nothing to hold back.
     """
-    if threading.current_thread() is not threading.main_thread() \
-            or signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
+    previous = signal.getsignal(signal.SIGINT)
+    if threading.current_thread() is not threading.main_thread() or previous is None \
+            or previous is signal.SIG_IGN:
         yield
         return
     caught: list[int] = []
-    previous = signal.signal(signal.SIGINT, lambda signum, frame: caught.append(signum))
+    signal.signal(signal.SIGINT, lambda signum, frame: caught.append(signum))
     try:
         yield
     finally:
         signal.signal(signal.SIGINT, previous)
     if caught:
-        raise KeyboardInterrupt
+        if not callable(previous):
+            raise KeyboardInterrupt  # (SIG_DFL: the default action would have ended the process)
+        previous(signal.SIGINT, None)
 
 
 def _umask() -> int:
