@@ -181,6 +181,30 @@ def test_demo_with_fixed_lag_backend(tmp_path):
     assert rep["mode"] == "window" and rep["window_optimisations"] >= 1 and rep["ate_rmse_m"] < 0.01
 
 
+@pytest.mark.parametrize("command", ["run", "demo", "batch"])
+def test_choices_are_typed_with_dash_or_underscore_and_shown_as_typed(command, capsys):
+    from gtvo.commands._common import describe_solvers, odometry_config
+
+    parser = cli.build_parser()
+    positional = [] if command == "demo" else ["SEQ"]
+    extra = ["--out", "o"] if command == "batch" else []
+    for backend, model in (("fixed_lag", "constant_velocity"), ("fixed-lag", "constant-velocity")):
+        args = parser.parse_args([command, *positional, *extra, "--window-backend", backend, "--motion-model", model])
+        assert args.window_backend == "fixed-lag"  # the flag's own spelling, in messages too
+        config = odometry_config(args)
+        assert config.window.backend == "fixed_lag" and config.motion_model.model == "constant-velocity"
+    with pytest.raises(SystemExit):
+        parser.parse_args([command, *positional, *extra, "--window-backend", "fixed lag"])
+    assert "invalid choice: 'fixed lag'" in capsys.readouterr().err
+    report = {"mode": "window", "tracker_solver": "handrolled", "window_backend": "fixed_lag",
+              "window_solver": "gtsam_isam2"}
+    assert describe_solvers(report) == "window, tracker handrolled, window fixed-lag back end with gtsam_isam2"
+    with pytest.raises(SystemExit):
+        parser.parse_args([command, "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert '"fixed-lag": a' in text and "fixed_lag" not in text
+
+
 @pytest.mark.parametrize("command", ["run", "demo"])
 def test_window_backend_without_window_mode_exit_2(kitti_like, tmp_path, capsys, command):
     argv = [command, *([str(kitti_like)] if command == "run" else []), "--out", str(tmp_path / "o"),
