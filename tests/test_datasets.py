@@ -498,9 +498,11 @@ def test_tum_bad_input(tmp_path):
 def test_missing_and_unknown_folders(tmp_path):
     _raises("sequence folder not found", open_sequence, tmp_path / "nope")
     (tmp_path / "file.txt").write_text("x")
-    _raises("not a folder", detect_format, tmp_path / "file.txt")
+    _raises("file.txt: is a file, not a sequence folder or a ROS bag (a .bag file", detect_format,
+            tmp_path / "file.txt")
     (tmp_path / "empty").mkdir()
-    _raises("unknown dataset layout", open_sequence, tmp_path / "empty")
+    err = _raises("unknown dataset layout", open_sequence, tmp_path / "empty")
+    assert "or a ROS bag (a .bag file, or a ROS2 bag folder with metadata.yaml" in str(err)
     root = make_kitti(tmp_path / "k")
     _raises("max_frames must be >= 1", open_sequence, root, max_frames=0)
     _raises("unknown dataset format", open_sequence, root, format="las")
