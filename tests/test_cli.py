@@ -215,6 +215,17 @@ def test_window_backend_without_window_mode_exit_2(kitti_like, tmp_path, capsys,
     assert not (tmp_path / "o").exists()
 
 
+def test_rig_calibration_without_window_mode_exit_2(kitti_like, tmp_path, capsys):
+    config = tmp_path / "track.yaml"
+    config.write_text("mode: track\n")
+    for how in (["--mode", "track"], ["--config", str(config)]):
+        argv = ["run", str(kitti_like), "--out", str(tmp_path / "o"), *how, "--rig-calibration", "--no-progress"]
+        assert cli.main(argv) == 2
+        err = capsys.readouterr().err.strip()
+        assert "--rig-calibration needs --mode window (got --mode track)" in err and "\n" not in err
+        assert not (tmp_path / "o").exists()
+
+
 def test_unusable_output_paths_exit_2_before_any_work(kitti_like, tmp_path, capsys):
     """An --out that is a file, a folder under a file, or a folder where a file is wanted: one
     line naming the path, exit 2, and nothing run (the run would have taken its time first)."""

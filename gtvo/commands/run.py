@@ -62,6 +62,9 @@ def main(args: argparse.Namespace) -> int:
     config = odometry_config(args)
     if args.no_covariances:
         config = dataclasses.replace(config, window=dataclasses.replace(config.window, covariances=False))
+    if args.rig_calibration and config.mode != "window":
+        raise InputError(f"--rig-calibration needs --mode window (got --mode {config.mode}): the rig's offset is "
+                         f"estimated in the window")
     if args.rig_calibration or args.no_rig_calibration:
         config = dataclasses.replace(config, window=dataclasses.replace(config.window,
                                                                         rig_calibration=bool(args.rig_calibration)))
