@@ -119,6 +119,39 @@ def test_pairing_counts_unpaired_and_max_frames(tmp_path):
         open_sequence(path, stamp_tolerance=0.001)
 
 
+def test_right_camera_dropping_images_is_one_warning_line(tmp_path, capsys):
+    from gtvo.datasets.synthetic import make_synthetic_sequence
+
+    seq = make_synthetic_sequence(n_frames=16, width=160, height=120, seed=1)
+    K = seq.camera.left.K
+    paths = []
+    for name, dropped in (("a.bag", range(4, 14)), ("b.bag", ())):  # the right camera drops 10 images, or none
+        with BagWriter(tmp_path / name) as bag:
+            for i in range(len(seq)):
+                ns = 1_000_000_000 + i * 100_000_000
+                if i == 0:
+                    for side, tx in (("left", 0.0), ("right", -K[0, 0] * seq.camera.baseline)):
+                        bag.camera_info(f"/cam/{side}/camera_info", ns, 160, 120, K, _P(K, tx))
+                for side, image in (("left", seq.left(i)), ("right", seq.right(i))):
+                    if side == "left" or i not in dropped:
+                        bag.image(f"/cam/{side}/image_rect", ns, np.clip(np.rint(image), 0, 255).astype(np.uint8),
+                                  "mono8")
+        paths.append(tmp_path / name)
+    code, out, err = _run_cli(["run", str(paths[0]), "--out", str(tmp_path / "out"), "--no-progress", "--mode", "track"],
+                              capsys)
+    assert code == 0, err
+    warnings = [line for line in err.splitlines() if line.startswith("warning:")]
+    assert warnings == [f"warning: {paths[0]}: 10 /cam/left/image_rect messages without a /cam/right/image_rect "
+                        "partner: those frames are left out (a camera dropped images, or --stamp-tolerance is too "
+                        "tight; unpaired_messages in report.json)"], err
+    report = json.loads((tmp_path / "out" / "report.json").read_text())
+    assert report["frames"] == 6 and report["unpaired_messages"] == {"/cam/left/image_rect": 10,
+                                                                     "/cam/right/image_rect": 0}
+    code, out, err = _run_cli(["run", str(paths[1]), "--out", str(tmp_path / "o2"), "--no-progress", "--mode", "track"],
+                              capsys)
+    assert code == 0 and "warning" not in err, err  # every message paired: no word
+
+
 def test_raw_camera_info_is_rectified_with_its_own_K_D_R_P(tmp_path):
     D = np.array([-0.1, 0.02, 0.001, -0.001, 0.0])
     R = cv2.Rodrigues(np.array([0.0, 0.02, 0.0]))[0]
