@@ -96,7 +96,8 @@ def atomic_path(path: str | Path, suffix: str | None = None) -> Iterator[Path]:
 
     Use it for writers that want a file name (``cv2.imwrite``, ``open3d.io``, matplotlib).
     ``suffix`` defaults to the final suffix of ``path`` so that writers that pick the format
-    from the extension keep working.
+    from the extension keep working. An ``OSError`` of the block that names no file (or the
+    temporary one) is raised again naming ``path``.
     """
     path = check_output_file(path)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix if suffix is not None else path.suffix,
@@ -106,7 +107,12 @@ def atomic_path(path: str | Path, suffix: str | None = None) -> Iterator[Path]:
     # mkstemp creates 0600 files; give the result the permissions a plain open() would.
     os.chmod(tmp_path, 0o666 & ~_umask())
     try:
-        yield tmp_path
+        try:
+            yield tmp_path
+        except OSError as exc:  # (a full disk while writing): named by the file asked for, not the temporary one
+            if exc.filename is None or str(exc.filename) == str(tmp_path):
+                raise OSError(exc.errno, exc.strerror or str(exc), str(path)) from exc
+            raise
         os.replace(tmp_path, path)
     finally:
         if tmp_path.exists():
@@ -169,7 +175,14 @@ def atomic_dir(path: str | Path, replaceable: frozenset[str] | set[str], writer:
     tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=parent))
     os.chmod(tmp, 0o777 & ~_umask())
     try:
-        yield tmp
+        try:
+            yield tmp
+        except OSError as exc:  # (a full disk): named by where the file was going, not the staging folder
+            inside = exc.filename is not None and Path(str(exc.filename)).is_relative_to(tmp)
+            if not inside:
+                raise
+            raise OSError(exc.errno, exc.strerror or str(exc), str(path / Path(str(exc.filename)).relative_to(tmp))) \
+                from exc
         (tmp / DIR_MARKER).write_text(f"written by {writer}; {path.name} may be replaced by it as a whole\n",
                                      encoding="utf-8")
         check_replaceable_dir(path, replaceable, writer)

@@ -13,11 +13,11 @@ from typing import Any, Callable
 import numpy as np
 from numpy.typing import NDArray
 
-from gtvo.core.optional import require_open3d
-from gtvo.io.atomic import atomic_dir, atomic_path, check_replaceable_dir, write_json
+from gtvo.io.atomic import atomic_dir, check_replaceable_dir, write_json
 from gtvo.errors import DependencyError, InputError
 from gtvo.evaluation.metrics import align_trajectory, ate, drift_percent, kitti_segment_errors, rpe
 from gtvo.io.covariances import KeyframeCovariances, covariance_summary, position_ellipses, write_covariances
+from gtvo.io.ply import write_ply_points
 from gtvo.io.plots import CAMERA_WORLD_XZ_LABELS, plot_errors_over_time, plot_trajectory_top_view
 from gtvo.datasets.sequence import Sequence
 from gtvo.evaluation.trajectory import Trajectory
@@ -89,16 +89,9 @@ def evaluate(est: Trajectory, ref: Trajectory) -> dict[str, Any]:
 
 
 def write_point_cloud(path: str | Path, points: NDArray[np.float64], intensity: NDArray[np.float64]) -> Path:
-    """Write points (N, 3) with gray colours from intensities (0..255) as a PLY via open3d."""
-    o3d = require_open3d()
-    pcd = o3d.geometry.PointCloud()
-    pcd.points = o3d.utility.Vector3dVector(np.asarray(points, dtype=np.float64).reshape(-1, 3))
-    g = np.clip(np.asarray(intensity, dtype=np.float64).reshape(-1, 1) / 255.0, 0.0, 1.0)
-    pcd.colors = o3d.utility.Vector3dVector(np.repeat(g, 3, axis=1))
-    with atomic_path(path) as tmp:
-        if not o3d.io.write_point_cloud(str(tmp), pcd, write_ascii=False):
-            raise InputError("open3d could not write the point cloud", path=path)
-    return Path(path)
+    """Write points (N, 3) with gray colours from intensities (0..255) as a binary PLY
+    (:func:`gtvo.io.ply.write_ply_points`: numpy, no open3d; a failed write is one OSError)."""
+    return write_ply_points(path, points, intensity)
 
 
 #: Every entry ``gtvo run`` writes into its output folder (an earlier run's set may be replaced).
