@@ -137,8 +137,8 @@ def test_right_camera_dropping_images_is_one_warning_line(tmp_path, capsys):
                         bag.image(f"/cam/{side}/image_rect", ns, np.clip(np.rint(image), 0, 255).astype(np.uint8),
                                   "mono8")
         paths.append(tmp_path / name)
-    code, out, err = _run_cli(["run", str(paths[0]), "--out", str(tmp_path / "out"), "--no-progress", "--mode", "track"],
-                              capsys)
+    code, out, err = _run_cli(["run", str(paths[0]), "--out", str(tmp_path / "out"), "--no-progress",
+                               "--mode", "track"], capsys)
     assert code == 0, err
     warnings = [line for line in err.splitlines() if line.startswith("warning:")]
     assert warnings == [f"warning: {paths[0]}: 10 /cam/left/image_rect messages without a /cam/right/image_rect "

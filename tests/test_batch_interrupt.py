@@ -47,9 +47,13 @@ def hidden_entries(folder: Path) -> list[Path]:
     return sorted(p for p in folder.rglob(".*") if p.name != ".gtvo-output")
 
 
-def end_group(pgid: int) -> list[str]:
-    """SIGKILL what still runs in process group ``pgid`` (a failed test leaves nothing running);
-    returns what ran."""
+def end_group(pgid: int, grace_s: float = 10.0) -> list[str]:
+    """What still runs in process group ``pgid`` after ``grace_s`` (multiprocessing's resource
+    tracker ends on its own once the command's pipes to it close: give it the time), SIGKILLed so
+    that a failed test leaves nothing running."""
+    deadline = time.monotonic() + grace_s
+    while live_processes_in_group(pgid) and time.monotonic() < deadline:
+        time.sleep(0.1)
     survivors = live_processes_in_group(pgid)
     for pid in (int(s.split()[0]) for s in survivors):
         try:
@@ -107,7 +111,7 @@ def test_sigint_to_the_group_or_the_main_process_ends_the_workers_too(fleet, tmp
         try:
             _, err = proc.communicate(timeout=60)  # a worker left running would hold the pipes open
         except subprocess.TimeoutExpired:
-            pytest.fail(f"trial {trial}: the batch did not end: {end_group(proc.pid)}")
+            pytest.fail(f"trial {trial}: the batch did not end: {end_group(proc.pid, 0.0)}")
         outcomes.append(proc.returncode)
         assert proc.returncode in (0, 130), (trial, err)
         assert end_group(proc.pid) == [], trial
@@ -168,7 +172,7 @@ def test_an_interrupt_while_workers_write_leaves_no_staging_and_the_earlier_set(
     try:
         _, err = proc.communicate(timeout=60)
     except subprocess.TimeoutExpired:
-        pytest.fail(f"the workers did not end: {end_group(proc.pid)}")
+        pytest.fail(f"the workers did not end: {end_group(proc.pid, 0.0)}")
     assert proc.returncode == 130 and err.strip().splitlines() == ["interrupted"], err
     assert end_group(proc.pid) == []
     assert hidden_entries(out) == []

@@ -203,9 +203,10 @@ def write_run_outputs(out_dir: str | Path, est: Trajectory, seq: Sequence, run_i
         if pair is not None:
             plot_trajectory_top_view(aligned, ref, out / "trajectory.png", title=title, ellipses=ellipses, **view)
             errs = np.linalg.norm(aligned.positions - ref.positions, axis=1)
-            plot_errors_over_time(ref.timestamps, errs, out / "errors.png", ylabel="position error after alignment [m]",
-                                  title=f"{seq.name}: position error after " + ("SE(3) alignment to the ground truth (least "
-                                        "squares over all poses, as the ATE)" if se3 else "aligning the first poses"))
+            after = ("SE(3) alignment to the ground truth (least squares over all poses, as the ATE)" if se3
+                     else "aligning the first poses")
+            plot_errors_over_time(ref.timestamps, errs, out / "errors.png", title=f"{seq.name}: position error after "
+                                  f"{after}", ylabel="position error after alignment [m]")
         else:
             plot_trajectory_top_view(est, None, out / "trajectory.png", title=f"{seq.name} (no ground truth)",
                                      ellipses=ellipses, **view)

@@ -235,8 +235,8 @@ class VisualOdometry(KeyframeMaking):
 
         None when no covariance was computed for it: track mode, ``WindowConfig.covariances=False``,
         or a keyframe no window optimisation included yet (the newest keyframes while frames are
-        still processed, until the next optimisation or :meth:`finish`). Raises :class:`InputError` for a frame index
-        that is not a keyframe.
+        still processed, until the next optimisation or :meth:`finish`). Raises
+        :class:`InputError` for a frame index that is not a keyframe.
 
         ``inflation`` multiplies the window's covariance: the window's marginals are optimistic
         (measured on noisy synthetic sequences: mean NEES 4-8x the consistent value, docs/benchmarks.md,

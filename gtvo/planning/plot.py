@@ -22,8 +22,8 @@ MARGIN_FRACTION = 0.15
 MIN_MARGIN_M = 3.0
 
 
-def plan_view(grid: OccupancyGrid, result: PlanResult, start_xz: tuple[float, float],
-              goal_xz: tuple[float, float], trajectory_xz: ArrayLike | None = None) -> tuple[float, float, float, float]:
+def plan_view(grid: OccupancyGrid, result: PlanResult, start_xz: tuple[float, float], goal_xz: tuple[float, float],
+              trajectory_xz: ArrayLike | None = None) -> tuple[float, float, float, float]:
     """``(x_min, x_max, z_min, z_max)`` (m) the picture shows: the bounding box of the path (when
     found), start, goal and the trajectory's ``(K, 2)`` world ``(X, Z)``, its shorter side grown
     to half the longer one, then by the margin (:data:`MARGIN_FRACTION`, :data:`MIN_MARGIN_M`),
