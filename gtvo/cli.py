@@ -154,6 +154,7 @@ def entry_point() -> None:
         # interrupted: leave now. The interpreter's finalisers run inside libraries the interrupt may
         # have left half-done and were measured to turn exit 130 into 1 or a SIGINT death (about 1 run
         # in 12 interrupted at random); the outputs are already whole or untouched (atomic writes).
+        _release_process_resources()
         for stream in (sys.stdout, sys.stderr):
             try:
                 stream.flush()
@@ -161,6 +162,20 @@ def entry_point() -> None:
                 pass
         os._exit(130)
     sys.exit(code)
+
+
+def _release_process_resources() -> None:
+    """Unlink the named semaphores of process pools (``gtvo batch``'s) before the immediate exit of
+    an interrupted command: the interpreter's exit, which it skips, would have done it (through
+    multiprocessing's exit finalizers); else multiprocessing's resource tracker reports them as
+    leaked on stderr after the command's one line."""
+    util = sys.modules.get("multiprocessing.util")
+    if util is None:
+        return
+    try:
+        util._run_finalizers(0)  # the finalizers of priority >= 0: semaphores, queues (not the joins)
+    except Exception:  # noqa: BLE001,S110 - on the way out: nothing left to report it to
+        pass
 
 
 def _quiet_interrupts(hook: Callable[[Any], None]) -> Callable[[Any], None]:

@@ -158,12 +158,12 @@ def _pool_round(indices: list[int], jobs: list[dict[str, Any]], workers: int, on
             except Exception as exc:  # noqa: BLE001 - a result that could not come back
                 result = failure(exc)
             on_done(futures[fut], result)
+        pool.shutdown(wait=True)  # (a dead worker's pool has ended its other workers already)
     except BaseException:  # Ctrl-C or an error: stop the workers now rather than after their current logs
         with _interrupts_ignored():  # a second Ctrl-C must not leave workers running
             _terminate(pool)
             _discard_unfinished([jobs[i] for i in indices])
         raise
-    pool.shutdown(wait=True)  # (a dead worker's pool has ended its other workers already)
     _discard_unfinished([jobs[i] for i in broken])
     return sorted(broken)
 
