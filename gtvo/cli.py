@@ -5,7 +5,9 @@ Each subcommand lives in its own module under :mod:`gtvo.commands` and exposes
 Bad input (:class:`gtvo.errors.InputError`) becomes one line on stderr and exit code 2; so does
 an operating-system error (``OSError``: an output the system refuses to write). Ctrl-C anywhere
 becomes ``gtvo CMD: interrupted`` and exit code 130 (also when compiled code it stopped reports
-it as another error: :func:`caused_by_interrupt`).
+it as another error: :func:`caused_by_interrupt`), until the command's outputs are in place
+(:func:`gtvo.core.interrupt.outputs_in_place`): then it has succeeded. A closed stdout pipe
+(``gtvo ... | head``) is exit code 0, without a word.
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ import importlib
 import os
 import signal
 import sys
+import threading
 import warnings
 
 # gtvo's linear algebra is many small products (8x8 .. 6000x16); multithreaded BLAS on a busy
@@ -58,10 +61,27 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of the ``gtvo`` console script; returns the exit code.
+    """Run the ``gtvo`` command line ``argv`` (default ``sys.argv[1:]``); returns the exit code.
 
-    ``gtvo ... | head``: when the reader of stdout leaves, gtvo stops quietly with exit code 1
-    (Python's documented handling of ``BrokenPipeError``), not with an error line.
+    The SIGINT handler is as it was when the command returns (a command ignores Ctrl-C once its
+    outputs are in place: :func:`gtvo.core.interrupt.outputs_in_place`).
+    """
+    handler = signal.getsignal(signal.SIGINT)
+    try:
+        return _main(argv)
+    finally:
+        if handler is not None and signal.getsignal(signal.SIGINT) is not handler \
+                and threading.current_thread() is threading.main_thread():
+            signal.signal(signal.SIGINT, handler)
+
+
+def _main(argv: Sequence[str] | None = None) -> int:
+    """:func:`main` without the SIGINT handler put back (:func:`entry_point` ignores Ctrl-C after it).
+
+    ``gtvo ... | head``: when the reader of stdout leaves, gtvo stops quietly with exit code 0, not
+    with an error line: a closed pipe is the reader's choice, not a failure (stdout is pointed at
+    ``os.devnull``, as Python's documentation of ``BrokenPipeError`` recommends, so that the
+    interpreter's last flush does not fail again).
     """
     try:
         try:
@@ -73,7 +93,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return code
     except BrokenPipeError:
         _silence_stdout()
-        return 1
+        return 0
 
 
 def _run(argv: Sequence[str] | None) -> int:
@@ -126,14 +146,15 @@ def entry_point() -> None:
     sys.unraisablehook = _quiet_interrupts(sys.unraisablehook)
     # gtvo draws no 3-D axes; matplotlib warns about them only when a Ctrl-C broke its optional import
     warnings.filterwarnings("ignore", message="Unable to import Axes3D")
-    code = main()
+    code = _main()
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    if interrupt_requested() and code not in (130, 1):  # 1: stdout's reader left (BrokenPipe)
+    if interrupt_requested() and code != 130:  # (none after the outputs were in place: outputs_in_place)
         code = 130
     if code == 130:
         # interrupted: leave now. The interpreter's finalisers run inside libraries the interrupt may
         # have left half-done and were measured to turn exit 130 into 1 or a SIGINT death (about 1 run
         # in 12 interrupted at random); the outputs are already whole or untouched (atomic writes).
+        _release_process_resources()
         for stream in (sys.stdout, sys.stderr):
             try:
                 stream.flush()
@@ -141,6 +162,20 @@ def entry_point() -> None:
                 pass
         os._exit(130)
     sys.exit(code)
+
+
+def _release_process_resources() -> None:
+    """Unlink the named semaphores of process pools (``gtvo batch``'s) before the immediate exit of
+    an interrupted command: the interpreter's exit, which it skips, would have done it (through
+    multiprocessing's exit finalizers); else multiprocessing's resource tracker reports them as
+    leaked on stderr after the command's one line."""
+    util = sys.modules.get("multiprocessing.util")
+    if util is None:
+        return
+    try:
+        util._run_finalizers(0)  # the finalizers of priority >= 0: semaphores, queues (not the joins)
+    except Exception:  # noqa: BLE001,S110 - on the way out: nothing left to report it to
+        pass
 
 
 def _quiet_interrupts(hook: Callable[[Any], None]) -> Callable[[Any], None]:

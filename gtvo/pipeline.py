@@ -144,6 +144,9 @@ def run(path: str | Path | Sequence, out: str | Path | None = None,
                                                                **open_options)
     out_dir = Path(out) if out is not None else Path("gtvo_out") / seq.name
     check_run_output_dir(out_dir, seq)  # before the long work
+    unpaired = seq.unpaired_warning() if hasattr(seq, "unpaired_warning") else None  # a bag's dropped images
+    if unpaired is not None:
+        print(f"warning: {unpaired}", file=sys.stderr)
     if isinstance(path, Sequence) and max_frames is not None:
         seq = seq.truncated(max_frames)
     seq = seq.subsampled(frame_step)

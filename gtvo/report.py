@@ -62,7 +62,7 @@ HEADLINE_FIELDS: tuple[str, ...] = (
     "suspect_frames", "trusted_fraction", "window_optimisations", "window_seconds_mean", "ate_rmse_m", "ate_sim3_rmse_m", "scale_ratio",
     "rig_offset_px", "rig_offset_sigma_px", "rpe_trans_rmse_m", "ate_skipped", "drift_percent", "loops_detected",
     "loops_accepted", "frames_refined", "loop_closed_ate_rmse_m", "loop_closed_drift_percent", "map_points_written",
-    "map_points_left_out", "map_points_skipped", "unpaired_messages")
+    "map_points_left_out", "unpaired_messages")
 
 
 def run_report(seq: Sequence, estimate: Trajectory, odometry: OdometrySummary, config: OdometryConfig, *,

@@ -26,3 +26,25 @@ def test_api_run_on_synthetic(tmp_path):
 
     rep = gtvo.run(make_synthetic_sequence(n_frames=5), out=tmp_path, config={"frontend": {"points_per_keyframe": 400}})
     assert rep["frames"] == 5 and (tmp_path / "trajectory.tum").is_file()
+
+
+def test_readme_library_snippet_gives_the_last_keyframes_covariance(shared_data):
+    """The README's library snippet, run as written on the first 6 frames of KITTI_sequence_1
+    (keyframes at every frame, the window optimised after every second one): its
+    ``vo.covariance(vo.keyframes[-1])`` is the 6x6 covariance it promises."""
+    import re
+    from pathlib import Path
+
+    import pytest
+
+    root = shared_data / "kitti_stereo_sample" / "KITTI_sequence_1"
+    if not root.is_dir():
+        pytest.skip(f"{root} not found")
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    block = next(b for b in re.findall(r"```python\n(.*?)```", readme, re.S) if "vo.covariance(" in b)
+    lines = [ln for ln in block.splitlines() if "log.bag" not in ln]  # (no bag here)
+    code = "\n".join(lines).replace('open_sequence("KITTI_sequence_1")', f"open_sequence({str(root)!r}, max_frames=6)")
+    names: dict = {}
+    exec(compile(code, "README.md", "exec"), names)  # noqa: S102 - the README's own code
+    assert len(names["vo"].keyframes) == 6
+    assert names["P"] is not None and names["P"].shape == (6, 6)

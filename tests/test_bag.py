@@ -120,6 +120,39 @@ def test_pairing_counts_unpaired_and_max_frames(tmp_path):
         open_sequence(path, stamp_tolerance=0.001)
 
 
+def test_right_camera_dropping_images_is_one_warning_line(tmp_path, capsys):
+    from gtvo.datasets.synthetic import make_synthetic_sequence
+
+    seq = make_synthetic_sequence(n_frames=16, width=160, height=120, seed=1)
+    K = seq.camera.left.K
+    paths = []
+    for name, dropped in (("a.bag", range(4, 14)), ("b.bag", ())):  # the right camera drops 10 images, or none
+        with BagWriter(tmp_path / name) as bag:
+            for i in range(len(seq)):
+                ns = 1_000_000_000 + i * 100_000_000
+                if i == 0:
+                    for side, tx in (("left", 0.0), ("right", -K[0, 0] * seq.camera.baseline)):
+                        bag.camera_info(f"/cam/{side}/camera_info", ns, 160, 120, K, _P(K, tx))
+                for side, image in (("left", seq.left(i)), ("right", seq.right(i))):
+                    if side == "left" or i not in dropped:
+                        bag.image(f"/cam/{side}/image_rect", ns, np.clip(np.rint(image), 0, 255).astype(np.uint8),
+                                  "mono8")
+        paths.append(tmp_path / name)
+    code, out, err = _run_cli(["run", str(paths[0]), "--out", str(tmp_path / "out"), "--no-progress",
+                               "--mode", "track"], capsys)
+    assert code == 0, err
+    warnings = [line for line in err.splitlines() if line.startswith("warning:")]
+    assert warnings == [f"warning: {paths[0]}: 10 /cam/left/image_rect messages without a /cam/right/image_rect "
+                        "partner: those frames are left out (a camera dropped images, or --stamp-tolerance is too "
+                        "tight; unpaired_messages in report.json)"], err
+    report = json.loads((tmp_path / "out" / "report.json").read_text())
+    assert report["frames"] == 6 and report["unpaired_messages"] == {"/cam/left/image_rect": 10,
+                                                                     "/cam/right/image_rect": 0}
+    code, out, err = _run_cli(["run", str(paths[1]), "--out", str(tmp_path / "o2"), "--no-progress", "--mode", "track"],
+                              capsys)
+    assert code == 0 and "warning" not in err, err  # every message paired: no word
+
+
 def test_raw_camera_info_is_rectified_with_its_own_K_D_R_P(tmp_path):
     D = np.array([-0.1, 0.02, 0.001, -0.001, 0.0])
     R = cv2.Rodrigues(np.array([0.0, 0.02, 0.0]))[0]
@@ -134,6 +167,22 @@ def test_raw_camera_info_is_rectified_with_its_own_K_D_R_P(tmp_path):
     T_raw_rect = np.eye(4)
     T_raw_rect[:3, :3] = R.T
     np.testing.assert_allclose(seq.gt_poses, raw.gt_poses @ T_raw_rect, atol=1e-12)
+
+
+@pytest.mark.parametrize("D, R, message", [
+    (np.array([0.1, 0.0, 0.0]), None, "D has 3 coefficients"),
+    (np.full(6, 0.01), None, "D has 6 coefficients"),
+    (np.array([0.1, 0, 0, 0, 0]), np.zeros((3, 3)), "R is not a rotation"),
+    (np.array([0.1, 0, 0, 0, 0]), np.diag([1.0, 1.0, -1.0]), "R is not a rotation"),
+])
+def test_raw_camera_info_opencv_cannot_rectify_is_one_line(tmp_path, capsys, D, R, message):
+    path = write_small_stereo(tmp_path / "a.bag", image_topic="image_raw", D=D, R=R)
+    code, out, err = _run_cli(["run", str(path), "--out", str(tmp_path / "out"), "--no-progress"], capsys)
+    assert code == 2
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and f"{path}: /cam/left/camera_info: camera calibration {message}" in lines[0], err
+    rectified = write_small_stereo(tmp_path / "b.bag", image_topic="image_rect", D=D, R=R)
+    assert len(open_sequence(rectified)) == 5  # rectified images: D and R are not used
 
 
 @pytest.mark.parametrize("msgtype", ["nav_msgs/msg/Odometry", "geometry_msgs/msg/TransformStamped"])

@@ -277,6 +277,9 @@ def test_kitti_bad_calibration_lines(tmp_path):
     _raises("expected P0 and P1 lines", open_sequence, root)
     calib.write_text(good[0] + "\n" + good[0] + "\n")
     _raises("must be positive", open_sequence, root)
+    for blank in ("", "\n  \n", "# only a comment\n"):
+        calib.write_text(blank)
+        _raises("calib.txt: empty calibration file: no P0 or P1 line", open_sequence, root)
 
 
 def test_kitti_missing_right_image_and_empty(tmp_path):
@@ -379,6 +382,14 @@ def test_euroc_bad_input(tmp_path):
     _raises("sensor.yaml:", open_sequence, root)
     yaml0.write_text(_sensor_yaml(T_BS0, resolution=(W + 2, H)))
     _raises("mismatched size", open_sequence, root)
+    yaml0.write_text(_sensor_yaml(T_BS0, resolution=(W + 0.5, H)))
+    _raises("sensor.yaml: resolution must be two whole numbers", open_sequence, root)
+    for cam in ("cam0", "cam1"):  # both agree, the images do not: no rectification tables of 1e12 x 1e12
+        (root / "mav0" / cam / "sensor.yaml").write_text(_sensor_yaml(T_BS0 if cam == "cam0" else T_BS1,
+                                                                     resolution=(10**12, 10**12)))
+    _raises(f"cam0/sensor.yaml: resolution is 1000000000000x1000000000000 but the images are {W}x{H}",
+            open_sequence, root)
+    (root / "mav0" / "cam1" / "sensor.yaml").write_text(_sensor_yaml(T_BS1))
     sheared = T_BS0.copy()
     sheared[0, 1] += 0.01
     yaml0.write_text(_sensor_yaml(sheared))
@@ -452,6 +463,8 @@ def test_tum_bad_input(tmp_path):
     root = make_tum(tmp_path / "some_rgbd_folder")
     _raises("pass --camera", open_sequence, root)
     _raises("four finite numbers", open_sequence, root, camera=(500, float("nan"), 1, 1))
+    _raises("four finite numbers", open_sequence, root, camera=("fx", 500, 1, 1))
+    _raises("four finite numbers", open_sequence, root, camera=500)
     assert len(open_sequence(root, camera=(500, 500, 32, 24))) == 4
 
     root = make_tum(tmp_path / "freiburg2_gt_elsewhere")
@@ -485,9 +498,11 @@ def test_tum_bad_input(tmp_path):
 def test_missing_and_unknown_folders(tmp_path):
     _raises("sequence folder not found", open_sequence, tmp_path / "nope")
     (tmp_path / "file.txt").write_text("x")
-    _raises("not a folder", detect_format, tmp_path / "file.txt")
+    _raises("file.txt: is a file, not a sequence folder or a ROS bag (a .bag file", detect_format,
+            tmp_path / "file.txt")
     (tmp_path / "empty").mkdir()
-    _raises("unknown dataset layout", open_sequence, tmp_path / "empty")
+    err = _raises("unknown dataset layout", open_sequence, tmp_path / "empty")
+    assert "or a ROS bag (a .bag file, or a ROS2 bag folder with metadata.yaml" in str(err)
     root = make_kitti(tmp_path / "k")
     _raises("max_frames must be >= 1", open_sequence, root, max_frames=0)
     _raises("unknown dataset format", open_sequence, root, format="las")

@@ -147,6 +147,25 @@ def test_bad_input_names_the_file(tmp_path):
         open_sequence(drive)
 
 
+@pytest.mark.parametrize("text", ["", "\n   \n", "# a comment\n", "junk 1 2 3\n"])
+def test_empty_blank_or_unlabelled_cam_to_cam_is_one_line_in_run_info_and_loops(tmp_path, capsys, text):
+    from gtvo.cli import main
+
+    drive = make_raw(tmp_path / "drive")
+    (drive / "calib_cam_to_cam.txt").write_text(text)
+    with pytest.raises(InputError, match=r"calib_cam_to_cam.txt: (empty calibration file: )?no P_rect_00 or "
+                                         r"P_rect_01 line"):
+        open_sequence(drive)
+    capsys.readouterr()
+    for command in (["run", str(drive), "--out", str(tmp_path / "out"), "--no-progress"], ["loops", str(drive)]):
+        assert main(command) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "calib_cam_to_cam.txt" in err and "Traceback" not in err
+    assert main(["info", str(drive)]) == 0  # info describes a log it can list; the reason on one line
+    out = capsys.readouterr().out
+    assert "gtvo run would fail: " in out and "calib_cam_to_cam.txt: " in out
+
+
 # ---------------------------------------------------------------------------------------------
 # OXTS -> ground truth, poses worked out by hand
 

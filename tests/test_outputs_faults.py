@@ -399,7 +399,7 @@ def test_fixed_lag_run_reports_isam2_and_every_solver(kitti_like, tmp_path):
     assert (rep["tracker_solver"], rep["window_backend"], rep["window_solver"]) == ("handrolled", "fixed_lag",
                                                                                   "gtsam_isam2")
     first = r.stdout.splitlines()[0]
-    assert "fixed_lag" in first and "gtsam_isam2" in first and "tracker handrolled" in first
+    assert "window fixed-lag back end" in first and "gtsam_isam2" in first and "tracker handrolled" in first
     r = run_cli("run", kitti_like, "--out", out, "--no-progress", "--max-frames", "4", "--solver", "gtsam")
     rep = json.loads((out / "report.json").read_text())
     assert (rep["tracker_solver"], rep["window_backend"], rep["window_solver"]) == ("gtsam", "lm", "gtsam")

@@ -19,7 +19,7 @@ from gtvo.window.config import WindowConfig
 
 #: Keys a report holds only in situations these runs do not make: no ground truth, an ATE whose
 #: alignment is undetermined, a ROS bag, no open3d (or open3d), no point left out, the output folder.
-RARE_KEYS = {"ground_truth", "ate_skipped", "unpaired_messages", "map_points_skipped", "map_points_left_out_by_reason",
+RARE_KEYS = {"ground_truth", "ate_skipped", "unpaired_messages", "map_points_left_out_by_reason",
              "out"}
 
 

@@ -19,7 +19,6 @@ from gtvo.config import OdometryConfig
 from gtvo.datasets import open_sequence
 from gtvo.datasets.synthetic import make_synthetic_sequence
 from gtvo.io.rerun_log import residual_colors
-from gtvo.odometry import VisualOdometry
 
 FRAMES = 12
 

@@ -197,3 +197,26 @@ def test_plots_write_png(tmp_path):
     assert sorted(p.name for p in tmp_path.rglob("*") if p.is_file()) == ["alone.png", "err.png", "top.png"]
     with pytest.raises(InputError):
         plot_errors_over_time([0.0, 1.0], [1.0], tmp_path / "bad.png")
+
+
+def test_errors_png_says_which_alignment_its_errors_are_after(tmp_path, monkeypatch):
+    """errors.png of a run: the position error after SE(3) alignment (the ATE's), said in the
+    title and on the axis."""
+    import gtvo.io.outputs as outputs
+    from gtvo.datasets.synthetic import make_synthetic_sequence
+
+    seq = make_synthetic_sequence(n_frames=6)
+    poses = seq.gt_poses.copy()
+    poses[:, 0, 3] += 0.01 * np.arange(len(poses))
+    drawn = {}
+    real = outputs.plot_errors_over_time
+
+    def capture(times, errors, path, title="", ylabel="error [m]"):
+        drawn.update(title=title, ylabel=ylabel)
+        return real(times, errors, path, title=title, ylabel=ylabel)
+
+    monkeypatch.setattr(outputs, "plot_errors_over_time", capture)
+    report = outputs.write_run_outputs(tmp_path / "out", Trajectory(seq.timestamps.copy(), poses), seq, {"frames": 6})
+    assert report["ate_rmse_m"] is not None and (tmp_path / "out" / "errors.png").is_file()
+    assert "after SE(3) alignment to the ground truth" in drawn["title"]
+    assert drawn["ylabel"] == "position error after alignment [m]"

@@ -87,6 +87,9 @@ def batch(spec: str | Path | list[Any], out: str | Path, jobs: int | None = None
     workers = _check_jobs(jobs)
     if ray is not None:
         require_ray()  # a missing extra is said before any work
+    if not isinstance(spec, list) and Path(spec).is_dir() and Path(out).resolve() == Path(spec).resolve():
+        raise InputError("output folder is the SPEC folder itself; the logs' outputs would mix with the logs: "
+                         "choose another (a new folder, or one inside it)", path=out)
     with tidy_on_failure():
         out_dir = ensure_output_dir(out).resolve()
         logs = read_spec(spec, exclude=(out_dir,))

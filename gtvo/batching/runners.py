@@ -8,11 +8,14 @@ each running multithreaded BLAS on N cores oversubscribe them.
 
 from __future__ import annotations
 
+import contextlib
 import os
+import signal
+import threading
 import time
 import traceback
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Iterator
 
 #: Environment of every worker: single-threaded BLAS and numba (set before numpy is imported).
 WORKER_ENV: dict[str, str] = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
@@ -27,11 +30,12 @@ OnDone = Callable[[int, dict[str, Any]], None]
 
 def init_worker() -> None:
     """Process-pool initializer: single-threaded BLAS and numba in this worker; Ctrl-C is left to
-    the parent, which ends the workers (no traceback from every worker)."""
-    import signal  # noqa: PLC0415
-
+    the parent, which ends the workers (no traceback from every worker). The parent starts its
+    workers with SIGINT blocked (:func:`_interrupts_held`), so a Ctrl-C to the process group while
+    a worker starts up is dropped here rather than raised in its start-up."""
     os.environ.update(WORKER_ENV)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
 
 
 def run_log(job: dict[str, Any]) -> dict[str, Any]:
@@ -126,7 +130,8 @@ def _pool_round(indices: list[int], jobs: list[dict[str, Any]], workers: int, on
     pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=init_worker)
     broken: list[int] = []
     try:
-        futures = {pool.submit(task, jobs[i]): i for i in indices}
+        with _interrupts_held():  # the workers start here (one per submit), inheriting SIGINT blocked
+            futures = {pool.submit(task, jobs[i]): i for i in indices}
         for fut in as_completed(futures):
             try:
                 result = fut.result()
@@ -136,24 +141,85 @@ def _pool_round(indices: list[int], jobs: list[dict[str, Any]], workers: int, on
             except Exception as exc:  # noqa: BLE001 - a result that could not come back
                 result = failure(exc)
             on_done(futures[fut], result)
-    except BaseException:  # Ctrl-C: stop the workers now rather than after their current logs
-        _terminate(pool)
+        pool.shutdown(wait=True)  # (a dead worker's pool has ended its other workers already)
+    except BaseException:  # Ctrl-C or an error: stop the workers now rather than after their current logs
+        with _interrupts_ignored():  # a second Ctrl-C must not leave workers running
+            _terminate(pool)
+            _discard_unfinished([jobs[i] for i in indices])
         raise
-    pool.shutdown(wait=True)
+    _discard_unfinished([jobs[i] for i in broken])
     return sorted(broken)
 
 
+#: Seconds a worker is given to end after SIGTERM before it is killed.
+TERMINATE_TIMEOUT_S = 5.0
+
+
 def _terminate(pool: Any) -> None:
-    """Cancel the pending logs and end the pool's worker processes at once."""
+    """Cancel the pending logs and end the pool's worker processes at once (SIGTERM, then SIGKILL
+    after :data:`TERMINATE_TIMEOUT_S`), waiting until they are gone."""
+    import gc  # noqa: PLC0415
+
+    processes = list((getattr(pool, "_processes", None) or {}).values())  # shutdown() forgets them
+    manager = getattr(pool, "_executor_manager_thread", None)
     pool.shutdown(wait=False, cancel_futures=True)
-    stop = getattr(pool, "terminate_workers", None)  # Python >= 3.14
-    if stop is not None:
-        stop()
-        return
-    for proc in list((getattr(pool, "_processes", None) or {}).values()):
+    for proc in processes:
         proc.terminate()
-    for proc in list((getattr(pool, "_processes", None) or {}).values()):
-        proc.join(timeout=5)
+    deadline = time.monotonic() + TERMINATE_TIMEOUT_S
+    for proc in processes:
+        proc.join(timeout=max(0.0, deadline - time.monotonic()))
+    for proc in processes:
+        if proc.is_alive():
+            proc.kill()
+            proc.join()
+    if manager is not None:  # it sees the workers gone and lets go of the pool's queues
+        manager.join(timeout=TERMINATE_TIMEOUT_S)
+    del processes, manager
+    gc.collect()  # the queues' semaphores are released now, not left for multiprocessing's resource
+    #               tracker to report as leaked once the command exits at once (gtvo.cli.entry_point)
+
+
+def _discard_unfinished(jobs: list[dict[str, Any]]) -> None:
+    """Remove what the ended workers left half-written of these logs' outputs (their staging
+    folders, a half-swapped folder put back, a temporary ``batch.json``): ``--resume`` then meets
+    only finished logs and clean folders."""
+    from gtvo.core.atomic import discard_unfinished  # noqa: PLC0415
+
+    discard_unfinished([Path(job["out"]) for job in jobs if "out" in job], file_names=(RECORD_NAME,))
+
+
+@contextlib.contextmanager
+def _interrupts_held() -> Iterator[None]:
+    """Hold back SIGINT during the block: blocked in this thread (processes started here inherit
+    the mask) and, should another thread take it, only recorded; it is raised again once the
+    block is over. Outside the main thread, or under a handler not set from Python: no change."""
+    handler = signal.getsignal(signal.SIGINT)
+    if threading.current_thread() is not threading.main_thread() or handler is None:
+        yield
+        return
+    caught: list[int] = []
+    signal.signal(signal.SIGINT, lambda signum, frame: caught.append(signum))
+    mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, mask)
+        signal.signal(signal.SIGINT, handler)
+    if caught:
+        signal.raise_signal(signal.SIGINT)  # to the handler that was there (Ctrl-C: KeyboardInterrupt)
+
+
+@contextlib.contextmanager
+def _interrupts_ignored() -> Iterator[None]:
+    """SIGINT ignored during the block (the clean-up after a first Ctrl-C); main thread only."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def require_ray() -> Any:

@@ -47,9 +47,12 @@ def add_odometry_options(p: argparse.ArgumentParser, defaults: Any = None) -> No
     for flag, key, metavar in ODOMETRY_FLAGS:
         text, default, hint = describe_key(key, base)
         choices = literal_choices(hint)
-        kind = {} if choices else {"type": hint, "metavar": metavar}
+        kind = {"type": _cli_choice} if choices else {"type": hint, "metavar": metavar}
+        for choice in choices or ():  # the help names the values as they are typed here
+            text = text.replace(f'"{choice}"', f'"{_cli(choice)}"')
+        alike = "; '-' or '_' alike" if any("_" in c or "-" in c for c in choices or ()) else ""
         p.add_argument(flag, default=None, choices=None if choices is None else [_cli(c) for c in choices],
-                       help=_help(f"{text.rstrip('.')} (config key {key}; default: {_cli(default)})"), **kind)
+                       help=_help(f"{text.rstrip('.')} (config key {key}; default: {_cli(default)}{alike})"), **kind)
     p.add_argument("--solver", choices=[_cli(c) for c in literal_choices(describe_key("solver.tracker")[2]) or ()],
                    default=None,
                    help=f"the solver of both the tracker and the window (config keys solver.tracker and "
@@ -61,6 +64,12 @@ def add_odometry_options(p: argparse.ArgumentParser, defaults: Any = None) -> No
 def _cli(value: Any) -> Any:
     """A setting's spelling on the command line (``fixed_lag`` -> ``fixed-lag``)."""
     return value.replace("_", "-") if isinstance(value, str) else value
+
+
+def _cli_choice(text: str) -> str:
+    """A choice as typed, in the command line's spelling: ``fixed_lag`` and ``fixed-lag`` alike
+    (the configuration file's spelling and the flag's)."""
+    return _cli(text)
 
 
 def _help(text: str) -> str:
@@ -80,7 +89,7 @@ def odometry_config(args: Any):
         value = getattr(args, flag[2:].replace("-", "_"))
         if value is None:
             continue
-        tree: Any = value.replace("-", "_") if key == "window.backend" else value
+        tree: Any = _config_spelling(key, value)
         if key == "solver":  # one solver for the tracker and the window
             tree = {"tracker": value, "window": value}
         for name in reversed(key.split(".")):
@@ -94,11 +103,23 @@ def odometry_config(args: Any):
     return config
 
 
+def _config_spelling(key: str, value: Any) -> Any:
+    """The configuration's value of a flag's choice (``fixed-lag`` -> ``fixed_lag`` for
+    ``window.backend``; ``constant-velocity`` stays); other values as they are."""
+    from gtvo.config import describe_key  # noqa: PLC0415
+    from gtvo.core.settings import literal_choices  # noqa: PLC0415
+
+    if key == "solver" or not isinstance(value, str):
+        return value
+    choices = literal_choices(describe_key(key)[2]) or ()
+    return {_cli(c): c for c in choices}.get(_cli(value), value)
+
+
 def describe_solvers(report: RunReport) -> str:
     """What ran, from a run's report: mode, the tracker's solver and the window's back end and solver."""
     text = f"{report['mode']}, tracker {report['tracker_solver']}"
     if report.get("window_backend") is not None:
-        text += f", window {report['window_backend']} back end with {report['window_solver']}"
+        text += f", window {_cli(report['window_backend'])} back end with {report['window_solver']}"
     if report.get("loop_closure_solver") is not None:
         text += f", loop closure {report['loop_closure_solver']}"
     return text

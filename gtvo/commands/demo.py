@@ -6,6 +6,7 @@ import argparse
 
 from gtvo.commands._common import add_odometry_options, describe_solvers, odometry_config, print_report
 from gtvo.commands._viewer import add_viewer_options, viewer_observers
+from gtvo.core.interrupt import outputs_in_place
 from gtvo.errors import InputError
 
 
@@ -42,6 +43,7 @@ def main(args: argparse.Namespace) -> int:
                                   exposure_change=args.exposure_change)
     with viewer_observers(args) as observers:
         report = run(seq, out=args.out, config=config, progress=not args.no_progress, observers=observers)
+    outputs_in_place()  # the run has succeeded: a Ctrl-C while it prints its summary changes nothing
     print(f"gtvo demo: synthetic sequence, {len(seq)} frames {seq.pinhole.width}x{seq.pinhole.height} "
           f"({describe_solvers(report)})")
     print_report(report)

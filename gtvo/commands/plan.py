@@ -6,9 +6,13 @@ import argparse
 import json
 import math
 import sys
+from typing import TYPE_CHECKING
 
 from gtvo.core.atomic import check_output_file
 from gtvo.errors import InputError
+
+if TYPE_CHECKING:
+    import numpy as np
 
 
 def parse_xz(text: str, name: str) -> tuple[float, float]:
@@ -44,6 +48,28 @@ def _parse_band(text: str) -> tuple[float, float]:
     return low, high
 
 
+#: The trajectories gtvo run writes beside its map (``points.ply``), the one the map is placed on first.
+RUN_TRAJECTORIES = ("trajectory_loop_closed.tum", "trajectory.tum")
+
+
+def _trajectory_xz(given: str | None, map_path: str) -> "np.ndarray | None":
+    """World ``(X, Z)`` of the camera positions of ``given`` (a TUM file), or of the trajectory
+    ``gtvo run`` wrote beside the map (:data:`RUN_TRAJECTORIES`); None when there is none."""
+    from pathlib import Path  # noqa: PLC0415
+
+    from gtvo.io.trajectory_files import read_tum  # noqa: PLC0415
+
+    if given is not None:
+        path = Path(given)
+    else:
+        found = [Path(map_path).parent / name for name in RUN_TRAJECTORIES if (Path(map_path).parent / name).is_file()]
+        if not found:
+            return None
+        path = found[0]
+    positions = read_tum(path).poses[:, :3, 3]
+    return positions[:, [0, 2]]
+
+
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the ``plan`` subcommand."""
     p = subparsers.add_parser(
@@ -58,7 +84,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--robot-radius", default="0.3", help="obstacle inflation radius in metres (default 0.3)")
     p.add_argument("--height-band", default="0.15,2.0",
                    help="LOW,HIGH: heights above the ground (m) whose points are obstacles (default 0.15,2.0)")
-    p.add_argument("--out", help="write a PNG of the grid and the path here")
+    p.add_argument("--out", help="write a PNG of the grid and the path here, framed on the path, start, goal and "
+                                 "trajectory")
+    p.add_argument("--trajectory", metavar="FILE.tum", default=None,
+                   help="the camera's trajectory (TUM) to draw in the PNG; default: the trajectory_loop_closed.tum "
+                        "or trajectory.tum that gtvo run wrote beside the map, when there is one")
     p.add_argument("--json", action="store_true", help="print the result as a JSON object")
     p.set_defaults(func=run)
 
@@ -72,15 +102,17 @@ def run(args: argparse.Namespace) -> int:
     band = _parse_band(args.height_band)
     resolution = _parse_metres(args.resolution, "resolution")
     robot_radius = _parse_metres(args.robot_radius, "robot-radius")
+    trajectory_xz = None
     if args.out:
         check_output_file(args.out)
+        trajectory_xz = _trajectory_xz(args.trajectory, args.map)
     points = read_point_cloud(args.map)
     grid = build_occupancy_grid(points, resolution=resolution, robot_radius=robot_radius, height_band=band)
     result = plan_path(grid, start, goal)
     if args.out:
         from gtvo.planning.plot import plot_plan  # noqa: PLC0415
 
-        plot_plan(grid, result, start, goal, args.out)
+        plot_plan(grid, result, start, goal, args.out, trajectory_xz=trajectory_xz)
     if args.json:
         obj = {
             "found": result.found,

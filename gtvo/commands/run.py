@@ -9,6 +9,7 @@ import sys
 from gtvo.commands._bag import add_bag_options, bag_options
 from gtvo.commands._common import add_odometry_options, describe_solvers, odometry_config, parse_floats, print_report
 from gtvo.commands._viewer import add_viewer_options, viewer_observers
+from gtvo.core.interrupt import outputs_in_place
 from gtvo.errors import InputError
 
 
@@ -61,6 +62,9 @@ def main(args: argparse.Namespace) -> int:
     config = odometry_config(args)
     if args.no_covariances:
         config = dataclasses.replace(config, window=dataclasses.replace(config.window, covariances=False))
+    if args.rig_calibration and config.mode != "window":
+        raise InputError(f"--rig-calibration needs --mode window (got --mode {config.mode}): the rig's offset is "
+                         f"estimated in the window")
     if args.rig_calibration or args.no_rig_calibration:
         config = dataclasses.replace(config, window=dataclasses.replace(config.window,
                                                                         rig_calibration=bool(args.rig_calibration)))
@@ -68,6 +72,7 @@ def main(args: argparse.Namespace) -> int:
         report = run(args.sequence, out=args.out, config=config, format=args.format,
                      max_frames=args.max_frames, progress=not args.no_progress, strict=args.strict,
                      loop_closure=args.loop_closure, frame_step=args.frame_step, observers=observers, **options)
+    outputs_in_place()  # the run has succeeded: a Ctrl-C while it prints its summary changes nothing
     print(f"gtvo run: {report['sequence']} ({describe_solvers(report)})", file=sys.stdout)
     print_report(report)
     return 0

@@ -11,12 +11,13 @@ import contextlib
 import contextvars
 import json
 import os
+import re
 import shutil
 import signal
 import tempfile
 import threading
 from pathlib import Path
-from typing import IO, Any, Callable, Iterator
+from typing import IO, Any, Callable, Iterable, Iterator
 
 from gtvo.errors import InputError
 
@@ -95,7 +96,8 @@ def atomic_path(path: str | Path, suffix: str | None = None) -> Iterator[Path]:
 
     Use it for writers that want a file name (``cv2.imwrite``, ``open3d.io``, matplotlib).
     ``suffix`` defaults to the final suffix of ``path`` so that writers that pick the format
-    from the extension keep working.
+    from the extension keep working. An ``OSError`` of the block that names no file (or the
+    temporary one) is raised again naming ``path``.
     """
     path = check_output_file(path)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix if suffix is not None else path.suffix,
@@ -105,7 +107,12 @@ def atomic_path(path: str | Path, suffix: str | None = None) -> Iterator[Path]:
     # mkstemp creates 0600 files; give the result the permissions a plain open() would.
     os.chmod(tmp_path, 0o666 & ~_umask())
     try:
-        yield tmp_path
+        try:
+            yield tmp_path
+        except OSError as exc:  # (a full disk while writing): named by the file asked for, not the temporary one
+            if exc.filename is None or str(exc.filename) == str(tmp_path):
+                raise OSError(exc.errno, exc.strerror or str(exc), str(path)) from exc
+            raise
         os.replace(tmp_path, path)
     finally:
         if tmp_path.exists():
@@ -168,7 +175,14 @@ def atomic_dir(path: str | Path, replaceable: frozenset[str] | set[str], writer:
     tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=parent))
     os.chmod(tmp, 0o777 & ~_umask())
     try:
-        yield tmp
+        try:
+            yield tmp
+        except OSError as exc:  # (a full disk): named by where the file was going, not the staging folder
+            inside = exc.filename is not None and Path(str(exc.filename)).is_relative_to(tmp)
+            if not inside:
+                raise
+            raise OSError(exc.errno, exc.strerror or str(exc), str(path / Path(str(exc.filename)).relative_to(tmp))) \
+                from exc
         (tmp / DIR_MARKER).write_text(f"written by {writer}; {path.name} may be replaced by it as a whole\n",
                                      encoding="utf-8")
         check_replaceable_dir(path, replaceable, writer)
@@ -222,27 +236,75 @@ def _swap_in(tmp: Path, path: Path, parent: Path) -> None:
             shutil.rmtree(old, ignore_errors=True)
 
 
+#: The random part of the names :mod:`tempfile` gives (``mkstemp``, ``mkdtemp``).
+_TEMP_TAIL = r"[a-z0-9_]{8}"
+
+
+def discard_unfinished(paths: Iterable[str | Path], file_names: Iterable[str] = ()) -> list[Path]:
+    """Undo what writers ended mid-way (killed: no ``finally`` of theirs ran) left of
+    :func:`atomic_dir` ``(path)`` and of :func:`atomic_path` ``(path / name)`` for each of
+    ``file_names``; call it only once those writers are gone.
+
+    An earlier folder the writer had put aside (``.NAME.old.*``, killed between the two renames
+    of the swap) is put back when ``path`` is missing; the temporary folders beside ``path``
+    (``.NAME.*``) and the temporary files of ``file_names`` inside it are removed.
+
+    Returns:
+        The temporary folders and files removed.
+    """
+    removed: list[Path] = []
+    names = list(file_names)
+    by_parent: dict[Path, list[Path]] = {}
+    for path in map(Path, paths):
+        by_parent.setdefault(path.parent, []).append(path)
+    for parent, targets in by_parent.items():
+        try:
+            hidden = [entry for entry in parent.iterdir() if entry.name.startswith(".")]
+        except OSError:
+            continue
+        for path in targets:
+            name = re.escape(path.name)
+            aside = [e for e in hidden if re.fullmatch(rf"\.{name}\.old\.{_TEMP_TAIL}", e.name)]
+            for folder in aside:
+                if not path.exists() and (folder / path.name).is_dir():
+                    os.replace(folder / path.name, path)  # the earlier set, as it was
+            staging = [e for e in hidden if re.fullmatch(rf"\.{name}\.{_TEMP_TAIL}", e.name)]
+            for folder in aside + staging:
+                shutil.rmtree(folder, ignore_errors=True)
+                removed.append(folder)
+            patterns = [rf"\.{re.escape(f)}\.{_TEMP_TAIL}{re.escape(Path(f).suffix)}" for f in names]
+            for tmp in (path.iterdir() if patterns and path.is_dir() else ()):
+                if any(re.fullmatch(p, tmp.name) for p in patterns):
+                    tmp.unlink(missing_ok=True)
+                    removed.append(tmp)
+    return removed
+
+
 @contextlib.contextmanager
 def deferred_interrupts() -> Iterator[None]:
-    """Hold back SIGINT (Ctrl-C) during the block; one that arrived is raised as
-    :class:`KeyboardInterrupt` when the block ends.
+    """Hold back SIGINT (Ctrl-C) during the block; one that arrived goes to the handler that was
+    in place when the block ends (Python's default, or ``gtvo``'s
+    :func:`gtvo.core.interrupt.note_interrupt`: :class:`KeyboardInterrupt`).
 
     For steps that must not stop half-way (two renames that swap an output folder). Only the
-    main thread can set signal handlers: elsewhere, or when SIGINT is not Python's default
-    handler (a caller chose its own), the block runs unprotected.
+    main thread can set signal handlers: elsewhere, or when the handler was not set from Python,
+    the block runs unprotected; under an ignored SIGINT there is nothing to hold back.
     """
-    if threading.current_thread() is not threading.main_thread() \
-            or signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
+    previous = signal.getsignal(signal.SIGINT)
+    if threading.current_thread() is not threading.main_thread() or previous is None \
+            or previous is signal.SIG_IGN:
         yield
         return
     caught: list[int] = []
-    previous = signal.signal(signal.SIGINT, lambda signum, frame: caught.append(signum))
+    signal.signal(signal.SIGINT, lambda signum, frame: caught.append(signum))
     try:
         yield
     finally:
         signal.signal(signal.SIGINT, previous)
     if caught:
-        raise KeyboardInterrupt
+        if not callable(previous):
+            raise KeyboardInterrupt  # (SIG_DFL: the default action would have ended the process)
+        previous(signal.SIGINT, None)
 
 
 def _umask() -> int:

@@ -8,11 +8,15 @@ run would finish as if nothing happened. The ``gtvo`` command therefore installs
 run checks :func:`raise_if_interrupted` between frames and before writing outputs, and the CLI
 once more when the command returns. A library user's own handler is left alone (nothing is
 installed on import).
+
+Once a command's outputs are in place (:func:`outputs_in_place`), the command has succeeded:
+a Ctrl-C while it prints its summary or exits no longer turns that into exit code 130.
 """
 
 from __future__ import annotations
 
 import signal
+import threading
 from types import FrameType
 
 _interrupted = False
@@ -34,3 +38,13 @@ def raise_if_interrupted() -> None:
     """Raise :class:`KeyboardInterrupt` if a SIGINT was seen, even one that a library swallowed."""
     if _interrupted:
         raise KeyboardInterrupt
+
+
+def outputs_in_place() -> None:
+    """Say that the command's work is done and its outputs are in place: SIGINT is ignored from
+    here on (in the main thread; the command only prints and exits), and an interrupt noted so
+    far is forgotten (it came after the last check before the outputs were committed)."""
+    global _interrupted
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+    _interrupted = False

@@ -38,6 +38,9 @@ def detect_format(path: str | Path) -> str:
     """
     if looks_like_bag(Path(path)):
         return "bag"
+    if Path(path).is_file():
+        raise InputError("is a file, not a sequence folder or a ROS bag (a .bag file, or a ROS2 bag folder with "
+                         "metadata.yaml)", path=path)
     folder = require_dir(Path(path), "sequence folder")
     if looks_like_kitti(folder):
         return "kitti"
@@ -48,8 +51,9 @@ def detect_format(path: str | Path) -> str:
     if looks_like_tum(folder):
         return "tum"
     raise InputError("unknown dataset layout: expected KITTI (calib.txt + image_0/ or image_l/), KITTI raw "
-                     "(image_00/data/ + calib_cam_to_cam.txt), EuRoC (mav0/cam0/ + mav0/cam1/) or TUM RGB-D "
-                     "(rgb.txt + depth.txt)", path=folder)
+                     "(image_00/data/ + calib_cam_to_cam.txt), EuRoC (mav0/cam0/ + mav0/cam1/), TUM RGB-D "
+                     "(rgb.txt + depth.txt), or a ROS bag (a .bag file, or a ROS2 bag folder with metadata.yaml "
+                     "and its .db3 or .mcap files)", path=folder)
 
 
 def open_sequence(path: str | Path, format: DatasetFormat = "auto",

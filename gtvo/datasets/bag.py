@@ -126,6 +126,19 @@ class BagSequence(Sequence):
     topics: TopicChoice | None = None
     calibration_source: str = ""
 
+    def unpaired_warning(self) -> str | None:
+        """One line when image messages found no partner (a camera dropped images, or stamps
+        further apart than the pairing tolerance): the frames they would have made are left out.
+        None when every message was paired."""
+        counts = {topic: n for topic, n in self.unpaired.items() if n}
+        if not counts:
+            return None
+        topics = list(self.unpaired)
+        parts = [f"{n} {topic} message{'s' if n > 1 else ''} without a "
+                 f"{next((t for t in topics if t != topic), 'partner')} partner" for topic, n in counts.items()]
+        return (f"{self.source}: {', '.join(parts)}: those frames are left out (a camera dropped images, or "
+                f"--stamp-tolerance is too tight; unpaired_messages in report.json)")
+
 
 def _pair(first: _TopicStamps, second: _TopicStamps, tolerance: float, choice: TopicChoice, where: Path
           ) -> tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.int64]]:

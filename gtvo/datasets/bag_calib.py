@@ -28,12 +28,15 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gtvo.core.camera import PinholeCamera, StereoCamera
+from gtvo.core.lie import rotation_block_error
 from gtvo.datasets._common import FloatArray
 from gtvo.errors import InputError
 
 ImageWarp = Callable[[NDArray[np.float32]], NDArray[np.float32]]
 #: OpenCV-compatible distortion models of ROS CameraInfo.
 SUPPORTED_DISTORTION = ("plumb_bob", "rational_polynomial", "radial-tangential", "radtan", "")
+#: The numbers of distortion coefficients OpenCV's undistortion takes (0: none).
+OPENCV_DISTORTION_SIZES = (0, 4, 5, 8, 12, 14)
 
 
 @dataclass(frozen=True)
@@ -141,6 +144,8 @@ def stereo_calibration(left: CameraModel, right: CameraModel, rectified: bool,
         raise InputError(str(exc), path=left.source) from None
     if rectified or (left.is_undistorted and right.is_undistorted):
         return BagCalibration(camera, source=left.source, size=size)
+    _check_warpable(left)
+    _check_warpable(right)
     T_raw_rect = np.eye(4)
     T_raw_rect[:3, :3] = left.R.T
     return BagCalibration(camera, _warp(left, size), _warp(right, size), T_raw_rect, left.source, size)
@@ -162,6 +167,18 @@ def _check_size(model: CameraModel, size: tuple[int, int]) -> None:
     if model.width and model.height and (model.width, model.height) != tuple(size):
         raise InputError(f"calibration is for {model.width}x{model.height} images, the bag's are "
                          f"{size[0]}x{size[1]}", path=model.source)
+
+
+def _check_warpable(model: CameraModel) -> None:
+    """A raw camera's ``D`` and ``R`` as OpenCV's rectification takes them: a number of
+    coefficients it knows and a rotation, else a one-line InputError naming the source."""
+    if model.D.size not in OPENCV_DISTORTION_SIZES:
+        raise InputError(f"camera calibration D has {model.D.size} coefficients; raw images can be rectified "
+                         f"with {', '.join(map(str, OPENCV_DISTORTION_SIZES[1:]))} (plumb_bob: 5, "
+                         f"rational_polynomial: 8)", path=model.source)
+    problem = rotation_block_error(model.R)
+    if problem is not None:
+        raise InputError(f"camera calibration R {problem}", path=model.source)
 
 
 def _warp(model: CameraModel, size: tuple[int, int]) -> ImageWarp:

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from gtvo.datasets._common import (FloatArray, GrayImageLoader, interpolate_poses, nearest_indices,
+from gtvo.datasets._common import (FloatArray, GrayImageLoader, image_size, interpolate_poses, nearest_indices,
                                    parse_timestamp_ns,
                                    read_rows, read_trajectory, require_dir, require_file, require_overlap)
 from gtvo.errors import InputError, show
@@ -103,6 +103,8 @@ def read_sensor_yaml(path: Path) -> tuple[RawCamera, FloatArray]:
     width, height = numbers("resolution", 2)
     fu, fv, cu, cv = numbers("intrinsics", 4)
     distortion = numbers("distortion_coefficients", 4)
+    if width != int(width) or height != int(height):
+        raise InputError(f"resolution must be two whole numbers of pixels, got {show([width, height])}", path=path)
     if not (fu > 0 and fv > 0 and width >= 1 and height >= 1):
         raise InputError(f"invalid intrinsics {show([fu, fv, cu, cv])} or resolution {show([width, height])}", path=path)
     K = np.array([[fu, 0.0, cu], [0.0, fv, cv], [0.0, 0.0, 1.0]])
@@ -208,12 +210,16 @@ def read_euroc(path: Path, max_frames: int | None = None, ground_truth: Path | N
     if raw0.size != raw1.size:
         raise InputError(f"cam0 is {raw0.width}x{raw0.height} but cam1 is {raw1.width}x{raw1.height} "
                          "(mismatched size)", path=mav0 / "cam1" / "sensor.yaml")
+    left_ns, lefts, rights = _pair_stereo(mav0, max_frames)
+    if image_size(lefts[0]) != raw0.size:  # (before the rectification tables of that size are made)
+        width, height = image_size(lefts[0])
+        raise InputError(f"resolution is {raw0.width}x{raw0.height} but the images are {width}x{height} "
+                         f"({lefts[0].name})", path=mav0 / "cam0" / "sensor.yaml")
     T_cam1_cam0 = np.linalg.inv(T_B_cam1) @ T_B_cam0
     try:
         rect = stereo_rectification(raw0, raw1, T_cam1_cam0, alpha=alpha)
     except InputError as exc:
         raise InputError(str(exc), path=mav0) from None
-    left_ns, lefts, rights = _pair_stereo(mav0, max_frames)
     times = left_ns * 1e-9
 
     gt_path = ground_truth if ground_truth is not None else _find_ground_truth(path, mav0)

@@ -24,7 +24,8 @@ from gtvo.errors import InputError
 
 def sequence_identity(seq: Sequence, format: str | None = None) -> dict[str, Any]:
     """``{"path", "format", "kind", "frames", "first_frame", "last_frame", "sha256"}`` of ``seq``
-    (module doc); ``format`` is the layout it was read as (None for an in-memory sequence)."""
+    (module doc); ``path`` is absolute (as given, made absolute: a link is not followed);
+    ``format`` is the layout it was read as (None for an in-memory sequence)."""
     h = hashlib.sha256()
     h.update(f"{seq.kind}:{len(seq)}\n".encode())
     h.update(np.ascontiguousarray(seq.timestamps, dtype="<f8").tobytes())
@@ -33,7 +34,7 @@ def sequence_identity(seq: Sequence, format: str | None = None) -> dict[str, Any
         h.update(f"{name}\t{_size(full)}\n".encode())
     for i in sorted({0, len(seq) - 1}):
         h.update(_content(seq, i))
-    return {"path": None if seq.source is None else str(seq.source), "format": format, "kind": seq.kind,
+    return {"path": None if seq.source is None else os.path.abspath(seq.source), "format": format, "kind": seq.kind,
             "frames": len(seq), "first_frame": names[0], "last_frame": names[-1], "sha256": h.hexdigest()}
 
 

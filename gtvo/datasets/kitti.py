@@ -20,6 +20,7 @@ T_world_cam0 [I | -t_left]``.
 from __future__ import annotations
 
 import os
+import re
 from pathlib import Path
 
 import numpy as np
@@ -76,7 +77,11 @@ def read_projections(path: Path, cameras: tuple[str, str] = ("P0", "P1")) -> tup
     """The 3x4 projection matrices ``cameras`` (e.g. ``("P0", "P1")``) from ``calib.txt``: the
     labelled lines ``P0: ...``, or in a file without labels the lines in P0, P1, P2, P3 order."""
     rows = read_rows(require_file(path, "calibration file"), 1)
+    if not rows:
+        raise InputError(f"empty calibration file: no {' or '.join(cameras)} line", path=path)
     labelled = {r.fields[0].rstrip(":"): r for r in rows if r.fields[0].endswith(":")}
+    if not labelled and not all(re.fullmatch(r"P\d", k) for k in cameras):  # (only P0..P3 come unlabelled)
+        raise InputError(f"no {' or '.join(cameras)} line (no line is labelled 'NAME:')", path=path)
     if labelled:
         missing = [k for k in cameras if k not in labelled]
         if missing:

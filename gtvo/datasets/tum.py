@@ -51,7 +51,10 @@ def intrinsics_for(folder: Path, camera: tuple[float, float, float, float] | Non
                    ) -> tuple[float, float, float, float]:
     """``camera`` when given, else TUM's published values for the ``freiburgN`` in the folder name."""
     if camera is not None:
-        values = tuple(float(v) for v in camera)
+        try:
+            values = tuple(float(v) for v in camera)
+        except (TypeError, ValueError):
+            values = ()
         if len(values) != 4 or not all(np.isfinite(values)) or values[0] <= 0 or values[1] <= 0:
             raise InputError(f"camera must be four finite numbers fx fy cx cy with fx, fy > 0, got {show(camera)}")
         return values  # type: ignore[return-value]

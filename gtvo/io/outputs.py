@@ -14,12 +14,12 @@ from typing import Any, Callable, Mapping, TypedDict
 import numpy as np
 from numpy.typing import NDArray
 
-from gtvo.core.optional import require_open3d
-from gtvo.core.atomic import atomic_dir, atomic_path, check_replaceable_dir, write_json
-from gtvo.errors import DependencyError, InputError
+from gtvo.core.atomic import atomic_dir, check_replaceable_dir, write_json
+from gtvo.errors import InputError
 from gtvo.evaluation.accuracy import ground_truth
 from gtvo.evaluation.alignment import align_trajectory
 from gtvo.io.covariances import KeyframeCovariances, position_ellipses, write_covariances
+from gtvo.io.ply import write_ply_points
 from gtvo.io.plots import CAMERA_WORLD_XZ_LABELS, plot_errors_over_time, plot_trajectory_top_view
 from gtvo.datasets.sequence import Sequence
 from gtvo.evaluation.trajectory import Trajectory
@@ -28,26 +28,18 @@ from gtvo.core.map_points import MapPoints
 
 
 def write_point_cloud(path: str | Path, points: NDArray[np.float64], intensity: NDArray[np.float64]) -> Path:
-    """Write points (N, 3) with gray colours from intensities (0..255) as a PLY via open3d."""
-    o3d = require_open3d()
-    pcd = o3d.geometry.PointCloud()
-    pcd.points = o3d.utility.Vector3dVector(np.asarray(points, dtype=np.float64).reshape(-1, 3))
-    g = np.clip(np.asarray(intensity, dtype=np.float64).reshape(-1, 1) / 255.0, 0.0, 1.0)
-    pcd.colors = o3d.utility.Vector3dVector(np.repeat(g, 3, axis=1))
-    with atomic_path(path) as tmp:
-        if not o3d.io.write_point_cloud(str(tmp), pcd, write_ascii=False):
-            raise InputError("open3d could not write the point cloud", path=path)
-    return Path(path)
+    """Write points (N, 3) with gray colours from intensities (0..255) as a binary PLY
+    (:func:`gtvo.io.ply.write_ply_points`: numpy, no open3d; a failed write is one OSError)."""
+    return write_ply_points(path, points, intensity)
 
 
 class MapPointsFigures(TypedDict, total=False):
     """The map's counts in ``report.json``, added by :func:`write_run_outputs` when it writes
     ``points.ply`` (docs/evaluation.md, "The map")."""
 
-    map_points_written: int | None
+    map_points_written: int
     map_points_left_out: int
     map_points_left_out_by_reason: dict[str, int]
-    map_points_skipped: str
 
 
 #: Every entry ``gtvo run`` writes into its output folder (an earlier run's set may be replaced).
@@ -147,7 +139,10 @@ def write_run_outputs(out_dir: str | Path, est: Trajectory, seq: Sequence, repor
         if pair is not None:
             plot_trajectory_top_view(aligned, ref, out / "trajectory.png", title=title, ellipses=ellipses, **view)
             errs = np.linalg.norm(aligned.positions - ref.positions, axis=1)
-            plot_errors_over_time(ref.timestamps, errs, out / "errors.png", title=f"{seq.name}: position error")
+            after = ("SE(3) alignment to the ground truth (least squares over all poses, as the ATE)"
+                     if written.get("ate_rmse_m") is not None else "aligning the first poses")
+            plot_errors_over_time(ref.timestamps, errs, out / "errors.png", title=f"{seq.name}: position error after "
+                                  f"{after}", ylabel="position error after alignment [m]")
         else:
             plot_trajectory_top_view(est, None, out / "trajectory.png", title=f"{seq.name} (no ground truth)",
                                      ellipses=ellipses, **view)
@@ -167,11 +162,7 @@ def _write_map(path: Path, points: MapPoints) -> MapPointsFigures:
     if points.left_out:
         figures["map_points_left_out_by_reason"] = dict(points.left_out)
     if points.written:
-        try:
-            write_point_cloud(path, points.points, points.intensity)
-        except DependencyError as exc:
-            figures["map_points_written"] = None
-            figures["map_points_skipped"] = str(exc)
+        write_point_cloud(path, points.points, points.intensity)
     return figures
 
 
