@@ -204,6 +204,7 @@ def test_errors_png_says_which_alignment_its_errors_are_after(tmp_path, monkeypa
     title and on the axis."""
     import gtvo.io.outputs as outputs
     from gtvo.datasets.synthetic import make_synthetic_sequence
+    from gtvo.evaluation.accuracy import evaluate, ground_truth
 
     seq = make_synthetic_sequence(n_frames=6)
     poses = seq.gt_poses.copy()
@@ -216,7 +217,11 @@ def test_errors_png_says_which_alignment_its_errors_are_after(tmp_path, monkeypa
         return real(times, errors, path, title=title, ylabel=ylabel)
 
     monkeypatch.setattr(outputs, "plot_errors_over_time", capture)
-    report = outputs.write_run_outputs(tmp_path / "out", Trajectory(seq.timestamps.copy(), poses), seq, {"frames": 6})
+    est = Trajectory(seq.timestamps.copy(), poses)
+    metrics = evaluate(*ground_truth(seq, est))  # the report's figures, as gtvo.report.run_report adds them
+    report = outputs.write_run_outputs(tmp_path / "out", est, seq, {"frames": 6, **metrics})
     assert report["ate_rmse_m"] is not None and (tmp_path / "out" / "errors.png").is_file()
     assert "after SE(3) alignment to the ground truth" in drawn["title"]
     assert drawn["ylabel"] == "position error after alignment [m]"
+    outputs.write_run_outputs(tmp_path / "out2", est, seq, {"frames": 6, "ate_rmse_m": None})
+    assert "after aligning the first poses" in drawn["title"]

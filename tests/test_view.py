@@ -74,3 +74,17 @@ def test_observers_get_a_view_not_the_odometry():
     assert np.any(X2 != 0.0)
     assert last.positions().shape == (16, 3)
     assert last.right_brightness is not None and abs(last.right_brightness[0]) < 0.1
+
+
+@pytest.mark.parametrize("solver", ["handrolled", "gtsam"])
+def test_a_run_without_a_robust_kernel_tracks_and_has_a_view(solver):
+    """``photometric.huber_k: null`` (no robust kernel, allowed by the config) tracks with both
+    solvers: the lost-pixel cost is the square's, and the view's colour scale the default kernel's."""
+    from factors.gtsam_factors import DEFAULT_HUBER_K, DEFAULT_SIGMA_INTENSITY
+    from factors.params import PhotometricConfig
+
+    seq = make_synthetic_sequence(n_frames=4)
+    vo, _, info = process_sequence(seq, OdometryConfig(photometric=PhotometricConfig(huber_k=None), solver=solver),
+                                   warn=lambda m: None)
+    assert info["tracking_failures"] == 0
+    assert vo.view().residual_scale == DEFAULT_HUBER_K * DEFAULT_SIGMA_INTENSITY

@@ -119,7 +119,9 @@ def _evaluate(kf: TrackingKeyframe, level: int, target: GradientImage, T: gtsam.
 
 def _lost_pixel_loss(kf: TrackingKeyframe) -> float:
     """Constant cost of a pattern pixel that the state pushes out of the frame (or behind it)."""
-    return float(huber_loss(kf.config.lost_point_norm, kf.photometric.huber_k)) / kf.pattern.shape[0]
+    norm, k = kf.config.lost_point_norm, kf.photometric.huber_k
+    loss = 0.5 * norm * norm if k is None else float(huber_loss(norm, k))  # no robust kernel: the square's
+    return loss / kf.pattern.shape[0]
 
 
 def _apply(T: gtsam.Pose3, affine: NDArray, dx: NDArray) -> tuple[gtsam.Pose3, NDArray]:

@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
+from factors.gtsam_factors import DEFAULT_HUBER_K
 from gtvo.frontend.tracking_types import TrackingResult
 from gtvo.odometry.estimates import Keyframe
 
@@ -55,7 +56,7 @@ class OdometryView:
         tracked: the frame's tracked points with the tracker's residuals, None when the frame was not
             tracked (the first frame, a re-initialisation) or its tracking failed.
         residual_scale: grey levels at which a residual is an outlier (Huber's ``k`` times the
-            photometric noise): the scale of a residual colour map.
+            photometric noise; the default ``k`` without a robust kernel): the scale of a residual colour map.
         rig_offset: the window's estimate of the right image's offset ``(delta_x, delta_y)`` (px),
             None when the rig is not calibrated.
         right_brightness: the right camera's brightness relative to the left one, ``(a, b)`` with
@@ -73,7 +74,8 @@ class OdometryView:
         self.window_poses: FloatArray = (np.stack([kf.T_world_cam.matrix() for kf in window]) if window
                                          else np.zeros((0, 4, 4)))
         self.tracked = tracked
-        self.residual_scale = float(photometric.huber_k * photometric.sigma_intensity)
+        k = photometric.huber_k if photometric.huber_k is not None else DEFAULT_HUBER_K  # no kernel: the default's scale
+        self.residual_scale = float(k * photometric.sigma_intensity)
         rig = keyframer.rig
         self.rig_offset: FloatArray | None = None if rig is None else rig.offset.copy()
         wk = keyframer.window.keyframes if keyframer.window is not None else []

@@ -134,10 +134,11 @@ class RigOffset:
         estimate, sigma = test
         self.test = (estimate, sigma)
         self.x_test = (float(estimate[0]), float(sigma[0]))
-        if any(offset_significant(float(estimate[axis]), float(sigma[axis]), axis) for axis in (0, 1)):
-            self.rectified = False
-            self.x_estimated = True
-        return self.x_estimated
+        if not any(offset_significant(float(estimate[axis]), float(sigma[axis]), axis) for axis in (0, 1)):
+            return False
+        self.rectified = False
+        self.x_estimated = True
+        return True
 
     def test_release(self, window_size: int, free_estimate: Callable[[], tuple[float, float] | None]) -> bool:
         """With ``delta_x`` held at a full window: released at once when :attr:`y_known`; else every
