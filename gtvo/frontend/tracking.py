@@ -44,7 +44,7 @@ from gtvo.frontend.tracking_types import (PhotometricConfig, PointResiduals, Tra
                                           TrackingResult, frame_pyramid, largest_sigma, pose_covariance)
 
 __all__ = ["AFFINE_KEY", "FRAME_KEY", "PhotometricConfig", "TrackingConfig", "TrackingKeyframe", "TrackingResult", "frame_pyramid",
-           "level_weights", "pose_covariance", "predict_constant_velocity", "track_gtsam", "track_handrolled",
+           "level_weights", "point_residuals", "pose_covariance", "predict_constant_velocity", "track_gtsam", "track_handrolled",
            "track_with_guesses"]
 
 FRAME_KEY = pose_key(1)
@@ -66,7 +66,7 @@ class _Eval:
     n_pixels: int
     W: NDArray[np.float64]
     data_cost: float  # without the lost-pixel cost
-    lin: PhotometricLinearization  # the residuals it was computed from
+    lin: PhotometricLinearization  # the residuals it was computed from (the unrelated-image RMS reads them)
 
 
 _IDENTITY = np.eye(4)  # the keyframe's own pose: the tracker works in its frame
@@ -216,8 +216,7 @@ def _finish(kf: TrackingKeyframe, target0: GradientImage, T: gtsam.Pose3, affine
         reason = (f"the images do not determine the pose: residual {relative:.2f} of an unrelated image's "
                   f"(> {cfg.max_relative_rms}; too dark or too flat)")
     return TrackingResult(T, np.asarray(affine, dtype=float).copy(), ev.cost, initial_cost, iterations, ev.n_valid,
-                          ev.n_outliers, rms, reason == "", reason, cov,
-                          _point_residuals(ev.lin, kf.level_index[0], kf.pattern), relative)
+                          ev.n_outliers, rms, reason == "", reason, cov, relative)
 
 
 def _unrelated_rms(kf: TrackingKeyframe, ev: _Eval) -> float:
@@ -229,6 +228,16 @@ def _unrelated_rms(kf: TrackingKeyframe, ev: _Eval) -> float:
         return float("nan")
     host = kf.host_samples[0][0]
     return float(np.sqrt(2.0 * np.var(host[valid]) * np.mean(ev.W[valid])))
+
+
+def point_residuals(keyframe: TrackingKeyframe, target: GradientImage, T_keyframe_frame: gtsam.Pose3,
+                    affine: ArrayLike) -> PointResiduals:
+    """The tracker's own photometric residuals of ``keyframe``'s points in ``target`` (the frame's
+    level 0) at ``(T_keyframe_frame, affine)``, e.g. a :class:`TrackingResult`'s solution: per point
+    with a valid pattern pixel, where the frame sees it and its RMS residual. Computed on demand
+    (for viewers), not by the tracker itself: its hot loop never pays for it."""
+    lin = _residuals(keyframe, 0, target, T_keyframe_frame, np.asarray(affine, dtype=float), False)
+    return _point_residuals(lin, keyframe.level_index[0], keyframe.pattern)
 
 
 def _point_residuals(lin: PhotometricLinearization, index: NDArray[np.intp], pattern: ArrayLike) -> PointResiduals:

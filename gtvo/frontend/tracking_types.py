@@ -121,8 +121,6 @@ class TrackingResult:
             level's optimisation froze and Huber's at the solution; residuals whitened by
             ``sigma_intensity``, so it is as good as that noise model). All infinite where the
             Hessian is singular.
-        residuals: the points' residuals at the solution (:class:`PointResiduals`), for viewers;
-            the odometry keeps them for the latest frame only.
         relative_rms: ``rms`` over the whitened RMS that an image unrelated to the keyframe, of the
             same contrast, would leave: ``sqrt(2 Var(I_kf) mean(W))`` over the valid pattern pixels
             (two independent draws differ by ``2 Var`` in the mean square). Independent of
@@ -141,7 +139,6 @@ class TrackingResult:
     success: bool
     reason: str = ""
     covariance: NDArray[np.float64] = field(default_factory=lambda: np.full((6, 6), np.inf))
-    residuals: PointResiduals | None = None
     relative_rms: float = float("nan")
 
     @property

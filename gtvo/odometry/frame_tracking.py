@@ -19,7 +19,7 @@ from gtvo.config import OdometryConfig
 from gtvo.core.camera import PinholeCamera
 from gtvo.core.timing import stage, timed
 from gtvo.frontend import optical_flow_pose
-from gtvo.frontend.tracking import TrackingResult, frame_pyramid, track_gtsam, track_handrolled, track_with_guesses
+from gtvo.frontend.tracking import TrackingKeyframe, TrackingResult, frame_pyramid, track_gtsam, track_handrolled, track_with_guesses
 from gtvo.odometry.estimates import Keyframe, rigid_pose
 
 
@@ -29,11 +29,16 @@ class Track:
 
     Attributes:
         result: the tracker's result (successful or not, with the reason).
+        against: the keyframe's tracking data it was tracked against.
+        target: the frame's full-resolution image with gradients (with ``against``: what
+            :func:`gtvo.frontend.tracking.point_residuals` needs for the residuals at the result).
         flow_reason: when the optical-flow guess tracked the frame, why (the motion model's
             failure); None otherwise.
     """
 
     result: TrackingResult
+    against: TrackingKeyframe
+    target: GradientImage
     flow_reason: str | None = None
 
 
@@ -75,15 +80,16 @@ class FrameTracker:
         result = track_with_guesses(kf.tracker, pyramid, guesses, affine, solver=solver,
                                     accept_rms=0.0 if prev_rms is None else factor * prev_rms)
         if result.success or self.config.flow_fallback is None or kf.image is None:
-            return Track(result)
+            return Track(result, kf.tracker, pyramid[0])
         flow = optical_flow_pose(self.camera, kf.image, kf.points.pixels, kf.points.inverse_depth, left,
                                  self.config.flow_fallback)
         if flow is None:
             result.reason = f"{result.reason}; no optical-flow guess"
-            return Track(result)
+            return Track(result, kf.tracker, pyramid[0])
         retry = solver(kf.tracker, pyramid, rigid_pose(flow.T_keyframe_frame), affine)
         if retry.success:
             self.flow_recoveries += 1
-            return Track(retry, f"tracked from the optical-flow guess (from the motion model: {result.reason})")
+            return Track(retry, kf.tracker, pyramid[0],
+                         f"tracked from the optical-flow guess (from the motion model: {result.reason})")
         result.reason = f"{result.reason}; from the optical-flow guess: {retry.reason}"
-        return Track(result)
+        return Track(result, kf.tracker, pyramid[0])

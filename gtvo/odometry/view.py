@@ -16,11 +16,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from factors.gtsam_factors import DEFAULT_HUBER_K
-from gtvo.frontend.tracking_types import TrackingResult
+from gtvo.frontend.tracking import point_residuals
 from gtvo.odometry.estimates import Keyframe
 
 if TYPE_CHECKING:
     from factors.params import PhotometricConfig
+    from gtvo.odometry.frame_tracking import Track
     from gtvo.odometry.history import FrameHistory
     from gtvo.odometry.keyframer import Keyframer
 
@@ -36,7 +37,7 @@ class TrackedPoints:
         pixels: (M, 2) the points' pixels in the frame.
         X_world: (M, 3) the points in the world (the keyframe's current pose and depths).
         residual: (M,) the tracker's RMS photometric residual of each point at its solution (grey
-            levels; :class:`gtvo.frontend.tracking_types.PointResiduals`).
+            levels; :func:`gtvo.frontend.tracking.point_residuals`).
     """
 
     keyframe_index: int
@@ -84,13 +85,14 @@ class OdometryView:
 
     @classmethod
     def after(cls, history: "FrameHistory", keyframer: "Keyframer", photometric: "PhotometricConfig",
-              result: TrackingResult | None, keyframe: Keyframe | None) -> "OdometryView":
-        """The view after the latest frame, tracked with ``result`` against ``keyframe`` (None: not tracked)."""
+              track: "Track | None", keyframe: Keyframe | None) -> "OdometryView":
+        """The view after the latest frame, tracked as ``track`` against ``keyframe`` (None: not
+        tracked); the tracker's residuals at its solution are computed here, only for a view."""
         tracked = None
-        if result is not None and result.success and result.residuals is not None and keyframe is not None:
-            r = result.residuals
+        if track is not None and track.result.success and keyframe is not None:
+            r = point_residuals(track.against, track.target, track.result.T_keyframe_frame, track.result.affine)
             X = keyframer.world_points(keyframe)[r.index]
-            tracked = TrackedPoints(keyframe.index, r.pixels.copy(), X, r.residual.copy())
+            tracked = TrackedPoints(keyframe.index, r.pixels, X, r.residual)
         return cls(history, keyframer, photometric, tracked)
 
     def positions(self) -> FloatArray:
@@ -109,9 +111,7 @@ class OdometryView:
         kf = self._keyframer.keyframe(index)
         if kf is None:
             raise KeyError(f"frame {index} is not a keyframe")
-        with np.errstate(divide="ignore", invalid="ignore"):
-            X = self._keyframer.world_points(kf)
-        return X, np.asarray(kf.points.intensity, dtype=np.float64).copy()
+        return self._keyframer.world_points(kf), np.asarray(kf.points.intensity, dtype=np.float64).copy()
 
 
 def _window_keyframes(keyframer: "Keyframer") -> list[Keyframe]:

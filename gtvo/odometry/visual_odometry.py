@@ -19,7 +19,6 @@ odometry loop"); the residual math is in :mod:`factors`, the window in :mod:`gtv
 
 from __future__ import annotations
 
-import dataclasses
 import time
 from contextlib import nullcontext
 from dataclasses import dataclass
@@ -196,8 +195,7 @@ class VisualOdometry:
         """What an observer may read after the latest frame (:class:`gtvo.odometry.view.OdometryView`):
         copies, so that nothing an observer does changes the odometry."""
         track, kf = self._last
-        return OdometryView.after(self.history, self.keyframer, self.config.photometric,
-                                  None if track is None else track.result, kf)
+        return OdometryView.after(self.history, self.keyframer, self.config.photometric, track, kf)
 
     # -- the algorithm --------------------------------------------------------------------------
     def _process(self, frame: Frame) -> FrameEstimate:
@@ -285,8 +283,7 @@ class VisualOdometry:
         flow_reason = outcome.track.flow_reason if outcome.track is not None else None
         flow = tracked and kind is not FrameOutcome.LOST and flow_reason is not None
         reason = outcome.reason or (flow_reason or "" if flow else "")
-        stored = result if result is None or result.residuals is None else dataclasses.replace(result, residuals=None)
-        est = FrameEstimate(frame.index, float(frame.timestamp), outcome.T_world_cam.matrix(), kind, stored,
+        est = FrameEstimate(frame.index, float(frame.timestamp), outcome.T_world_cam.matrix(), kind, result,
                             time.perf_counter() - t0, kf_index, outcome.T_keyframe_frame, reason, flow)
         self.history.append(est)
         self._last = (outcome.track if tracked else None, self.keyframer.keyframe(kf_index))
