@@ -31,6 +31,22 @@ def shared_data() -> Path:
 
 
 @pytest.fixture(scope="session")
+def kitti_snippet(shared_data):
+    """A function that opens KITTI_sequence_1 (``gtvo.open_sequence``'s keywords, e.g.
+    ``max_frames``), the test skipped when the snippet is absent."""
+    from gtvo.datasets import open_sequence  # noqa: PLC0415
+
+    folder = shared_data / "kitti_stereo_sample" / "KITTI_sequence_1"
+
+    def open_snippet(**options):
+        if not folder.is_dir():
+            pytest.skip(f"KITTI snippet not found at {folder}")
+        return open_sequence(folder, **options)
+
+    return open_snippet
+
+
+@pytest.fixture(scope="session")
 def open3d():
     """The open3d module; tests that need it are skipped, with the reason, when it cannot be
     imported (its wheel needs the system library libusb-1.0)."""

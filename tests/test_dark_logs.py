@@ -41,13 +41,8 @@ def test_trusted_fraction_and_undetermined_frames():
 
 
 @pytest.fixture(scope="module")
-def kitti6(shared_data):
-    from gtvo.datasets import open_sequence  # noqa: PLC0415
-
-    folder = shared_data / "kitti_stereo_sample" / "KITTI_sequence_1"
-    if not folder.is_dir():
-        pytest.skip(f"KITTI snippet not found at {folder}")
-    return open_sequence(folder, max_frames=6)
+def kitti6(kitti_snippet):
+    return kitti_snippet(max_frames=6)
 
 
 @pytest.mark.realdata

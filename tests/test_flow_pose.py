@@ -66,13 +66,8 @@ def test_bad_input_is_rejected(room):
 
 
 @pytest.mark.realdata
-def test_kitti_two_frames_apart(shared_data):
-    from gtvo.datasets import open_sequence  # noqa: PLC0415
-
-    folder = shared_data / "kitti_stereo_sample" / "KITTI_sequence_1"
-    if not folder.is_dir():
-        pytest.skip(f"KITTI snippet not found at {folder}")
-    seq = open_sequence(folder)
+def test_kitti_two_frames_apart(kitti_snippet):
+    seq = kitti_snippet()
     for a in (10, 20):
         left = seq.left(a)
         pts = init_keyframe_points(left, seq.right(a), seq.camera, target=300)

@@ -235,13 +235,8 @@ def test_without_the_check_the_duplicate_is_tracked_where_it_is_not(room):
 
 
 @pytest.fixture(scope="module")
-def kitti45(shared_data):
-    from gtvo.datasets import open_sequence  # noqa: PLC0415
-
-    folder = shared_data / "kitti_stereo_sample" / "KITTI_sequence_1"
-    if not folder.is_dir():
-        pytest.skip(f"KITTI snippet not found at {folder}")
-    return open_sequence(folder, max_frames=45)
+def kitti45(kitti_snippet):
+    return kitti_snippet(max_frames=45)
 
 
 @pytest.fixture(scope="module")

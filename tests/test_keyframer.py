@@ -22,13 +22,8 @@ def forward():
 
 
 @pytest.fixture(scope="module")
-def kitti(shared_data):
-    from gtvo.datasets import open_sequence  # noqa: PLC0415
-
-    folder = shared_data / "kitti_stereo_sample" / "KITTI_sequence_1"
-    if not folder.is_dir():
-        pytest.skip(f"KITTI snippet not found at {folder}")
-    return open_sequence(folder, max_frames=12)  # 1.2 m per frame: every frame becomes a keyframe
+def kitti(kitti_snippet):
+    return kitti_snippet(max_frames=12)  # 1.2 m per frame: every frame becomes a keyframe
 
 
 def _run(seq, every: int, finish: bool = True) -> VisualOdometry:
@@ -111,16 +106,11 @@ def test_optimize_every_must_be_positive():
 
 @pytest.mark.slow
 @pytest.mark.realdata
-def test_large_steps_optimise_every_keyframe(shared_data):
+def test_large_steps_optimise_every_keyframe(kitti_snippet):
     """At 5 Hz (2.4 m per frame) the new keyframe's stereo depth error moves its points by more than
     the pattern's radius over one step (about 2.5 px): each keyframe is optimised at once, and the
     run is the one of ``optimize_every=1``, bit for bit."""
-    from gtvo.datasets import open_sequence  # noqa: PLC0415
-
-    folder = shared_data / "kitti_stereo_sample" / "KITTI_sequence_1"
-    if not folder.is_dir():
-        pytest.skip(f"KITTI snippet not found at {folder}")
-    seq = open_sequence(folder, max_frames=14).subsampled(2)
+    seq = kitti_snippet(max_frames=14).subsampled(2)
     one, two = _run(seq, 1), _run(seq, 2)
     assert len(two.window_results) == len(one.window_results) == len(seq) - 1
     assert all(np.array_equal(a.T_world_cam, b.T_world_cam) for a, b in zip(one.estimates, two.estimates))
