@@ -210,7 +210,7 @@ def test_interrupt_at_every_step_of_the_output_phase_keeps_the_old_set(small_seq
             return fn(*a, **k)
         return wrapper
 
-    for name in ("write_tum", "plot_trajectory_top_view", "plot_errors_over_time", "write_point_cloud",
+    for name in ("write_tum", "plot_trajectory_top_view", "plot_errors_over_time", "write_ply_points",
                  "write_json", "check_replaceable_dir"):
         monkeypatch.setattr(outputs, name, interrupting(getattr(outputs, name)))
     import gtvo.core.atomic as atomic

@@ -27,12 +27,6 @@ from gtvo.io.trajectory_files import write_tum
 from gtvo.core.map_points import MapPoints
 
 
-def write_point_cloud(path: str | Path, points: NDArray[np.float64], intensity: NDArray[np.float64]) -> Path:
-    """Write points (N, 3) with gray colours from intensities (0..255) as a binary PLY
-    (:func:`gtvo.io.ply.write_ply_points`: numpy, no open3d; a failed write is one OSError)."""
-    return write_ply_points(path, points, intensity)
-
-
 class MapPointsFigures(TypedDict, total=False):
     """The map's counts in ``report.json``, added by :func:`write_run_outputs` when it writes
     ``points.ply`` (docs/evaluation.md, "The map")."""
@@ -162,7 +156,7 @@ def _write_map(path: Path, points: MapPoints) -> MapPointsFigures:
     if points.left_out:
         figures["map_points_left_out_by_reason"] = dict(points.left_out)
     if points.written:
-        write_point_cloud(path, points.points, points.intensity)
+        write_ply_points(path, points.points, points.intensity)  # numpy, no open3d: gtvo.io.ply
     return figures
 
 
