@@ -36,6 +36,8 @@ WHEEL_COLUMNS: dict[str, tuple[str, ...]] = {"pose": ("x", "y", "theta"), "arcs"
 #: The largest time between two consecutive readings that the readers accept (s); a longer gap is
 #: refused, naming the row after it (``wheel.max_gap`` in the config).
 MAX_GAP_S = 1.0
+#: The nominal track width (m) when none is configured (``wheel.nominal_baseline``).
+DEFAULT_NOMINAL_BASELINE = 0.5
 
 
 def check_readings(times: ArrayLike, values: ArrayLike, kind: str, source: str,
