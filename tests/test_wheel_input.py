@@ -10,6 +10,7 @@ from gtvo.cli import main as cli_main
 from gtvo.config import WheelConfig, load_config
 from gtvo.datasets import open_sequence
 from gtvo.datasets.bag_wheel import integrate_twists
+from gtvo.datasets.info import describe_log
 from gtvo.datasets.bag_writer import BagWriter, write_sequence_bag
 from gtvo.datasets.synthetic import make_synthetic_sequence, synthetic_trajectory, write_sequence_kitti
 from gtvo.datasets.synthetic_robot import SYNTHETIC_WHEEL_RADIUS, WheelSimulation, ground_robot_trajectory
@@ -111,6 +112,7 @@ def test_synthetic_bag_carries_odometry_joint_states_and_tf_static(tmp_path):
     joints = open_sequence(bag, wheel_topic="/joint_states", wheel_options=options).wheel_odometry
     np.testing.assert_allclose(joints.values, seq.wheel_odometry.values, atol=1e-12)
     assert open_sequence(bag, wheel_topic="none").wheel_odometry is None
+    assert f"  wheels       {bag}:/odom: pose, 10 readings over 1.000..1.900 s" in describe_log(bag).lines()
     with pytest.raises(InputError, match="--wheel-topic /cam/left/image_rect is sensor_msgs/msg/Image"):
         open_sequence(bag, wheel_topic="/cam/left/image_rect")
     with pytest.raises(InputError, match="wheel radius"):
