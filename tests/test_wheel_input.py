@@ -119,29 +119,64 @@ def test_synthetic_bag_carries_odometry_joint_states_and_tf_static(tmp_path):
         open_sequence(bag, wheel_topic="/joint_states")
 
 
+def _tiny_stereo_bag(path, times, write_more):
+    """A bag of blank rectified stereo frames at ``times`` (+1 s) and CameraInfo; ``write_more(bag, k, ns)``
+    adds the messages under test."""
+    K = np.array([[50.0, 0, 31.5], [0, 50.0, 23.5], [0, 0, 1]])
+    with BagWriter(path) as bag:
+        for side, tx in (("left", 0.0), ("right", -5.0)):
+            bag.camera_info(f"/cam/{side}/camera_info", int(1e9), W, H, K, np.hstack([K, [[tx], [0], [0]]]))
+        for k, t in enumerate(times):
+            ns = int(round((1 + t) * 1e9))
+            for side in ("left", "right"):
+                bag.image(f"/cam/{side}/image_rect", ns, np.zeros((H, W), np.uint8), "mono8", frame_id="cam_optical")
+            write_more(bag, k, ns)
+    return path
+
+
 def test_twist_only_odometry_and_twist_stamped_are_integrated(tmp_path):
     times = np.arange(30) * 0.05
     twists = np.column_stack([np.full(30, 0.8), np.zeros(30), 0.6 * np.sin(times)])
     poses = integrate_twists(times, twists)
-    np.testing.assert_allclose(poses[1], [0.8 * 0.05 * np.sinc(0.0), 0, 0], atol=1e-12)
-    with BagWriter(tmp_path / "t.bag") as bag:
-        for t, v in zip(times, twists):
-            ns = int(round((1 + t) * 1e9))
-            bag.image("/cam/left/image_rect", ns, np.zeros((H, W), np.uint8), "mono8")
-            bag.image("/cam/right/image_rect", ns, np.zeros((H, W), np.uint8), "mono8")
-            bag.odometry("/odom", ns, np.zeros(3), v)  # a driver that publishes only its twist
-            bag.write("/vel", "geometry_msgs/msg/TwistStamped", ns, bag._make(
-                "geometry_msgs/msg/TwistStamped", header=bag.header(ns), twist=bag._make(
-                    "geometry_msgs/msg/Twist", linear=bag._vector(*v[:2], 0.0), angular=bag._vector(0, 0, v[2]))))
-        K = np.array([[50.0, 0, 31.5], [0, 50.0, 23.5], [0, 0, 1]])
-        for side, tx in (("left", 0.0), ("right", -5.0)):
-            bag.camera_info(f"/cam/{side}/camera_info", int(1e9), W, H, K, np.hstack([K, [[tx], [0], [0]]]))
+    np.testing.assert_allclose(poses[1], [0.8 * 0.05, 0, 0], atol=1e-12)
+
+    def more(bag, k, ns):
+        bag.odometry("/odom", ns, np.zeros(3), twists[k])  # a driver that publishes only its twist
+        bag.write("/vel", "geometry_msgs/msg/TwistStamped", ns, bag._make(
+            "geometry_msgs/msg/TwistStamped", header=bag.header(ns), twist=bag._make(
+                "geometry_msgs/msg/Twist", linear=bag._vector(*twists[k, :2], 0.0),
+                angular=bag._vector(0, 0, twists[k, 2]))))
+
+    path = _tiny_stereo_bag(tmp_path / "t.bag", times, more)
     for topic in ("/odom", "/vel"):
-        odo = open_sequence(tmp_path / "t.bag", wheel_topic=topic).wheel_odometry
+        odo = open_sequence(path, wheel_topic=topic).wheel_odometry
         np.testing.assert_allclose(odo.values, poses, atol=1e-12)
         assert ("twist integrated" in odo.source) == (topic == "/odom")
     with pytest.raises(InputError, match="2 wheel odometry topics"):
-        open_sequence(tmp_path / "t.bag")
+        open_sequence(path)
+
+
+def test_joint_states_by_name_and_tf_static_through_a_chain(tmp_path):
+    T_base_mount, T_mount_cam = np.eye(4), WheelConfig().T_base_cam
+    T_base_mount[:3, 3] = [0.2, 0.0, 0.5]
+
+    def more(bag, k, ns):
+        if k == 0:
+            bag.tf_static(ns, [("base_link", "mount", T_base_mount), ("cam_optical", "mount",
+                                                                        np.linalg.inv(T_mount_cam))])
+        names = ["arm", "right_wheel", "left_wheel"] if k % 2 else ["left_wheel", "right_wheel"]
+        positions = [0.0, 2.0 * k, 1.0 * k] if k % 2 else [1.0 * k, 2.0 * k]
+        if k == 4:
+            names, positions = ["left_wheel"], [4.0]
+        bag.joint_state("/joint_states", ns, names, positions)
+
+    options = WheelConfig(wheel_radius=0.05).read_options()
+    with pytest.raises(InputError, match=r"/joint_states: message 5: no position of joint 'left_wheel' and "):
+        open_sequence(_tiny_stereo_bag(tmp_path / "bad.bag", np.arange(6) * 0.1, more), wheel_options=options)
+    path = _tiny_stereo_bag(tmp_path / "j.bag", np.arange(4) * 0.1, more)
+    odo = open_sequence(path, wheel_options=options).wheel_odometry
+    np.testing.assert_allclose(odo.values, 0.05 * np.arange(4)[:, None] * [1.0, 2.0])
+    np.testing.assert_allclose(odo.base_to_camera, T_base_mount @ T_mount_cam, atol=1e-12)
 
 
 def test_synthetic_cli_writes_wheels_and_refuses_bad_calibration(tmp_path, capsys):
