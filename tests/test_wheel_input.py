@@ -10,6 +10,7 @@ from gtvo.cli import main as cli_main
 from gtvo.config import WheelConfig, load_config
 from gtvo.datasets import open_sequence
 from gtvo.datasets.bag_wheel import integrate_twists
+from gtvo.datasets.identity import sequence_identity
 from gtvo.datasets.info import describe_log
 from gtvo.datasets.bag_writer import BagWriter, write_sequence_bag
 from gtvo.datasets.synthetic import make_synthetic_sequence, synthetic_trajectory, write_sequence_kitti
@@ -75,6 +76,16 @@ def test_folder_reads_its_wheel_csv_and_wheel_yaml(robot_folder, tmp_path):
                          ).wheel_odometry.kind == "pose"  # --wheel-odometry FILE wins
     with pytest.raises(InputError, match="wheel_topic apply to ROS bags only"):
         open_sequence(folder, wheel_topic="/odom")
+
+
+def test_the_input_identity_covers_the_wheels(robot_folder, tmp_path):
+    seq, folder = robot_folder
+    plain = open_sequence(folder, wheel_topic=None, wheel_options=None)
+    other = open_sequence(folder, wheel_odometry=_csv(tmp_path, "time,x,y,theta\n0,0,0,0\n1,1,0,0\n"))
+    ids = {sequence_identity(s)["sha256"] for s in (plain, other)}
+    plain.wheel_odometry = None
+    ids.add(sequence_identity(plain)["sha256"])
+    assert len(ids) == 3
 
 
 def test_cli_run_refuses_a_bad_wheel_file_in_one_line(robot_folder, tmp_path, capsys):
