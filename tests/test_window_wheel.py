@@ -12,24 +12,22 @@ import pytest
 
 from factors.params import PhotometricConfig
 from gtvo.core.keys import calibration_key, pose_key
+from gtvo.config import WheelConfig
+from gtvo.datasets.wheel import WheelOdometry, simulate_wheel_odometry
 from gtvo.errors import InputError
 from gtvo.window import (SlidingWindowOptimizer, WindowConfig, build_graph, solve_gtsam, solve_handrolled,
                          window_cost)
 from gtvo.wheel_calibration.motions import integrate_motions
 from gtvo.window.wheel import WheelCalibration, WheelSettings
-from tests._wheel_logs import R_BASE_CAM, PlanarWheelLog, planar_base_poses, raw_diff_drive
 from tests.test_window import _keyframes, seq  # noqa: F401  (the module's synthetic sequence fixture)
 
-T_BC = np.eye(4)
-T_BC[:3, :3] = R_BASE_CAM
-T_BC[:3, 3] = (0.2, 0.0, 1.0)
+T_BC = WheelConfig(base_to_camera=(0.2, 0.0, 1.0, -0.5, 0.5, -0.5, 0.5)).T_base_cam  # 1 m above the base
 K_TRUE = np.array([1.03, 0.98, 1.05])
 NO_HUBER = PhotometricConfig(huber_k=None)
 
 
 def _wheel(seq, k_true=K_TRUE, **settings) -> WheelCalibration:
-    poses = planar_base_poses(np.asarray(seq.gt_poses), T_BC)
-    log = PlanarWheelLog(seq.timestamps, poses, lambda v: raw_diff_drive(v, k_true, 0.5))
+    log = simulate_wheel_odometry(seq.timestamps, np.asarray(seq.gt_poses), T_BC, "pose", k_true, nominal_baseline=0.5)
     return WheelCalibration(WheelSettings("diff_drive", gtsam.Pose3(T_BC), 0.5, **settings), log)
 
 
@@ -84,7 +82,7 @@ def _pose_graph_sigmas(motions: np.ndarray, model: str = "diff_drive") -> np.nda
     priors on every pose): what the motions alone observe."""
     poses = integrate_motions(motions)
     times = np.arange(len(poses), dtype=float)
-    log = PlanarWheelLog(times, poses)
+    log = WheelOdometry(times, "pose", poses, "test")
     wheel = WheelCalibration(WheelSettings(model, gtsam.Pose3(T_BC), 0.5), log)
     kfs = [SimpleNamespace(index=i, timestamp=t) for i, t in enumerate(times)]
     graph = gtsam.NonlinearFactorGraph()
@@ -113,7 +111,7 @@ def test_what_each_motion_observes():
     assert straight[2] == pytest.approx(prior, rel=1e-3)
     turning = _pose_graph_sigmas(np.array([[0.5, 0.02, 0.1 if i % 10 < 5 else -0.1] for i in range(20)]))
     assert np.all(turning < 0.2 * prior)  # measured 0.067, 0.067, 0.17 of it
-    w = WheelCalibration(WheelSettings(), PlanarWheelLog([0.0, 1.0], np.zeros((2, 3))))
+    w = WheelCalibration(WheelSettings(), WheelOdometry(np.array([0.0, 1.0]), "pose", np.zeros((2, 3)), "test"))
     w.covariance = np.diag(np.full(3, prior ** 2))
     assert w.report()["observed"] == [False, False, False]
 
