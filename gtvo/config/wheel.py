@@ -10,6 +10,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gtvo.core.lie import quaternions_to_rotations
+from gtvo.datasets.wheel import DEFAULT_NOMINAL_BASELINE, MAX_GAP_S
+from gtvo.datasets.wheel_files import WheelReadOptions
 from gtvo.core.settings import SettingError, check_settings, setting
 from gtvo.window.wheel import WheelSettings
 
@@ -43,8 +45,9 @@ class WheelConfig:
         left_joint, right_joint: the JointState joint names of the left and right wheels; null: the
             one name containing ``left`` and the one containing ``right``.
         topic: the bag topic of the wheel odometry (``--wheel-topic``); null: the one topic of a
-            supported type (``nav_msgs/Odometry``, ``geometry_msgs/TwistStamped``,
-            ``sensor_msgs/JointState``) when the bag has exactly one.
+            supported type (``nav_msgs/Odometry``, ``geometry_msgs/TwistStamped``, and
+            ``sensor_msgs/JointState`` when ``wheel_radius`` is set) when the bag has exactly one;
+            ``none``: no wheel odometry from the bag.
         max_gap: the longest time between two wheel readings (s) that is interpolated; a longer gap
             is refused, naming the file and row (or bag topic and message).
         calibration_prior: the calibration's prior mean: the diff-drive ``[k_L, k_R, k_b]`` or the
@@ -64,13 +67,13 @@ class WheelConfig:
     model: WheelModelName = "diff_drive"
     base_to_camera: tuple[float, float, float, float, float, float, float] = setting(FORWARD_CAMERA_ON_BASE,
                                                                                      "[-1000, 1000]")
-    nominal_baseline: float = setting(0.5, "(0, 100]")
+    nominal_baseline: float = setting(DEFAULT_NOMINAL_BASELINE, "(0, 100]")
     tick_scale: float = setting(1.0, "(0, 1000]")
     wheel_radius: float | None = setting(None, "(0, 100]")
     left_joint: str | None = None
     right_joint: str | None = None
     topic: str | None = None
-    max_gap: float = setting(1.0, "(0, 3600]")
+    max_gap: float = setting(MAX_GAP_S, "(0, 3600]")
     calibration_prior: tuple[float, ...] | None = setting(None, "[-100, 100]")
     calibration_prior_sigma: float = setting(WheelSettings.prior_sigma, "(0, 10]")
     translation_sigma: float = setting(WheelSettings.translation_sigma, "(0, 100]")
@@ -96,3 +99,9 @@ class WheelConfig:
         T[:3, :3] = quaternions_to_rotations(self.base_to_camera[3:])[0]
         T[:3, 3] = self.base_to_camera[:3]
         return T
+
+    def read_options(self) -> WheelReadOptions:
+        """The settings the wheel readers take (:func:`gtvo.datasets.open_sequence`'s ``wheel_options``)."""
+        return WheelReadOptions(topic=self.topic, tick_scale=self.tick_scale, nominal_baseline=self.nominal_baseline,
+                                wheel_radius=self.wheel_radius, left_joint=self.left_joint,
+                                right_joint=self.right_joint, max_gap=self.max_gap)

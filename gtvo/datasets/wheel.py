@@ -36,6 +36,8 @@ WHEEL_COLUMNS: dict[str, tuple[str, ...]] = {"pose": ("x", "y", "theta"), "arcs"
 #: The largest time between two consecutive readings that the readers accept (s); a longer gap is
 #: refused, naming the row after it (``wheel.max_gap`` in the config).
 MAX_GAP_S = 1.0
+#: The nominal track width (m) when none is configured (``wheel.nominal_baseline``).
+DEFAULT_NOMINAL_BASELINE = 0.5
 
 
 def check_readings(times: ArrayLike, values: ArrayLike, kind: str, source: str,
@@ -161,6 +163,40 @@ class WheelOdometry:
         d = ends[1] - ends[0]
         assert self.nominal_baseline is not None
         return diff_drive_motions_from_arcs(d[:1], d[1:], self.nominal_baseline)[0]
+
+
+    def steps(self) -> FloatArray:
+        """(N-1, 3) raw motions between consecutive readings (:meth:`between` of each pair)."""
+        if self.kind == "arcs":
+            from gtvo.wheel_calibration.diff_drive import diff_drive_motions_from_arcs  # noqa: PLC0415
+
+            d = np.diff(self.values, axis=0)
+            assert self.nominal_baseline is not None
+            return diff_drive_motions_from_arcs(d[:, 0], d[:, 1], self.nominal_baseline)
+        from gtvo.wheel_calibration.motions import relative_motions  # noqa: PLC0415
+
+        u = relative_motions(self.values)
+        u[:, 2] = np.diff(self.values[:, 2])
+        return u
+
+    def as_kind(self, kind: WheelKind) -> "WheelOdometry":
+        """The same readings as ``kind``: arcs integrated to the pose the robot computes from them
+        (the arc model, nominal baseline), or poses as the arcs of each step's arc (exact when each
+        step is one arc: ``factors.odometry_calibration.wheel_arcs``)."""
+        if kind == self.kind:
+            return self
+        if self.nominal_baseline is None:
+            raise InputError("converting poses to wheel arcs needs the nominal baseline", self.source)
+        from gtvo.wheel_calibration.motions import integrate_motions  # noqa: PLC0415
+
+        if kind == "pose":
+            values = integrate_motions(self.steps())
+        else:
+            from factors.odometry_calibration import wheel_arcs  # noqa: PLC0415
+
+            arcs = np.column_stack(wheel_arcs(self.steps(), self.nominal_baseline))
+            values = np.concatenate([np.zeros((1, 2)), np.cumsum(arcs, axis=0)])
+        return WheelOdometry(self.times, kind, values, self.source, self.nominal_baseline, self.base_to_camera)
 
 
 # ------------------------------------------------------------------------------------------ simulation
