@@ -80,3 +80,22 @@ def test_report_holds_the_calibration_the_run_estimated(turn):
     assert wc["track_width_m"] == pytest.approx(wc["track_width_scale"] * 0.5)
     assert all(s < 0.05 for s in wc["sigmas"])
     assert np.sqrt(np.mean(err1 ** 2)) < 1.1 * np.sqrt(np.mean(err0 ** 2))
+
+
+def test_the_logs_own_base_to_camera_wins_over_the_configs():
+    """A bag's /tf_static (the log's ``base_to_camera``) is the transform the factors use; without
+    it, the config's ``wheel.base_to_camera``; the config's prior and sigmas reach the settings."""
+    from gtvo.datasets.wheel import WheelOdometry
+    from gtvo.odometry.wheel import wheel_calibration
+
+    config = WheelConfig(base_to_camera=tuple(BASE_TO_CAMERA), calibration_prior=(1.0, 1.0, 1.1),
+                         planar_height_sigma=0.05)
+    mounted = np.eye(4)
+    mounted[:3, 3] = (0.5, 0.0, 0.7)
+    plain = WheelOdometry(np.array([0.0, 1.0]), "pose", np.zeros((2, 3)), "test")
+    from_bag = dataclasses.replace(plain, base_to_camera=mounted)
+    np.testing.assert_allclose(wheel_calibration(config, plain).settings.T_base_cam.matrix(), config.T_base_cam)
+    np.testing.assert_allclose(wheel_calibration(config, from_bag).settings.T_base_cam.matrix(), mounted)
+    cal = wheel_calibration(config, plain)
+    np.testing.assert_allclose(cal.estimate, [1.0, 1.0, 1.1])
+    assert cal.settings.planar_height_sigma == 0.05 and cal.settings.nominal_baseline == config.nominal_baseline

@@ -19,11 +19,17 @@ from gtvo.window import (SlidingWindowOptimizer, WindowConfig, build_graph, solv
                          window_cost)
 from gtvo.wheel_calibration.motions import integrate_motions
 from gtvo.window.wheel import WheelCalibration, WheelSettings
-from tests.test_window import _keyframes, seq  # noqa: F401  (the module's synthetic sequence fixture)
+from gtvo.datasets.synthetic import make_synthetic_sequence
+from tests.test_window import _keyframes
 
 T_BC = WheelConfig(base_to_camera=(0.2, 0.0, 1.0, -0.5, 0.5, -0.5, 0.5)).T_base_cam  # 1 m above the base
 K_TRUE = np.array([1.03, 0.98, 1.05])
 NO_HUBER = PhotometricConfig(huber_k=None)
+
+
+@pytest.fixture(scope="module")
+def seq():
+    return make_synthetic_sequence(10, width=240, height=180, step_m=0.1)
 
 
 def _wheel(seq, k_true=K_TRUE, **settings) -> WheelCalibration:
@@ -31,7 +37,7 @@ def _wheel(seq, k_true=K_TRUE, **settings) -> WheelCalibration:
     return WheelCalibration(WheelSettings("diff_drive", gtsam.Pose3(T_BC), 0.5, **settings), log)
 
 
-def test_both_solvers_minimise_the_same_cost_with_wheels(seq):  # noqa: F811
+def test_both_solvers_minimise_the_same_cost_with_wheels(seq):
     """The wheel factors and the calibration's prior are in the hand-rolled cost as GTSAM's graph
     has them, and both solvers reach the same poses and calibration."""
     cam = seq.camera
@@ -54,7 +60,7 @@ def test_both_solvers_minimise_the_same_cost_with_wheels(seq):  # noqa: F811
     np.testing.assert_array_equal(wheel.estimate, np.ones(3))  # the solvers do not change the owner
 
 
-def test_the_marginal_prior_carries_the_calibration(seq):  # noqa: F811
+def test_the_marginal_prior_carries_the_calibration(seq):
     """Window of 3, 5 keyframes: the calibration stays in the marginal's keys, its prior is set once,
     the window updates the estimate, and its marginal sigma is below the prior's."""
     cam = seq.camera
@@ -116,7 +122,7 @@ def test_what_each_motion_observes():
     assert w.report()["observed"] == [False, False, False]
 
 
-def test_wheel_settings_and_backend_checks(seq):  # noqa: F811
+def test_wheel_settings_and_backend_checks(seq):
     with pytest.raises(InputError, match="diff_drive model has 3 finite parameters"):
         WheelSettings(prior_mean=(1.0, 1.0)).mean()
     wheel = _wheel(seq)
