@@ -13,6 +13,15 @@ from gtvo.core.interrupt import outputs_in_place
 from gtvo.errors import InputError
 
 
+#: The wheel odometry's flags: ``open_sequence``'s ``wheel_odometry`` and ``wheel_topic``.
+WHEEL_FLAGS: tuple[tuple[str, str, str], ...] = (
+    ("--wheel-odometry", "FILE", "a wheel odometry CSV (time,x,y,theta or time,left,right) instead of the sequence "
+                                 "folder's wheel_odometry.csv or the bag's wheel topic"),
+    ("--wheel-topic", "TOPIC", "the bag's wheel odometry topic (nav_msgs/Odometry, geometry_msgs/TwistStamped, "
+                               "sensor_msgs/JointState; default: the only one; 'none': no wheel odometry)"),
+)
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "run", help="odometry of a logged sequence; writes trajectory, report, plots, points",
@@ -43,12 +52,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     rig.add_argument("--no-rig-calibration", action="store_true",
                      help="the rectified model throughout (overrides window.rig_calibration of a --config file)")
     wheel = p.add_argument_group("wheel odometry (docs/wheel_odometry.md)")
-    wheel.add_argument("--wheel-odometry", metavar="FILE", default=None,
-                       help="a wheel odometry CSV (time,x,y,theta or time,left,right) instead of the sequence "
-                            "folder's wheel_odometry.csv or the bag's wheel topic")
-    wheel.add_argument("--wheel-topic", metavar="TOPIC", default=None,
-                       help="the bag's wheel odometry topic (nav_msgs/Odometry, geometry_msgs/TwistStamped, "
-                            "sensor_msgs/JointState; default: the only one; 'none': no wheel odometry)")
+    for flag, metavar, text in WHEEL_FLAGS:
+        wheel.add_argument(flag, metavar=metavar, default=None, help=text)
     add_odometry_options(p)
     add_bag_options(p)
     add_viewer_options(p)
@@ -66,10 +71,7 @@ def main(args: argparse.Namespace) -> int:
         options["camera"] = parse_floats(args.camera, 4, "--camera")
     if args.ground_truth is not None:
         options["ground_truth"] = args.ground_truth
-    if args.wheel_odometry is not None:
-        options["wheel_odometry"] = args.wheel_odometry
-    if args.wheel_topic is not None:
-        options["wheel_topic"] = args.wheel_topic
+    options.update({k: getattr(args, k) for k in ("wheel_odometry", "wheel_topic") if getattr(args, k) is not None})
     config = odometry_config(args)
     if args.no_covariances:
         config = dataclasses.replace(config, window=dataclasses.replace(config.window, covariances=False))

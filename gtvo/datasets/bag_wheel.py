@@ -110,6 +110,15 @@ def _joint_index(names: list[str], wanted: str | None, side: str, where: str) ->
     return hits[0]
 
 
+def _wheel_positions(msg: Any, wheels: tuple[str, str], number: int, where: str) -> list[float]:
+    """The two wheel joints' positions of one JointState message (joints looked up by name)."""
+    names = list(msg.name)
+    if not all(w in names for w in wheels) or len(msg.position) != len(names):
+        raise InputError(f"message {number}: no position of joint {wheels[0]!r} and {wheels[1]!r} "
+                         f"(joints {names}, {len(msg.position)} positions)", path=where)
+    return [float(msg.position[names.index(w)]) for w in wheels]
+
+
 def read_wheel_topic(where: Path, topic: str, options: WheelReadOptions) -> tuple[WheelOdometry, str | None]:
     """The wheel odometry of ``topic`` (module doc) and the base frame its messages name (or None)."""
     messages = _messages(where, topic)
@@ -125,10 +134,10 @@ def read_wheel_topic(where: Path, topic: str, options: WheelReadOptions) -> tupl
             raise InputError(f"{topic} is a sensor_msgs/JointState: its wheel angles need the wheel radius "
                              "(config wheel.wheel_radius, m)", path=where)
         first = list(messages[0][0].name)
-        left = _joint_index(first, options.left_joint, "left", source)
-        right = _joint_index(first, options.right_joint, "right", source)
-        values = np.array([[m.position[left], m.position[right]] if list(m.name) == first else [np.nan, np.nan]
-                           for m, _ in messages], dtype=np.float64) * options.wheel_radius
+        wheels = (first[_joint_index(first, options.left_joint, "left", source)],
+                  first[_joint_index(first, options.right_joint, "right", source)])
+        values = np.array([_wheel_positions(m, wheels, k + 1, source) for k, (m, _) in enumerate(messages)],
+                          dtype=np.float64) * options.wheel_radius
         kind = "arcs"
     else:
         if msgtype == ODOMETRY:

@@ -19,7 +19,7 @@ opening a sequence does not load GTSAM).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
@@ -82,7 +82,7 @@ def check_readings(times: ArrayLike, values: ArrayLike, kind: str, source: str,
     return t, v
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class WheelOdometry:
     """Raw wheel-odometry readings of a ground robot's base, in the sequence's clock.
 
@@ -102,7 +102,7 @@ class WheelOdometry:
     values: FloatArray
     source: str
     nominal_baseline: float | None = None
-    base_to_camera: FloatArray | None = field(default=None, compare=False)
+    base_to_camera: FloatArray | None = None
 
     def __post_init__(self) -> None:
         t, v = check_readings(self.times, self.values, self.kind, self.source, row_name="reading")
