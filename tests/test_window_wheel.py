@@ -34,7 +34,7 @@ def seq():
 
 def _wheel(seq, k_true=K_TRUE, **settings) -> WheelCalibration:
     log = simulate_wheel_odometry(seq.timestamps, np.asarray(seq.gt_poses), T_BC, "pose", k_true, nominal_baseline=0.5)
-    return WheelCalibration(WheelSettings("diff_drive", gtsam.Pose3(T_BC), 0.5, **settings), log)
+    return WheelCalibration(WheelSettings(gtsam.Pose3(T_BC), "diff_drive", 0.5, **settings), log)
 
 
 def test_both_solvers_minimise_the_same_cost_with_wheels(seq):
@@ -89,7 +89,7 @@ def _pose_graph_sigmas(motions: np.ndarray, model: str = "diff_drive") -> np.nda
     poses = integrate_motions(motions)
     times = np.arange(len(poses), dtype=float)
     log = WheelOdometry(times, "pose", poses, "test")
-    wheel = WheelCalibration(WheelSettings(model, gtsam.Pose3(T_BC), 0.5), log)
+    wheel = WheelCalibration(WheelSettings(gtsam.Pose3(T_BC), model, 0.5), log)
     kfs = [SimpleNamespace(index=i, timestamp=t) for i, t in enumerate(times)]
     graph = gtsam.NonlinearFactorGraph()
     values = gtsam.Values()
@@ -109,7 +109,7 @@ def _pose_graph_sigmas(motions: np.ndarray, model: str = "diff_drive") -> np.nda
 def test_what_each_motion_observes():
     """Standing: nothing (every sigma the prior's); straight driving: the wheel scales but not the
     track width (its sigma the prior's); turning while driving: all three."""
-    prior = WheelSettings().prior_sigma
+    prior = WheelSettings.prior_sigma
     standing = _pose_graph_sigmas(np.zeros((20, 3)))
     np.testing.assert_allclose(standing, prior, rtol=1e-3)
     straight = _pose_graph_sigmas(np.tile([0.5, 0.0, 0.0], (20, 1)))
@@ -117,18 +117,18 @@ def test_what_each_motion_observes():
     assert straight[2] == pytest.approx(prior, rel=1e-3)
     turning = _pose_graph_sigmas(np.array([[0.5, 0.02, 0.1 if i % 10 < 5 else -0.1] for i in range(20)]))
     assert np.all(turning < 0.2 * prior)  # measured 0.067, 0.067, 0.17 of it
-    w = WheelCalibration(WheelSettings(), WheelOdometry(np.array([0.0, 1.0]), "pose", np.zeros((2, 3)), "test"))
+    w = WheelCalibration(WheelSettings(gtsam.Pose3()), WheelOdometry(np.array([0.0, 1.0]), "pose", np.zeros((2, 3)), "test"))
     w.covariance = np.diag(np.full(3, prior ** 2))
     assert w.report()["observed"] == [False, False, False]
 
 
 def test_wheel_settings_and_backend_checks(seq):
     with pytest.raises(InputError, match="diff_drive model has 3 finite parameters"):
-        WheelSettings(prior_mean=(1.0, 1.0)).mean()
+        WheelSettings(gtsam.Pose3(), prior_mean=(1.0, 1.0)).mean()
     wheel = _wheel(seq)
     with pytest.raises(InputError, match="'lm' window backend only"):
         SlidingWindowOptimizer(seq.camera.left, seq.camera.baseline, WindowConfig(backend="fixed_lag"), wheel=wheel)
-    far = WheelCalibration(WheelSettings(), wheel.log)
+    far = WheelCalibration(WheelSettings(gtsam.Pose3()), wheel.log)
     far.estimate = np.array([1.2, 1.0, 1.0])
     far.covariance = np.diag([1e-4, 1e-4, 1e-2])
     assert "left_wheel_scale 1.2" in far.report()["warning"]

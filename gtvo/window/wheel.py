@@ -15,7 +15,7 @@ updates it after every optimisation, the odometry reads it to carry a frame thro
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Protocol, Sequence
+from typing import Any, Callable, Protocol, Sequence
 
 import gtsam
 import numpy as np
@@ -51,8 +51,9 @@ class WheelSettings:
     """The wheel factors' settings (the run's ``wheel:`` section, docs/configuration.md).
 
     Attributes:
+        T_base_cam: the camera's pose in the base frame (REP 103 base: x forward, y left, z up; the
+            config's ``wheel.base_to_camera``, or a bag's ``/tf_static``).
         model: ``"diff_drive"`` (``k_L, k_R, k_b``) or ``"linear"`` (the notes' 3x3 X).
-        T_base_cam: the camera's pose in the base frame (REP 103 base: x forward, y left, z up).
         nominal_baseline: the diff-drive model's nominal track width ``b0`` (m).
         prior_mean: the calibration's prior mean (None: nominal, X = I or all scales 1).
         prior_sigma: the prior's sigma of every parameter (a scale, or an entry of X).
@@ -60,8 +61,8 @@ class WheelSettings:
             the factor's sigmas (:func:`factors.wheel_odometry.wheel_step_sigmas`).
     """
 
+    T_base_cam: gtsam.Pose3
     model: str = "diff_drive"
-    T_base_cam: gtsam.Pose3 = gtsam.Pose3()
     nominal_baseline: float = 1.0
     prior_mean: tuple[float, ...] | None = None
     prior_sigma: float = 0.1
@@ -122,9 +123,10 @@ class WheelCalibration:
                               if self.log.covers(t0, t1) else None)
         return self._raw[key]
 
-    def factors(self, keyframes: Sequence[Any], pose_key_of: Any) -> list[tuple[int, WheelOdometryFactor]]:
-        """``(k, factor)`` between every two consecutive keyframes ``k, k+1`` (positions) with times
-        the log covers; ``pose_key_of(keyframe)``: its pose key."""
+    def factors(self, keyframes: Sequence[Any], pose_key_of: Callable[[Any], int]
+                ) -> list[tuple[int, WheelOdometryFactor]]:
+        """``(k, factor)`` between every two consecutive keyframes ``k, k+1`` (positions; anything with
+        a ``timestamp``, None for none) with times the log covers; ``pose_key_of(keyframe)``: its pose key."""
         s = self.settings
         out = []
         for k in range(len(keyframes) - 1):
