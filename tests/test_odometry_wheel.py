@@ -99,3 +99,36 @@ def test_the_logs_own_base_to_camera_wins_over_the_configs():
     cal = wheel_calibration(config, plain)
     np.testing.assert_allclose(cal.estimate, [1.0, 1.0, 1.1])
     assert cal.settings.planar_height_sigma == 0.05 and cal.settings.nominal_baseline == config.nominal_baseline
+
+
+def test_a_frame_that_fails_with_points_is_reinitialised_at_the_wheels_pose(turn, monkeypatch):
+    """A frame whose tracking fails but whose stereo has points becomes a keyframe at the calibrated
+    wheel pose (reason says so), not at the motion model's guess: frames 7-11 forced to fail one
+    after the other as the robot starts to turn, each re-initialised (measured at the last: 0.4 cm
+    off with wheels; 1.5 m without, the window starting from the straight-on guesses)."""
+    from gtvo.odometry import VisualOdometry
+    from gtvo.odometry.frame_tracking import FrameTracker
+
+    seq, log = turn
+    real_track = FrameTracker.track
+    state = {"index": -1}
+
+    def failing(self, *args, **kwargs):
+        track = real_track(self, *args, **kwargs)
+        if state["index"] in BLACK:
+            track.result = dataclasses.replace(track.result, success=False, reason="forced")
+        return track
+
+    monkeypatch.setattr(FrameTracker, "track", failing)
+    ends = {}
+    for wheels in (None, log):
+        vo = VisualOdometry(seq.camera, as_config({"wheel": {"base_to_camera": BASE_TO_CAMERA}}), wheels)
+        for i in range(BLACK[-1] + 1):
+            state["index"] = i
+            vo.process(seq.frame(i))
+        failed = [vo.estimates[i] for i in BLACK]
+        assert [e.outcome for e in failed] == [FrameOutcome.REINITIALISED] * len(BLACK)
+        assert all(("wheel odometry" in e.reason) == (wheels is not None) for e in failed)
+        ends[wheels is not None] = np.linalg.norm(vo.estimates[BLACK[-1]].T_world_cam[:3, 3]
+                                                  - np.asarray(seq.gt_poses)[BLACK[-1]][:3, 3])
+    assert ends[True] < 0.03 < 0.05 < ends[False]
