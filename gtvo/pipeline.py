@@ -54,7 +54,7 @@ def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progre
         second, failures, skipped frames, ``frame_outcomes``, window and rig figures, timing).
     """
     config = config or OdometryConfig()
-    vo = VisualOdometry(seq.camera, config)
+    vo = VisualOdometry(seq.camera, config, wheel_odometry=seq.wheel_odometry)
     observers = list(observers)
     for o in observers:
         o.on_start(seq, config)
@@ -93,8 +93,10 @@ def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progre
     seconds = time.perf_counter() - t0
     traj = vo.trajectory(seq.name)
     info = summarize_odometry(vo, seconds, skipped)
+    wheel = info.get("wheel_calibration")
     for message in (rig_warning(dict(info)), trust_warning(info["frames"], info["undetermined_frames"],
-                                                           info["trusted_fraction"])):
+                                                           info["trusted_fraction"]),
+                    None if wheel is None else wheel["warning"]):
         if message is not None:
             warn(message)
     if observers:

@@ -13,6 +13,7 @@ from gtvo.core.lie import quaternions_to_rotations
 from gtvo.datasets.wheel import DEFAULT_NOMINAL_BASELINE, MAX_GAP_S
 from gtvo.datasets.wheel_files import WheelReadOptions
 from gtvo.core.settings import SettingError, check_settings, setting
+from gtvo.window.wheel import WheelSettings
 
 WheelModelName = Literal["linear", "diff_drive"]
 
@@ -49,6 +50,18 @@ class WheelConfig:
             ``none``: no wheel odometry from the bag.
         max_gap: the longest time between two wheel readings (s) that is interpolated; a longer gap
             is refused, naming the file and row (or bag topic and message).
+        calibration_prior: the calibration's prior mean: the diff-drive ``[k_L, k_R, k_b]`` or the
+            linear model's 9 entries of X row-major; null: nominal (all scales 1, X = I). The window
+            estimates the calibration from it (docs/window.md, "Wheel odometry").
+        calibration_prior_sigma: the prior's sigma of every calibration parameter (a scale, or an
+            entry of X): what a parameter the motion does not observe keeps as its sigma.
+        translation_sigma: the wheels' noise on x and y (m) of one step between keyframes, ...
+        rotation_sigma: ... on its heading change (rad), ...
+        sigma_per_metre: ... both growing by this much (m/m and rad/m) per metre driven: a long step
+            (a blind stretch between keyframes) is less certain.
+        planar_rotation_sigma: how far the base may roll and pitch between two keyframes (rad): the
+            planar-motion terms of the wheel factor (ramps, bumps, the car's suspension).
+        planar_height_sigma: how far the base may rise or sink between two keyframes (m), in its own frame.
     """
 
     model: WheelModelName = "diff_drive"
@@ -61,12 +74,23 @@ class WheelConfig:
     right_joint: str | None = None
     topic: str | None = None
     max_gap: float = setting(MAX_GAP_S, "(0, 3600]")
+    calibration_prior: tuple[float, ...] | None = setting(None, "[-100, 100]")
+    calibration_prior_sigma: float = setting(WheelSettings.prior_sigma, "(0, 10]")
+    translation_sigma: float = setting(WheelSettings.translation_sigma, "(0, 100]")
+    rotation_sigma: float = setting(WheelSettings.rotation_sigma, "(0, 10]")
+    sigma_per_metre: float = setting(WheelSettings.per_metre, "[0, 10]")
+    planar_rotation_sigma: float = setting(WheelSettings.planar_rotation_sigma, "(0, 10]")
+    planar_height_sigma: float = setting(WheelSettings.planar_height_sigma, "(0, 100]")
 
     def __post_init__(self) -> None:
         check_settings(self)
         norm = float(np.linalg.norm(self.base_to_camera[3:]))
         if abs(norm - 1.0) > 1e-3:
             raise SettingError("base_to_camera", f"qx, qy, qz, qw must be a unit quaternion, its norm is {norm:.6g}")
+        size = {"diff_drive": 3, "linear": 9}[self.model]
+        if self.calibration_prior is not None and len(self.calibration_prior) != size:
+            raise SettingError("calibration_prior", f"the {self.model} model has {size} parameters, "
+                               f"got {len(self.calibration_prior)}")
 
     @property
     def T_base_cam(self) -> NDArray[np.float64]:
