@@ -214,8 +214,15 @@ class Keyframer:
             if not wait:
                 self.schedule.waiting = 0
             self.worker.join(request, optimize=not wait)
-            for update in self.worker.due():
+            # the next frames may track against its stereo depths, or it waits for its window now
+            lag = bool(self.keyframes) and self.schedule.may_go_unrefined(
+                tracked is not None, follows, self.keyframes[-1].T_world_cam, T_world_cam, pts)
+            updates = self.worker.due() if lag else self.worker.finish()
+            for update in updates:
                 T_world_cam = self._apply(update, T_world_cam)
+            new = updates[-1].members[-1] if updates and not lag else None
+            if new is not None and new.index == frame.index:
+                return new.pose, dataclasses.replace(pts, inverse_depth=new.inverse_depth.copy())
             return T_world_cam, pts
         if wait:
             return T_world_cam, pts
