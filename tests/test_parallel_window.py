@@ -159,3 +159,10 @@ def test_no_parallel_flag_and_config_key(tmp_path):
 
     assert as_config({"window": {"parallel": True}}).window.parallel is True
     assert OdometryConfig().window.parallel is False
+
+
+def test_a_batch_log_runs_its_window_in_its_own_process_unless_its_config_asks():
+    from gtvo.batching.overrides import apply_overrides  # noqa: PLC0415
+
+    assert apply_overrides(OdometryConfig(), None).window.parallel is False  # one core per log
+    assert apply_overrides(OdometryConfig(), {"window": {"parallel": True}}).window.parallel is True
