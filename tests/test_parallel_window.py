@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import dataclasses
 import os
-import shutil
 import signal
 import subprocess
 import sys
@@ -22,6 +21,7 @@ from gtvo.odometry import VisualOdometry
 from gtvo.odometry.window_link import KeyframeForWindow
 from gtvo.odometry.window_worker import WindowWorker, WindowWorkerError
 from tests.test_batch_interrupt import end_group, live_processes_in_group
+from tests.test_cli import copy_with_truncated_frame
 
 
 def config(parallel: bool) -> OdometryConfig:
@@ -114,9 +114,7 @@ def start_run(log, out, *extra: str) -> subprocess.Popen:
 @pytest.mark.slow
 def test_a_bad_frame_with_the_parallel_window_is_one_line_exit_2_and_no_process_left(stereo_log, tmp_path):
     bad = tmp_path / "bad"
-    shutil.copytree(stereo_log, bad)
-    victim = sorted((bad / "image_0").iterdir())[6]
-    victim.write_bytes(victim.read_bytes()[:100])  # truncated PNG
+    victim = copy_with_truncated_frame(stereo_log, bad, 6)
     proc = start_run(bad, tmp_path / "o", "--strict")
     _, err = proc.communicate(timeout=300)
     assert proc.returncode == 2 and victim.name in err and "Traceback" not in err, err
