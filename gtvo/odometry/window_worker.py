@@ -2,16 +2,18 @@
 
 ``window.parallel: true`` (docs/window.md, "The window beside the tracker"). The window's host
 factors hold the GIL, so a thread would not run them beside the tracker: the window lives in a
-spawned process that owns its whole state (keyframes with their images, the marginal prior, the
-rig offset). The front end sends each new keyframe (pose, points, the keyframe it was tracked
+worker process (``python -c`` on a socket pair) that owns its whole state (keyframes with their
+images, the marginal prior, the rig offset). The front end sends each new keyframe (pose, points, the keyframe it was tracked
 against) with its two images in grey levels through shared memory (a ring of :data:`SLOTS`
-buffers made before the worker starts: nothing to unlink, nothing for a resource tracker to
+buffers in one ``memfd`` mapped by both: nothing to unlink, nothing for a resource tracker to
 report), and gets back per keyframe one reply: the :class:`gtvo.odometry.window_link.WindowUpdate`
 of the optimisation it asked for (poses, depths, figures), or nothing.
 
 **The determinism rule.** The front end applies the reply for its ``n``-th keyframe right after
 it has sent keyframe ``n + LAG`` (:data:`LAG` = 2), waiting for it if the worker is not done, and
-every reply at :meth:`WindowWorker.finish`. The worker handles its messages in order and its
+every reply at :meth:`WindowWorker.finish`; a keyframe whose own stereo depths the next frames
+should not track against (:meth:`gtvo.odometry.window_schedule.WindowSchedule.may_go_unrefined`)
+waits for its reply at once. The worker handles its messages in order and its
 replies depend on nothing else, so what the front end knows at every point of the sequence does
 not depend on timing or load: two runs give byte-identical trajectories.
 

@@ -91,7 +91,8 @@ class WindowConfig:
             gauge prior); afterwards the marginalisation prior carries what the window learnt.
         parallel: in :class:`gtvo.odometry.VisualOdometry`, the window runs in a worker process
             beside the front end (the second core), and the front end applies the window's result
-            of its ``n``-th keyframe once it has sent keyframe ``n + 2``: the same answer in every
+            of its ``n``-th keyframe once it has sent keyframe ``n + 2`` (at once when the next
+            frames should not track against its stereo depths): the same answer in every
             run, a little different from the sequential order (False), in which every keyframe
             waits for its window (docs/window.md, "The window beside the tracker"). ``gtvo run
             --no-parallel`` turns it off; ``gtvo batch`` turns it off unless its config asks.
