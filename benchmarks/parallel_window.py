@@ -1,6 +1,7 @@
 """The window beside the tracker (issue 34): ``window.parallel`` against the sequential order, in one run.
 
     python benchmarks/parallel_window.py [--repeat 3] [--steps 1,2,3] [--logs] [--json OUT]
+    python benchmarks/parallel_window.py --starts 0,1,2,3,5,8      # ATE from other first frames
 
 On the preloaded frames of KITTI_sequence_1 at every ``--steps`` frame step, runs ``gtvo run``'s
 default configuration (window mode) with ``window.parallel`` on and off, alternating
@@ -12,7 +13,9 @@ per frame (this process's, plus the worker's: the work done on both cores), the 
 resident memory and its shared image buffers, ATE (SE(3)) and scale (path length over the ground
 truth's), tracking failures, and whether every repeat gave the same trajectory bytes. ``--logs``
 adds every other shared log (KITTI raw, EuRoC, TUM RGB-D: 60 frames each) once per mode, for
-tracking failures. The load average (``uptime``) is printed at the start and the end: on a shared
+tracking failures. ``--starts`` runs KITTI_sequence_1 at every frame from each given first frame
+once per mode and prints the ATEs and their ratio (how much of an ATE difference is the start's
+chance). The load average (``uptime``) is printed at the start and the end: on a shared
 machine only the ratios of one run mean anything.
 """
 
@@ -116,13 +119,29 @@ def compare(name: str, seq: Any, repeat: int) -> list[dict[str, Any]]:
     return rows
 
 
+def ate_by_start(starts: list[int]) -> int:
+    """ATE (SE(3)) of both modes from each first frame of KITTI_sequence_1, and their ratio."""
+    full = open_sequence(KITTI_SEQUENCE_1)
+    rows = []
+    for start in starts:
+        seq = full._select(list(range(start, len(full))))
+        frames = load_frames(seq, progress=False)
+        ate = [one_run(seq, frames, parallel)["ate_m"] for parallel in (False, True)]
+        rows.append([str(start), fmt(ate[0], ".4f"), fmt(ate[1], ".4f"), fmt(ate[1] / ate[0], ".3f")])
+    print(markdown_table(["first frame", "sequential ATE m", "parallel ATE m", "parallel x sequential"], rows))
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--steps", default="1,2,3", help="frame steps of KITTI_sequence_1 (comma-separated)")
     ap.add_argument("--logs", action="store_true", help="also every other shared log, once per mode")
+    ap.add_argument("--starts", default=None, help="first frames of KITTI_sequence_1 (comma-separated): ATE only")
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args(argv)
+    if args.starts:
+        return ate_by_start([int(s) for s in args.starts.split(",")])
     print(f"# parallel window: load average at start {os.getloadavg()} on {os.cpu_count()} cores")
     rows: list[dict[str, Any]] = []
     for step in [int(s) for s in args.steps.split(",") if s]:
