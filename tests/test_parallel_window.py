@@ -100,7 +100,7 @@ def test_a_killed_worker_is_one_error_at_the_next_reply(kitti_snippet):
 @pytest.fixture(scope="module")
 def stereo_log(tmp_path_factory):
     d = tmp_path_factory.mktemp("par") / "log"
-    write_sequence_kitti(make_synthetic_sequence(n_frames=10, width=320, height=240, noise_sigma=1.0), d)
+    write_sequence_kitti(make_synthetic_sequence(n_frames=24, width=320, height=240, noise_sigma=1.0), d)
     return d
 
 

@@ -81,7 +81,8 @@ class Keyframer:
 
     @property
     def rig(self) -> RigOffset | None:
-        """The rig offset the window estimates (its one owner), None when not estimated."""
+        """The rig offset the window estimates (its one owner; a parallel window: the worker's, as of
+        its last applied update), None when not estimated."""
         return None if self.window is None else self.window.rig
 
     def right_brightness(self) -> tuple[float, float] | None:
