@@ -132,3 +132,15 @@ def test_a_frame_that_fails_with_points_is_reinitialised_at_the_wheels_pose(turn
         ends[wheels is not None] = np.linalg.norm(vo.estimates[BLACK[-1]].T_world_cam[:3, 3]
                                                   - np.asarray(seq.gt_poses)[BLACK[-1]][:3, 3])
     assert ends[True] < 0.03 < 0.05 < ends[False]
+
+
+def test_the_parallel_window_refuses_wheel_odometry_in_one_line(turn):
+    """window.parallel runs the window in a worker that does not carry the wheel calibration (yet):
+    asked for with wheel odometry, the run stops before any work with one line saying what to do."""
+    from gtvo.errors import InputError
+    from gtvo.odometry import VisualOdometry
+
+    seq, log = turn
+    config = as_config({"wheel": {"base_to_camera": BASE_TO_CAMERA}, "window": {"parallel": True}})
+    with pytest.raises(InputError, match="window.parallel does not carry wheel odometry"):
+        VisualOdometry(seq.camera, config, log)

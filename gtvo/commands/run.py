@@ -54,6 +54,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     wheel = p.add_argument_group("wheel odometry (docs/wheel_odometry.md)")
     for flag, metavar, text in WHEEL_FLAGS:
         wheel.add_argument(flag, metavar=metavar, default=None, help=text)
+    parallel = p.add_mutually_exclusive_group()
+    parallel.add_argument("--parallel", action="store_true",
+                          help="run the window in a worker process beside the front end (config key window.parallel: "
+                               "the second core; the same answer every run; docs/window.md)")
+    parallel.add_argument("--no-parallel", action="store_true",
+                          help="the window after the front end in one process, the sequential order (overrides "
+                               "window.parallel of a --config file)")
     add_odometry_options(p)
     add_bag_options(p)
     add_viewer_options(p)
@@ -81,6 +88,8 @@ def main(args: argparse.Namespace) -> int:
     if args.rig_calibration or args.no_rig_calibration:
         config = dataclasses.replace(config, window=dataclasses.replace(config.window,
                                                                         rig_calibration=bool(args.rig_calibration)))
+    if args.parallel or args.no_parallel:
+        config = dataclasses.replace(config, window=dataclasses.replace(config.window, parallel=bool(args.parallel)))
     with viewer_observers(args) as observers:
         report = run(args.sequence, out=args.out, config=config, format=args.format,
                      max_frames=args.max_frames, progress=not args.no_progress, strict=args.strict,

@@ -83,7 +83,10 @@ class VisualOdometry:
         estimates: one :class:`FrameEstimate` per processed frame (``history.estimates``).
         keyframes: every keyframe made so far (``keyframer.keyframes``).
         window: the :class:`gtvo.window.SlidingWindowOptimizer` (window mode), else None; its
-            ``rig`` is the rig offset's estimate when the window calibrates the rig.
+            ``rig`` is the rig offset's estimate when the window calibrates the rig. With
+            ``window.parallel`` the :class:`gtvo.odometry.window_worker.WindowWorker` that runs it in
+            a worker process (its keyframes, covariances and rig as of its last applied update; call
+            :meth:`close`, or use the odometry as a context manager, to end the worker early).
         window_results: one :class:`gtvo.window.WindowResult` per window optimisation.
         failures: frames whose tracking failed (re-initialised or lost).
         lost_frames: frames whose tracking failed and that had too few points to become a
@@ -139,6 +142,17 @@ class VisualOdometry:
         still follow (the next keyframe joins the window as usual)."""
         with self.clock.activate("other") if self.clock is not None else nullcontext(), single_threaded_blas():
             self.keyframer.finish()
+
+    def close(self) -> None:
+        """End the window's worker process (``window.parallel``; it also ends when this object is
+        collected or the process exits); nothing to do otherwise. The estimates stay readable."""
+        self.keyframer.close()
+
+    def __enter__(self) -> "VisualOdometry":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
 
     def trajectory(self, name: str = "gtvo") -> Trajectory:
         """The estimated left-camera trajectory so far (every frame; window mode: call :meth:`finish`
