@@ -132,3 +132,30 @@ def test_a_frame_that_fails_with_points_is_reinitialised_at_the_wheels_pose(turn
         ends[wheels is not None] = np.linalg.norm(vo.estimates[BLACK[-1]].T_world_cam[:3, 3]
                                                   - np.asarray(seq.gt_poses)[BLACK[-1]][:3, 3])
     assert ends[True] < 0.03 < 0.05 < ends[False]
+
+
+def _planar_estimate(index: int, x: float, z: float, outcome: FrameOutcome):
+    from gtvo.odometry.estimates import FrameEstimate
+
+    T = np.eye(4)
+    T[0, 3], T[2, 3] = x, z
+    return FrameEstimate(index, 0.1 * index, T, outcome, None, 0.0)
+
+
+@pytest.mark.parametrize("outcome,fused", [(FrameOutcome.WHEEL_CARRIED, True), (FrameOutcome.LOST, False)])
+def test_the_kalman_motion_model_fuses_a_wheel_carried_pose(outcome, fused):
+    """The Kalman motion model fuses a ``wheel_carried`` frame's pose (the wheels measured it) but
+    only predicts over a ``lost`` one (its pose is the filter's own guess): after a frame placed
+    0.5 m to the side of the straight-on guess, the next guess follows it only when it was carried."""
+    from gtvo.config import MotionModelConfig
+    from gtvo.odometry.history import FrameHistory
+    from gtvo.odometry.motion import MotionModel
+
+    history = FrameHistory()
+    motion = MotionModel(MotionModelConfig(model="kalman"), history)
+    for i, est in enumerate([_planar_estimate(i, 0.0, 0.1 * i, FrameOutcome.TRACKED) for i in range(6)]
+                            + [_planar_estimate(6, 0.5, 0.6, outcome)]):
+        history.append(est)
+        motion.update(est)
+    side = float(motion.predict(0.7).translation()[0])
+    assert (side > 0.25) == fused, side
