@@ -65,9 +65,18 @@ def robot_folder(tmp_path_factory):
     return seq, write_sequence_kitti(seq, tmp_path_factory.mktemp("robot") / "seq")
 
 
+def test_wheel_yaml_names_the_model_of_the_simulated_calibration(tmp_path):
+    """A linear X simulated: wheel.yaml asks for the linear model (the diff-drive one cannot recover it)."""
+    x = (1.02, 0.0, 0.01, 0.0, 0.99, 0.0, 0.0, 0.0, 0.97)
+    seq = make_synthetic_sequence(3, W, H, motion="ground", wheels=WheelSimulation(kind="pose", calibration=x))
+    config = load_config(write_sequence_kitti(seq, tmp_path / "seq") / "wheel.yaml")
+    assert config.wheel.model == "linear"
+
+
 def test_folder_reads_its_wheel_csv_and_wheel_yaml(robot_folder, tmp_path):
     seq, folder = robot_folder
     config = load_config(folder / "wheel.yaml")
+    assert config.wheel.model == "diff_drive"
     np.testing.assert_allclose(config.wheel.T_base_cam, seq.wheel_odometry.base_to_camera, atol=1e-12)
     read = open_sequence(folder, wheel_options=config.wheel.read_options())
     assert read.wheel_odometry.kind == "arcs" and read.wheel_odometry.source.endswith("wheel_odometry.csv")
