@@ -159,3 +159,16 @@ def test_the_kalman_motion_model_fuses_a_wheel_carried_pose(outcome, fused):
         motion.update(est)
     side = float(motion.predict(0.7).translation()[0])
     assert (side > 0.25) == fused, side
+
+
+def test_the_console_prints_the_wheel_calibration_with_its_sigmas():
+    """``gtvo run``'s summary: one line with each parameter, its sigma, and "(prior)" where unobserved."""
+    from gtvo.commands._common import wheel_calibration_line
+
+    diff = {"model": "diff_drive", "left_wheel_scale": 1.02, "right_wheel_scale": 0.98, "track_width_scale": 1.0,
+            "sigmas": [0.006, 0.006, 0.1], "observed": [True, True, False]}
+    assert wheel_calibration_line(diff) == ("wheel calibration (diff_drive): left_wheel_scale 1.0200 +- 0.0060, "
+                                            "right_wheel_scale 0.9800 +- 0.0060, track_width_scale 1.0000 +- 0.1000 "
+                                            "(prior)")
+    linear = {"model": "linear", "X": list(np.eye(3).ravel()), "sigmas": None, "observed": None}
+    assert wheel_calibration_line(linear).startswith("wheel calibration (linear): X11 1.0000, X12 0.0000")

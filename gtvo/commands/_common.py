@@ -136,6 +136,8 @@ def print_report(report: RunReport) -> None:
         print(f"  {k:<{width}} {v:.4g}" if isinstance(v, float) else f"  {k:<{width}} {v}")
     for line in flagged_frame_lines(report.get("frame_outcomes") or {}):
         print(f"  {line}")
+    if report.get("wheel_calibration") is not None:
+        print(f"  {wheel_calibration_line(report['wheel_calibration'])}")
     print(f"  outputs in {report['out']}")
 
 
@@ -152,3 +154,22 @@ def flagged_frame_lines(outcomes: dict[str, Any]) -> list[str]:
         why = " / ".join(r for r in reasons if r)
         lines.append(f"{name} frames: {indices}" + (f" ({why})" if why else ""))
     return lines
+
+
+def wheel_calibration_line(calibration: dict[str, Any]) -> str:
+    """report.json's ``wheel_calibration`` in one line: the model and each parameter's estimate with
+    its marginal sigma (``(prior)`` when the run did not observe it), e.g.
+    ``wheel calibration (diff_drive): left_wheel_scale 1.0200 +- 0.0062, ..., track_width_scale 1 +- 0.1 (prior)``."""
+    from factors.wheel_odometry import DIFF_DRIVE_NAMES  # noqa: PLC0415
+
+    if calibration["model"] == "linear":
+        names = [f"X{i // 3 + 1}{i % 3 + 1}" for i in range(9)]
+        values = list(calibration["X"])
+    else:
+        names = list(DIFF_DRIVE_NAMES)
+        values = [calibration[n] for n in names]
+    sigmas = calibration.get("sigmas") or [None] * len(values)
+    observed = calibration.get("observed") or [True] * len(values)
+    parts = [f"{n} {v:.4f}" + ("" if s is None else f" +- {s:.4f}") + ("" if o else " (prior)")
+             for n, v, s, o in zip(names, values, sigmas, observed)]
+    return f"wheel calibration ({calibration['model']}): " + ", ".join(parts)
