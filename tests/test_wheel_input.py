@@ -3,6 +3,8 @@ and the synthetic ground robot that writes them (gtvo.datasets.wheel_files, bag_
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -50,6 +52,8 @@ def test_csv_written_reads_back(tmp_path):
     ("time,left,right\n0,0,0\n0.1,0,0\n2.5,1,1\n", ": line 4:", "a gap of 2.400 s"),
     ("time,left,right\n0,0,0\n0.1,0,0,7\n", ":3:", "expected 3 values"),
     ("time,left,right\n0,0,0\n", ": wheel", "at least 2 readings"),
+    ("time,left,right\n0,0,0\n0.1,100,120\n", ": line 3:", "a wheel moved 120 m in 0.1 s .*wheel.tick_scale"),
+    ("time,x,y,theta\n0,0,0,0\n0.1,150,0,0\n", ": line 3:", "the base moved 150 m .*metres"),
 ])
 def test_bad_csv_is_one_line_naming_file_and_row(tmp_path, text, where, message):
     path = _csv(tmp_path, text)
@@ -137,6 +141,8 @@ def test_synthetic_bag_carries_odometry_joint_states_and_tf_static(tmp_path):
         open_sequence(bag, wheel_topic="/cam/left/image_rect")
     with pytest.raises(InputError, match="wheel radius"):
         open_sequence(bag, wheel_topic="/joint_states")
+    with pytest.raises(InputError, match=r"/joint_states: message 2: a wheel moved .* wheel.max_speed 50 m/s"):
+        open_sequence(bag, wheel_topic="/joint_states", wheel_options=dataclasses.replace(options, wheel_radius=100.0))
 
 
 def _tiny_stereo_bag(path, times, write_more):

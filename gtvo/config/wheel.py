@@ -10,7 +10,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gtvo.core.lie import quaternions_to_rotations
-from gtvo.datasets.wheel import DEFAULT_NOMINAL_BASELINE, MAX_GAP_S
+from gtvo.datasets.wheel import DEFAULT_NOMINAL_BASELINE, MAX_GAP_S, MAX_SPEED_M_S
 from gtvo.datasets.wheel_files import WheelReadOptions
 from gtvo.core.settings import SettingError, check_settings, setting
 from gtvo.window.wheel import WheelSettings
@@ -50,6 +50,9 @@ class WheelConfig:
             ``none``: no wheel odometry from the bag.
         max_gap: the longest time between two wheel readings (s) that is interpolated; a longer gap
             is refused, naming the file and row (or bag topic and message).
+        max_speed: the fastest a wheel (arcs, after ``tick_scale``) or the base (pose) may move between
+            two readings (m/s); faster is refused, naming the file and row: readings in another unit
+            (encoder ticks without ``tick_scale``, millimetres).
         calibration_prior: the calibration's prior mean: the diff-drive ``[k_L, k_R, k_b]`` or the
             linear model's 9 entries of X row-major; null: nominal (all scales 1, X = I). The window
             estimates the calibration from it (docs/window.md, "Wheel odometry").
@@ -74,6 +77,7 @@ class WheelConfig:
     right_joint: str | None = None
     topic: str | None = None
     max_gap: float = setting(MAX_GAP_S, "(0, 3600]")
+    max_speed: float = setting(MAX_SPEED_M_S, "(0, 10000]")
     calibration_prior: tuple[float, ...] | None = setting(None, "[-100, 100]")
     calibration_prior_sigma: float = setting(WheelSettings.prior_sigma, "(0, 10]")
     translation_sigma: float = setting(WheelSettings.translation_sigma, "(0, 100]")
@@ -104,4 +108,5 @@ class WheelConfig:
         """The settings the wheel readers take (:func:`gtvo.datasets.open_sequence`'s ``wheel_options``)."""
         return WheelReadOptions(topic=self.topic, tick_scale=self.tick_scale, nominal_baseline=self.nominal_baseline,
                                 wheel_radius=self.wheel_radius, left_joint=self.left_joint,
-                                right_joint=self.right_joint, max_gap=self.max_gap)
+                                right_joint=self.right_joint, max_gap=self.max_gap,
+                                max_speed=self.max_speed)
