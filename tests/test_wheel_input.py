@@ -110,6 +110,23 @@ def test_cli_run_refuses_a_bad_wheel_file_in_one_line(robot_folder, tmp_path, ca
     assert code == 2 and err.count("\n") == 0 and f"{bad}: line 4: time 0.1 s is not after" in err
 
 
+def test_wheel_times_in_another_clock_are_refused_and_a_partial_log_warned(robot_folder, tmp_path, capsys):
+    """A wheel log that overlaps none of the frames (its times in another clock) stops the run in
+    one line, writing nothing; one that covers only some frames is a warning naming how many."""
+    from gtvo.odometry.wheel import wheel_coverage_warning
+
+    _, folder = robot_folder
+    late = _csv(tmp_path, "time,x,y,theta\n1000,0,0,0\n1000.5,0.1,0,0\n")
+    code = cli_main(["run", str(folder), "--out", str(tmp_path / "out"), "--wheel-odometry", str(late),
+                     "--no-progress"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and err.count("\n") == 0 and not (tmp_path / "out").exists()
+    assert f"{late}: the wheel odometry's times 1000.000..1000.500 s do not overlap the frames' 0.000..0.700 s" in err
+    log = WheelOdometry(np.array([0.0, 0.35]), "pose", np.zeros((2, 3)), "w.csv")
+    assert "covers 0.000..0.350 s, 4 of the 8 frames" in wheel_coverage_warning(log, np.arange(8) / 10)
+    assert wheel_coverage_warning(log, [0.1, 0.3]) is None
+
+
 def test_ground_robot_is_level_turns_both_ways_and_runs_300_frames():
     T = ground_robot_trajectory(320)
     assert np.abs(T[:, 1, 3]).max() < 1e-9 and np.abs(T[:, :3, 1] - [0, 1, 0]).max() < 1e-9  # level, y down

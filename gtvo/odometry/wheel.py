@@ -11,9 +11,12 @@ from __future__ import annotations
 from typing import Any
 
 import gtsam
+import numpy as np
+from numpy.typing import ArrayLike
 
 from gtvo.config.wheel import WheelConfig
 from gtvo.datasets.wheel import WheelOdometry
+from gtvo.errors import InputError
 from gtvo.window import SlidingWindowOptimizer
 from gtvo.window.wheel import WheelCalibration, WheelSettings
 
@@ -39,3 +42,25 @@ def wheel_report(wheel: WheelCalibration | None, window: SlidingWindowOptimizer 
     if window is not None and window.wheel is not None:
         window.wheel_covariance()
     return {"wheel_calibration": wheel.report()}
+
+
+def wheel_coverage_warning(log: WheelOdometry, frame_times: ArrayLike) -> str | None:
+    """The line a run prints when ``log`` covers only part of the frames' times (the keyframes
+    outside get no wheel factor and are not carried through blindness), None when it covers them all.
+
+    Raises:
+        InputError: ``log`` overlaps none of the frames (its times are in another clock), naming its source.
+    """
+    t = np.asarray(frame_times, dtype=np.float64).reshape(-1)
+    if t.size == 0:
+        return None
+    a, b, t0, t1 = float(log.times[0]), float(log.times[-1]), float(t.min()), float(t.max())
+    span = f"{a:.3f}..{b:.3f} s"
+    if b < t0 or a > t1:
+        raise InputError(f"the wheel odometry's times {span} do not overlap the frames' {t0:.3f}..{t1:.3f} s: "
+                         "its times must be in the sequence's clock (seconds)", log.source)
+    inside = int(np.count_nonzero((t >= a) & (t <= b)))
+    if inside == t.size:
+        return None
+    return (f"the wheel odometry ({log.source}) covers {span}, {inside} of the {t.size} frames "
+            f"({t0:.3f}..{t1:.3f} s): keyframes outside it get no wheel factor and are not carried by the wheels")
