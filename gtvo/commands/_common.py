@@ -158,7 +158,8 @@ def flagged_frame_lines(outcomes: dict[str, Any]) -> list[str]:
 
 def wheel_calibration_line(calibration: dict[str, Any]) -> str:
     """report.json's ``wheel_calibration`` in one line: the model and each parameter's estimate with
-    its marginal sigma (``(prior)`` when the run did not observe it), e.g.
+    its marginal sigma (``(prior)`` when the run did not observe it; none when the window did not
+    estimate it), e.g.
     ``wheel calibration (diff_drive): left_wheel_scale 1.0200 +- 0.0062, ..., track_width_scale 1 +- 0.1 (prior)``."""
     from factors.wheel_odometry import DIFF_DRIVE_NAMES  # noqa: PLC0415
 
@@ -172,4 +173,5 @@ def wheel_calibration_line(calibration: dict[str, Any]) -> str:
     observed = calibration.get("observed") or [True] * len(values)
     parts = [f"{n} {v:.4f}" + ("" if s is None else f" +- {s:.4f}") + ("" if o else " (prior)")
              for n, v, s, o in zip(names, values, sigmas, observed)]
-    return f"wheel calibration ({calibration['model']}): " + ", ".join(parts)
+    unestimated = "" if calibration.get("sigmas") is not None else " (not estimated: track mode or the fixed-lag back end)"
+    return f"wheel calibration ({calibration['model']}): " + ", ".join(parts) + unestimated
