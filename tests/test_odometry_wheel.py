@@ -54,7 +54,10 @@ def test_a_blind_stretch_is_carried_by_the_calibrated_wheels(turn):
     vo1, info1, err1 = _run(dataclasses.replace(dark, wheel_odometry=log))
     assert [vo0.estimates[i].outcome for i in BLACK] == [FrameOutcome.LOST] * len(BLACK)
     assert [vo1.estimates[i].outcome for i in BLACK] == [FrameOutcome.WHEEL_CARRIED] * len(BLACK)
-    assert all(vo1.estimates[i].lost for i in BLACK) and vo1.lost_frames == len(BLACK)
+    assert all(vo1.estimates[i].lost for i in BLACK)  # no keyframe candidate, like a lost frame
+    assert (vo0.lost_frames, info0["lost_frames"]) == (len(BLACK), len(BLACK))
+    assert (vo1.lost_frames, info1["lost_frames"]) == (0, 0)  # placed by the wheels: none lost
+    assert vo1.failures == vo0.failures
     flagged = info1["frame_outcomes"]["wheel_carried"]
     assert [f["index"] for f in flagged] == list(BLACK) and "wheel odometry" in flagged[0]["reason"]
     assert info1["frame_outcomes"]["lost"] == [] and info0["frame_outcomes"]["wheel_carried"] == []
