@@ -173,7 +173,7 @@ def test_the_console_prints_the_wheel_calibration_with_its_sigmas():
     assert wheel_calibration_line(diff) == ("wheel calibration (diff_drive): left_wheel_scale 1.0200 +- 0.0060, "
                                             "right_wheel_scale 0.9800 +- 0.0060, track_width_scale 1.0000 +- 0.1000 "
                                             "(prior)")
-    linear = {"model": "linear", "X": list(np.eye(3).ravel()), "sigmas": None, "observed": None}
+    linear = {"model": "linear", "source": "w.csv", "X": list(np.eye(3).ravel()), "sigmas": None, "observed": None}
     line = wheel_calibration_line(linear)
-    assert line.startswith("wheel calibration (linear): X11 1.0000, X12 0.0000") and line.endswith("(not estimated: "
+    assert line.startswith("wheel calibration (linear, w.csv): X11 1.0000, X12 0.0000") and line.endswith("(not estimated: "
                                                                                                    "track mode or the fixed-lag back end)")

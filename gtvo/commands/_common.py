@@ -174,4 +174,5 @@ def wheel_calibration_line(calibration: dict[str, Any]) -> str:
     parts = [f"{n} {v:.4f}" + ("" if s is None else f" +- {s:.4f}") + ("" if o else " (prior)")
              for n, v, s, o in zip(names, values, sigmas, observed)]
     unestimated = "" if calibration.get("sigmas") is not None else " (not estimated: track mode or the fixed-lag back end)"
-    return f"wheel calibration ({calibration['model']}): " + ", ".join(parts) + unestimated
+    source = f", {calibration['source']}" if calibration.get("source") else ""
+    return f"wheel calibration ({calibration['model']}{source}): " + ", ".join(parts) + unestimated
