@@ -54,7 +54,7 @@ class WheelConfig:
             two readings (m/s); faster is refused, naming the file and row: readings in another unit
             (encoder ticks without ``tick_scale``, millimetres).
         calibration_prior: the calibration's prior mean: the diff-drive ``[k_L, k_R, k_b]`` or the
-            linear model's 9 entries of X row-major; null: nominal (all scales 1, X = I). The window
+            linear model's 9 entries of X row-major (scales positive, X invertible); null: nominal (all scales 1, X = I). The window
             estimates the calibration from it (docs/window.md, "Wheel odometry").
         calibration_prior_sigma: the prior's sigma of every calibration parameter (a scale, or an
             entry of X): what a parameter the motion does not observe keeps as its sigma.
@@ -92,9 +92,13 @@ class WheelConfig:
         if abs(norm - 1.0) > 1e-3:
             raise SettingError("base_to_camera", f"qx, qy, qz, qw must be a unit quaternion, its norm is {norm:.6g}")
         size = {"diff_drive": 3, "linear": 9}[self.model]
-        if self.calibration_prior is not None and len(self.calibration_prior) != size:
-            raise SettingError("calibration_prior", f"the {self.model} model has {size} parameters, "
-                               f"got {len(self.calibration_prior)}")
+        prior = self.calibration_prior
+        if prior is not None and len(prior) != size:
+            raise SettingError("calibration_prior", f"the {self.model} model has {size} parameters, got {len(prior)}")
+        if prior is not None and self.model == "diff_drive" and min(prior) <= 0:
+            raise SettingError("calibration_prior", f"the wheel and track-width scales must be positive, got {list(prior)}")
+        if prior is not None and self.model == "linear" and abs(np.linalg.det(np.reshape(prior, (3, 3)))) < 1e-6:
+            raise SettingError("calibration_prior", f"the linear model's X must be invertible, got {list(prior)}")
 
     @property
     def T_base_cam(self) -> NDArray[np.float64]:
