@@ -232,3 +232,18 @@ def test_synthetic_cli_writes_wheels_and_refuses_bad_calibration(tmp_path, capsy
     assert cli_main(["synthetic", "--out", str(tmp_path / "x"), "--wheel", "arcs", "--wheel-calibration", "1,2",
                      "--no-progress"]) == 2
     assert "--wheel-calibration" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--wheel", "pose", "--wheel-calibration", "0,0,0,0,0,0,0,0,0"], "X must be invertible"),
+    (["--wheel", "pose", "--wheel-calibration", "1,2"], "must be 3 numbers (k_L,k_R,k_b) or 9 (X row-major)"),
+    (["--wheel-noise", "0.01"], "--wheel-noise describe the wheel odometry: add --wheel arcs or --wheel pose"),
+])
+def test_synthetic_cli_refuses_bad_wheel_options_in_one_line(tmp_path, capsys, argv, message):
+    """A singular X, a calibration of neither 3 nor 9 numbers, wheel options without --wheel: exit 2,
+    one line, nothing written."""
+    out = tmp_path / "x"
+    assert cli_main(["synthetic", "--out", str(out), "--frames", "2", "--width", "64", "--height", "48",
+                     "--motion", "ground", *argv, "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert message in err and err.count("\n") == 0 and not out.exists()

@@ -100,6 +100,8 @@ class WheelSimulation:
                              f"{show(self.calibration)}")
         if len(self.calibration) == 3 and min(self.calibration) <= 0:
             raise InputError(f"wheel scales k_L, k_R, k_b must be positive, got {show(self.calibration)}")
+        if len(self.calibration) == 9 and abs(np.linalg.det(np.reshape(self.calibration, (3, 3)))) < 1e-6:
+            raise InputError(f"the linear model's X must be invertible, got {show(self.calibration)}")
         if not (np.isfinite(self.noise) and self.noise >= 0):
             raise InputError(f"wheel noise must be finite and >= 0, got {show(self.noise)}")
         if not (np.isfinite(self.nominal_baseline) and self.nominal_baseline > 0):
