@@ -166,7 +166,7 @@ def test_the_kalman_motion_model_fuses_a_wheel_carried_pose(outcome, fused):
 
 def test_the_console_prints_the_wheel_calibration_with_its_sigmas():
     """``gtvo run``'s summary: one line with each parameter, its sigma, and "(prior)" where unobserved."""
-    from gtvo.commands._common import wheel_calibration_line
+    from gtvo.odometry.wheel import wheel_calibration_line
 
     diff = {"model": "diff_drive", "left_wheel_scale": 1.02, "right_wheel_scale": 0.98, "track_width_scale": 1.0,
             "sigmas": [0.006, 0.006, 0.1], "observed": [True, True, False]}

@@ -137,6 +137,8 @@ def print_report(report: RunReport) -> None:
     for line in flagged_frame_lines(report.get("frame_outcomes") or {}):
         print(f"  {line}")
     if report.get("wheel_calibration") is not None:
+        from gtvo.odometry.wheel import wheel_calibration_line  # noqa: PLC0415
+
         print(f"  {wheel_calibration_line(report['wheel_calibration'])}")
     print(f"  outputs in {report['out']}")
 
@@ -155,24 +157,3 @@ def flagged_frame_lines(outcomes: dict[str, Any]) -> list[str]:
         lines.append(f"{name} frames: {indices}" + (f" ({why})" if why else ""))
     return lines
 
-
-def wheel_calibration_line(calibration: dict[str, Any]) -> str:
-    """report.json's ``wheel_calibration`` in one line: the model and each parameter's estimate with
-    its marginal sigma (``(prior)`` when the run did not observe it; none when the window did not
-    estimate it), e.g.
-    ``wheel calibration (diff_drive): left_wheel_scale 1.0200 +- 0.0062, ..., track_width_scale 1 +- 0.1 (prior)``."""
-    from factors.wheel_odometry import DIFF_DRIVE_NAMES  # noqa: PLC0415
-
-    if calibration["model"] == "linear":
-        names = [f"X{i // 3 + 1}{i % 3 + 1}" for i in range(9)]
-        values = list(calibration["X"])
-    else:
-        names = list(DIFF_DRIVE_NAMES)
-        values = [calibration[n] for n in names]
-    sigmas = calibration.get("sigmas") or [None] * len(values)
-    observed = calibration.get("observed") or [True] * len(values)
-    parts = [f"{n} {v:.4f}" + ("" if s is None else f" +- {s:.4f}") + ("" if o else " (prior)")
-             for n, v, s, o in zip(names, values, sigmas, observed)]
-    unestimated = "" if calibration.get("sigmas") is not None else " (not estimated: track mode or the fixed-lag back end)"
-    source = f", {calibration['source']}" if calibration.get("source") else ""
-    return f"wheel calibration ({calibration['model']}{source}): " + ", ".join(parts) + unestimated

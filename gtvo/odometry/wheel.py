@@ -18,6 +18,7 @@ from gtvo.config.wheel import WheelConfig
 from gtvo.datasets.wheel import WheelOdometry
 from gtvo.errors import InputError
 from gtvo.window import SlidingWindowOptimizer
+from factors.wheel_odometry import DIFF_DRIVE_NAMES
 from gtvo.window.wheel import WheelCalibration, WheelSettings
 
 
@@ -64,3 +65,23 @@ def wheel_coverage_warning(log: WheelOdometry, frame_times: ArrayLike) -> str | 
         return None
     return (f"the wheel odometry ({log.source}) covers {span}, {inside} of the {t.size} frames "
             f"({t0:.3f}..{t1:.3f} s): keyframes outside it get no wheel factor and are not carried by the wheels")
+
+
+def wheel_calibration_line(calibration: dict[str, Any]) -> str:
+    """report.json's ``wheel_calibration`` in one line: the model and each parameter's estimate with
+    its marginal sigma (``(prior)`` when the run did not observe it; none when the window did not
+    estimate it), e.g.
+    ``wheel calibration (diff_drive, w.csv): left_wheel_scale 1.0200 +- 0.0062, ..., track_width_scale 1 +- 0.1 (prior)``."""
+    if calibration["model"] == "linear":
+        names = [f"X{i // 3 + 1}{i % 3 + 1}" for i in range(9)]
+        values = list(calibration["X"])
+    else:
+        names = list(DIFF_DRIVE_NAMES)
+        values = [calibration[n] for n in names]
+    sigmas = calibration.get("sigmas") or [None] * len(values)
+    observed = calibration.get("observed") or [True] * len(values)
+    parts = [f"{n} {v:.4f}" + ("" if s is None else f" +- {s:.4f}") + ("" if o else " (prior)")
+             for n, v, s, o in zip(names, values, sigmas, observed)]
+    unestimated = "" if calibration.get("sigmas") is not None else " (not estimated: track mode or the fixed-lag back end)"
+    source = f", {calibration['source']}" if calibration.get("source") else ""
+    return f"wheel calibration ({calibration['model']}{source}): " + ", ".join(parts) + unestimated
