@@ -156,4 +156,3 @@ def flagged_frame_lines(outcomes: dict[str, Any]) -> list[str]:
         why = " / ".join(r for r in reasons if r)
         lines.append(f"{name} frames: {indices}" + (f" ({why})" if why else ""))
     return lines
-

@@ -278,7 +278,8 @@ class VisualOdometry:
         by_wheel = "" if T_wheel is None else ", placed by the calibrated wheel odometry"
         new_kf = self.keyframer.try_make(frame, left, T_place, pyramid=pyramid)
         if new_kf is None:
-            self.lost_frames += T_wheel is None  # a wheel-carried frame is placed by a measurement: not lost
+            if T_wheel is None:  # a wheel-carried frame is placed by a measurement: not lost
+                self.lost_frames += 1
             return Outcome(FrameOutcome.LOST if T_wheel is None else FrameOutcome.WHEEL_CARRIED, T_place, track,
                            kf.T_world_cam.between(T_place),
                            f"tracking failed ({track.result.reason}); too few points with a depth to re-initialise"
