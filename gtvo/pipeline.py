@@ -26,6 +26,7 @@ from gtvo.odometry.estimates import FrameOutcome, trust_warning
 from gtvo.io.covariances import KeyframeCovariances
 from gtvo.odometry.rig_report import rig_warning
 from gtvo.odometry.summary import OdometrySummary, stage_timing, summarize_odometry
+from gtvo.odometry.wheel import wheel_coverage_warning
 from gtvo.io.outputs import check_run_output_dir, write_run_outputs
 from gtvo.datasets.sequence import Sequence
 from gtvo.evaluation.trajectory import Trajectory
@@ -54,6 +55,7 @@ def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progre
         second, failures, skipped frames, ``frame_outcomes``, window and rig figures, timing).
     """
     config = config or OdometryConfig()
+    coverage = None if seq.wheel_odometry is None else wheel_coverage_warning(seq.wheel_odometry, seq.timestamps)
     vo = VisualOdometry(seq.camera, config, wheel_odometry=seq.wheel_odometry)
     try:  # a parallel window's worker ends here, however the run ends (its figures are in the summary)
         observers = list(observers)
@@ -99,7 +101,7 @@ def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progre
     wheel = info.get("wheel_calibration")
     for message in (rig_warning(dict(info)), trust_warning(info["frames"], info["undetermined_frames"],
                                                            info["trusted_fraction"]),
-                    None if wheel is None else wheel["warning"]):
+                    coverage, None if wheel is None else wheel["warning"]):
         if message is not None:
             warn(message)
     if observers:

@@ -90,7 +90,8 @@ class VisualOdometry:
         window_results: one :class:`gtvo.window.WindowResult` per window optimisation.
         failures: frames whose tracking failed (re-initialised or lost).
         lost_frames: frames whose tracking failed and that had too few points to become a
-            keyframe (:attr:`FrameEstimate.lost`, wheel-carried ones included); also counted in ``failures``.
+            keyframe, placed by the motion model's guess (``LOST``; not the ``WHEEL_CARRIED`` ones,
+            placed by the wheels); also counted in ``failures``.
         wheel: the wheel odometry's calibration (:class:`gtvo.window.wheel.WheelCalibration`; the
             window's in window mode), None without wheel odometry.
         clock: the :class:`gtvo.core.timing.StageClock` every :meth:`process` charges (where the
@@ -291,7 +292,8 @@ class VisualOdometry:
         by_wheel = "" if T_wheel is None else ", placed by the calibrated wheel odometry"
         new_kf = self.keyframer.try_make(frame, left, T_place, pyramid=pyramid)
         if new_kf is None:
-            self.lost_frames += 1
+            if T_wheel is None:  # a wheel-carried frame is placed by a measurement: not lost
+                self.lost_frames += 1
             return Outcome(FrameOutcome.LOST if T_wheel is None else FrameOutcome.WHEEL_CARRIED, T_place, track,
                            kf.T_world_cam.between(T_place),
                            f"tracking failed ({track.result.reason}); too few points with a depth to re-initialise"
