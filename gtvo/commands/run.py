@@ -42,6 +42,12 @@ def register(sub: argparse._SubParsersAction) -> None:
                           "window (config key window.rig_calibration; on by default: docs/window.md)")
     rig.add_argument("--no-rig-calibration", action="store_true",
                      help="the rectified model throughout (overrides window.rig_calibration of a --config file)")
+    refine = p.add_mutually_exclusive_group()
+    refine.add_argument("--refine", action="store_true",
+                        help="after the window pass (and loop closing), optimise one graph over every keyframe and "
+                             "re-place the other frames against them (config key refine.enabled; docs/refinement.md)")
+    refine.add_argument("--no-refine", action="store_true",
+                        help="no whole-log refinement: the window's answer (overrides refine.enabled of a --config file)")
     add_odometry_options(p)
     add_bag_options(p)
     add_viewer_options(p)
@@ -68,6 +74,10 @@ def main(args: argparse.Namespace) -> int:
     if args.rig_calibration or args.no_rig_calibration:
         config = dataclasses.replace(config, window=dataclasses.replace(config.window,
                                                                         rig_calibration=bool(args.rig_calibration)))
+    if args.refine and config.mode != "window":
+        raise InputError(f"--refine needs --mode window (got --mode {config.mode}): it refines the window's keyframes")
+    if args.refine or args.no_refine:
+        config = dataclasses.replace(config, refine=dataclasses.replace(config.refine, enabled=bool(args.refine)))
     with viewer_observers(args) as observers:
         report = run(args.sequence, out=args.out, config=config, format=args.format,
                      max_frames=args.max_frames, progress=not args.no_progress, strict=args.strict,

@@ -18,6 +18,7 @@ component, each field's default and allowed range declared once beside it
       photometric          factors.params.PhotometricConfig
       loops                gtvo.loops.config.LoopClosureConfig (enabled, detector: LoopDetectorConfig
                                            (orb: OrbConfig, verification: VerificationConfig, ...))
+      refine               gtvo.refinement.config.RefineConfig (the whole-log refinement)
 
 The photometric model (noise, Huber threshold, pattern, clipped range) is set once, in
 ``photometric``, and the tracker and the window are given that one object. The command line and

@@ -22,6 +22,7 @@ from gtvo.frontend.stereo_depth import StereoSearchConfig
 from gtvo.frontend.tracking import TrackingConfig
 from gtvo.loops.config import LoopClosureConfig
 from gtvo.motion.model import INITIAL_RATE_SIGMAS, MotionNoiseConfig
+from gtvo.refinement.config import RefineConfig
 from gtvo.window import WindowConfig
 
 SolverName = Literal["handrolled", "gtsam"]
@@ -139,6 +140,8 @@ class OdometryConfig:
             estimate: noise, Huber threshold, pattern and the sensor's clipped range.
         loops: loop closing after the run: whether it runs (gtvo run --loop-closure), place
             recognition and the verification of a loop (gtvo.loops, docs/loop_closure.md).
+        refine: the whole-log refinement after the window pass (and loop closing): one graph over
+            every keyframe, then the non-keyframes re-placed (gtvo.refinement, docs/refinement.md).
     """
 
     mode: ModeName = "window"
@@ -152,6 +155,7 @@ class OdometryConfig:
     motion_model: MotionModelConfig = field(default_factory=MotionModelConfig)
     photometric: PhotometricConfig = field(default_factory=PhotometricConfig)
     loops: LoopClosureConfig = field(default_factory=LoopClosureConfig)
+    refine: RefineConfig = field(default_factory=RefineConfig)
 
     def __post_init__(self) -> None:
         if isinstance(self.solver, str):

@@ -76,6 +76,8 @@ class Keyframer:
             rig = baseline is not None and wcfg.rig_calibration and wcfg.backend == "lm"
             self.window = SlidingWindowOptimizer(self.pinhole, baseline, wcfg, rig_offset=np.zeros(2) if rig else None,
                                                  photometric=config.photometric)
+            # the whole-log refinement needs every keyframe (gtvo.refinement): kept only when it runs
+            self.window.retain_keyframes = config.refine.enabled
 
     @property
     def rig(self) -> RigOffset | None:

@@ -11,7 +11,7 @@ compare the two.
 from __future__ import annotations
 
 import time
-from typing import Sequence
+from typing import Callable, Sequence
 
 import gtsam
 import numpy as np
@@ -161,6 +161,31 @@ def _marginal_terms(marginal: MarginalPrior | None, keyframes, poses, affines, H
     return float(0.5 * dl @ marginal.H @ dl - marginal.eta @ dl + 0.5 * marginal.f)
 
 
+def _extra_terms(factors: gtsam.NonlinearFactorGraph | None, keyframes, poses, affines, H=None, g=None,
+                 offset: FloatArray | None = None) -> float:
+    """Native GTSAM factors on the keyframes' keys (the whole-log refinement's loop edges): their
+    cost, and (given H, g) their Gauss-Newton terms from each factor's own linearisation
+    (``JacobianFactor``: ``0.5 |A dx - b|^2``, GTSAM's right-perturbation tangent, as the poses' retraction here)."""
+    if factors is None or factors.size() == 0:
+        return 0.0
+    values = gtsam.Values()
+    for k, kf in enumerate(keyframes):
+        values.insert(pose_key(kf.index), poses[k])
+        values.insert(affine_key(kf.index), affines[k])
+    if offset is not None:
+        values.insert(rig_offset_key(), np.asarray(offset, dtype=float))
+    if H is not None:
+        pos = {pose_key(kf.index): (8 * k, 6) for k, kf in enumerate(keyframes)}
+        pos.update({affine_key(kf.index): (8 * k + 6, 2) for k, kf in enumerate(keyframes)})
+        pos[rig_offset_key()] = (8 * len(keyframes), 2)
+        for i in range(factors.size()):
+            A, b = factors.at(i).linearize(values).jacobian()
+            idx = np.concatenate([np.arange(pos[key][0], pos[key][0] + pos[key][1]) for key in factors.at(i).keys()])
+            H[np.ix_(idx, idx)] += A.T @ A
+            g[idx] -= A.T @ b
+    return float(factors.error(values))
+
+
 def window_cost(camera: PinholeCamera, baseline: float | None, keyframes: Sequence[WindowKeyframe],
                 config: WindowConfig, marginal: MarginalPrior | None = None,
                 targets: list[list[int]] | None = None, rig_offset: FloatArray | None = None,
@@ -184,9 +209,12 @@ def solve_handrolled(camera: PinholeCamera, baseline: float | None, keyframes: S
                      config: WindowConfig, marginal: MarginalPrior | None = None,
                      targets: list[list[int]] | None = None, rig_offset: FloatArray | None = None,
                      rig_hold_x: float | None = None, *,
-                     photometric: PhotometricConfig = DEFAULT_PHOTOMETRIC) -> WindowResult:
+                     photometric: PhotometricConfig = DEFAULT_PHOTOMETRIC,
+                     extra_factors: gtsam.NonlinearFactorGraph | None = None,
+                     on_iteration: Callable[[int, float], None] | None = None) -> WindowResult:
     """Levenberg-Marquardt on the reduced camera system (residuals of the ``photometric`` model);
-    updates ``keyframes`` in place.
+    updates ``keyframes`` in place. ``extra_factors`` (native GTSAM factors on the keyframes' keys)
+    and ``on_iteration`` as :func:`gtvo.window.solve_gtsam`'s.
 
     ``rig_offset``: the rig offset's current estimate when it is a variable (2 more state entries
     after the keyframes'; the result's ``rig_offset`` is the optimised one); ``rig_hold_x``: its
@@ -220,12 +248,14 @@ def solve_handrolled(camera: PinholeCamera, baseline: float | None, keyframes: S
             E += e
         E += _prior_terms(keyframes, P, A, config, with_gauge, motion=motion)
         E += _rig_prior_terms(config, O, rig_prior_on, hold_x=rig_hold_x, carried=carried)
+        E += _extra_terms(extra_factors, keyframes, P, A, offset=O)
         return E + _marginal_terms(marginal, keyframes, P, A, offset=O), D, L
 
     E = sum(host.start[0] for host in hosts) \
         + _prior_terms(keyframes, poses, affines, config, with_gauge, motion=motion) \
         + _rig_prior_terms(config, off, rig_prior_on, hold_x=rig_hold_x, carried=carried) \
-        + _marginal_terms(marginal, keyframes, poses, affines, offset=off)
+        + _marginal_terms(marginal, keyframes, poses, affines, offset=off) \
+        + _extra_terms(extra_factors, keyframes, poses, affines, offset=off)
     state_lins = {host.h: host.start[1] for host in hosts}
     initial = E
     lam = 1e-5
@@ -237,6 +267,7 @@ def solve_handrolled(camera: PinholeCamera, baseline: float | None, keyframes: S
         _prior_terms(keyframes, poses, affines, config, with_gauge, H, g, motion)
         _rig_prior_terms(config, off, rig_prior_on, H, g, rig_hold_x, carried)
         _marginal_terms(marginal, keyframes, poses, affines, H, g, off)
+        _extra_terms(extra_factors, keyframes, poses, affines, H, g, off)
         H = 0.5 * (H + H.T)
         diag = np.maximum(np.diag(H), 1e-12 * max(float(np.max(np.diag(H))), 1e-300))
         accepted = False
@@ -256,6 +287,8 @@ def solve_handrolled(camera: PinholeCamera, baseline: float | None, keyframes: S
         decrease = E - E_new
         poses, affines, off, depths, E, state_lins = P, A, O, D, E_new, L_new
         lam = max(lam / 10.0, 1e-7)
+        if on_iteration is not None:
+            on_iteration(it, E)
         if decrease < config.relative_tolerance * max(E, 1e-300):
             break
     t_cov = time.perf_counter()
@@ -269,6 +302,7 @@ def solve_handrolled(camera: PinholeCamera, baseline: float | None, keyframes: S
             _prior_terms(keyframes, poses, affines, config, with_gauge, H, g, motion)
             _rig_prior_terms(config, off, rig_prior_on, H, g, rig_hold_x, carried)
             _marginal_terms(marginal, keyframes, poses, affines, H, g, off)
+            _extra_terms(extra_factors, keyframes, poses, affines, H, g, off)
             covs = marginals_of_hessian(H, [kf.index for kf in keyframes])
     t_cov = time.perf_counter() - t_cov
     for k, kf in enumerate(keyframes):
