@@ -24,6 +24,10 @@ class RefineConfig:
         max_iterations: LM iterations of the whole-log graph.
         relative_tolerance: stop when an iteration lowers the cost by less than this fraction.
         max_targets: at most this many keyframes per host (those that see most of its points).
+        max_scale_change: a keyframe is a host's target only when the host's points look at most
+            this much bigger or smaller there (median ``|log(z_host / z_target)|``): the residual
+            pattern is compared unwarped, so a zoomed view biases the residuals (measured: more and
+            farther targets pulled KITTI_sequence_1's scale; docs/refinement.md); null: no limit.
         loop_chi2: a loop edge whose whitened squared error after the refinement exceeds this
             (default: the 99 % quantile of chi-square, 6 degrees of freedom) is dropped and the graph
             solved again without it.
@@ -31,9 +35,10 @@ class RefineConfig:
 
     enabled: bool = False
     solver: Literal["gtsam", "handrolled"] = "gtsam"
-    max_iterations: int = setting(10, "[1, 1000]")
+    max_iterations: int = setting(5, "[1, 1000]")
     relative_tolerance: float = setting(1e-4, "[0, 1]")
-    max_targets: int = setting(10, "[1, 1000]")
+    max_targets: int = setting(6, "[1, 1000]")
+    max_scale_change: float | None = setting(0.25, "(0, 10]")
     loop_chi2: float = setting(CHI2_6DOF_99, "(0, 1000000]")
 
     def __post_init__(self) -> None:

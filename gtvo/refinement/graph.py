@@ -53,14 +53,37 @@ def candidate_targets(keyframes: Sequence[WindowKeyframe], max_targets: int) -> 
     return out
 
 
+def scale_change(camera: PinholeCamera, host: WindowKeyframe, target: WindowKeyframe) -> float:
+    """How much bigger or smaller the host's points look in the target: the median, over its points
+    with a positive inverse depth that are in front of the target, of ``|log(z_host / z_target)|``
+    (the magnification of the residual pattern, which the photometric model compares unwarped);
+    inf when no point qualifies."""
+    ok = host.inverse_depth > 0
+    if not np.any(ok):
+        return float("inf")
+    z_h = 1.0 / host.inverse_depth[ok]
+    px = host.pixels[ok]
+    X = np.column_stack([(px[:, 0] - camera.cx) / camera.fx * z_h, (px[:, 1] - camera.cy) / camera.fy * z_h, z_h])
+    T = target.pose.inverse().compose(host.pose).matrix()  # T_target_host
+    z_t = X @ T[2, :3] + T[2, 3]
+    front = z_t > 0
+    if not np.any(front):
+        return float("inf")
+    return float(np.median(np.abs(np.log(z_h[front] / z_t[front]))))
+
+
 def covisible_targets(camera: PinholeCamera, keyframes: Sequence[WindowKeyframe], config: WindowConfig,
-                      max_targets: int) -> list[list[int]]:
+                      max_targets: int, max_scale_change: float | None = None) -> list[list[int]]:
     """Per host (position in ``keyframes``), its targets over the whole log: among
-    :func:`candidate_targets`, those into which enough of its points project
-    (:func:`gtvo.window.problem.visible_targets`, the window's rule), at most ``max_targets``
-    (those that see most of them)."""
-    return visible_targets(camera, keyframes, config, candidates=candidate_targets(keyframes, max_targets),
-                           max_targets=max_targets)
+    :func:`candidate_targets` (and, with ``max_scale_change``, those in which its points look at
+    most that much bigger or smaller, :func:`scale_change`), those into which enough of its points
+    project (:func:`gtvo.window.problem.visible_targets`, the window's rule), at most
+    ``max_targets`` (those that see most of them)."""
+    candidates = candidate_targets(keyframes, max_targets)
+    if max_scale_change is not None:
+        candidates = [[t for t in ts if scale_change(camera, keyframes[h], keyframes[t]) <= max_scale_change]
+                      for h, ts in enumerate(candidates)]
+    return visible_targets(camera, keyframes, config, candidates=candidates, max_targets=max_targets)
 
 
 def loop_factor(edge: LoopEdge) -> gtsam.BetweenFactorPose3:
