@@ -136,11 +136,66 @@ def accuracy(only: set[str] | None, quick: bool) -> None:
                    measure(seq, loops=loops)), flush=True)
 
 
-def scaling(sizes: list[int]) -> None:
-    """Time of one refinement against the number of keyframes (module docstring)."""
-    from benchmarks_refine_scaling import scaling_run  # noqa: PLC0415 (the helper beside this file)
+def scaling(sizes: list[int], lap: int = 100) -> None:
+    """Time of one refinement against the number of keyframes (module docstring): a synthetic loop
+    of ``lap`` frames driven round again and again, every frame a keyframe at its true pose moved
+    by 1 mm / 0.5 mrad (so that LM has work), with its stereo points; the laps share the rendered
+    images (the memory figure is then the graph's, not the images'). 3 LM iterations each."""
+    import gtsam  # noqa: PLC0415
 
-    scaling_run(sizes)
+    from factors.photometric import GradientImage  # noqa: PLC0415
+    from gtvo.core.image import to_float_gray  # noqa: PLC0415
+    from gtvo.frontend import init_keyframe_points  # noqa: PLC0415
+    from gtvo.refinement import refine_keyframes  # noqa: PLC0415
+    from gtvo.window import WindowConfig, WindowKeyframe  # noqa: PLC0415
+
+    seq = make_synthetic_sequence(n_frames=lap, motion="loop", seed=1, noise_sigma=1.0)
+    frames = []
+    for i in range(lap):
+        fr = seq.frame(i)
+        left, right = to_float_gray(fr.left, "left"), to_float_gray(fr.right, "right")
+        frames.append((GradientImage(left), GradientImage(right), init_keyframe_points(left, right, seq.camera)))
+    rng = np.random.default_rng(0)
+    rows = []
+    print("| keyframes | host-target pairs | seconds | seconds per keyframe | per iteration | peak memory [MB] |")
+    print("|---|---|---|---|---|---|")
+    for n in sizes:
+        kfs = []
+        for k in range(n):
+            img, right, pts = frames[k % lap]
+            T = gtsam.Pose3(seq.gt_poses[k % lap]).retract(np.r_[rng.normal(0, 5e-4, 3), rng.normal(0, 1e-3, 3)])
+            kfs.append(WindowKeyframe(k, T if k else gtsam.Pose3(seq.gt_poses[0]), np.zeros(2), img, pts.pixels,
+                                      pts.inverse_depth, pts.variance, right=right, timestamp=0.1 * k))
+        t0 = time.perf_counter()
+        res = refine_keyframes(seq.pinhole, seq.camera.baseline, kfs, WindowConfig(),
+                               RefineConfig(enabled=True, max_iterations=3, relative_tolerance=0.0))
+        sec = time.perf_counter() - t0
+        mem = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+        pairs = int(round(res.targets_mean * n))
+        rows.append((n, sec))
+        print(f"| {n} | {pairs} | {sec:.1f} | {1000 * sec / n:.1f} ms | {sec / max(res.iterations, 1):.1f} | {mem:.0f} |",
+              flush=True)
+    _scaling_figure(rows)
+
+
+def _scaling_figure(rows: list[tuple[int, float]]) -> None:
+    import matplotlib  # noqa: PLC0415
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt  # noqa: PLC0415
+
+    n, sec = np.array(rows, dtype=float).T
+    fig, ax = plt.subplots(figsize=(5, 3.4))
+    ax.plot(n, sec, "o-", label="measured (3 LM iterations)")
+    ax.plot(n, sec[0] / n[0] * n, "--", color="gray", label="linear through the first point")
+    ax.set_xlabel("keyframes")
+    ax.set_ylabel("refinement seconds")
+    ax.legend()
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    out = Path(__file__).resolve().parents[1] / "docs" / "refinement_scaling.png"
+    fig.savefig(out, dpi=100)
+    print(f"figure: {out}")
 
 
 def main(argv: list[str]) -> None:
