@@ -40,17 +40,9 @@ from gtvo.loops.closing import close_loops_of_run, odometry_covariances, refine_
 from gtvo.pipeline import TRACKED_OUTCOMES, process_sequence
 from gtvo.refinement import RefineConfig
 from gtvo.refinement.run import refine_run
+from loop_closure_synthetic import DATA  # noqa: E402 (the shared data folder, found as there; run from benchmarks/)
 
 
-def _shared_data() -> Path:
-    """``shared/data`` next to the checkout (or next to any folder above it: worktrees sit deeper)."""
-    for parent in Path(__file__).resolve().parents[1:]:
-        if (parent / "shared" / "data").is_dir():
-            return parent / "shared" / "data"
-    return Path(__file__).resolve().parents[1].parent / "shared" / "data"
-
-
-DATA = _shared_data()
 REAL = {"kitti": DATA / "kitti_stereo_sample" / "KITTI_sequence_1",
         "raw": DATA / "kitti_raw_2011_09_26_drive_0001_stereo",
         "tum": DATA / "rgbd_dataset_freiburg3_teddy_first20",

@@ -36,22 +36,25 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "DIR/trajectory_loop_closed.tum as a second output (the map on the loop-closed keyframes)")
     p.add_argument("--no-covariances", action="store_true",
                    help="do not compute the keyframes' pose covariances (no DIR/covariances.npz, no ellipses)")
-    rig = p.add_mutually_exclusive_group()
-    rig.add_argument("--rig-calibration", action="store_true",
-                     help="estimate the stereo rig's rectification error (the right image's offset, px) in the "
-                          "window (config key window.rig_calibration; on by default: docs/window.md)")
-    rig.add_argument("--no-rig-calibration", action="store_true",
-                     help="the rectified model throughout (overrides window.rig_calibration of a --config file)")
-    refine = p.add_mutually_exclusive_group()
-    refine.add_argument("--refine", action="store_true",
-                        help="after the window pass (and loop closing), optimise one graph over every keyframe and "
-                             "re-place the other frames against them (config key refine.enabled; docs/refinement.md)")
-    refine.add_argument("--no-refine", action="store_true",
-                        help="no whole-log refinement: the window's answer (overrides refine.enabled of a --config file)")
+    _on_off(p, "rig-calibration",
+            "estimate the stereo rig's rectification error (the right image's offset, px) in the "
+            "window (config key window.rig_calibration; on by default: docs/window.md)",
+            "the rectified model throughout (overrides window.rig_calibration of a --config file)")
+    _on_off(p, "refine",
+            "after the window pass (and loop closing), optimise one graph over every keyframe and "
+            "re-place the other frames against them (config key refine.enabled; docs/refinement.md)",
+            "no whole-log refinement: the window's answer (overrides refine.enabled of a --config file)")
     add_odometry_options(p)
     add_bag_options(p)
     add_viewer_options(p)
     p.set_defaults(func=main)
+
+
+def _on_off(p: argparse.ArgumentParser, name: str, on_help: str, off_help: str) -> None:
+    """``--NAME`` and ``--no-NAME``, mutually exclusive (neither: the config's value)."""
+    group = p.add_mutually_exclusive_group()
+    group.add_argument(f"--{name}", action="store_true", help=on_help)
+    group.add_argument(f"--no-{name}", action="store_true", help=off_help)
 
 
 def main(args: argparse.Namespace) -> int:

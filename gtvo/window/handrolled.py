@@ -18,7 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from factors.host_points import DepthSystem, HostPoints
-from gtvo.core.keys import affine_key, pose_key, rig_offset_key
+from gtvo.core.keys import affine_key, is_pose_key, pose_key, rig_offset_key
 from gtvo.core.camera import PinholeCamera
 from gtvo.core.timing import stage, timed
 from gtvo.window.covariance import marginals_of_hessian
@@ -138,23 +138,34 @@ def _rig_prior_terms(config: WindowConfig, offset: FloatArray | None, active: bo
     return 0.5 * float(e @ e)
 
 
-def _marginal_terms(marginal: MarginalPrior | None, keyframes, poses, affines, H=None, g=None,
-                    offset: FloatArray | None = None) -> float:
-    """The marginalisation prior's cost, and (given H, g) its terms (Jacobian of delta taken as I,
-    as ``gtsam.LinearContainerFactor`` does); ``offset``: the rig offset (the state's last 2 entries)."""
-    if marginal is None:
-        return 0.0
+def _state_values(keyframes, poses, affines, offset: FloatArray | None = None) -> gtsam.Values:
+    """A state of the hand-rolled solver as GTSAM ``Values`` (poses, affines, rig offset)."""
     values = gtsam.Values()
     for k, kf in enumerate(keyframes):
         values.insert(pose_key(kf.index), poses[k])
         values.insert(affine_key(kf.index), affines[k])
     if offset is not None:
         values.insert(rig_offset_key(), np.asarray(offset, dtype=float))
-    dl = marginal.delta(values)
+    return values
+
+
+def _state_columns(keyframes) -> dict[int, int]:
+    """Key -> its first column in the hand-rolled state (8 per keyframe, then the rig offset's 2)."""
+    pos = {pose_key(kf.index): 8 * k for k, kf in enumerate(keyframes)}
+    pos.update({affine_key(kf.index): 8 * k + 6 for k, kf in enumerate(keyframes)})
+    pos[rig_offset_key()] = 8 * len(keyframes)
+    return pos
+
+
+def _marginal_terms(marginal: MarginalPrior | None, keyframes, poses, affines, H=None, g=None,
+                    offset: FloatArray | None = None) -> float:
+    """The marginalisation prior's cost, and (given H, g) its terms (Jacobian of delta taken as I,
+    as ``gtsam.LinearContainerFactor`` does); ``offset``: the rig offset (the state's last 2 entries)."""
+    if marginal is None:
+        return 0.0
+    dl = marginal.delta(_state_values(keyframes, poses, affines, offset))
     if H is not None:
-        pos = {pose_key(kf.index): 8 * k for k, kf in enumerate(keyframes)}
-        pos.update({affine_key(kf.index): 8 * k + 6 for k, kf in enumerate(keyframes)})
-        pos[rig_offset_key()] = 8 * len(keyframes)
+        pos = _state_columns(keyframes)
         idx = np.concatenate([np.arange(pos[key], pos[key] + dim) for key, dim in zip(marginal.keys, marginal.dims)])
         H[np.ix_(idx, idx)] += marginal.H
         g[idx] += marginal.H @ dl - marginal.eta
@@ -168,19 +179,12 @@ def _extra_terms(factors: gtsam.NonlinearFactorGraph | None, keyframes, poses, a
     (``JacobianFactor``: ``0.5 |A dx - b|^2``, GTSAM's right-perturbation tangent, as the poses' retraction here)."""
     if factors is None or factors.size() == 0:
         return 0.0
-    values = gtsam.Values()
-    for k, kf in enumerate(keyframes):
-        values.insert(pose_key(kf.index), poses[k])
-        values.insert(affine_key(kf.index), affines[k])
-    if offset is not None:
-        values.insert(rig_offset_key(), np.asarray(offset, dtype=float))
+    values = _state_values(keyframes, poses, affines, offset)
     if H is not None:
-        pos = {pose_key(kf.index): (8 * k, 6) for k, kf in enumerate(keyframes)}
-        pos.update({affine_key(kf.index): (8 * k + 6, 2) for k, kf in enumerate(keyframes)})
-        pos[rig_offset_key()] = (8 * len(keyframes), 2)
+        pos = _state_columns(keyframes)
         for i in range(factors.size()):
             A, b = factors.at(i).linearize(values).jacobian()
-            idx = np.concatenate([np.arange(pos[key][0], pos[key][0] + pos[key][1]) for key in factors.at(i).keys()])
+            idx = np.concatenate([np.arange(pos[key], pos[key] + (6 if is_pose_key(key) else 2)) for key in factors.at(i).keys()])
             H[np.ix_(idx, idx)] += A.T @ A
             g[idx] -= A.T @ b
     return float(factors.error(values))
