@@ -36,6 +36,10 @@ from gtvo.report import RunReport, run_report
 #: that ``--loop-closure`` re-estimates against the final keyframes.
 TRACKED_OUTCOMES = (FrameOutcome.TRACKED, FrameOutcome.RECOVERED)
 
+#: ``covariances.npz``'s source when the whole-log refinement was kept (its graph's marginals).
+REFINED_COVARIANCES = {"gtsam": "gtsam.Marginals of the whole-log refinement's graph",
+                       "handrolled": "inverse of the whole-log refinement's reduced Hessian (hand-rolled)"}
+
 
 def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progress: bool = False,
                      strict: bool = False, warn: Callable[[str], None] | None = None,
@@ -177,6 +181,8 @@ def run(path: str | Path | Sequence, out: str | Path | None = None,
         raise_if_interrupted()
         with vo.clock.activate() if vo.clock is not None else nullcontext(), stage("outputs", absorb=True):
             covariances = keyframe_covariances(vo)
+            if covariances is not None and refined is not None and refined.covariances is not None:
+                covariances = dataclasses.replace(covariances, source=REFINED_COVARIANCES[vo.config.refine.solver])
             info = run_report(seq, traj, summary, config, format=fmt, frame_step=frame_step, loop_closure=loops,
                               loop_closed=closed, covariances=covariances,
                               refinement=None if refined is None else refined.summary)

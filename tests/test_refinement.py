@@ -151,6 +151,8 @@ def test_a_run_reports_its_refinement_and_no_refine_turns_it_off(kitti_like, tmp
     assert block["ran"] and block["reason"] is None and block["iterations"] >= 1
     assert block["cost_after"] < block["cost_before"] and block["keyframes"] == rep["keyframes"]
     assert block["window_ate_rmse_m"] is not None and rep["config"]["refine"]["enabled"] is True
+    assert rep["covariance_source"] == "gtsam.Marginals of the whole-log refinement's graph"
+    assert rep["covariance_keyframes"] == rep["keyframes"]
     (tmp_path / "c.yaml").write_text("refine: {enabled: true}\n")
     r = _run(kitti_like, "--out", tmp_path / "off", "--config", tmp_path / "c.yaml", "--no-refine")
     assert r.returncode == 0, r.stderr
@@ -185,3 +187,20 @@ def test_ctrl_c_during_the_refinement_writes_the_window_only_outputs(kitti_like,
     for name in names:
         assert (tmp_path / "cut" / name).read_bytes() == (tmp_path / "plain" / name).read_bytes()
     assert sorted(p.name for p in (tmp_path / "cut").iterdir()) == sorted(p.name for p in (tmp_path / "plain").iterdir())
+
+
+def test_lm_iteration_by_iteration_is_gtsam_own_loop(seq, keyframes):
+    """``on_iteration`` runs GTSAM's LM one iteration at a time: the same iterations, cost and
+    poses as ``optimize()`` (the window's path), bit for bit."""
+    from gtvo.window import solve_gtsam
+
+    cam = seq.camera
+    a, b = copy.deepcopy(keyframes), copy.deepcopy(keyframes)
+    cfg = WindowConfig(max_iterations=6)
+    seen = []
+    ra = solve_gtsam(cam.left, cam.baseline, a, cfg)
+    rb = solve_gtsam(cam.left, cam.baseline, b, cfg, on_iteration=lambda it, cost: seen.append((it, cost)))
+    assert (ra.iterations, ra.cost) == (rb.iterations, rb.cost) and seen[-1] == (rb.iterations, rb.cost)
+    assert [it for it, _ in seen] == list(range(1, rb.iterations + 1))
+    for ka, kb in zip(a, b):
+        assert np.array_equal(ka.pose.matrix(), kb.pose.matrix()) and np.array_equal(ka.inverse_depth, kb.inverse_depth)
