@@ -13,8 +13,9 @@ rig's own, unknown offset), the Sim(3) scale of the estimate against the ground 
 1 = right scale), the path-length ratio, and the SE(3) / Sim(3) ATE.
 
     PYTHONPATH=. python benchmarks/rig_bias.py synthetic [--seeds 0,1,2] [--offsets "0,0;1,0;-2,0.5"]
-        [--frames 60] [--rig off,on] [--json out.json]
+        [--frames 60] [--supersample 1] [--rig off,on] [--json out.json]
     PYTHONPATH=. python benchmarks/rig_bias.py kitti [--sequence DIR] [--shifts "0,0;1.5,0;..."] [--frame-step N]
+        [--interpolation linear|cubic|lanczos4] [--release-at-first-test]
 
 ``--stereo-sampling`` sets :attr:`gtvo.frontend.stereo_types.StereoSearchConfig` fields for the
 targeted measurements of docs/window.md ("Rig calibration", "Where the bias comes from").
@@ -35,6 +36,7 @@ import numpy as np  # noqa: E402
 
 from benchmarks.rig_calibration import DEFAULT_SEQUENCE, open_any  # noqa: E402
 from gtvo.config import OdometryConfig  # noqa: E402
+import gtvo.window.rig as rig_module  # noqa: E402
 from gtvo.datasets.shifted import shift_right_images  # noqa: E402
 from gtvo.datasets.synthetic import make_synthetic_sequence  # noqa: E402
 from gtvo.evaluation.alignment import umeyama_alignment  # noqa: E402
@@ -105,20 +107,29 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seeds", default="0,1,2")
     ap.add_argument("--offsets", default=SYNTHETIC_OFFSETS, help="synthetic: rendered right principal-point offsets")
     ap.add_argument("--frames", type=int, default=60, help="synthetic: frames per log")
+    ap.add_argument("--supersample", type=int, default=1,
+                    help="synthetic: rays per pixel side (1: point sampling; more: area-integrated pixels)")
     ap.add_argument("--sequence", default=str(DEFAULT_SEQUENCE), help="kitti: the sequence (or a raw drive)")
     ap.add_argument("--shifts", default=KITTI_SHIFTS, help="kitti: resampled right-image shifts")
     ap.add_argument("--max-frames", type=int, default=0, help="kitti: first N frames only (0: all)")
     ap.add_argument("--frame-step", type=int, default=1, help="kitti: every N-th frame (the log at 1/N its rate)")
     ap.add_argument("--rig", default="off,on", help="calibration settings to run: off, on or both")
+    ap.add_argument("--interpolation", default="linear", choices=("linear", "cubic", "lanczos4"),
+                    help="kitti: how the right images are resampled (linear also blurs them)")
+    ap.add_argument("--release-at-first-test", action="store_true",
+                    help="diagnostic: release the offset at its first test whatever it says (significance 0)")
     ap.add_argument("--json", default=None, help="write the rows here")
     args = ap.parse_args(argv)
     rigs = [s.strip() == "on" for s in args.rig.split(",") if s.strip()]
+    if args.release_at_first_test:
+        rig_module.RIG_SIGNIFICANCE = 0.0
     rows: list[dict] = []
     print(HEAD, flush=True)
     if args.experiment == "synthetic":
         for seed in (int(s) for s in args.seeds.split(",")):
             for off in parse_pairs(args.offsets):
-                seq = make_synthetic_sequence(args.frames, seed=seed, right_principal_offset=off)
+                seq = make_synthetic_sequence(args.frames, seed=seed, right_principal_offset=off,
+                                              supersample=args.supersample)
                 for rig in rigs:
                     rows.append(run_one(seq, rig, off, f"seed {seed}"))
                     print(line(rows[-1]), flush=True)
@@ -129,7 +140,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.frame_step > 1:
             base = base.subsampled(args.frame_step)
         for sh in parse_pairs(args.shifts):
-            seq = shift_right_images(base, sh) if any(sh) else base
+            seq = shift_right_images(base, sh, args.interpolation) if any(sh) else base
             for rig in rigs:
                 rows.append(run_one(seq, rig, sh, base.name))
                 print(line(rows[-1]), flush=True)

@@ -94,7 +94,7 @@ def diff_drive_motion_scalar(params: Sequence[float], s_left: float, s_right: fl
     return f, jac
 
 
-def _kron_u(u: NDArray[np.float64]) -> NDArray[np.float64]:
+def kron_motion(u: NDArray[np.float64]) -> NDArray[np.float64]:
     """``I3 kron u^T`` (3x9): d(X u)/d vec_rowmajor(X)."""
     k = np.zeros((3, 9))
     k[0, 0:3] = u
@@ -108,7 +108,7 @@ def linear_calibration_factor(key: int, odom_motion: ArrayLike, reference_motion
     """A unary factor on the 9-vector calibration: ``e = u* - X u`` for one motion pair."""
     u = np.array(odom_motion, dtype=np.float64).reshape(3)
     ref = np.array(reference_motion, dtype=np.float64).reshape(3)
-    jac = -_kron_u(u)
+    jac = -kron_motion(u)
 
     def error(this: gtsam.CustomFactor, values: gtsam.Values, H: list | None) -> NDArray[np.float64]:
         x = values.atVector(this.keys()[0]).reshape(3, 3)
@@ -156,7 +156,7 @@ def calibrated_odometry_error(pose_i: gtsam.Pose2, pose_j: gtsam.Pose2, x: Array
     jr_inv = gtsam.Pose2.LogmapDerivative(e)
     h_i = -jr_inv @ d.inverse().AdjointMap()
     h_j = jr_inv
-    h_c = -jr_inv @ big_e.inverse().AdjointMap() @ _vector_pose_jacobian(v[2]) @ _kron_u(u)
+    h_c = -jr_inv @ big_e.inverse().AdjointMap() @ _vector_pose_jacobian(v[2]) @ kron_motion(u)
     return e, [h_i, h_j, h_c]
 
 

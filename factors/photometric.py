@@ -404,17 +404,14 @@ def stereo_residuals(camera: PinholeCamera, baseline: float, left_intensity: Arr
             # the warp's q_z is 1 (no rotation, no z translation): shifting the principal point
             # shifts the sampled right pixel by exactly (delta_x, delta_y)
             projection = dataclasses.replace(camera, cx=camera.cx + dx, cy=camera.cy + dy)
-    full = jacobians or offset_jacobians
     lin = photometric_residuals(projection, left_intensity, left_valid, pixels, inverse_depth, np.eye(4),
-                                T_world_right, right, affine_left, affine_right, pattern, jacobians=full,
+                                T_world_right, right, affine_left, affine_right, pattern, jacobians=jacobians,
                                 host_jacobians=jacobians, bearings=bearings)
     if offset_jacobians:
-        assert lin.J_target is not None
-        # J_target[..., 3:5] = -d a_xy with a = (gx fx, gy fy) / q_z and q_z = 1
-        d = np.asarray(inverse_depth, dtype=float).reshape(-1, 1)
-        scale = np.where(lin.valid, -1.0 / np.where(lin.valid, d, 1.0), 0.0)
-        lin.J_offset = np.stack([lin.J_target[..., 3] * scale / camera.fx,
-                                 lin.J_target[..., 4] * scale / camera.fy], axis=-1)
+        # the warp's q_z is 1, so dr/d(delta_x, delta_y) is the right image's gradient at the sampled
+        # pixel itself: one more bilinear sample of the gradients, not the pose Jacobians
+        vals, _ = right.sample(lin.uv_target[..., 0], lin.uv_target[..., 1])
+        lin.J_offset = np.where(lin.valid[..., None], vals[..., 1:3], 0.0)
     if not jacobians:
         lin.J_affine_host = lin.J_affine_target = None
     lin.J_host = None

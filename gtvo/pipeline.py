@@ -58,7 +58,7 @@ def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progre
         second, failures, skipped frames, ``frame_outcomes``, window and rig figures, timing).
     """
     config = config or OdometryConfig()
-    vo = VisualOdometry(seq.camera, config)
+    vo = VisualOdometry(seq.camera, config, wheel_odometry=seq.wheel_odometry)
     observers = list(observers)
     for o in observers:
         o.on_start(seq, config)
@@ -97,8 +97,10 @@ def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progre
     seconds = time.perf_counter() - t0
     traj = vo.trajectory(seq.name)
     info = summarize_odometry(vo, seconds, skipped)
+    wheel = info.get("wheel_calibration")
     for message in (rig_warning(dict(info)), trust_warning(info["frames"], info["undetermined_frames"],
-                                                           info["trusted_fraction"])):
+                                                           info["trusted_fraction"]),
+                    None if wheel is None else wheel["warning"]):
         if message is not None:
             warn(message)
     if observers:
@@ -122,7 +124,8 @@ def run(path: str | Path | Sequence, out: str | Path | None = None,
             YAML/JSON file (:func:`gtvo.config.as_config`; default the defaults, as ``gtvo run``'s); recorded
             in full in the report (``"config"``) and in ``out/config.yaml``.
         format, max_frames, open_options: passed to :func:`gtvo.datasets.open_sequence` (for bags
-            also ``calib``, ``left_topic``, ``right_topic``, ``depth_topic``, ``ground_truth_topic``).
+            also ``calib``, ``left_topic``, ``right_topic``, ``depth_topic``, ``ground_truth_topic``;
+            ``wheel_odometry``, ``wheel_topic``), with the config's ``wheel:`` section as ``wheel_options``.
         progress: show a progress bar.
         strict: stop at the first unreadable frame instead of skipping it.
         loop_closure: True sets ``loops.enabled`` of the config (as ``--loop-closure``; False leaves
@@ -144,8 +147,9 @@ def run(path: str | Path | Sequence, out: str | Path | None = None,
     Raises:
         InputError: bad input (unreadable folder, ``frame_step < 1``, ...).
     """
-    seq = path if isinstance(path, Sequence) else open_sequence(path, format=format, max_frames=max_frames,  # type: ignore[arg-type]
-                                                               **open_options)
+    config = as_config(config)
+    seq = path if isinstance(path, Sequence) else open_sequence(  # type: ignore[arg-type]
+        path, format=format, max_frames=max_frames, **{"wheel_options": config.wheel.read_options(), **open_options})
     out_dir = Path(out) if out is not None else Path("gtvo_out") / seq.name
     check_run_output_dir(out_dir, seq)  # before the long work
     unpaired = seq.unpaired_warning() if hasattr(seq, "unpaired_warning") else None  # a bag's dropped images
@@ -154,7 +158,6 @@ def run(path: str | Path | Sequence, out: str | Path | None = None,
     if isinstance(path, Sequence) and max_frames is not None:
         seq = seq.truncated(max_frames)
     seq = seq.subsampled(frame_step)
-    config = as_config(config)
     if loop_closure:
         config = dataclasses.replace(config, loops=dataclasses.replace(config.loops, enabled=True))
     fmt = None if isinstance(path, Sequence) else (detect_format(path) if format == "auto" else format)

@@ -61,11 +61,13 @@ def run_log(job: dict[str, Any]) -> dict[str, Any]:
         cv2.setRNGSeed(0)  # OpenCV's global RNG (PnP RANSAC) as in a fresh `gtvo run` process
         from gtvo.datasets import open_sequence  # noqa: PLC0415
         from gtvo.core.atomic import write_json  # noqa: PLC0415
+        from gtvo.config import as_config  # noqa: PLC0415
         from gtvo.pipeline import run  # noqa: PLC0415
 
         opts = job["options"]
         open_opts = {k: v for k, v in opts.items()
                      if k not in ("max_frames", "frame_step", "loop_closure") and v is not None}
+        open_opts.setdefault("wheel_options", as_config(job["config"]).wheel.read_options())
         seq = open_sequence(job["path"], format=job["format"], max_frames=opts.get("max_frames"), **open_opts)
         report = run(seq, out=out, config=job["config"], progress=False, frame_step=opts.get("frame_step", 1),
                      loop_closure=bool(opts.get("loop_closure", False)))

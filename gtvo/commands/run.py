@@ -13,6 +13,15 @@ from gtvo.core.interrupt import outputs_in_place
 from gtvo.errors import InputError
 
 
+#: The wheel odometry's flags: ``open_sequence``'s ``wheel_odometry`` and ``wheel_topic``.
+WHEEL_FLAGS: tuple[tuple[str, str, str], ...] = (
+    ("--wheel-odometry", "FILE", "a wheel odometry CSV (time,x,y,theta or time,left,right) instead of the sequence "
+                                 "folder's wheel_odometry.csv or the bag's wheel topic"),
+    ("--wheel-topic", "TOPIC", "the bag's wheel odometry topic (nav_msgs/Odometry, geometry_msgs/TwistStamped, "
+                               "sensor_msgs/JointState; default: the only one; 'none': no wheel odometry)"),
+)
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "run", help="odometry of a logged sequence; writes trajectory, report, plots, points",
@@ -44,6 +53,9 @@ def register(sub: argparse._SubParsersAction) -> None:
             "after the window pass (and loop closing), optimise one graph over every keyframe and "
             "re-place the other frames against them (config key refine.enabled; docs/refinement.md)",
             "no whole-log refinement: the window's answer (overrides refine.enabled of a --config file)")
+    wheel = p.add_argument_group("wheel odometry (docs/wheel_odometry.md)")
+    for flag, metavar, text in WHEEL_FLAGS:
+        wheel.add_argument(flag, metavar=metavar, default=None, help=text)
     add_odometry_options(p)
     add_bag_options(p)
     add_viewer_options(p)
@@ -68,6 +80,7 @@ def main(args: argparse.Namespace) -> int:
         options["camera"] = parse_floats(args.camera, 4, "--camera")
     if args.ground_truth is not None:
         options["ground_truth"] = args.ground_truth
+    options.update({k: getattr(args, k) for k in ("wheel_odometry", "wheel_topic") if getattr(args, k) is not None})
     config = odometry_config(args)
     if args.no_covariances:
         config = dataclasses.replace(config, window=dataclasses.replace(config.window, covariances=False))

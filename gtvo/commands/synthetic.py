@@ -1,11 +1,16 @@
-"""``gtvo synthetic --out DIR``: write the synthetic stereo sequence in the KITTI odometry layout."""
+"""``gtvo synthetic --out DIR``: write the synthetic stereo sequence in the KITTI odometry layout (or a
+ROS bag with ``--bag``), with a ground robot's wheel odometry on request (``--wheel``)."""
 
 from __future__ import annotations
 
 import argparse
 
-from gtvo.errors import InputError
+from gtvo.commands._common import parse_floats
+from gtvo.datasets.bag_writer import write_sequence_bag
 from gtvo.datasets.synthetic import MAX_SIDE, MIN_SIDE, make_synthetic_sequence, write_sequence_kitti
+from gtvo.datasets.synthetic_robot import SYNTHETIC_WHEEL_RADIUS, WheelSimulation
+from gtvo.datasets.wheel import DEFAULT_NOMINAL_BASELINE
+from gtvo.errors import InputError
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -19,11 +24,26 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--frames", type=int, default=30, help="number of stereo pairs at 10 Hz (default 30)")
     p.add_argument("--width", type=int, default=320, help="image width in pixels (default 320)")
     p.add_argument("--height", type=int, default=240, help="image height in pixels (default 240)")
-    p.add_argument("--motion", choices=("forward", "loop", "turn"), default="forward",
-                   help="camera path: forward with wobbles (default), an elliptic loop, or a car's right turn")
+    p.add_argument("--motion", choices=("forward", "loop", "turn", "ground"), default="forward",
+                   help="camera path: forward with wobbles (default), an elliptic loop, a car's right turn, or a "
+                        "ground robot's slalom (a level camera on a diff-drive base: docs/wheel_odometry.md)")
     p.add_argument("--noise-sigma", type=float, default=0.0, help="Gaussian image noise in gray levels")
     p.add_argument("--exposure-change", action="store_true", help="apply the known per-frame affine brightness")
     p.add_argument("--seed", type=int, default=0, help="seed of textures, box layout and noise (default 0)")
+    p.add_argument("--bag", action="store_true",
+                   help="write a ROS bag at --out instead (a .bag file: ROS1; else a ROS2 folder): images, camera_info, "
+                        "/ground_truth and, with --wheel, /odom, /joint_states and /tf_static")
+    w = p.add_argument_group("wheel odometry of the robot (docs/wheel_odometry.md)")
+    w.add_argument("--wheel", choices=("arcs", "pose"), default=None,
+                   help="also write wheel odometry: cumulative wheel arcs or the robot's planar pose "
+                        "(wheel_odometry.csv and wheel.yaml beside the images)")
+    w.add_argument("--wheel-calibration", metavar="K_L,K_R,K_B|X11,...,X33", default="1,1,1",
+                   help="the true calibration that the readings need: diff-drive wheel and track-width scales, or "
+                        "the 9 entries of the linear model's X row-major (default 1,1,1: none)")
+    w.add_argument("--wheel-noise", type=float, default=0.0, metavar="SIGMA",
+                   help="standard deviation of each reading's increment (arcs: m per wheel; pose: m and rad)")
+    w.add_argument("--wheel-baseline", type=float, default=DEFAULT_NOMINAL_BASELINE, metavar="M",
+                   help=f"the robot's nominal track width (m, default {DEFAULT_NOMINAL_BASELINE})")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
@@ -34,8 +54,20 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--frames must be >= 1, got {args.frames}")
     if not (MIN_SIDE <= args.width <= MAX_SIDE and MIN_SIDE <= args.height <= MAX_SIDE):
         raise InputError(f"--width and --height must be between {MIN_SIDE} and {MAX_SIDE}, got {args.width}x{args.height}")
+    wheels = None
+    if args.wheel is not None:
+        calibration = args.wheel_calibration.replace(",", " ").split()
+        cal = parse_floats(args.wheel_calibration, 9 if len(calibration) == 9 else 3, "--wheel-calibration")
+        wheels = WheelSimulation(kind=args.wheel, calibration=tuple(cal), noise=args.wheel_noise, seed=args.seed,
+                                 nominal_baseline=args.wheel_baseline)
     seq = make_synthetic_sequence(n_frames=args.frames, width=args.width, height=args.height, motion=args.motion,
-                                  noise_sigma=args.noise_sigma, exposure_change=args.exposure_change, seed=args.seed)
-    out = write_sequence_kitti(seq, args.out, progress=not args.no_progress)
-    print(f"wrote {len(seq)} stereo pairs ({seq.pinhole.width}x{seq.pinhole.height}, {args.motion}) to {out}")
+                                  noise_sigma=args.noise_sigma, exposure_change=args.exposure_change, seed=args.seed,
+                                  wheels=wheels)
+    if args.bag:
+        out = write_sequence_bag(seq, args.out, wheel_radius=SYNTHETIC_WHEEL_RADIUS, progress=not args.no_progress)
+    else:
+        out = write_sequence_kitti(seq, args.out, progress=not args.no_progress)
+    with_wheels = "" if wheels is None else f" with wheel odometry ({wheels.kind})"
+    print(f"wrote {len(seq)} stereo pairs ({seq.pinhole.width}x{seq.pinhole.height}, {args.motion}){with_wheels} "
+          f"to {out}")
     return 0

@@ -18,6 +18,7 @@ component, each field's default and allowed range declared once beside it
       photometric          factors.params.PhotometricConfig
       loops                gtvo.loops.config.LoopClosureConfig (enabled, detector: LoopDetectorConfig
                                            (orb: OrbConfig, verification: VerificationConfig, ...))
+      wheel                gtvo.config.wheel.WheelConfig (model, base_to_camera, nominal_baseline, ...)
       refine               gtvo.refinement.config.RefineConfig (the whole-log refinement)
 
 The photometric model (noise, Huber threshold, pattern, clipped range) is set once, in
@@ -39,11 +40,12 @@ from gtvo.config.tree import (MIN_POINTS_PER_KEYFRAME, FlowPoseConfig,
                               FrontendConfig, KeyframeConfig, MotionModelConfig, MotionNoiseConfig, OdometryConfig,
                               PhotometricConfig, PointSelectionConfig, SolverConfig, StereoSearchConfig,
                               TrackingConfig, WindowConfig)
+from gtvo.config.wheel import WheelConfig
 
 __all__ = [
     "MIN_POINTS_PER_KEYFRAME", "MOVED_KEYS", "ConfigKeyError", "FlowPoseConfig",
     "FrontendConfig", "KeyframeConfig", "MotionModelConfig", "MotionNoiseConfig", "OdometryConfig", "PhotometricConfig",
-    "PointSelectionConfig", "SolverConfig", "StereoSearchConfig", "TrackingConfig", "WindowConfig", "as_config",
+    "PointSelectionConfig", "SolverConfig", "StereoSearchConfig", "TrackingConfig", "WheelConfig", "WindowConfig", "as_config",
     "config_from_dict", "config_reference", "config_to_dict", "config_to_yaml", "describe_key", "field_docs",
     "load_config",
 ]

@@ -12,6 +12,7 @@ from typing import Any, Literal
 
 
 from factors.params import PhotometricConfig
+from gtvo.config.wheel import WheelConfig
 from gtvo.core.settings import SettingError, check_settings, setting, type_hints
 from gtvo.frontend.flow_pose import FlowPoseConfig
 from gtvo.frontend.frame_checks import FrameCheckConfig
@@ -140,6 +141,8 @@ class OdometryConfig:
             estimate: noise, Huber threshold, pattern and the sensor's clipped range.
         loops: loop closing after the run: whether it runs (gtvo run --loop-closure), place
             recognition and the verification of a loop (gtvo.loops, docs/loop_closure.md).
+        wheel: a ground robot's wheel odometry, when the sequence has it: the calibration model, the
+            base-to-camera transform and how readings become metres (docs/wheel_odometry.md).
         refine: the whole-log refinement after the window pass (and loop closing): one graph over
             every keyframe, then the non-keyframes re-placed (gtvo.refinement, docs/refinement.md).
     """
@@ -155,6 +158,7 @@ class OdometryConfig:
     motion_model: MotionModelConfig = field(default_factory=MotionModelConfig)
     photometric: PhotometricConfig = field(default_factory=PhotometricConfig)
     loops: LoopClosureConfig = field(default_factory=LoopClosureConfig)
+    wheel: WheelConfig = field(default_factory=WheelConfig)
     refine: RefineConfig = field(default_factory=RefineConfig)
 
     def __post_init__(self) -> None:

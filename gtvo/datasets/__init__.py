@@ -21,6 +21,7 @@ from gtvo.datasets.kitti_raw import looks_like_kitti_raw, read_kitti_raw
 from gtvo.datasets.tum import TUM_INTRINSICS, looks_like_tum, read_tum
 from gtvo.errors import InputError
 from gtvo.datasets.sequence import Sequence
+from gtvo.datasets.wheel_files import WHEEL_CSV, WheelReadOptions, read_wheel_csv
 
 DatasetFormat = Literal["auto", "kitti", "kitti_raw", "euroc", "tum", "bag"]
 FORMATS: tuple[str, ...] = ("kitti", "kitti_raw", "euroc", "tum", "bag")
@@ -58,7 +59,9 @@ def detect_format(path: str | Path) -> str:
 
 def open_sequence(path: str | Path, format: DatasetFormat = "auto",
                   camera: tuple[float, float, float, float] | None = None, max_frames: int | None = None,
-                  ground_truth: str | Path | None = None, **bag_options: Any) -> Sequence:
+                  ground_truth: str | Path | None = None, wheel_odometry: str | Path | None = None,
+                  wheel_topic: str | None = None, wheel_options: WheelReadOptions | None = None,
+                  **bag_options: Any) -> Sequence:
     """Open a dataset folder as a lazy :class:`Sequence` (images are read when asked for).
 
     Args:
@@ -68,6 +71,12 @@ def open_sequence(path: str | Path, format: DatasetFormat = "auto",
         max_frames: keep only the first ``max_frames`` frames.
         ground_truth: a ground-truth file to use instead of the one in the folder (KITTI poses,
             KITTI raw OXTS folder, ASL csv or TUM trajectory, as the layout reads).
+        wheel_odometry: a wheel odometry CSV to use (any format); without it a folder's
+            ``wheel_odometry.csv`` when there is one, a bag's wheel topic (docs/wheel_odometry.md).
+        wheel_topic: ROS bags only: the wheel odometry topic (``"none"``: none); default
+            ``wheel_options.topic``, else the one candidate.
+        wheel_options: how wheel readings become metres (the config's ``wheel:`` section,
+            :meth:`gtvo.config.wheel.WheelConfig.read_options`; default its defaults).
         bag_options: ROS bags only: ``calib``, ``left_topic``, ``right_topic``, ``depth_topic``,
             ``ground_truth_topic``, ``stamp_tolerance`` (:func:`gtvo.datasets.bag.read_bag`).
     """
@@ -82,21 +91,33 @@ def open_sequence(path: str | Path, format: DatasetFormat = "auto",
     gt = None if ground_truth is None else Path(ground_truth)
     n = None if max_frames is None else int(max_frames)
     bag_options = {k: v for k, v in bag_options.items() if v is not None}
+    if wheel_topic is not None:
+        bag_options["wheel_topic"] = wheel_topic
+    wheel = wheel_options or WheelReadOptions()
     if kind == "bag" or bag_options:
-        return _open_bag(folder, kind, n, gt, bag_options)
-    if kind == "kitti":
-        return read_kitti(folder, max_frames=n, ground_truth=gt)
-    if kind == "kitti_raw":
-        return read_kitti_raw(folder, max_frames=n, ground_truth=gt)
-    if kind == "euroc":
-        return read_euroc(folder, max_frames=n, ground_truth=gt)
-    return read_tum(folder, max_frames=n, camera=camera, ground_truth=gt)
+        if wheel_odometry is not None:
+            bag_options["wheel_topic"] = "none"  # the file replaces the bag's topics
+        seq = _open_bag(folder, kind, n, gt, {**bag_options, "wheel_options": wheel})
+    elif kind == "kitti":
+        seq = read_kitti(folder, max_frames=n, ground_truth=gt)
+    elif kind == "kitti_raw":
+        seq = read_kitti_raw(folder, max_frames=n, ground_truth=gt)
+    elif kind == "euroc":
+        seq = read_euroc(folder, max_frames=n, ground_truth=gt)
+    else:
+        seq = read_tum(folder, max_frames=n, camera=camera, ground_truth=gt)
+    if wheel_odometry is None and kind != "bag" and (folder / WHEEL_CSV).is_file():
+        wheel_odometry = folder / WHEEL_CSV
+    if wheel_odometry is not None:
+        seq.wheel_odometry = read_wheel_csv(wheel_odometry, wheel)
+    return seq
 
 
 def _open_bag(path: Path, kind: str, max_frames: int | None, ground_truth: Path | None,
               options: dict[str, Any]) -> Sequence:
     if kind != "bag":
-        raise InputError(f"{', '.join(options)} apply to ROS bags only, this is {kind}", path=path)
+        given = [k for k in options if k != "wheel_options"]
+        raise InputError(f"{', '.join(given)} apply to ROS bags only, this is {kind}", path=path)
     if not looks_like_bag(path):
         raise InputError("not a ROS bag: expected a .bag file or a ROS2 bag folder (metadata.yaml)", path=path)
     calib = options.pop("calib", None)

@@ -24,7 +24,7 @@ Layouts and conventions: ``docs/datasets.md`` ("ROS bags").
 from __future__ import annotations
 
 import struct
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -42,6 +42,8 @@ from gtvo.datasets.bag_types import (CAMERA_INFO, GROUND_TRUTH_TYPES, GT_MAX_GAP
                                      RGBD_TOLERANCE_S, STEREO_TOLERANCE_S)
 from gtvo.datasets.bag_stream import BagImageLoader, BagStream, first_line, open_reader, reader_errors, bag_location
 from gtvo.datasets.bag_topics import TopicChoice, TopicSummary, camera_info_topic, choose_topics, topic_summaries
+from gtvo.datasets.bag_wheel import bag_wheel_odometry
+from gtvo.datasets.wheel_files import WheelReadOptions
 
 
 def looks_like_bag(path: Path) -> bool:
@@ -220,7 +222,8 @@ def _ground_truth(samples: list[tuple[int, FloatArray]], gt_topic: str | None, g
 
 def read_bag(path: Path, max_frames: int | None = None, calib: Path | None = None, left_topic: str | None = None,
              right_topic: str | None = None, depth_topic: str | None = None, ground_truth_topic: str | None = None,
-             ground_truth: Path | None = None, stamp_tolerance: float | None = None) -> BagSequence:
+             ground_truth: Path | None = None, stamp_tolerance: float | None = None, wheel_topic: str | None = None,
+             wheel_options: WheelReadOptions | None = None) -> BagSequence:
     """Open a ROS1 ``.bag`` or a ROS2 bag folder as a lazy, streamed stereo or RGB-D sequence.
 
     Args:
@@ -231,6 +234,9 @@ def read_bag(path: Path, max_frames: int | None = None, calib: Path | None = Non
         ground_truth_topic: a PoseStamped / Odometry / TransformStamped topic of ``T_world_cam``.
         ground_truth: a TUM or ASL trajectory file instead of a topic.
         stamp_tolerance: pairing tolerance (s); default :data:`STEREO_TOLERANCE_S` / :data:`RGBD_TOLERANCE_S`.
+        wheel_topic: the wheel odometry topic (``"none"``: none), default ``wheel_options.topic`` or
+            the one candidate (:mod:`gtvo.datasets.bag_wheel`).
+        wheel_options: how wheel readings become metres (:class:`WheelReadOptions`).
     """
     where = bag_location(path)
     reader = open_reader(where)
@@ -265,12 +271,17 @@ def read_bag(path: Path, max_frames: int | None = None, calib: Path | None = Non
     load_second = BagImageLoader(stream, choice.second, msgtypes[choice.second], second.tolist(), second_names,
                                  depth=choice.kind == "rgbd", warp=calibration.warp_right)
     load_second(0)  # an unknown encoding fails here, naming the bag and topic
+    wheel = wheel_options or WheelReadOptions()
+    if wheel_topic is not None:
+        wheel = replace(wheel, topic=wheel_topic)
+    wheel_odometry = bag_wheel_odometry(where, topics, wheel, choice.first, calibration.T_raw_rect,
+                                        exclude=(ground_truth_topic,) if ground_truth_topic else ())
     stereo = choice.kind == "stereo"
     return BagSequence(name=(where.stem if where.is_file() else where.resolve().name), kind=choice.kind,
                        camera=calibration.camera, timestamps=times, load_left=load_left,
                        load_right=load_second if stereo else None, load_depth=None if stereo else load_second,
                        gt_poses=gt_poses, source=where, frame_names=names, unpaired=unpaired, topics=choice,
-                       calibration_source=calibration.source)
+                       calibration_source=calibration.source, wheel_odometry=wheel_odometry)
 
 
 def _check_gt_topic(topic: str, topics: list[TopicSummary], where: Path) -> None:

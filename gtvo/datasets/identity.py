@@ -4,8 +4,9 @@
 image: the frame count, the timestamps, each frame's name (the left image's path relative to the
 sequence folder) and file size, and the bytes of the first and last left images (their decoded
 pixels for a generated sequence). Renaming, adding, dropping, re-timing or re-encoding a frame,
-or editing the first or last image changes it; copying the folder elsewhere does not (names are
-relative, modification times are not used). An edit to an inner image that keeps its file size
+or editing the first or last image changes it, and so does the wheel odometry when the sequence has
+some (its kind, times and readings); copying the folder elsewhere does not (names are relative,
+modification times are not used). An edit to an inner image that keeps its file size
 goes unnoticed: the price of not reading every image.
 """
 
@@ -34,6 +35,10 @@ def sequence_identity(seq: Sequence, format: str | None = None) -> dict[str, Any
         h.update(f"{name}\t{_size(full)}\n".encode())
     for i in sorted({0, len(seq) - 1}):
         h.update(_content(seq, i))
+    wheels = seq.wheel_odometry
+    if wheels is not None:  # nothing hashed without: the identity of a log without wheels is as it was
+        h.update(f"wheels:{wheels.kind}:{len(wheels)}\n".encode())
+        h.update(np.ascontiguousarray(np.column_stack([wheels.times, wheels.values]), dtype="<f8").tobytes())
     return {"path": None if seq.source is None else os.path.abspath(seq.source), "format": format, "kind": seq.kind,
             "frames": len(seq), "first_frame": names[0], "last_frame": names[-1], "sha256": h.hexdigest()}
 

@@ -29,6 +29,8 @@ class LogInfo:
         kind, frames, camera, ground_truth: the sequence ``gtvo run`` would use.
         topics_used, calibration, unpaired: for bags, the image topics, the calibration's source
             and the image messages that found no partner.
+        wheel_odometry: the wheel odometry ``gtvo run`` would read (its source, kind, readings and
+            time span), or None (docs/wheel_odometry.md).
     """
 
     path: str
@@ -44,6 +46,7 @@ class LogInfo:
     topics_used: str | None = None
     calibration: str | None = None
     unpaired: dict[str, int] = field(default_factory=dict)
+    wheel_odometry: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """A JSON-ready dict."""
@@ -68,6 +71,8 @@ class LogInfo:
             out.append("  unpaired     " + ", ".join(f"{k}: {v}" for k, v in self.unpaired.items()))
         out.append(f"  camera       {self.camera}")
         out.append(f"  ground truth {'yes' if self.ground_truth else 'no'}")
+        if self.wheel_odometry is not None:
+            out.append(f"  wheels       {self.wheel_odometry}")
         poses = [t["name"] for t in self.topics if t["msgtype"] in GROUND_TRUTH_TYPES]
         if poses and not self.ground_truth:
             out.append(f"  pose topics  {', '.join(poses)} (--ground-truth-topic)")
@@ -107,6 +112,10 @@ def describe_log(path: str | Path, format: str = "auto", **options: Any) -> LogI
     info.camera = (f"{cam.width}x{cam.height} fx {cam.fx:.6g} fy {cam.fy:.6g} cx {cam.cx:.6g} cy {cam.cy:.6g}"
                    + (f" baseline {seq.camera.baseline:.6g} m" if isinstance(seq.camera, StereoCamera) else ""))
     info.ground_truth = seq.has_ground_truth
+    wheels = seq.wheel_odometry
+    if wheels is not None:
+        info.wheel_odometry = (f"{wheels.source}: {wheels.kind}, {len(wheels)} readings over "
+                               f"{wheels.times[0]:.3f}..{wheels.times[-1]:.3f} s")
     if getattr(seq, "topics", None) is not None:
         info.topics_used = str(seq.topics)  # type: ignore[attr-defined]
         info.calibration = seq.calibration_source  # type: ignore[attr-defined]

@@ -14,6 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gtvo.core.camera import PinholeCamera, StereoCamera
+from gtvo.datasets.wheel import WheelOdometry
 from gtvo.errors import InputError
 
 ImageLoader = Callable[[int], NDArray]
@@ -45,6 +46,9 @@ class Sequence:
             rows where no ground truth covers a frame.
         source: the folder it was read from (None for generated sequences).
         frame_names: (N,) a name per frame for error messages (e.g. the left image's path).
+        wheel_odometry: the robot's raw wheel odometry in the same clock, when logged
+            (:class:`gtvo.datasets.wheel.WheelOdometry`; docs/wheel_odometry.md); kept whole by
+            :meth:`truncated` and :meth:`subsampled`.
     """
 
     name: str
@@ -57,6 +61,7 @@ class Sequence:
     gt_poses: NDArray[np.float64] | None = None
     source: Path | None = None
     frame_names: list[str] = field(default_factory=list)
+    wheel_odometry: WheelOdometry | None = None
 
     def __post_init__(self) -> None:
         self.timestamps = np.asarray(self.timestamps, dtype=np.float64).reshape(-1)

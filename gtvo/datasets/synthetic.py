@@ -33,10 +33,13 @@ from gtvo.core.atomic import atomic_dir
 from gtvo.core.camera import PinholeCamera, StereoCamera
 from gtvo.errors import InputError, show
 from gtvo.datasets.sequence import Sequence
+from gtvo.datasets.synthetic_robot import WheelSimulation, ground_robot_trajectory, simulate_sequence_wheels, \
+    wheel_config_yaml
 from gtvo.datasets.synthetic_scene import Rendering, SyntheticScene, make_scene
+from gtvo.datasets.wheel_files import WHEEL_CSV, write_wheel_csv
 
 FloatArray = NDArray[np.float64]
-Motion = Literal["forward", "loop", "turn"]
+Motion = Literal["forward", "loop", "turn", "ground"]
 
 #: Frame rate of the generated sequences (Hz), KITTI's.
 FRAME_RATE_HZ = 10.0
@@ -75,6 +78,8 @@ def synthetic_trajectory(n_frames: int, motion: Motion = "forward", step_m: floa
     then yawing right by :data:`TURN_DEG_PER_FRAME` per frame (an arc of radius
     ``step_m / TURN_DEG_PER_FRAME`` in radians), no wobbles; past about 80 deg the camera faces the
     room's side wall, close and with little texture at that range (a conditioning test).
+    ``"ground"``: a ground robot's slalom in the plane, the camera level on the base
+    (:func:`gtvo.datasets.synthetic_robot.ground_robot_trajectory`).
     """
     n = int(n_frames)
     if n < 1:
@@ -102,13 +107,15 @@ def synthetic_trajectory(n_frames: int, motion: Motion = "forward", step_m: floa
         yaw = min(4.0 * deg, rate_cap) * np.sin(k * s)
         pitch = min(1.5 * deg, rate_cap) * np.sin(2 * k * s) / 2
         roll = min(1.0 * deg, rate_cap) * np.sin(k * s + np.sin(s))
+    elif motion == "ground":
+        return ground_robot_trajectory(n, step_m)
     elif motion == "turn":
         yaw = TURN_DEG_PER_FRAME * deg * np.maximum(np.arange(n) - TURN_START_FRAME, 0)
         heading = np.stack([np.sin(yaw), np.zeros(n), np.cos(yaw)], axis=1)
         pos = np.concatenate([np.zeros((1, 3)), np.cumsum(step_m * heading[1:], axis=0)])
         pitch = roll = np.zeros(n)
     else:
-        raise InputError(f"motion must be 'forward', 'loop' or 'turn', got {motion!r}")
+        raise InputError(f"motion must be 'forward', 'loop', 'turn' or 'ground', got {motion!r}")
     T = np.tile(np.eye(4), (n, 1, 1))
     for i in range(n):
         T[i, :3, :3] = _rotation_ypr(yaw[i], pitch[i], roll[i])
@@ -275,7 +282,8 @@ def make_synthetic_sequence(n_frames: int = 30, width: int = 320, height: int = 
                             baseline: float = DEFAULT_BASELINE, step_m: float = 0.15, noise_sigma: float = 0.0,
                             exposure_change: bool = False, seed: int = 0, motion: Motion = "forward",
                             supersample: int = 1, cache_size: int = 32,
-                            right_principal_offset: tuple[float, float] = (0.0, 0.0)) -> SyntheticSequence:
+                            right_principal_offset: tuple[float, float] = (0.0, 0.0),
+                            wheels: WheelSimulation | None = None) -> SyntheticSequence:
     """A deterministic synthetic stereo sequence with exact poses and depth, rendered on demand.
 
     Args:
@@ -293,6 +301,8 @@ def make_synthetic_sequence(n_frames: int = 30, width: int = 320, height: int = 
             rendering its images (the sequence's ``camera`` stays the rectified one): a rig whose
             right image is offset by exactly ``(delta_x, delta_y) = (dx, dy)`` against its
             calibration, rendered rather than resampled (docs/window.md, "Rig calibration").
+        wheels: the wheel odometry the robot logs (``Sequence.wheel_odometry``; best with
+            ``motion="ground"``, docs/wheel_odometry.md).
     """
     for name, value in (("noise_sigma", noise_sigma), ("baseline", baseline)):
         if not np.isfinite(value) or value < 0 or (name == "baseline" and value == 0):
@@ -312,8 +322,10 @@ def make_synthetic_sequence(n_frames: int = 30, width: int = 320, height: int = 
                               max(1, int(cache_size)), (offset[0], offset[1]))
     n = poses.shape[0]
     name = f"synthetic-{motion}-seed{int(seed)}" + (f"+right-pp({offset[0]:+g},{offset[1]:+g})px" if any(offset) else "")
-    return SyntheticSequence(name, "stereo", camera, np.arange(n) / FRAME_RATE_HZ, renderer.left, renderer.right,
-                             None, poses, None, [], scene=scene, affine_left=affine_left,
+    times = np.arange(n) / FRAME_RATE_HZ
+    wheel = None if wheels is None else simulate_sequence_wheels(times, poses, wheels, f"{name} wheels")
+    return SyntheticSequence(name, "stereo", camera, times, renderer.left, renderer.right,
+                             None, poses, None, [], wheel, scene=scene, affine_left=affine_left,
                              affine_right=affine_right, noise_sigma=float(noise_sigma), _renderer=renderer)
 
 
@@ -337,7 +349,8 @@ def write_sequence_kitti(seq: Sequence, folder: str | Path, progress: bool = Fal
     ``calib.txt`` (``P0:``/``P1:`` 3x4 rows, ``P1[0,3] = -fx * baseline``), ``image_0/`` and
     ``image_1/`` (8-bit PNG, ``NNNNNN.png``, intensities rounded and clipped to 0..255),
     ``times.txt`` and, when every frame has ground truth, ``poses.txt`` (3x4 row-major
-    ``T_world_cam`` of the left camera).
+    ``T_world_cam`` of the left camera); with wheel odometry ``wheel_odometry.csv`` and ``wheel.yaml``,
+    the config's ``wheel:`` section that reads it (``gtvo run --config wheel.yaml``).
     """
     if seq.kind != "stereo" or not isinstance(seq.camera, StereoCamera):
         raise InputError(f"sequence {seq.name} is not stereo; the KITTI layout needs a stereo pair")
@@ -347,7 +360,7 @@ def write_sequence_kitti(seq: Sequence, folder: str | Path, progress: bool = Fal
 
 
 #: What :func:`write_sequence_kitti` writes into its folder (and may therefore replace there).
-KITTI_LAYOUT_ENTRIES = frozenset({"calib.txt", "times.txt", "poses.txt", "image_0", "image_1"})
+KITTI_LAYOUT_ENTRIES = frozenset({"calib.txt", "times.txt", "poses.txt", "image_0", "image_1", WHEEL_CSV, "wheel.yaml"})
 
 
 def _write_kitti_files(seq: Sequence, out: Path, shown: Path, progress: bool) -> None:
@@ -373,3 +386,6 @@ def _write_kitti_files(seq: Sequence, out: Path, shown: Path, progress: bool) ->
     if seq.gt_poses is not None and np.all(np.isfinite(seq.gt_poses)):
         (out / "poses.txt").write_text("".join(_matrix_line(T[:3, :]) + "\n" for T in seq.gt_poses),
                                        encoding="utf-8")
+    if seq.wheel_odometry is not None:
+        write_wheel_csv(seq.wheel_odometry, out / WHEEL_CSV)
+        (out / "wheel.yaml").write_text(wheel_config_yaml(seq.wheel_odometry), encoding="utf-8")

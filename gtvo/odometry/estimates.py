@@ -24,6 +24,9 @@ class FrameOutcome(enum.Enum):
       prediction (counted as a tracking failure).
     * ``LOST``: tracking failed and the frame could not host a keyframe either (too few points
       with a depth); its pose is the prediction (counted as a tracking failure).
+    * ``WHEEL_CARRIED``: like ``LOST`` (tracking failed, too few points to re-initialise), but the
+      run has wheel odometry: its pose is the last good frame's carried by the calibrated wheel
+      motion, not the motion model's prediction (:attr:`FrameEstimate.lost` is True for it too).
     * ``RECOVERED``: failed from every motion-model guess, tracked from the optical-flow guess
       (a recovered frame the keyframe rule makes a keyframe is ``KEYFRAME``, with
       :attr:`FrameEstimate.recovered` True).
@@ -37,6 +40,7 @@ class FrameOutcome(enum.Enum):
     KEYFRAME = "keyframe"
     REINITIALISED = "reinitialised"
     LOST = "lost"
+    WHEEL_CARRIED = "wheel_carried"
     RECOVERED = "recovered"
     SUSPECT = "suspect"
     SKIPPED = "skipped"
@@ -104,8 +108,9 @@ class FrameEstimate:
         model's prediction (relative to ``keyframe_index``, re-expressed when the window moves
         that keyframe), ``tracking`` holds the failed attempt, and no keyframe is made from it:
         the next frames are tracked against the latest keyframe (which may be the frame before
-        it, promoted when it failed) again."""
-        return self.outcome is FrameOutcome.LOST
+        it, promoted when it failed) again. Also True for a ``WHEEL_CARRIED`` frame (its pose the
+        wheels' instead of the prediction)."""
+        return self.outcome in (FrameOutcome.LOST, FrameOutcome.WHEEL_CARRIED)
 
 
 @dataclass
@@ -129,7 +134,7 @@ class Keyframe:
 
 
 #: The outcomes ``report.json`` lists frame by frame (with the reason); the others are counted.
-FLAGGED_OUTCOMES = ("suspect", "lost", "reinitialised", "recovered", "skipped")
+FLAGGED_OUTCOMES = ("suspect", "lost", "reinitialised", "wheel_carried", "recovered", "skipped")
 
 
 def frames_by_outcome(estimates: list[FrameEstimate], skipped: Iterable[tuple[int, str]] = ()) -> dict[str, Any]:

@@ -37,6 +37,7 @@ from gtvo.odometry.window_schedule import WindowSchedule
 from gtvo.window import SlidingWindowOptimizer, WindowKeyframe, WindowResult
 from gtvo.window.depth_change import tracked_translation_scale
 from gtvo.window.rig import RigOffset
+from gtvo.window.wheel import WheelCalibration
 
 
 class Keyframer:
@@ -46,6 +47,8 @@ class Keyframer:
         camera: a :class:`StereoCamera` for stereo input, a :class:`PinholeCamera` for RGB-D.
         config: the run's settings.
         history: the run's frames (the keyframer re-expresses their poses when the window moves).
+        wheel: the wheel odometry's calibration, which the window estimates (LM backend; with the
+            fixed-lag backend it stays at its prior and only carries blind frames), or None.
 
     Attributes:
         keyframes: every keyframe made so far (window mode: with the last optimised pose and depths).
@@ -56,7 +59,8 @@ class Keyframer:
             keyframe when it cannot be tracked against the latest one (None: no candidate).
     """
 
-    def __init__(self, camera: StereoCamera | PinholeCamera, config: OdometryConfig, history: FrameHistory) -> None:
+    def __init__(self, camera: StereoCamera | PinholeCamera, config: OdometryConfig, history: FrameHistory,
+                 wheel: WheelCalibration | None = None) -> None:
         self.camera = camera
         self.pinhole = camera.left if isinstance(camera, StereoCamera) else camera
         self.config = config
@@ -75,7 +79,8 @@ class Keyframer:
             wcfg = config.window
             rig = baseline is not None and wcfg.rig_calibration and wcfg.backend == "lm"
             self.window = SlidingWindowOptimizer(self.pinhole, baseline, wcfg, rig_offset=np.zeros(2) if rig else None,
-                                                 photometric=config.photometric)
+                                                 photometric=config.photometric,
+                                                 wheel=wheel if wcfg.backend == "lm" else None)
             # the whole-log refinement needs every keyframe (gtvo.refinement): kept only when it runs
             self.window.retain_keyframes = config.refine.enabled
 

@@ -14,6 +14,7 @@ from gtvo.core.timing import per_frame_ms
 from gtvo.odometry.estimates import frames_by_outcome, trusted_fraction, undetermined_frames
 from gtvo.odometry.rig_report import rig_report
 from gtvo.odometry.visual_odometry import VisualOdometry
+from gtvo.odometry.wheel import wheel_report
 
 
 class StageTiming(TypedDict, total=False):
@@ -44,7 +45,14 @@ class WindowFigures(TypedDict, total=False):
     rig_initial_delta_y_px: float | None
 
 
-class OdometrySummary(StageTiming, WindowFigures):
+class WheelFigures(TypedDict, total=False):
+    """The wheel odometry's calibration (:meth:`gtvo.window.wheel.WheelCalibration.report`), present
+    when the run had wheel odometry."""
+
+    wheel_calibration: dict[str, Any]
+
+
+class OdometrySummary(StageTiming, WindowFigures, WheelFigures):
     """The odometry's figures of a run, in ``report.json`` order (:func:`summarize_odometry`).
 
     Always: what ran (``mode``, ``tracker_solver``, ``motion_model``), the counts, the frame
@@ -132,6 +140,7 @@ def summarize_odometry(vo: VisualOdometry, seconds: float | None = None,
             "covariance_seconds": float(sum(r.covariance_seconds for r in results)),
         })
         out.update(rig_report(vo))
+    out.update(wheel_report(vo.wheel, vo.window))
     out.update(stage_timing(vo))
     out["covariances"] = ("not computed (--no-covariances)" if config.mode == "window" and not config.window.covariances
                           else "not computed (track mode: no window)" if config.mode != "window" else "computed")

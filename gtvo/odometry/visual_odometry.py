@@ -35,6 +35,7 @@ from gtvo.core.image import to_float_gray
 from gtvo.core.map_points import MapPoints, constrained_mask
 from gtvo.core.timing import StageClock
 from gtvo.datasets.sequence import Frame
+from gtvo.datasets.wheel import WheelOdometry
 from gtvo.errors import InputError
 from gtvo.evaluation.trajectory import Trajectory
 from gtvo.odometry.blas import single_threaded_blas
@@ -45,6 +46,7 @@ from gtvo.odometry.history import FrameHistory
 from gtvo.odometry.keyframer import Keyframer
 from gtvo.odometry.motion import MotionModel
 from gtvo.odometry.view import OdometryView
+from gtvo.odometry.wheel import wheel_calibration
 
 
 @dataclass(frozen=True)
@@ -85,7 +87,9 @@ class VisualOdometry:
         window_results: one :class:`gtvo.window.WindowResult` per window optimisation.
         failures: frames whose tracking failed (re-initialised or lost).
         lost_frames: frames whose tracking failed and that had too few points to become a
-            keyframe (:attr:`FrameEstimate.lost`); also counted in ``failures``.
+            keyframe (:attr:`FrameEstimate.lost`, wheel-carried ones included); also counted in ``failures``.
+        wheel: the wheel odometry's calibration (:class:`gtvo.window.wheel.WheelCalibration`; the
+            window's in window mode), None without wheel odometry.
         clock: the :class:`gtvo.core.timing.StageClock` every :meth:`process` charges (where the
             frames' time went); set it to None to run untimed.
 
@@ -98,15 +102,17 @@ class VisualOdometry:
         traj = vo.trajectory()
     """
 
-    def __init__(self, camera: StereoCamera | PinholeCamera, config: OdometryConfig | None = None) -> None:
+    def __init__(self, camera: StereoCamera | PinholeCamera, config: OdometryConfig | None = None,
+                 wheel_odometry: WheelOdometry | None = None) -> None:
         self.camera = camera
         self.pinhole = camera.left if isinstance(camera, StereoCamera) else camera
         self.config = config or OdometryConfig()
+        self.wheel = None if wheel_odometry is None else wheel_calibration(self.config.wheel, wheel_odometry)
         self.history = FrameHistory()
         self.motion = MotionModel(self.config.motion_model, self.history)
         self.tracker = FrameTracker(self.config, self.pinhole)
         self.checks = FrameChecks(self.config.frame_checks, self.pinhole, self.history)
-        self.keyframer = Keyframer(camera, self.config, self.history)
+        self.keyframer = Keyframer(camera, self.config, self.history, self.wheel)
         self.estimates = self.history.estimates
         self.keyframes = self.keyframer.keyframes
         self.window = self.keyframer.window
@@ -261,16 +267,31 @@ class VisualOdometry:
     def _reinitialise(self, frame: Frame, left: NDArray[np.float32], kf: Keyframe, track: Track,
                       T_pred: gtsam.Pose3, pyramid: list[GradientImage]) -> Outcome:
         """Tracking failed: the frame becomes a keyframe at the motion model's prediction, or, with
-        too few points for that (a blank or covered view), it is lost and keeps the prediction."""
+        too few points for that (a blank or covered view), it is lost and keeps the prediction.
+        With wheel odometry that covers the step from the last good frame, the calibrated wheel
+        motion places it instead (a lost frame is then ``WHEEL_CARRIED``)."""
         self.failures += 1
         self.checks.not_checked()
-        new_kf = self.keyframer.try_make(frame, left, T_pred, pyramid=pyramid)
+        T_wheel = self._wheel_pose(frame)
+        T_place = T_pred if T_wheel is None else T_wheel
+        by_wheel = "" if T_wheel is None else ", placed by the calibrated wheel odometry"
+        new_kf = self.keyframer.try_make(frame, left, T_place, pyramid=pyramid)
         if new_kf is None:
             self.lost_frames += 1
-            return Outcome(FrameOutcome.LOST, T_pred, track, kf.T_world_cam.between(T_pred),
-                           f"tracking failed ({track.result.reason}); too few points with a depth to re-initialise")
+            return Outcome(FrameOutcome.LOST if T_wheel is None else FrameOutcome.WHEEL_CARRIED, T_place, track,
+                           kf.T_world_cam.between(T_place),
+                           f"tracking failed ({track.result.reason}); too few points with a depth to re-initialise"
+                           + by_wheel)
         return Outcome(FrameOutcome.REINITIALISED, new_kf.T_world_cam, track,
-                       reason=f"tracking failed ({track.result.reason})")
+                       reason=f"tracking failed ({track.result.reason}){by_wheel}")
+
+    def _wheel_pose(self, frame: Frame) -> gtsam.Pose3 | None:
+        """The frame's pose carried from the last good frame by the calibrated wheel motion; None
+        without wheel odometry or when it does not cover the step."""
+        if self.wheel is None:
+            return None
+        last = self.history.good(1)[0]
+        return self.wheel.predict(rigid_pose(last.T_world_cam), last.timestamp, float(frame.timestamp))
 
     def _record(self, frame: Frame, left: NDArray[np.float32], outcome: Outcome, t0: float) -> FrameEstimate:
         """Record the frame's estimate; the motion model learns from it and it becomes the keyframe
@@ -281,7 +302,7 @@ class VisualOdometry:
         if tracked and kind is FrameOutcome.KEYFRAME:  # tracked against the keyframe before this one
             kf_index = self.keyframes[-2].index
         flow_reason = outcome.track.flow_reason if outcome.track is not None else None
-        flow = tracked and kind is not FrameOutcome.LOST and flow_reason is not None
+        flow = tracked and kind not in (FrameOutcome.LOST, FrameOutcome.WHEEL_CARRIED) and flow_reason is not None
         reason = outcome.reason or (flow_reason or "" if flow else "")
         est = FrameEstimate(frame.index, float(frame.timestamp), outcome.T_world_cam.matrix(), kind, result,
                             time.perf_counter() - t0, kf_index, outcome.T_keyframe_frame, reason, flow)

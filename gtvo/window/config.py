@@ -19,6 +19,7 @@ from gtvo.errors import InputError, show
 
 if TYPE_CHECKING:
     from gtvo.window.rig import RigOffset
+    from gtvo.window.wheel import WheelCalibration
 
 FloatArray = NDArray[np.float64]
 WindowSolverName = Literal["gtsam", "handrolled"]
@@ -230,6 +231,8 @@ class WindowResult:
     covariance_seconds: float = 0.0
     #: the rig offset (delta_x, delta_y) after the optimisation (px), None when not estimated
     rig_offset: FloatArray | None = None
+    #: the wheel calibration after the optimisation (gtvo.window.wheel), None without wheel odometry
+    wheel_calibration: FloatArray | None = None
 
 
 class WindowState(Protocol):
@@ -242,6 +245,8 @@ class WindowState(Protocol):
     keyframes: list[WindowKeyframe]
     #: the rig offset's one owner (:class:`gtvo.window.rig.RigOffset`), None when not estimated
     rig: "RigOffset | None"
+    #: the wheel calibration's one owner (:class:`gtvo.window.wheel.WheelCalibration`), None without wheels
+    wheel: "WheelCalibration | None"
 
     def rig_free_estimate(self) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
         """What the window's data say about the rig offset while it is held: ``(estimate, marginal sigmas)``."""

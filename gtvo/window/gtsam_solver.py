@@ -3,18 +3,21 @@
 from __future__ import annotations
 
 import time
-from typing import Callable, Sequence
+from typing import TYPE_CHECKING, Callable, Sequence
 
 import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from gtvo.core.keys import affine_key, pose_key, rig_offset_key
+from gtvo.core.keys import affine_key, calibration_key, pose_key, rig_offset_key
 from gtvo.core.camera import PinholeCamera
 from gtvo.window.covariance import marginals_of_graph
 from factors.params import DEFAULT_PHOTOMETRIC, PhotometricConfig
 from gtvo.window.config import MarginalPrior, WindowConfig, WindowKeyframe, WindowResult
 from gtvo.window.problem import build_graph, visible_targets
+
+if TYPE_CHECKING:
+    from gtvo.window.wheel import WheelCalibration
 
 FloatArray = NDArray[np.float64]
 
@@ -24,6 +27,7 @@ def solve_gtsam(camera: PinholeCamera, baseline: float | None, keyframes: Sequen
                 targets: list[list[int]] | None = None, rig_offset: FloatArray | None = None,
                 rig_hold_x: float | None = None, *,
                 photometric: PhotometricConfig = DEFAULT_PHOTOMETRIC,
+                wheel: "WheelCalibration | None" = None,
                 extra_factors: gtsam.NonlinearFactorGraph | None = None,
                 on_iteration: Callable[[int, float], None] | None = None) -> WindowResult:
     """Optimise the window with ``gtsam.LevenbergMarquardtOptimizer`` (residuals of the
@@ -31,14 +35,16 @@ def solve_gtsam(camera: PinholeCamera, baseline: float | None, keyframes: Sequen
 
     ``rig_offset``: the rig offset's current estimate when it is a variable (the result's
     ``rig_offset`` is the optimised one), None: the rectified model; ``rig_hold_x``: its ``delta_x``
-    held at this value (:func:`gtvo.window.problem.rig_prior`). ``extra_factors``: native GTSAM
+    held at this value (:func:`gtvo.window.problem.rig_prior`). ``wheel``: the wheel factors and the
+    calibration variable (from ``wheel.estimate``; the result's ``wheel_calibration`` is the
+    optimised one; ``wheel`` itself is not changed). ``extra_factors``: native GTSAM
     factors on the keyframes' keys added to the graph (the whole-log refinement's loop edges);
     ``on_iteration(iteration, cost)``: called after every LM iteration (the optimiser then runs
     iteration by iteration, :func:`optimize_by_iterations`; a progress bar, a Ctrl-C check)."""
     t0 = time.perf_counter()
     targets = visible_targets(camera, keyframes, config) if targets is None else targets
     graph, values, hosts = build_graph(camera, baseline, keyframes, config, marginal, targets, rig_offset,
-                                       rig_hold_x, photometric=photometric)
+                                       rig_hold_x, photometric=photometric, wheel=wheel)
     if extra_factors is not None:
         graph.push_back(extra_factors)
     params = lm_params(config.max_iterations, config.relative_tolerance)
@@ -57,8 +63,9 @@ def solve_gtsam(camera: PinholeCamera, baseline: float | None, keyframes: Sequen
         kf.affine = np.asarray(result.atVector(affine_key(kf.index)), dtype=float).copy()
     n_res = sum(len(keyframes[h]) * len(ts) for h, ts in enumerate(targets))
     rig = None if rig_offset is None else np.asarray(result.atVector(rig_offset_key()), dtype=float).copy()
+    calib = None if wheel is None else np.asarray(result.atVector(calibration_key()), dtype=float).copy()
     return WindowResult("gtsam", float(initial), float(cost), int(opt.iterations()), time.perf_counter() - t0, n_res,
-                        covs, t_cov if covs is not None else 0.0, rig)
+                        covs, t_cov if covs is not None else 0.0, rig, calib)
 
 
 def lm_params(max_iterations: int, relative_tolerance: float) -> gtsam.LevenbergMarquardtParams:

@@ -11,21 +11,24 @@ compare the two.
 from __future__ import annotations
 
 import time
-from typing import Callable, Sequence
+from typing import TYPE_CHECKING, Callable, Sequence
 
 import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
 from factors.host_points import DepthSystem, HostPoints
-from gtvo.core.keys import affine_key, is_pose_key, pose_key, rig_offset_key
+from gtvo.core.keys import affine_key, calibration_key, is_pose_key, pose_key, rig_offset_key
 from gtvo.core.camera import PinholeCamera
 from gtvo.core.timing import stage, timed
 from gtvo.window.covariance import marginals_of_hessian
 from factors.params import DEFAULT_PHOTOMETRIC, PhotometricConfig
 from gtvo.window.config import MarginalPrior, WindowConfig, WindowKeyframe, WindowResult
 from gtvo.window.problem import (motion_factors, needs_rig_prior, rig_carried, rig_prior_mean_sigmas,
-                                 visible_targets)
+                                 visible_targets, wheel_carried, wheel_factors)
+
+if TYPE_CHECKING:
+    from gtvo.window.wheel import WheelCalibration
 
 FloatArray = NDArray[np.float64]
 
@@ -138,34 +141,42 @@ def _rig_prior_terms(config: WindowConfig, offset: FloatArray | None, active: bo
     return 0.5 * float(e @ e)
 
 
-def _state_values(keyframes, poses, affines, offset: FloatArray | None = None) -> gtsam.Values:
-    """A state of the hand-rolled solver as GTSAM ``Values`` (poses, affines, rig offset)."""
+def _state_values(keyframes, poses, affines, offset: FloatArray | None = None,
+                  calibration: FloatArray | None = None) -> gtsam.Values:
+    """A state of the hand-rolled solver as GTSAM ``Values`` (poses, affines, rig offset, wheel calibration)."""
     values = gtsam.Values()
     for k, kf in enumerate(keyframes):
         values.insert(pose_key(kf.index), poses[k])
         values.insert(affine_key(kf.index), affines[k])
     if offset is not None:
         values.insert(rig_offset_key(), np.asarray(offset, dtype=float))
+    if calibration is not None:
+        values.insert(calibration_key(), np.asarray(calibration, dtype=float))
     return values
 
 
-def _state_columns(keyframes) -> dict[int, int]:
-    """Key -> its first column in the hand-rolled state (8 per keyframe, then the rig offset's 2)."""
+def _state_columns(keyframes, offset: FloatArray | None = None, calibration: FloatArray | None = None
+                   ) -> dict[int, int]:
+    """Key -> its first column in the hand-rolled state (8 per keyframe, then the rig offset's 2,
+    then the wheel calibration's)."""
     pos = {pose_key(kf.index): 8 * k for k, kf in enumerate(keyframes)}
     pos.update({affine_key(kf.index): 8 * k + 6 for k, kf in enumerate(keyframes)})
     pos[rig_offset_key()] = 8 * len(keyframes)
+    if calibration is not None:
+        pos[calibration_key()] = 8 * len(keyframes) + (0 if offset is None else 2)
     return pos
 
 
 def _marginal_terms(marginal: MarginalPrior | None, keyframes, poses, affines, H=None, g=None,
-                    offset: FloatArray | None = None) -> float:
+                    offset: FloatArray | None = None, calibration: FloatArray | None = None) -> float:
     """The marginalisation prior's cost, and (given H, g) its terms (Jacobian of delta taken as I,
-    as ``gtsam.LinearContainerFactor`` does); ``offset``: the rig offset (the state's last 2 entries)."""
+    as ``gtsam.LinearContainerFactor`` does); ``offset``: the rig offset (2 entries after the
+    keyframes'); ``calibration``: the wheel calibration (the state's last entries)."""
     if marginal is None:
         return 0.0
-    dl = marginal.delta(_state_values(keyframes, poses, affines, offset))
+    dl = marginal.delta(_state_values(keyframes, poses, affines, offset, calibration))
     if H is not None:
-        pos = _state_columns(keyframes)
+        pos = _state_columns(keyframes, offset, calibration)
         idx = np.concatenate([np.arange(pos[key], pos[key] + dim) for key, dim in zip(marginal.keys, marginal.dims)])
         H[np.ix_(idx, idx)] += marginal.H
         g[idx] += marginal.H @ dl - marginal.eta
@@ -173,29 +184,53 @@ def _marginal_terms(marginal: MarginalPrior | None, keyframes, poses, affines, H
 
 
 def _extra_terms(factors: gtsam.NonlinearFactorGraph | None, keyframes, poses, affines, H=None, g=None,
-                 offset: FloatArray | None = None) -> float:
+                 offset: FloatArray | None = None, calibration: FloatArray | None = None) -> float:
     """Native GTSAM factors on the keyframes' keys (the whole-log refinement's loop edges): their
     cost, and (given H, g) their Gauss-Newton terms from each factor's own linearisation
     (``JacobianFactor``: ``0.5 |A dx - b|^2``, GTSAM's right-perturbation tangent, as the poses' retraction here)."""
     if factors is None or factors.size() == 0:
         return 0.0
-    values = _state_values(keyframes, poses, affines, offset)
+    values = _state_values(keyframes, poses, affines, offset, calibration)
     if H is not None:
-        pos = _state_columns(keyframes)
+        pos = _state_columns(keyframes, offset, calibration)
         for i in range(factors.size()):
             A, b = factors.at(i).linearize(values).jacobian()
-            idx = np.concatenate([np.arange(pos[key], pos[key] + (6 if is_pose_key(key) else 2)) for key in factors.at(i).keys()])
+            idx = np.concatenate([np.arange(pos[key], pos[key] + (6 if is_pose_key(key) else values.atVector(key).shape[0])) for key in factors.at(i).keys()])
             H[np.ix_(idx, idx)] += A.T @ A
             g[idx] -= A.T @ b
     return float(factors.error(values))
 
 
+def _wheel_terms(wheel: "WheelCalibration | None", factors: list, poses, calibration: FloatArray | None,
+                 prior_on: bool, H=None, g=None) -> float:
+    """The wheel factors (``factors``: :func:`wheel_factors` of the window) and, when ``prior_on``,
+    the calibration's prior: cost, and (given H, g) their Gauss-Newton terms (the calibration's
+    entries are the state's last ``wheel.size``)."""
+    if wheel is None or calibration is None:
+        return 0.0
+    E = 0.0
+    at = None if H is None else H.shape[0] - wheel.size
+    for k, f in factors:
+        e, J = f.whitened(poses[k], poses[k + 1], calibration)
+        E += 0.5 * float(e @ e)
+        if H is not None:
+            cols = [np.arange(8 * k, 8 * k + 6), np.arange(8 * k + 8, 8 * k + 14), np.arange(at, at + wheel.size)]
+            for a in range(3):
+                g[cols[a]] += J[a].T @ e
+                for b in range(3):
+                    H[np.ix_(cols[a], cols[b])] += J[a].T @ J[b]
+    if prior_on:
+        E += wheel.prior_terms(calibration, H, g, 0 if at is None else at)
+    return E
+
+
 def window_cost(camera: PinholeCamera, baseline: float | None, keyframes: Sequence[WindowKeyframe],
                 config: WindowConfig, marginal: MarginalPrior | None = None,
                 targets: list[list[int]] | None = None, rig_offset: FloatArray | None = None,
-                rig_hold_x: float | None = None, *, photometric: PhotometricConfig = DEFAULT_PHOTOMETRIC) -> float:
+                rig_hold_x: float | None = None, *, photometric: PhotometricConfig = DEFAULT_PHOTOMETRIC,
+                wheel: "WheelCalibration | None" = None) -> float:
     """The window cost E at the keyframes' current state, computed the hand-rolled way (W at this
-    state), with the ``photometric`` model."""
+    state), with the ``photometric`` model (``wheel``: with the wheel factors at ``wheel.estimate``)."""
     targets = visible_targets(camera, keyframes, config) if targets is None else targets
     hosts = [_WindowHost(camera, baseline, keyframes, h, ts, config, rig_offset, photometric)
              for h, ts in enumerate(targets)]
@@ -206,7 +241,9 @@ def window_cost(camera: PinholeCamera, baseline: float | None, keyframes: Sequen
     E += _prior_terms(keyframes, poses, affines, config, marginal is None)
     E += _rig_prior_terms(config, off, needs_rig_prior(off, marginal, rig_hold_x), hold_x=rig_hold_x,
                           carried=rig_carried(marginal))
-    return E + _marginal_terms(marginal, keyframes, poses, affines, offset=off)
+    calib = None if wheel is None else wheel.estimate
+    E += _wheel_terms(wheel, wheel_factors(keyframes, wheel), poses, calib, not wheel_carried(marginal))
+    return E + _marginal_terms(marginal, keyframes, poses, affines, offset=off, calibration=calib)
 
 
 def solve_handrolled(camera: PinholeCamera, baseline: float | None, keyframes: Sequence[WindowKeyframe],
@@ -214,6 +251,7 @@ def solve_handrolled(camera: PinholeCamera, baseline: float | None, keyframes: S
                      targets: list[list[int]] | None = None, rig_offset: FloatArray | None = None,
                      rig_hold_x: float | None = None, *,
                      photometric: PhotometricConfig = DEFAULT_PHOTOMETRIC,
+                     wheel: "WheelCalibration | None" = None,
                      extra_factors: gtsam.NonlinearFactorGraph | None = None,
                      on_iteration: Callable[[int, float], None] | None = None) -> WindowResult:
     """Levenberg-Marquardt on the reduced camera system (residuals of the ``photometric`` model);
@@ -222,7 +260,9 @@ def solve_handrolled(camera: PinholeCamera, baseline: float | None, keyframes: S
 
     ``rig_offset``: the rig offset's current estimate when it is a variable (2 more state entries
     after the keyframes'; the result's ``rig_offset`` is the optimised one); ``rig_hold_x``: its
-    ``delta_x`` held at this value (:func:`gtvo.window.problem.rig_prior_mean_sigmas`).
+    ``delta_x`` held at this value (:func:`gtvo.window.problem.rig_prior_mean_sigmas`). ``wheel``:
+    the wheel factors and the calibration (``wheel.size`` more entries, last; from
+    ``wheel.estimate``, the result's ``wheel_calibration`` is the optimised one).
 
     Per iteration: every host's Gauss-Newton blocks over (poses, affines) ``x`` (8 per keyframe)
     and its inverse depths ``d`` (diagonal ``H_dd``), the Schur complement
@@ -236,7 +276,11 @@ def solve_handrolled(camera: PinholeCamera, baseline: float | None, keyframes: S
     hosts = [_WindowHost(camera, baseline, keyframes, h, ts, config, off, photometric)
              for h, ts in enumerate(targets) if ts]
     K = len(keyframes)
-    M = 8 * K + (0 if off is None else 2)
+    cal = None if wheel is None else np.asarray(wheel.estimate, dtype=float).copy()
+    M = 8 * K + (0 if off is None else 2) + (0 if cal is None else cal.size)
+    at_cal = M - (0 if cal is None else cal.size)
+    wheel_fs = wheel_factors(keyframes, wheel)
+    wheel_prior_on = not wheel_carried(marginal)
     rig_prior_on = needs_rig_prior(off, marginal, rig_hold_x)
     carried = rig_carried(marginal)
     with_gauge = marginal is None
@@ -245,21 +289,23 @@ def solve_handrolled(camera: PinholeCamera, baseline: float | None, keyframes: S
     depths = {host.h: keyframes[host.h].inverse_depth.copy() for host in hosts}
     motion = motion_factors(keyframes, config)
 
-    def cost(P, A, O, D_new, systems) -> tuple[float, dict[int, FloatArray], dict[int, list]]:
+    def cost(P, A, O, C, D_new, systems) -> tuple[float, dict[int, FloatArray], dict[int, list]]:
         E, D, L = 0.0, {}, {}
         for host in hosts:
             e, D[host.h], L[host.h] = host.evaluate_safeguarded(P, A, systems[host.h], D_new[host.h], O)
             E += e
         E += _prior_terms(keyframes, P, A, config, with_gauge, motion=motion)
         E += _rig_prior_terms(config, O, rig_prior_on, hold_x=rig_hold_x, carried=carried)
-        E += _extra_terms(extra_factors, keyframes, P, A, offset=O)
-        return E + _marginal_terms(marginal, keyframes, P, A, offset=O), D, L
+        E += _wheel_terms(wheel, wheel_fs, P, C, wheel_prior_on)
+        E += _extra_terms(extra_factors, keyframes, P, A, offset=O, calibration=C)
+        return E + _marginal_terms(marginal, keyframes, P, A, offset=O, calibration=C), D, L
 
     E = sum(host.start[0] for host in hosts) \
         + _prior_terms(keyframes, poses, affines, config, with_gauge, motion=motion) \
         + _rig_prior_terms(config, off, rig_prior_on, hold_x=rig_hold_x, carried=carried) \
-        + _marginal_terms(marginal, keyframes, poses, affines, offset=off) \
-        + _extra_terms(extra_factors, keyframes, poses, affines, offset=off)
+        + _wheel_terms(wheel, wheel_fs, poses, cal, wheel_prior_on) \
+        + _marginal_terms(marginal, keyframes, poses, affines, offset=off, calibration=cal) \
+        + _extra_terms(extra_factors, keyframes, poses, affines, offset=off, calibration=cal)
     state_lins = {host.h: host.start[1] for host in hosts}
     initial = E
     lam = 1e-5
@@ -270,8 +316,9 @@ def solve_handrolled(camera: PinholeCamera, baseline: float | None, keyframes: S
         systems = {host.h: host.linearize(depths[host.h], H, g, state_lins[host.h]) for host in hosts}
         _prior_terms(keyframes, poses, affines, config, with_gauge, H, g, motion)
         _rig_prior_terms(config, off, rig_prior_on, H, g, rig_hold_x, carried)
-        _marginal_terms(marginal, keyframes, poses, affines, H, g, off)
-        _extra_terms(extra_factors, keyframes, poses, affines, H, g, off)
+        _wheel_terms(wheel, wheel_fs, poses, cal, wheel_prior_on, H, g)
+        _marginal_terms(marginal, keyframes, poses, affines, H, g, off, cal)
+        _extra_terms(extra_factors, keyframes, poses, affines, H, g, off, cal)
         H = 0.5 * (H + H.T)
         diag = np.maximum(np.diag(H), 1e-12 * max(float(np.max(np.diag(H))), 1e-300))
         accepted = False
@@ -280,8 +327,9 @@ def solve_handrolled(camera: PinholeCamera, baseline: float | None, keyframes: S
             P = [p.retract(dx[8 * k:8 * k + 6]) for k, p in enumerate(poses)]
             A = [a + dx[8 * k + 6:8 * k + 8] for k, a in enumerate(affines)]
             O = None if off is None else off + dx[8 * K:8 * K + 2]
+            C = None if cal is None else cal + dx[at_cal:]
             D = {h: system.back_substitute(dx) for h, system in systems.items()}
-            E_new, D, L_new = cost(P, A, O, D, systems)
+            E_new, D, L_new = cost(P, A, O, C, D, systems)
             if E_new < E:
                 accepted = True
                 break
@@ -289,7 +337,7 @@ def solve_handrolled(camera: PinholeCamera, baseline: float | None, keyframes: S
         if not accepted:
             break
         decrease = E - E_new
-        poses, affines, off, depths, E, state_lins = P, A, O, D, E_new, L_new
+        poses, affines, off, cal, depths, E, state_lins = P, A, O, C, D, E_new, L_new
         lam = max(lam / 10.0, 1e-7)
         if on_iteration is not None:
             on_iteration(it, E)
@@ -305,8 +353,9 @@ def solve_handrolled(camera: PinholeCamera, baseline: float | None, keyframes: S
                 host.linearize(depths[host.h], H, g, state_lins[host.h])
             _prior_terms(keyframes, poses, affines, config, with_gauge, H, g, motion)
             _rig_prior_terms(config, off, rig_prior_on, H, g, rig_hold_x, carried)
-            _marginal_terms(marginal, keyframes, poses, affines, H, g, off)
-            _extra_terms(extra_factors, keyframes, poses, affines, H, g, off)
+            _wheel_terms(wheel, wheel_fs, poses, cal, wheel_prior_on, H, g)
+            _marginal_terms(marginal, keyframes, poses, affines, H, g, off, cal)
+            _extra_terms(extra_factors, keyframes, poses, affines, H, g, off, cal)
             covs = marginals_of_hessian(H, [kf.index for kf in keyframes])
     t_cov = time.perf_counter() - t_cov
     for k, kf in enumerate(keyframes):
@@ -316,4 +365,5 @@ def solve_handrolled(camera: PinholeCamera, baseline: float | None, keyframes: S
             kf.inverse_depth = depths[k].copy()
     n_res = sum(len(keyframes[h]) * len(ts) for h, ts in enumerate(targets))
     return WindowResult("handrolled", float(initial), float(E), it, time.perf_counter() - t0, n_res,
-                        covs, t_cov if covs is not None else 0.0, None if off is None else off.copy())
+                        covs, t_cov if covs is not None else 0.0, None if off is None else off.copy(),
+                        None if cal is None else cal.copy())

@@ -2,19 +2,22 @@
 
 from __future__ import annotations
 
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from gtvo.core.keys import affine_key, pose_key, rig_offset_key
+from gtvo.core.keys import affine_key, calibration_key, pose_key, rig_offset_key
 from gtvo.core.camera import PinholeCamera
 from factors.params import DEFAULT_PHOTOMETRIC, PhotometricConfig
 from gtvo.window.config import MarginalPrior, WindowConfig, WindowKeyframe
 from gtvo.window.config import values_subset
 from gtvo.window.problem import (gauge_noise, host_factor, key_ordering, motion_factors, needs_rig_prior, rig_prior,
-                                 visible_targets, window_values)
+                                 visible_targets, wheel_carried, wheel_factors, window_values)
+
+if TYPE_CHECKING:
+    from gtvo.window.wheel import WheelCalibration
 
 FloatArray = NDArray[np.float64]
 
@@ -22,7 +25,8 @@ FloatArray = NDArray[np.float64]
 def marginalize(camera: PinholeCamera, baseline: float | None, keyframes: Sequence[WindowKeyframe],
                 config: WindowConfig, marginal: MarginalPrior | None, position: int = 0,
                 rig_offset: FloatArray | None = None, *,
-                photometric: PhotometricConfig = DEFAULT_PHOTOMETRIC) -> MarginalPrior:
+                photometric: PhotometricConfig = DEFAULT_PHOTOMETRIC,
+                wheel: "WheelCalibration | None" = None) -> MarginalPrior:
     """Marginalise ``keyframes[position]`` and its points (residuals of the ``photometric`` model);
     return the prior on the others.
 
@@ -34,7 +38,9 @@ def marginalize(camera: PinholeCamera, baseline: float | None, keyframes: Sequen
     hosts' points in the leaving keyframe are not part of it (they are dropped).
     With ``rig_offset`` (its current estimate) the rig offset is a variable of the leaving host's
     factor; it is never eliminated, so the prior carries what the leaving keyframe said about it
-    (and its zero-mean prior, added here the first time, as the gauge prior).
+    (and its zero-mean prior, added here the first time, as the gauge prior). With ``wheel`` the
+    wheel factors touching the leaving keyframe join too, and the calibration is carried the same
+    way (its prior added here the first time).
     """
     kf = keyframes[position]
     targets = visible_targets(camera, keyframes, config, hosts=[position])[0]
@@ -55,7 +61,13 @@ def marginalize(camera: PinholeCamera, baseline: float | None, keyframes: Sequen
             graph.add(f)
     if needs_rig_prior(rig_offset, marginal):
         graph.add(rig_prior(config))
-    values = window_values(keyframes, rig_offset)
+    if wheel is not None:
+        for k, f in wheel_factors(keyframes, wheel):
+            if k <= position <= k + 1:
+                graph.add(f)
+        if not wheel_carried(marginal):
+            graph.add(wheel.prior_factor())
+    values = window_values(keyframes, rig_offset, wheel)
     linear = graph.linearize(values)
     leaving = [pose_key(kf.index), affine_key(kf.index)]
     _, remaining = linear.eliminatePartialMultifrontal(key_ordering(leaving))
@@ -69,6 +81,9 @@ def marginalize(camera: PinholeCamera, baseline: float | None, keyframes: Sequen
     if rig_offset_key() in present:
         keys.append(rig_offset_key())
         dims.append(2)
+    if wheel is not None and calibration_key() in present:
+        keys.append(calibration_key())
+        dims.append(wheel.size)
     aug = remaining.augmentedHessian(key_ordering(keys))
     n = aug.shape[0] - 1
     H = 0.5 * (aug[:n, :n] + aug[:n, :n].T)

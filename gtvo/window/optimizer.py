@@ -14,7 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gtvo.core.camera import PinholeCamera
-from gtvo.core.keys import rig_offset_key
+from gtvo.core.keys import calibration_key, rig_offset_key
 from gtvo.core.timing import stage
 from gtvo.errors import InputError
 from factors.params import DEFAULT_PHOTOMETRIC, PhotometricConfig
@@ -23,8 +23,9 @@ from gtvo.window.gtsam_solver import solve_gtsam
 from gtvo.window.handrolled import solve_handrolled, window_cost
 from gtvo.window.marginal import marginalize
 from gtvo.window.fixed_lag import FixedLagBackend
-from gtvo.window.problem import build_graph, observation_counts, visible_targets
+from gtvo.window.problem import build_graph, observation_counts, visible_targets, wheel_factors
 from gtvo.window.rig import RigOffset
+from gtvo.window.wheel import WheelCalibration
 
 FloatArray = NDArray[np.float64]
 
@@ -39,6 +40,9 @@ class SlidingWindowOptimizer:
         rig_offset: the rig offset's starting value when it is estimated (docs/window.md, "Rig calibration").
         photometric: the photometric model of its residuals (noise, Huber threshold, pattern; a VO
             run's ``OdometryConfig.photometric``); default :class:`factors.params.PhotometricConfig`'s.
+        wheel: the wheel odometry and its calibration (:class:`gtvo.window.wheel.WheelCalibration`;
+            LM backend only): wheel factors between consecutive keyframes, the calibration a
+            variable of every window (docs/window.md, "Wheel odometry"); None: no wheels.
 
     Example::
 
@@ -48,7 +52,8 @@ class SlidingWindowOptimizer:
     """
 
     def __init__(self, camera: PinholeCamera, baseline: float | None, config: WindowConfig | None = None,
-                 rig_offset: FloatArray | None = None, photometric: PhotometricConfig | None = None) -> None:
+                 rig_offset: FloatArray | None = None, photometric: PhotometricConfig | None = None,
+                 wheel: WheelCalibration | None = None) -> None:
         self.camera = camera
         self.baseline = baseline
         self.config = config or WindowConfig()
@@ -63,6 +68,10 @@ class SlidingWindowOptimizer:
             if self.config.backend != "lm":
                 raise InputError("the rig offset is estimated by the 'lm' window backend only")
             self.rig = RigOffset(rig_offset)
+        if wheel is not None and self.config.backend != "lm":
+            raise InputError("wheel odometry is used by the 'lm' window backend only")
+        #: the wheel calibration's one owner, updated by every optimisation (None: no wheel odometry)
+        self.wheel: WheelCalibration | None = wheel
         self.keyframes: list[WindowKeyframe] = []
         self.n_removed = 0  # keyframes that left the window (not kept unless retain_keyframes: they hold images)
         #: keep the keyframes that leave in :attr:`retired` (the whole-log refinement's input,
@@ -110,7 +119,25 @@ class SlidingWindowOptimizer:
     def cost(self) -> float:
         """The window cost at the current state (W evaluated at this state)."""
         return window_cost(self.camera, self.baseline, self.keyframes, self.config, self.marginal,
-                           rig_offset=None if self.rig is None else self.rig.solved_offset, photometric=self.photometric)
+                           rig_offset=None if self.rig is None else self.rig.solved_offset, photometric=self.photometric,
+                           wheel=self.wheel)
+
+    def wheel_covariance(self) -> FloatArray | None:
+        """The marginal covariance of the wheel calibration at the current state (the window's graph
+        linearised once, ``gtsam.Marginals``), also kept in ``wheel.covariance``; None without wheel
+        odometry or with fewer than two keyframes."""
+        if self.wheel is None or len(self.keyframes) < 2:
+            return None
+        targets = visible_targets(self.camera, self.keyframes, self.config)
+        graph, values, _ = build_graph(self.camera, self.baseline, self.keyframes, self.config, self.marginal, targets,
+                                       None if self.rig is None else self.rig.solved_offset,
+                                       photometric=self.photometric, wheel=self.wheel)
+        try:
+            cov = np.asarray(gtsam.Marginals(graph, values).marginalCovariance(calibration_key()), dtype=float)
+        except RuntimeError:  # indeterminate: nothing to say
+            return None
+        self.wheel.covariance = 0.5 * (cov + cov.T)
+        return self.wheel.covariance
 
     def rig_offset_covariance(self) -> FloatArray | None:
         """The 2x2 marginal covariance (px^2) of the rig offset at the current state: the window's
@@ -131,7 +158,7 @@ class SlidingWindowOptimizer:
         if not any(targets):
             return None
         graph, values, _ = build_graph(self.camera, self.baseline, self.keyframes, self.config, self.marginal, targets,
-                                       self.rig.offset, photometric=self.photometric)
+                                       self.rig.offset, photometric=self.photometric, wheel=self.wheel)
         return graph, values
 
     def rig_free_estimate(self) -> tuple[FloatArray, FloatArray] | None:
@@ -163,7 +190,7 @@ class SlidingWindowOptimizer:
         if len(self.keyframes) < 2:
             return None
         targets = visible_targets(self.camera, self.keyframes, self.config)
-        if not any(targets):
+        if not any(targets) and not wheel_factors(self.keyframes, self.wheel):  # the wheels alone may hold it
             return None
         with stage("solve"):  # less the stages inside: build, linearisation, covariances
             res = self.backend.optimize(self, targets, solver)
@@ -206,7 +233,7 @@ class LMBackend:
         if window.config.marginalize:
             self.marginal = marginalize(window.camera, window.baseline, window.keyframes, window.config,
                                         self.marginal, 0, None if window.rig is None else window.rig.solved_offset,
-                                        photometric=window.photometric)
+                                        photometric=window.photometric, wheel=window.wheel)
         return window.keyframes.pop(0)
 
     def optimize(self, window: WindowState, targets: list[list[int]],
@@ -215,6 +242,9 @@ class LMBackend:
         solve = {"gtsam": solve_gtsam, "handrolled": solve_handrolled}.get(solver)
         if solve is None:
             raise InputError(f"unknown window solver {solver!r}: use 'gtsam' or 'handrolled'")
+        wheel = window.wheel
+        if wheel is not None:  # the wheel calibration: each solve starts from the last estimate and updates it
+            solve = _updating_wheel(solve, wheel)
         rig = window.rig
         # the rig offset (gtvo.window.rig; docs/window.md, "Rig calibration"): none while rectified
         # (tested as a whole); else delta_x, which trades against the scale, is held at its start
@@ -223,12 +253,13 @@ class LMBackend:
         solved = None if rig is None else rig.solved_offset
         hold = None if rig is None else rig.hold_x
         res = solve(window.camera, window.baseline, window.keyframes, window.config, self.marginal, targets,
-                    rig_offset=solved, rig_hold_x=hold, photometric=window.photometric)
+                    rig_offset=solved, rig_hold_x=hold, photometric=window.photometric, wheel=wheel)
         full = self.marginal is not None or len(window.keyframes) >= window.config.size
         if rig is not None and solved is None:  # rectified: the offset as a whole is tested
             if full and rig.test_release_both(window.config.size, window.rig_free_estimate):
                 res = solve(window.camera, window.baseline, window.keyframes, window.config, self.marginal,
-                            targets, rig_offset=rig.offset, rig_hold_x=None, photometric=window.photometric)
+                            targets, rig_offset=rig.offset, rig_hold_x=None, photometric=window.photometric,
+                            wheel=wheel)
                 assert res.rig_offset is not None
                 rig.offset = res.rig_offset.copy()
             return res
@@ -239,7 +270,17 @@ class LMBackend:
             # solved again with delta_x free, from the held state (LM's damping, not the test's
             # linear step, decides how far it goes along the flat scale direction)
             res = solve(window.camera, window.baseline, window.keyframes, window.config, self.marginal, targets,
-                        rig_offset=rig.offset, rig_hold_x=None, photometric=window.photometric)
+                        rig_offset=rig.offset, rig_hold_x=None, photometric=window.photometric, wheel=wheel)
             assert res.rig_offset is not None
             rig.offset = res.rig_offset.copy()
         return res
+
+
+def _updating_wheel(solve, wheel: WheelCalibration):
+    """``solve`` that writes the optimised calibration back to ``wheel.estimate``."""
+    def run(*args, **kwargs) -> WindowResult:
+        res = solve(*args, **kwargs)
+        if res.wheel_calibration is not None:
+            wheel.estimate = res.wheel_calibration.copy()
+        return res
+    return run

@@ -1,18 +1,19 @@
 """Building the window's problem: its values, which keyframes see which host's points, and its factors.
 
 The factors of the cost of docs/window.md: one :class:`factors.smart.HostPointsFactor` per host, the
-weak affine priors, the constant-velocity priors, the gauge prior and the marginalisation prior.
+weak affine priors, the constant-velocity priors, the gauge prior and the marginalisation prior
+(with wheel odometry also the wheel factors and the calibration's prior: :mod:`gtvo.window.wheel`).
 """
 
 from __future__ import annotations
 
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from gtvo.core.keys import affine_key, pose_key, rig_offset_key
+from gtvo.core.keys import affine_key, calibration_key, pose_key, rig_offset_key
 from factors.params import DEFAULT_PHOTOMETRIC, PhotometricConfig
 from factors.smart import HostPointsFactor
 from factors.smoothness import ConstantVelocityFactor
@@ -20,6 +21,10 @@ from gtvo.core.camera import MIN_DEPTH, PinholeCamera
 from gtvo.core.timing import timed
 from gtvo.errors import InputError
 from gtvo.window.config import MarginalPrior, WindowConfig, WindowKeyframe
+
+if TYPE_CHECKING:
+    from factors.wheel_odometry import WheelOdometryFactor
+    from gtvo.window.wheel import WheelCalibration
 
 FloatArray = NDArray[np.float64]
 
@@ -35,15 +40,31 @@ def key_ordering(keys: Sequence[int]) -> gtsam.Ordering:
     return o
 
 
-def window_values(keyframes: Sequence[WindowKeyframe], rig_offset: FloatArray | None = None) -> gtsam.Values:
-    """The keyframes' poses and affines (and the rig offset, if estimated) as GTSAM ``Values``."""
+def window_values(keyframes: Sequence[WindowKeyframe], rig_offset: FloatArray | None = None,
+                  wheel: "WheelCalibration | None" = None) -> gtsam.Values:
+    """The keyframes' poses and affines (and the rig offset, if estimated, and the wheel
+    calibration, with wheel odometry) as GTSAM ``Values``."""
     v = gtsam.Values()
     for kf in keyframes:
         v.insert(pose_key(kf.index), kf.pose)
         v.insert(affine_key(kf.index), kf.affine)
     if rig_offset is not None:
         v.insert(rig_offset_key(), np.asarray(rig_offset, dtype=float).reshape(2))
+    if wheel is not None:
+        v.insert(calibration_key(), np.asarray(wheel.estimate, dtype=float).copy())
     return v
+
+
+def wheel_carried(marginal: MarginalPrior | None) -> bool:
+    """Whether the marginalisation prior carries the wheel calibration (it then holds its prior)."""
+    return marginal is not None and calibration_key() in marginal.keys
+
+
+def wheel_factors(keyframes: Sequence[WindowKeyframe], wheel: "WheelCalibration | None"
+                  ) -> list[tuple[int, "WheelOdometryFactor"]]:
+    """The wheel factors ``(k, factor)`` between keyframes ``k, k+1`` (positions) the wheel log
+    covers (none without wheel odometry)."""
+    return [] if wheel is None else wheel.factors(keyframes, lambda kf: pose_key(kf.index))
 
 
 def needs_rig_prior(rig_offset: FloatArray | None, marginal: MarginalPrior | None,
@@ -212,12 +233,14 @@ def host_factor(camera: PinholeCamera, baseline: float | None, keyframes: Sequen
 def build_graph(camera: PinholeCamera, baseline: float | None, keyframes: Sequence[WindowKeyframe],
                 config: WindowConfig, marginal: MarginalPrior | None,
                 targets: list[list[int]] | None = None, rig_offset: FloatArray | None = None,
-                rig_hold_x: float | None = None, *, photometric: PhotometricConfig = DEFAULT_PHOTOMETRIC
+                rig_hold_x: float | None = None, *, photometric: PhotometricConfig = DEFAULT_PHOTOMETRIC,
+                wheel: "WheelCalibration | None" = None
                 ) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values, dict[int, HostPointsFactor]]:
     """The window's factor graph: one smart factor per host with targets, priors, motion prior,
     marginal prior; with ``rig_offset`` (its current estimate) the rig offset is a variable of
     every stereo host factor, with :func:`rig_prior` until the marginal prior carries it
-    (``rig_hold_x``: its ``delta_x`` held at that value).
+    (``rig_hold_x``: its ``delta_x`` held at that value); with ``wheel`` the wheel factors and the
+    calibration variable, with its prior until the marginal prior carries it.
 
     Returns ``(graph, values, host_factors)`` with ``host_factors[position] = factor``.
     """
@@ -237,4 +260,9 @@ def build_graph(camera: PinholeCamera, baseline: float | None, keyframes: Sequen
             graph.add(f)
     if needs_rig_prior(rig_offset, marginal, rig_hold_x):
         graph.add(rig_prior(config, rig_hold_x, rig_carried(marginal)))
-    return graph, window_values(keyframes, rig_offset), hosts
+    if wheel is not None:
+        for _, f in wheel_factors(keyframes, wheel):
+            graph.add(f)
+        if not wheel_carried(marginal):
+            graph.add(wheel.prior_factor())
+    return graph, window_values(keyframes, rig_offset, wheel), hosts

@@ -1,0 +1,89 @@
+"""Wheel odometry files: ``wheel_odometry.csv`` beside a sequence (or ``--wheel-odometry FILE``), its
+writer, and the options every wheel reader takes (docs/wheel_odometry.md, "The CSV file").
+
+The file: a header line, then one row per reading, comma-separated::
+
+    time,x,y,theta          # the base's planar pose in its odometry frame (REP 103: m, rad)
+    time,left,right         # cumulative wheel arc lengths (m), or ticks with wheel.tick_scale
+
+Times are seconds in the sequence's clock. ``#`` starts a comment line; blank lines are skipped.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from gtvo.datasets._common import parse_float_table, read_rows
+from gtvo.datasets.wheel import DEFAULT_NOMINAL_BASELINE, MAX_GAP_S, WHEEL_COLUMNS, WheelOdometry, check_readings
+from gtvo.errors import InputError
+
+#: The name of the wheel odometry file beside a sequence (inside its folder).
+WHEEL_CSV = "wheel_odometry.csv"
+
+
+@dataclass(frozen=True)
+class WheelReadOptions:
+    """What turns logged wheel readings into :class:`WheelOdometry` (the config's ``wheel:`` section,
+    :meth:`gtvo.config.wheel.WheelConfig.read_options`).
+
+    Attributes:
+        topic: the bag topic of the wheel odometry; None: the one candidate (docs/wheel_odometry.md);
+            ``"none"``: no wheel odometry from the bag.
+        tick_scale: metres per unit of a file's ``left, right`` columns.
+        nominal_baseline: the nominal track width b0 (m).
+        wheel_radius: metres per radian of a JointState wheel position; None: JointState refused.
+        left_joint, right_joint: JointState joint names; None: the names containing left / right.
+        max_gap: the longest gap between readings (s) accepted.
+    """
+
+    topic: str | None = None
+    tick_scale: float = 1.0
+    nominal_baseline: float = DEFAULT_NOMINAL_BASELINE
+    wheel_radius: float | None = None
+    left_joint: str | None = None
+    right_joint: str | None = None
+    max_gap: float = MAX_GAP_S
+
+
+def read_wheel_csv(path: str | Path, options: WheelReadOptions = WheelReadOptions()) -> WheelOdometry:
+    """Read a wheel odometry CSV (module doc).
+
+    Raises:
+        InputError: one line naming the file and the line: a header that is neither
+            ``time,x,y,theta`` nor ``time,left,right``, a row of the wrong width, not a number, NaN,
+            a time not after the previous row's, a gap longer than ``options.max_gap``.
+    """
+    path = Path(path)
+    rows = read_rows(path, 1, delimiter=",")
+    if not rows:
+        raise InputError("empty wheel odometry file: expected a header time,x,y,theta or time,left,right", path)
+    header = [f.lower() for f in rows[0].fields]
+    kind = next((k for k, cols in WHEEL_COLUMNS.items() if header == ["time", *cols]), None)
+    if kind is None:
+        raise InputError(f"the header is {','.join(rows[0].fields)!r}: expected time,x,y,theta (planar pose) or "
+                         "time,left,right (wheel arcs)", path, rows[0].line)
+    data = rows[1:]
+    for row in data:
+        if len(row.fields) != len(header):
+            raise InputError(f"expected {len(header)} values ({','.join(header)}), got {len(row.fields)}",
+                             path, row.line)
+    table = parse_float_table(data, path, slice(None)) if data else np.zeros((0, len(header)))
+    lines = [r.line for r in data]
+    times, values = check_readings(table[:, 0], table[:, 1:], kind, str(path), rows=lines, row_name="line",
+                                   max_gap=options.max_gap)
+    if kind == "arcs":
+        values = values * options.tick_scale
+    return WheelOdometry(times, kind, values, str(path), options.nominal_baseline)  # type: ignore[arg-type]
+
+
+def write_wheel_csv(odometry: WheelOdometry, path: str | Path) -> Path:
+    """Write ``odometry`` as a wheel odometry CSV (arcs in metres: read back with ``tick_scale`` 1)."""
+    path = Path(path)
+    columns = ",".join(("time", *WHEEL_COLUMNS[odometry.kind]))
+    table = np.column_stack([odometry.times, odometry.values])
+    lines = [columns] + [",".join(f"{v:.17g}" for v in row) for row in table]
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    return path
