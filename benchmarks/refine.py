@@ -41,7 +41,7 @@ from gtvo.loops.closing import close_loops_of_run, odometry_covariances, refine_
 from gtvo.pipeline import TRACKED_OUTCOMES, process_sequence
 from gtvo.refinement import RefineConfig
 from gtvo.refinement.run import refine_run
-from loop_closure_synthetic import DATA  # noqa: E402 (the shared data folder, found as there; run from benchmarks/)
+from loop_closure_synthetic import DATA  # noqa: E402 (the shared data folder; run from benchmarks/)
 
 
 REAL = {"kitti": DATA / "kitti_stereo_sample" / "KITTI_sequence_1",
@@ -166,8 +166,8 @@ def scaling(sizes: list[int], lap: int = 100) -> None:
         mem = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
         pairs = int(round(res.targets_mean * n))
         rows.append((n, sec))
-        print(f"| {n} | {pairs} | {sec:.1f} | {1000 * sec / n:.1f} ms | {sec / max(res.iterations, 1):.1f} | {mem:.0f} |",
-              flush=True)
+        per_it = sec / max(res.iterations, 1)
+        print(f"| {n} | {pairs} | {sec:.1f} | {1000 * sec / n:.1f} ms | {per_it:.1f} | {mem:.0f} |", flush=True)
     _scaling_figure(rows)
 
 

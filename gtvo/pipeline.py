@@ -199,7 +199,8 @@ def run(path: str | Path | Sequence, out: str | Path | None = None,
     return report  # type: ignore[return-value]
 
 
-def refine_vo_run(seq: Sequence, vo: VisualOdometry, trajectory: Trajectory, loop_result: Any, progress: bool) -> Any:
+def refine_vo_run(seq: Sequence, vo: VisualOdometry, trajectory: Trajectory, loop_result: Any,
+                  progress: bool) -> Any:
     """The whole-log refinement of a finished window run (:func:`gtvo.refinement.run.refine_run`;
     ``loop_result``: the loop closing's, before its frame refinement, or None). When it is kept,
     the keyframes' points take its depths and the window's covariances its graph's (the map and

@@ -92,7 +92,8 @@ def loop_factor(edge: LoopEdge) -> gtsam.BetweenFactorPose3:
     ``BetweenFactorPose3`` on their pose keys."""
     T = np.asarray(edge.T_i_j, dtype=float)
     info = np.asarray(edge.information, dtype=float)
-    return gtsam.BetweenFactorPose3(pose_key(edge.i), pose_key(edge.j), gtsam.Pose3(gtsam.Rot3.ClosestTo(T[:3, :3]), T[:3, 3]),
+    measured = gtsam.Pose3(gtsam.Rot3.ClosestTo(T[:3, :3]), T[:3, 3])
+    return gtsam.BetweenFactorPose3(pose_key(edge.i), pose_key(edge.j), measured,
                                     gtsam.noiseModel.Gaussian.Information(0.5 * (info + info.T)))
 
 

@@ -195,7 +195,8 @@ def _extra_terms(factors: gtsam.NonlinearFactorGraph | None, keyframes, poses, a
         pos = _state_columns(keyframes, offset, calibration)
         for i in range(factors.size()):
             A, b = factors.at(i).linearize(values).jacobian()
-            idx = np.concatenate([np.arange(pos[key], pos[key] + (6 if is_pose_key(key) else values.atVector(key).shape[0])) for key in factors.at(i).keys()])
+            dims = [6 if is_pose_key(key) else values.atVector(key).shape[0] for key in factors.at(i).keys()]
+            idx = np.concatenate([np.arange(pos[key], pos[key] + d) for key, d in zip(factors.at(i).keys(), dims)])
             H[np.ix_(idx, idx)] += A.T @ A
             g[idx] -= A.T @ b
     return float(factors.error(values))
