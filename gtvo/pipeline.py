@@ -26,6 +26,7 @@ from gtvo.odometry.estimates import FrameOutcome, trust_warning
 from gtvo.io.covariances import KeyframeCovariances
 from gtvo.odometry.rig_report import rig_warning
 from gtvo.odometry.summary import OdometrySummary, stage_timing, summarize_odometry
+from gtvo.odometry.wheel import wheel_coverage_warning
 from gtvo.io.outputs import check_run_output_dir, write_run_outputs
 from gtvo.datasets.sequence import Sequence
 from gtvo.evaluation.trajectory import Trajectory
@@ -58,49 +59,53 @@ def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progre
         second, failures, skipped frames, ``frame_outcomes``, window and rig figures, timing).
     """
     config = config or OdometryConfig()
+    coverage = None if seq.wheel_odometry is None else wheel_coverage_warning(seq.wheel_odometry, seq.timestamps)
     vo = VisualOdometry(seq.camera, config, wheel_odometry=seq.wheel_odometry)
-    observers = list(observers)
-    for o in observers:
-        o.on_start(seq, config)
-    warn = warn or (lambda msg: print(f"warning: {msg}", file=sys.stderr))
-    skipped: list[tuple[int, str]] = []
-    bar = None
-    indices: Any = range(len(seq))
-    if progress:
-        from tqdm import tqdm  # noqa: PLC0415
+    try:  # a parallel window's worker ends here, however the run ends (its figures are in the summary)
+        observers = list(observers)
+        for o in observers:
+            o.on_start(seq, config)
+        warn = warn or (lambda msg: print(f"warning: {msg}", file=sys.stderr))
+        skipped: list[tuple[int, str]] = []
+        bar = None
+        indices: Any = range(len(seq))
+        if progress:
+            from tqdm import tqdm  # noqa: PLC0415
 
-        bar = tqdm(indices, desc=f"gtvo {seq.name}", unit="frame", dynamic_ncols=True, file=sys.stderr)
-        indices = bar
-    t0 = time.perf_counter()
-    for i in indices:
-        raise_if_interrupted()  # a Ctrl-C that a library swallowed stops the run here
-        # the loop's time outside vo.process (observers, progress bar) is the stage "other"
-        with vo.clock.activate("other") if vo.clock is not None else nullcontext():
-            try:
-                with stage("reading"):
-                    frame = seq.frame(i)
-            except InputError as exc:
-                if strict or not vo.estimates:
-                    raise
-                skipped.append((i, str(exc)))
-                warn(f"skipping frame {i}: {exc}")
-                continue
-            estimate = vo.process(frame)
-            if observers:
-                view = vo.view()
-                for o in observers:
-                    o.on_frame(frame, estimate, view)
-            if bar is not None:
-                bar.set_postfix(kf=len(vo.keyframes), fail=vo.failures,
-                                **({"win": len(vo.window_results)} if config.mode == "window" else {}))
-    vo.finish()  # the keyframes that joined the window since its last optimisation
-    seconds = time.perf_counter() - t0
-    traj = vo.trajectory(seq.name)
-    info = summarize_odometry(vo, seconds, skipped)
+            bar = tqdm(indices, desc=f"gtvo {seq.name}", unit="frame", dynamic_ncols=True, file=sys.stderr)
+            indices = bar
+        t0 = time.perf_counter()
+        for i in indices:
+            raise_if_interrupted()  # a Ctrl-C that a library swallowed stops the run here
+            # the loop's time outside vo.process (observers, progress bar) is the stage "other"
+            with vo.clock.activate("other") if vo.clock is not None else nullcontext():
+                try:
+                    with stage("reading"):
+                        frame = seq.frame(i)
+                except InputError as exc:
+                    if strict or not vo.estimates:
+                        raise
+                    skipped.append((i, str(exc)))
+                    warn(f"skipping frame {i}: {exc}")
+                    continue
+                estimate = vo.process(frame)
+                if observers:
+                    view = vo.view()
+                    for o in observers:
+                        o.on_frame(frame, estimate, view)
+                if bar is not None:
+                    bar.set_postfix(kf=len(vo.keyframes), fail=vo.failures,
+                                    **({"win": len(vo.window_results)} if config.mode == "window" else {}))
+        vo.finish()  # the keyframes that joined the window since its last optimisation
+        seconds = time.perf_counter() - t0
+        traj = vo.trajectory(seq.name)
+        info = summarize_odometry(vo, seconds, skipped)
+    finally:
+        vo.close()
     wheel = info.get("wheel_calibration")
     for message in (rig_warning(dict(info)), trust_warning(info["frames"], info["undetermined_frames"],
                                                            info["trusted_fraction"]),
-                    None if wheel is None else wheel["warning"]):
+                    coverage, None if wheel is None else wheel["warning"]):
         if message is not None:
             warn(message)
     if observers:
@@ -165,7 +170,7 @@ def run(path: str | Path | Sequence, out: str | Path | None = None,
         ensure_output_dir(out_dir)  # an unusable --out is reported before the long work
         vo, traj, summary = process_sequence(seq, config, progress=progress, strict=strict, observers=observers)
         closed = closed_keyframes = loops = res = refined = None
-        refining = vo.window is not None and vo.window.retain_keyframes  # refine.enabled, window mode
+        refining = bool(getattr(vo.window, "retain_keyframes", False))  # refine.enabled, sequential window mode
         if config.loops.enabled:
             from gtvo.loops.closing import close_loops_of_run, odometry_covariances  # noqa: PLC0415
 

@@ -19,6 +19,15 @@ def run_cli(*args, cwd=None):
                           cwd=cwd, timeout=300)
 
 
+def copy_with_truncated_frame(log, dest, index):
+    """A copy of the KITTI-layout ``log`` at ``dest`` whose left image ``index`` is a truncated
+    PNG; returns that image's path."""
+    shutil.copytree(log, dest)
+    victim = sorted((dest / "image_0").iterdir())[index]
+    victim.write_bytes(victim.read_bytes()[:100])
+    return victim
+
+
 @pytest.fixture(scope="module")
 def kitti_like(tmp_path_factory):
     """A small synthetic sequence written in the KITTI layout."""
@@ -110,9 +119,7 @@ def test_run_malformed_calibration_exit_2(kitti_like, tmp_path):
 @pytest.mark.slow
 def test_corrupt_frame_mid_sequence_is_skipped_unless_strict(kitti_like, tmp_path):
     bad = tmp_path / "bad"
-    shutil.copytree(kitti_like, bad)
-    victim = sorted((bad / "image_0").iterdir())[4]
-    victim.write_bytes(victim.read_bytes()[:100])  # truncated PNG
+    victim = copy_with_truncated_frame(kitti_like, bad, 4)
     out = tmp_path / "o"
     r = run_cli("run", bad, "--out", out, "--no-progress", "--points", "600")
     assert r.returncode == 0, r.stderr

@@ -54,7 +54,10 @@ def test_a_blind_stretch_is_carried_by_the_calibrated_wheels(turn):
     vo1, info1, err1 = _run(dataclasses.replace(dark, wheel_odometry=log))
     assert [vo0.estimates[i].outcome for i in BLACK] == [FrameOutcome.LOST] * len(BLACK)
     assert [vo1.estimates[i].outcome for i in BLACK] == [FrameOutcome.WHEEL_CARRIED] * len(BLACK)
-    assert all(vo1.estimates[i].lost for i in BLACK) and vo1.lost_frames == len(BLACK)
+    assert all(vo1.estimates[i].lost for i in BLACK)  # no keyframe candidate, like a lost frame
+    assert (vo0.lost_frames, info0["lost_frames"]) == (len(BLACK), len(BLACK))
+    assert (vo1.lost_frames, info1["lost_frames"]) == (0, 0)  # placed by the wheels: none lost
+    assert vo1.failures == vo0.failures
     flagged = info1["frame_outcomes"]["wheel_carried"]
     assert [f["index"] for f in flagged] == list(BLACK) and "wheel odometry" in flagged[0]["reason"]
     assert info1["frame_outcomes"]["lost"] == [] and info0["frame_outcomes"]["wheel_carried"] == []
@@ -132,3 +135,57 @@ def test_a_frame_that_fails_with_points_is_reinitialised_at_the_wheels_pose(turn
         ends[wheels is not None] = np.linalg.norm(vo.estimates[BLACK[-1]].T_world_cam[:3, 3]
                                                   - np.asarray(seq.gt_poses)[BLACK[-1]][:3, 3])
     assert ends[True] < 0.03 < 0.05 < ends[False]
+
+
+def test_the_parallel_window_refuses_wheel_odometry_in_one_line(turn):
+    """window.parallel runs the window in a worker that does not carry the wheel calibration (yet):
+    asked for with wheel odometry, the run stops before any work with one line saying what to do."""
+    from gtvo.errors import InputError
+    from gtvo.odometry import VisualOdometry
+
+    seq, log = turn
+    config = as_config({"wheel": {"base_to_camera": BASE_TO_CAMERA}, "window": {"parallel": True}})
+    with pytest.raises(InputError, match="window.parallel does not carry wheel odometry"):
+        VisualOdometry(seq.camera, config, log)
+
+
+def _planar_estimate(index: int, x: float, z: float, outcome: FrameOutcome):
+    from gtvo.odometry.estimates import FrameEstimate
+
+    T = np.eye(4)
+    T[0, 3], T[2, 3] = x, z
+    return FrameEstimate(index, 0.1 * index, T, outcome, None, 0.0)
+
+
+@pytest.mark.parametrize("outcome,fused", [(FrameOutcome.WHEEL_CARRIED, True), (FrameOutcome.LOST, False)])
+def test_the_kalman_motion_model_fuses_a_wheel_carried_pose(outcome, fused):
+    """The Kalman motion model fuses a ``wheel_carried`` frame's pose (the wheels measured it) but
+    only predicts over a ``lost`` one (its pose is the filter's own guess): after a frame placed
+    0.5 m to the side of the straight-on guess, the next guess follows it only when it was carried."""
+    from gtvo.config import MotionModelConfig
+    from gtvo.odometry.history import FrameHistory
+    from gtvo.odometry.motion import MotionModel
+
+    history = FrameHistory()
+    motion = MotionModel(MotionModelConfig(model="kalman"), history)
+    for i, est in enumerate([_planar_estimate(i, 0.0, 0.1 * i, FrameOutcome.TRACKED) for i in range(6)]
+                            + [_planar_estimate(6, 0.5, 0.6, outcome)]):
+        history.append(est)
+        motion.update(est)
+    side = float(motion.predict(0.7).translation()[0])
+    assert (side > 0.25) == fused, side
+
+
+def test_the_console_prints_the_wheel_calibration_with_its_sigmas():
+    """``gtvo run``'s summary: one line with each parameter, its sigma, and "(prior)" where unobserved."""
+    from gtvo.odometry.wheel import wheel_calibration_line
+
+    diff = {"model": "diff_drive", "left_wheel_scale": 1.02, "right_wheel_scale": 0.98, "track_width_scale": 1.0,
+            "sigmas": [0.006, 0.006, 0.1], "observed": [True, True, False]}
+    assert wheel_calibration_line(diff) == ("wheel calibration (diff_drive): left_wheel_scale 1.0200 +- 0.0060, "
+                                            "right_wheel_scale 0.9800 +- 0.0060, track_width_scale 1.0000 +- 0.1000 "
+                                            "(prior)")
+    linear = {"model": "linear", "source": "w.csv", "X": list(np.eye(3).ravel()), "sigmas": None, "observed": None}
+    line = wheel_calibration_line(linear)
+    assert line.startswith("wheel calibration (linear, w.csv): X11 1.0000, X12 0.0000") and line.endswith("(not estimated: "
+                                                                                                   "track mode or the fixed-lag back end)")

@@ -18,9 +18,10 @@ from gtvo.report import HEADLINE_FIELDS, RunReport, headline, read_report
 from gtvo.window.config import WindowConfig
 
 #: Keys a report holds only in situations these runs do not make: no ground truth, an ATE whose
-#: alignment is undetermined, a ROS bag, no open3d (or open3d), no point left out, the output folder.
+#: alignment is undetermined, a ROS bag, no open3d (or open3d), no point left out, the output folder,
+#: wheel odometry (tests/test_odometry_wheel.py reads its ``wheel_calibration``).
 RARE_KEYS = {"ground_truth", "ate_skipped", "unpaired_messages", "map_points_left_out_by_reason",
-             "out"}
+             "out", "wheel_calibration", "refine"}  # refine: tests/test_refinement.py
 
 
 def fields(typed_dict) -> set[str]:

@@ -103,3 +103,20 @@ def test_bad_model_and_sigmas_are_one_line_errors() -> None:
         wheel_step_sigmas([1.0, 0.0, 0.0], 0.0, 0.01, 0.0, 0.01, 0.01)
     s = wheel_step_sigmas([3.0, 4.0, 0.0], 0.01, 0.002, 0.02, 0.005, 0.02)
     np.testing.assert_allclose(s, [0.005, 0.005, 0.102, 0.11, 0.11, 0.02])
+
+
+@pytest.mark.parametrize("u", [[0.5, 0.0, 0.0], [0.5, 0.0, 3e-4], [0.0, 0.0, 0.0], [0.0, 0.0, 0.2]])
+def test_jacobians_match_numerical_derivatives_driving_straight_standing_and_turning_on_the_spot(u) -> None:
+    """The common motions of a ground robot: the diff-drive model's series branch (dtheta ~ 0) and no
+    motion at all, with camera poses that do not fit them (a non-zero error)."""
+    rng = np.random.default_rng(7)
+    params = np.array([1.02, 0.97, 1.04])
+    T_i = _random_pose(rng, 3.0)
+    T_j = T_i.compose(_random_pose(rng, 0.5))
+    f = WheelOdometryFactor(pose_key(0), pose_key(1), calibration_key(), u, "diff_drive", T_BC, np.ones(6), 0.5)
+    e, J = f.error_and_jacobians(T_i, T_j, params)
+    assert np.linalg.norm(e) > 0.1
+    Jc = _numerical(lambda c: f.error_and_jacobians(T_i, T_j, c)[0], params, lambda c, d: c + d, 3)
+    Jj = _numerical(lambda T: f.error_and_jacobians(T_i, T, params)[0], T_j, lambda T, d: T.retract(d), 6)
+    np.testing.assert_allclose(J[2], Jc, atol=1e-6)
+    np.testing.assert_allclose(J[1], Jj, atol=1e-6)

@@ -3,6 +3,8 @@ and the synthetic ground robot that writes them (gtvo.datasets.wheel_files, bag_
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -50,6 +52,8 @@ def test_csv_written_reads_back(tmp_path):
     ("time,left,right\n0,0,0\n0.1,0,0\n2.5,1,1\n", ": line 4:", "a gap of 2.400 s"),
     ("time,left,right\n0,0,0\n0.1,0,0,7\n", ":3:", "expected 3 values"),
     ("time,left,right\n0,0,0\n", ": wheel", "at least 2 readings"),
+    ("time,left,right\n0,0,0\n0.1,100,120\n", ": line 3:", "a wheel moved 120 m in 0.1 s .*wheel.tick_scale"),
+    ("time,x,y,theta\n0,0,0,0\n0.1,150,0,0\n", ": line 3:", "the base moved 150 m .*metres"),
 ])
 def test_bad_csv_is_one_line_naming_file_and_row(tmp_path, text, where, message):
     path = _csv(tmp_path, text)
@@ -65,9 +69,18 @@ def robot_folder(tmp_path_factory):
     return seq, write_sequence_kitti(seq, tmp_path_factory.mktemp("robot") / "seq")
 
 
+def test_wheel_yaml_names_the_model_of_the_simulated_calibration(tmp_path):
+    """A linear X simulated: wheel.yaml asks for the linear model (the diff-drive one cannot recover it)."""
+    x = (1.02, 0.0, 0.01, 0.0, 0.99, 0.0, 0.0, 0.0, 0.97)
+    seq = make_synthetic_sequence(3, W, H, motion="ground", wheels=WheelSimulation(kind="pose", calibration=x))
+    config = load_config(write_sequence_kitti(seq, tmp_path / "seq") / "wheel.yaml")
+    assert config.wheel.model == "linear"
+
+
 def test_folder_reads_its_wheel_csv_and_wheel_yaml(robot_folder, tmp_path):
     seq, folder = robot_folder
     config = load_config(folder / "wheel.yaml")
+    assert config.wheel.model == "diff_drive"
     np.testing.assert_allclose(config.wheel.T_base_cam, seq.wheel_odometry.base_to_camera, atol=1e-12)
     read = open_sequence(folder, wheel_options=config.wheel.read_options())
     assert read.wheel_odometry.kind == "arcs" and read.wheel_odometry.source.endswith("wheel_odometry.csv")
@@ -95,6 +108,23 @@ def test_cli_run_refuses_a_bad_wheel_file_in_one_line(robot_folder, tmp_path, ca
                      "--no-progress"])
     err = capsys.readouterr().err.strip()
     assert code == 2 and err.count("\n") == 0 and f"{bad}: line 4: time 0.1 s is not after" in err
+
+
+def test_wheel_times_in_another_clock_are_refused_and_a_partial_log_warned(robot_folder, tmp_path, capsys):
+    """A wheel log that overlaps none of the frames (its times in another clock) stops the run in
+    one line, writing nothing; one that covers only some frames is a warning naming how many."""
+    from gtvo.odometry.wheel import wheel_coverage_warning
+
+    _, folder = robot_folder
+    late = _csv(tmp_path, "time,x,y,theta\n1000,0,0,0\n1000.5,0.1,0,0\n")
+    code = cli_main(["run", str(folder), "--out", str(tmp_path / "out"), "--wheel-odometry", str(late),
+                     "--no-progress"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and err.count("\n") == 0 and not (tmp_path / "out").exists()
+    assert f"{late}: the wheel odometry's times 1000.000..1000.500 s do not overlap the frames' 0.000..0.700 s" in err
+    log = WheelOdometry(np.array([0.0, 0.35]), "pose", np.zeros((2, 3)), "w.csv")
+    assert "covers 0.000..0.350 s, 4 of the 8 frames" in wheel_coverage_warning(log, np.arange(8) / 10)
+    assert wheel_coverage_warning(log, [0.1, 0.3]) is None
 
 
 def test_ground_robot_is_level_turns_both_ways_and_runs_300_frames():
@@ -128,6 +158,8 @@ def test_synthetic_bag_carries_odometry_joint_states_and_tf_static(tmp_path):
         open_sequence(bag, wheel_topic="/cam/left/image_rect")
     with pytest.raises(InputError, match="wheel radius"):
         open_sequence(bag, wheel_topic="/joint_states")
+    with pytest.raises(InputError, match=r"/joint_states: message 2: a wheel moved .* wheel.max_speed 50 m/s"):
+        open_sequence(bag, wheel_topic="/joint_states", wheel_options=dataclasses.replace(options, wheel_radius=100.0))
 
 
 def _tiny_stereo_bag(path, times, write_more):
@@ -200,3 +232,18 @@ def test_synthetic_cli_writes_wheels_and_refuses_bad_calibration(tmp_path, capsy
     assert cli_main(["synthetic", "--out", str(tmp_path / "x"), "--wheel", "arcs", "--wheel-calibration", "1,2",
                      "--no-progress"]) == 2
     assert "--wheel-calibration" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--wheel", "pose", "--wheel-calibration", "0,0,0,0,0,0,0,0,0"], "X must be invertible"),
+    (["--wheel", "pose", "--wheel-calibration", "1,2"], "must be 3 numbers (k_L,k_R,k_b) or 9 (X row-major)"),
+    (["--wheel-noise", "0.01"], "--wheel-noise describe the wheel odometry: add --wheel arcs or --wheel pose"),
+])
+def test_synthetic_cli_refuses_bad_wheel_options_in_one_line(tmp_path, capsys, argv, message):
+    """A singular X, a calibration of neither 3 nor 9 numbers, wheel options without --wheel: exit 2,
+    one line, nothing written."""
+    out = tmp_path / "x"
+    assert cli_main(["synthetic", "--out", str(out), "--frames", "2", "--width", "64", "--height", "48",
+                     "--motion", "ground", *argv, "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert message in err and err.count("\n") == 0 and not out.exists()

@@ -147,3 +147,7 @@ def test_wheel_config_section():
         config_from_dict({"wheel": {"base_to_camera": [0, 0, 0, 0, 0, 0, 2]}})
     with pytest.raises(InputError, match="wheel.model"):
         config_from_dict({"wheel": {"model": "tank"}})
+    with pytest.raises(InputError, match="wheel.calibration_prior.*scales must be positive"):
+        config_from_dict({"wheel": {"calibration_prior": [1.0, 1.0, 0.0]}})
+    with pytest.raises(InputError, match="wheel.calibration_prior.*X must be invertible"):
+        config_from_dict({"wheel": {"model": "linear", "calibration_prior": [1, 0, 0, 1, 0, 0, 0, 0, 1]}})

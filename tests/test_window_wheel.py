@@ -81,6 +81,10 @@ def test_the_marginal_prior_carries_the_calibration(seq):
     assert np.sqrt(cov[0, 0]) < 0.5 * wheel.settings.prior_sigma
     report = wheel.report()
     assert report["model"] == "diff_drive" and report["sigmas"] is not None and report["observed"][0]
+    assert report["source"] == wheel.log.source  # which log, and where the camera sat on the base
+    b2c = np.array(report["base_to_camera"])
+    np.testing.assert_allclose(b2c[:3], [0.2, 0.0, 1.0], atol=1e-12)
+    assert abs(b2c[3:] @ [-0.5, 0.5, -0.5, 0.5]) == pytest.approx(1.0, abs=1e-12)
 
 
 def _pose_graph_sigmas(motions: np.ndarray, model: str = "diff_drive") -> np.ndarray:

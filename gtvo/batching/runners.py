@@ -17,6 +17,8 @@ import traceback
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
+from gtvo.core.interrupt import interrupts_held
+
 #: Environment of every worker: single-threaded BLAS and numba (set before numpy is imported).
 WORKER_ENV: dict[str, str] = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
                               "NUMBA_NUM_THREADS": "1"}
@@ -31,7 +33,7 @@ OnDone = Callable[[int, dict[str, Any]], None]
 def init_worker() -> None:
     """Process-pool initializer: single-threaded BLAS and numba in this worker; Ctrl-C is left to
     the parent, which ends the workers (no traceback from every worker). The parent starts its
-    workers with SIGINT blocked (:func:`_interrupts_held`), so a Ctrl-C to the process group while
+    workers with SIGINT blocked (:func:`gtvo.core.interrupt.interrupts_held`), so a Ctrl-C to the process group while
     a worker starts up is dropped here rather than raised in its start-up."""
     os.environ.update(WORKER_ENV)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
@@ -132,7 +134,7 @@ def _pool_round(indices: list[int], jobs: list[dict[str, Any]], workers: int, on
     pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=init_worker)
     broken: list[int] = []
     try:
-        with _interrupts_held():  # the workers start here (one per submit), inheriting SIGINT blocked
+        with interrupts_held():  # the workers start here (one per submit), inheriting SIGINT blocked
             futures = {pool.submit(task, jobs[i]): i for i in indices}
         for fut in as_completed(futures):
             try:
@@ -188,27 +190,6 @@ def _discard_unfinished(jobs: list[dict[str, Any]]) -> None:
     from gtvo.core.atomic import discard_unfinished  # noqa: PLC0415
 
     discard_unfinished([Path(job["out"]) for job in jobs if "out" in job], file_names=(RECORD_NAME,))
-
-
-@contextlib.contextmanager
-def _interrupts_held() -> Iterator[None]:
-    """Hold back SIGINT during the block: blocked in this thread (processes started here inherit
-    the mask) and, should another thread take it, only recorded; it is raised again once the
-    block is over. Outside the main thread, or under a handler not set from Python: no change."""
-    handler = signal.getsignal(signal.SIGINT)
-    if threading.current_thread() is not threading.main_thread() or handler is None:
-        yield
-        return
-    caught: list[int] = []
-    signal.signal(signal.SIGINT, lambda signum, frame: caught.append(signum))
-    mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
-    try:
-        yield
-    finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, mask)
-        signal.signal(signal.SIGINT, handler)
-    if caught:
-        signal.raise_signal(signal.SIGINT)  # to the handler that was there (Ctrl-C: KeyboardInterrupt)
 
 
 @contextlib.contextmanager

@@ -136,6 +136,10 @@ def print_report(report: RunReport) -> None:
         print(f"  {k:<{width}} {v:.4g}" if isinstance(v, float) else f"  {k:<{width}} {v}")
     for line in flagged_frame_lines(report.get("frame_outcomes") or {}):
         print(f"  {line}")
+    if report.get("wheel_calibration") is not None:
+        from gtvo.odometry.wheel import wheel_calibration_line  # noqa: PLC0415
+
+        print(f"  {wheel_calibration_line(report['wheel_calibration'])}")
     print(f"  outputs in {report['out']}")
 
 

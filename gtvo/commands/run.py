@@ -56,6 +56,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     wheel = p.add_argument_group("wheel odometry (docs/wheel_odometry.md)")
     for flag, metavar, text in WHEEL_FLAGS:
         wheel.add_argument(flag, metavar=metavar, default=None, help=text)
+    _on_off(p, "parallel",
+            "run the window in a worker process beside the front end (config key window.parallel: "
+            "the second core; the same answer every run; docs/window.md)",
+            "the window after the front end in one process, the sequential order (overrides "
+            "window.parallel of a --config file)")
     add_odometry_options(p)
     add_bag_options(p)
     add_viewer_options(p)
@@ -90,6 +95,8 @@ def main(args: argparse.Namespace) -> int:
     if args.rig_calibration or args.no_rig_calibration:
         config = dataclasses.replace(config, window=dataclasses.replace(config.window,
                                                                         rig_calibration=bool(args.rig_calibration)))
+    if args.parallel or args.no_parallel:
+        config = dataclasses.replace(config, window=dataclasses.replace(config.window, parallel=bool(args.parallel)))
     if args.refine and config.mode != "window":
         raise InputError(f"--refine needs --mode window (got --mode {config.mode}): it refines the window's keyframes")
     if args.refine or args.no_refine:

@@ -55,9 +55,19 @@ def run(args: argparse.Namespace) -> int:
     if not (MIN_SIDE <= args.width <= MAX_SIDE and MIN_SIDE <= args.height <= MAX_SIDE):
         raise InputError(f"--width and --height must be between {MIN_SIDE} and {MAX_SIDE}, got {args.width}x{args.height}")
     wheels = None
-    if args.wheel is not None:
+    if args.wheel is None:
+        given = [flag for flag, value, default in (("--wheel-calibration", args.wheel_calibration, "1,1,1"),
+                                                   ("--wheel-noise", args.wheel_noise, 0.0),
+                                                   ("--wheel-baseline", args.wheel_baseline, DEFAULT_NOMINAL_BASELINE))
+                 if value != default]
+        if given:
+            raise InputError(f"{', '.join(given)} describe the wheel odometry: add --wheel arcs or --wheel pose")
+    else:
         calibration = args.wheel_calibration.replace(",", " ").split()
-        cal = parse_floats(args.wheel_calibration, 9 if len(calibration) == 9 else 3, "--wheel-calibration")
+        if len(calibration) not in (3, 9):
+            raise InputError(f"--wheel-calibration must be 3 numbers (k_L,k_R,k_b) or 9 (X row-major), "
+                             f"got {args.wheel_calibration!r}")
+        cal = parse_floats(args.wheel_calibration, len(calibration), "--wheel-calibration")
         wheels = WheelSimulation(kind=args.wheel, calibration=tuple(cal), noise=args.wheel_noise, seed=args.seed,
                                  nominal_baseline=args.wheel_baseline)
     seq = make_synthetic_sequence(n_frames=args.frames, width=args.width, height=args.height, motion=args.motion,

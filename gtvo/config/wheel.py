@@ -10,7 +10,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gtvo.core.lie import quaternions_to_rotations
-from gtvo.datasets.wheel import DEFAULT_NOMINAL_BASELINE, MAX_GAP_S
+from gtvo.datasets.wheel import DEFAULT_NOMINAL_BASELINE, MAX_GAP_S, MAX_SPEED_M_S
 from gtvo.datasets.wheel_files import WheelReadOptions
 from gtvo.core.settings import SettingError, check_settings, setting
 from gtvo.window.wheel import WheelSettings
@@ -50,8 +50,11 @@ class WheelConfig:
             ``none``: no wheel odometry from the bag.
         max_gap: the longest time between two wheel readings (s) that is interpolated; a longer gap
             is refused, naming the file and row (or bag topic and message).
+        max_speed: the fastest a wheel (arcs, after ``tick_scale``) or the base (pose) may move between
+            two readings (m/s); faster is refused, naming the file and row: readings in another unit
+            (encoder ticks without ``tick_scale``, millimetres).
         calibration_prior: the calibration's prior mean: the diff-drive ``[k_L, k_R, k_b]`` or the
-            linear model's 9 entries of X row-major; null: nominal (all scales 1, X = I). The window
+            linear model's 9 entries of X row-major (scales positive, X invertible); null: nominal (all scales 1, X = I). The window
             estimates the calibration from it (docs/window.md, "Wheel odometry").
         calibration_prior_sigma: the prior's sigma of every calibration parameter (a scale, or an
             entry of X): what a parameter the motion does not observe keeps as its sigma.
@@ -74,6 +77,7 @@ class WheelConfig:
     right_joint: str | None = None
     topic: str | None = None
     max_gap: float = setting(MAX_GAP_S, "(0, 3600]")
+    max_speed: float = setting(MAX_SPEED_M_S, "(0, 10000]")
     calibration_prior: tuple[float, ...] | None = setting(None, "[-100, 100]")
     calibration_prior_sigma: float = setting(WheelSettings.prior_sigma, "(0, 10]")
     translation_sigma: float = setting(WheelSettings.translation_sigma, "(0, 100]")
@@ -88,9 +92,13 @@ class WheelConfig:
         if abs(norm - 1.0) > 1e-3:
             raise SettingError("base_to_camera", f"qx, qy, qz, qw must be a unit quaternion, its norm is {norm:.6g}")
         size = {"diff_drive": 3, "linear": 9}[self.model]
-        if self.calibration_prior is not None and len(self.calibration_prior) != size:
-            raise SettingError("calibration_prior", f"the {self.model} model has {size} parameters, "
-                               f"got {len(self.calibration_prior)}")
+        prior = self.calibration_prior
+        if prior is not None and len(prior) != size:
+            raise SettingError("calibration_prior", f"the {self.model} model has {size} parameters, got {len(prior)}")
+        if prior is not None and self.model == "diff_drive" and min(prior) <= 0:
+            raise SettingError("calibration_prior", f"the wheel and track-width scales must be positive, got {list(prior)}")
+        if prior is not None and self.model == "linear" and abs(np.linalg.det(np.reshape(prior, (3, 3)))) < 1e-6:
+            raise SettingError("calibration_prior", f"the linear model's X must be invertible, got {list(prior)}")
 
     @property
     def T_base_cam(self) -> NDArray[np.float64]:
@@ -104,4 +112,5 @@ class WheelConfig:
         """The settings the wheel readers take (:func:`gtvo.datasets.open_sequence`'s ``wheel_options``)."""
         return WheelReadOptions(topic=self.topic, tick_scale=self.tick_scale, nominal_baseline=self.nominal_baseline,
                                 wheel_radius=self.wheel_radius, left_joint=self.left_joint,
-                                right_joint=self.right_joint, max_gap=self.max_gap)
+                                right_joint=self.right_joint, max_gap=self.max_gap,
+                                max_speed=self.max_speed)

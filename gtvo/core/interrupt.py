@@ -15,9 +15,11 @@ a Ctrl-C while it prints its summary or exits no longer turns that into exit cod
 
 from __future__ import annotations
 
+import contextlib
 import signal
 import threading
 from types import FrameType
+from typing import Iterator
 
 _interrupted = False
 
@@ -55,3 +57,24 @@ def outputs_in_place() -> None:
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGINT, signal.SIG_IGN)
     _interrupted = False
+
+
+@contextlib.contextmanager
+def interrupts_held() -> Iterator[None]:
+    """Hold back SIGINT during the block: blocked in this thread (processes started here inherit
+    the mask) and, should another thread take it, only recorded; it is raised again once the
+    block is over. Outside the main thread, or under a handler not set from Python: no change."""
+    handler = signal.getsignal(signal.SIGINT)
+    if threading.current_thread() is not threading.main_thread() or handler is None:
+        yield
+        return
+    caught: list[int] = []
+    signal.signal(signal.SIGINT, lambda signum, frame: caught.append(signum))
+    mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, mask)
+        signal.signal(signal.SIGINT, handler)
+    if caught:
+        signal.raise_signal(signal.SIGINT)  # to the handler that was there (Ctrl-C: KeyboardInterrupt)

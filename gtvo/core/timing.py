@@ -17,7 +17,7 @@ activates its clock for each frame; the factors and the window only mark their s
 The stages of a gtvo frame (:data:`FRAME_STAGES`; docs/evaluation.md, "Where a frame's time goes")::
 
     reading, tracking, point_selection, stereo_search, keyframe_setup, window_build,
-    linearisation, solve, marginalisation, covariances, outputs, other
+    linearisation, solve, marginalisation, covariances, window_wait, outputs, other
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ from typing import Any, Callable, Iterator, Mapping, Sequence, TypeVar
 #: The stages of a gtvo run, in the order of a frame's work (what each covers: docs/evaluation.md).
 FRAME_STAGES: tuple[str, ...] = ("reading", "tracking", "point_selection", "stereo_search", "keyframe_setup",
                                  "window_build", "linearisation", "solve", "marginalisation", "covariances",
-                                 "outputs", "other")
+                                 "window_wait", "outputs", "other")
 
 _ACTIVE: contextvars.ContextVar[StageClock | None] = contextvars.ContextVar("gtvo_stage_clock", default=None)
 

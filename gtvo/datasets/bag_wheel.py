@@ -156,7 +156,7 @@ def read_wheel_topic(where: Path, topic: str, options: WheelReadOptions) -> tupl
                 source += " (twist integrated: the pose is constant)"
             poses = integrate_twists(times, twists)
         values, kind = poses, "pose"
-    times, values = check_readings(times, values, kind, source, rows, "message", options.max_gap)
+    times, values = check_readings(times, values, kind, source, rows, "message", options.max_gap, options.max_speed)
     odo = WheelOdometry(times, kind, values, source, options.nominal_baseline)  # type: ignore[arg-type]
     return odo, base_frame
 

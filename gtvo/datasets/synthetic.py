@@ -203,6 +203,8 @@ class SyntheticSequence(Sequence):
         scene: the :class:`SyntheticScene` (render any other view with ``scene.render``).
         affine_left, affine_right: (N, 2) known ``(a, b)`` per frame: ``I = exp(a) * R + b``.
         noise_sigma: standard deviation (gray) of the i.i.d. Gaussian noise added to every image.
+        wheel_model: with wheel odometry, the calibration model that recovers the simulated error
+            (:attr:`gtvo.datasets.synthetic_robot.WheelSimulation.model`; ``wheel.yaml``'s), else None.
 
     Exact depth is :meth:`true_depth` (not ``load_depth``, which marks RGB-D sequences), the
     surface seen by each pixel :meth:`face_ids`, and pixels away from creases and silhouettes
@@ -213,6 +215,7 @@ class SyntheticSequence(Sequence):
     affine_left: FloatArray | None = None
     affine_right: FloatArray | None = None
     noise_sigma: float = 0.0
+    wheel_model: str | None = None
     _renderer: _FrameRenderer | None = field(default=None, repr=False)
     #: the renderer's frame of each of this sequence's frames (None: the same index), so that
     #: ``truncated`` / ``subsampled`` sub-sequences keep the exact depth and faces of their frames
@@ -326,7 +329,8 @@ def make_synthetic_sequence(n_frames: int = 30, width: int = 320, height: int = 
     wheel = None if wheels is None else simulate_sequence_wheels(times, poses, wheels, f"{name} wheels")
     return SyntheticSequence(name, "stereo", camera, times, renderer.left, renderer.right,
                              None, poses, None, [], wheel, scene=scene, affine_left=affine_left,
-                             affine_right=affine_right, noise_sigma=float(noise_sigma), _renderer=renderer)
+                             affine_right=affine_right, noise_sigma=float(noise_sigma),
+                             wheel_model=None if wheels is None else wheels.model, _renderer=renderer)
 
 
 # -------------------------------------------------------------------------------------------- writer
@@ -388,4 +392,5 @@ def _write_kitti_files(seq: Sequence, out: Path, shown: Path, progress: bool) ->
                                        encoding="utf-8")
     if seq.wheel_odometry is not None:
         write_wheel_csv(seq.wheel_odometry, out / WHEEL_CSV)
-        (out / "wheel.yaml").write_text(wheel_config_yaml(seq.wheel_odometry), encoding="utf-8")
+        model = getattr(seq, "wheel_model", None) or "diff_drive"
+        (out / "wheel.yaml").write_text(wheel_config_yaml(seq.wheel_odometry, model), encoding="utf-8")

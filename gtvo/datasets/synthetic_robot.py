@@ -100,6 +100,8 @@ class WheelSimulation:
                              f"{show(self.calibration)}")
         if len(self.calibration) == 3 and min(self.calibration) <= 0:
             raise InputError(f"wheel scales k_L, k_R, k_b must be positive, got {show(self.calibration)}")
+        if len(self.calibration) == 9 and abs(np.linalg.det(np.reshape(self.calibration, (3, 3)))) < 1e-6:
+            raise InputError(f"the linear model's X must be invertible, got {show(self.calibration)}")
         if not (np.isfinite(self.noise) and self.noise >= 0):
             raise InputError(f"wheel noise must be finite and >= 0, got {show(self.noise)}")
         if not (np.isfinite(self.nominal_baseline) and self.nominal_baseline > 0):
@@ -109,6 +111,12 @@ class WheelSimulation:
     def T_base_cam(self) -> FloatArray:
         """``base_to_camera`` as a 4x4 transform."""
         return pose_from_vector(self.base_to_camera)
+
+    @property
+    def model(self) -> str:
+        """The calibration model whose parameters ``calibration`` holds: ``"linear"`` (9 entries of X)
+        or ``"diff_drive"`` (``k_L, k_R, k_b``): the ``wheel.model`` that recovers it."""
+        return "linear" if len(self.calibration) == 9 else "diff_drive"
 
 
 
@@ -122,13 +130,14 @@ def simulate_sequence_wheels(times: FloatArray, T_world_cam: FloatArray, wheels:
     return WheelOdometry(odo.times, odo.kind, odo.values, odo.source, odo.nominal_baseline, wheels.T_base_cam)
 
 
-def wheel_config_yaml(odometry: WheelOdometry) -> str:
+def wheel_config_yaml(odometry: WheelOdometry, model: str = "diff_drive") -> str:
     """The config file's ``wheel:`` section that reads ``odometry`` as written beside a synthetic
-    sequence: its base-to-camera transform and nominal baseline (``gtvo run --config wheel.yaml``)."""
+    sequence: the calibration ``model`` to estimate (:attr:`WheelSimulation.model`), its
+    base-to-camera transform and nominal baseline (``gtvo run --config wheel.yaml``)."""
     from gtvo.core.lie import rotations_to_quaternions  # noqa: PLC0415
 
     T = odometry.base_to_camera if odometry.base_to_camera is not None else pose_from_vector(SYNTHETIC_BASE_TO_CAMERA)
     vector = [*T[:3, 3].tolist(), *rotations_to_quaternions(T[:3, :3])[0].tolist()]
     return ("# the wheel odometry of a synthetic ground robot (gtvo synthetic): gtvo run --config wheel.yaml\n"
-            f"wheel:\n  base_to_camera: [{', '.join(f'{v:.12g}' for v in vector)}]\n"
+            f"wheel:\n  model: {model}\n  base_to_camera: [{', '.join(f'{v:.12g}' for v in vector)}]\n"
             f"  nominal_baseline: {odometry.nominal_baseline!r}\n  wheel_radius: {SYNTHETIC_WHEEL_RADIUS!r}\n")

@@ -38,13 +38,18 @@ WHEEL_COLUMNS: dict[str, tuple[str, ...]] = {"pose": ("x", "y", "theta"), "arcs"
 MAX_GAP_S = 1.0
 #: The nominal track width (m) when none is configured (``wheel.nominal_baseline``).
 DEFAULT_NOMINAL_BASELINE = 0.5
+#: The fastest a wheel (arcs) or the base (pose) may move between two readings that the readers
+#: accept (m/s, 180 km/h; ``wheel.max_speed``): faster is refused, naming the row, as readings in
+#: the wrong unit (encoder ticks without ``wheel.tick_scale``, millimetres).
+MAX_SPEED_M_S = 50.0
 
 
 def check_readings(times: ArrayLike, values: ArrayLike, kind: str, source: str,
                    rows: ArrayLike | None = None, row_name: str = "row",
-                   max_gap: float | None = None) -> tuple[FloatArray, FloatArray]:
+                   max_gap: float | None = None, max_speed: float | None = None) -> tuple[FloatArray, FloatArray]:
     """``(times, values)`` as float arrays, checked: (N,) times strictly increasing, (N, 2) or (N, 3)
-    values of ``kind``, all finite, and (with ``max_gap``) no gap longer than ``max_gap`` seconds.
+    values of ``kind``, all finite, (with ``max_gap``) no gap longer than ``max_gap`` seconds and
+    (with ``max_speed``) no faster motion (:func:`check_speed`).
 
     Raises:
         InputError: one line naming ``source`` and the first bad reading as ``<row_name> <rows[i]>``
@@ -79,7 +84,31 @@ def check_readings(times: ArrayLike, values: ArrayLike, kind: str, source: str,
         i = int(np.flatnonzero(step > max_gap)[0]) + 1
         raise refuse(i, f"a gap of {step[i - 1]:.3f} s since the previous reading (at most {max_gap:g} s is "
                         "interpolated: wheel.max_gap)")
+    if max_speed is not None:
+        check_speed(t, v, kind, source, where, row_name, max_speed)
     return t, v
+
+
+def check_speed(times: FloatArray, values: FloatArray, kind: str, source: str, rows: ArrayLike,
+                row_name: str, max_speed: float) -> None:
+    """Refuse readings (checked by :func:`check_readings`; arcs in metres) in which a wheel (arcs) or
+    the base (pose) moves faster than ``max_speed`` m/s between two readings: a unit error (ticks
+    without ``wheel.tick_scale``, millimetres) that would otherwise pass as a wildly wrong calibration.
+
+    Raises:
+        InputError: one line naming ``source`` and the reading as ``<row_name> <rows[i]>``.
+    """
+    d = np.diff(values, axis=0)
+    moved = np.abs(d).max(axis=1) if kind == "arcs" else np.hypot(d[:, 0], d[:, 1])
+    speed = moved / np.diff(times)
+    if np.any(speed > max_speed):
+        i = int(np.flatnonzero(speed > max_speed)[0])
+        what = "a wheel" if kind == "arcs" else "the base"
+        hint = ("encoder ticks? set wheel.tick_scale (m per tick)" if kind == "arcs"
+                else "not metres? the pose must be in metres and radians")
+        raise InputError(f"{row_name} {int(np.asarray(rows).reshape(-1)[i + 1])}: {what} moved {moved[i]:.4g} m in "
+                         f"{times[i + 1] - times[i]:.4g} s ({speed[i]:.4g} m/s, more than wheel.max_speed "
+                         f"{max_speed:g} m/s): {hint}", source)
 
 
 @dataclass(frozen=True, eq=False)

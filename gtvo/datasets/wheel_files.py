@@ -17,7 +17,8 @@ from pathlib import Path
 import numpy as np
 
 from gtvo.datasets._common import parse_float_table, read_rows
-from gtvo.datasets.wheel import DEFAULT_NOMINAL_BASELINE, MAX_GAP_S, WHEEL_COLUMNS, WheelOdometry, check_readings
+from gtvo.datasets.wheel import (DEFAULT_NOMINAL_BASELINE, MAX_GAP_S, MAX_SPEED_M_S, WHEEL_COLUMNS, WheelOdometry,
+                                 check_readings, check_speed)
 from gtvo.errors import InputError
 
 #: The name of the wheel odometry file beside a sequence (inside its folder).
@@ -37,6 +38,7 @@ class WheelReadOptions:
         wheel_radius: metres per radian of a JointState wheel position; None: JointState refused.
         left_joint, right_joint: JointState joint names; None: the names containing left / right.
         max_gap: the longest gap between readings (s) accepted.
+        max_speed: the fastest motion between readings (m/s, after ``tick_scale``) accepted.
     """
 
     topic: str | None = None
@@ -46,6 +48,7 @@ class WheelReadOptions:
     left_joint: str | None = None
     right_joint: str | None = None
     max_gap: float = MAX_GAP_S
+    max_speed: float = MAX_SPEED_M_S
 
 
 def read_wheel_csv(path: str | Path, options: WheelReadOptions = WheelReadOptions()) -> WheelOdometry:
@@ -54,7 +57,8 @@ def read_wheel_csv(path: str | Path, options: WheelReadOptions = WheelReadOption
     Raises:
         InputError: one line naming the file and the line: a header that is neither
             ``time,x,y,theta`` nor ``time,left,right``, a row of the wrong width, not a number, NaN,
-            a time not after the previous row's, a gap longer than ``options.max_gap``.
+            a time not after the previous row's, a gap longer than ``options.max_gap``, a wheel
+            (after ``options.tick_scale``) or the base faster than ``options.max_speed``.
     """
     path = Path(path)
     rows = read_rows(path, 1, delimiter=",")
@@ -76,6 +80,7 @@ def read_wheel_csv(path: str | Path, options: WheelReadOptions = WheelReadOption
                                    max_gap=options.max_gap)
     if kind == "arcs":
         values = values * options.tick_scale
+    check_speed(times, values, kind, str(path), lines, "line", options.max_speed)
     return WheelOdometry(times, kind, values, str(path), options.nominal_baseline)  # type: ignore[arg-type]
 
 

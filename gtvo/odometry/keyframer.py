@@ -26,16 +26,15 @@ from gtvo.core.timing import stage
 from gtvo.datasets.sequence import Frame
 from gtvo.frontend import KeyframePoints
 from gtvo.frontend.keyframes import needs_keyframe
-from gtvo.frontend.rig_offset import correct_right_image
-from gtvo.frontend.stereo_affine import estimate_stereo_affine
-from gtvo.frontend.stereo_depth import stereo_inverse_depth
 from gtvo.frontend.tracking import TrackingKeyframe, TrackingResult, frame_pyramid
+from gtvo.errors import InputError
 from gtvo.odometry.estimates import Keyframe, TooFewPoints, rigid_pose
 from gtvo.odometry.history import FrameHistory
 from gtvo.odometry.keyframe_points import frame_points
+from gtvo.odometry.window_link import KeyframeForWindow, WindowLink, WindowUpdate
 from gtvo.odometry.window_schedule import WindowSchedule
-from gtvo.window import SlidingWindowOptimizer, WindowKeyframe, WindowResult
-from gtvo.window.depth_change import tracked_translation_scale
+from gtvo.odometry.window_worker import WindowWorker
+from gtvo.window import SlidingWindowOptimizer, WindowResult
 from gtvo.window.rig import RigOffset
 from gtvo.window.wheel import WheelCalibration
 
@@ -52,7 +51,9 @@ class Keyframer:
 
     Attributes:
         keyframes: every keyframe made so far (window mode: with the last optimised pose and depths).
-        window: the sliding window (window mode), else None.
+        window: the sliding window (window mode), else None: the
+            :class:`gtvo.window.SlidingWindowOptimizer`, or with ``window.parallel`` the
+            :class:`gtvo.odometry.window_worker.WindowWorker` that runs it beside the front end.
         window_results: one :class:`gtvo.window.WindowResult` per window optimisation.
         schedule: when the window is optimised.
         candidate: the last good frame with its left image, which the next frame may promote to a
@@ -66,28 +67,46 @@ class Keyframer:
         self.config = config
         self.history = history
         self.keyframes: list[Keyframe] = []
-        self.window: SlidingWindowOptimizer | None = None
+        #: the window's side (:class:`WindowLink`, in this process) or its worker process
+        #: (:class:`WindowWorker`, ``window.parallel``); None in track mode
+        self.link: WindowLink | None = None
+        self.worker: WindowWorker | None = None
+        self.window: SlidingWindowOptimizer | WindowWorker | None = None
         self.window_results: list[WindowResult] = []
         self.schedule = WindowSchedule(config.window, config.photometric, self.pinhole)
         self.candidate: tuple[Frame, NDArray[np.float32]] | None = None
         self._by_index: dict[int, Keyframe] = {}
-        self._window_affine: dict[int, NDArray[np.float64]] = {}  # keyframe index -> (a, b) in the window
         # keyframe index -> per point, the most other keyframes a window optimisation compared it with
         self._observed: dict[int, NDArray[np.int64]] = {}
-        if config.mode == "window":
-            baseline = camera.baseline if isinstance(camera, StereoCamera) else None
-            wcfg = config.window
-            rig = baseline is not None and wcfg.rig_calibration and wcfg.backend == "lm"
-            self.window = SlidingWindowOptimizer(self.pinhole, baseline, wcfg, rig_offset=np.zeros(2) if rig else None,
-                                                 photometric=config.photometric,
-                                                 wheel=wheel if wcfg.backend == "lm" else None)
+        if config.mode == "window" and config.window.parallel:
+            if wheel is not None:
+                raise InputError("window.parallel does not carry wheel odometry yet: run it with --no-parallel "
+                                 "(window.parallel: false)")
+            if config.refine.enabled:
+                raise InputError("the whole-log refinement needs every keyframe of the window, which a parallel "
+                                 "window keeps in its worker: run it with --no-parallel (window.parallel: false)")
+            self.window = self.worker = WindowWorker(camera, config)
+        elif config.mode == "window":
+            self.link = WindowLink(camera, config, wheel=wheel if config.window.backend == "lm" else None)
+            self.window = self.link.window
             # the whole-log refinement needs every keyframe (gtvo.refinement): kept only when it runs
             self.window.retain_keyframes = config.refine.enabled
 
     @property
     def rig(self) -> RigOffset | None:
-        """The rig offset the window estimates (its one owner), None when not estimated."""
+        """The rig offset the window estimates (its one owner; a parallel window: the worker's, as of
+        its last applied update), None when not estimated."""
         return None if self.window is None else self.window.rig
+
+    def right_brightness(self) -> tuple[float, float] | None:
+        """The right camera's brightness ``(a, b)`` relative to the left one from the newest window
+        keyframe (a parallel window: as of its last applied update); None without one."""
+        if self.worker is not None:
+            last = self.worker.keyframes[-1].stereo_affine if self.worker.keyframes else None
+        else:
+            wk = self.window.keyframes if self.window is not None else []
+            last = None if not wk or wk[-1].right is None else wk[-1].stereo_affine
+        return None if last is None else (float(last[0]), float(last[1]))
 
     def keyframe(self, index: int) -> Keyframe | None:
         """The keyframe made from frame ``index``, None when that frame is not a keyframe."""
@@ -166,9 +185,25 @@ class Keyframer:
 
     def finish(self) -> None:
         """Optimise the keyframes that joined the window since its last optimisation and re-express
-        their frames; nothing to do in track mode or when none is waiting."""
-        if self.window is not None and self.schedule.waiting and self._optimize_window():
+        their frames; nothing to do in track mode or when none is waiting. A parallel window: its
+        every update is applied (the front end waits for the worker)."""
+        if self.worker is not None:
+            if self.schedule.waiting:
+                self.schedule.waiting = 0
+                self.worker.optimize()
+            applied = False
+            for update in self.worker.finish():
+                self._apply(update)
+                applied = True
+            if applied:
+                self._re_express()
+        elif self.window is not None and self.schedule.waiting and self._optimize_window():
             self._re_express()
+
+    def close(self) -> None:
+        """End the window's worker process (``window.parallel``); nothing to do otherwise."""
+        if self.worker is not None:
+            self.worker.close()
 
     # -- the window link ------------------------------------------------------------------------
     def _join_window(self, frame: Frame, right_image: NDArray[np.float32] | None, T_world_cam: gtsam.Pose3,
@@ -176,106 +211,87 @@ class Keyframer:
                      tracked: tuple[int, NDArray[np.float64]] | None,
                      pyramid: list[GradientImage]) -> tuple[gtsam.Pose3, KeyframePoints]:
         """Add a new keyframe to the window and optimise on schedule; returns its pose and points
-        (optimised when the window ran).
-
-        The new keyframe's affine in the window's brightness reference: a frame tracked with
-        ``(a, b)`` against a keyframe at ``(a_h, b_h)`` sees ``exp(a) I_h + b``, i.e.
-        ``a_t = a_h + a``, ``b_t = b + exp(a) b_h``.
-        """
+        (optimised when the window ran; a parallel window: moved by the updates applied now)."""
         assert self.window is not None
-        affine = np.zeros(2)
-        if tracked is not None and tracked[0] in self._window_affine:
-            a_h, b_h = self._window_affine[tracked[0]]
-            a, b = np.asarray(tracked[1], dtype=float)
-            affine = np.array([a_h + a, b + np.exp(a) * b_h])
-        elif self.window.keyframes:
-            affine = self.window.keyframes[-1].affine.copy()
-        right = None
-        clip = self.config.photometric.clip_range
-        stereo_affine = np.zeros(2)
-        left_img = pyramid[0]  # the window keyframe's left image with gradients: the pyramid's level 0
-        if isinstance(self.camera, StereoCamera):
-            assert right_image is not None
-            with stage("keyframe_setup"):  # the right image with gradients
-                right = GradientImage(right_image, clip_range=clip)
-            rig = self.rig
-            stereo_affine = estimate_stereo_affine(self.pinhole, self.camera.baseline, left_img, right, pts.pixels,
-                                                   pts.inverse_depth, pts.variance,
-                                                   sigma_intensity=self.config.photometric.sigma_intensity,
-                                                   offset=None if rig is None else rig.offset)
-        wk = WindowKeyframe(frame.index, T_world_cam, affine, left_img, pts.pixels, pts.inverse_depth,
-                            pts.variance, right=right, depth_prior=right is None, stereo_affine=stereo_affine,
-                            timestamp=float(frame.timestamp) if np.isfinite(frame.timestamp) else None)
-        self.window.add_keyframe(wk)
+        timestamp = float(frame.timestamp) if np.isfinite(frame.timestamp) else None
+        anchor = None
+        if self.worker is not None and self.keyframes:
+            anchor = (self.keyframes[-1].index, self.keyframes[-1].T_world_cam.matrix())
+        request = KeyframeForWindow(frame.index, timestamp, T_world_cam, pts, tracked, pyramid[0], right_image, anchor)
+        if self.link is not None:
+            self.link.join(request)
         self.schedule.waiting += 1
         follows = bool(self.keyframes) and self.history.latest_other_than(frame.index) == self.keyframes[-1].index
-        if self.keyframes and self.schedule.may_wait(tracked is not None, follows, self.keyframes[-1].T_world_cam,
-                                                      T_world_cam, pts):
-            self._window_affine = {w.index: w.affine.copy() for w in self.window.keyframes}
+        wait = bool(self.keyframes) and self.schedule.may_wait(tracked is not None, follows,
+                                                                self.keyframes[-1].T_world_cam, T_world_cam, pts)
+        if self.worker is not None:
+            if not wait:
+                self.schedule.waiting = 0
+            self.worker.join(request, optimize=not wait)
+            # the next frames may track against its stereo depths, or it waits for its window now
+            lag = bool(self.keyframes) and self.schedule.may_go_unrefined(
+                tracked is not None, follows, self.keyframes[-1].T_world_cam, T_world_cam, pts)
+            updates = self.worker.due() if lag else self.worker.finish()
+            for update in updates:
+                T_world_cam = self._apply(update, T_world_cam)
+            new = updates[-1].members[-1] if updates and not lag else None
+            if new is not None and new.index == frame.index:
+                return new.pose, dataclasses.replace(pts, inverse_depth=new.inverse_depth.copy())
             return T_world_cam, pts
-        if not self._optimize_window():  # sets _window_affine too
+        if wait:
             return T_world_cam, pts
-        return wk.pose, dataclasses.replace(pts, inverse_depth=wk.inverse_depth.copy())
+        update = self._optimize_window()
+        if update is None:
+            return T_world_cam, pts
+        new = update.members[-1]
+        assert new.index == frame.index
+        return new.pose, dataclasses.replace(pts, inverse_depth=new.inverse_depth.copy())
 
-    def _optimize_window(self) -> bool:
-        """Optimise the window and write its poses and depths back to the keyframes made so far
-        (the newest one, not made yet, takes them from the window keyframe); False when the window
-        had nothing to optimise (fewer than two keyframes, no target)."""
-        assert self.window is not None
+    def _optimize_window(self) -> WindowUpdate | None:
+        """Optimise the window (in this process) and write its poses and depths back to the
+        keyframes made so far (the newest one, not made yet, takes them from the update); None when
+        the window had nothing to optimise (fewer than two keyframes, no target)."""
+        assert self.link is not None
         self.schedule.waiting = 0
-        rig = self.window.rig
-        x_was_estimated = rig is not None and rig.x_estimated
-        held_depths = ({w.index: w.inverse_depth.copy() for w in self.window.keyframes}
-                       if rig is not None and not x_was_estimated else None)
-        res = self.window.optimize(self.config.solver.window)
-        if rig is not None and rig.x_estimated and not x_was_estimated:
-            assert held_depths is not None
-            self._research_window_depths(rig)
-            res = self.window.optimize(self.config.solver.window) or res
-            self._rescale_tracked_frames(held_depths)
-        self._window_affine = {w.index: w.affine.copy() for w in self.window.keyframes}
-        if res is None:
-            return False
-        self.window_results.append(res)
-        for index, n in self.window.observation_counts().items():
+        update = self.link.optimize()
+        if update is not None:
+            self._apply(update)
+        return update
+
+    def _apply(self, update: WindowUpdate, T_new: gtsam.Pose3 | None = None) -> gtsam.Pose3 | None:
+        """Write a window update back: the frames tracked against keyframes whose depths changed
+        scale (the rig offset's release), the results, the observation counts, the keyframes'
+        poses and depths. A parallel window's update is older than the front end's newest
+        keyframes: those (and ``T_new``, the pose of the keyframe being made) move with the
+        update's newest keyframe, as the worker places them. Returns ``T_new`` so moved."""
+        if update.tracked_scales:
+            self.history.rescale_tracked(update.tracked_scales, self._by_index)
+        self.window_results.append(update.result)
+        for index, n in update.observed.items():
             prev = self._observed.get(index)
             self._observed[index] = n if prev is None or len(prev) != len(n) else np.maximum(prev, n)
-        for w in self.window.keyframes:
+        newest = self._by_index.get(update.members[-1].index)
+        correction = None
+        if self.worker is not None and newest is not None:
+            correction = update.members[-1].pose.compose(newest.T_world_cam.inverse())
+        for w in update.members:
             old = self._by_index.get(w.index)
             if old is not None:
                 old.T_world_cam = w.pose
                 old.points = dataclasses.replace(old.points, inverse_depth=w.inverse_depth.copy())
-        return True
-
-    def _rescale_tracked_frames(self, held_depths: dict[int, NDArray[np.float64]]) -> None:
-        """Once the window releases ``delta_x``, the frames tracked against its keyframes while it
-        was held have translations in the scale of the depths then (``held_depths``, by keyframe
-        index): each is scaled by :func:`gtvo.window.depth_change.tracked_translation_scale` of its
-        keyframe's depths before and after (docs/window.md, "Rig calibration", the hold's transient)."""
-        assert self.window is not None
-        scales = {w.index: tracked_translation_scale(held_depths[w.index], w.inverse_depth)
-                  for w in self.window.keyframes
-                  if w.index in held_depths and held_depths[w.index].shape == w.inverse_depth.shape}
-        self.history.rescale_tracked(scales, self._by_index)
-
-    def _research_window_depths(self, rig: RigOffset) -> None:
-        """Once the window releases ``delta_x`` (docs/window.md, "Rig calibration"), its keyframes'
-        depths, initialised with the right image corrected by the offset known then, are searched
-        again against the right image corrected by the estimate (and their stereo affine fitted
-        again): a point whose new search matches takes its inverse depth and variance."""
-        assert self.window is not None and isinstance(self.camera, StereoCamera)
-        for w in self.window.keyframes:
-            if w.right is None:
-                continue
-            right = correct_right_image(w.right.image, rig.offset)
-            res = stereo_inverse_depth(w.image.image, right, self.camera, w.pixels, self.config.frontend.stereo,
-                                       self.config.photometric.clip_range)
-            w.inverse_depth = np.where(res.valid, res.inverse_depth, w.inverse_depth)
-            w.variance = np.where(res.valid, res.variance, w.variance)
-            w.stereo_affine = estimate_stereo_affine(self.pinhole, self.camera.baseline, w.image, w.right, w.pixels,
-                                                     w.inverse_depth, w.variance,
-                                                     sigma_intensity=self.config.photometric.sigma_intensity,
-                                                     offset=rig.offset)
+        if self.worker is not None:
+            self.worker.keyframes = update.members
+            self.worker.rig = update.rig
+            self.worker.results.append(update.result)
+            if update.result.covariances is not None:
+                self.worker.covariances.update(update.result.covariances)
+            if correction is not None:
+                for kf in self.keyframes:
+                    if kf.index > update.members[-1].index:
+                        kf.T_world_cam = correction.compose(kf.T_world_cam)
+                if T_new is not None:
+                    T_new = correction.compose(T_new)
+        return T_new
 
     def _re_express(self) -> None:
         """Have the history re-express the frames of the window's keyframes at their new poses."""

@@ -8,7 +8,8 @@ learns from every recorded frame (:meth:`MotionModel.update`). Two models (``mot
   window re-expresses);
 * ``kalman``: the constant-acceleration Kalman filter of :mod:`gtvo.motion.model` on the planar
   pose ``(X, Z, theta)``, fed every good frame's pose (a lost frame's pose is the filter's own
-  prediction: it only predicts over it; suspect frames are never fed).
+  prediction: it only predicts over it; a ``wheel_carried`` frame's pose is the calibrated wheel
+  odometry's, a measurement it fuses; suspect frames are never fed).
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ import gtsam
 from gtvo.config import MotionModelConfig
 from gtvo.motion.model import (ConstantAccelerationFilter, T_world_cam_from_planar_pose,
                                planar_pose_from_T_world_cam)
-from gtvo.odometry.estimates import FrameEstimate, rigid_pose
+from gtvo.odometry.estimates import FrameEstimate, FrameOutcome, rigid_pose
 from gtvo.odometry.history import FrameHistory
 
 
@@ -66,7 +67,7 @@ class MotionModel:
             return
         good = self.history.good(2)
         dt = good[1].timestamp - good[0].timestamp  # over suspect frames, which it never saw
-        if estimate.lost:  # the pose is the filter's own prediction: no measurement to fuse
+        if estimate.outcome is FrameOutcome.LOST:  # the pose is the filter's own prediction: nothing to fuse
             self.kalman.predict(dt)
         else:
             self.kalman.step(z, dt)

@@ -79,9 +79,7 @@ class OdometryView:
         self.residual_scale = float(k * photometric.sigma_intensity)
         rig = keyframer.rig
         self.rig_offset: FloatArray | None = None if rig is None else rig.offset.copy()
-        wk = keyframer.window.keyframes if keyframer.window is not None else []
-        self.right_brightness: tuple[float, float] | None = (
-            None if not wk or wk[-1].right is None else (float(wk[-1].stereo_affine[0]), float(wk[-1].stereo_affine[1])))
+        self.right_brightness: tuple[float, float] | None = keyframer.right_brightness()
 
     @classmethod
     def after(cls, history: "FrameHistory", keyframer: "Keyframer", photometric: "PhotometricConfig",

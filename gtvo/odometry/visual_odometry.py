@@ -83,11 +83,15 @@ class VisualOdometry:
         estimates: one :class:`FrameEstimate` per processed frame (``history.estimates``).
         keyframes: every keyframe made so far (``keyframer.keyframes``).
         window: the :class:`gtvo.window.SlidingWindowOptimizer` (window mode), else None; its
-            ``rig`` is the rig offset's estimate when the window calibrates the rig.
+            ``rig`` is the rig offset's estimate when the window calibrates the rig. With
+            ``window.parallel`` the :class:`gtvo.odometry.window_worker.WindowWorker` that runs it in
+            a worker process (its keyframes, covariances and rig as of its last applied update; call
+            :meth:`close`, or use the odometry as a context manager, to end the worker early).
         window_results: one :class:`gtvo.window.WindowResult` per window optimisation.
         failures: frames whose tracking failed (re-initialised or lost).
         lost_frames: frames whose tracking failed and that had too few points to become a
-            keyframe (:attr:`FrameEstimate.lost`, wheel-carried ones included); also counted in ``failures``.
+            keyframe, placed by the motion model's guess (``LOST``; not the ``WHEEL_CARRIED`` ones,
+            placed by the wheels); also counted in ``failures``.
         wheel: the wheel odometry's calibration (:class:`gtvo.window.wheel.WheelCalibration`; the
             window's in window mode), None without wheel odometry.
         clock: the :class:`gtvo.core.timing.StageClock` every :meth:`process` charges (where the
@@ -139,6 +143,17 @@ class VisualOdometry:
         still follow (the next keyframe joins the window as usual)."""
         with self.clock.activate("other") if self.clock is not None else nullcontext(), single_threaded_blas():
             self.keyframer.finish()
+
+    def close(self) -> None:
+        """End the window's worker process (``window.parallel``; it also ends when this object is
+        collected or the process exits); nothing to do otherwise. The estimates stay readable."""
+        self.keyframer.close()
+
+    def __enter__(self) -> "VisualOdometry":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
 
     def trajectory(self, name: str = "gtvo") -> Trajectory:
         """The estimated left-camera trajectory so far (every frame; window mode: call :meth:`finish`
@@ -277,7 +292,8 @@ class VisualOdometry:
         by_wheel = "" if T_wheel is None else ", placed by the calibrated wheel odometry"
         new_kf = self.keyframer.try_make(frame, left, T_place, pyramid=pyramid)
         if new_kf is None:
-            self.lost_frames += 1
+            if T_wheel is None:  # a wheel-carried frame is placed by a measurement: not lost
+                self.lost_frames += 1
             return Outcome(FrameOutcome.LOST if T_wheel is None else FrameOutcome.WHEEL_CARRIED, T_place, track,
                            kf.T_world_cam.between(T_place),
                            f"tracking failed ({track.result.reason}); too few points with a depth to re-initialise"

@@ -11,10 +11,14 @@ from __future__ import annotations
 from typing import Any
 
 import gtsam
+import numpy as np
+from numpy.typing import ArrayLike
 
 from gtvo.config.wheel import WheelConfig
 from gtvo.datasets.wheel import WheelOdometry
+from gtvo.errors import InputError
 from gtvo.window import SlidingWindowOptimizer
+from factors.wheel_odometry import DIFF_DRIVE_NAMES
 from gtvo.window.wheel import WheelCalibration, WheelSettings
 
 
@@ -39,3 +43,45 @@ def wheel_report(wheel: WheelCalibration | None, window: SlidingWindowOptimizer 
     if window is not None and window.wheel is not None:
         window.wheel_covariance()
     return {"wheel_calibration": wheel.report()}
+
+
+def wheel_coverage_warning(log: WheelOdometry, frame_times: ArrayLike) -> str | None:
+    """The line a run prints when ``log`` covers only part of the frames' times (the keyframes
+    outside get no wheel factor and are not carried through blindness), None when it covers them all.
+
+    Raises:
+        InputError: ``log`` overlaps none of the frames (its times are in another clock), naming its source.
+    """
+    t = np.asarray(frame_times, dtype=np.float64).reshape(-1)
+    if t.size == 0:
+        return None
+    a, b, t0, t1 = float(log.times[0]), float(log.times[-1]), float(t.min()), float(t.max())
+    span = f"{a:.3f}..{b:.3f} s"
+    if b < t0 or a > t1:
+        raise InputError(f"the wheel odometry's times {span} do not overlap the frames' {t0:.3f}..{t1:.3f} s: "
+                         "its times must be in the sequence's clock (seconds)", log.source)
+    inside = int(np.count_nonzero((t >= a) & (t <= b)))
+    if inside == t.size:
+        return None
+    return (f"the wheel odometry ({log.source}) covers {span}, {inside} of the {t.size} frames "
+            f"({t0:.3f}..{t1:.3f} s): keyframes outside it get no wheel factor and are not carried by the wheels")
+
+
+def wheel_calibration_line(calibration: dict[str, Any]) -> str:
+    """report.json's ``wheel_calibration`` in one line: the model and each parameter's estimate with
+    its marginal sigma (``(prior)`` when the run did not observe it; none when the window did not
+    estimate it), e.g.
+    ``wheel calibration (diff_drive, w.csv): left_wheel_scale 1.0200 +- 0.0062, ..., track_width_scale 1 +- 0.1 (prior)``."""
+    if calibration["model"] == "linear":
+        names = [f"X{i // 3 + 1}{i % 3 + 1}" for i in range(9)]
+        values = list(calibration["X"])
+    else:
+        names = list(DIFF_DRIVE_NAMES)
+        values = [calibration[n] for n in names]
+    sigmas = calibration.get("sigmas") or [None] * len(values)
+    observed = calibration.get("observed") or [True] * len(values)
+    parts = [f"{n} {v:.4f}" + ("" if s is None else f" +- {s:.4f}") + ("" if o else " (prior)")
+             for n, v, s, o in zip(names, values, sigmas, observed)]
+    unestimated = "" if calibration.get("sigmas") is not None else " (not estimated: track mode or the fixed-lag back end)"
+    source = f", {calibration['source']}" if calibration.get("source") else ""
+    return f"wheel calibration ({calibration['model']}{source}): " + ", ".join(parts) + unestimated

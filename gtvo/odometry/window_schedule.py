@@ -44,6 +44,13 @@ class WindowSchedule:
         return (tracked and self.config.backend == "lm" and self.waiting < self.config.optimize_every
                 and follows_last_keyframe and self.depths_suffice(T_last_keyframe, T_new, points))
 
+    def may_go_unrefined(self, tracked: bool, follows_last_keyframe: bool, T_last_keyframe: gtsam.Pose3,
+                         T_new: gtsam.Pose3, points: KeyframePoints) -> bool:
+        """Whether the next frames may track against the new keyframe's own stereo depths while
+        the window refines them in its worker process (``window.parallel``): :meth:`may_wait`'s
+        conditions but the count and the back end (docs/window.md, "The window beside the tracker")."""
+        return tracked and follows_last_keyframe and self.depths_suffice(T_last_keyframe, T_new, points)
+
     def depths_suffice(self, T_last_keyframe: gtsam.Pose3, T_new: gtsam.Pose3, points: KeyframePoints) -> bool:
         """True when the new keyframe's own (unrefined) depths are good enough to track the next
         frame against: their inverse-depth error moves a point by less than the residual pattern's

@@ -90,6 +90,13 @@ class WindowConfig:
             False; once either is, both are estimated. False: the rectified model throughout.
         rig_offset_sigma: sigma (px) of the zero-mean prior on the rig offset, set once (with the
             gauge prior); afterwards the marginalisation prior carries what the window learnt.
+        parallel: in :class:`gtvo.odometry.VisualOdometry`, the window runs in a worker process
+            beside the front end (the second core), and the front end applies the window's result
+            of its ``n``-th keyframe once it has sent keyframe ``n + 2`` (at once when the next
+            frames should not track against its stereo depths): the same answer in every
+            run, a little different from the sequential order (False), in which every keyframe
+            waits for its window (docs/window.md, "The window beside the tracker"). ``gtvo run
+            --no-parallel`` turns it off; ``gtvo batch`` turns it off unless its config asks.
     """
 
     size: int = setting(7, "[2, 100]")
@@ -107,6 +114,7 @@ class WindowConfig:
     covariances: bool = True
     rig_calibration: bool = True
     rig_offset_sigma: float = setting(2.0, "[0.01, 100]")
+    parallel: bool = False
 
     def __post_init__(self) -> None:
         check_settings(self)  # backend and the ranges declared above

@@ -3,7 +3,8 @@
 The window estimates the right image's offset ``(delta_x, delta_y)`` (px) against its rectification
 (docs/window.md, "Rig calibration"). :class:`RigOffset` is that estimate's only owner: the window
 (:class:`gtvo.window.SlidingWindowOptimizer`, attribute ``rig``) updates it after every
-optimisation, the keyframes' stereo search and the report read it. Nobody keeps a copy.
+optimisation, the keyframes' stereo search and the report read it. Nobody keeps a copy (but a parallel
+window's front end, which reads the worker's as of its last applied update: docs/window.md).
 
 * The first stereo pair's 2-D search gives ``delta_y`` (:meth:`RigOffset.start_from`). When it is
   not significant (:func:`offset_significant`), the window solves the rectified model (no rig

@@ -171,14 +171,20 @@ class WheelCalibration:
         return T_world_cam.compose(T_bc.inverse()).compose(planar_pose(v)).compose(T_bc)
 
     def report(self) -> dict[str, Any]:
-        """``report.json``'s ``wheel_calibration`` (docs/evaluation.md): the model, the estimate
+        """``report.json``'s ``wheel_calibration`` (docs/evaluation.md): the model, the wheel log's
+        source, the ``T_base_cam`` used (``[x, y, z, qx, qy, qz, qw]``: the config's or a bag's
+        ``/tf_static``), the estimate
         (``X`` row-major, or the diff-drive parameters by name), the marginal sigmas (None before the
         window computed them), the prior's, per parameter whether the run observed it (sigma below
         :data:`OBSERVED_FRACTION` of the prior's) and the warning line (None: nothing to say)."""
         s = self.settings
         sigma = None if self.covariance is None else np.sqrt(np.maximum(np.diag(self.covariance), 0.0))
         prior = self.prior_sigmas()
-        out: dict[str, Any] = {"model": s.model}
+        T_bc = s.T_base_cam
+        q = T_bc.rotation().toQuaternion()
+        out: dict[str, Any] = {"model": s.model, "source": getattr(self.log, "source", None),
+                               "base_to_camera": [*(float(x) for x in T_bc.translation()),
+                                                  float(q.x()), float(q.y()), float(q.z()), float(q.w())]}
         if s.model == "linear":
             out["X"] = [float(x) for x in self.estimate]
         else:

@@ -1,0 +1,179 @@
+"""The window beside the tracker (issue 34): ``window.parallel`` against the sequential order, in one run.
+
+    python benchmarks/parallel_window.py [--repeat 3] [--steps 1,2,3] [--logs] [--json OUT]
+    python benchmarks/parallel_window.py --starts 0,1,2,3,5,8      # ATE from other first frames
+
+On the preloaded frames of KITTI_sequence_1 at every ``--steps`` frame step, runs ``gtvo run``'s
+default configuration (window mode) with ``window.parallel`` on and off, alternating
+(parallel, sequential, parallel, ...), ``--repeat`` times each, each from a fresh
+``VisualOdometry`` after one warm-up run of each mode (compiled kernels loaded). A parallel run's
+clock starts once its worker process has answered (its start-up, timed apart, is excluded as the
+front end's imports are); it ends after ``vo.finish()``. Per mode: frames/s (median), CPU seconds
+per frame (this process's, plus the worker's: the work done on both cores), the worker's peak
+resident memory and its shared image buffers, the bound the CPU split puts on the parallel
+run's speed-up on an idle machine (the sequential run's CPU per frame over the busier process's), ATE (SE(3)) and scale (path length over the ground
+truth's), tracking failures, and whether every repeat gave the same trajectory bytes. ``--logs``
+adds every other shared log (KITTI raw, EuRoC, TUM RGB-D: 60 frames each) once per mode, for
+tracking failures. ``--starts`` runs KITTI_sequence_1 at every frame from each given first frame
+once per mode and prints the ATEs and their ratio (how much of an ATE difference is the start's
+chance). The load average (``uptime``) is printed at the start and the end: on a shared
+machine only the ratios of one run mean anything.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import hashlib
+import os
+import resource
+import statistics
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from benchmarks.vo_bench import KITTI_SEQUENCE_1, SHARED_DATA, fmt, load_frames, markdown_table, score  # noqa: E402
+from gtvo.config import OdometryConfig  # noqa: E402
+from gtvo.core.atomic import write_json  # noqa: E402
+from gtvo.datasets import open_sequence  # noqa: E402
+from gtvo.evaluation.trajectory import Trajectory  # noqa: E402
+from gtvo.odometry import VisualOdometry  # noqa: E402
+from gtvo.odometry.window_worker import SLOTS  # noqa: E402
+
+OTHER_LOGS = {"KITTI raw 0001": SHARED_DATA / "kitti_raw_2011_09_26_drive_0001_stereo",
+              "EuRoC V1_01 static": SHARED_DATA / "euroc_v101_static_stereo",
+              "TUM fr3 teddy (RGB-D)": SHARED_DATA / "rgbd_dataset_freiburg3_teddy_first20"}
+
+
+def config_for(parallel: bool) -> OdometryConfig:
+    """``gtvo run``'s default configuration with ``window.parallel`` set."""
+    base = OdometryConfig()
+    return dataclasses.replace(base, window=dataclasses.replace(base.window, parallel=parallel))
+
+
+def one_run(seq: Any, frames: list, parallel: bool) -> dict[str, Any]:
+    """One timed run over ``frames``; the figures of the module docstring."""
+    t_start = time.perf_counter()
+    vo = VisualOdometry(seq.camera, config_for(parallel))
+    worker = vo.keyframer.worker
+    try:
+        started = worker.usage() if worker is not None else None  # the worker is up: its start-up CPU
+        startup = time.perf_counter() - t_start
+        cpu0, t0 = time.process_time(), time.perf_counter()
+        for f in frames:
+            vo.process(f)
+        vo.finish()
+        wall = time.perf_counter() - t0
+        cpu = time.process_time() - cpu0
+        usage = worker.usage() if worker is not None else None
+    finally:
+        vo.close()
+    est = vo.trajectory("gtvo")
+    poses = np.stack([e.T_world_cam for e in vo.estimates])
+    n = len(frames)
+    out = {"frames": n, "wall_s": wall, "fps": n / wall, "cpu_ms_per_frame": 1000 * cpu / n,
+           "worker_cpu_ms_per_frame": None, "worker_rss_mib": None, "startup_s": startup,
+           "failures": vo.failures, "lost": vo.lost_frames, "keyframes": len(vo.keyframes),
+           "optimisations": len(vo.window_results), "sha": hashlib.sha256(poses.tobytes()).hexdigest()[:16]}
+    if usage is not None:
+        assert started is not None
+        out["worker_cpu_ms_per_frame"] = 1000 * (usage.cpu_seconds - started.cpu_seconds) / n
+        out["worker_rss_mib"] = usage.max_rss_mib
+        out["cpu_ms_per_frame"] += out["worker_cpu_ms_per_frame"]
+        out["wait_ms_per_frame"] = 1000 * vo.clock.seconds.get("window_wait", 0.0) / n
+    out.update(score(Trajectory(est.timestamps, est.poses, "gtvo"), seq))
+    return out
+
+
+def compare(name: str, seq: Any, repeat: int) -> list[dict[str, Any]]:
+    """Alternate parallel and sequential runs on ``seq``; one summary row per mode."""
+    frames = load_frames(seq, progress=False)
+    for parallel in (True, False):  # warm-up: kernels loaded in this process and on disk
+        one_run(seq, frames[:10], parallel)
+    runs: dict[bool, list[dict[str, Any]]] = {True: [], False: []}
+    for _ in range(repeat):
+        for parallel in (True, False):
+            runs[parallel].append(one_run(seq, frames, parallel))
+    rows = []
+    for parallel in (True, False):
+        rs = runs[parallel]
+        med = {k: statistics.median(r[k] for r in rs) for k in ("fps", "cpu_ms_per_frame", "wall_s")}
+        first = rs[0]
+        rows.append({"log": name, "mode": "parallel" if parallel else "sequential", "runs": len(rs),
+                     "fps": med["fps"], "fps_runs": [r["fps"] for r in rs], "cpu_ms_per_frame": med["cpu_ms_per_frame"],
+                     "worker_cpu_ms_per_frame": first["worker_cpu_ms_per_frame"],
+                     "wait_ms_per_frame": first.get("wait_ms_per_frame"),
+                     "worker_rss_mib": first["worker_rss_mib"], "startup_s": first["startup_s"],
+                     "ate_m": first["ate_m"], "scale": first["scale"], "seg_t_pct": first["seg_t_pct"],
+                     "failures": first["failures"], "lost": first["lost"], "keyframes": first["keyframes"],
+                     "optimisations": first["optimisations"],
+                     "identical": len({r["sha"] for r in rs}) == 1, "sha": first["sha"]})
+    par, seqr = rows
+    par["fps_ratio"] = par["fps"] / seqr["fps"]
+    par["cpu_ratio"] = par["cpu_ms_per_frame"] / seqr["cpu_ms_per_frame"]
+    par["ate_ratio"] = (par["ate_m"] / seqr["ate_m"]) if par["ate_m"] and seqr["ate_m"] else None
+    # the most a second core can give: the busier process's CPU per frame bounds the parallel run
+    worker = par["worker_cpu_ms_per_frame"] or 0.0
+    par["cpu_bound_ratio"] = seqr["cpu_ms_per_frame"] / max(worker, par["cpu_ms_per_frame"] - worker)
+    return rows
+
+
+def ate_by_start(starts: list[int]) -> int:
+    """ATE (SE(3)) of both modes from each first frame of KITTI_sequence_1, and their ratio."""
+    full = open_sequence(KITTI_SEQUENCE_1)
+    rows = []
+    for start in starts:
+        seq = full._select(list(range(start, len(full))))
+        frames = load_frames(seq, progress=False)
+        ate = [one_run(seq, frames, parallel)["ate_m"] for parallel in (False, True)]
+        rows.append([str(start), fmt(ate[0], ".4f"), fmt(ate[1], ".4f"), fmt(ate[1] / ate[0], ".3f")])
+    print(markdown_table(["first frame", "sequential ATE m", "parallel ATE m", "parallel x sequential"], rows))
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--steps", default="1,2,3", help="frame steps of KITTI_sequence_1 (comma-separated)")
+    ap.add_argument("--logs", action="store_true", help="also every other shared log, once per mode")
+    ap.add_argument("--starts", default=None, help="first frames of KITTI_sequence_1 (comma-separated): ATE only")
+    ap.add_argument("--json", type=Path, default=None)
+    args = ap.parse_args(argv)
+    if args.starts:
+        return ate_by_start([int(s) for s in args.starts.split(",")])
+    print(f"# parallel window: load average at start {os.getloadavg()} on {os.cpu_count()} cores")
+    rows: list[dict[str, Any]] = []
+    for step in [int(s) for s in args.steps.split(",") if s]:
+        seq = open_sequence(KITTI_SEQUENCE_1).subsampled(step)
+        rows += compare(f"KITTI_sequence_1 step {step}", seq, args.repeat)
+    if args.logs:
+        for name, path in OTHER_LOGS.items():
+            if path.is_dir():
+                rows += compare(name, open_sequence(path, max_frames=60), 1)
+    header = ["log", "mode", "frames/s (median)", "x sequential", "bound x seq. (CPU split)",
+              "CPU ms/frame (both processes)", "CPU x seq.",
+              "front end waited ms/frame", "worker RSS MiB", "ATE m", "ATE x seq.", "scale", "seg t %",
+              "failures", "optimisations", "same bytes every run"]
+    table = [[r["log"], r["mode"], fmt(r["fps"], ".2f"), fmt(r.get("fps_ratio"), ".2f"), fmt(r.get("cpu_bound_ratio"), ".2f"),
+              fmt(r["cpu_ms_per_frame"], ".1f"), fmt(r.get("cpu_ratio"), ".2f"), fmt(r.get("wait_ms_per_frame"), ".1f"),
+              fmt(r["worker_rss_mib"], ".0f"), fmt(r["ate_m"], ".4f"), fmt(r.get("ate_ratio"), ".3f"),
+              fmt(r["scale"], ".4f"), fmt(r["seg_t_pct"], ".2f"), str(r["failures"]), str(r["optimisations"]),
+              "yes" if r["identical"] else "NO"] for r in rows]
+    print(markdown_table(header, table))
+    print(f"\nshared image buffers: {SLOTS} slots of the left and right images (KITTI 1241x376: "
+          f"{SLOTS * 2 * 1241 * 376 * 4 / 2**20:.1f} MiB); this process's peak RSS "
+          f"{resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MiB; worker start-up "
+          f"{statistics.median(r['startup_s'] for r in rows if r['mode'] == 'parallel'):.2f} s (median, excluded)")
+    print(f"load average at the end {os.getloadavg()}")
+    if args.json is not None:
+        write_json(args.json, {"rows": rows, "load_end": os.getloadavg()})
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

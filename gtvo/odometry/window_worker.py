@@ -1,0 +1,377 @@
+"""The window beside the tracker: a :class:`gtvo.odometry.window_link.WindowLink` in a worker process.
+
+``window.parallel: true`` (docs/window.md, "The window beside the tracker"). The window's host
+factors hold the GIL, so a thread would not run them beside the tracker: the window lives in a
+worker process (``python -c`` on a socket pair) that owns its whole state (keyframes with their
+images, the marginal prior, the rig offset). The front end sends each new keyframe (pose, points, the keyframe it was tracked
+against) with its two images in grey levels through shared memory (a ring of :data:`SLOTS`
+buffers in one ``memfd`` mapped by both: nothing to unlink, nothing for a resource tracker to
+report), and gets back per keyframe one reply: the :class:`gtvo.odometry.window_link.WindowUpdate`
+of the optimisation it asked for (poses, depths, figures), or nothing.
+
+**The determinism rule.** The front end applies the reply for its ``n``-th keyframe right after
+it has sent keyframe ``n + LAG`` (:data:`LAG` = 2), waiting for it if the worker is not done, and
+every reply at :meth:`WindowWorker.finish`; a keyframe whose own stereo depths the next frames
+should not track against (:meth:`gtvo.odometry.window_schedule.WindowSchedule.may_go_unrefined`)
+waits for its reply at once. The worker handles its messages in order and its
+replies depend on nothing else, so what the front end knows at every point of the sequence does
+not depend on timing or load: two runs give byte-identical trajectories.
+
+**Clean ends.** The worker ignores SIGINT (the parent ends the run with its one line) and ends
+when its pipe closes: when the parent closes it (:meth:`WindowWorker.close`), exits or dies. An
+exception in the worker comes back as the same exception, raised by the front end at its next
+reply; a worker that died (killed) is one :class:`WindowWorkerError`.
+"""
+
+from __future__ import annotations
+
+import mmap
+import os
+import pickle
+import resource
+import socket
+import subprocess
+import sys
+import traceback
+import weakref
+import dataclasses
+from collections import deque
+from dataclasses import dataclass
+from multiprocessing.connection import Connection
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from factors.photometric import GradientImage
+from gtvo.config import OdometryConfig
+from gtvo.core.camera import PinholeCamera, StereoCamera
+from gtvo.core.interrupt import interrupts_held
+from gtvo.core.timing import StageClock, stage
+from gtvo.odometry.blas import single_threaded_blas
+from gtvo.odometry.window_link import KeyframeForWindow, WindowLink, WindowMember, WindowUpdate
+from gtvo.window.fixed_lag import FixedLagBackend
+from gtvo.window.optimizer import LMBackend
+from gtvo.window.rig import RigOffset
+
+#: The front end applies the reply for keyframe ``n`` once it has sent keyframe ``n + LAG``.
+LAG = 2
+#: Shared image buffers: keyframe ``n`` uses slot ``n % SLOTS``, free once keyframe ``n - SLOTS``'s reply is in.
+SLOTS = LAG + 1
+
+
+class WindowWorkerError(RuntimeError):
+    """The window's worker process ended without an answer (killed, or out of memory)."""
+
+
+@dataclass
+class WorkerUsage:
+    """The worker's own figures: CPU seconds (user + system), peak resident memory (MiB), and
+    wall seconds by stage of its :class:`gtvo.core.timing.StageClock`."""
+
+    cpu_seconds: float
+    max_rss_mib: float
+    seconds_by_stage: dict[str, float]
+
+
+class WindowWorker:
+    """The window in a worker process (module docstring), as the keyframer sees it: the window's
+    members as of the last applied update, their covariances, the rig offset, the results.
+
+    Args:
+        camera: a :class:`StereoCamera` for stereo input, a :class:`PinholeCamera` for RGB-D.
+        config: the run's settings (``config.window.parallel``).
+    """
+
+    def __init__(self, camera: StereoCamera | PinholeCamera, config: OdometryConfig) -> None:
+        pinhole = camera.left if isinstance(camera, StereoCamera) else camera
+        self.config = config
+        self.backend = FixedLagBackend if config.window.backend == "fixed_lag" else LMBackend
+        #: the window's keyframes after the last applied update, oldest first
+        self.keyframes: list[WindowMember] = []
+        #: frame index -> 6x6 pose covariance (as :attr:`SlidingWindowOptimizer.covariances`)
+        self.covariances: dict[int, NDArray[np.float64]] = {}
+        self.results: list[Any] = []
+        stereo = isinstance(camera, StereoCamera)
+        rig = stereo and config.window.rig_calibration and config.window.backend == "lm"
+        #: the worker's rig offset as of the last applied update (the front end's stereo search reads it)
+        self.rig: RigOffset | None = RigOffset(np.zeros(2)) if rig else None
+        self._rig_sent = False
+        self._sent = 0  # messages sent
+        self._received: deque[Any] = deque()  # replies received, not yet handed out, in order
+        self._n_received = 0
+        self._joins: deque[int] = deque()  # per keyframe sent whose reply is not handed out: its message number
+        self._shape = (int(pinhole.height), int(pinhole.width))
+        planes = 2 if stereo else 1
+        self._slot_size = planes * self._shape[0] * self._shape[1] * 4
+        self._memory, memory_fd = _shared_memory(SLOTS * self._slot_size)
+        parent_sock, child_sock = socket.socketpair()
+        env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in sys.path if isinstance(p, str)))
+        with interrupts_held():  # the worker starts with SIGINT blocked, then ignores it
+            self._process = subprocess.Popen(
+                [sys.executable, "-c", _WORKER_MAIN, str(child_sock.fileno()), str(memory_fd)],
+                pass_fds=(child_sock.fileno(), memory_fd), stdin=subprocess.DEVNULL, env=env, close_fds=True)
+        child_sock.close()
+        os.close(memory_fd)
+        self._conn = Connection(os.dup(parent_sock.fileno()))
+        parent_sock.close()
+        self._finalizer = weakref.finalize(self, _stop, self._conn, self._process, self._memory)
+        try:  # the worker's settings: the one message without a reply
+            self._conn.send(("start", camera, config, self._shape, SLOTS, self._slot_size))
+        except OSError:
+            raise self._died() from None
+
+    # -- what the keyframer calls --------------------------------------------------------------
+    def join(self, request: KeyframeForWindow, optimize: bool) -> None:
+        """Send a new keyframe (and whether the window is optimised after it joins)."""
+        slot = self._sent % SLOTS
+        self._receive_until(self._sent - SLOTS)  # the slot's last keyframe was read
+        left = request.left.image if isinstance(request.left, GradientImage) else request.left
+        images = [left] if request.right is None else [left, request.right]
+        shared = all(np.shape(im) == self._shape for im in images)
+        if shared:
+            buf = _slot(self._memory, slot, self._slot_size, self._shape)
+            for k, im in enumerate(images):
+                buf[k] = im
+            request = _without_images(request)
+        else:  # an image of another size than the camera's: sent through the pipe
+            request = _without_images(request, left=np.asarray(left, np.float32), right=request.right)
+        rig = None
+        if self.rig is not None and not self._rig_sent and self.rig.initial is not None:
+            rig, self._rig_sent = self.rig, True
+        self._send(("join", request, slot if shared else None, optimize, rig))
+        self._joins.append(self._sent - 1)
+
+    def optimize(self) -> None:
+        """Ask for an optimisation of the window as it is (its reply comes with :meth:`finish`)."""
+        self._send(("optimize",))
+        self._joins.append(self._sent - 1)
+
+    def due(self) -> list[WindowUpdate]:
+        """The updates the front end applies now: those of the keyframes joined :data:`LAG` or more
+        keyframes ago (waits for them), oldest first."""
+        return self._hand_out(len(self._joins) - LAG)
+
+    def finish(self) -> list[WindowUpdate]:
+        """Every update not handed out yet (waits for all)."""
+        return self._hand_out(len(self._joins))
+
+    def rig_offset_covariance(self) -> NDArray[np.float64] | None:
+        """:meth:`gtvo.window.SlidingWindowOptimizer.rig_offset_covariance` of the worker's window now."""
+        return self._ask(("rig_offset_covariance",))
+
+    def usage(self) -> WorkerUsage:
+        """The worker's CPU time, peak memory and stage seconds so far."""
+        return self._ask(("usage",))
+
+    def solver_name(self, requested: str) -> str:
+        """The solver the worker's window runs for ``requested`` (:meth:`SlidingWindowOptimizer.solver_name`)."""
+        return "gtsam_isam2" if self.backend is FixedLagBackend else str(requested)
+
+    @property
+    def pid(self) -> int:
+        """The worker's process id."""
+        return self._process.pid
+
+    def close(self) -> None:
+        """End the worker (closing its pipe; it exits at its next message); idempotent."""
+        self._finalizer()
+
+    # -- the pipe ------------------------------------------------------------------------------
+    def _send(self, message: tuple) -> None:
+        try:
+            self._conn.send(message)
+        except (BrokenPipeError, EOFError, OSError):
+            raise self._died() from None
+        self._sent += 1
+
+    def _hand_out(self, count: int) -> list[WindowUpdate]:
+        out = []
+        for _ in range(max(count, 0)):
+            number = self._joins.popleft()
+            self._receive_until(number)
+            reply = self._received.popleft()
+            if reply is not None:
+                out.append(reply)
+        return out
+
+    def _ask(self, message: tuple) -> Any:
+        self._send(message)
+        number = self._sent - 1
+        self._receive_until(number)
+        # the replies of earlier messages stay queued in front (in order); this one is the last
+        return self._received.pop()
+
+    def _receive_until(self, number: int) -> None:
+        """Receive replies until that of message ``number`` is in (the front end waits here)."""
+        if self._n_received > number:
+            return
+        with stage("window_wait"):
+            while self._n_received <= number:
+                try:
+                    kind, value = self._conn.recv()
+                except (EOFError, OSError):
+                    raise self._died() from None
+                self._n_received += 1
+                if kind == "error":
+                    self.close()
+                    raise value
+                self._received.append(value)
+
+    def _died(self) -> WindowWorkerError:
+        try:
+            code: int | None = self._process.wait(timeout=5)
+        except subprocess.TimeoutExpired:
+            code = None
+        self.close()
+        return WindowWorkerError(f"the window's worker process ended unexpectedly (exit code {code}): "
+                                 "killed, or out of memory; run with --no-parallel to keep the window in one process")
+
+
+def _without_images(request: KeyframeForWindow, left: Any = None, right: Any = None) -> KeyframeForWindow:
+    """The request with its images replaced (None: they travel through shared memory)."""
+    from dataclasses import replace  # noqa: PLC0415
+
+    return replace(request, left=left, right=right)
+
+
+def _stop(conn: Connection, process: subprocess.Popen, memory: mmap.mmap) -> None:
+    """Close the worker's pipe (it exits at once when idle, else after its current optimisation)."""
+    try:
+        conn.close()
+    except OSError:
+        pass
+    try:
+        process.wait(timeout=10)
+    except subprocess.TimeoutExpired:
+        process.kill()
+        process.wait(timeout=5)
+    try:
+        memory.close()
+    except BufferError:  # an array still views it: the mapping goes with the process
+        pass
+
+
+def _shared_memory(size: int) -> tuple[mmap.mmap, int]:
+    """An anonymous shared mapping of ``size`` bytes and its file descriptor (for the worker)."""
+    if hasattr(os, "memfd_create"):
+        fd = os.memfd_create("gtvo-window", os.MFD_CLOEXEC)
+    else:  # pragma: no cover - not Linux: an unlinked temporary file
+        import tempfile  # noqa: PLC0415
+
+        with tempfile.TemporaryFile() as f:
+            fd = os.dup(f.fileno())
+    os.ftruncate(fd, size)
+    return mmap.mmap(fd, size), fd
+
+
+def _slot(memory: mmap.mmap, slot: int, slot_size: int, shape: tuple[int, int]) -> NDArray[np.float32]:
+    """The images of shared slot ``slot`` as a (planes, H, W) float32 view."""
+    return np.frombuffer(memory, dtype=np.float32, count=slot_size // 4, offset=slot * slot_size).reshape(-1, *shape)
+
+
+#: The worker's ``python -c`` program: SIGINT ignored before anything is imported (the parent ends
+#: the run; this process follows its pipe), then :func:`serve` on the descriptors it was given.
+_WORKER_MAIN = ("import signal, sys; signal.signal(signal.SIGINT, signal.SIG_IGN); "
+                "signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT}); "
+                "from gtvo.odometry.window_worker import main; main(int(sys.argv[1]), int(sys.argv[2]))")
+
+
+def main(socket_fd: int, memory_fd: int) -> None:
+    """The worker process: its pipe and shared memory from the parent, then :func:`serve`."""
+    conn = Connection(socket_fd)
+    try:
+        kind, camera, config, shape, slots, slot_size = conn.recv()
+    except (EOFError, OSError):
+        return
+    memory = mmap.mmap(memory_fd, slots * slot_size)
+    with single_threaded_blas():
+        warm_up(camera, config)
+    serve(conn, camera, config, memory, slot_size, shape)
+
+
+def warm_up(camera: StereoCamera | PinholeCamera, config: OdometryConfig) -> None:
+    """Load the window's compiled kernels (numba's disk cache: about half a second of CPU) before
+    the first keyframe comes: one optimisation of a window of two small textured keyframes of this
+    camera's kind. Best effort: a failure here only leaves the loading to the first keyframe."""
+    import gtsam  # noqa: PLC0415
+
+    from gtvo.frontend import KeyframePoints  # noqa: PLC0415
+
+    rng = np.random.default_rng(0)
+    small = PinholeCamera(60.0, 60.0, 32.0, 24.0, 64, 48)
+    cam: StereoCamera | PinholeCamera = small
+    if isinstance(camera, StereoCamera):
+        cam = dataclasses.replace(camera, left=small)
+    texture = (128 + 60 * np.sin(np.arange(64)[None, :] / 3.0) * np.cos(np.arange(48)[:, None] / 4.0)).astype(np.float32)
+    grid = np.stack(np.meshgrid(np.arange(8, 56, 4.0), np.arange(8, 40, 4.0)), -1).reshape(-1, 2)
+    points = KeyframePoints(grid, np.full(len(grid), 0.5), np.full(len(grid), 1e-3), np.full(len(grid), 128.0))
+    try:
+        link = WindowLink(cam, dataclasses.replace(config, window=dataclasses.replace(config.window, parallel=False)))
+        for k in range(2):
+            noise = rng.normal(0, 1, texture.shape).astype(np.float32)
+            right = np.roll(texture, -3, axis=1) + noise if isinstance(camera, StereoCamera) else None
+            link.join(KeyframeForWindow(k, 0.1 * k, gtsam.Pose3(gtsam.Rot3(), np.array([0.0, 0.0, 0.05 * k])),
+                                        points, (k - 1, np.zeros(2)) if k else None, texture + noise, right))
+        link.optimize()
+    except Exception:  # noqa: BLE001,S110 - best effort (module docstring)
+        pass
+
+
+def serve(conn: Connection, camera: StereoCamera | PinholeCamera, config: OdometryConfig,
+          memory: mmap.mmap, slot_size: int, shape: tuple[int, int]) -> None:
+    """The worker's loop: one reply per message, in order, until the pipe closes."""
+    clock = StageClock()
+    link = WindowLink(camera, config)
+    while True:
+        try:
+            message = conn.recv()
+        except (EOFError, OSError):
+            return
+        try:
+            with clock.activate("other"), single_threaded_blas():
+                reply = _handle(link, message, memory, slot_size, shape, clock)
+        except BaseException as exc:  # noqa: BLE001 - every failure goes back to the front end
+            try:
+                conn.send(("error", _portable(exc)))
+            except (BrokenPipeError, EOFError, OSError):
+                return
+            continue
+        try:
+            conn.send(("ok", reply))
+        except (BrokenPipeError, EOFError, OSError):
+            return
+
+
+def _handle(link: WindowLink, message: tuple, memory: mmap.mmap, slot_size: int, shape: tuple[int, int],
+            clock: StageClock) -> Any:
+    kind = message[0]
+    if kind == "join":
+        _, request, slot, optimize, rig = message
+        if rig is not None:
+            link.window.rig = rig
+        if slot is not None:
+            buf = _slot(memory, slot, slot_size, shape)
+            stereo = isinstance(link.camera, StereoCamera)
+            request.left = buf[0].copy()
+            request.right = buf[1].copy() if stereo else None
+        link.join(request)
+        return link.optimize() if optimize else None
+    if kind == "optimize":
+        return link.optimize()
+    if kind == "rig_offset_covariance":
+        return link.window.rig_offset_covariance()
+    if kind == "usage":
+        ru = resource.getrusage(resource.RUSAGE_SELF)
+        return WorkerUsage(ru.ru_utime + ru.ru_stime, ru.ru_maxrss / 1024.0, clock.snapshot())
+    raise ValueError(f"unknown window worker message {kind!r}")
+
+
+def _portable(exc: BaseException) -> BaseException:
+    """``exc`` if it survives pickling, else a RuntimeError with its type, message and traceback."""
+    try:
+        pickle.loads(pickle.dumps(exc))
+        return exc
+    except Exception:  # noqa: BLE001
+        text = "".join(traceback.format_exception_only(type(exc), exc)).strip()
+        return RuntimeError(f"in the window's worker process: {text}")
