@@ -37,6 +37,10 @@ from gtvo.report import RunReport, run_report
 #: that ``--loop-closure`` re-estimates against the final keyframes.
 TRACKED_OUTCOMES = (FrameOutcome.TRACKED, FrameOutcome.RECOVERED)
 
+#: ``covariances.npz``'s source when the whole-log refinement was kept (its graph's marginals).
+REFINED_COVARIANCES = {"gtsam": "gtsam.Marginals of the whole-log refinement's graph",
+                       "handrolled": "inverse of the whole-log refinement's reduced Hessian (hand-rolled)"}
+
 
 def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progress: bool = False,
                      strict: bool = False, warn: Callable[[str], None] | None = None,
@@ -165,7 +169,8 @@ def run(path: str | Path | Sequence, out: str | Path | None = None,
     with tidy_on_failure():  # a run that fails leaves no empty output folder behind
         ensure_output_dir(out_dir)  # an unusable --out is reported before the long work
         vo, traj, summary = process_sequence(seq, config, progress=progress, strict=strict, observers=observers)
-        closed = closed_keyframes = loops = None
+        closed = closed_keyframes = loops = res = refined = None
+        refining = bool(getattr(vo.window, "retain_keyframes", False))  # refine.enabled, sequential window mode
         if config.loops.enabled:
             from gtvo.loops.closing import close_loops_of_run, odometry_covariances  # noqa: PLC0415
 
@@ -173,21 +178,57 @@ def run(path: str | Path | Sequence, out: str | Path | None = None,
             res = close_loops_of_run(seq, traj, [e.index for e in vo.estimates], keyframes, progress=progress,
                                      odometry_covariances=odometry_covariances(vo.estimates, keyframes),
                                      keyframe_points={kf.index: kf.points for kf in vo.keyframes},
-                                     tracking_config=vo.config.tracking, refine_frames=True,
+                                     tracking_config=vo.config.tracking, refine_frames=not refining,
                                      refine=[e.outcome in TRACKED_OUTCOMES for e in vo.estimates],
                                      detector_config=config.loops.detector, photometric=config.photometric)
+        if refining:  # the whole-log refinement (gtvo.refinement; its frames re-placed, or the loop closing's)
+            refined = refine_vo_run(seq, vo, traj, res, progress)
+            traj = refined.trajectory
+        if res is not None:
             closed, closed_keyframes, loops = res.trajectory, res.keyframe_poses, res.summary()
         raise_if_interrupted()
         with vo.clock.activate() if vo.clock is not None else nullcontext(), stage("outputs", absorb=True):
             covariances = keyframe_covariances(vo)
+            if covariances is not None and refined is not None and refined.covariances is not None:
+                covariances = dataclasses.replace(covariances, source=REFINED_COVARIANCES[vo.config.refine.solver])
             info = run_report(seq, traj, summary, config, format=fmt, frame_step=frame_step, loop_closure=loops,
-                              loop_closed=closed, covariances=covariances)
+                              loop_closed=closed, covariances=covariances,
+                              refinement=None if refined is None else refined.summary)
+            if refined is not None and closed_keyframes is None and refined.keyframe_poses:
+                closed_keyframes = refined.keyframe_poses  # the map on the refined keyframes
             report = write_run_outputs(out_dir, traj, seq, info, points=vo.map_points(closed_keyframes),
                                        loop_closed=closed, covariances=covariances,
                                        config_yaml=config_to_yaml(config, f"gtvo {__version__}: gtvo run --config this file"),
                                        stage_figures=lambda: stage_timing(vo))
     report["out"] = str(out_dir)
     return report  # type: ignore[return-value]
+
+
+def refine_vo_run(seq: Sequence, vo: VisualOdometry, trajectory: Trajectory, loop_result: Any,
+                  progress: bool) -> Any:
+    """The whole-log refinement of a finished window run (:func:`gtvo.refinement.run.refine_run`;
+    ``loop_result``: the loop closing's, before its frame refinement, or None). When it is kept,
+    the keyframes' points take its depths and the window's covariances its graph's (the map and
+    ``covariances.npz`` come from the refined graph). Returns its :class:`RunRefinement`."""
+    from gtvo.loops.closing import odometry_covariances  # noqa: PLC0415
+    from gtvo.refinement.run import refine_run  # noqa: PLC0415
+
+    assert vo.window is not None
+    keyframes = [p for p, e in enumerate(vo.estimates) if e.is_keyframe]
+    rig = vo.window.rig
+    refined = refine_run(seq, trajectory, [e.index for e in vo.estimates], keyframes, vo.window.every_keyframe(),
+                         vo.config.window, vo.config.refine, photometric=vo.config.photometric,
+                         tracking=vo.config.tracking, rig_offset=None if rig is None else rig.solved_offset,
+                         keyframe_points={kf.index: kf.points for kf in vo.keyframes},
+                         odometry_covariances=odometry_covariances(vo.estimates, keyframes),
+                         refine=[e.outcome in TRACKED_OUTCOMES for e in vo.estimates], loop_result=loop_result,
+                         progress=progress, warn=lambda msg: print(f"warning: {msg}", file=sys.stderr))
+    for kf in vo.keyframes:
+        if kf.index in refined.inverse_depths:
+            kf.points = dataclasses.replace(kf.points, inverse_depth=refined.inverse_depths[kf.index])
+    if refined.covariances is not None:
+        vo.window.covariances.update(refined.covariances)
+    return refined
 
 
 def keyframe_covariances(vo: VisualOdometry, inflation: float = 1.0) -> KeyframeCovariances | None:

@@ -24,12 +24,14 @@ from gtvo.io.covariances import CovarianceSummary, KeyframeCovariances, covarian
 from gtvo.io.outputs import MapPointsFigures
 from gtvo.loops.closing import LoopClosureSummary
 from gtvo.odometry.summary import OdometrySummary
+from gtvo.refinement.run import RefinementSummary
 
 
 class RunExtras(TypedDict, total=False):
     """The keys of :class:`RunReport` that only some runs have."""
 
     unpaired_messages: dict[str, int]  # a ROS bag: per image topic, the messages that found no partner
+    refine: RefinementSummary  # the whole-log refinement (refine.enabled): what ran, or why not
     out: str  # the output folder: in what gtvo.run returns, not in report.json
 
 
@@ -68,7 +70,8 @@ HEADLINE_FIELDS: tuple[str, ...] = (
 def run_report(seq: Sequence, estimate: Trajectory, odometry: OdometrySummary, config: OdometryConfig, *,
                format: str | None = None, frame_step: int = 1, loop_closure: LoopClosureSummary | None = None,
                loop_closed: Trajectory | None = None,
-               covariances: KeyframeCovariances | None = None) -> RunReport:
+               covariances: KeyframeCovariances | None = None,
+               refinement: RefinementSummary | None = None) -> RunReport:
     """The report of a run of ``seq`` (everything but the map's counts, which the writer adds:
     :func:`gtvo.io.outputs.write_run_outputs`).
 
@@ -82,6 +85,8 @@ def run_report(seq: Sequence, estimate: Trajectory, odometry: OdometrySummary, c
         loop_closure: with ``--loop-closure``, what it found
             (:meth:`gtvo.loops.closing.LoopClosingResult.summary`), and ``loop_closed`` its trajectory.
         covariances: the keyframes' covariances written beside the report, summarised.
+        refinement: the whole-log refinement's ``refine`` block (:mod:`gtvo.refinement.run`), when
+            ``refine.enabled``.
     """
     report: dict[str, Any] = {"sequence": seq.name, "source": None if seq.source is None else str(seq.source)}
     report.update(odometry)
@@ -91,6 +96,8 @@ def run_report(seq: Sequence, estimate: Trajectory, odometry: OdometrySummary, c
         report["unpaired_messages"] = seq.unpaired  # type: ignore[attr-defined]
     if loop_closure is not None:
         report.update(loop_closure)
+    if refinement is not None:
+        report["refine"] = dict(refinement)
     report.update(run_accuracy(seq, estimate))
     if loop_closed is not None:
         report.update(loop_closed_accuracy(seq, loop_closed))

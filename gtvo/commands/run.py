@@ -45,26 +45,33 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "DIR/trajectory_loop_closed.tum as a second output (the map on the loop-closed keyframes)")
     p.add_argument("--no-covariances", action="store_true",
                    help="do not compute the keyframes' pose covariances (no DIR/covariances.npz, no ellipses)")
-    rig = p.add_mutually_exclusive_group()
-    rig.add_argument("--rig-calibration", action="store_true",
-                     help="estimate the stereo rig's rectification error (the right image's offset, px) in the "
-                          "window (config key window.rig_calibration; on by default: docs/window.md)")
-    rig.add_argument("--no-rig-calibration", action="store_true",
-                     help="the rectified model throughout (overrides window.rig_calibration of a --config file)")
+    _on_off(p, "rig-calibration",
+            "estimate the stereo rig's rectification error (the right image's offset, px) in the "
+            "window (config key window.rig_calibration; on by default: docs/window.md)",
+            "the rectified model throughout (overrides window.rig_calibration of a --config file)")
+    _on_off(p, "refine",
+            "after the window pass (and loop closing), optimise one graph over every keyframe and "
+            "re-place the other frames against them (config key refine.enabled; docs/refinement.md)",
+            "no whole-log refinement: the window's answer (overrides refine.enabled of a --config file)")
     wheel = p.add_argument_group("wheel odometry (docs/wheel_odometry.md)")
     for flag, metavar, text in WHEEL_FLAGS:
         wheel.add_argument(flag, metavar=metavar, default=None, help=text)
-    parallel = p.add_mutually_exclusive_group()
-    parallel.add_argument("--parallel", action="store_true",
-                          help="run the window in a worker process beside the front end (config key window.parallel: "
-                               "the second core; the same answer every run; docs/window.md)")
-    parallel.add_argument("--no-parallel", action="store_true",
-                          help="the window after the front end in one process, the sequential order (overrides "
-                               "window.parallel of a --config file)")
+    _on_off(p, "parallel",
+            "run the window in a worker process beside the front end (config key window.parallel: "
+            "the second core; the same answer every run; docs/window.md)",
+            "the window after the front end in one process, the sequential order (overrides "
+            "window.parallel of a --config file)")
     add_odometry_options(p)
     add_bag_options(p)
     add_viewer_options(p)
     p.set_defaults(func=main)
+
+
+def _on_off(p: argparse.ArgumentParser, name: str, on_help: str, off_help: str) -> None:
+    """``--NAME`` and ``--no-NAME``, mutually exclusive (neither: the config's value)."""
+    group = p.add_mutually_exclusive_group()
+    group.add_argument(f"--{name}", action="store_true", help=on_help)
+    group.add_argument(f"--no-{name}", action="store_true", help=off_help)
 
 
 def main(args: argparse.Namespace) -> int:
@@ -90,6 +97,10 @@ def main(args: argparse.Namespace) -> int:
                                                                         rig_calibration=bool(args.rig_calibration)))
     if args.parallel or args.no_parallel:
         config = dataclasses.replace(config, window=dataclasses.replace(config.window, parallel=bool(args.parallel)))
+    if args.refine and config.mode != "window":
+        raise InputError(f"--refine needs --mode window (got --mode {config.mode}): it refines the window's keyframes")
+    if args.refine or args.no_refine:
+        config = dataclasses.replace(config, refine=dataclasses.replace(config.refine, enabled=bool(args.refine)))
     with viewer_observers(args) as observers:
         report = run(args.sequence, out=args.out, config=config, format=args.format,
                      max_frames=args.max_frames, progress=not args.no_progress, strict=args.strict,

@@ -19,6 +19,7 @@ component, each field's default and allowed range declared once beside it
       loops                gtvo.loops.config.LoopClosureConfig (enabled, detector: LoopDetectorConfig
                                            (orb: OrbConfig, verification: VerificationConfig, ...))
       wheel                gtvo.config.wheel.WheelConfig (model, base_to_camera, nominal_baseline, ...)
+      refine               gtvo.refinement.config.RefineConfig (the whole-log refinement)
 
 The photometric model (noise, Huber threshold, pattern, clipped range) is set once, in
 ``photometric``, and the tracker and the window are given that one object. The command line and

@@ -23,6 +23,7 @@ from gtvo.frontend.stereo_depth import StereoSearchConfig
 from gtvo.frontend.tracking import TrackingConfig
 from gtvo.loops.config import LoopClosureConfig
 from gtvo.motion.model import INITIAL_RATE_SIGMAS, MotionNoiseConfig
+from gtvo.refinement.config import RefineConfig
 from gtvo.window import WindowConfig
 
 SolverName = Literal["handrolled", "gtsam"]
@@ -142,6 +143,8 @@ class OdometryConfig:
             recognition and the verification of a loop (gtvo.loops, docs/loop_closure.md).
         wheel: a ground robot's wheel odometry, when the sequence has it: the calibration model, the
             base-to-camera transform and how readings become metres (docs/wheel_odometry.md).
+        refine: the whole-log refinement after the window pass (and loop closing): one graph over
+            every keyframe, then the non-keyframes re-placed (gtvo.refinement, docs/refinement.md).
     """
 
     mode: ModeName = "window"
@@ -156,6 +159,7 @@ class OdometryConfig:
     photometric: PhotometricConfig = field(default_factory=PhotometricConfig)
     loops: LoopClosureConfig = field(default_factory=LoopClosureConfig)
     wheel: WheelConfig = field(default_factory=WheelConfig)
+    refine: RefineConfig = field(default_factory=RefineConfig)
 
     def __post_init__(self) -> None:
         if isinstance(self.solver, str):

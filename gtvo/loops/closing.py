@@ -77,6 +77,8 @@ class LoopClosingResult:
             (the input's when no loop was closed).
         frame_hosts: per pose of ``trajectory``, how many keyframes re-measured it (``refine_frames``;
             0: moved with its keyframe), None when frames were not refined.
+        measured_edges: per candidate, its measured relative pose and information by frame index
+            (the whole-log refinement's loop edges, those ``accepted``).
     """
 
     trajectory: Trajectory
@@ -85,6 +87,8 @@ class LoopClosingResult:
     unrefined: list[tuple[int, int]] = field(default_factory=list)
     keyframe_poses: dict[int, NDArray[np.float64]] = field(default_factory=dict)
     frame_hosts: NDArray[np.int64] | None = None
+    #: per candidate, its direct measurement as a :class:`LoopEdge` between frame indices ``(i, j)``
+    measured_edges: list[LoopEdge] = field(default_factory=list)
 
     def summary(self) -> LoopClosureSummary:
         """``loops_detected`` (verified loops, measured or not), ``loops_unrefined`` (those direct
@@ -150,8 +154,8 @@ def close_loops_of_run(seq: Sequence, est: Trajectory, frame_indices: list[int],
     result = _close(seq, est, frame_indices, kfs, progress, odometry_covariances, keyframe_points, tracker,
                     detector_config)
     if refine_frames and len(kfs) >= 2:
-        _refine_frames(seq, result, frame_indices, kfs, progress, odometry_covariances, keyframe_points, tracker,
-                       refine)
+        refine_result_frames(seq, result, frame_indices, kfs, progress, odometry_covariances, keyframe_points,
+                             tracking_config, refine, photometric=photometric)
     return result
 
 
@@ -167,7 +171,7 @@ def _close(seq: Sequence, est: Trajectory, frame_indices: list[int], kfs: list[i
     if not found:
         return LoopClosingResult(est, keyframe_poses=unchanged)
     rank = {k: r for r, k in enumerate(kfs)}
-    edges, pairs, unrefined = [], [], []
+    edges, pairs, unrefined, measured = [], [], [], []
     for c in found:
         fi, fj = int(frame_indices[c.i]), int(frame_indices[c.j])
         refined = _refine(seq, c, fi, fj, keyframe_points, tracker)
@@ -176,6 +180,7 @@ def _close(seq: Sequence, est: Trajectory, frame_indices: list[int], kfs: list[i
         else:
             edges.append(LoopEdge(rank[c.i], rank[c.j], refined.T_i_j, refined.information))
             pairs.append((fi, fj))
+            measured.append(LoopEdge(fi, fj, refined.T_i_j, refined.information))
     if not edges:
         return LoopClosingResult(est, unrefined=unrefined, keyframe_poses=unchanged)
     info = odometry_informations(len(kfs), odometry_covariances)
@@ -183,14 +188,20 @@ def _close(seq: Sequence, est: Trajectory, frame_indices: list[int], kfs: list[i
     poses = relocate_frames(est.poses, kfs, result.poses)
     traj = Trajectory(est.timestamps.copy(), poses, name=f"{est.name} (loop closed)")
     kf_poses = {int(frame_indices[k]): result.poses[r].copy() for r, k in enumerate(kfs)}
-    return LoopClosingResult(traj, pairs, [bool(a) for a in result.accepted], unrefined, kf_poses)
+    return LoopClosingResult(traj, pairs, [bool(a) for a in result.accepted], unrefined, kf_poses,
+                             measured_edges=measured)
 
 
-def _refine_frames(seq: Sequence, result: LoopClosingResult, frame_indices: list[int], kfs: list[int],
-                   progress: bool, odometry_covariances: Seq[NDArray[np.float64] | None] | None,
-                   keyframe_points: Mapping[int, KeyframePoints] | None, tracker: _Tracker,
-                   refine: Seq[bool] | None) -> None:
-    """Step 4 with ``refine_frames``: ``result.trajectory`` re-estimated frame by frame (in place)."""
+def refine_result_frames(seq: Sequence, result: LoopClosingResult, frame_indices: list[int], kfs: list[int],
+                         progress: bool, odometry_covariances: Seq[NDArray[np.float64] | None] | None,
+                         keyframe_points: Mapping[int, KeyframePoints] | None,
+                         tracking_config: TrackingConfig | None, refine: Seq[bool] | None, *,
+                         photometric: PhotometricConfig | None = None) -> None:
+    """Step 4 with ``refine_frames``: ``result.trajectory`` re-estimated frame by frame against its
+    keyframes (in place; ``frame_hosts`` set); the arguments as :func:`close_loops_of_run`'s
+    (``kfs``: its sorted keyframe positions). Also what the whole-log refinement re-places its
+    non-keyframes with (:mod:`gtvo.refinement.run`)."""
+    tracker = _Tracker(tracking_config, photometric)
     traj = result.trajectory
     points = []
     for k in kfs:

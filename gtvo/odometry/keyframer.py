@@ -82,10 +82,15 @@ class Keyframer:
             if wheel is not None:
                 raise InputError("window.parallel does not carry wheel odometry yet: run it with --no-parallel "
                                  "(window.parallel: false)")
+            if config.refine.enabled:
+                raise InputError("the whole-log refinement needs every keyframe of the window, which a parallel "
+                                 "window keeps in its worker: run it with --no-parallel (window.parallel: false)")
             self.window = self.worker = WindowWorker(camera, config)
         elif config.mode == "window":
             self.link = WindowLink(camera, config, wheel=wheel if config.window.backend == "lm" else None)
             self.window = self.link.window
+            # the whole-log refinement needs every keyframe (gtvo.refinement): kept only when it runs
+            self.window.retain_keyframes = config.refine.enabled
 
     @property
     def rig(self) -> RigOffset | None:

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import time
-from typing import TYPE_CHECKING, Sequence
+from typing import TYPE_CHECKING, Callable, Sequence
 
 import gtsam
 import numpy as np
@@ -27,7 +27,9 @@ def solve_gtsam(camera: PinholeCamera, baseline: float | None, keyframes: Sequen
                 targets: list[list[int]] | None = None, rig_offset: FloatArray | None = None,
                 rig_hold_x: float | None = None, *,
                 photometric: PhotometricConfig = DEFAULT_PHOTOMETRIC,
-                wheel: "WheelCalibration | None" = None) -> WindowResult:
+                wheel: "WheelCalibration | None" = None,
+                extra_factors: gtsam.NonlinearFactorGraph | None = None,
+                on_iteration: Callable[[int, float], None] | None = None) -> WindowResult:
     """Optimise the window with ``gtsam.LevenbergMarquardtOptimizer`` (residuals of the
     ``photometric`` model); updates ``keyframes`` in place.
 
@@ -35,20 +37,20 @@ def solve_gtsam(camera: PinholeCamera, baseline: float | None, keyframes: Sequen
     ``rig_offset`` is the optimised one), None: the rectified model; ``rig_hold_x``: its ``delta_x``
     held at this value (:func:`gtvo.window.problem.rig_prior`). ``wheel``: the wheel factors and the
     calibration variable (from ``wheel.estimate``; the result's ``wheel_calibration`` is the
-    optimised one; ``wheel`` itself is not changed)."""
+    optimised one; ``wheel`` itself is not changed). ``extra_factors``: native GTSAM
+    factors on the keyframes' keys added to the graph (the whole-log refinement's loop edges);
+    ``on_iteration(iteration, cost)``: called after every LM iteration (the optimiser then runs
+    iteration by iteration, :func:`optimize_by_iterations`; a progress bar, a Ctrl-C check)."""
     t0 = time.perf_counter()
     targets = visible_targets(camera, keyframes, config) if targets is None else targets
     graph, values, hosts = build_graph(camera, baseline, keyframes, config, marginal, targets, rig_offset,
                                        rig_hold_x, photometric=photometric, wheel=wheel)
-    params = gtsam.LevenbergMarquardtParams()
-    params.setMaxIterations(config.max_iterations)
-    params.setRelativeErrorTol(config.relative_tolerance)
-    params.setAbsoluteErrorTol(0.0)
-    params.setDiagonalDamping(True)  # Marquardt: lambda scales diag(H), as the hand-rolled solver
-    params.setlambdaUpperBound(1e10)
+    if extra_factors is not None:
+        graph.push_back(extra_factors)
+    params = lm_params(config.max_iterations, config.relative_tolerance)
     opt = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
     initial = opt.error()  # computed by the optimiser at construction: no extra pass
-    result = opt.optimize()
+    result = opt.optimize() if on_iteration is None else optimize_by_iterations(opt, params, on_iteration)
     cost = opt.error()
     depths = {h: f.depths_at(result) for h, f in hosts.items()}  # before Marginals relinearises the hosts
     t_cov = time.perf_counter()
@@ -64,3 +66,31 @@ def solve_gtsam(camera: PinholeCamera, baseline: float | None, keyframes: Sequen
     calib = None if wheel is None else np.asarray(result.atVector(calibration_key()), dtype=float).copy()
     return WindowResult("gtsam", float(initial), float(cost), int(opt.iterations()), time.perf_counter() - t0, n_res,
                         covs, t_cov if covs is not None else 0.0, rig, calib)
+
+
+def lm_params(max_iterations: int, relative_tolerance: float) -> gtsam.LevenbergMarquardtParams:
+    """The window's LM settings: Marquardt's diagonal damping (lambda scales ``diag(H)``, as the
+    hand-rolled solver), no absolute tolerance, lambda up to 1e10."""
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(max_iterations)
+    params.setRelativeErrorTol(relative_tolerance)
+    params.setAbsoluteErrorTol(0.0)
+    params.setDiagonalDamping(True)
+    params.setlambdaUpperBound(1e10)
+    return params
+
+
+def optimize_by_iterations(opt: gtsam.LevenbergMarquardtOptimizer, params: gtsam.LevenbergMarquardtParams,
+                           on_iteration: Callable[[int, float], None]) -> gtsam.Values:
+    """``opt.optimize()`` one iteration at a time (GTSAM's own loop and stopping rule:
+    ``NonlinearOptimizer::defaultOptimize``), calling ``on_iteration(iteration, cost)`` after each."""
+    new_error = opt.error()
+    while opt.iterations() < params.getMaxIterations():
+        current = new_error
+        opt.iterate()
+        new_error = opt.error()
+        on_iteration(int(opt.iterations()), float(new_error))
+        if gtsam.checkConvergence(params.getRelativeErrorTol(), params.getAbsoluteErrorTol(), params.getErrorTol(),
+                                  current, new_error) or not np.isfinite(current):
+            break
+    return opt.values()

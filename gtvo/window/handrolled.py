@@ -11,14 +11,14 @@ compare the two.
 from __future__ import annotations
 
 import time
-from typing import TYPE_CHECKING, Sequence
+from typing import TYPE_CHECKING, Callable, Sequence
 
 import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
 from factors.host_points import DepthSystem, HostPoints
-from gtvo.core.keys import affine_key, calibration_key, pose_key, rig_offset_key
+from gtvo.core.keys import affine_key, calibration_key, is_pose_key, pose_key, rig_offset_key
 from gtvo.core.camera import PinholeCamera
 from gtvo.core.timing import stage, timed
 from gtvo.window.covariance import marginals_of_hessian
@@ -141,13 +141,9 @@ def _rig_prior_terms(config: WindowConfig, offset: FloatArray | None, active: bo
     return 0.5 * float(e @ e)
 
 
-def _marginal_terms(marginal: MarginalPrior | None, keyframes, poses, affines, H=None, g=None,
-                    offset: FloatArray | None = None, calibration: FloatArray | None = None) -> float:
-    """The marginalisation prior's cost, and (given H, g) its terms (Jacobian of delta taken as I,
-    as ``gtsam.LinearContainerFactor`` does); ``offset``: the rig offset (2 entries after the
-    keyframes'); ``calibration``: the wheel calibration (the state's last entries)."""
-    if marginal is None:
-        return 0.0
+def _state_values(keyframes, poses, affines, offset: FloatArray | None = None,
+                  calibration: FloatArray | None = None) -> gtsam.Values:
+    """A state of the hand-rolled solver as GTSAM ``Values`` (poses, affines, rig offset, wheel calibration)."""
     values = gtsam.Values()
     for k, kf in enumerate(keyframes):
         values.insert(pose_key(kf.index), poses[k])
@@ -156,17 +152,54 @@ def _marginal_terms(marginal: MarginalPrior | None, keyframes, poses, affines, H
         values.insert(rig_offset_key(), np.asarray(offset, dtype=float))
     if calibration is not None:
         values.insert(calibration_key(), np.asarray(calibration, dtype=float))
-    dl = marginal.delta(values)
+    return values
+
+
+def _state_columns(keyframes, offset: FloatArray | None = None, calibration: FloatArray | None = None
+                   ) -> dict[int, int]:
+    """Key -> its first column in the hand-rolled state (8 per keyframe, then the rig offset's 2,
+    then the wheel calibration's)."""
+    pos = {pose_key(kf.index): 8 * k for k, kf in enumerate(keyframes)}
+    pos.update({affine_key(kf.index): 8 * k + 6 for k, kf in enumerate(keyframes)})
+    pos[rig_offset_key()] = 8 * len(keyframes)
+    if calibration is not None:
+        pos[calibration_key()] = 8 * len(keyframes) + (0 if offset is None else 2)
+    return pos
+
+
+def _marginal_terms(marginal: MarginalPrior | None, keyframes, poses, affines, H=None, g=None,
+                    offset: FloatArray | None = None, calibration: FloatArray | None = None) -> float:
+    """The marginalisation prior's cost, and (given H, g) its terms (Jacobian of delta taken as I,
+    as ``gtsam.LinearContainerFactor`` does); ``offset``: the rig offset (2 entries after the
+    keyframes'); ``calibration``: the wheel calibration (the state's last entries)."""
+    if marginal is None:
+        return 0.0
+    dl = marginal.delta(_state_values(keyframes, poses, affines, offset, calibration))
     if H is not None:
-        pos = {pose_key(kf.index): 8 * k for k, kf in enumerate(keyframes)}
-        pos.update({affine_key(kf.index): 8 * k + 6 for k, kf in enumerate(keyframes)})
-        pos[rig_offset_key()] = 8 * len(keyframes)
-        if calibration is not None:
-            pos[calibration_key()] = 8 * len(keyframes) + (0 if offset is None else 2)
+        pos = _state_columns(keyframes, offset, calibration)
         idx = np.concatenate([np.arange(pos[key], pos[key] + dim) for key, dim in zip(marginal.keys, marginal.dims)])
         H[np.ix_(idx, idx)] += marginal.H
         g[idx] += marginal.H @ dl - marginal.eta
     return float(0.5 * dl @ marginal.H @ dl - marginal.eta @ dl + 0.5 * marginal.f)
+
+
+def _extra_terms(factors: gtsam.NonlinearFactorGraph | None, keyframes, poses, affines, H=None, g=None,
+                 offset: FloatArray | None = None, calibration: FloatArray | None = None) -> float:
+    """Native GTSAM factors on the keyframes' keys (the whole-log refinement's loop edges): their
+    cost, and (given H, g) their Gauss-Newton terms from each factor's own linearisation
+    (``JacobianFactor``: ``0.5 |A dx - b|^2``, GTSAM's right-perturbation tangent, as the poses' retraction here)."""
+    if factors is None or factors.size() == 0:
+        return 0.0
+    values = _state_values(keyframes, poses, affines, offset, calibration)
+    if H is not None:
+        pos = _state_columns(keyframes, offset, calibration)
+        for i in range(factors.size()):
+            A, b = factors.at(i).linearize(values).jacobian()
+            dims = [6 if is_pose_key(key) else values.atVector(key).shape[0] for key in factors.at(i).keys()]
+            idx = np.concatenate([np.arange(pos[key], pos[key] + d) for key, d in zip(factors.at(i).keys(), dims)])
+            H[np.ix_(idx, idx)] += A.T @ A
+            g[idx] -= A.T @ b
+    return float(factors.error(values))
 
 
 def _wheel_terms(wheel: "WheelCalibration | None", factors: list, poses, calibration: FloatArray | None,
@@ -219,9 +252,12 @@ def solve_handrolled(camera: PinholeCamera, baseline: float | None, keyframes: S
                      targets: list[list[int]] | None = None, rig_offset: FloatArray | None = None,
                      rig_hold_x: float | None = None, *,
                      photometric: PhotometricConfig = DEFAULT_PHOTOMETRIC,
-                     wheel: "WheelCalibration | None" = None) -> WindowResult:
+                     wheel: "WheelCalibration | None" = None,
+                     extra_factors: gtsam.NonlinearFactorGraph | None = None,
+                     on_iteration: Callable[[int, float], None] | None = None) -> WindowResult:
     """Levenberg-Marquardt on the reduced camera system (residuals of the ``photometric`` model);
-    updates ``keyframes`` in place.
+    updates ``keyframes`` in place. ``extra_factors`` (native GTSAM factors on the keyframes' keys)
+    and ``on_iteration`` as :func:`gtvo.window.solve_gtsam`'s.
 
     ``rig_offset``: the rig offset's current estimate when it is a variable (2 more state entries
     after the keyframes'; the result's ``rig_offset`` is the optimised one); ``rig_hold_x``: its
@@ -262,13 +298,15 @@ def solve_handrolled(camera: PinholeCamera, baseline: float | None, keyframes: S
         E += _prior_terms(keyframes, P, A, config, with_gauge, motion=motion)
         E += _rig_prior_terms(config, O, rig_prior_on, hold_x=rig_hold_x, carried=carried)
         E += _wheel_terms(wheel, wheel_fs, P, C, wheel_prior_on)
+        E += _extra_terms(extra_factors, keyframes, P, A, offset=O, calibration=C)
         return E + _marginal_terms(marginal, keyframes, P, A, offset=O, calibration=C), D, L
 
     E = sum(host.start[0] for host in hosts) \
         + _prior_terms(keyframes, poses, affines, config, with_gauge, motion=motion) \
         + _rig_prior_terms(config, off, rig_prior_on, hold_x=rig_hold_x, carried=carried) \
         + _wheel_terms(wheel, wheel_fs, poses, cal, wheel_prior_on) \
-        + _marginal_terms(marginal, keyframes, poses, affines, offset=off, calibration=cal)
+        + _marginal_terms(marginal, keyframes, poses, affines, offset=off, calibration=cal) \
+        + _extra_terms(extra_factors, keyframes, poses, affines, offset=off, calibration=cal)
     state_lins = {host.h: host.start[1] for host in hosts}
     initial = E
     lam = 1e-5
@@ -281,6 +319,7 @@ def solve_handrolled(camera: PinholeCamera, baseline: float | None, keyframes: S
         _rig_prior_terms(config, off, rig_prior_on, H, g, rig_hold_x, carried)
         _wheel_terms(wheel, wheel_fs, poses, cal, wheel_prior_on, H, g)
         _marginal_terms(marginal, keyframes, poses, affines, H, g, off, cal)
+        _extra_terms(extra_factors, keyframes, poses, affines, H, g, off, cal)
         H = 0.5 * (H + H.T)
         diag = np.maximum(np.diag(H), 1e-12 * max(float(np.max(np.diag(H))), 1e-300))
         accepted = False
@@ -301,6 +340,8 @@ def solve_handrolled(camera: PinholeCamera, baseline: float | None, keyframes: S
         decrease = E - E_new
         poses, affines, off, cal, depths, E, state_lins = P, A, O, C, D, E_new, L_new
         lam = max(lam / 10.0, 1e-7)
+        if on_iteration is not None:
+            on_iteration(it, E)
         if decrease < config.relative_tolerance * max(E, 1e-300):
             break
     t_cov = time.perf_counter()
@@ -315,6 +356,7 @@ def solve_handrolled(camera: PinholeCamera, baseline: float | None, keyframes: S
             _rig_prior_terms(config, off, rig_prior_on, H, g, rig_hold_x, carried)
             _wheel_terms(wheel, wheel_fs, poses, cal, wheel_prior_on, H, g)
             _marginal_terms(marginal, keyframes, poses, affines, H, g, off, cal)
+            _extra_terms(extra_factors, keyframes, poses, affines, H, g, off, cal)
             covs = marginals_of_hessian(H, [kf.index for kf in keyframes])
     t_cov = time.perf_counter() - t_cov
     for k, kf in enumerate(keyframes):

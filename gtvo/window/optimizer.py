@@ -73,7 +73,12 @@ class SlidingWindowOptimizer:
         #: the wheel calibration's one owner, updated by every optimisation (None: no wheel odometry)
         self.wheel: WheelCalibration | None = wheel
         self.keyframes: list[WindowKeyframe] = []
-        self.n_removed = 0  # keyframes that left the window (not kept: they hold images)
+        self.n_removed = 0  # keyframes that left the window (not kept unless retain_keyframes: they hold images)
+        #: keep the keyframes that leave in :attr:`retired` (the whole-log refinement's input,
+        #: :meth:`every_keyframe`); False (the default) drops them with their images
+        self.retain_keyframes = False
+        #: the keyframes that left the window, oldest first, as they left (with ``retain_keyframes``)
+        self.retired: list[WindowKeyframe] = []
         self.results: list[WindowResult] = []
         #: frame index -> 6x6 pose covariance from the last optimisation the keyframe was part of
         #: (``config.covariances``; docs/window.md, "Pose covariances")
@@ -98,7 +103,13 @@ class SlidingWindowOptimizer:
         with stage("marginalisation", absorb=True):
             kf = self.backend.remove_oldest(self)
         self.n_removed += 1
+        if self.retain_keyframes:
+            self.retired.append(kf)
         return kf
+
+    def every_keyframe(self) -> list[WindowKeyframe]:
+        """The keyframes that left the window (kept with ``retain_keyframes``) and those in it, oldest first."""
+        return self.retired + self.keyframes
 
     @property
     def marginal(self) -> MarginalPrior | None:

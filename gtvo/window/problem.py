@@ -108,28 +108,34 @@ def rig_prior(config: WindowConfig, hold_x: float | None = None, carried: bool =
 
 @timed("window_build")
 def visible_targets(camera: PinholeCamera, keyframes: Sequence[WindowKeyframe], config: WindowConfig,
-                    hosts: Sequence[int] | None = None) -> list[list[int]]:
+                    hosts: Sequence[int] | None = None, candidates: Sequence[Sequence[int]] | None = None,
+                    max_targets: int | None = None) -> list[list[int]]:
     """For each host (position in ``keyframes``), the positions of the keyframes that see its points.
 
     A point counts as seen when it projects in front of the target and inside its image with a
     2-pixel border (:func:`seen_in`); a target needs ``min_visible_points`` and
     ``min_visible_fraction`` of them. ``hosts``: only these hosts' lists (in this order; default
-    all).
+    all). ``candidates``: per host (in the order of ``hosts``), the only positions tried (default
+    every other keyframe: the window's); ``max_targets``: keep at most this many targets per host,
+    those that see most of its points (ties: the nearer in order), listed in increasing position
+    (default all: the window's).
     """
     out: list[list[int]] = []
-    for h in range(len(keyframes)) if hosts is None else hosts:
+    for i, h in enumerate(range(len(keyframes)) if hosts is None else hosts):
         if not 0 <= h < len(keyframes):
             raise InputError(f"visible_targets: host position {h} is not in a window of {len(keyframes)} keyframes")
         kh = keyframes[h]
         Xw = host_points_world(camera, kh)  # once per host, not per host and target
-        ts: list[int] = []
-        for t, kt in enumerate(keyframes):
+        seen: list[tuple[int, int]] = []  # (points seen, position)
+        for t in range(len(keyframes)) if candidates is None else candidates[i]:
             if t == h:
                 continue
-            n = int(np.count_nonzero(seen_in(camera, kh, kt, Xw)))
+            n = int(np.count_nonzero(seen_in(camera, kh, keyframes[t], Xw)))
             if n >= config.min_visible_points and n >= config.min_visible_fraction * len(kh):
-                ts.append(t)
-        out.append(ts)
+                seen.append((n, t))
+        if max_targets is not None and len(seen) > max_targets:
+            seen = sorted(seen, key=lambda nt: (-nt[0], abs(nt[1] - h), nt[1]))[:max_targets]
+        out.append(sorted(t for _, t in seen))
     return out
 
 

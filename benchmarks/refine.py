@@ -1,0 +1,209 @@
+"""The whole-log refinement (issue 32): refined against window-only, in one run per log.
+
+For each log the VO runs once (``gtvo run``'s defaults with ``refine.enabled``, so that the window
+keeps its keyframes); then, as ``gtvo run`` does:
+* without loop closing: the window's trajectory (``--no-refine``) against the refined one
+  (:func:`gtvo.refinement.run.refine_run`: every keyframe refined, the other frames re-placed);
+* with loop closing (``--loop-closure``; synthetic loops): the loop closing's answer of today (the
+  loop-closed keyframe pose graph, then its frames re-placed) against the refined one (the graph
+  started from the loop-closed keyframes, with the accepted loop edges in it).
+Printed per log: frames, keyframes, ATE before / after (SE(3) and Sim(3) alignment, m), their
+ratio, the Sim(3) scale before / after, the window pass's seconds and the refinement's (graph
+and frame re-placement) and their ratio, and the refinement's iterations and loop edges.
+
+Logs: KITTI_sequence_1, the KITTI raw drive 0001 (no ground truth here: only its path length and
+times), TUM fr3/teddy's first 20 frames, the EuRoC V1_01 clip, synthetic sequences without loops
+(forward, turn) and synthetic loops (several seeds, 300+ frames), rendered in memory.
+
+``--scaling [N,...]``: the refinement's time against the number of keyframes (synthetic loop,
+every frame a keyframe at its true pose with stereo points; default 50 to 400 keyframes: the graph
+holds about 10 MB per keyframe, so 2000 need about 21 GB), peak memory, and the figure
+docs/refinement_scaling.png.
+
+Usage: python benchmarks/refine.py [--quick] [--only NAME,...] [--scaling [N,...]]
+"""
+
+from __future__ import annotations
+
+import copy
+import resource
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from gtvo.config import OdometryConfig
+from gtvo.datasets import open_sequence
+from gtvo.datasets.synthetic import make_synthetic_sequence
+from gtvo.evaluation.accuracy import run_accuracy
+from gtvo.loops.closing import close_loops_of_run, odometry_covariances, refine_result_frames
+from gtvo.pipeline import TRACKED_OUTCOMES, process_sequence
+from gtvo.refinement import RefineConfig
+from gtvo.refinement.run import refine_run
+from loop_closure_synthetic import DATA  # noqa: E402 (the shared data folder; run from benchmarks/)
+
+
+REAL = {"kitti": DATA / "kitti_stereo_sample" / "KITTI_sequence_1",
+        "raw": DATA / "kitti_raw_2011_09_26_drive_0001_stereo",
+        "tum": DATA / "rgbd_dataset_freiburg3_teddy_first20",
+        "euroc": DATA / "euroc_v101_static_stereo"}
+#: synthetic logs: (name, motion, seed, frames, image noise, loop closing)
+SYNTHETIC = [("forward s1", "forward", 1, 300, 1.0, False), ("turn s2", "turn", 2, 300, 1.0, False),
+             ("loop s1", "loop", 1, 300, 0.0, True), ("loop s2", "loop", 2, 300, 2.0, True),
+             ("loop s3", "loop", 3, 320, 1.0, True)]
+
+
+def measure(seq, loops: bool, config: RefineConfig | None = None) -> dict:
+    """One window pass, then the window's (or loop closing's) answer and the refined one."""
+    cfg = OdometryConfig(refine=config or RefineConfig(enabled=True))
+    t0 = time.perf_counter()
+    vo, traj, _ = process_sequence(seq, cfg)
+    t_window = time.perf_counter() - t0
+    kfs = [p for p, e in enumerate(vo.estimates) if e.is_keyframe]
+    indices = [e.index for e in vo.estimates]
+    covs = odometry_covariances(vo.estimates, kfs)
+    points = {kf.index: kf.points for kf in vo.keyframes}
+    mask = [e.outcome in TRACKED_OUTCOMES for e in vo.estimates]
+    res = before = None
+    if loops:
+        res = close_loops_of_run(seq, traj, indices, kfs, odometry_covariances=covs, keyframe_points=points,
+                                 tracking_config=cfg.tracking, refine_frames=False, refine=mask,
+                                 photometric=cfg.photometric)
+        before = copy.deepcopy(res)
+        refine_result_frames(seq, before, indices, kfs, False, covs, points, cfg.tracking, mask,
+                             photometric=cfg.photometric)
+    rig = vo.window.rig
+    t0 = time.perf_counter()
+    out = refine_run(seq, traj, indices, kfs, vo.window.every_keyframe(), cfg.window, cfg.refine,
+                     photometric=cfg.photometric, tracking=cfg.tracking,
+                     rig_offset=None if rig is None else rig.solved_offset, keyframe_points=points,
+                     odometry_covariances=covs, refine=mask, loop_result=res)
+    t_refine = time.perf_counter() - t0
+    old = before.trajectory if loops else traj
+    new = res.trajectory if loops else out.trajectory
+    row = {"frames": len(traj), "keyframes": len(kfs), "t_window": t_window, "t_refine": t_refine,
+           "summary": out.summary, "path_before": _path(old.poses), "path_after": _path(new.poses)}
+    if seq.has_ground_truth:
+        row["before"], row["after"] = run_accuracy(seq, old), run_accuracy(seq, new)
+    return row
+
+
+def _path(poses: np.ndarray) -> float:
+    return float(np.linalg.norm(np.diff(poses[:, :3, 3], axis=0), axis=1).sum())
+
+
+def _fmt(name: str, m: dict) -> str:
+    s = m["summary"]
+    t = f"{m['t_window']:.0f} | {m['t_refine']:.1f} | {m['t_refine'] / m['t_window']:.2f}"
+    extra = f"{s['iterations']} | {s['loop_edges']} / {s['loop_edges_dropped']} | {s['ran']}"
+    if "before" not in m:
+        return (f"| {name} | {m['frames']} / {m['keyframes']} | path {m['path_before']:.2f} -> {m['path_after']:.2f} m "
+                f"| | | | | {t} | {extra} |")
+    b, a = m["before"], m["after"]
+    return (f"| {name} | {m['frames']} / {m['keyframes']} | {b['ate_rmse_m']:.4f} -> {a['ate_rmse_m']:.4f} "
+            f"| **{a['ate_rmse_m'] / b['ate_rmse_m']:.3f}** | {b['ate_sim3_rmse_m']:.4f} -> {a['ate_sim3_rmse_m']:.4f} "
+            f"| {a['ate_sim3_rmse_m'] / b['ate_sim3_rmse_m']:.3f} | {b['scale_ratio']:.4f} -> {a['scale_ratio']:.4f} "
+            f"| {t} | {extra} |")
+
+
+HEADER = ("| log | frames / keyframes | ATE SE(3) before -> after [m] | ratio | ATE Sim(3) before -> after [m] "
+          "| ratio | scale before -> after | window s | refine s | ratio | iterations | loop edges / dropped | kept |\n"
+          "|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+
+
+def accuracy(only: set[str] | None, quick: bool) -> None:
+    print(HEADER, flush=True)
+    for name, path in REAL.items():
+        if only and name not in only:
+            continue
+        if not path.exists():
+            print(f"| {name} | missing: {path} |")
+            continue
+        print(_fmt(name, measure(open_sequence(path), loops=False)), flush=True)
+    for name, motion, seed, frames, noise, loops in SYNTHETIC[:3] if quick else SYNTHETIC:
+        if only and name.split()[0] not in only and name not in only:
+            continue
+        seq = make_synthetic_sequence(n_frames=frames, noise_sigma=noise, seed=seed, motion=motion)
+        print(_fmt(f"synthetic {name}, {frames} frames" + (" (loop closing)" if loops else ""),
+                   measure(seq, loops=loops)), flush=True)
+
+
+def scaling(sizes: list[int], lap: int = 100) -> None:
+    """Time of one refinement against the number of keyframes (module docstring): a synthetic loop
+    of ``lap`` frames driven round again and again, every frame a keyframe at its true pose moved
+    by 1 mm / 0.5 mrad (so that LM has work), with its stereo points; the laps share the rendered
+    images (the memory figure is then the graph's, not the images'). 3 LM iterations each."""
+    import gtsam  # noqa: PLC0415
+
+    from factors.photometric import GradientImage  # noqa: PLC0415
+    from gtvo.core.image import to_float_gray  # noqa: PLC0415
+    from gtvo.frontend import init_keyframe_points  # noqa: PLC0415
+    from gtvo.refinement import refine_keyframes  # noqa: PLC0415
+    from gtvo.window import WindowConfig, WindowKeyframe  # noqa: PLC0415
+
+    seq = make_synthetic_sequence(n_frames=lap, motion="loop", seed=1, noise_sigma=1.0)
+    frames = []
+    for i in range(lap):
+        fr = seq.frame(i)
+        left, right = to_float_gray(fr.left, "left"), to_float_gray(fr.right, "right")
+        frames.append((GradientImage(left), GradientImage(right), init_keyframe_points(left, right, seq.camera)))
+    rng = np.random.default_rng(0)
+    rows = []
+    print("| keyframes | host-target pairs | seconds | seconds per keyframe | per iteration | peak memory [MB] |")
+    print("|---|---|---|---|---|---|")
+    for n in sizes:
+        kfs = []
+        for k in range(n):
+            img, right, pts = frames[k % lap]
+            T = gtsam.Pose3(seq.gt_poses[k % lap]).retract(np.r_[rng.normal(0, 5e-4, 3), rng.normal(0, 1e-3, 3)])
+            kfs.append(WindowKeyframe(k, T if k else gtsam.Pose3(seq.gt_poses[0]), np.zeros(2), img, pts.pixels,
+                                      pts.inverse_depth, pts.variance, right=right, timestamp=0.1 * k))
+        t0 = time.perf_counter()
+        res = refine_keyframes(seq.pinhole, seq.camera.baseline, kfs, WindowConfig(),
+                               RefineConfig(enabled=True, max_iterations=3, relative_tolerance=0.0))
+        sec = time.perf_counter() - t0
+        mem = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+        pairs = int(round(res.targets_mean * n))
+        rows.append((n, sec))
+        per_it = sec / max(res.iterations, 1)
+        print(f"| {n} | {pairs} | {sec:.1f} | {1000 * sec / n:.1f} ms | {per_it:.1f} | {mem:.0f} |", flush=True)
+    _scaling_figure(rows)
+
+
+def _scaling_figure(rows: list[tuple[int, float]]) -> None:
+    import matplotlib  # noqa: PLC0415
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt  # noqa: PLC0415
+
+    n, sec = np.array(rows, dtype=float).T
+    fig, ax = plt.subplots(figsize=(5, 3.4))
+    ax.plot(n, sec, "o-", label="measured (3 LM iterations)")
+    ax.plot(n, sec[0] / n[0] * n, "--", color="gray", label="linear through the first point")
+    ax.set_xlabel("keyframes")
+    ax.set_ylabel("refinement seconds")
+    ax.legend()
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    out = Path(__file__).resolve().parents[1] / "docs" / "refinement_scaling.png"
+    fig.savefig(out, dpi=100)
+    print(f"figure: {out}")
+
+
+def main(argv: list[str]) -> None:
+    only = None
+    if "--only" in argv:
+        only = set(argv[argv.index("--only") + 1].split(","))
+    if "--scaling" in argv:
+        i = argv.index("--scaling")
+        sizes = [int(x) for x in argv[i + 1].split(",")] if i + 1 < len(argv) and argv[i + 1][0].isdigit() else \
+            [50, 100, 200, 300, 400]
+        scaling(sizes)
+        return
+    accuracy(only, "--quick" in argv)
+    print(f"peak memory {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MB")
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])

@@ -1,0 +1,45 @@
+"""The settings of the whole-log refinement, the tree's ``refine`` section: :class:`RefineConfig`
+(docs/refinement.md, docs/configuration.md)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+from gtvo.core.settings import check_settings, setting
+from gtvo.loops.closure_graph import CHI2_6DOF_99
+
+
+@dataclass(frozen=True)
+class RefineConfig:
+    """The whole-log refinement after the window pass (:mod:`gtvo.refinement`, docs/refinement.md).
+
+    Attributes:
+        enabled: after the window pass (and loop closing), optimise one graph over every keyframe:
+            each host's points against every keyframe that sees them, stereo terms, affine priors,
+            motion prior, the rig offset and the accepted loop edges; non-keyframes are then
+            re-placed against the refined keyframes (gtvo run --no-refine turns it off; window mode only).
+        solver: ``gtsam`` (GTSAM's Levenberg-Marquardt on the window's smart factors) or
+            ``handrolled`` (the window's hand-rolled LM: a dense reduced system, for small logs).
+        max_iterations: LM iterations of the whole-log graph.
+        relative_tolerance: stop when an iteration lowers the cost by less than this fraction.
+        max_targets: at most this many keyframes per host (those that see most of its points).
+        max_scale_change: a keyframe is a host's target only when the host's points look at most
+            this much bigger or smaller there (median ``|log(z_host / z_target)|``): the residual
+            pattern is compared unwarped, so a zoomed view biases the residuals (measured: more and
+            farther targets pulled KITTI_sequence_1's scale; docs/refinement.md); null: no limit.
+        loop_chi2: a loop edge whose whitened squared error after the refinement exceeds this
+            (default: the 99 % quantile of chi-square, 6 degrees of freedom) is dropped and the graph
+            solved again without it.
+    """
+
+    enabled: bool = False
+    solver: Literal["gtsam", "handrolled"] = "gtsam"
+    max_iterations: int = setting(5, "[1, 1000]")
+    relative_tolerance: float = setting(1e-4, "[0, 1]")
+    max_targets: int = setting(6, "[1, 1000]")
+    max_scale_change: float | None = setting(0.25, "(0, 10]")
+    loop_chi2: float = setting(CHI2_6DOF_99, "(0, 1000000]")
+
+    def __post_init__(self) -> None:
+        check_settings(self)

@@ -1,0 +1,164 @@
+"""The whole-log refinement: one graph over every keyframe of a run, solved by the window's solvers.
+
+:func:`refine_keyframes` takes the keyframes as the window left them (and, with loop closing, at
+the loop-closed poses), builds the window's problem over all of them with the targets of
+:func:`gtvo.refinement.graph.covisible_targets` and the accepted loop edges as ``BetweenFactorPose3``,
+and hands it to :func:`gtvo.window.solve_gtsam` (GTSAM's LM) or :func:`gtvo.window.solve_handrolled`.
+A loop edge the refined poses reject (chi-square) is dropped and the graph solved again without
+it; an LM that does not lower the cost leaves the keyframes as they were (docs/refinement.md).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import sys
+import time
+from dataclasses import dataclass
+from typing import Callable, Mapping, Sequence
+
+import gtsam
+import numpy as np
+from numpy.typing import NDArray
+
+from factors.params import DEFAULT_PHOTOMETRIC, PhotometricConfig
+from gtvo.core.camera import PinholeCamera
+from gtvo.loops.closure_graph import LoopEdge
+from gtvo.refinement.config import RefineConfig
+from gtvo.refinement.graph import covisible_targets, loop_chi2, loop_factors
+from gtvo.window.config import WindowConfig, WindowKeyframe
+from gtvo.window.gtsam_solver import solve_gtsam
+from gtvo.window.handrolled import solve_handrolled
+
+F64 = NDArray[np.float64]
+
+
+@dataclass
+class RefinementResult:
+    """What :func:`refine_keyframes` did.
+
+    Attributes:
+        keyframes: the keyframes after the refinement (copies; the input's when it did not run or
+            was not kept), oldest first.
+        ran: True when the refined keyframes are the answer.
+        reason: why not (one line), None when it ran.
+        solver: ``gtsam`` or ``handrolled``.
+        iterations: LM iterations of the kept (or last) solve.
+        cost_before, cost_after: the graph's cost at the start and at the end (None: not built).
+        seconds: wall time, including the covisibility and any second solve.
+        targets_mean: mean number of targets per host.
+        loop_edges: loop edges in the final graph; loop_edges_dropped: those the refined poses rejected.
+        covariances: frame index -> 6x6 pose covariance at the optimum (the window's
+            ``covariances`` setting), None when not computed.
+        rig_offset: the rig offset after the refinement (None: the rectified model).
+    """
+
+    keyframes: list[WindowKeyframe]
+    ran: bool
+    reason: str | None
+    solver: str
+    iterations: int = 0
+    cost_before: float | None = None
+    cost_after: float | None = None
+    seconds: float = 0.0
+    targets_mean: float = 0.0
+    loop_edges: int = 0
+    loop_edges_dropped: int = 0
+    covariances: dict[int, F64] | None = None
+    rig_offset: F64 | None = None
+
+
+def start_keyframes(keyframes: Sequence[WindowKeyframe], poses: Mapping[int, F64] | None = None
+                    ) -> list[WindowKeyframe]:
+    """Copies of ``keyframes`` (their images shared) to refine, at ``poses`` (frame index -> 4x4
+    ``T_world_cam``, e.g. the loop-closed ones) where given."""
+    out = []
+    for kf in keyframes:
+        c = dataclasses.replace(kf)
+        if poses is not None and kf.index in poses:
+            T = np.asarray(poses[kf.index], dtype=float)
+            c.pose = gtsam.Pose3(gtsam.Rot3.ClosestTo(T[:3, :3]), T[:3, 3])
+        out.append(c)
+    return out
+
+
+def refine_keyframes(camera: PinholeCamera, baseline: float | None, keyframes: Sequence[WindowKeyframe],
+                     window: WindowConfig, config: RefineConfig | None = None, *,
+                     loop_edges: Sequence[LoopEdge] = (), rig_offset: F64 | None = None,
+                     start_poses: Mapping[int, F64] | None = None,
+                     photometric: PhotometricConfig = DEFAULT_PHOTOMETRIC, progress: bool = False,
+                     on_iteration: Callable[[int, float], None] | None = None) -> RefinementResult:
+    """Optimise one graph over every keyframe (module docstring); the input is not changed.
+
+    Args:
+        camera, baseline: the left camera and the stereo baseline (None: RGB-D).
+        keyframes: every keyframe of the run with its points and images, oldest first
+            (:meth:`gtvo.window.SlidingWindowOptimizer.every_keyframe`).
+        window: the window's settings (weights, priors, motion prior, covariances); the LM's
+            iterations and tolerance are ``config``'s.
+        config: the refinement's settings (default :class:`RefineConfig`).
+        loop_edges: accepted loop edges by frame index; those between keyframes not in the list are ignored.
+        rig_offset: the run's rig offset (one variable for the log), None: the rectified model.
+        start_poses: frame index -> 4x4 ``T_world_cam`` to start from (the loop-closed keyframes).
+        photometric: the run's photometric model.
+        progress: a progress bar over the LM iterations.
+        on_iteration: called with ``(iteration, cost)`` after every iteration (after the bar).
+    """
+    config = config or RefineConfig()
+    t0 = time.perf_counter()
+    if len(keyframes) < 2:
+        return RefinementResult(list(keyframes), False, "fewer than two keyframes", config.solver)
+    start = start_keyframes(keyframes, start_poses)
+    wcfg = dataclasses.replace(window, max_iterations=config.max_iterations,
+                               relative_tolerance=config.relative_tolerance)
+    targets = covisible_targets(camera, start, wcfg, config.max_targets, config.max_scale_change)
+    if not any(targets):
+        return RefinementResult(list(keyframes), False, "no keyframe sees another's points", config.solver,
+                                seconds=time.perf_counter() - t0)
+    present = {kf.index for kf in start}
+    edges = [e for e in loop_edges if e.i in present and e.j in present and e.i != e.j]
+    solve = solve_gtsam if config.solver == "gtsam" else solve_handrolled
+    dropped = 0
+    while True:
+        current = start_keyframes(start)
+        bar = _progress_bar(config.max_iterations, len(current)) if progress else None
+
+        def step(it: int, cost: float) -> None:
+            if bar is not None:
+                bar.update(1)
+                bar.set_postfix(cost=f"{cost:.4g}")
+            if on_iteration is not None:
+                on_iteration(it, cost)
+
+        try:
+            res = solve(camera, baseline, current, wcfg, None, targets, rig_offset, photometric=photometric,
+                        extra_factors=loop_factors(edges) if edges else None, on_iteration=step)
+        finally:
+            if bar is not None:
+                bar.close()
+        chi2 = loop_chi2(edges, current)
+        rejected = chi2 > config.loop_chi2
+        if not np.any(rejected) or not _improved(res.initial_cost, res.cost):
+            break
+        edges = [e for e, r in zip(edges, rejected) if not r]  # solved again without them, from the start
+        dropped += int(np.count_nonzero(rejected))
+    out = RefinementResult(current, True, None, res.solver, res.iterations, res.initial_cost, res.cost,
+                           time.perf_counter() - t0, float(np.mean([len(t) for t in targets])), len(edges), dropped,
+                           res.covariances, res.rig_offset)
+    if not _improved(res.initial_cost, res.cost):
+        out.keyframes, out.ran, out.covariances, out.rig_offset = list(keyframes), False, None, None
+        out.reason = (f"LM diverged (cost {res.initial_cost:.6g} -> {res.cost:.6g}): the window's answer is kept"
+                      if not np.isfinite(res.cost) or res.cost > res.initial_cost else
+                      f"LM could not lower the cost ({res.initial_cost:.6g} after {res.iterations} iterations): "
+                      "the window's answer is kept")
+    return out
+
+
+def _improved(before: float, after: float) -> bool:
+    return bool(np.isfinite(before) and np.isfinite(after) and after < before)
+
+
+def _progress_bar(total: int, keyframes: int):
+    from tqdm import tqdm  # noqa: PLC0415
+
+    return tqdm(total=total, desc=f"refinement ({keyframes} keyframes)", unit="it", dynamic_ncols=True,
+                file=sys.stderr)

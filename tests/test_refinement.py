@@ -1,0 +1,213 @@
+"""The whole-log refinement (issue 32, gtvo.refinement): its graph, both solvers on it, loop edges
+rejected by the refined cost, an LM that cannot improve, and a run with it (report, CLI, Ctrl-C)."""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import json
+import subprocess
+import sys
+
+import gtsam
+import numpy as np
+import pytest
+
+from factors.params import PhotometricConfig
+from gtvo.config import OdometryConfig
+from gtvo.datasets.synthetic import make_synthetic_sequence, write_sequence_kitti
+from gtvo.loops.closure_graph import LoopEdge
+from gtvo.refinement import RefineConfig, covisible_targets, refine_keyframes
+from gtvo.refinement.graph import candidate_targets, loop_chi2, scale_change
+from gtvo.window import WindowConfig, WindowResult, visible_targets
+from tests.test_window import _keyframes
+
+NO_HUBER = PhotometricConfig(huber_k=None)
+
+
+@pytest.fixture(scope="module")
+def seq():
+    return make_synthetic_sequence(10, width=240, height=180, step_m=0.1)
+
+
+@pytest.fixture(scope="module")
+def keyframes(seq):
+    return _keyframes(seq, [0, 2, 4, 6, 8], perturb=(0.002, 0.006), timed=True)
+
+
+def _edge(seq, i, j, dt=(0.0, 0.0, 0.0), sigma_t=0.01):
+    T = np.linalg.inv(seq.gt_poses[i]) @ seq.gt_poses[j]
+    T[:3, 3] += dt
+    return LoopEdge(i, j, T, np.diag([1 / 0.002**2] * 3 + [1 / sigma_t**2] * 3))
+
+
+def test_visible_targets_takes_candidates_and_a_cap(seq, keyframes):
+    cam, cfg = seq.camera.left, WindowConfig()
+    every = visible_targets(cam, keyframes, cfg)
+    assert visible_targets(cam, keyframes, cfg, candidates=[list(range(5))] * 5) == every
+    only = visible_targets(cam, keyframes, cfg, candidates=[[1], [0], [], [], []])
+    assert only == [[1] if 1 in every[0] else [], [0] if 0 in every[1] else [], [], [], []]
+    capped = visible_targets(cam, keyframes, cfg, max_targets=1)
+    assert all(len(c) <= 1 and set(c) <= set(e) for c, e in zip(capped, every))
+    assert capped[2] and abs(capped[2][0] - 2) == 1  # of equals in count, a neighbour sees most
+
+
+def test_scale_change_is_the_points_magnification(seq, keyframes):
+    cam = seq.camera.left
+    host = keyframes[0]
+    assert scale_change(cam, host, host) == pytest.approx(0.0, abs=1e-12)
+    z = 1.0 / host.inverse_depth
+    forward = dataclasses.replace(host, pose=host.pose.compose(gtsam.Pose3(gtsam.Rot3(), [0, 0, 0.5 * z.min()])))
+    assert scale_change(cam, host, forward) == pytest.approx(np.median(np.log(z / (z - 0.5 * z.min()))), rel=1e-9)
+    behind = dataclasses.replace(host, pose=host.pose.compose(gtsam.Pose3(gtsam.Rot3(), [0, 0, 10 * z.max()])))
+    assert scale_change(cam, host, behind) == np.inf
+
+
+def test_candidates_include_a_revisit_far_in_time(keyframes):
+    revisit = dataclasses.replace(keyframes[0], index=99)  # the first place again, at the end of the log
+    kfs = list(keyframes) + [revisit]
+    cand = candidate_targets(kfs, max_targets=1)
+    assert 5 in cand[0] and 1 in cand[0]  # the revisit (near in space) and the next keyframe
+    assert 0 in cand[5]
+
+
+@pytest.mark.slow
+def test_both_solvers_solve_the_same_whole_log_graph_with_a_loop_edge(seq, keyframes):
+    """The refinement's graph (host factors over the covisible targets, priors, motion prior and
+    a loop edge) solved by GTSAM's LM and by the hand-rolled LM: same cost, same poses (the
+    window's own tolerances, tests/test_window.py)."""
+    cam = seq.camera
+    cfg = RefineConfig(max_iterations=40, relative_tolerance=1e-12, max_scale_change=None)
+    edge = _edge(seq, 0, 8)
+    out = {s: refine_keyframes(cam.left, cam.baseline, keyframes, WindowConfig(), dataclasses.replace(cfg, solver=s),
+                               loop_edges=[edge], photometric=NO_HUBER) for s in ("gtsam", "handrolled")}
+    a, b = out["gtsam"], out["handrolled"]
+    assert a.ran and b.ran and a.loop_edges == b.loop_edges == 1 and a.loop_edges_dropped == 0
+    assert a.cost_before == pytest.approx(b.cost_before, rel=1e-9)  # the same graph
+    assert a.cost_after < 0.5 * a.cost_before
+    assert a.cost_after == pytest.approx(b.cost_after, rel=1e-4)
+    for ka, kb in zip(a.keyframes, b.keyframes):
+        assert np.abs(ka.pose.localCoordinates(kb.pose)).max() < 3e-5
+    assert keyframes[1].pose.equals(copy.deepcopy(keyframes)[1].pose, 0)  # the input is not changed
+    assert a.keyframes[1] is not keyframes[1]
+
+
+@pytest.mark.slow
+def test_a_loop_edge_the_refined_cost_rejects_is_dropped_and_counted(seq, keyframes):
+    cam = seq.camera
+    cfg = RefineConfig(max_iterations=10)
+    good = refine_keyframes(cam.left, cam.baseline, keyframes, WindowConfig(), cfg)
+    bad = _edge(seq, 0, 8, dt=(0.4, 0.0, 0.0), sigma_t=0.1)  # 4 sigma off in one axis: chi-square 16 + the rest
+    assert loop_chi2([bad], good.keyframes)[0] > cfg.loop_chi2
+    res = refine_keyframes(cam.left, cam.baseline, keyframes, WindowConfig(), cfg, loop_edges=[bad, _edge(seq, 2, 8)])
+    assert res.ran and res.loop_edges_dropped == 1 and res.loop_edges == 1
+    for ka, kb in zip(res.keyframes, good.keyframes):  # solved again without it: as if it never was
+        assert np.linalg.norm(ka.pose.translation() - kb.pose.translation()) < 2e-3
+
+
+@pytest.mark.parametrize("factor,reason", [(2.0, "LM diverged"), (1.0, "LM could not lower the cost")])
+def test_an_lm_that_cannot_improve_keeps_the_window_answer(seq, keyframes, monkeypatch, factor, reason):
+    import gtvo.refinement.solve as solve
+
+    def no_better(camera, baseline, kfs, config, marginal, targets, rig_offset, **kw):
+        return WindowResult("gtsam", 10.0, 10.0 * factor, 3, 0.1, 1)
+
+    monkeypatch.setattr(solve, "solve_gtsam", no_better)
+    res = refine_keyframes(seq.camera.left, seq.camera.baseline, keyframes, WindowConfig(), RefineConfig())
+    assert not res.ran and res.reason.startswith(reason) and res.reason.endswith("the window's answer is kept")
+    assert all(a is b for a, b in zip(res.keyframes, keyframes)) and res.covariances is None
+
+
+def test_targets_over_the_whole_log_respect_the_cap_and_the_scale_change(seq, keyframes):
+    cam = seq.camera.left
+    free = covisible_targets(cam, keyframes, WindowConfig(), 6)
+    assert free == visible_targets(cam, keyframes, WindowConfig())  # a small log: every pair is a candidate
+    tight = covisible_targets(cam, keyframes, WindowConfig(), 6, max_scale_change=1e-6)
+    assert not any(tight)
+    some = covisible_targets(cam, keyframes, WindowConfig(), 6, max_scale_change=0.06)
+    assert all(set(s) <= set(f) for s, f in zip(some, free)) and some != free and any(some)
+
+
+# -- a run with the refinement ----------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def kitti_like(tmp_path_factory):
+    d = tmp_path_factory.mktemp("refine") / "synthetic_kitti"
+    write_sequence_kitti(make_synthetic_sequence(n_frames=10, noise_sigma=1.0, seed=3), d)
+    return d
+
+
+def _run(*args):
+    return subprocess.run([sys.executable, "-m", "gtvo", "run", *map(str, args), "--no-progress"],
+                          capture_output=True, text=True, timeout=600)
+
+
+@pytest.mark.slow
+def test_a_run_reports_its_refinement_and_no_refine_turns_it_off(kitti_like, tmp_path):
+    r = _run(kitti_like, "--out", tmp_path / "on", "--refine")
+    assert r.returncode == 0, r.stderr
+    rep = json.loads((tmp_path / "on" / "report.json").read_text())
+    block = rep["refine"]
+    assert block["ran"] and block["reason"] is None and block["iterations"] >= 1
+    assert block["cost_after"] < block["cost_before"] and block["keyframes"] == rep["keyframes"]
+    assert block["window_ate_rmse_m"] is not None and rep["config"]["refine"]["enabled"] is True
+    assert rep["covariance_source"] == "gtsam.Marginals of the whole-log refinement's graph"
+    assert rep["covariance_keyframes"] == rep["keyframes"]
+    (tmp_path / "c.yaml").write_text("refine: {enabled: true}\n")
+    r = _run(kitti_like, "--out", tmp_path / "off", "--config", tmp_path / "c.yaml", "--no-refine")
+    assert r.returncode == 0, r.stderr
+    assert "refine" not in json.loads((tmp_path / "off" / "report.json").read_text())
+
+
+def test_refine_with_track_mode_is_refused(kitti_like, tmp_path):
+    r = _run(kitti_like, "--out", tmp_path / "x", "--refine", "--mode", "track")
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and "--refine needs --mode window" in r.stderr
+
+
+def test_refine_with_a_parallel_window_is_refused(kitti_like, tmp_path):
+    r = _run(kitti_like, "--out", tmp_path / "x", "--refine", "--parallel")
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert "needs every keyframe of the window" in r.stderr and "--no-parallel" in r.stderr
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("loops", [False, True])
+def test_ctrl_c_during_the_refinement_writes_the_window_only_outputs(kitti_like, tmp_path, monkeypatch, capsys, loops):
+    """A KeyboardInterrupt inside the refinement's solver: the run goes on and writes the whole set
+    of the run without refinement (the same trajectories), says so in one line and in the report."""
+    import gtvo
+    import gtvo.refinement.solve as solve
+
+    plain = gtvo.run(kitti_like, out=tmp_path / "plain", loop_closure=loops)
+    assert "refine" not in plain
+
+    def interrupted(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(solve, "solve_gtsam", interrupted)
+    rep = gtvo.run(kitti_like, out=tmp_path / "cut", loop_closure=loops,
+                   config=OdometryConfig(refine=RefineConfig(enabled=True)))
+    assert "refinement interrupted (Ctrl-C): writing the window-only outputs" in capsys.readouterr().err
+    assert rep["refine"]["ran"] is False and rep["refine"]["reason"] == "interrupted (Ctrl-C)"
+    names = ["trajectory.tum"] + (["trajectory_loop_closed.tum"] if loops else [])
+    for name in names:
+        assert (tmp_path / "cut" / name).read_bytes() == (tmp_path / "plain" / name).read_bytes()
+    names = sorted(p.name for p in (tmp_path / "plain").iterdir())
+    assert sorted(p.name for p in (tmp_path / "cut").iterdir()) == names
+
+
+def test_lm_iteration_by_iteration_is_gtsam_own_loop(seq, keyframes):
+    """``on_iteration`` runs GTSAM's LM one iteration at a time: the same iterations, cost and
+    poses as ``optimize()`` (the window's path), bit for bit."""
+    from gtvo.window import solve_gtsam
+
+    cam = seq.camera
+    a, b = copy.deepcopy(keyframes), copy.deepcopy(keyframes)
+    cfg = WindowConfig(max_iterations=6)
+    seen = []
+    ra = solve_gtsam(cam.left, cam.baseline, a, cfg)
+    rb = solve_gtsam(cam.left, cam.baseline, b, cfg, on_iteration=lambda it, cost: seen.append((it, cost)))
+    assert (ra.iterations, ra.cost) == (rb.iterations, rb.cost) and seen[-1] == (rb.iterations, rb.cost)
+    assert [it for it, _ in seen] == list(range(1, rb.iterations + 1))
+    for ka, kb in zip(a, b):
+        assert np.array_equal(ka.pose.matrix(), kb.pose.matrix()) and np.array_equal(ka.inverse_depth, kb.inverse_depth)
