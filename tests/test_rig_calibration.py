@@ -368,12 +368,12 @@ def test_window_depths_are_searched_again_once_delta_x_is_estimated(monkeypatch)
     with delta_x = 0) are searched again against the right image corrected by the estimate, once;
     a point whose new search matches takes its result, and the window is optimised again."""
     from gtvo.frontend.stereo_depth import stereo_inverse_depth
-    from gtvo.odometry.keyframer import Keyframer
+    from gtvo.odometry.window_link import WindowLink
     from gtvo.pipeline import process_sequence
 
     seq = shift_right_images(make_synthetic_sequence(24, width=240, height=180, step_m=0.15), (2.0, 0.0))
     calls = []
-    original = Keyframer._research_window_depths
+    original = WindowLink._research_window_depths
 
     def spy(self, rig):
         before = {w.index: w.inverse_depth.copy() for w in self.window.keyframes}
@@ -382,7 +382,7 @@ def test_window_depths_are_searched_again_once_delta_x_is_estimated(monkeypatch)
         calls.append((rig.offset.copy(), before, {w.index: (w, w.inverse_depth.copy()) for w in self.window.keyframes},
                       n_results))
 
-    monkeypatch.setattr(Keyframer, "_research_window_depths", spy)
+    monkeypatch.setattr(WindowLink, "_research_window_depths", spy)
     cfg = OdometryConfig(frontend=FrontendConfig(points_per_keyframe=200),
                          window=WindowConfig(rig_calibration=True, size=4))
     vo, _, _ = process_sequence(seq, cfg, warn=lambda m: None)
