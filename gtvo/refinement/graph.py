@@ -7,7 +7,7 @@ builder, :func:`gtvo.window.problem.build_graph`, given every keyframe and these
 
 from __future__ import annotations
 
-from typing import Sequence
+from typing import Literal, Sequence
 
 import gtsam
 import numpy as np
@@ -53,6 +53,13 @@ def candidate_targets(keyframes: Sequence[WindowKeyframe], max_targets: int) -> 
     return out
 
 
+def window_candidates(n_keyframes: int, span: int) -> list[list[int]]:
+    """Per host (position), the keyframes the window could have compared it with: those at most
+    ``span`` positions before or after it (a window of ``span + 1`` keyframes). A revisit far in
+    time is not among them: it reaches the graph as a loop edge (docs/refinement.md)."""
+    return [[t for t in range(max(0, h - span), min(n_keyframes, h + span + 1)) if t != h] for h in range(n_keyframes)]
+
+
 def scale_change(camera: PinholeCamera, host: WindowKeyframe, target: WindowKeyframe) -> float:
     """How much bigger or smaller the host's points look in the target: the median, over its points
     with a positive inverse depth that are in front of the target, of ``|log(z_host / z_target)|``
@@ -73,17 +80,20 @@ def scale_change(camera: PinholeCamera, host: WindowKeyframe, target: WindowKeyf
 
 
 def covisible_targets(camera: PinholeCamera, keyframes: Sequence[WindowKeyframe], config: WindowConfig,
-                      max_targets: int, max_scale_change: float | None = None) -> list[list[int]]:
-    """Per host (position in ``keyframes``), its targets over the whole log: among
-    :func:`candidate_targets` (and, with ``max_scale_change``, those in which its points look at
+                      max_targets: int, max_scale_change: float | None = None,
+                      candidates: Literal["window", "space"] = "window") -> list[list[int]]:
+    """Per host (position in ``keyframes``), its targets over the whole log: among the candidates
+    (``window``: :func:`window_candidates` over the window's span, ``config.size - 1``; ``space``:
+    :func:`candidate_targets`) (and, with ``max_scale_change``, those in which its points look at
     most that much bigger or smaller, :func:`scale_change`), those into which enough of its points
     project (:func:`gtvo.window.problem.visible_targets`, the window's rule), at most
     ``max_targets`` (those that see most of them)."""
-    candidates = candidate_targets(keyframes, max_targets)
+    tried = (window_candidates(len(keyframes), config.size - 1) if candidates == "window"
+             else candidate_targets(keyframes, max_targets))
     if max_scale_change is not None:
-        candidates = [[t for t in ts if scale_change(camera, keyframes[h], keyframes[t]) <= max_scale_change]
-                      for h, ts in enumerate(candidates)]
-    return visible_targets(camera, keyframes, config, candidates=candidates, max_targets=max_targets)
+        tried = [[t for t in ts if scale_change(camera, keyframes[h], keyframes[t]) <= max_scale_change]
+                 for h, ts in enumerate(tried)]
+    return visible_targets(camera, keyframes, config, candidates=tried, max_targets=max_targets)
 
 
 def loop_factor(edge: LoopEdge) -> gtsam.BetweenFactorPose3:

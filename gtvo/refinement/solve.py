@@ -110,7 +110,7 @@ def refine_keyframes(camera: PinholeCamera, baseline: float | None, keyframes: S
     start = start_keyframes(keyframes, start_poses)
     wcfg = dataclasses.replace(window, max_iterations=config.max_iterations,
                                relative_tolerance=config.relative_tolerance)
-    targets = covisible_targets(camera, start, wcfg, config.max_targets, config.max_scale_change)
+    targets = covisible_targets(camera, start, wcfg, config.max_targets, config.max_scale_change, config.candidates)
     if not any(targets):
         return RefinementResult(list(keyframes), False, "no keyframe sees another's points", config.solver,
                                 seconds=time.perf_counter() - t0)
