@@ -115,6 +115,21 @@ def loop_factors(edges: Sequence[LoopEdge]) -> gtsam.NonlinearFactorGraph:
     return graph
 
 
+def window_edges(keyframes: Sequence[WindowKeyframe], covariances: Sequence[F64 | None]) -> list[LoopEdge]:
+    """The window's answer as edges: per pair of consecutive keyframes, their relative pose as the
+    window left it, with the tracker's covariance of that pair (``covariances[k]`` for
+    ``keyframes[k]`` and ``keyframes[k + 1]``, :func:`gtvo.loops.closing.odometry_covariances`;
+    None or not finite: no edge). The tracker's covariance is an upper bound of the window's
+    (its joint refinement only adds information), so the edge holds the whole-log graph near the
+    window's local shape no harder than the odometry alone would (docs/refinement.md)."""
+    out = []
+    for a, b, cov in zip(keyframes[:-1], keyframes[1:], covariances):
+        if cov is None or not np.all(np.isfinite(cov)):
+            continue
+        out.append(LoopEdge(a.index, b.index, a.pose.between(b.pose).matrix(), np.linalg.inv(np.asarray(cov, float))))
+    return out
+
+
 def loop_chi2(edges: Sequence[LoopEdge], keyframes: Sequence[WindowKeyframe]) -> F64:
     """Per loop edge, its whitened squared error at the keyframes' poses."""
     values = gtsam.Values()
