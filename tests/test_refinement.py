@@ -71,7 +71,7 @@ def test_candidates_include_a_revisit_far_in_time(keyframes):
     assert 0 in cand[5]
 
 
-def test_window_candidates_are_the_window_span_and_leave_a_revisit_to_the_loop_edges(seq, keyframes):
+def test_window_candidates_are_the_window_span_and_a_revisit_only_across_a_loop(seq, keyframes):
     assert window_candidates(5, 1) == [[1], [0, 2], [1, 3], [2, 4], [3]]
     cam = seq.camera.left
     kfs = list(keyframes) + [dataclasses.replace(keyframes[0], index=99)]  # the first place again, at the end
@@ -80,6 +80,10 @@ def test_window_candidates_are_the_window_span_and_leave_a_revisit_to_the_loop_e
     space = covisible_targets(cam, kfs, cfg, 6, None, candidates="space")
     assert 5 in space[0] and 5 not in window[0] and 0 not in window[5]
     assert all(abs(t - h) <= 2 for h, ts in enumerate(window) for t in ts) and all(window)
+    looped = covisible_targets(cam, kfs, cfg, 6, None, loops=[(0, 5)])  # across a verified loop: compared
+    assert 5 in looped[0] and 0 in looped[5]
+    assert window_candidates(12, 1, [(1, 10)])[1] == [0, 2, 9, 10, 11]  # the loop's neighbourhoods, both ways
+    assert window_candidates(12, 1, [(1, 10)])[5] == [4, 6]
 
 
 def test_window_edges_are_the_window_relative_poses_with_the_tracker_covariance(keyframes):

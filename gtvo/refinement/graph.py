@@ -53,11 +53,19 @@ def candidate_targets(keyframes: Sequence[WindowKeyframe], max_targets: int) -> 
     return out
 
 
-def window_candidates(n_keyframes: int, span: int) -> list[list[int]]:
+def window_candidates(n_keyframes: int, span: int, loops: Sequence[tuple[int, int]] = ()) -> list[list[int]]:
     """Per host (position), the keyframes the window could have compared it with: those at most
     ``span`` positions before or after it (a window of ``span + 1`` keyframes). A revisit far in
-    time is not among them: it reaches the graph as a loop edge (docs/refinement.md)."""
-    return [[t for t in range(max(0, h - span), min(n_keyframes, h + span + 1)) if t != h] for h in range(n_keyframes)]
+    time is a candidate only across a verified loop: for each ``(i, j)`` of ``loops`` (positions of
+    an accepted loop edge's keyframes) the hosts within ``span`` of ``i`` get those within ``span``
+    of ``j`` and the other way round (the photometric loop term, where the overlap allows)."""
+    out = [set(range(max(0, h - span), min(n_keyframes, h + span + 1))) for h in range(n_keyframes)]
+    for i, j in loops:
+        for a, b in ((i, j), (j, i)):
+            near_b = range(max(0, b - span), min(n_keyframes, b + span + 1))
+            for h in range(max(0, a - span), min(n_keyframes, a + span + 1)):
+                out[h].update(near_b)
+    return [sorted(c - {h}) for h, c in enumerate(out)]
 
 
 def scale_change(camera: PinholeCamera, host: WindowKeyframe, target: WindowKeyframe) -> float:
@@ -81,14 +89,16 @@ def scale_change(camera: PinholeCamera, host: WindowKeyframe, target: WindowKeyf
 
 def covisible_targets(camera: PinholeCamera, keyframes: Sequence[WindowKeyframe], config: WindowConfig,
                       max_targets: int, max_scale_change: float | None = None,
-                      candidates: Literal["window", "space"] = "window") -> list[list[int]]:
+                      candidates: Literal["window", "space"] = "window",
+                      loops: Sequence[tuple[int, int]] = ()) -> list[list[int]]:
     """Per host (position in ``keyframes``), its targets over the whole log: among the candidates
-    (``window``: :func:`window_candidates` over the window's span, ``config.size - 1``; ``space``:
+    (``window``: :func:`window_candidates` over the window's span, ``config.size - 1``, and across
+    the ``loops``, pairs of positions; ``space``:
     :func:`candidate_targets`) (and, with ``max_scale_change``, those in which its points look at
     most that much bigger or smaller, :func:`scale_change`), those into which enough of its points
     project (:func:`gtvo.window.problem.visible_targets`, the window's rule), at most
     ``max_targets`` (those that see most of them)."""
-    tried = (window_candidates(len(keyframes), config.size - 1) if candidates == "window"
+    tried = (window_candidates(len(keyframes), config.size - 1, loops) if candidates == "window"
              else candidate_targets(keyframes, max_targets))
     if max_scale_change is not None:
         tried = [[t for t in ts if scale_change(camera, keyframes[h], keyframes[t]) <= max_scale_change]

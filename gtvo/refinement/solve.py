@@ -114,12 +114,13 @@ def refine_keyframes(camera: PinholeCamera, baseline: float | None, keyframes: S
     start = start_keyframes(keyframes, start_poses)
     wcfg = dataclasses.replace(window, max_iterations=config.max_iterations,
                                relative_tolerance=config.relative_tolerance)
-    targets = covisible_targets(camera, start, wcfg, config.max_targets, config.max_scale_change, config.candidates)
+    position = {kf.index: p for p, kf in enumerate(start)}
+    edges = [e for e in loop_edges if e.i in position and e.j in position and e.i != e.j]
+    targets = covisible_targets(camera, start, wcfg, config.max_targets, config.max_scale_change, config.candidates,
+                                loops=[(position[e.i], position[e.j]) for e in edges])
     if not any(targets):
         return RefinementResult(list(keyframes), False, "no keyframe sees another's points", config.solver,
                                 seconds=time.perf_counter() - t0)
-    present = {kf.index for kf in start}
-    edges = [e for e in loop_edges if e.i in present and e.j in present and e.i != e.j]
     held = window_edges(keyframes, odometry_covariances) if config.window_edges and odometry_covariances else []
     solve = solve_gtsam if config.solver == "gtsam" else solve_handrolled
     dropped = 0
