@@ -2,7 +2,8 @@
 
 :func:`refine_keyframes` takes the keyframes as the window left them (and, with loop closing, at
 the loop-closed poses), builds the window's problem over all of them with the targets of
-:func:`gtvo.refinement.graph.covisible_targets` and the accepted loop edges as ``BetweenFactorPose3``,
+:func:`gtvo.refinement.graph.covisible_targets`, the accepted loop edges and (``window_edges``) the
+window's relative poses between consecutive keyframes as ``BetweenFactorPose3``,
 and hands it to :func:`gtvo.window.solve_gtsam` (GTSAM's LM) or :func:`gtvo.window.solve_handrolled`.
 A loop edge the refined poses reject (chi-square) is dropped and the graph solved again without
 it; an LM that does not lower the cost leaves the keyframes as they were (docs/refinement.md).
