@@ -18,7 +18,7 @@ from gtvo.config import OdometryConfig
 from gtvo.datasets.synthetic import make_synthetic_sequence, write_sequence_kitti
 from gtvo.loops.closure_graph import LoopEdge
 from gtvo.refinement import RefineConfig, covisible_targets, refine_keyframes
-from gtvo.refinement.graph import candidate_targets, loop_chi2, scale_change
+from gtvo.refinement.graph import candidate_targets, loop_chi2, scale_change, window_candidates, window_edges
 from gtvo.window import WindowConfig, WindowResult, visible_targets
 from tests.test_window import _keyframes
 
@@ -69,6 +69,45 @@ def test_candidates_include_a_revisit_far_in_time(keyframes):
     cand = candidate_targets(kfs, max_targets=1)
     assert 5 in cand[0] and 1 in cand[0]  # the revisit (near in space) and the next keyframe
     assert 0 in cand[5]
+
+
+def test_window_candidates_are_the_window_span_and_a_revisit_only_across_a_loop(seq, keyframes):
+    assert window_candidates(5, 1) == [[1], [0, 2], [1, 3], [2, 4], [3]]
+    cam = seq.camera.left
+    kfs = list(keyframes) + [dataclasses.replace(keyframes[0], index=99)]  # the first place again, at the end
+    cfg = WindowConfig(size=3)
+    window = covisible_targets(cam, kfs, cfg, 6, None)  # the default: the window's span, 2 on each side
+    space = covisible_targets(cam, kfs, cfg, 6, None, candidates="space")
+    assert 5 in space[0] and 5 not in window[0] and 0 not in window[5]
+    assert all(abs(t - h) <= 2 for h, ts in enumerate(window) for t in ts) and all(window)
+    looped = covisible_targets(cam, kfs, cfg, 6, None, loops=[(0, 5)])  # across a verified loop: compared
+    assert 5 in looped[0] and 0 in looped[5]
+    assert window_candidates(12, 1, [(1, 10)])[1] == [0, 2, 9, 10, 11]  # the loop's neighbourhoods, both ways
+    assert window_candidates(12, 1, [(1, 10)])[5] == [4, 6]
+
+
+def test_window_edges_are_the_window_relative_poses_with_the_tracker_covariance(keyframes):
+    covs = [1e-4 * np.eye(6), None, np.full((6, 6), np.nan), 4e-4 * np.eye(6)]
+    edges = window_edges(keyframes, covs)
+    assert [(e.i, e.j) for e in edges] == [(0, 2), (6, 8)]  # no covariance (or not finite): no edge
+    np.testing.assert_allclose(edges[0].T_i_j, keyframes[0].pose.between(keyframes[1].pose).matrix(), atol=1e-12)
+    np.testing.assert_allclose(edges[1].information, 2500.0 * np.eye(6))
+
+
+def test_window_edges_hold_the_refined_keyframes_near_the_window_shape(seq, keyframes):
+    cam = seq.camera
+    covs = [1e-10 * np.eye(6)] * (len(keyframes) - 1)  # the window's relative poses, all but certain
+    cfg = RefineConfig(max_iterations=3, max_scale_change=None)
+    held = refine_keyframes(cam.left, cam.baseline, keyframes, WindowConfig(), cfg, odometry_covariances=covs)
+    free = refine_keyframes(cam.left, cam.baseline, keyframes, WindowConfig(),
+                            dataclasses.replace(cfg, window_edges=False), odometry_covariances=covs)
+
+    def moved(res):
+        return max(np.abs(a.pose.between(b.pose).localCoordinates(ka.pose.between(kb.pose))).max()
+                   for a, b, ka, kb in zip(keyframes, keyframes[1:], res.keyframes, res.keyframes[1:]))
+
+    assert held.ran and free.ran
+    assert moved(held) < 1e-3 and moved(free) > 1e-2  # measured 2e-4 and 2e-2
 
 
 @pytest.mark.slow

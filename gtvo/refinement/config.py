@@ -23,6 +23,15 @@ class RefineConfig:
             ``handrolled`` (the window's hand-rolled LM: a dense reduced system, for small logs).
         max_iterations: LM iterations of the whole-log graph.
         relative_tolerance: stop when an iteration lowers the cost by less than this fraction.
+        candidates: which keyframes a host may be compared with: ``window`` (those at most
+            ``window.size - 1`` keyframes before or after it, the pairs the window could have used;
+            a revisit comes in as a loop edge) or ``space`` (also those whose camera centres are
+            near, far in time: measured to pull the synthetic turn 2.2x away from the truth,
+            docs/refinement.md).
+        window_edges: the window's relative pose between consecutive keyframes joins the graph
+            as a ``BetweenFactorPose3`` with the tracker's covariance of the pair (an upper bound of
+            the window's: the graph keeps the window's local shape where the images barely fix the
+            poses; docs/refinement.md).
         max_targets: at most this many keyframes per host (those that see most of its points).
         max_scale_change: a keyframe is a host's target only when the host's points look at most
             this much bigger or smaller there (median ``|log(z_host / z_target)|``): the residual
@@ -37,6 +46,8 @@ class RefineConfig:
     solver: Literal["gtsam", "handrolled"] = "gtsam"
     max_iterations: int = setting(5, "[1, 1000]")
     relative_tolerance: float = setting(1e-4, "[0, 1]")
+    candidates: Literal["window", "space"] = "window"
+    window_edges: bool = True
     max_targets: int = setting(6, "[1, 1000]")
     max_scale_change: float | None = setting(0.25, "(0, 10]")
     loop_chi2: float = setting(CHI2_6DOF_99, "(0, 1000000]")

@@ -7,7 +7,7 @@ builder, :func:`gtvo.window.problem.build_graph`, given every keyframe and these
 
 from __future__ import annotations
 
-from typing import Sequence
+from typing import Literal, Sequence
 
 import gtsam
 import numpy as np
@@ -53,6 +53,21 @@ def candidate_targets(keyframes: Sequence[WindowKeyframe], max_targets: int) -> 
     return out
 
 
+def window_candidates(n_keyframes: int, span: int, loops: Sequence[tuple[int, int]] = ()) -> list[list[int]]:
+    """Per host (position), the keyframes the window could have compared it with: those at most
+    ``span`` positions before or after it (a window of ``span + 1`` keyframes). A revisit far in
+    time is a candidate only across a verified loop: for each ``(i, j)`` of ``loops`` (positions of
+    an accepted loop edge's keyframes) the hosts within ``span`` of ``i`` get those within ``span``
+    of ``j`` and the other way round (the photometric loop term, where the overlap allows)."""
+    out = [set(range(max(0, h - span), min(n_keyframes, h + span + 1))) for h in range(n_keyframes)]
+    for i, j in loops:
+        for a, b in ((i, j), (j, i)):
+            near_b = range(max(0, b - span), min(n_keyframes, b + span + 1))
+            for h in range(max(0, a - span), min(n_keyframes, a + span + 1)):
+                out[h].update(near_b)
+    return [sorted(c - {h}) for h, c in enumerate(out)]
+
+
 def scale_change(camera: PinholeCamera, host: WindowKeyframe, target: WindowKeyframe) -> float:
     """How much bigger or smaller the host's points look in the target: the median, over its points
     with a positive inverse depth that are in front of the target, of ``|log(z_host / z_target)|``
@@ -73,17 +88,22 @@ def scale_change(camera: PinholeCamera, host: WindowKeyframe, target: WindowKeyf
 
 
 def covisible_targets(camera: PinholeCamera, keyframes: Sequence[WindowKeyframe], config: WindowConfig,
-                      max_targets: int, max_scale_change: float | None = None) -> list[list[int]]:
-    """Per host (position in ``keyframes``), its targets over the whole log: among
-    :func:`candidate_targets` (and, with ``max_scale_change``, those in which its points look at
+                      max_targets: int, max_scale_change: float | None = None,
+                      candidates: Literal["window", "space"] = "window",
+                      loops: Sequence[tuple[int, int]] = ()) -> list[list[int]]:
+    """Per host (position in ``keyframes``), its targets over the whole log: among the candidates
+    (``window``: :func:`window_candidates` over the window's span, ``config.size - 1``, and across
+    the ``loops``, pairs of positions; ``space``:
+    :func:`candidate_targets`) (and, with ``max_scale_change``, those in which its points look at
     most that much bigger or smaller, :func:`scale_change`), those into which enough of its points
     project (:func:`gtvo.window.problem.visible_targets`, the window's rule), at most
     ``max_targets`` (those that see most of them)."""
-    candidates = candidate_targets(keyframes, max_targets)
+    tried = (window_candidates(len(keyframes), config.size - 1, loops) if candidates == "window"
+             else candidate_targets(keyframes, max_targets))
     if max_scale_change is not None:
-        candidates = [[t for t in ts if scale_change(camera, keyframes[h], keyframes[t]) <= max_scale_change]
-                      for h, ts in enumerate(candidates)]
-    return visible_targets(camera, keyframes, config, candidates=candidates, max_targets=max_targets)
+        tried = [[t for t in ts if scale_change(camera, keyframes[h], keyframes[t]) <= max_scale_change]
+                 for h, ts in enumerate(tried)]
+    return visible_targets(camera, keyframes, config, candidates=tried, max_targets=max_targets)
 
 
 def loop_factor(edge: LoopEdge) -> gtsam.BetweenFactorPose3:
@@ -103,6 +123,21 @@ def loop_factors(edges: Sequence[LoopEdge]) -> gtsam.NonlinearFactorGraph:
     for e in edges:
         graph.add(loop_factor(e))
     return graph
+
+
+def window_edges(keyframes: Sequence[WindowKeyframe], covariances: Sequence[F64 | None]) -> list[LoopEdge]:
+    """The window's answer as edges: per pair of consecutive keyframes, their relative pose as the
+    window left it, with the tracker's covariance of that pair (``covariances[k]`` for
+    ``keyframes[k]`` and ``keyframes[k + 1]``, :func:`gtvo.loops.closing.odometry_covariances`;
+    None or not finite: no edge). The tracker's covariance is an upper bound of the window's
+    (its joint refinement only adds information), so the edge holds the whole-log graph near the
+    window's local shape no harder than the odometry alone would (docs/refinement.md)."""
+    out = []
+    for a, b, cov in zip(keyframes[:-1], keyframes[1:], covariances):
+        if cov is None or not np.all(np.isfinite(cov)):
+            continue
+        out.append(LoopEdge(a.index, b.index, a.pose.between(b.pose).matrix(), np.linalg.inv(np.asarray(cov, float))))
+    return out
 
 
 def loop_chi2(edges: Sequence[LoopEdge], keyframes: Sequence[WindowKeyframe]) -> F64:

@@ -113,7 +113,8 @@ def refine_run(seq: Sequence, trajectory: Trajectory, frame_indices: list[int], 
     try:
         res = refine_keyframes(seq.pinhole, getattr(seq.camera, "baseline", None), window_keyframes, window, config,
                                loop_edges=edges, rig_offset=rig_offset,
-                               start_poses=loop_result.keyframe_poses if closed else None, photometric=photometric,
+                               start_poses=loop_result.keyframe_poses if closed else None,
+                               odometry_covariances=odometry_covariances, photometric=photometric,
                                progress=progress, on_iteration=lambda it, cost: raise_if_interrupted())
         if res.ran:
             out = _re_place(seq, base, frame_indices, kfs, res, keyframe_points, odometry_covariances, tracking,

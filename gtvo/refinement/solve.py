@@ -2,7 +2,8 @@
 
 :func:`refine_keyframes` takes the keyframes as the window left them (and, with loop closing, at
 the loop-closed poses), builds the window's problem over all of them with the targets of
-:func:`gtvo.refinement.graph.covisible_targets` and the accepted loop edges as ``BetweenFactorPose3``,
+:func:`gtvo.refinement.graph.covisible_targets`, the accepted loop edges and (``window_edges``) the
+window's relative poses between consecutive keyframes as ``BetweenFactorPose3``,
 and hands it to :func:`gtvo.window.solve_gtsam` (GTSAM's LM) or :func:`gtvo.window.solve_handrolled`.
 A loop edge the refined poses reject (chi-square) is dropped and the graph solved again without
 it; an LM that does not lower the cost leaves the keyframes as they were (docs/refinement.md).
@@ -24,7 +25,7 @@ from factors.params import DEFAULT_PHOTOMETRIC, PhotometricConfig
 from gtvo.core.camera import PinholeCamera
 from gtvo.loops.closure_graph import LoopEdge
 from gtvo.refinement.config import RefineConfig
-from gtvo.refinement.graph import covisible_targets, loop_chi2, loop_factors
+from gtvo.refinement.graph import covisible_targets, loop_chi2, loop_factors, window_edges
 from gtvo.window.config import WindowConfig, WindowKeyframe
 from gtvo.window.gtsam_solver import solve_gtsam
 from gtvo.window.handrolled import solve_handrolled
@@ -85,6 +86,7 @@ def refine_keyframes(camera: PinholeCamera, baseline: float | None, keyframes: S
                      window: WindowConfig, config: RefineConfig | None = None, *,
                      loop_edges: Sequence[LoopEdge] = (), rig_offset: F64 | None = None,
                      start_poses: Mapping[int, F64] | None = None,
+                     odometry_covariances: Sequence[F64 | None] | None = None,
                      photometric: PhotometricConfig = DEFAULT_PHOTOMETRIC, progress: bool = False,
                      on_iteration: Callable[[int, float], None] | None = None) -> RefinementResult:
     """Optimise one graph over every keyframe (module docstring); the input is not changed.
@@ -99,6 +101,9 @@ def refine_keyframes(camera: PinholeCamera, baseline: float | None, keyframes: S
         loop_edges: accepted loop edges by frame index; those between keyframes not in the list are ignored.
         rig_offset: the run's rig offset (one variable for the log), None: the rectified model.
         start_poses: frame index -> 4x4 ``T_world_cam`` to start from (the loop-closed keyframes).
+        odometry_covariances: per pair of consecutive keyframes, the tracker's covariance
+            (:func:`gtvo.loops.closing.odometry_covariances`); with ``config.window_edges`` the
+            window's relative poses join the graph with them (:func:`gtvo.refinement.graph.window_edges`).
         photometric: the run's photometric model.
         progress: a progress bar over the LM iterations.
         on_iteration: called with ``(iteration, cost)`` after every iteration (after the bar).
@@ -110,12 +115,14 @@ def refine_keyframes(camera: PinholeCamera, baseline: float | None, keyframes: S
     start = start_keyframes(keyframes, start_poses)
     wcfg = dataclasses.replace(window, max_iterations=config.max_iterations,
                                relative_tolerance=config.relative_tolerance)
-    targets = covisible_targets(camera, start, wcfg, config.max_targets, config.max_scale_change)
+    position = {kf.index: p for p, kf in enumerate(start)}
+    edges = [e for e in loop_edges if e.i in position and e.j in position and e.i != e.j]
+    targets = covisible_targets(camera, start, wcfg, config.max_targets, config.max_scale_change, config.candidates,
+                                loops=[(position[e.i], position[e.j]) for e in edges])
     if not any(targets):
         return RefinementResult(list(keyframes), False, "no keyframe sees another's points", config.solver,
                                 seconds=time.perf_counter() - t0)
-    present = {kf.index for kf in start}
-    edges = [e for e in loop_edges if e.i in present and e.j in present and e.i != e.j]
+    held = window_edges(keyframes, odometry_covariances) if config.window_edges and odometry_covariances else []
     solve = solve_gtsam if config.solver == "gtsam" else solve_handrolled
     dropped = 0
     while True:
@@ -131,7 +138,7 @@ def refine_keyframes(camera: PinholeCamera, baseline: float | None, keyframes: S
 
         try:
             res = solve(camera, baseline, current, wcfg, None, targets, rig_offset, photometric=photometric,
-                        extra_factors=loop_factors(edges) if edges else None, on_iteration=step)
+                        extra_factors=loop_factors(edges + held) if edges or held else None, on_iteration=step)
         finally:
             if bar is not None:
                 bar.close()
