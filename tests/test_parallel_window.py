@@ -164,3 +164,19 @@ def test_a_batch_log_runs_its_window_in_its_own_process_unless_its_config_asks()
 
     assert apply_overrides(OdometryConfig(), None).window.parallel is False  # one core per log
     assert apply_overrides(OdometryConfig(), {"window": {"parallel": True}}).window.parallel is True
+
+
+def test_a_parallel_runs_summary_says_what_the_worker_spent_and_a_sequential_one_has_no_worker():
+    """The front end's seconds_by_stage of a parallel run shows the wait; the window's own stages are
+    the worker's, reported under window_worker (asked before the worker ends)."""
+    from gtvo.pipeline import process_sequence  # noqa: PLC0415
+
+    seq = make_synthetic_sequence(10, width=160, height=120)
+    _, _, parallel = process_sequence(seq, OdometryConfig(window=dataclasses.replace(
+        OdometryConfig().window, parallel=True)), warn=lambda m: None)
+    worker = parallel["window_worker"]
+    assert worker["cpu_seconds"] > 0 and worker["max_rss_mib"] > 0
+    assert worker["seconds_by_stage"].get("linearisation", 0.0) > 0.0
+    assert parallel["seconds_by_stage"].get("linearisation", 0.0) == 0.0  # not the front end's
+    _, _, sequential = process_sequence(seq, OdometryConfig(), warn=lambda m: None)
+    assert "window_worker" not in sequential and sequential["seconds_by_stage"]["linearisation"] > 0.0

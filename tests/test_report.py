@@ -21,7 +21,8 @@ from gtvo.window.config import WindowConfig
 #: alignment is undetermined, a ROS bag, no open3d (or open3d), no point left out, the output folder,
 #: wheel odometry (tests/test_odometry_wheel.py reads its ``wheel_calibration``).
 RARE_KEYS = {"ground_truth", "ate_skipped", "unpaired_messages", "map_points_left_out_by_reason",
-             "out", "wheel_calibration", "refine"}  # refine: tests/test_refinement.py
+             "out", "wheel_calibration", "refine",  # refine: tests/test_refinement.py
+             "window_worker"}  # tests/test_parallel_window.py
 
 
 def fields(typed_dict) -> set[str]:

@@ -52,7 +52,15 @@ class WheelFigures(TypedDict, total=False):
     wheel_calibration: dict[str, Any]
 
 
-class OdometrySummary(StageTiming, WindowFigures, WheelFigures):
+class WindowWorkerFigures(TypedDict, total=False):
+    """What the window's worker process spent (``window.parallel``): its CPU seconds (user +
+    system), peak resident memory (MiB) and wall seconds by stage of its own clock; present only
+    when the window ran in a worker (the front end's ``seconds_by_stage`` then shows the wait)."""
+
+    window_worker: dict[str, Any]
+
+
+class OdometrySummary(StageTiming, WindowFigures, WheelFigures, WindowWorkerFigures):
     """The odometry's figures of a run, in ``report.json`` order (:func:`summarize_odometry`).
 
     Always: what ran (``mode``, ``tracker_solver``, ``motion_model``), the counts, the frame
@@ -142,6 +150,7 @@ def summarize_odometry(vo: VisualOdometry, seconds: float | None = None,
         out.update(rig_report(vo))
     out.update(wheel_report(vo.wheel, vo.window))
     out.update(stage_timing(vo))
+    out.update(window_worker_figures(vo))
     out["covariances"] = ("not computed (--no-covariances)" if config.mode == "window" and not config.window.covariances
                           else "not computed (track mode: no window)" if config.mode != "window" else "computed")
     return out  # type: ignore[return-value]  # built key by key in report order
@@ -155,6 +164,17 @@ def stage_timing(vo: VisualOdometry) -> StageTiming:
     if not seconds or not vo.estimates:
         return {}
     return {"seconds_by_stage": seconds, "ms_per_frame_by_stage": per_frame_ms(seconds, len(vo.estimates))}
+
+
+def window_worker_figures(vo: VisualOdometry) -> WindowWorkerFigures:
+    """``window_worker`` (:class:`WindowWorkerFigures`) when the window runs in a worker process;
+    empty otherwise. Asks the worker, so call it before the worker is closed."""
+    worker = getattr(vo.keyframer, "worker", None)
+    if worker is None:
+        return {}
+    usage = worker.usage()
+    return {"window_worker": {"cpu_seconds": float(usage.cpu_seconds), "max_rss_mib": float(usage.max_rss_mib),
+                              "seconds_by_stage": {k: float(v) for k, v in usage.seconds_by_stage.items()}}}
 
 
 def _mean(xs: list[float]) -> float | None:
