@@ -172,3 +172,14 @@ def test_associate_starts_from_shorter_and_raises_when_none():
     far = Trajectory(np.array([100.0]), np.eye(4)[None], name="far")
     with pytest.raises(InputError, match="no matching timestamps"):
         associate(ref, far)
+
+
+def test_pose_from_xyz_quaternion_is_the_translation_and_the_rotation_of_its_quaternion():
+    from gtvo.core.lie import pose_from_xyz_quaternion
+
+    q = np.array([-0.5, 0.5, -0.5, 0.5])  # a forward camera on a REP 103 base: camera z -> base x
+    T = pose_from_xyz_quaternion([0.3, -0.1, 0.8, *q])
+    np.testing.assert_allclose(T[:3, 3], [0.3, -0.1, 0.8])
+    np.testing.assert_allclose(T[:3, :3], quaternions_to_rotations(q)[0])
+    np.testing.assert_allclose(T[:3, :3] @ [0.0, 0.0, 1.0], [1.0, 0.0, 0.0], atol=1e-15)
+    np.testing.assert_array_equal(T[3], [0.0, 0.0, 0.0, 1.0])

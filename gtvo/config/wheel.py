@@ -9,7 +9,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from gtvo.core.lie import quaternions_to_rotations
+from gtvo.core.lie import pose_from_xyz_quaternion
 from gtvo.datasets.wheel import DEFAULT_NOMINAL_BASELINE, MAX_GAP_S, MAX_SPEED_M_S
 from gtvo.datasets.wheel_files import WheelReadOptions
 from gtvo.core.settings import SettingError, check_settings, setting
@@ -103,10 +103,7 @@ class WheelConfig:
     @property
     def T_base_cam(self) -> NDArray[np.float64]:
         """``base_to_camera`` as a 4x4 transform."""
-        T = np.eye(4)
-        T[:3, :3] = quaternions_to_rotations(self.base_to_camera[3:])[0]
-        T[:3, 3] = self.base_to_camera[:3]
-        return T
+        return pose_from_xyz_quaternion(self.base_to_camera)
 
     def read_options(self) -> WheelReadOptions:
         """The settings the wheel readers take (:func:`gtvo.datasets.open_sequence`'s ``wheel_options``)."""

@@ -258,6 +258,12 @@ def make_poses(rotations: ArrayLike, translations: ArrayLike) -> FloatArray:
     return T
 
 
+def pose_from_xyz_quaternion(xyz_quaternion: ArrayLike) -> FloatArray:
+    """``[x, y, z, qx, qy, qz, qw]`` (a translation and a unit quaternion, ROS order) as a 4x4 transform."""
+    v = np.asarray(xyz_quaternion, dtype=np.float64).reshape(7)
+    return make_poses(quaternions_to_rotations(v[3:]), v[:3])[0]
+
+
 def invert_poses(poses: ArrayLike) -> FloatArray:
     """Inverse ``[R^T, -R^T t]`` of (..., 4, 4) rigid poses (the rotation is not re-orthonormalised)."""
     T = np.asarray(poses, dtype=np.float64)

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from gtvo.core.lie import invert_poses, quaternions_to_rotations
+from gtvo.core.lie import invert_poses, pose_from_xyz_quaternion
 from gtvo.datasets.wheel import DEFAULT_NOMINAL_BASELINE, WheelKind, WheelOdometry, simulate_wheel_odometry
 from gtvo.errors import InputError, show
 
@@ -34,15 +34,6 @@ GROUND_YAW_DEG_PER_FRAME = 1.7
 GROUND_YAW_PERIOD_FRAMES = 100
 #: The nominal wheel radius of the synthetic robot (m): its JointState wheel angles are arcs / radius.
 SYNTHETIC_WHEEL_RADIUS = 0.1
-
-
-def pose_from_vector(xyz_quat: tuple[float, ...] | FloatArray) -> FloatArray:
-    """``[x, y, z, qx, qy, qz, qw]`` as a 4x4 transform."""
-    v = np.asarray(xyz_quat, dtype=np.float64).reshape(7)
-    T = np.eye(4)
-    T[:3, :3] = quaternions_to_rotations(v[3:])[0]
-    T[:3, 3] = v[:3]
-    return T
 
 
 def ground_robot_base_poses(n_frames: int, step_m: float) -> FloatArray:
@@ -66,7 +57,7 @@ def ground_robot_trajectory(n_frames: int, step_m: float = 0.15,
     c, s = np.cos(base[:, 2]), np.sin(base[:, 2])
     T_world_base[:, 0, 0], T_world_base[:, 0, 1], T_world_base[:, 1, 0], T_world_base[:, 1, 1] = c, -s, s, c
     T_world_base[:, 0, 3], T_world_base[:, 1, 3] = base[:, 0], base[:, 1]
-    T_base_cam = pose_from_vector(base_to_camera)
+    T_base_cam = pose_from_xyz_quaternion(base_to_camera)
     T_world_cam = T_world_base @ T_base_cam
     return invert_poses(T_world_cam[:1])[0] @ T_world_cam
 
@@ -110,7 +101,7 @@ class WheelSimulation:
     @property
     def T_base_cam(self) -> FloatArray:
         """``base_to_camera`` as a 4x4 transform."""
-        return pose_from_vector(self.base_to_camera)
+        return pose_from_xyz_quaternion(self.base_to_camera)
 
     @property
     def model(self) -> str:
@@ -136,7 +127,7 @@ def wheel_config_yaml(odometry: WheelOdometry, model: str = "diff_drive") -> str
     base-to-camera transform and nominal baseline (``gtvo run --config wheel.yaml``)."""
     from gtvo.core.lie import rotations_to_quaternions  # noqa: PLC0415
 
-    T = odometry.base_to_camera if odometry.base_to_camera is not None else pose_from_vector(SYNTHETIC_BASE_TO_CAMERA)
+    T = odometry.base_to_camera if odometry.base_to_camera is not None else pose_from_xyz_quaternion(SYNTHETIC_BASE_TO_CAMERA)
     vector = [*T[:3, 3].tolist(), *rotations_to_quaternions(T[:3, :3])[0].tolist()]
     return ("# the wheel odometry of a synthetic ground robot (gtvo synthetic): gtvo run --config wheel.yaml\n"
             f"wheel:\n  model: {model}\n  base_to_camera: [{', '.join(f'{v:.12g}' for v in vector)}]\n"
