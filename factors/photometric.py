@@ -29,6 +29,7 @@ pixel the sensor clipped (:class:`GradientImage`'s ``clip_range``) is invalid to
 from __future__ import annotations
 
 import dataclasses
+import functools
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -368,6 +369,13 @@ def photometric_residuals(camera: PinholeCamera, host_intensity: ArrayLike, host
                                     n_bad, n_behind, n_out, T_target_host=Tth, brightness_gain=float(e))
 
 
+@functools.lru_cache(maxsize=16)
+def _offset_projection(camera: PinholeCamera, dx: float, dy: float) -> PinholeCamera:
+    """``camera`` with its principal point moved by ``(dx, dy)``: made (and checked) once per offset,
+    not at every stereo evaluation of an optimisation that holds the offset."""
+    return dataclasses.replace(camera, cx=camera.cx + dx, cy=camera.cy + dy)
+
+
 def stereo_residuals(camera: PinholeCamera, baseline: float, left_intensity: ArrayLike,
                      left_valid: ArrayLike | None, pixels: ArrayLike, inverse_depth: ArrayLike,
                      right: GradientSampler, affine_left: ArrayLike = (0.0, 0.0),
@@ -403,7 +411,7 @@ def stereo_residuals(camera: PinholeCamera, baseline: float, left_intensity: Arr
                 bearings = pattern_bearings(camera, pixels, pattern)
             # the warp's q_z is 1 (no rotation, no z translation): shifting the principal point
             # shifts the sampled right pixel by exactly (delta_x, delta_y)
-            projection = dataclasses.replace(camera, cx=camera.cx + dx, cy=camera.cy + dy)
+            projection = _offset_projection(camera, dx, dy)
     lin = photometric_residuals(projection, left_intensity, left_valid, pixels, inverse_depth, np.eye(4),
                                 T_world_right, right, affine_left, affine_right, pattern, jacobians=jacobians,
                                 host_jacobians=jacobians, bearings=bearings)
