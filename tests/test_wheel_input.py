@@ -48,12 +48,12 @@ def test_csv_written_reads_back(tmp_path):
 @pytest.mark.parametrize("text, where, message", [
     ("time,x,y\n0,0,0\n", ":1:", "expected time,x,y,theta"),
     ("time,x,y,theta\n0,0,0,0\n0.1,0,nan,0\n", ":3:", "NaN"),
-    ("time,x,y,theta\n0,0,0,0\n0.1,0,0,0\n0.1,1,0,0\n", ": line 4:", "not after"),
-    ("time,left,right\n0,0,0\n0.1,0,0\n2.5,1,1\n", ": line 4:", "a gap of 2.400 s"),
+    ("time,x,y,theta\n0,0,0,0\n0.1,0,0,0\n0.1,1,0,0\n", ":4:", "not after"),
+    ("time,left,right\n0,0,0\n0.1,0,0\n2.5,1,1\n", ":4:", "a gap of 2.400 s"),
     ("time,left,right\n0,0,0\n0.1,0,0,7\n", ":3:", "expected 3 values"),
     ("time,left,right\n0,0,0\n", ": wheel", "at least 2 readings"),
-    ("time,left,right\n0,0,0\n0.1,100,120\n", ": line 3:", "a wheel moved 120 m in 0.1 s .*wheel.tick_scale"),
-    ("time,x,y,theta\n0,0,0,0\n0.1,150,0,0\n", ": line 3:", "the base moved 150 m .*metres"),
+    ("time,left,right\n0,0,0\n0.1,100,120\n", ":3:", "a wheel moved 120 m in 0.1 s .*wheel.tick_scale"),
+    ("time,x,y,theta\n0,0,0,0\n0.1,150,0,0\n", ":3:", "the base moved 150 m .*metres"),
 ])
 def test_bad_csv_is_one_line_naming_file_and_row(tmp_path, text, where, message):
     path = _csv(tmp_path, text)
@@ -107,7 +107,7 @@ def test_cli_run_refuses_a_bad_wheel_file_in_one_line(robot_folder, tmp_path, ca
     code = cli_main(["run", str(folder), "--out", str(tmp_path / "out"), "--wheel-odometry", str(bad),
                      "--no-progress"])
     err = capsys.readouterr().err.strip()
-    assert code == 2 and err.count("\n") == 0 and f"{bad}: line 4: time 0.1 s is not after" in err
+    assert code == 2 and err.count("\n") == 0 and f"{bad}:4: time 0.1 s is not after" in err
 
 
 def test_wheel_times_in_another_clock_are_refused_and_a_partial_log_warned(robot_folder, tmp_path, capsys):

@@ -52,8 +52,8 @@ def check_readings(times: ArrayLike, values: ArrayLike, kind: str, source: str,
     (with ``max_speed``) no faster motion (:func:`check_speed`).
 
     Raises:
-        InputError: one line naming ``source`` and the first bad reading as ``<row_name> <rows[i]>``
-            (``rows``: the file's line numbers or the bag's message numbers; default the index).
+        InputError: one line naming ``source`` and the first bad reading (:func:`reading_error`;
+            ``rows``: the file's line numbers or the bag's message numbers; default the index).
     """
     if kind not in WHEEL_COLUMNS:
         raise InputError(f"wheel odometry kind must be 'pose' or 'arcs', got {show(kind)}", source)
@@ -68,7 +68,7 @@ def check_readings(times: ArrayLike, values: ArrayLike, kind: str, source: str,
     where = np.arange(t.size) if rows is None else np.asarray(rows).reshape(-1)
 
     def refuse(i: int, message: str) -> InputError:
-        return InputError(f"{row_name} {int(where[i])}: {message}", source)
+        return reading_error(message, source, row_name, int(where[i]))
 
     bad = ~(np.isfinite(t) & np.isfinite(v).all(axis=1))
     if bad.any():
@@ -96,7 +96,7 @@ def check_speed(times: FloatArray, values: FloatArray, kind: str, source: str, r
     without ``wheel.tick_scale``, millimetres) that would otherwise pass as a wildly wrong calibration.
 
     Raises:
-        InputError: one line naming ``source`` and the reading as ``<row_name> <rows[i]>``.
+        InputError: one line naming ``source`` and the reading (:func:`reading_error`).
     """
     d = np.diff(values, axis=0)
     moved = np.abs(d).max(axis=1) if kind == "arcs" else np.hypot(d[:, 0], d[:, 1])
@@ -106,9 +106,18 @@ def check_speed(times: FloatArray, values: FloatArray, kind: str, source: str, r
         what = "a wheel" if kind == "arcs" else "the base"
         hint = ("encoder ticks? set wheel.tick_scale (m per tick)" if kind == "arcs"
                 else "not metres? the pose must be in metres and radians")
-        raise InputError(f"{row_name} {int(np.asarray(rows).reshape(-1)[i + 1])}: {what} moved {moved[i]:.4g} m in "
-                         f"{times[i + 1] - times[i]:.4g} s ({speed[i]:.4g} m/s, more than wheel.max_speed "
-                         f"{max_speed:g} m/s): {hint}", source)
+        raise reading_error(f"{what} moved {moved[i]:.4g} m in {times[i + 1] - times[i]:.4g} s ({speed[i]:.4g} m/s, "
+                            f"more than wheel.max_speed {max_speed:g} m/s): {hint}", source, row_name,
+                            int(np.asarray(rows).reshape(-1)[i + 1]))
+
+
+def reading_error(message: str, source: str, row_name: str, row: int) -> InputError:
+    """The refusal of one reading: ``<file>:<line>: message`` for a file's line (``row_name`` "line"),
+    the form of every other file error, else ``<source>: <row_name> <row>: message`` (a bag's
+    message number, an array's index)."""
+    if row_name == "line":
+        return InputError(message, source, row)
+    return InputError(f"{row_name} {row}: {message}", source)
 
 
 @dataclass(frozen=True, eq=False)
