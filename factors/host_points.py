@@ -25,8 +25,9 @@ cost of many points near the optimum). Details: docs/factors.md §7, docs/window
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -36,6 +37,7 @@ from factors.photometric import (GradientImage, GradientSampler, PhotometricLine
                                  pattern_bearings, photometric_residuals, put_rows, sample_host, stereo_residuals)
 from factors.weights import point_robust_terms, variance_weight
 from gtvo.core.camera import PinholeCamera
+from gtvo.core.kernel_threads import map_independent
 from gtvo.core.lie import se3_adjoint
 from gtvo.core.timing import timed
 from gtvo.errors import InputError
@@ -258,7 +260,19 @@ class HostPoints:
         An optimiser evaluates the cost at a trial state and, when it accepts it, linearises at the
         same state: the Jacobians cost about a third of a pass (the bilinear gathers being the
         rest), so the cost pass computes them and the linearisation reuses its output.
+
+        The calls of :meth:`residual_calls`, on the process's kernel threads
+        (:func:`gtvo.core.kernel_threads.map_independent`: one thread unless the window's worker
+        set more; the results do not depend on it).
         """
+        return map_independent(self.residual_calls(poses, affines, d, rows, offset))
+
+    def residual_calls(self, poses: Sequence, affines: Sequence | None, d: FloatArray,
+                       rows: NDArray[np.intp] | None = None, offset: ArrayLike | None = None
+                       ) -> list[Callable[[], PhotometricLinearization | None]]:
+        """:meth:`residuals` as independent calls, one per target then the stereo term's (each returns
+        its linearisation, the stereo one None without a right image): they share no mutable state,
+        so a caller may run them on several threads, and those of several hosts together."""
         sel = slice(None) if rows is None else rows
         Ih, hv, px, f, ds = self.host_intensity[sel], self.host_valid[sel], self.pixels[sel], self.bearings[sel], d[sel]
         zero = np.zeros(2)
@@ -267,21 +281,24 @@ class HostPoints:
         Ih_c, hv_c = np.ascontiguousarray(Ih, dtype=float), np.ascontiguousarray(hv, dtype=bool)
         f_c, ds_c = np.ascontiguousarray(f, dtype=float), np.ascontiguousarray(ds, dtype=float)
 
-        out: list = []
-        for t, img in enumerate(self.target_images):
+        def target(t: int) -> PhotometricLinearization:
+            img = self.target_images[t]
             at = np.asarray(affines[1 + t] if self.with_affine else zero, dtype=float)
             if isinstance(img, GradientImage):
-                out.append(compiled_residuals(self.camera, Ih_c, hv_c, f_c, ds_c, poses[0], poses[1 + t], img,
-                                              float(at[0] - ah[0]), float(ah[1]), float(at[1]),
-                                              target_jacobians=False))  # mapped from J_host in the sums
-            else:
-                out.append(photometric_residuals(self.camera, Ih, hv, px, ds, poses[0], poses[1 + t], img, ah, at,
-                                                 self.pattern, jacobians=True, host_jacobians=True, bearings=f))
-        out.append(None if self.right_image is None else
-                   stereo_residuals(self.camera, self.baseline, Ih, hv, px, ds, self.right_image, (0.0, 0.0),
+                return compiled_residuals(self.camera, Ih_c, hv_c, f_c, ds_c, poses[0], poses[1 + t], img,
+                                          float(at[0] - ah[0]), float(ah[1]), float(at[1]),
+                                          target_jacobians=False)  # mapped from J_host in the sums
+            return photometric_residuals(self.camera, Ih, hv, px, ds, poses[0], poses[1 + t], img, ah, at,
+                                         self.pattern, jacobians=True, host_jacobians=True, bearings=f)
+
+        def stereo() -> PhotometricLinearization | None:
+            if self.right_image is None:
+                return None
+            return stereo_residuals(self.camera, self.baseline, Ih, hv, px, ds, self.right_image, (0.0, 0.0),
                                     self.stereo_affine, self.pattern, jacobians=False, bearings=f, offset=offset,
-                                    offset_jacobians=self.rig))
-        return out
+                                    offset_jacobians=self.rig)
+
+        return [functools.partial(target, t) for t in range(len(self.target_images))] + [stereo]
 
     def weights(self, lins: list) -> list[FloatArray]:
         """W per target (then ``lambda`` W of the stereo term): frozen at the first call, from the

@@ -47,6 +47,7 @@ from factors.photometric import GradientImage
 from gtvo.config import OdometryConfig
 from gtvo.core.camera import PinholeCamera, StereoCamera
 from gtvo.core.interrupt import interrupts_held
+from gtvo.core.kernel_threads import set_kernel_threads
 from gtvo.core.timing import StageClock, stage
 from gtvo.odometry.blas import single_threaded_blas
 from gtvo.odometry.window_link import KeyframeForWindow, WindowLink, WindowMember, WindowUpdate
@@ -58,6 +59,9 @@ from gtvo.window.rig import RigOffset
 LAG = 2
 #: Shared image buffers: keyframe ``n`` uses slot ``n % SLOTS``, free once keyframe ``n - SLOTS``'s reply is in.
 SLOTS = LAG + 1
+#: The worker's kernel threads when ``window.worker_threads`` is unset: the front end's idle core
+#: (docs/window.md, "Kernel threads in the worker").
+DEFAULT_WORKER_THREADS = 2
 
 
 class WindowWorkerError(RuntimeError):
@@ -285,9 +289,16 @@ def main(socket_fd: int, memory_fd: int) -> None:
     except (EOFError, OSError):
         return
     memory = mmap.mmap(memory_fd, slots * slot_size)
+    set_kernel_threads(worker_threads(config))
     with single_threaded_blas():
         warm_up(camera, config)
     serve(conn, camera, config, memory, slot_size, shape)
+
+
+def worker_threads(config: OdometryConfig) -> int:
+    """The worker's kernel threads: ``window.worker_threads``, :data:`DEFAULT_WORKER_THREADS` when unset."""
+    threads = config.window.worker_threads
+    return DEFAULT_WORKER_THREADS if threads is None else int(threads)
 
 
 def warm_up(camera: StereoCamera | PinholeCamera, config: OdometryConfig) -> None:
