@@ -44,7 +44,9 @@ def test_two_threads_run_calls_at_once_and_keep_their_order(two_threads):
             both.wait()
         return 10 * k
 
+    before = kernel_threads.pool_cpu_seconds()
     assert map_independent([lambda k=k: call(k) for k in range(6)]) == [0, 10, 20, 30, 40, 50]
+    assert kernel_threads.pool_cpu_seconds() > before  # the pool thread's CPU is counted
 
 
 def test_a_calls_exception_is_raised_and_a_nested_map_runs_inline(two_threads):

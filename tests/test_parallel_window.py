@@ -182,6 +182,7 @@ def test_a_parallel_runs_summary_says_what_the_worker_spent_and_a_sequential_one
         OdometryConfig().window, parallel=True)), warn=lambda m: None)
     worker = parallel["window_worker"]
     assert worker["cpu_seconds"] > 0 and worker["max_rss_mib"] > 0
+    assert worker["kernel_threads"] == 2 and 0.0 <= worker["pool_cpu_seconds"] < worker["cpu_seconds"]
     assert worker["seconds_by_stage"].get("linearisation", 0.0) > 0.0
     assert parallel["seconds_by_stage"].get("linearisation", 0.0) == 0.0  # not the front end's
     _, _, sequential = process_sequence(seq, OdometryConfig(), warn=lambda m: None)

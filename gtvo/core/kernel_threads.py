@@ -16,6 +16,7 @@ from __future__ import annotations
 import itertools
 from concurrent.futures import ThreadPoolExecutor, wait
 import threading
+import time
 from typing import Callable, Sequence, TypeVar
 
 T = TypeVar("T")
@@ -23,6 +24,8 @@ T = TypeVar("T")
 _threads = 1
 _pool: ThreadPoolExecutor | None = None
 _inside = threading.local()  # .active: this thread is running a map_independent's calls
+_pool_cpu = [0.0]  # CPU seconds the pool threads spent in calls (under _pool_cpu_lock)
+_pool_cpu_lock = threading.Lock()
 
 
 def set_kernel_threads(threads: int) -> None:
@@ -40,6 +43,14 @@ def set_kernel_threads(threads: int) -> None:
         _pool.shutdown(wait=True)
     _threads = threads
     _pool = ThreadPoolExecutor(threads - 1, thread_name_prefix="gtvo-kernel") if threads > 1 else None
+
+
+def pool_cpu_seconds() -> float:
+    """CPU seconds the pool threads (not the calling threads) have spent in :func:`map_independent`'s
+    calls in this process: the work the other cores took off the caller (the window's worker
+    reports it, docs/window.md)."""
+    with _pool_cpu_lock:
+        return _pool_cpu[0]
 
 
 def kernel_threads() -> int:
@@ -69,7 +80,15 @@ def map_independent(calls: Sequence[Callable[[], T]]) -> list[T]:
         finally:
             _inside.active = False
 
-    helpers = [pool.submit(drain) for _ in range(min(_threads, count) - 1)]
+    def helper() -> None:
+        cpu = time.thread_time()
+        try:
+            drain()
+        finally:
+            with _pool_cpu_lock:
+                _pool_cpu[0] += time.thread_time() - cpu
+
+    helpers = [pool.submit(helper) for _ in range(min(_threads, count) - 1)]
     try:
         drain()
     finally:

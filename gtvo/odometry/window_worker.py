@@ -47,7 +47,7 @@ from factors.photometric import GradientImage
 from gtvo.config import OdometryConfig
 from gtvo.core.camera import PinholeCamera, StereoCamera
 from gtvo.core.interrupt import interrupts_held
-from gtvo.core.kernel_threads import set_kernel_threads
+from gtvo.core.kernel_threads import kernel_threads, pool_cpu_seconds, set_kernel_threads
 from gtvo.core.timing import StageClock, stage
 from gtvo.odometry.blas import single_threaded_blas
 from gtvo.odometry.window_link import KeyframeForWindow, WindowLink, WindowMember, WindowUpdate
@@ -70,12 +70,16 @@ class WindowWorkerError(RuntimeError):
 
 @dataclass
 class WorkerUsage:
-    """The worker's own figures: CPU seconds (user + system), peak resident memory (MiB), and
-    wall seconds by stage of its :class:`gtvo.core.timing.StageClock`."""
+    """The worker's own figures: CPU seconds (user + system, all its threads), peak resident memory
+    (MiB), wall seconds by stage of its :class:`gtvo.core.timing.StageClock`, its kernel threads
+    and the CPU seconds its pool threads spent (:func:`gtvo.core.kernel_threads.pool_cpu_seconds`:
+    the part of ``cpu_seconds`` that ran beside its main thread)."""
 
     cpu_seconds: float
     max_rss_mib: float
     seconds_by_stage: dict[str, float]
+    kernel_threads: int = 1
+    pool_cpu_seconds: float = 0.0
 
 
 class WindowWorker:
@@ -374,7 +378,8 @@ def _handle(link: WindowLink, message: tuple, memory: mmap.mmap, slot_size: int,
         return link.window.rig_offset_covariance()
     if kind == "usage":
         ru = resource.getrusage(resource.RUSAGE_SELF)
-        return WorkerUsage(ru.ru_utime + ru.ru_stime, ru.ru_maxrss / 1024.0, clock.snapshot())
+        return WorkerUsage(ru.ru_utime + ru.ru_stime, ru.ru_maxrss / 1024.0, clock.snapshot(), kernel_threads(),
+                           pool_cpu_seconds())
     raise ValueError(f"unknown window worker message {kind!r}")
 
 
