@@ -192,6 +192,12 @@ def main(argv: list[str] | None = None) -> int:
               fmt(r["scale"], ".4f"), fmt(r["seg_t_pct"], ".2f"), str(r["failures"]), str(r["optimisations"]),
               "yes" if r["identical"] else "NO"] for r in rows]
     print(markdown_table(header, table))
+    by_log: dict[str, dict[str, str]] = {}
+    for r in rows:
+        by_log.setdefault(r["log"], {})[r["mode"]] = r["sha"]
+    same = [log for log, shas in by_log.items() if len(shas) > 1 and
+            len({sha for mode, sha in shas.items() if mode != "sequential"}) == 1]
+    print(f"\nparallel modes with the same trajectory bytes as each other: {len(same)} of {len(by_log)} logs")
     print(f"\nshared image buffers: {SLOTS} slots of the left and right images (KITTI 1241x376: "
           f"{SLOTS * 2 * 1241 * 376 * 4 / 2**20:.1f} MiB); this process's peak RSS "
           f"{resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MiB; worker start-up "

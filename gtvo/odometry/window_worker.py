@@ -17,6 +17,11 @@ waits for its reply at once. The worker handles its messages in order and its
 replies depend on nothing else, so what the front end knows at every point of the sequence does
 not depend on timing or load: two runs give byte-identical trajectories.
 
+**Kernel threads.** The worker runs :func:`gtvo.core.kernel_threads.set_kernel_threads` with
+``window.worker_threads`` (default :data:`DEFAULT_WORKER_THREADS`): its LM passes compute every
+host's residuals at once on them (:func:`factors.smart.shared_residual_passes`), the same numbers
+as one thread (docs/window.md, "Kernel threads in the worker").
+
 **Clean ends.** The worker ignores SIGINT (the parent ends the run with its one line) and ends
 when its pipe closes: when the parent closes it (:meth:`WindowWorker.close`), exits or dies. An
 exception in the worker comes back as the same exception, raised by the front end at its next
