@@ -2,6 +2,7 @@
 
     python benchmarks/parallel_window.py [--repeat 3] [--steps 1,2,3] [--modes M,..] [--logs] [--json OUT]
     python benchmarks/parallel_window.py --starts 0,1,2,3,5,8      # ATE from other first frames
+    python benchmarks/parallel_window.py --solve 10                # one window, one and two kernel threads
 
 On the preloaded frames of KITTI_sequence_1 at every ``--steps`` frame step, runs ``gtvo run``'s
 default configuration (window mode) in each of :data:`MODES`: ``parallel+threads`` (the window's
@@ -20,7 +21,8 @@ truth's), tracking failures, and whether every repeat gave the same trajectory b
 adds every other shared log (KITTI raw, EuRoC, TUM RGB-D: 60 frames each) once per mode, for
 tracking failures. ``--starts`` runs KITTI_sequence_1 at every frame from each given first frame
 once per mode and prints the ATEs and their ratio (how much of an ATE difference is the start's
-chance). The load average (``uptime``) is printed at the start and the end: on a shared
+chance). ``--solve`` solves one KITTI window with one and two kernel threads (:func:`solve_by_threads`).
+The load average (``uptime``) is printed at the start and the end: on a shared
 machine only the ratios of one run mean anything.
 """
 
@@ -154,6 +156,59 @@ def ate_by_start(starts: list[int]) -> int:
     return 0
 
 
+def solve_by_threads(repeat: int) -> int:
+    """One KITTI window (the first of 7 keyframes of a sequential run of KITTI_sequence_1) solved by
+    ``solve_gtsam`` with one and with two kernel threads in this process, alternating, ``repeat``
+    times each: wall and main-thread CPU (min and median), the pool thread's CPU, and whether the
+    results are the same bytes. The main thread's CPU is what bounds the worker on two idle cores;
+    CPU figures are much less disturbed by a loaded machine than wall time."""
+    import copy  # noqa: PLC0415
+
+    import gtvo.window.optimizer as window_optimizer  # noqa: PLC0415
+    from gtvo.core import kernel_threads  # noqa: PLC0415
+
+    captured: list[tuple[tuple, dict]] = []
+    solve = window_optimizer.solve_gtsam
+
+    def capture(*args: Any, **kwargs: Any) -> Any:
+        if not captured and len(args[2]) >= 7:
+            captured.append(copy.deepcopy((args, kwargs)))
+        return solve(*args, **kwargs)
+
+    window_optimizer.solve_gtsam = capture
+    try:
+        seq = open_sequence(KITTI_SEQUENCE_1)
+        vo = VisualOdometry(seq.camera, config_for("sequential"))
+        for f in load_frames(seq.truncated(14), progress=False):
+            vo.process(f)
+    finally:
+        window_optimizer.solve_gtsam = solve
+    figures: dict[int, list[tuple[float, float, float, bytes]]] = {1: [], 2: []}
+    for _ in range(repeat):
+        for threads in (1, 2):
+            kernel_threads.set_kernel_threads(threads)
+            args, kwargs = copy.deepcopy(captured[0])
+            pool0, cpu0, t0 = kernel_threads.pool_cpu_seconds(), time.thread_time(), time.perf_counter()
+            result = solve(*args, **kwargs)
+            wall, cpu = time.perf_counter() - t0, time.thread_time() - cpu0
+            poses = np.stack([np.asarray(kf.pose.matrix()) for kf in args[2]])
+            figures[threads].append((wall, cpu, kernel_threads.pool_cpu_seconds() - pool0,
+                                     poses.tobytes() + np.float64(result.cost).tobytes()))
+    kernel_threads.set_kernel_threads(1)
+    rows = []
+    for threads, fs in figures.items():
+        wall, cpu, pool = (np.array([f[k] for f in fs]) * 1000 for k in range(3))
+        rows.append([str(threads), f"{wall.min():.1f} / {np.median(wall):.1f}", f"{cpu.min():.1f} / {np.median(cpu):.1f}",
+                     f"{np.median(pool):.1f}", f"{np.median(cpu + pool):.1f}"])
+    n_points = sum(len(kf) for kf in captured[0][0][2])
+    print(f"# one KITTI window ({len(captured[0][0][2])} keyframes, {n_points} points), {repeat} solves per thread count")
+    print(markdown_table(["kernel threads", "wall ms min / median", "main-thread CPU ms min / median",
+                          "pool-thread CPU ms (median)", "CPU ms, both (median)"], rows))
+    same = len({f[3] for fs in figures.values() for f in fs}) == 1
+    print(f"same bytes for every solve and thread count: {'yes' if same else 'NO'}")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--repeat", type=int, default=3)
@@ -162,8 +217,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--starts", default=None, help="first frames of KITTI_sequence_1 (comma-separated): ATE only")
     ap.add_argument("--modes", default=",".join(MODES),
                     help=f"modes to alternate, the sequential one last (comma-separated, of {', '.join(MODES)})")
+    ap.add_argument("--solve", type=int, default=None, metavar="REPEAT",
+                    help="only: one KITTI window solved with one and two kernel threads, REPEAT times each")
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args(argv)
+    if args.solve:
+        return solve_by_threads(args.solve)
     if args.starts:
         return ate_by_start([int(s) for s in args.starts.split(",")])
     modes = [m for m in args.modes.split(",") if m]
