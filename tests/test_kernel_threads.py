@@ -112,3 +112,16 @@ def test_worker_threads_default_and_batch_jobs_keep_one_core():
     assert one_core_per_log(base).window.worker_threads == 1
     asked = dataclasses.replace(base, window=dataclasses.replace(base.window, worker_threads=3))
     assert worker_threads(asked) == 3 and one_core_per_log(asked) is asked
+
+
+def test_a_batch_job_asking_for_the_parallel_window_gets_one_kernel_thread_unless_it_sets_them(tmp_path):
+    from gtvo.batching import _job  # noqa: PLC0415
+    from gtvo.batching.spec import LogSpec  # noqa: PLC0415
+
+    def job_config(window: dict):
+        log = LogSpec(name="a", path=tmp_path / "log", config={"window": window})
+        return _job(log, tmp_path / "out", None, None, 1, False, "spec.yaml: a")["config"].window
+
+    asked = job_config({"parallel": True})
+    assert asked.parallel is True and asked.worker_threads == 1
+    assert job_config({"parallel": True, "worker_threads": 2}).worker_threads == 2
