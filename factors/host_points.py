@@ -43,6 +43,8 @@ from gtvo.errors import InputError
 
 FloatArray = NDArray[np.float64]
 _NO_AFFINE = np.zeros((0, 1, 2))  # the compiled sums' 'no affine columns'
+#: :meth:`HostPoints.residuals` of fewer points than this run in the caller's thread (kernel threads)
+MIN_ROWS_TO_SHARE = 100
 
 
 def gauss_newton_sums(lin: PhotometricLinearization, weight: ArrayLike, with_affine: bool = True
@@ -271,9 +273,14 @@ class HostPoints:
 
         The calls of :meth:`residual_calls`, on the process's kernel threads
         (:func:`gtvo.core.kernel_threads.map_independent`: one thread unless the window's worker
-        set more; the results do not depend on it).
+        set more; the results do not depend on it). A few ``rows`` (fewer than
+        :data:`MIN_ROWS_TO_SHARE`, the safeguard's points whose cost rose) run in this thread: a
+        hand-over to another would cost more than their loops.
         """
-        return map_independent(self.residual_calls(poses, affines, d, rows, offset))
+        calls = self.residual_calls(poses, affines, d, rows, offset)
+        if rows is not None and rows.size < MIN_ROWS_TO_SHARE:
+            return [call() for call in calls]
+        return map_independent(calls)
 
     def residual_calls(self, poses: Sequence, affines: Sequence | None, d: FloatArray,
                        rows: NDArray[np.intp] | None = None, offset: ArrayLike | None = None
