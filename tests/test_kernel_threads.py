@@ -125,3 +125,18 @@ def test_a_batch_job_asking_for_the_parallel_window_gets_one_kernel_thread_unles
     asked = job_config({"parallel": True})
     assert asked.parallel is True and asked.worker_threads == 1
     assert job_config({"parallel": True, "worker_threads": 2}).worker_threads == 2
+
+
+def test_a_few_rows_stay_in_the_callers_thread_and_all_points_go_to_the_kernel_threads(monkeypatch):
+    import factors.host_points as host_points  # noqa: PLC0415
+    from tests.test_factors_host_points import _problem  # noqa: PLC0415
+
+    pts, poses, affines, d = _problem(n=120)
+    shared: list[int] = []
+    real = host_points.map_independent
+    monkeypatch.setattr(host_points, "map_independent", lambda calls: shared.append(len(calls)) or real(calls))
+    few = pts.residuals(poses, affines, d, rows=np.arange(host_points.MIN_ROWS_TO_SHARE - 1))
+    assert shared == [] and len(few) == 3  # two targets and the stereo term, inline
+    every = pts.residuals(poses, affines, d)
+    assert shared == [3]
+    assert all(a.residual[:len(few[0].residual)].tobytes() == b.residual.tobytes() for a, b in zip(every, few))
