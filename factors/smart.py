@@ -156,7 +156,7 @@ class HostPointsFactor(PythonFactor):
         self._cached: tuple[FloatArray, list[FloatArray]] | None = None
         self._state_lins: tuple[FloatArray, list] | None = None  # (state, lins) of the last evaluation
         self._trial: tuple[FloatArray, FloatArray, float] | None = None  # (values, depths, cost) of _safeguarded
-        #: the host factors whose residuals a cache miss computes together (:func:`share_residual_passes`)
+        #: the host factors whose residuals a cache miss computes together (:func:`shared_residual_passes`)
         self._group: list | None = None
         self._values_now: gtsam.Values | None = None  # the Values of the evaluation under way (with a group)
         super().__init__(gtsam.noiseModel.Unit.Create(self.dim + 1), self.pose_keys + self.affine_keys + self.rig_keys)
@@ -364,7 +364,6 @@ class HostPointsFactor(PythonFactor):
             n_keys += 1
         self._cached = (out.copy(), [np.array(H[i]) for i in range(n_keys)])
         return out
-
 
 
 @contextlib.contextmanager
