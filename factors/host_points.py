@@ -25,8 +25,9 @@ cost of many points near the optimum). Details: docs/factors.md §7, docs/window
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -36,12 +37,14 @@ from factors.photometric import (GradientImage, GradientSampler, PhotometricLine
                                  pattern_bearings, photometric_residuals, put_rows, sample_host, stereo_residuals)
 from factors.weights import point_robust_terms, variance_weight
 from gtvo.core.camera import PinholeCamera
-from gtvo.core.lie import se3_adjoint
+from gtvo.core.kernel_threads import map_independent
 from gtvo.core.timing import timed
 from gtvo.errors import InputError
 
 FloatArray = NDArray[np.float64]
 _NO_AFFINE = np.zeros((0, 1, 2))  # the compiled sums' 'no affine columns'
+#: :meth:`HostPoints.residuals` of fewer points than this run in the caller's thread (kernel threads)
+MIN_ROWS_TO_SHARE = 100
 
 
 def gauss_newton_sums(lin: PhotometricLinearization, weight: ArrayLike, with_affine: bool = True
@@ -122,7 +125,16 @@ def target_jacobian_map(T_target_host: ArrayLike) -> FloatArray:
     against the kernels' own ``J_target``)."""
     T = np.asarray(T_target_host, dtype=float)
     R, t = T[:3, :3], T[:3, 3]
-    return -se3_adjoint(R.T, -R.T @ t).T  # Ad^-1 is the adjoint of the inverse pose
+    # Ad^-1 is the adjoint of the inverse pose: -se3_adjoint(R^T, -R^T t)^T, its operations written
+    # out for one pose (the stacked hat3 cost 4x these; tested equal to the bit)
+    Ri = R.T
+    ti = -R.T @ t
+    hat = np.array([[0.0, -ti[2], ti[1]], [ti[2], 0.0, -ti[0]], [-ti[1], ti[0], 0.0]])
+    out = np.zeros((6, 6))
+    out[:3, :3] = Ri
+    out[3:, 3:] = Ri
+    out[3:, :3] = hat @ Ri
+    return -out.T
 
 
 def keep_cheaper_depths(d: FloatArray, c: FloatArray, lins: list, rows: NDArray[np.intp], d_old: FloatArray,
@@ -258,7 +270,24 @@ class HostPoints:
         An optimiser evaluates the cost at a trial state and, when it accepts it, linearises at the
         same state: the Jacobians cost about a third of a pass (the bilinear gathers being the
         rest), so the cost pass computes them and the linearisation reuses its output.
+
+        The calls of :meth:`residual_calls`, on the process's kernel threads
+        (:func:`gtvo.core.kernel_threads.map_independent`: one thread unless the window's worker
+        set more; the results do not depend on it). A few ``rows`` (fewer than
+        :data:`MIN_ROWS_TO_SHARE`, the safeguard's points whose cost rose) run in this thread: a
+        hand-over to another would cost more than their loops.
         """
+        calls = self.residual_calls(poses, affines, d, rows, offset)
+        if rows is not None and rows.size < MIN_ROWS_TO_SHARE:
+            return [call() for call in calls]
+        return map_independent(calls)
+
+    def residual_calls(self, poses: Sequence, affines: Sequence | None, d: FloatArray,
+                       rows: NDArray[np.intp] | None = None, offset: ArrayLike | None = None
+                       ) -> list[Callable[[], PhotometricLinearization | None]]:
+        """:meth:`residuals` as independent calls, one per target then the stereo term's (each returns
+        its linearisation, the stereo one None without a right image): they share no mutable state,
+        so a caller may run them on several threads, and those of several hosts together."""
         sel = slice(None) if rows is None else rows
         Ih, hv, px, f, ds = self.host_intensity[sel], self.host_valid[sel], self.pixels[sel], self.bearings[sel], d[sel]
         zero = np.zeros(2)
@@ -267,21 +296,24 @@ class HostPoints:
         Ih_c, hv_c = np.ascontiguousarray(Ih, dtype=float), np.ascontiguousarray(hv, dtype=bool)
         f_c, ds_c = np.ascontiguousarray(f, dtype=float), np.ascontiguousarray(ds, dtype=float)
 
-        out: list = []
-        for t, img in enumerate(self.target_images):
+        def target(t: int) -> PhotometricLinearization:
+            img = self.target_images[t]
             at = np.asarray(affines[1 + t] if self.with_affine else zero, dtype=float)
             if isinstance(img, GradientImage):
-                out.append(compiled_residuals(self.camera, Ih_c, hv_c, f_c, ds_c, poses[0], poses[1 + t], img,
-                                              float(at[0] - ah[0]), float(ah[1]), float(at[1]),
-                                              target_jacobians=False))  # mapped from J_host in the sums
-            else:
-                out.append(photometric_residuals(self.camera, Ih, hv, px, ds, poses[0], poses[1 + t], img, ah, at,
-                                                 self.pattern, jacobians=True, host_jacobians=True, bearings=f))
-        out.append(None if self.right_image is None else
-                   stereo_residuals(self.camera, self.baseline, Ih, hv, px, ds, self.right_image, (0.0, 0.0),
+                return compiled_residuals(self.camera, Ih_c, hv_c, f_c, ds_c, poses[0], poses[1 + t], img,
+                                          float(at[0] - ah[0]), float(ah[1]), float(at[1]),
+                                          target_jacobians=False)  # mapped from J_host in the sums
+            return photometric_residuals(self.camera, Ih, hv, px, ds, poses[0], poses[1 + t], img, ah, at,
+                                         self.pattern, jacobians=True, host_jacobians=True, bearings=f)
+
+        def stereo() -> PhotometricLinearization | None:
+            if self.right_image is None:
+                return None
+            return stereo_residuals(self.camera, self.baseline, Ih, hv, px, ds, self.right_image, (0.0, 0.0),
                                     self.stereo_affine, self.pattern, jacobians=False, bearings=f, offset=offset,
-                                    offset_jacobians=self.rig))
-        return out
+                                    offset_jacobians=self.rig)
+
+        return [functools.partial(target, t) for t in range(len(self.target_images))] + [stereo]
 
     def weights(self, lins: list) -> list[FloatArray]:
         """W per target (then ``lambda`` W of the stereo term): frozen at the first call, from the

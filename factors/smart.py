@@ -30,17 +30,19 @@ again returns the cached system: iSAM2 linearises new factors twice).
 
 from __future__ import annotations
 
+import contextlib
 from dataclasses import dataclass
-from typing import Sequence
+from typing import Iterator, Sequence
 
 import gtsam
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from factors.gtsam_factors import DEFAULT_HUBER_K, DEFAULT_SIGMA_INTENSITY, PythonFactor
+from factors.gtsam_factors import DEFAULT_HUBER_K, DEFAULT_SIGMA_INTENSITY, PythonFactor, _twin_class
 from factors.host_points import DepthSystem, HostPoints
 from factors.photometric import PATTERN_DSO8, GradientSampler
 from gtvo.core.camera import PinholeCamera
+from gtvo.core.kernel_threads import map_independent
 from gtvo.core.timing import timed
 from gtvo.errors import InputError
 
@@ -154,6 +156,9 @@ class HostPointsFactor(PythonFactor):
         self._cached: tuple[FloatArray, list[FloatArray]] | None = None
         self._state_lins: tuple[FloatArray, list] | None = None  # (state, lins) of the last evaluation
         self._trial: tuple[FloatArray, FloatArray, float] | None = None  # (values, depths, cost) of _safeguarded
+        #: the host factors whose residuals a cache miss computes together (:func:`shared_residual_passes`)
+        self._group: list | None = None
+        self._values_now: gtsam.Values | None = None  # the Values of the evaluation under way (with a group)
         super().__init__(gtsam.noiseModel.Unit.Create(self.dim + 1), self.pose_keys + self.affine_keys + self.rig_keys)
 
     # --- state -----------------------------------------------------------------------------
@@ -243,9 +248,47 @@ class HostPointsFactor(PythonFactor):
         if self._state_lins is not None and np.array_equal(self._state_lins[0], state):
             return self._state_lins[1]
         A, offset = self._split(affs)
-        out = self.points.residuals(poses, A, d, offset=offset)
+        if self._group is not None and self._values_now is not None:
+            out = self._group_residuals(self._values_now, poses, A, d, offset)
+        else:
+            out = self.points.residuals(poses, A, d, offset=offset)
         self._state_lins = (state, out)
         return out
+
+    def _pending(self, values: gtsam.Values) -> tuple[FloatArray, list, list | None, FloatArray, FloatArray | None] | None:
+        """``(state, poses, affines, depths, rig offset)`` of the residuals this factor's next
+        evaluation at ``values`` computes (the error's and the linearisation's first pass: the
+        depths of :meth:`_safeguarded`, or the committed ones before a linearisation), or None when
+        its cache holds them."""
+        poses, affs = self._read(values)
+        if self._lin is None:
+            d = self.depths
+        else:
+            trial = self._trial
+            key = self._state(poses, affs, None)
+            d = trial[1] if trial is not None and np.array_equal(trial[0], key) else self._back_substitution(poses, affs)
+        state = self._state(poses, affs, d)
+        if self._state_lins is not None and np.array_equal(self._state_lins[0], state):
+            return None
+        A, offset = self._split(affs)
+        return state, poses, A, d, offset
+
+    def _group_residuals(self, values: gtsam.Values, poses: list, A: list | None, d: FloatArray,
+                         offset: FloatArray | None) -> list:
+        """This factor's residuals and those every other factor of its group will ask for at the
+        same ``values`` (:meth:`_pending`), all their calls at once on the kernel threads; the
+        others' go into their caches. The numbers are those of one factor at a time (each call is
+        a pure function of its state); only when they are computed changes."""
+        others = [(g, p) for g in self._group if g.__dict__ is not self.__dict__ for p in [g._pending(values)]
+                  if p is not None]
+        calls = [self.points.residual_calls(poses, A, d, offset=offset)]
+        calls += [g.points.residual_calls(p[1], p[2], p[3], offset=p[4]) for g, p in others]
+        flat = map_independent([c for cs in calls for c in cs])
+        start = len(calls[0])
+        for (g, p), cs in zip(others, calls[1:]):
+            g._state_lins = (p[0], flat[start:start + len(cs)])
+            start += len(cs)
+        return flat[:len(calls[0])]
 
     def cost(self, values: gtsam.Values, inverse_depth: ArrayLike | None = None) -> float:
         """The true nonlinear cost at ``values`` with the given (default: current) inverse depths."""
@@ -282,6 +325,15 @@ class HostPointsFactor(PythonFactor):
 
     @timed("linearisation")  # GTSAM's every call of this factor: its cost or its linearisation
     def _evaluate(self, this: gtsam.CustomFactor, values: gtsam.Values, H: list | None) -> np.ndarray:
+        if self._group is None:
+            return self._evaluate_at(values, H)
+        self._values_now = values
+        try:
+            return self._evaluate_at(values, H)
+        finally:
+            self._values_now = None
+
+    def _evaluate_at(self, values: gtsam.Values, H: list | None) -> np.ndarray:
         poses, affs = self._read(values)
         if H is None:
             E = self._safeguarded(poses, affs)[1] if self._lin is not None else self._cost(poses, affs, self.depths)
@@ -312,3 +364,30 @@ class HostPointsFactor(PythonFactor):
             n_keys += 1
         self._cached = (out.copy(), [np.array(H[i]) for i in range(n_keys)])
         return out
+
+
+@contextlib.contextmanager
+def shared_residual_passes(factors: Sequence[HostPointsFactor]) -> Iterator[None]:
+    """Within the block, the host factors of one graph compute their residuals together: when one
+    of them misses its cache at a ``Values``, it computes the residuals every factor of the group
+    will ask for at those values, all their (host, target) calls at once on the process's kernel
+    threads (:func:`gtvo.core.kernel_threads.map_independent`), instead of one host's at a time
+    as GTSAM calls them. For whole-graph passes (LM's cost and linearisation, ``gtsam.Marginals``):
+    the parallel window's worker groups the LM graph's hosts when it has more than one kernel
+    thread (docs/window.md, "Kernel threads in the worker"). The results are those of the factors
+    alone, to the bit (a residual is a pure function of its state; a pass that evaluates only some
+    factors at most computes the others' in vain).
+
+    The group holds the factors' plain-Python twins (:class:`factors.gtsam_factors.PythonFactor`),
+    not the GTSAM objects, and is dropped at the block's end: no reference cycle keeps a factor
+    and its images alive after it."""
+    group = [_twin_class(type(f))() for f in factors]
+    for twin, f in zip(group, factors):
+        twin.__dict__ = f.__dict__
+        f._group = group
+    try:
+        yield
+    finally:
+        for f in factors:
+            f._group = None
+        group.clear()

@@ -361,3 +361,17 @@ def test_gradient_image_records_equal_the_numpy_form(clip_range, shape, whole):
     bad[-1, -1] = np.nan
     with pytest.raises(InputError, match="NaN"):
         GradientImage(bad, clip_range=clip_range)
+
+
+def test_target_jacobian_map_is_the_inverse_adjoint_to_the_bit():
+    """The written-out map equals ``-se3_adjoint(R^T, -R^T t)^T`` byte for byte (the window's numbers
+    did not move when it replaced the stacked form)."""
+    import gtsam  # noqa: PLC0415
+
+    from gtvo.core.lie import se3_adjoint  # noqa: PLC0415
+
+    rng = np.random.default_rng(3)
+    for _ in range(300):
+        T = gtsam.Pose3(gtsam.Rot3.Expmap(rng.normal(0, 1, 3)), rng.normal(0, 5, 3)).matrix()
+        R, t = T[:3, :3], T[:3, 3]
+        assert target_jacobian_map(T).tobytes() == (-se3_adjoint(R.T, -R.T @ t).T).tobytes()

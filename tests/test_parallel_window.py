@@ -24,13 +24,15 @@ from tests.test_batch_interrupt import end_group, live_processes_in_group
 from tests.test_cli import copy_with_truncated_frame
 
 
-def config(parallel: bool) -> OdometryConfig:
+def config(parallel: bool, worker_threads: int | None = None) -> OdometryConfig:
     base = OdometryConfig()
-    return dataclasses.replace(base, window=dataclasses.replace(base.window, parallel=parallel))
+    return dataclasses.replace(base, window=dataclasses.replace(base.window, parallel=parallel,
+                                                                worker_threads=worker_threads))
 
 
-def run_vo(seq, parallel: bool) -> tuple[np.ndarray, dict[int, np.ndarray], VisualOdometry]:
-    with VisualOdometry(seq.camera, config(parallel)) as vo:
+def run_vo(seq, parallel: bool, worker_threads: int | None = None
+           ) -> tuple[np.ndarray, dict[int, np.ndarray], VisualOdometry]:
+    with VisualOdometry(seq.camera, config(parallel, worker_threads)) as vo:
         for frame in seq:
             vo.process(frame)
         vo.finish()
@@ -58,6 +60,10 @@ def test_parallel_window_gives_the_same_bytes_every_run_and_under_load(kitti_sni
     assert first.tobytes() == second.tobytes()
     assert cov1.keys() == cov2.keys()
     assert all((cov1[k] is None and cov2[k] is None) or cov1[k].tobytes() == cov2[k].tobytes() for k in cov1)
+    # the worker's two kernel threads (the default) change when a host's residuals are computed, not the bytes
+    one_thread, cov3, _ = run_vo(seq, parallel=True, worker_threads=1)
+    assert first.tobytes() == one_thread.tobytes()
+    assert all((cov1[k] is None and cov3[k] is None) or cov1[k].tobytes() == cov3[k].tobytes() for k in cov1)
     sequential, _, seq_vo = run_vo(seq, parallel=False)
     assert seq_vo.keyframer.worker is None
     # a different order of the same work: close to the sequential run (cm over 14 KITTI frames), not equal
@@ -176,6 +182,7 @@ def test_a_parallel_runs_summary_says_what_the_worker_spent_and_a_sequential_one
         OdometryConfig().window, parallel=True)), warn=lambda m: None)
     worker = parallel["window_worker"]
     assert worker["cpu_seconds"] > 0 and worker["max_rss_mib"] > 0
+    assert worker["kernel_threads"] == 2 and 0.0 <= worker["pool_cpu_seconds"] < worker["cpu_seconds"]
     assert worker["seconds_by_stage"].get("linearisation", 0.0) > 0.0
     assert parallel["seconds_by_stage"].get("linearisation", 0.0) == 0.0  # not the front end's
     _, _, sequential = process_sequence(seq, OdometryConfig(), warn=lambda m: None)

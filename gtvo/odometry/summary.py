@@ -54,7 +54,8 @@ class WheelFigures(TypedDict, total=False):
 
 class WindowWorkerFigures(TypedDict, total=False):
     """What the window's worker process spent (``window.parallel``): its CPU seconds (user +
-    system), peak resident memory (MiB) and wall seconds by stage of its own clock; present only
+    system), peak resident memory (MiB), wall seconds by stage of its own clock, its kernel
+    threads and the CPU seconds its pool threads spent beside its main thread; present only
     when the window ran in a worker (the front end's ``seconds_by_stage`` then shows the wait)."""
 
     window_worker: dict[str, Any]
@@ -174,7 +175,9 @@ def window_worker_figures(vo: VisualOdometry) -> WindowWorkerFigures:
         return {}
     usage = worker.usage()
     return {"window_worker": {"cpu_seconds": float(usage.cpu_seconds), "max_rss_mib": float(usage.max_rss_mib),
-                              "seconds_by_stage": {k: float(v) for k, v in usage.seconds_by_stage.items()}}}
+                              "seconds_by_stage": {k: float(v) for k, v in usage.seconds_by_stage.items()},
+                              "kernel_threads": int(usage.kernel_threads),
+                              "pool_cpu_seconds": float(usage.pool_cpu_seconds)}}
 
 
 def _mean(xs: list[float]) -> float | None:

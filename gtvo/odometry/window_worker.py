@@ -17,6 +17,11 @@ waits for its reply at once. The worker handles its messages in order and its
 replies depend on nothing else, so what the front end knows at every point of the sequence does
 not depend on timing or load: two runs give byte-identical trajectories.
 
+**Kernel threads.** The worker runs :func:`gtvo.core.kernel_threads.set_kernel_threads` with
+``window.worker_threads`` (default :data:`DEFAULT_WORKER_THREADS`): its LM passes compute every
+host's residuals at once on them (:func:`factors.smart.shared_residual_passes`), the same numbers
+as one thread (docs/window.md, "Kernel threads in the worker").
+
 **Clean ends.** The worker ignores SIGINT (the parent ends the run with its one line) and ends
 when its pipe closes: when the parent closes it (:meth:`WindowWorker.close`), exits or dies. An
 exception in the worker comes back as the same exception, raised by the front end at its next
@@ -47,6 +52,7 @@ from factors.photometric import GradientImage
 from gtvo.config import OdometryConfig
 from gtvo.core.camera import PinholeCamera, StereoCamera
 from gtvo.core.interrupt import interrupts_held
+from gtvo.core.kernel_threads import kernel_threads, pool_cpu_seconds, set_kernel_threads
 from gtvo.core.timing import StageClock, stage
 from gtvo.odometry.blas import single_threaded_blas
 from gtvo.odometry.window_link import KeyframeForWindow, WindowLink, WindowMember, WindowUpdate
@@ -58,6 +64,9 @@ from gtvo.window.rig import RigOffset
 LAG = 2
 #: Shared image buffers: keyframe ``n`` uses slot ``n % SLOTS``, free once keyframe ``n - SLOTS``'s reply is in.
 SLOTS = LAG + 1
+#: The worker's kernel threads when ``window.worker_threads`` is unset: the front end's idle core
+#: (docs/window.md, "Kernel threads in the worker").
+DEFAULT_WORKER_THREADS = 2
 
 
 class WindowWorkerError(RuntimeError):
@@ -66,12 +75,16 @@ class WindowWorkerError(RuntimeError):
 
 @dataclass
 class WorkerUsage:
-    """The worker's own figures: CPU seconds (user + system), peak resident memory (MiB), and
-    wall seconds by stage of its :class:`gtvo.core.timing.StageClock`."""
+    """The worker's own figures: CPU seconds (user + system, all its threads), peak resident memory
+    (MiB), wall seconds by stage of its :class:`gtvo.core.timing.StageClock`, its kernel threads
+    and the CPU seconds its pool threads spent (:func:`gtvo.core.kernel_threads.pool_cpu_seconds`:
+    the part of ``cpu_seconds`` that ran beside its main thread)."""
 
     cpu_seconds: float
     max_rss_mib: float
     seconds_by_stage: dict[str, float]
+    kernel_threads: int = 1
+    pool_cpu_seconds: float = 0.0
 
 
 class WindowWorker:
@@ -285,9 +298,16 @@ def main(socket_fd: int, memory_fd: int) -> None:
     except (EOFError, OSError):
         return
     memory = mmap.mmap(memory_fd, slots * slot_size)
+    set_kernel_threads(worker_threads(config))
     with single_threaded_blas():
         warm_up(camera, config)
     serve(conn, camera, config, memory, slot_size, shape)
+
+
+def worker_threads(config: OdometryConfig) -> int:
+    """The worker's kernel threads: ``window.worker_threads``, :data:`DEFAULT_WORKER_THREADS` when unset."""
+    threads = config.window.worker_threads
+    return DEFAULT_WORKER_THREADS if threads is None else int(threads)
 
 
 def warm_up(camera: StereoCamera | PinholeCamera, config: OdometryConfig) -> None:
@@ -363,7 +383,8 @@ def _handle(link: WindowLink, message: tuple, memory: mmap.mmap, slot_size: int,
         return link.window.rig_offset_covariance()
     if kind == "usage":
         ru = resource.getrusage(resource.RUSAGE_SELF)
-        return WorkerUsage(ru.ru_utime + ru.ru_stime, ru.ru_maxrss / 1024.0, clock.snapshot())
+        return WorkerUsage(ru.ru_utime + ru.ru_stime, ru.ru_maxrss / 1024.0, clock.snapshot(), kernel_threads(),
+                           pool_cpu_seconds())
     raise ValueError(f"unknown window worker message {kind!r}")
 
 

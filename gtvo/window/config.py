@@ -97,6 +97,11 @@ class WindowConfig:
             run, a little different from the sequential order (False), in which every keyframe
             waits for its window (docs/window.md, "The window beside the tracker"). ``gtvo run
             --no-parallel`` turns it off; ``gtvo batch`` turns it off unless its config asks.
+        worker_threads: threads the parallel window's worker runs its compiled kernels on (the
+            hosts' residuals of each LM pass at once, docs/window.md, "Kernel threads in the
+            worker"): the results are the same, to the bit, for any number. None (the default):
+            2, except in ``gtvo batch`` jobs, which keep one core per log (1) unless their
+            config asks. Without ``parallel`` the window runs in the caller's thread alone.
     """
 
     size: int = setting(7, "[2, 100]")
@@ -115,9 +120,13 @@ class WindowConfig:
     rig_calibration: bool = True
     rig_offset_sigma: float = setting(2.0, "[0.01, 100]")
     parallel: bool = False
+    worker_threads: int | None = setting(None, "[1, 16]")
 
     def __post_init__(self) -> None:
         check_settings(self)  # backend and the ranges declared above
+        if self.worker_threads is not None and (isinstance(self.worker_threads, bool)
+                                                or not isinstance(self.worker_threads, int)):
+            raise SettingError("worker_threads", f"must be a whole number, got {show(self.worker_threads)}")
         for name in ("affine_sigma", "acceleration_sigma"):
             value = getattr(self, name)
             if value is not None and len(value) != 2:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import time
 from typing import TYPE_CHECKING, Callable, Sequence
 
@@ -9,6 +10,8 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
+from factors.smart import shared_residual_passes
+from gtvo.core.kernel_threads import kernel_threads
 from gtvo.core.keys import affine_key, calibration_key, pose_key, rig_offset_key
 from gtvo.core.camera import PinholeCamera
 from gtvo.window.covariance import marginals_of_graph
@@ -48,14 +51,17 @@ def solve_gtsam(camera: PinholeCamera, baseline: float | None, keyframes: Sequen
     if extra_factors is not None:
         graph.push_back(extra_factors)
     params = lm_params(config.max_iterations, config.relative_tolerance)
-    opt = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
-    initial = opt.error()  # computed by the optimiser at construction: no extra pass
-    result = opt.optimize() if on_iteration is None else optimize_by_iterations(opt, params, on_iteration)
-    cost = opt.error()
-    depths = {h: f.depths_at(result) for h, f in hosts.items()}  # before Marginals relinearises the hosts
-    t_cov = time.perf_counter()
-    covs = marginals_of_graph(graph, result, [kf.index for kf in keyframes]) if config.covariances else None
-    t_cov = time.perf_counter() - t_cov
+    # the parallel window's worker: the hosts' residuals of each pass at once, on its kernel threads
+    together = shared_residual_passes(list(hosts.values())) if kernel_threads() > 1 else contextlib.nullcontext()
+    with together:
+        opt = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
+        initial = opt.error()  # computed by the optimiser at construction: no extra pass
+        result = opt.optimize() if on_iteration is None else optimize_by_iterations(opt, params, on_iteration)
+        cost = opt.error()
+        depths = {h: f.depths_at(result) for h, f in hosts.items()}  # before Marginals relinearises the hosts
+        t_cov = time.perf_counter()
+        covs = marginals_of_graph(graph, result, [kf.index for kf in keyframes]) if config.covariances else None
+        t_cov = time.perf_counter() - t_cov
     for h, d in depths.items():
         keyframes[h].inverse_depth = d
     for kf in keyframes:
