@@ -40,6 +40,9 @@ class RefineConfig:
         loop_chi2: a loop edge whose whitened squared error after the refinement exceeds this
             (default: the 99 % quantile of chi-square, 6 degrees of freedom) is dropped and the graph
             solved again without it.
+        jacobian_cache_mb: MiB of the host factors' Jacobians kept from a cost pass for the
+            linearisation that follows (the rest are evaluated again: the same result, more time);
+            bounds the graph's memory on long logs (docs/refinement.md, "Cost").
     """
 
     enabled: bool = False
@@ -51,6 +54,7 @@ class RefineConfig:
     max_targets: int = setting(6, "[1, 1000]")
     max_scale_change: float | None = setting(0.25, "(0, 10]")
     loop_chi2: float = setting(CHI2_6DOF_99, "(0, 1000000]")
+    jacobian_cache_mb: int = setting(1024, "[0, 1000000]")
 
     def __post_init__(self) -> None:
         check_settings(self)

@@ -22,6 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from factors.params import DEFAULT_PHOTOMETRIC, PhotometricConfig
+from factors.smart import JacobianBudget
 from gtvo.core.camera import PinholeCamera
 from gtvo.loops.closure_graph import LoopEdge
 from gtvo.refinement.config import RefineConfig
@@ -136,9 +137,12 @@ def refine_keyframes(camera: PinholeCamera, baseline: float | None, keyframes: S
             if on_iteration is not None:
                 on_iteration(it, cost)
 
+        # GTSAM's LM: the host factors keep their cost passes' Jacobians within the budget
+        bounded = {} if solve is solve_handrolled else {"jacobian_budget": JacobianBudget(config.jacobian_cache_mb << 20)}
         try:
             res = solve(camera, baseline, current, wcfg, None, targets, rig_offset, photometric=photometric,
-                        extra_factors=loop_factors(edges + held) if edges or held else None, on_iteration=step)
+                        extra_factors=loop_factors(edges + held) if edges or held else None, on_iteration=step,
+                        **bounded)
         finally:
             if bar is not None:
                 bar.close()
