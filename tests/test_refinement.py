@@ -250,3 +250,19 @@ def test_lm_iteration_by_iteration_is_gtsam_own_loop(seq, keyframes):
     assert [it for it, _ in seen] == list(range(1, rb.iterations + 1))
     for ka, kb in zip(a, b):
         assert np.array_equal(ka.pose.matrix(), kb.pose.matrix()) and np.array_equal(ka.inverse_depth, kb.inverse_depth)
+
+
+def test_the_memory_bounds_change_no_result(seq, keyframes):
+    """Keyframes with compact images (as the window keeps those that leave it) and no room for the
+    host factors' kept Jacobians: the same refined poses, depths and costs, bit for bit."""
+    from factors.compact_image import compact_image  # noqa: PLC0415
+
+    cam = seq.camera
+    cfg = RefineConfig(max_iterations=3, max_scale_change=None)
+    lean = [dataclasses.replace(k, image=compact_image(k.image), right=compact_image(k.right)) for k in keyframes]
+    a = refine_keyframes(cam.left, cam.baseline, keyframes, WindowConfig(), cfg)
+    b = refine_keyframes(cam.left, cam.baseline, lean, WindowConfig(), dataclasses.replace(cfg, jacobian_cache_mb=0))
+    assert a.ran and b.ran and a.iterations == b.iterations
+    assert (a.cost_before, a.cost_after) == (b.cost_before, b.cost_after)
+    for ka, kb in zip(a.keyframes, b.keyframes):
+        assert np.array_equal(ka.pose.matrix(), kb.pose.matrix()) and np.array_equal(ka.inverse_depth, kb.inverse_depth)
