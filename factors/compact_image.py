@@ -16,6 +16,8 @@ host factors in the keyframes' order, packs each image about once.
 from __future__ import annotations
 
 from collections import OrderedDict
+from contextlib import contextmanager
+from typing import Iterator
 
 import numpy as np
 from numpy.typing import NDArray
@@ -23,8 +25,9 @@ from numpy.typing import NDArray
 from factors import _compiled
 from factors.photometric import GradientImage
 
-#: The shared cache's budget: 256 MiB of packed records (34 KITTI-sized images, 218 at 320 x 240).
-DEFAULT_PACKED_CACHE_BYTES = 256 * 2**20
+#: The shared cache's budget outside a :func:`packed_cache_budget` block: 64 MiB of packed records
+#: (8 KITTI-sized images, 54 at 320 x 240).
+DEFAULT_PACKED_CACHE_BYTES = 64 * 2**20
 
 
 class PackedCache:
@@ -47,7 +50,12 @@ class PackedCache:
         self.packs += 1
         self._held[id(image)] = image
         self.bytes += nbytes
-        while self.bytes > self.max_bytes and len(self._held) > 1:
+        self.shrink(keep_newest=True)
+
+    def shrink(self, keep_newest: bool = False) -> None:
+        """Drop the least recently used records until the held ones fit the budget (``keep_newest``:
+        never the most recent)."""
+        while self.bytes > self.max_bytes and len(self._held) > int(keep_newest):
             _, old = self._held.popitem(last=False)
             self.bytes -= old.drop_records()
 
@@ -61,6 +69,21 @@ class PackedCache:
 
 #: The cache every :class:`CompactGradientImage` uses unless given its own.
 SHARED_PACKED_CACHE = PackedCache()
+
+
+@contextmanager
+def packed_cache_budget(max_bytes: int, cache: PackedCache | None = None) -> Iterator[PackedCache]:
+    """``cache`` (default :data:`SHARED_PACKED_CACHE`) with the budget ``max_bytes`` inside the
+    block (e.g. the whole-log refinement's solve: every image's records at once when they fit,
+    each packed once), its own again after it, the records beyond it dropped."""
+    cache = SHARED_PACKED_CACHE if cache is None else cache
+    before = cache.max_bytes
+    cache.max_bytes = int(max_bytes)
+    try:
+        yield cache
+    finally:
+        cache.max_bytes = before
+        cache.shrink()
 
 
 class CompactGradientImage(GradientImage):

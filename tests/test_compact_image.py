@@ -8,7 +8,7 @@ import gtsam
 import numpy as np
 import pytest
 
-from factors.compact_image import CompactGradientImage, PackedCache, compact_image
+from factors.compact_image import CompactGradientImage, PackedCache, compact_image, packed_cache_budget
 from factors.photometric import GradientImage, photometric_residuals, sample_host
 from gtvo.datasets.synthetic import make_synthetic_sequence
 from gtvo.window import SlidingWindowOptimizer, WindowConfig
@@ -83,3 +83,14 @@ def test_the_window_keeps_the_keyframes_that_leave_with_compact_images():
     for k, src in zip(window.retired, kfs):
         assert np.array_equal(k.image.sample(u, v)[0], src.image.sample(u, v)[0])
         assert np.array_equal(k.inverse_depth, src.inverse_depth) and k.pose.equals(src.pose, 0)
+
+
+def test_a_budget_block_holds_more_and_gives_it_back():
+    rng = np.random.default_rng(4)
+    cache = PackedCache(max_bytes=0)
+    smalls = [CompactGradientImage(GradientImage(rng.uniform(1, 254, (20, 30))), cache) for _ in range(3)]
+    with packed_cache_budget(10 * 20 * 30 * 16, cache):
+        for s in smalls:
+            s.sample(np.array([5.5]), np.array([6.5]))
+        assert cache.bytes == 3 * 20 * 30 * 16 and cache.packs == 3
+    assert cache.max_bytes == 0 and cache.bytes == 0 and all(s._records is None for s in smalls)

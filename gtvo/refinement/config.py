@@ -43,6 +43,10 @@ class RefineConfig:
         jacobian_cache_mb: MiB of the host factors' Jacobians kept from a cost pass for the
             linearisation that follows (the rest are evaluated again: the same result, more time);
             bounds the graph's memory on long logs (docs/refinement.md, "Cost").
+        image_cache_mb: MiB of the keyframes' packed image records (16 bytes a pixel) held at once
+            while the graph is solved; the keyframes that left the window keep their grey levels
+            alone and are packed again when sampled beyond it (the same result, more time;
+            docs/refinement.md, "Cost").
     """
 
     enabled: bool = False
@@ -55,6 +59,7 @@ class RefineConfig:
     max_scale_change: float | None = setting(0.25, "(0, 10]")
     loop_chi2: float = setting(CHI2_6DOF_99, "(0, 1000000]")
     jacobian_cache_mb: int = setting(1024, "[0, 1000000]")
+    image_cache_mb: int = setting(1024, "[0, 1000000]")
 
     def __post_init__(self) -> None:
         check_settings(self)

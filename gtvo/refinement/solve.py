@@ -21,6 +21,7 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
+from factors.compact_image import packed_cache_budget
 from factors.params import DEFAULT_PHOTOMETRIC, PhotometricConfig
 from factors.smart import JacobianBudget
 from gtvo.core.camera import PinholeCamera
@@ -139,10 +140,11 @@ def refine_keyframes(camera: PinholeCamera, baseline: float | None, keyframes: S
 
         # GTSAM's LM: the host factors keep their cost passes' Jacobians within the budget
         bounded = {} if solve is solve_handrolled else {"jacobian_budget": JacobianBudget(config.jacobian_cache_mb << 20)}
-        try:
-            res = solve(camera, baseline, current, wcfg, None, targets, rig_offset, photometric=photometric,
-                        extra_factors=loop_factors(edges + held) if edges or held else None, on_iteration=step,
-                        **bounded)
+        try:  # the compact images' packed records: all at once when they fit the budget
+            with packed_cache_budget(config.image_cache_mb << 20):
+                res = solve(camera, baseline, current, wcfg, None, targets, rig_offset, photometric=photometric,
+                            extra_factors=loop_factors(edges + held) if edges or held else None, on_iteration=step,
+                            **bounded)
         finally:
             if bar is not None:
                 bar.close()
