@@ -58,8 +58,8 @@ class RefineConfig:
     max_targets: int = setting(6, "[1, 1000]")
     max_scale_change: float | None = setting(0.25, "(0, 10]")
     loop_chi2: float = setting(CHI2_6DOF_99, "(0, 1000000]")
-    jacobian_cache_mb: int = setting(1024, "[0, 1000000]")
-    image_cache_mb: int = setting(1024, "[0, 1000000]")
+    jacobian_cache_mb: int = setting(512, "[0, 1000000]")
+    image_cache_mb: int = setting(512, "[0, 1000000]")
 
     def __post_init__(self) -> None:
         check_settings(self)
