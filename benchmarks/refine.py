@@ -137,8 +137,9 @@ def scaling(sizes: list[int]) -> None:
 
     rows = []
     print("| keyframes | host-target pairs | seconds | per keyframe | per iteration | Values copies [s] (share) "
-          "| covariances s | RSS before / peak [MB] | refinement's memory per keyframe [MB] |")
-    print("|---|---|---|---|---|---|---|---|---|")
+          "| covariances s | hosts keeping Jacobians | image packs per keyframe | RSS before / peak [MB] "
+          "| refinement's memory per keyframe [MB] |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for n in sizes:
         out = subprocess.run([sys.executable, __file__, "--scaling-one", str(n)], check=True, capture_output=True,
                              text=True).stdout
@@ -147,7 +148,8 @@ def scaling(sizes: list[int]) -> None:
         per_it = r["seconds_lm"] / max(r["iterations"], 1)
         print(f"| {n} | {r['pairs']} | {r['seconds']:.1f} | {1000 * r['seconds'] / n:.1f} ms | {per_it:.2f} s "
               f"| {r['copies_seconds']:.1f} s ({100 * r['copies_seconds'] / r['seconds']:.0f} %) "
-              f"| {r['seconds_covariances']:.1f} | {r['rss_before_mb']:.0f} / {r['peak_mb']:.0f} "
+              f"| {r['seconds_covariances']:.1f} | {r['hosts_keeping_jacobians']} | {r['image_packs'] / n:.1f} "
+              f"| {r['rss_before_mb']:.0f} / {r['peak_mb']:.0f} "
               f"| {(r['peak_mb'] - r['rss_before_mb']) / n:.2f} |", flush=True)
     _scaling_figure(rows)
 
@@ -163,7 +165,7 @@ def scaling_one(n: int, lap: int = 100) -> dict:
 
     import factors.smart as smart  # noqa: PLC0415
     import gtvo.window.gtsam_solver as gtsam_solver  # noqa: PLC0415
-    from factors.compact_image import CompactGradientImage  # noqa: PLC0415
+    from factors.compact_image import SHARED_PACKED_CACHE, CompactGradientImage  # noqa: PLC0415
     from factors.photometric import GradientImage  # noqa: PLC0415
     from gtvo.core.image import to_float_gray  # noqa: PLC0415
     from gtvo.frontend import init_keyframe_points  # noqa: PLC0415
@@ -206,15 +208,26 @@ def scaling_one(n: int, lap: int = 100) -> dict:
         return evaluate(self, this, values, H)
 
     smart.HostPointsFactor._evaluate = counted
+    hosts, keeping = [], []  # the host factors; after each iteration, how many kept their Jacobians
+    made = smart.HostPointsFactor.__init__
+
+    def collect(self, *args, **kwargs):
+        made(self, *args, **kwargs)
+        hosts.append(self)
+
+    smart.HostPointsFactor.__init__ = collect
+    packs = SHARED_PACKED_CACHE.packs
     t0 = time.perf_counter()
     res = refine_keyframes(seq.pinhole, seq.camera.baseline, kfs, WindowConfig(),
-                           RefineConfig(enabled=True, max_iterations=3, relative_tolerance=0.0))
+                           RefineConfig(enabled=True, max_iterations=3, relative_tolerance=0.0),
+                           on_iteration=lambda it, cost: keeping.append(sum(h._reserved > 0 for h in hosts)))
     sec = time.perf_counter() - t0
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     copy_seconds, copy_calls = values_copy_seconds(n)
     return {"keyframes": n, "pairs": int(round(res.targets_mean * n)), "seconds": sec, "iterations": res.iterations,
             "seconds_covariances": sum(cov_seconds), "seconds_lm": sec - sum(cov_seconds),
             "rss_before_mb": rss_before, "peak_mb": peak, "factor_calls": calls[0],
+            "hosts_keeping_jacobians": max(keeping, default=0), "image_packs": SHARED_PACKED_CACHE.packs - packs,
             "copies_seconds": calls[0] * copy_seconds / copy_calls}
 
 

@@ -266,3 +266,27 @@ def test_the_memory_bounds_change_no_result(seq, keyframes):
     assert (a.cost_before, a.cost_after) == (b.cost_before, b.cost_after)
     for ka, kb in zip(a.keyframes, b.keyframes):
         assert np.array_equal(ka.pose.matrix(), kb.pose.matrix()) and np.array_equal(ka.inverse_depth, kb.inverse_depth)
+
+
+@pytest.mark.slow
+def test_the_whole_log_graph_carries_the_wheel_odometry_and_both_solvers_agree(seq, keyframes):
+    """With the run's wheel odometry the graph has its factors between consecutive keyframes and one
+    calibration variable with its prior (the start cost grows by their error); GTSAM's LM and the
+    hand-rolled one reach the same cost, poses and calibration; the window's owner is not changed."""
+    from tests.test_window_wheel import _wheel  # noqa: PLC0415
+
+    cam = seq.camera
+    wheel = _wheel(seq)
+    cfg = RefineConfig(max_iterations=30, relative_tolerance=1e-12, max_scale_change=None)
+    out = {s: refine_keyframes(cam.left, cam.baseline, keyframes, WindowConfig(), dataclasses.replace(cfg, solver=s),
+                               photometric=NO_HUBER, wheel=wheel) for s in ("gtsam", "handrolled")}
+    without = refine_keyframes(cam.left, cam.baseline, keyframes, WindowConfig(), dataclasses.replace(cfg, max_iterations=1),
+                               photometric=NO_HUBER)
+    a, b = out["gtsam"], out["handrolled"]
+    assert a.ran and b.ran and without.wheel_calibration is None
+    assert a.cost_before == pytest.approx(b.cost_before, rel=1e-9) and a.cost_before - without.cost_before > 1.0
+    assert a.cost_after == pytest.approx(b.cost_after, rel=1e-4)
+    assert max(np.abs(x.pose.localCoordinates(y.pose)).max() for x, y in zip(a.keyframes, b.keyframes)) < 3e-5
+    np.testing.assert_allclose(a.wheel_calibration, b.wheel_calibration, atol=1e-4)
+    assert np.abs(a.wheel_calibration - 1.0).max() > 1e-3  # the wheels moved it
+    np.testing.assert_array_equal(wheel.estimate, np.ones(3))
