@@ -290,3 +290,25 @@ def test_the_whole_log_graph_carries_the_wheel_odometry_and_both_solvers_agree(s
     np.testing.assert_allclose(a.wheel_calibration, b.wheel_calibration, atol=1e-4)
     assert np.abs(a.wheel_calibration - 1.0).max() > 1e-3  # the wheels moved it
     np.testing.assert_array_equal(wheel.estimate, np.ones(3))
+
+
+@pytest.mark.slow
+def test_a_run_with_wheels_refines_the_calibration_of_the_log():
+    """``gtvo run``'s refinement step (:func:`gtvo.pipeline.refine_vo_run`) hands the window's wheel
+    calibration to the whole-log graph: the report's refine block has the refined calibration, near
+    the wheels' truth (24 synthetic frames with simulated wheels)."""
+    from gtvo.config import WheelConfig, as_config  # noqa: PLC0415
+    from gtvo.datasets.wheel import simulate_wheel_odometry  # noqa: PLC0415
+    from gtvo.pipeline import process_sequence, refine_vo_run  # noqa: PLC0415
+    from tests.test_odometry_wheel import BASE_TO_CAMERA, K_TRUE  # noqa: PLC0415
+
+    seq = make_synthetic_sequence(24, width=240, height=180, step_m=0.1, motion="turn")
+    log = simulate_wheel_odometry(seq.timestamps, np.asarray(seq.gt_poses),
+                                  WheelConfig(base_to_camera=tuple(BASE_TO_CAMERA)).T_base_cam, "pose", K_TRUE,
+                                  nominal_baseline=0.5)
+    seq = dataclasses.replace(seq, wheel_odometry=log)
+    cfg = as_config({"wheel": {"base_to_camera": BASE_TO_CAMERA}, "refine": {"enabled": True, "max_iterations": 2}})
+    vo, traj, _ = process_sequence(seq, cfg, warn=lambda m: None)
+    refined = refine_vo_run(seq, vo, traj, None, False)
+    assert refined.summary["ran"]
+    np.testing.assert_allclose(refined.summary["wheel_calibration"], K_TRUE, atol=0.02)
