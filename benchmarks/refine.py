@@ -20,7 +20,7 @@ every frame a keyframe at its true pose with stereo points and its own compact i
 window keeps them; default 100 to 2000 keyframes, each size in its own process), the share of
 GTSAM's Values copies, the covariances' time, peak memory, and the figure docs/refinement_scaling.png.
 
-Usage: python benchmarks/refine.py [--quick] [--only NAME,...] [--scaling [N,...]]
+Usage: python benchmarks/refine.py [--quick] [--only NAME,...] [--scaling [N,...] [--stack S]]
 """
 
 from __future__ import annotations
@@ -129,7 +129,12 @@ def accuracy(only: set[str] | None, quick: bool) -> None:
                    measure(seq, loops=loops)), flush=True)
 
 
-def scaling(sizes: list[int]) -> None:
+def _stack(argv: list[str]) -> int:
+    """``--stack S``: ``refine.stacked_factors`` of the scaling runs (default: the setting's default)."""
+    return int(argv[argv.index("--stack") + 1]) if "--stack" in argv else RefineConfig().stacked_factors
+
+
+def scaling(sizes: list[int], stack: int | None = None) -> None:
     """The refinement's time and memory against the number of keyframes (module docstring): each
     size in its own process (:func:`scaling_one`, its peak memory its own), then the figure."""
     import json  # noqa: PLC0415
@@ -141,10 +146,11 @@ def scaling(sizes: list[int]) -> None:
           "| refinement's memory per keyframe [MB] |")
     print("|---|---|---|---|---|---|---|---|---|---|---|")
     for n in sizes:
-        out = subprocess.run([sys.executable, __file__, "--scaling-one", str(n)], check=True, capture_output=True,
-                             text=True).stdout
+        out = subprocess.run([sys.executable, __file__, "--scaling-one", str(n), "--stack",
+                              str(RefineConfig().stacked_factors if stack is None else stack)], check=True,
+                             capture_output=True, text=True).stdout
         r = json.loads(out.strip().splitlines()[-1])
-        rows.append((n, r["seconds"]))
+        rows.append((n, r["seconds"], r["seconds_gtsam_own"]))
         per_it = r["seconds_lm"] / max(r["iterations"], 1)
         print(f"| {n} | {r['pairs']} | {r['seconds']:.1f} | {1000 * r['seconds'] / n:.1f} ms | {per_it:.2f} s "
               f"| {r['seconds_gtsam_own']:.1f} s ({100 * r['seconds_gtsam_own'] / r['seconds']:.0f} %) "
@@ -154,7 +160,7 @@ def scaling(sizes: list[int]) -> None:
     _scaling_figure(rows)
 
 
-def scaling_one(n: int, lap: int = 100) -> dict:
+def scaling_one(n: int, lap: int = 100, stack: int | None = None) -> dict:
     """One size of :func:`scaling`: a synthetic loop of ``lap`` frames (320 x 240) driven round
     again and again, every frame a keyframe at its true pose moved by about 1 mm / 0.5 mrad (so
     that LM has work) with its stereo points and its own images kept as the window keeps a
@@ -241,7 +247,8 @@ def scaling_one(n: int, lap: int = 100) -> dict:
     packs = SHARED_PACKED_CACHE.packs
     t0 = time.perf_counter()
     res = refine_keyframes(seq.pinhole, seq.camera.baseline, kfs, WindowConfig(),
-                           RefineConfig(enabled=True, max_iterations=3, relative_tolerance=0.0),
+                           RefineConfig(enabled=True, max_iterations=3, relative_tolerance=0.0,
+                                        stacked_factors=RefineConfig().stacked_factors if stack is None else stack),
                            on_iteration=lambda it, cost: keeping.append(sum(h._reserved > 0 for h in hosts)))
     sec = time.perf_counter() - t0
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
@@ -297,15 +304,16 @@ def _rss_mb() -> float:
     return float("nan")
 
 
-def _scaling_figure(rows: list[tuple[int, float]]) -> None:
+def _scaling_figure(rows: list[tuple[int, float, float]]) -> None:
     import matplotlib  # noqa: PLC0415
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt  # noqa: PLC0415
 
-    n, sec = np.array(rows, dtype=float).T
+    n, sec, own = np.array(rows, dtype=float).T
     fig, ax = plt.subplots(figsize=(5, 3.4))
     ax.plot(n, sec, "o-", label="measured (3 LM iterations)")
+    ax.plot(n, own, "s:", label="of it GTSAM's own (Values copies)")
     ax.plot(n, sec[0] / n[0] * n, "--", color="gray", label="linear through the first point")
     ax.set_xlabel("keyframes")
     ax.set_ylabel("refinement seconds")
@@ -324,13 +332,13 @@ def main(argv: list[str]) -> None:
     if "--scaling-one" in argv:
         import json  # noqa: PLC0415
 
-        print(json.dumps(scaling_one(int(argv[argv.index("--scaling-one") + 1]))))
+        print(json.dumps(scaling_one(int(argv[argv.index("--scaling-one") + 1]), stack=_stack(argv))))
         return
     if "--scaling" in argv:
         i = argv.index("--scaling")
         sizes = [int(x) for x in argv[i + 1].split(",")] if i + 1 < len(argv) and argv[i + 1][0].isdigit() else \
             [100, 250, 500, 1000, 2000]
-        scaling(sizes)
+        scaling(sizes, _stack(argv))
         return
     accuracy(only, "--quick" in argv)
     print(f"peak memory {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MB")

@@ -47,6 +47,10 @@ class RefineConfig:
             while the graph is solved; the keyframes that left the window keep their grey levels
             alone and are packed again when sampled beyond it (the same result, more time;
             docs/refinement.md, "Cost").
+        stacked_factors: GTSAM's LM: the host factors and the motion priors in runs of this many,
+            each run one GTSAM factor (the same cost and rows): GTSAM copies the Values for every
+            call of a Python factor, a part that grows as the square of the keyframes
+            (docs/refinement.md, "Cost"); 1: one factor each, as the window.
     """
 
     enabled: bool = False
@@ -60,6 +64,7 @@ class RefineConfig:
     loop_chi2: float = setting(CHI2_6DOF_99, "(0, 1000000]")
     jacobian_cache_mb: int = setting(512, "[0, 1000000]")
     image_cache_mb: int = setting(512, "[0, 1000000]")
+    stacked_factors: int = setting(16, "[1, 1000]")
 
     def __post_init__(self) -> None:
         check_settings(self)

@@ -147,7 +147,8 @@ def refine_keyframes(camera: PinholeCamera, baseline: float | None, keyframes: S
                 on_iteration(it, cost)
 
         # GTSAM's LM: the host factors keep their cost passes' Jacobians within the budget
-        bounded = {} if solve is solve_handrolled else {"jacobian_budget": JacobianBudget(config.jacobian_cache_mb << 20)}
+        bounded = {} if solve is solve_handrolled else {"jacobian_budget": JacobianBudget(config.jacobian_cache_mb << 20),
+                                                        "stack": config.stacked_factors}
         try:  # the compact images' packed records: all at once when they fit the budget
             with packed_cache_budget(config.image_cache_mb << 20):
                 res = solve(camera, baseline, current, wcfg, None, targets, rig_offset, photometric=photometric,

@@ -17,6 +17,7 @@ from gtvo.core.keys import affine_key, calibration_key, pose_key, rig_offset_key
 from factors.params import DEFAULT_PHOTOMETRIC, PhotometricConfig
 from factors.smart import HostPointsFactor, JacobianBudget
 from factors.smoothness import ConstantVelocityFactor
+from factors.stacked import stacked
 from gtvo.core.camera import MIN_DEPTH, PinholeCamera
 from gtvo.core.timing import timed
 from gtvo.errors import InputError
@@ -236,28 +237,30 @@ def build_graph(camera: PinholeCamera, baseline: float | None, keyframes: Sequen
                 config: WindowConfig, marginal: MarginalPrior | None,
                 targets: list[list[int]] | None = None, rig_offset: FloatArray | None = None,
                 rig_hold_x: float | None = None, *, photometric: PhotometricConfig = DEFAULT_PHOTOMETRIC,
-                wheel: "WheelCalibration | None" = None, jacobian_budget: JacobianBudget | None = None
-                ) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values, dict[int, HostPointsFactor]]:
+                wheel: "WheelCalibration | None" = None, jacobian_budget: JacobianBudget | None = None,
+                stack: int = 1) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values, dict[int, HostPointsFactor]]:
     """The window's factor graph: one smart factor per host with targets, priors, motion prior,
     marginal prior; with ``rig_offset`` (its current estimate) the rig offset is a variable of
     every stereo host factor, with :func:`rig_prior` until the marginal prior carries it
     (``rig_hold_x``: its ``delta_x`` held at that value); with ``wheel`` the wheel factors and the
     calibration variable, with its prior until the marginal prior carries it; ``jacobian_budget``:
-    shared by the host factors (:func:`host_factor`; the whole-log refinement's).
+    shared by the host factors (:func:`host_factor`; the whole-log refinement's); ``stack``: the motion
+    priors and the host factors in runs of this many, each run one GTSAM factor
+    (:func:`factors.stacked.stacked`: fewer copies of the Values in GTSAM's optimisers).
 
     Returns ``(graph, values, host_factors)`` with ``host_factors[position] = factor``.
     """
     targets = visible_targets(camera, keyframes, config) if targets is None else targets
     graph = prior_factors(keyframes, config, with_gauge=marginal is None)
-    for _, f in motion_factors(keyframes, config):
+    for f in stacked([f for _, f in motion_factors(keyframes, config)], stack):
         graph.add(f)
     hosts: dict[int, HostPointsFactor] = {}
     for h, ts in enumerate(targets):
         if ts:
-            f = host_factor(camera, baseline, keyframes, h, ts, config, rig=rig_offset is not None,
-                            photometric=photometric, jacobian_budget=jacobian_budget)
-            hosts[h] = f
-            graph.add(f)
+            hosts[h] = host_factor(camera, baseline, keyframes, h, ts, config, rig=rig_offset is not None,
+                                   photometric=photometric, jacobian_budget=jacobian_budget)
+    for f in stacked(list(hosts.values()), stack):
+        graph.add(f)
     if marginal is not None:
         for f in marginal.nonlinear_factors():
             graph.add(f)
