@@ -259,10 +259,13 @@ class HostPoints:
     # --- residuals and weights ---------------------------------------------------------------
     @timed("linearisation")
     def residuals(self, poses: Sequence, affines: Sequence | None, d: FloatArray,
-                  rows: NDArray[np.intp] | None = None, offset: ArrayLike | None = None) -> list:
+                  rows: NDArray[np.intp] | None = None, offset: ArrayLike | None = None,
+                  jacobians: bool = True) -> list:
         """Linearisations (with Jacobians) of every target, then the stereo term (or None), of all
         points or of the points ``rows`` (``d`` is always the full (N,) vector); ``offset``: the
-        rig offset of the stereo term (None: zero, the rectified model). For a
+        rig offset of the stereo term (None: zero, the rectified model); ``jacobians=False``: the
+        residuals, validity and ``J_depth`` only (a cost, not a linearisation: the same values,
+        without the pose, affine and offset Jacobians and their memory). For a
         :class:`GradientImage` target ``J_target`` and ``J_affine_target`` are None (the sums map
         them from the host Jacobians with the pair's pose, :func:`gauss_newton_sums`); other
         samplers give them.
@@ -277,14 +280,14 @@ class HostPoints:
         :data:`MIN_ROWS_TO_SHARE`, the safeguard's points whose cost rose) run in this thread: a
         hand-over to another would cost more than their loops.
         """
-        calls = self.residual_calls(poses, affines, d, rows, offset)
+        calls = self.residual_calls(poses, affines, d, rows, offset, jacobians)
         if rows is not None and rows.size < MIN_ROWS_TO_SHARE:
             return [call() for call in calls]
         return map_independent(calls)
 
     def residual_calls(self, poses: Sequence, affines: Sequence | None, d: FloatArray,
-                       rows: NDArray[np.intp] | None = None, offset: ArrayLike | None = None
-                       ) -> list[Callable[[], PhotometricLinearization | None]]:
+                       rows: NDArray[np.intp] | None = None, offset: ArrayLike | None = None,
+                       jacobians: bool = True) -> list[Callable[[], PhotometricLinearization | None]]:
         """:meth:`residuals` as independent calls, one per target then the stereo term's (each returns
         its linearisation, the stereo one None without a right image): they share no mutable state,
         so a caller may run them on several threads, and those of several hosts together."""
@@ -302,16 +305,16 @@ class HostPoints:
             if isinstance(img, GradientImage):
                 return compiled_residuals(self.camera, Ih_c, hv_c, f_c, ds_c, poses[0], poses[1 + t], img,
                                           float(at[0] - ah[0]), float(ah[1]), float(at[1]),
-                                          target_jacobians=False)  # mapped from J_host in the sums
+                                          jacobians=jacobians, target_jacobians=False)  # mapped from J_host in the sums
             return photometric_residuals(self.camera, Ih, hv, px, ds, poses[0], poses[1 + t], img, ah, at,
-                                         self.pattern, jacobians=True, host_jacobians=True, bearings=f)
+                                         self.pattern, jacobians=jacobians, host_jacobians=True, bearings=f)
 
         def stereo() -> PhotometricLinearization | None:
             if self.right_image is None:
                 return None
             return stereo_residuals(self.camera, self.baseline, Ih, hv, px, ds, self.right_image, (0.0, 0.0),
                                     self.stereo_affine, self.pattern, jacobians=False, bearings=f, offset=offset,
-                                    offset_jacobians=self.rig)
+                                    offset_jacobians=self.rig and jacobians)
 
         return [functools.partial(target, t) for t in range(len(self.target_images))] + [stereo]
 
@@ -421,15 +424,17 @@ class HostPoints:
 
     @timed("linearisation")
     def safeguard(self, poses: Sequence, affines: Sequence | None, system: DepthSystem, d: FloatArray,
-                  lins: list, offset: ArrayLike | None = None) -> tuple[FloatArray, FloatArray, list]:
+                  lins: list, offset: ArrayLike | None = None, jacobians: bool = True
+                  ) -> tuple[FloatArray, FloatArray, list]:
         """The safeguarded depth step at a trial state: ``d`` are :meth:`DepthSystem.back_substitute`'s
-        depths and ``lins`` the :meth:`residuals` there; the points whose cost rose above their cost
-        at ``system``'s linearisation point and that cost less at their depth there keep it.
+        depths and ``lins`` the :meth:`residuals` there (``jacobians``: as they were evaluated); the
+        points whose cost rose above their cost at ``system``'s linearisation point and that cost
+        less at their depth there keep it.
         Returns ``(point costs, depths, linearisations)`` (``d`` itself when no point goes back)."""
         c = self.point_costs(lins, d)
         rows = np.flatnonzero(c > system.point_cost)
         if rows.size:
-            lins_old = self.residuals(poses, affines, system.d, rows, offset)
+            lins_old = self.residuals(poses, affines, system.d, rows, offset, jacobians=jacobians)
             d, c, lins = keep_cheaper_depths(d, c, lins, rows, system.d, self.point_costs(lins_old, system.d, rows),
                                              lins_old)
         return c, d, lins

@@ -68,6 +68,36 @@ def whitened_system(H: FloatArray, g: FloatArray) -> tuple[FloatArray, FloatArra
     return L.T, np.linalg.solve(L, g)
 
 
+class JacobianBudget:
+    """How many bytes of cost-pass Jacobians the host factors of one graph may keep together.
+
+    A host factor's cost pass (LM's trial) computes its residuals' Jacobians too and keeps them for
+    the linearisation that follows an accepted step (a third of a pass saved). That is about 10 MB
+    a host for a KITTI-sized keyframe: fine for a window of 7, not for a log of thousands. A factor
+    given a budget keeps its Jacobians only while the budget has room (first come, first kept:
+    the factors of one pass keep theirs pass after pass); the others evaluate their cost without
+    Jacobians and keep nothing, and their linearisation evaluates the residuals again with them (the
+    same values: each point's residuals depend on its own depth only). Results are the same either way.
+    """
+
+    def __init__(self, max_bytes: int) -> None:
+        if max_bytes < 0:
+            raise InputError(f"JacobianBudget: max_bytes must be >= 0, got {max_bytes}")
+        self.max_bytes = int(max_bytes)
+        self.used = 0
+
+    def reserve(self, nbytes: int) -> bool:
+        """Take ``nbytes`` if they fit; True when taken."""
+        if self.used + nbytes > self.max_bytes:
+            return False
+        self.used += nbytes
+        return True
+
+    def release(self, nbytes: int) -> None:
+        """Give back ``nbytes`` taken by :meth:`reserve`."""
+        self.used = max(self.used - nbytes, 0)
+
+
 @dataclass
 class _Linearization:
     x_poses: list[gtsam.Pose3]
@@ -106,6 +136,9 @@ class HostPointsFactor(PythonFactor):
         rig_key: key of the rig offset ``(delta_x, delta_y)`` (Vector2, px) of the stereo term
             (:func:`factors.photometric.stereo_residuals`' ``offset``), or None (rectified model).
             Needs ``right_image``; it is the factor's last key and the last 2 entries of M.
+        jacobian_budget: shared by the host factors of one graph: keep a cost pass's Jacobians for
+            the linearisation only while it has room (:class:`JacobianBudget`); None: always keep
+            them (the window's few hosts).
 
     The variance weights W are frozen at the first linearisation of an optimisation run and
     released by :meth:`commit` (so the next run re-evaluates them): with W moving with the
@@ -120,7 +153,8 @@ class HostPointsFactor(PythonFactor):
                  depth_prior: bool = True, pattern: ArrayLike = PATTERN_DSO8,
                  right_image: GradientSampler | None = None, baseline: float | None = None,
                  lambda_stereo: float = 1.0, stereo_affine: ArrayLike = (0.0, 0.0),
-                 prior_inverse_depth: ArrayLike | None = None, rig_key: int | None = None) -> None:
+                 prior_inverse_depth: ArrayLike | None = None, rig_key: int | None = None,
+                 jacobian_budget: JacobianBudget | None = None) -> None:
         self.target_keys = list(target_keys)
         if not self.target_keys:
             raise InputError("HostPointsFactor needs at least one target")
@@ -155,6 +189,8 @@ class HostPointsFactor(PythonFactor):
         self._lin: _Linearization | None = None
         self._cached: tuple[FloatArray, list[FloatArray]] | None = None
         self._state_lins: tuple[FloatArray, list] | None = None  # (state, lins) of the last evaluation
+        self._budget = jacobian_budget
+        self._reserved = 0  # bytes of self._budget the kept lins hold
         self._trial: tuple[FloatArray, FloatArray, float] | None = None  # (values, depths, cost) of _safeguarded
         #: the host factors whose residuals a cache miss computes together (:func:`shared_residual_passes`)
         self._group: list | None = None
@@ -204,8 +240,10 @@ class HostPointsFactor(PythonFactor):
             return self._trial[1], self._trial[2]
         d = self._back_substitution(poses, affs)
         A, offset = self._split(affs)
-        c, d_safe, lins = self.points.safeguard(poses, A, lin.system, d, self._lins(poses, affs, d), offset)
-        if d_safe is not d:
+        lins = self._lins(poses, affs, d)
+        c, d_safe, lins = self.points.safeguard(poses, A, lin.system, d, lins, offset,
+                                                jacobians=lins[0] is None or lins[0].J_host is not None)
+        if d_safe is not d and self._state_lins is not None:  # kept: the merged ones, at their state
             self._state_lins = (self._state(poses, affs, d_safe), lins)
         d = d_safe
         E = float(c.sum())
@@ -226,7 +264,7 @@ class HostPointsFactor(PythonFactor):
         self._lin = None
         self.points.release_weights()
         self._cached = None
-        self._state_lins = None
+        self._keep(None)
         self._trial = None
         return self.depths
 
@@ -237,22 +275,33 @@ class HostPointsFactor(PythonFactor):
         parts = [np.concatenate([p.matrix().ravel() for p in poses])] + [np.asarray(a, dtype=float) for a in affs]
         return np.concatenate(parts + ([] if d is None else [d]))
 
-    def _lins(self, poses, affs, d) -> list:
-        """Linearisations (with Jacobians) of every target, then the stereo term (or None), at a state.
+    def _lins(self, poses, affs, d, jacobians: bool = False) -> list:
+        """Linearisations of every target, then the stereo term (or None), at a state (with
+        ``jacobians``: with their Jacobians, else perhaps without).
 
         One evaluation per state: LM evaluates the cost at a trial state and, when it accepts it,
         linearises at the same state; the cost pass already computes the Jacobians (about a third
-        of a pass's time, the bilinear gathers being the rest) so that the linearisation reuses it.
+        of a pass's time, the bilinear gathers being the rest) so that the linearisation reuses it,
+        while the factor's :class:`JacobianBudget` has room; else the cost pass computes no
+        Jacobians and keeps nothing, and the linearisation evaluates the state again.
         """
         state = self._state(poses, affs, d)
         if self._state_lins is not None and np.array_equal(self._state_lins[0], state):
             return self._state_lins[1]
         A, offset = self._split(affs)
-        if self._group is not None and self._values_now is not None:
+        if self._group is not None and self._values_now is not None and self._budget is None:
             out = self._group_residuals(self._values_now, poses, A, d, offset)
+            self._state_lins = (state, out)
+            return out
+        nbytes = self._jacobian_bytes()
+        keep = self._budget is None or self._budget.reserve(nbytes - self._reserved)
+        if keep:
+            self._reserved = nbytes if self._budget is not None else 0
         else:
-            out = self.points.residuals(poses, A, d, offset=offset)
-        self._state_lins = (state, out)
+            self._keep(None)
+        out = self.points.residuals(poses, A, d, offset=offset, jacobians=keep or jacobians)
+        if keep:
+            self._state_lins = (state, out)
         return out
 
     def _pending(self, values: gtsam.Values) -> tuple[FloatArray, list, list | None, FloatArray, FloatArray | None] | None:
@@ -290,6 +339,19 @@ class HostPointsFactor(PythonFactor):
             start += len(cs)
         return flat[:len(calls[0])]
 
+    def _jacobian_bytes(self) -> int:
+        """About what one evaluation's linearisations hold: per point, pattern pixel and target
+        the residual, validity, ``J_depth``, warped pixel and host pose and affine Jacobians."""
+        n, p = self.points.pixels.shape[0], self.points.pattern.shape[0]
+        return n * p * (len(self.target_keys) * (8 * (1 + 1 + 2 + 6 + 2) + 1) + 8 * (1 + 1 + 2 + 2) + 1)
+
+    def _keep(self, kept: tuple[FloatArray, list] | None) -> None:
+        """Set the kept linearisations (None: none; their budget given back)."""
+        if kept is None and self._budget is not None and self._reserved:
+            self._budget.release(self._reserved)
+            self._reserved = 0
+        self._state_lins = kept
+
     def cost(self, values: gtsam.Values, inverse_depth: ArrayLike | None = None) -> float:
         """The true nonlinear cost at ``values`` with the given (default: current) inverse depths."""
         poses, affs = self._read(values)
@@ -316,7 +378,7 @@ class HostPointsFactor(PythonFactor):
         d = self.depths
         H_red = np.zeros((self.dim, self.dim))
         g_red = np.zeros(self.dim)
-        system = self.points.linearize(self._lins(poses, affs, d), d, H_red, g_red, self._column_blocks,
+        system = self.points.linearize(self._lins(poses, affs, d, jacobians=True), d, H_red, g_red, self._column_blocks,
                                        self._rig_columns)
         E = float(system.point_cost.sum())
         self._lin = _Linearization(poses, affs, system)
@@ -376,7 +438,8 @@ def shared_residual_passes(factors: Sequence[HostPointsFactor]) -> Iterator[None
     the parallel window's worker groups the LM graph's hosts when it has more than one kernel
     thread (docs/window.md, "Kernel threads in the worker"). The results are those of the factors
     alone, to the bit (a residual is a pure function of its state; a pass that evaluates only some
-    factors at most computes the others' in vain).
+    factors at most computes the others' in vain). A factor with a :class:`JacobianBudget` (the
+    whole-log refinement's) computes its own residuals alone: the budget decides what it keeps.
 
     The group holds the factors' plain-Python twins (:class:`factors.gtsam_factors.PythonFactor`),
     not the GTSAM objects, and is dropped at the block's end: no reference cycle keeps a factor

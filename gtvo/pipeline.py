@@ -222,7 +222,8 @@ def refine_vo_run(seq: Sequence, vo: VisualOdometry, trajectory: Trajectory, loo
                          keyframe_points={kf.index: kf.points for kf in vo.keyframes},
                          odometry_covariances=odometry_covariances(vo.estimates, keyframes),
                          refine=[e.outcome in TRACKED_OUTCOMES for e in vo.estimates], loop_result=loop_result,
-                         progress=progress, warn=lambda msg: print(f"warning: {msg}", file=sys.stderr))
+                         progress=progress, warn=lambda msg: print(f"warning: {msg}", file=sys.stderr),
+                         wheel=getattr(vo.window, "wheel", None))
     for kf in vo.keyframes:
         if kf.index in refined.inverse_depths:
             kf.points = dataclasses.replace(kf.points, inverse_depth=refined.inverse_depths[kf.index])

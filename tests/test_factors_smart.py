@@ -11,7 +11,7 @@ from factors.gtsam_factors import PhotometricFactor, StereoFactor
 from gtvo.core.keys import affine_key as A
 from gtvo.core.keys import inverse_depth_key as D
 from gtvo.core.keys import pose_key as X
-from factors.smart import HostPointsFactor
+from factors.smart import HostPointsFactor, JacobianBudget
 from gtvo.core.camera import PinholeCamera
 from gtvo.errors import InputError
 from tests._factors_synthetic import PlaneSceneImage, SinusoidImage, small_camera
@@ -168,3 +168,40 @@ def test_whitened_system_factors_the_reduced_system():
     R, e = whitened_system(H, np.ones(14))
     assert np.all(np.isfinite(R)) and np.all(np.isfinite(e))
     assert np.all(np.linalg.eigvalsh(R.T @ R) > 0)
+
+
+@pytest.mark.parametrize("room", [0, 1])
+def test_a_jacobian_budget_changes_no_result_and_keeps_what_fits(room):
+    """Two host factors under one :class:`JacobianBudget`: with no room neither keeps its cost
+    pass's linearisations, with room for one the first keeps them; GTSAM's LM gives bit for bit the
+    same poses, depths and cost as without a budget (the linearisation evaluates the state again)."""
+    out = []
+    for budget in (None, JacobianBudget(0)):
+        f, g, v, poses, d, d0 = _perturbed_smart_graph()
+        cam, _, imgs, px, _, _ = plane_problem()
+        f2 = HostPointsFactor(X(0), [X(2)], cam, px[::2], d0[::2], imgs[0], [imgs[2]], 1e-2, huber_k=3.0,
+                              depth_prior=False)
+        if budget is not None:
+            budget.max_bytes = room * f._jacobian_bytes()
+            f._budget = f2._budget = budget
+        g.add(f2)
+        f.error(v), f2.error(v)
+        if budget is not None:
+            assert (f._state_lins is not None) == bool(room) and f2._state_lins is None
+            assert budget.used == room * f._jacobian_bytes()
+        params = gtsam.LevenbergMarquardtParams()
+        params.setMaxIterations(5)
+        res = gtsam.LevenbergMarquardtOptimizer(g, v, params).optimize()
+        depths = f.commit(res), f2.commit(res)
+        if budget is not None:
+            assert budget.used == 0  # commit gives it back
+        out.append((res, *depths, g.error(res)))
+    (a, da, da2, ea), (b, db, db2, eb) = out
+    assert ea == eb and np.array_equal(da, db) and np.array_equal(da2, db2)
+    for i in (1, 2):
+        assert np.array_equal(a.atPose3(X(i)).matrix(), b.atPose3(X(i)).matrix())
+
+
+def test_a_jacobian_budget_must_not_be_negative():
+    with pytest.raises(InputError, match="max_bytes"):
+        JacobianBudget(-1)

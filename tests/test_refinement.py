@@ -250,3 +250,65 @@ def test_lm_iteration_by_iteration_is_gtsam_own_loop(seq, keyframes):
     assert [it for it, _ in seen] == list(range(1, rb.iterations + 1))
     for ka, kb in zip(a, b):
         assert np.array_equal(ka.pose.matrix(), kb.pose.matrix()) and np.array_equal(ka.inverse_depth, kb.inverse_depth)
+
+
+def test_the_memory_bounds_change_no_result(seq, keyframes):
+    """Keyframes with compact images (as the window keeps those that leave it) and no room for the
+    host factors' kept Jacobians: the same refined poses, depths and costs, bit for bit."""
+    from factors.compact_image import compact_image  # noqa: PLC0415
+
+    cam = seq.camera
+    cfg = RefineConfig(max_iterations=3, max_scale_change=None)
+    lean = [dataclasses.replace(k, image=compact_image(k.image), right=compact_image(k.right)) for k in keyframes]
+    a = refine_keyframes(cam.left, cam.baseline, keyframes, WindowConfig(), cfg)
+    b = refine_keyframes(cam.left, cam.baseline, lean, WindowConfig(), dataclasses.replace(cfg, jacobian_cache_mb=0))
+    assert a.ran and b.ran and a.iterations == b.iterations
+    assert (a.cost_before, a.cost_after) == (b.cost_before, b.cost_after)
+    for ka, kb in zip(a.keyframes, b.keyframes):
+        assert np.array_equal(ka.pose.matrix(), kb.pose.matrix()) and np.array_equal(ka.inverse_depth, kb.inverse_depth)
+
+
+@pytest.mark.slow
+def test_the_whole_log_graph_carries_the_wheel_odometry_and_both_solvers_agree(seq, keyframes):
+    """With the run's wheel odometry the graph has its factors between consecutive keyframes and one
+    calibration variable with its prior (the start cost grows by their error); GTSAM's LM and the
+    hand-rolled one reach the same cost, poses and calibration; the window's owner is not changed."""
+    from tests.test_window_wheel import _wheel  # noqa: PLC0415
+
+    cam = seq.camera
+    wheel = _wheel(seq)
+    cfg = RefineConfig(max_iterations=30, relative_tolerance=1e-12, max_scale_change=None)
+    out = {s: refine_keyframes(cam.left, cam.baseline, keyframes, WindowConfig(), dataclasses.replace(cfg, solver=s),
+                               photometric=NO_HUBER, wheel=wheel) for s in ("gtsam", "handrolled")}
+    without = refine_keyframes(cam.left, cam.baseline, keyframes, WindowConfig(), dataclasses.replace(cfg, max_iterations=1),
+                               photometric=NO_HUBER)
+    a, b = out["gtsam"], out["handrolled"]
+    assert a.ran and b.ran and without.wheel_calibration is None
+    assert a.cost_before == pytest.approx(b.cost_before, rel=1e-9) and a.cost_before - without.cost_before > 1.0
+    assert a.cost_after == pytest.approx(b.cost_after, rel=1e-4)
+    assert max(np.abs(x.pose.localCoordinates(y.pose)).max() for x, y in zip(a.keyframes, b.keyframes)) < 3e-5
+    np.testing.assert_allclose(a.wheel_calibration, b.wheel_calibration, atol=1e-4)
+    assert np.abs(a.wheel_calibration - 1.0).max() > 1e-3  # the wheels moved it
+    np.testing.assert_array_equal(wheel.estimate, np.ones(3))
+
+
+@pytest.mark.slow
+def test_a_run_with_wheels_refines_the_calibration_of_the_log():
+    """``gtvo run``'s refinement step (:func:`gtvo.pipeline.refine_vo_run`) hands the window's wheel
+    calibration to the whole-log graph: the report's refine block has the refined calibration, near
+    the wheels' truth (24 synthetic frames with simulated wheels)."""
+    from gtvo.config import WheelConfig, as_config  # noqa: PLC0415
+    from gtvo.datasets.wheel import simulate_wheel_odometry  # noqa: PLC0415
+    from gtvo.pipeline import process_sequence, refine_vo_run  # noqa: PLC0415
+    from tests.test_odometry_wheel import BASE_TO_CAMERA, K_TRUE  # noqa: PLC0415
+
+    seq = make_synthetic_sequence(24, width=240, height=180, step_m=0.1, motion="turn")
+    log = simulate_wheel_odometry(seq.timestamps, np.asarray(seq.gt_poses),
+                                  WheelConfig(base_to_camera=tuple(BASE_TO_CAMERA)).T_base_cam, "pose", K_TRUE,
+                                  nominal_baseline=0.5)
+    seq = dataclasses.replace(seq, wheel_odometry=log)
+    cfg = as_config({"wheel": {"base_to_camera": BASE_TO_CAMERA}, "refine": {"enabled": True, "max_iterations": 2}})
+    vo, traj, _ = process_sequence(seq, cfg, warn=lambda m: None)
+    refined = refine_vo_run(seq, vo, traj, None, False)
+    assert refined.summary["ran"]
+    np.testing.assert_allclose(refined.summary["wheel_calibration"], K_TRUE, atol=0.02)

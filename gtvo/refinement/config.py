@@ -40,6 +40,17 @@ class RefineConfig:
         loop_chi2: a loop edge whose whitened squared error after the refinement exceeds this
             (default: the 99 % quantile of chi-square, 6 degrees of freedom) is dropped and the graph
             solved again without it.
+        jacobian_cache_mb: MiB of the host factors' Jacobians kept from a cost pass for the
+            linearisation that follows (the rest are evaluated again: the same result, more time);
+            bounds the graph's memory on long logs (docs/refinement.md, "Cost").
+        image_cache_mb: MiB of the keyframes' packed image records (16 bytes a pixel) held at once
+            while the graph is solved; the keyframes that left the window keep their grey levels
+            alone and are packed again when sampled beyond it (the same result, more time;
+            docs/refinement.md, "Cost").
+        stacked_factors: GTSAM's LM: the host factors and the motion priors in runs of this many,
+            each run one GTSAM factor (the same cost and rows): GTSAM copies the Values for every
+            call of a Python factor, a part that grows as the square of the keyframes
+            (docs/refinement.md, "Cost"); 1: one factor each, as the window.
     """
 
     enabled: bool = False
@@ -51,6 +62,9 @@ class RefineConfig:
     max_targets: int = setting(6, "[1, 1000]")
     max_scale_change: float | None = setting(0.25, "(0, 10]")
     loop_chi2: float = setting(CHI2_6DOF_99, "(0, 1000000]")
+    jacobian_cache_mb: int = setting(512, "[0, 1000000]")
+    image_cache_mb: int = setting(512, "[0, 1000000]")
+    stacked_factors: int = setting(16, "[1, 1000]")
 
     def __post_init__(self) -> None:
         check_settings(self)

@@ -31,6 +31,7 @@ from gtvo.loops.closing import LoopClosingResult, refine_result_frames, relocate
 from gtvo.refinement.config import RefineConfig
 from gtvo.refinement.solve import RefinementResult, refine_keyframes
 from gtvo.window.config import WindowConfig, WindowKeyframe
+from gtvo.window.wheel import WheelCalibration
 
 F64 = NDArray[np.float64]
 
@@ -53,6 +54,7 @@ class RefinementSummary(TypedDict, total=False):
     loop_edges: int
     loop_edges_dropped: int
     frames_replaced: int
+    wheel_calibration: list[float]
     window_ate_rmse_m: float | None
     window_ate_sim3_rmse_m: float | None
     window_scale_ratio: float | None
@@ -87,7 +89,7 @@ def refine_run(seq: Sequence, trajectory: Trajectory, frame_indices: list[int], 
                photometric: PhotometricConfig, tracking: TrackingConfig, rig_offset: F64 | None,
                keyframe_points: Mapping[int, KeyframePoints], odometry_covariances: Seq[F64 | None],
                refine: Seq[bool], loop_result: LoopClosingResult | None = None, progress: bool = False,
-               warn: Callable[[str], None] = print) -> RunRefinement:
+               warn: Callable[[str], None] = print, wheel: WheelCalibration | None = None) -> RunRefinement:
     """Refine a run's keyframes and re-place its frames (module docstring).
 
     Args:
@@ -103,6 +105,8 @@ def refine_run(seq: Sequence, trajectory: Trajectory, frame_indices: list[int], 
         refine: per pose, whether the frame may be re-placed (tracked frames).
         loop_result: the loop closing's result before its frame refinement (``refine_frames=False``).
         progress: progress bars; warn: where the one line of an interrupt or a refinement not kept goes.
+        wheel: the run's wheel odometry and calibration (the window's), None without wheels
+            (:func:`gtvo.refinement.refine_keyframes`).
     """
     kfs = sorted(set(int(k) for k in keyframes))
     closed = loop_result is not None and any(loop_result.accepted)
@@ -115,7 +119,8 @@ def refine_run(seq: Sequence, trajectory: Trajectory, frame_indices: list[int], 
                                loop_edges=edges, rig_offset=rig_offset,
                                start_poses=loop_result.keyframe_poses if closed else None,
                                odometry_covariances=odometry_covariances, photometric=photometric,
-                               progress=progress, on_iteration=lambda it, cost: raise_if_interrupted())
+                               progress=progress, on_iteration=lambda it, cost: raise_if_interrupted(),
+                               wheel=wheel)
         if res.ran:
             out = _re_place(seq, base, frame_indices, kfs, res, keyframe_points, odometry_covariances, tracking,
                             photometric, refine, loop_result, trajectory, progress)
@@ -174,6 +179,8 @@ def _summary(res: RefinementResult | None, config: RefineConfig, n_keyframes: in
         "loop_edges": 0 if res is None else res.loop_edges,
         "loop_edges_dropped": 0 if res is None else res.loop_edges_dropped}
     block["frames_replaced"] = out.frames_replaced
+    if ran and res is not None and res.wheel_calibration is not None:
+        block["wheel_calibration"] = [float(x) for x in res.wheel_calibration]
     if replaces_window and ran:
         acc = run_accuracy(seq, window_trajectory)
         block.update(window_ate_rmse_m=acc.get("ate_rmse_m"), window_ate_sim3_rmse_m=acc.get("ate_sim3_rmse_m"),

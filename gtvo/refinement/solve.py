@@ -21,7 +21,9 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
+from factors.compact_image import packed_cache_budget
 from factors.params import DEFAULT_PHOTOMETRIC, PhotometricConfig
+from factors.smart import JacobianBudget
 from gtvo.core.camera import PinholeCamera
 from gtvo.loops.closure_graph import LoopEdge
 from gtvo.refinement.config import RefineConfig
@@ -29,6 +31,7 @@ from gtvo.refinement.graph import covisible_targets, loop_chi2, loop_factors, wi
 from gtvo.window.config import WindowConfig, WindowKeyframe
 from gtvo.window.gtsam_solver import solve_gtsam
 from gtvo.window.handrolled import solve_handrolled
+from gtvo.window.wheel import WheelCalibration
 
 F64 = NDArray[np.float64]
 
@@ -51,6 +54,7 @@ class RefinementResult:
         covariances: frame index -> 6x6 pose covariance at the optimum (the window's
             ``covariances`` setting), None when not computed.
         rig_offset: the rig offset after the refinement (None: the rectified model).
+        wheel_calibration: the wheel odometry's calibration after the refinement (None: no wheels).
     """
 
     keyframes: list[WindowKeyframe]
@@ -66,6 +70,7 @@ class RefinementResult:
     loop_edges_dropped: int = 0
     covariances: dict[int, F64] | None = None
     rig_offset: F64 | None = None
+    wheel_calibration: F64 | None = None
 
 
 def start_keyframes(keyframes: Sequence[WindowKeyframe], poses: Mapping[int, F64] | None = None
@@ -88,7 +93,8 @@ def refine_keyframes(camera: PinholeCamera, baseline: float | None, keyframes: S
                      start_poses: Mapping[int, F64] | None = None,
                      odometry_covariances: Sequence[F64 | None] | None = None,
                      photometric: PhotometricConfig = DEFAULT_PHOTOMETRIC, progress: bool = False,
-                     on_iteration: Callable[[int, float], None] | None = None) -> RefinementResult:
+                     on_iteration: Callable[[int, float], None] | None = None,
+                     wheel: WheelCalibration | None = None) -> RefinementResult:
     """Optimise one graph over every keyframe (module docstring); the input is not changed.
 
     Args:
@@ -107,6 +113,10 @@ def refine_keyframes(camera: PinholeCamera, baseline: float | None, keyframes: S
         photometric: the run's photometric model.
         progress: a progress bar over the LM iterations.
         on_iteration: called with ``(iteration, cost)`` after every iteration (after the bar).
+        wheel: the run's wheel odometry and calibration (the window's): its factors between every
+            two consecutive keyframes the wheel log covers and one calibration variable for the
+            log, starting at the window's estimate, with the calibration's prior (``wheel`` itself
+            is not changed; the result's ``wheel_calibration`` is the refined one). None: no wheels.
     """
     config = config or RefineConfig()
     t0 = time.perf_counter()
@@ -136,9 +146,14 @@ def refine_keyframes(camera: PinholeCamera, baseline: float | None, keyframes: S
             if on_iteration is not None:
                 on_iteration(it, cost)
 
-        try:
-            res = solve(camera, baseline, current, wcfg, None, targets, rig_offset, photometric=photometric,
-                        extra_factors=loop_factors(edges + held) if edges or held else None, on_iteration=step)
+        # GTSAM's LM: the host factors keep their cost passes' Jacobians within the budget
+        bounded = {} if solve is solve_handrolled else {"jacobian_budget": JacobianBudget(config.jacobian_cache_mb << 20),
+                                                        "stack": config.stacked_factors}
+        try:  # the compact images' packed records: all at once when they fit the budget
+            with packed_cache_budget(config.image_cache_mb << 20):
+                res = solve(camera, baseline, current, wcfg, None, targets, rig_offset, photometric=photometric,
+                            extra_factors=loop_factors(edges + held) if edges or held else None, on_iteration=step,
+                            wheel=wheel, **bounded)
         finally:
             if bar is not None:
                 bar.close()
@@ -150,9 +165,10 @@ def refine_keyframes(camera: PinholeCamera, baseline: float | None, keyframes: S
         dropped += int(np.count_nonzero(rejected))
     out = RefinementResult(current, True, None, res.solver, res.iterations, res.initial_cost, res.cost,
                            time.perf_counter() - t0, float(np.mean([len(t) for t in targets])), len(edges), dropped,
-                           res.covariances, res.rig_offset)
+                           res.covariances, res.rig_offset, res.wheel_calibration)
     if not _improved(res.initial_cost, res.cost):
         out.keyframes, out.ran, out.covariances, out.rig_offset = list(keyframes), False, None, None
+        out.wheel_calibration = None
         out.reason = (f"LM diverged (cost {res.initial_cost:.6g} -> {res.cost:.6g}): the window's answer is kept"
                       if not np.isfinite(res.cost) or res.cost > res.initial_cost else
                       f"LM could not lower the cost ({res.initial_cost:.6g} after {res.iterations} iterations): "

@@ -16,6 +16,7 @@ from gtvo.core.keys import affine_key, calibration_key, pose_key, rig_offset_key
 from gtvo.core.camera import PinholeCamera
 from gtvo.window.covariance import marginals_of_graph
 from factors.params import DEFAULT_PHOTOMETRIC, PhotometricConfig
+from factors.smart import JacobianBudget
 from gtvo.window.config import MarginalPrior, WindowConfig, WindowKeyframe, WindowResult
 from gtvo.window.problem import build_graph, visible_targets
 
@@ -32,7 +33,8 @@ def solve_gtsam(camera: PinholeCamera, baseline: float | None, keyframes: Sequen
                 photometric: PhotometricConfig = DEFAULT_PHOTOMETRIC,
                 wheel: "WheelCalibration | None" = None,
                 extra_factors: gtsam.NonlinearFactorGraph | None = None,
-                on_iteration: Callable[[int, float], None] | None = None) -> WindowResult:
+                on_iteration: Callable[[int, float], None] | None = None,
+                jacobian_budget: JacobianBudget | None = None, stack: int = 1) -> WindowResult:
     """Optimise the window with ``gtsam.LevenbergMarquardtOptimizer`` (residuals of the
     ``photometric`` model); updates ``keyframes`` in place.
 
@@ -43,11 +45,15 @@ def solve_gtsam(camera: PinholeCamera, baseline: float | None, keyframes: Sequen
     optimised one; ``wheel`` itself is not changed). ``extra_factors``: native GTSAM
     factors on the keyframes' keys added to the graph (the whole-log refinement's loop edges);
     ``on_iteration(iteration, cost)``: called after every LM iteration (the optimiser then runs
-    iteration by iteration, :func:`optimize_by_iterations`; a progress bar, a Ctrl-C check)."""
+    iteration by iteration, :func:`optimize_by_iterations`; a progress bar, a Ctrl-C check);
+    ``jacobian_budget``: the host factors' shared budget of kept Jacobians (the whole-log
+    refinement's memory bound, :class:`factors.smart.JacobianBudget`; None: no limit); ``stack``: the
+    Python factors in runs of this many per GTSAM factor (:func:`gtvo.window.problem.build_graph`)."""
     t0 = time.perf_counter()
     targets = visible_targets(camera, keyframes, config) if targets is None else targets
     graph, values, hosts = build_graph(camera, baseline, keyframes, config, marginal, targets, rig_offset,
-                                       rig_hold_x, photometric=photometric, wheel=wheel)
+                                       rig_hold_x, photometric=photometric, wheel=wheel,
+                                       jacobian_budget=jacobian_budget, stack=stack)
     if extra_factors is not None:
         graph.push_back(extra_factors)
     params = lm_params(config.max_iterations, config.relative_tolerance)

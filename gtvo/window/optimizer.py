@@ -8,6 +8,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 
 import gtsam
 import numpy as np
@@ -17,6 +18,7 @@ from gtvo.core.camera import PinholeCamera
 from gtvo.core.keys import calibration_key, rig_offset_key
 from gtvo.core.timing import stage
 from gtvo.errors import InputError
+from factors.compact_image import compact_image
 from factors.params import DEFAULT_PHOTOMETRIC, PhotometricConfig
 from gtvo.window.config import MarginalPrior, WindowConfig, WindowKeyframe, WindowResult, WindowSolverName, WindowState
 from gtvo.window.gtsam_solver import solve_gtsam
@@ -77,7 +79,9 @@ class SlidingWindowOptimizer:
         #: keep the keyframes that leave in :attr:`retired` (the whole-log refinement's input,
         #: :meth:`every_keyframe`); False (the default) drops them with their images
         self.retain_keyframes = False
-        #: the keyframes that left the window, oldest first, as they left (with ``retain_keyframes``)
+        #: the keyframes that left the window, oldest first, as they left (with ``retain_keyframes``),
+        #: their images as :class:`factors.compact_image.CompactGradientImage` (the grey levels only;
+        #: the sampler's records are packed again when the refinement samples them)
         self.retired: list[WindowKeyframe] = []
         self.results: list[WindowResult] = []
         #: frame index -> 6x6 pose covariance from the last optimisation the keyframe was part of
@@ -103,8 +107,8 @@ class SlidingWindowOptimizer:
         with stage("marginalisation", absorb=True):
             kf = self.backend.remove_oldest(self)
         self.n_removed += 1
-        if self.retain_keyframes:
-            self.retired.append(kf)
+        if self.retain_keyframes:  # its images compact: grey levels only (factors.compact_image)
+            self.retired.append(dataclasses.replace(kf, image=compact_image(kf.image), right=compact_image(kf.right)))
         return kf
 
     def every_keyframe(self) -> list[WindowKeyframe]:

@@ -15,8 +15,9 @@ from numpy.typing import NDArray
 
 from gtvo.core.keys import affine_key, calibration_key, pose_key, rig_offset_key
 from factors.params import DEFAULT_PHOTOMETRIC, PhotometricConfig
-from factors.smart import HostPointsFactor
+from factors.smart import HostPointsFactor, JacobianBudget
 from factors.smoothness import ConstantVelocityFactor
+from factors.stacked import stacked
 from gtvo.core.camera import MIN_DEPTH, PinholeCamera
 from gtvo.core.timing import timed
 from gtvo.errors import InputError
@@ -213,10 +214,12 @@ def prior_factors(keyframes: Sequence[WindowKeyframe], config: WindowConfig, wit
 @timed("window_build")
 def host_factor(camera: PinholeCamera, baseline: float | None, keyframes: Sequence[WindowKeyframe], h: int,
                 targets: Sequence[int], config: WindowConfig, rig: bool = False, *,
-                photometric: PhotometricConfig = DEFAULT_PHOTOMETRIC) -> HostPointsFactor:
+                photometric: PhotometricConfig = DEFAULT_PHOTOMETRIC,
+                jacobian_budget: JacobianBudget | None = None) -> HostPointsFactor:
     """The :class:`HostPointsFactor` of host ``keyframes[h]`` observed in ``targets`` (positions),
     weighed by the ``photometric`` model; ``rig``: its stereo term has the rig offset variable
-    (:func:`gtvo.core.keys.rig_offset_key`)."""
+    (:func:`gtvo.core.keys.rig_offset_key`); ``jacobian_budget``: the factor's (shared) budget of
+    kept Jacobians (:class:`factors.smart.JacobianBudget`; None: no limit, the window's)."""
     kh = keyframes[h]
     return HostPointsFactor(
         pose_key(kh.index), [pose_key(keyframes[t].index) for t in targets], camera, kh.pixels,
@@ -226,7 +229,7 @@ def host_factor(camera: PinholeCamera, baseline: float | None, keyframes: Sequen
         pattern=photometric.pattern_array, right_image=kh.right, baseline=baseline if kh.right is not None else None,
         lambda_stereo=config.lambda_stereo, stereo_affine=kh.stereo_affine,
         prior_inverse_depth=kh.prior_inverse_depth,
-        rig_key=rig_offset_key() if rig and kh.right is not None else None)
+        rig_key=rig_offset_key() if rig and kh.right is not None else None, jacobian_budget=jacobian_budget)
 
 
 @timed("window_build")
@@ -234,27 +237,30 @@ def build_graph(camera: PinholeCamera, baseline: float | None, keyframes: Sequen
                 config: WindowConfig, marginal: MarginalPrior | None,
                 targets: list[list[int]] | None = None, rig_offset: FloatArray | None = None,
                 rig_hold_x: float | None = None, *, photometric: PhotometricConfig = DEFAULT_PHOTOMETRIC,
-                wheel: "WheelCalibration | None" = None
-                ) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values, dict[int, HostPointsFactor]]:
+                wheel: "WheelCalibration | None" = None, jacobian_budget: JacobianBudget | None = None,
+                stack: int = 1) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values, dict[int, HostPointsFactor]]:
     """The window's factor graph: one smart factor per host with targets, priors, motion prior,
     marginal prior; with ``rig_offset`` (its current estimate) the rig offset is a variable of
     every stereo host factor, with :func:`rig_prior` until the marginal prior carries it
     (``rig_hold_x``: its ``delta_x`` held at that value); with ``wheel`` the wheel factors and the
-    calibration variable, with its prior until the marginal prior carries it.
+    calibration variable, with its prior until the marginal prior carries it; ``jacobian_budget``:
+    shared by the host factors (:func:`host_factor`; the whole-log refinement's); ``stack``: the motion
+    priors and the host factors in runs of this many, each run one GTSAM factor
+    (:func:`factors.stacked.stacked`: fewer copies of the Values in GTSAM's optimisers).
 
     Returns ``(graph, values, host_factors)`` with ``host_factors[position] = factor``.
     """
     targets = visible_targets(camera, keyframes, config) if targets is None else targets
     graph = prior_factors(keyframes, config, with_gauge=marginal is None)
-    for _, f in motion_factors(keyframes, config):
+    for f in stacked([f for _, f in motion_factors(keyframes, config)], stack):
         graph.add(f)
     hosts: dict[int, HostPointsFactor] = {}
     for h, ts in enumerate(targets):
         if ts:
-            f = host_factor(camera, baseline, keyframes, h, ts, config, rig=rig_offset is not None,
-                            photometric=photometric)
-            hosts[h] = f
-            graph.add(f)
+            hosts[h] = host_factor(camera, baseline, keyframes, h, ts, config, rig=rig_offset is not None,
+                                   photometric=photometric, jacobian_budget=jacobian_budget)
+    for f in stacked(list(hosts.values()), stack):
+        graph.add(f)
     if marginal is not None:
         for f in marginal.nonlinear_factors():
             graph.add(f)
