@@ -250,3 +250,20 @@ def test_lm_iteration_by_iteration_is_gtsam_own_loop(seq, keyframes):
     assert [it for it, _ in seen] == list(range(1, rb.iterations + 1))
     for ka, kb in zip(a, b):
         assert np.array_equal(ka.pose.matrix(), kb.pose.matrix()) and np.array_equal(ka.inverse_depth, kb.inverse_depth)
+
+
+@pytest.mark.slow
+def test_a_dropped_loop_edge_takes_its_photometric_loop_pairs_with_it(seq, keyframes):
+    """With a window of 2 (a span of 1), a loop edge brings pairs across its ends; when the refined
+    cost rejects it, the graph is solved again without those pairs too: as if it never was."""
+    cam, window = seq.camera, WindowConfig(size=2)
+    cfg = RefineConfig(max_iterations=10, max_scale_change=None)
+    bad, kept = _edge(seq, 0, 8, dt=(0.4, 0.0, 0.0), sigma_t=0.1), _edge(seq, 4, 8)
+    loops = covisible_targets(cam.left, keyframes, window, cfg.max_targets, None, loops=[(0, 4)])
+    assert loops != covisible_targets(cam.left, keyframes, window, cfg.max_targets, None)  # the edge brings pairs
+    without = refine_keyframes(cam.left, cam.baseline, keyframes, window, cfg, loop_edges=[kept])
+    res = refine_keyframes(cam.left, cam.baseline, keyframes, window, cfg, loop_edges=[bad, kept])
+    assert res.ran and res.loop_edges_dropped == 1 and res.loop_edges == 1
+    assert res.targets_mean == without.targets_mean and res.cost_after == without.cost_after
+    for ka, kb in zip(res.keyframes, without.keyframes):
+        assert np.allclose(ka.pose.matrix(), kb.pose.matrix(), rtol=0, atol=1e-12)
