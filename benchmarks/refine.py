@@ -51,7 +51,8 @@ REAL = {"kitti": DATA / "kitti_stereo_sample" / "KITTI_sequence_1",
 #: synthetic logs: (name, motion, seed, frames, image noise, loop closing)
 SYNTHETIC = [("forward s1", "forward", 1, 300, 1.0, False), ("turn s2", "turn", 2, 300, 1.0, False),
              ("loop s1", "loop", 1, 300, 0.0, True), ("loop s2", "loop", 2, 300, 2.0, True),
-             ("loop s3", "loop", 3, 320, 1.0, True)]
+             ("loop s3", "loop", 3, 320, 1.0, True), ("loop s4", "loop", 4, 300, 1.0, True),
+             ("loop s5", "loop", 5, 300, 1.0, True)]
 
 
 def measure(seq, loops: bool, config: RefineConfig | None = None) -> dict:

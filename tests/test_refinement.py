@@ -312,3 +312,20 @@ def test_a_run_with_wheels_refines_the_calibration_of_the_log():
     refined = refine_vo_run(seq, vo, traj, None, False)
     assert refined.summary["ran"]
     np.testing.assert_allclose(refined.summary["wheel_calibration"], K_TRUE, atol=0.02)
+
+
+@pytest.mark.slow
+def test_a_dropped_loop_edge_takes_its_photometric_loop_pairs_with_it(seq, keyframes):
+    """With a window of 2 (a span of 1), a loop edge brings pairs across its ends; when the refined
+    cost rejects it, the graph is solved again without those pairs too: as if it never was."""
+    cam, window = seq.camera, WindowConfig(size=2)
+    cfg = RefineConfig(max_iterations=10, max_scale_change=None)
+    bad, kept = _edge(seq, 0, 8, dt=(0.4, 0.0, 0.0), sigma_t=0.1), _edge(seq, 4, 8)
+    loops = covisible_targets(cam.left, keyframes, window, cfg.max_targets, None, loops=[(0, 4)])
+    assert loops != covisible_targets(cam.left, keyframes, window, cfg.max_targets, None)  # the edge brings pairs
+    without = refine_keyframes(cam.left, cam.baseline, keyframes, window, cfg, loop_edges=[kept])
+    res = refine_keyframes(cam.left, cam.baseline, keyframes, window, cfg, loop_edges=[bad, kept])
+    assert res.ran and res.loop_edges_dropped == 1 and res.loop_edges == 1
+    assert res.targets_mean == without.targets_mean and res.cost_after == without.cost_after
+    for ka, kb in zip(res.keyframes, without.keyframes):
+        assert np.allclose(ka.pose.matrix(), kb.pose.matrix(), rtol=0, atol=1e-12)

@@ -6,7 +6,7 @@ the loop-closed poses), builds the window's problem over all of them with the ta
 window's relative poses between consecutive keyframes as ``BetweenFactorPose3``,
 and hands it to :func:`gtvo.window.solve_gtsam` (GTSAM's LM) or :func:`gtvo.window.solve_handrolled`.
 A loop edge the refined poses reject (chi-square) is dropped and the graph solved again without
-it; an LM that does not lower the cost leaves the keyframes as they were (docs/refinement.md).
+it (its factor and the photometric loop pairs it brought: the targets are chosen again); an LM that does not lower the cost leaves the keyframes as they were (docs/refinement.md).
 """
 
 from __future__ import annotations
@@ -127,8 +127,12 @@ def refine_keyframes(camera: PinholeCamera, baseline: float | None, keyframes: S
                                relative_tolerance=config.relative_tolerance)
     position = {kf.index: p for p, kf in enumerate(start)}
     edges = [e for e in loop_edges if e.i in position and e.j in position and e.i != e.j]
-    targets = covisible_targets(camera, start, wcfg, config.max_targets, config.max_scale_change, config.candidates,
-                                loops=[(position[e.i], position[e.j]) for e in edges])
+
+    def choose_targets(edges: Sequence[LoopEdge]) -> list[list[int]]:  # the loop pairs of these edges only
+        return covisible_targets(camera, start, wcfg, config.max_targets, config.max_scale_change, config.candidates,
+                                 loops=[(position[e.i], position[e.j]) for e in edges])
+
+    targets = choose_targets(edges)
     if not any(targets):
         return RefinementResult(list(keyframes), False, "no keyframe sees another's points", config.solver,
                                 seconds=time.perf_counter() - t0)
@@ -161,8 +165,9 @@ def refine_keyframes(camera: PinholeCamera, baseline: float | None, keyframes: S
         rejected = chi2 > config.loop_chi2
         if not np.any(rejected) or not _improved(res.initial_cost, res.cost):
             break
-        edges = [e for e, r in zip(edges, rejected) if not r]  # solved again without them, from the start
-        dropped += int(np.count_nonzero(rejected))
+        edges = [e for e, r in zip(edges, rejected) if not r]  # solved again without them, from the start,
+        dropped += int(np.count_nonzero(rejected))  # and without their photometric loop pairs
+        targets = choose_targets(edges)
     out = RefinementResult(current, True, None, res.solver, res.iterations, res.initial_cost, res.cost,
                            time.perf_counter() - t0, float(np.mean([len(t) for t in targets])), len(edges), dropped,
                            res.covariances, res.rig_offset, res.wheel_calibration)
