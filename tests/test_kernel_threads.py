@@ -108,7 +108,7 @@ def test_window_with_two_kernel_threads_gives_the_same_bytes(monkeypatch):
 
 def test_worker_threads_default_and_batch_jobs_keep_one_core():
     base = OdometryConfig()
-    assert base.window.worker_threads is None and worker_threads(base) == DEFAULT_WORKER_THREADS == 2
+    assert base.window.worker_threads is None and worker_threads(base) == DEFAULT_WORKER_THREADS == 1
     assert one_core_per_log(base).window.worker_threads == 1
     asked = dataclasses.replace(base, window=dataclasses.replace(base.window, worker_threads=3))
     assert worker_threads(asked) == 3 and one_core_per_log(asked) is asked

@@ -179,7 +179,7 @@ def test_a_parallel_runs_summary_says_what_the_worker_spent_and_a_sequential_one
 
     seq = make_synthetic_sequence(10, width=160, height=120)
     _, _, parallel = process_sequence(seq, OdometryConfig(window=dataclasses.replace(
-        OdometryConfig().window, parallel=True)), warn=lambda m: None)
+        OdometryConfig().window, parallel=True, worker_threads=2)), warn=lambda m: None)
     worker = parallel["window_worker"]
     assert worker["cpu_seconds"] > 0 and worker["max_rss_mib"] > 0
     assert worker["kernel_threads"] == 2 and 0.0 <= worker["pool_cpu_seconds"] < worker["cpu_seconds"]

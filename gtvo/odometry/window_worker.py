@@ -64,9 +64,9 @@ from gtvo.window.rig import RigOffset
 LAG = 2
 #: Shared image buffers: keyframe ``n`` uses slot ``n % SLOTS``, free once keyframe ``n - SLOTS``'s reply is in.
 SLOTS = LAG + 1
-#: The worker's kernel threads when ``window.worker_threads`` is unset: the front end's idle core
-#: (docs/window.md, "Kernel threads in the worker").
-DEFAULT_WORKER_THREADS = 2
+#: The worker's kernel threads when ``window.worker_threads`` is unset: one (a second gave no
+#: frames/s on the idle machine, docs/window.md, "Kernel threads in the worker").
+DEFAULT_WORKER_THREADS = 1
 
 
 class WindowWorkerError(RuntimeError):

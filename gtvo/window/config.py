@@ -100,8 +100,10 @@ class WindowConfig:
         worker_threads: threads the parallel window's worker runs its compiled kernels on (the
             hosts' residuals of each LM pass at once, docs/window.md, "Kernel threads in the
             worker"): the results are the same, to the bit, for any number. None (the default):
-            2, except in ``gtvo batch`` jobs, which keep one core per log (1) unless their
-            config asks. Without ``parallel`` the window runs in the caller's thread alone.
+            1 (on the idle 2-core machine two gave the same frames/s for more CPU, the GIL-held
+            Python between the kernels being the worker's limit: docs/benchmarks.md); ``gtvo
+            batch`` jobs keep one core per log (1) unless their config asks. Without
+            ``parallel`` the window runs in the caller's thread alone.
     """
 
     size: int = setting(7, "[2, 100]")
