@@ -18,7 +18,10 @@ the optimiser or its start.
 ``--plot``: the error of every keyframe along the log (window, pose graph, refinement, oracle),
 one panel per log, to docs/refinement_error_along_log.png.
 
-Usage: python benchmarks/refine_oracle.py [--seeds 1,2,3,4,5] [--motion loop] [--plot]
+``--supersample N``: the synthetic images rendered with N x N rays per pixel (area-integrated pixels,
+as a sensor's; docs/benchmarks.md "Longer logs and area-integrated pixels").
+
+Usage: python benchmarks/refine_oracle.py [--seeds 1,2,3,4,5] [--motion loop] [--supersample N] [--plot]
 """
 
 from __future__ import annotations
@@ -157,12 +160,14 @@ def plot(panels: list[tuple[str, dict[str, np.ndarray]]]) -> None:
 def main(argv: list[str]) -> None:
     seeds = [int(s) for s in argv[argv.index("--seeds") + 1].split(",")] if "--seeds" in argv else sorted(LOOPS)
     motion = argv[argv.index("--motion") + 1] if "--motion" in argv else "loop"
+    supersample = int(argv[argv.index("--supersample") + 1]) if "--supersample" in argv else 1
     print("| log | variant | keyframe ATE SE(3) [m] | / pose graph | Sim(3) scale |\n|---|---|---|---|---|")
     panels = []
     for seed in seeds:
         frames, noise = LOOPS.get(seed, (300, 1.0))
         t0 = time.perf_counter()
-        run = window_pass(make_synthetic_sequence(n_frames=frames, noise_sigma=noise, seed=seed, motion=motion))
+        run = window_pass(make_synthetic_sequence(n_frames=frames, noise_sigma=noise, seed=seed, motion=motion,
+                                                  supersample=supersample))
         name = f"synthetic {motion} seed {seed}, noise {noise:g}, {frames} frames / {len(run.keyframes)} keyframes"
         errors = {}
         for label, poses in variants(run).items():
