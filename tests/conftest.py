@@ -8,11 +8,23 @@ import os
 # far slower multithreaded on a busy 2-core machine. Set before numpy is first imported.
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
+import signal
 from pathlib import Path
 
 import pytest
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(autouse=True)
+def _sigint_handler_restored():
+    """Each test leaves SIGINT's handler as it found it: a command run in-process ignores SIGINT
+    once its outputs are in place (``gtvo.core.interrupt.outputs_in_place``, as the CLI does before
+    it exits), which would otherwise turn a later test's Ctrl-C into nothing."""
+    handler = signal.getsignal(signal.SIGINT)
+    yield
+    if signal.getsignal(signal.SIGINT) is not handler and handler is not None:
+        signal.signal(signal.SIGINT, handler)
 
 
 def shared_data_dir() -> Path:

@@ -11,7 +11,6 @@ import threading
 import numpy as np
 import pytest
 
-from gtvo.batching import one_core_per_log
 from gtvo.config import OdometryConfig
 from gtvo.core import kernel_threads
 from gtvo.core.kernel_threads import map_independent, set_kernel_threads
@@ -106,12 +105,11 @@ def test_window_with_two_kernel_threads_gives_the_same_bytes(monkeypatch):
     assert all(r1.covariances[k].tobytes() == r2.covariances[k].tobytes() for k in r1.covariances)
 
 
-def test_worker_threads_default_and_batch_jobs_keep_one_core():
+def test_worker_threads_default_is_one_and_a_set_value_is_kept():
     base = OdometryConfig()
     assert base.window.worker_threads is None and worker_threads(base) == DEFAULT_WORKER_THREADS == 1
-    assert one_core_per_log(base).window.worker_threads == 1
     asked = dataclasses.replace(base, window=dataclasses.replace(base.window, worker_threads=3))
-    assert worker_threads(asked) == 3 and one_core_per_log(asked) is asked
+    assert worker_threads(asked) == 3
 
 
 def test_a_batch_job_asking_for_the_parallel_window_gets_one_kernel_thread_unless_it_sets_them(tmp_path):
@@ -123,7 +121,7 @@ def test_a_batch_job_asking_for_the_parallel_window_gets_one_kernel_thread_unles
         return _job(log, tmp_path / "out", None, None, 1, False, "spec.yaml: a")["config"].window
 
     asked = job_config({"parallel": True})
-    assert asked.parallel is True and asked.worker_threads == 1
+    assert asked.parallel is True and worker_threads(dataclasses.replace(OdometryConfig(), window=asked)) == 1
     assert job_config({"parallel": True, "worker_threads": 2}).worker_threads == 2
 
 

@@ -165,23 +165,12 @@ def _check_jobs(jobs: int | None) -> int:
     return jobs
 
 
-def one_core_per_log(config: Any) -> Any:
-    """A batch job's configuration: a parallel window's worker gets one kernel thread
-    (``window.worker_threads`` 1) unless the configuration sets it; ``--jobs N`` on N cores then
-    runs one busy thread per log (the worker's process still overlaps its front end)."""
-    import dataclasses  # noqa: PLC0415
-
-    if config.window.worker_threads is not None:
-        return config
-    return dataclasses.replace(config, window=dataclasses.replace(config.window, worker_threads=1))
-
-
 def _job(log: LogSpec, out_dir: Path, base: Any, max_frames: int | None, frame_step: int, loop_closure: bool,
          where: str) -> dict[str, Any]:
     """The worker's job for ``log``: resolved configuration, options, output folder, identity key."""
     from gtvo.config import OdometryConfig  # noqa: PLC0415
 
-    config = one_core_per_log(apply_overrides(base if base is not None else OdometryConfig(), log.config, where=where))
+    config = apply_overrides(base if base is not None else OdometryConfig(), log.config, where=where)
     options = {"max_frames": max_frames, "frame_step": frame_step, "loop_closure": loop_closure,
                "camera": None, "ground_truth": None, **log.options}
     target = out_dir / log.name
