@@ -241,6 +241,9 @@ def test_interrupt_during_the_swap_is_held_back_until_the_new_set_is_in(small_se
     write_run_outputs(out, _estimate(small_seq, 0.01), small_seq, {"frames": 6}, loop_closed=_estimate(small_seq, 0))
     real_replace = os.replace
     seen = {"n": 0}
+    # Python's own handler, whatever this process inherited (a background job starts with SIGINT
+    # ignored, and then there is nothing to hold back); conftest restores the inherited one
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
     def replace_then_signal(src, dst):
         folder = Path(src).is_dir()
