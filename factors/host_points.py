@@ -38,6 +38,7 @@ from factors.photometric import (GradientImage, GradientSampler, PhotometricLine
 from factors.weights import point_robust_terms, variance_weight
 from gtvo.core.camera import PinholeCamera
 from gtvo.core.kernel_threads import map_independent
+from gtvo.core.lie import se3_adjoint
 from gtvo.core.timing import timed
 from gtvo.errors import InputError
 
@@ -125,16 +126,7 @@ def target_jacobian_map(T_target_host: ArrayLike) -> FloatArray:
     against the kernels' own ``J_target``)."""
     T = np.asarray(T_target_host, dtype=float)
     R, t = T[:3, :3], T[:3, 3]
-    # Ad^-1 is the adjoint of the inverse pose: -se3_adjoint(R^T, -R^T t)^T, its operations written
-    # out for one pose (the stacked hat3 cost 4x these; tested equal to the bit)
-    Ri = R.T
-    ti = -R.T @ t
-    hat = np.array([[0.0, -ti[2], ti[1]], [ti[2], 0.0, -ti[0]], [-ti[1], ti[0], 0.0]])
-    out = np.zeros((6, 6))
-    out[:3, :3] = Ri
-    out[3:, 3:] = Ri
-    out[3:, :3] = hat @ Ri
-    return -out.T
+    return -se3_adjoint(R.T, -R.T @ t).T  # Ad^-1 is the adjoint of the inverse pose
 
 
 def keep_cheaper_depths(d: FloatArray, c: FloatArray, lins: list, rows: NDArray[np.intp], d_old: FloatArray,
