@@ -76,7 +76,7 @@ def open_sequence(path: str | Path, format: DatasetFormat = "auto",
         wheel_topic: ROS bags only: the wheel odometry topic (``"none"``: none); default
             ``wheel_options.topic``, else the one candidate.
         wheel_options: how wheel readings become metres (the config's ``wheel:`` section,
-            :meth:`gtvo.config.wheel.WheelConfig.read_options`; default its defaults).
+            :meth:`gtvo.config.sections.wheel.WheelConfig.read_options`; default its defaults).
         bag_options: ROS bags only: ``calib``, ``left_topic``, ``right_topic``, ``depth_topic``,
             ``ground_truth_topic``, ``stamp_tolerance`` (:func:`gtvo.datasets.bag.read_bag`).
     """

@@ -5,13 +5,11 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
+from gtvo.config.sections.frontend import DEPTH_SIGMA_MODEL
 from gtvo.core.timing import timed
 from gtvo.frontend.point_selection import DEFAULT_POINT_SELECTION, PointSelectionConfig, select_points
 from gtvo.frontend.stereo_depth import KeyframePoints
 
-#: ``(s0, s2)`` of a structured-light sensor's depth noise ``sigma_z = s0 + s2 z^2`` (m): the
-#: default of ``OdometryConfig.frontend.depth_sigma_model``.
-DEPTH_SIGMA_MODEL: tuple[float, float] = (0.0012, 0.0019)
 
 
 @timed("stereo_search")  # the keyframe's depths (from the sensor): the stereo search's stage

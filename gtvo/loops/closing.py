@@ -34,7 +34,7 @@ from gtvo.frontend.rgbd import rgbd_keyframe_points
 from gtvo.frontend.stereo_depth import KeyframePoints, init_keyframe_points
 from gtvo.frontend.tracking import PhotometricConfig, TrackingConfig
 from gtvo.loops import LoopCandidate, LoopDetector
-from gtvo.loops.config import LoopDetectorConfig
+from gtvo.config.sections.loops import LoopDetectorConfig
 from gtvo.loops.closure_graph import LoopEdge, close_loops
 from gtvo.loops.direct_refinement import refine_loop_both_ways
 from gtvo.loops.frame_refinement import refine_frames as refine_frame_poses

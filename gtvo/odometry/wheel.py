@@ -14,7 +14,7 @@ import gtsam
 import numpy as np
 from numpy.typing import ArrayLike
 
-from gtvo.config.wheel import WheelConfig
+from gtvo.config.sections.wheel import WheelConfig
 from gtvo.datasets.wheel import WheelOdometry
 from gtvo.errors import InputError
 from gtvo.window import SlidingWindowOptimizer

@@ -28,7 +28,7 @@ from gtvo.evaluation.trajectory import Trajectory
 from gtvo.frontend.stereo_depth import KeyframePoints
 from gtvo.frontend.tracking import TrackingConfig
 from gtvo.loops.closing import LoopClosingResult, refine_result_frames, relocate_frames
-from gtvo.refinement.config import RefineConfig
+from gtvo.config.sections.refine import RefineConfig
 from gtvo.refinement.solve import RefinementResult, refine_keyframes
 from gtvo.window.config import WindowConfig, WindowKeyframe
 from gtvo.window.wheel import WheelCalibration

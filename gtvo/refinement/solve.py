@@ -26,7 +26,7 @@ from factors.params import DEFAULT_PHOTOMETRIC, PhotometricConfig
 from factors.smart import JacobianBudget
 from gtvo.core.camera import PinholeCamera
 from gtvo.loops.closure_graph import LoopEdge
-from gtvo.refinement.config import RefineConfig
+from gtvo.config.sections.refine import RefineConfig
 from gtvo.refinement.graph import covisible_targets, loop_chi2, loop_factors, window_edges
 from gtvo.window.config import WindowConfig, WindowKeyframe
 from gtvo.window.gtsam_solver import solve_gtsam
