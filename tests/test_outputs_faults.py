@@ -28,6 +28,7 @@ from gtvo.io.outputs import RUN_OUTPUT_NAMES, check_run_output_dir, top_view, wr
 from gtvo.io.plots import CAMERA_WORLD_XZ_LABELS
 from gtvo.core.map_points import MAX_RELATIVE_DEPTH_SIGMA, MapPoints, constrained_mask
 from gtvo.config import FrontendConfig, OdometryConfig
+from gtvo.report import map_points_figures
 from gtvo.odometry import VisualOdometry
 
 KITTI = Path("kitti_stereo_sample") / "KITTI_sequence_1"
@@ -218,7 +219,9 @@ def test_interrupt_at_every_step_of_the_output_phase_keeps_the_old_set(small_seq
     monkeypatch.setattr(atomic, "_swap_in", interrupting(atomic._swap_in))
     monkeypatch.setattr(atomic, "check_replaceable_dir", interrupting(atomic.check_replaceable_dir))
     if step == 0:  # the whole phase uninterrupted: the new set
-        write_run_outputs(out, _estimate(small_seq, 0.02), small_seq, {"frames": 6}, points=_points(30))
+        points = _points(30)
+        write_run_outputs(out, _estimate(small_seq, 0.02), small_seq, {"frames": 6, **map_points_figures(points)},
+                          points=points)
         rep = json.loads((out / "report.json").read_text())
         ply = {"points.ply"} if rep["map_points_written"] is not None else set()  # None: no open3d (reason given)
         assert set(_snapshot(out)) == {DIR_MARKER, "trajectory.tum", "report.json", "trajectory.png",

@@ -294,12 +294,14 @@ def test_the_whole_log_graph_carries_the_wheel_odometry_and_both_solvers_agree(s
 
 @pytest.mark.slow
 def test_a_run_with_wheels_refines_the_calibration_of_the_log():
-    """``gtvo run``'s refinement step (:func:`gtvo.pipeline.refine_vo_run`) hands the window's wheel
+    """``gtvo run``'s refinement stage (:func:`gtvo.refinement.run.refine`) hands the window's wheel
     calibration to the whole-log graph: the report's refine block has the refined calibration, near
-    the wheels' truth (24 synthetic frames with simulated wheels)."""
+    the wheels' truth (24 synthetic frames with simulated wheels). The stage returns a new result
+    and leaves the one it was given as it was: the window's trajectory, depths and covariances."""
     from gtvo.config import WheelConfig, as_config  # noqa: PLC0415
     from gtvo.datasets.wheel import simulate_wheel_odometry  # noqa: PLC0415
-    from gtvo.pipeline import process_sequence, refine_vo_run  # noqa: PLC0415
+    from gtvo.pipeline import run_odometry  # noqa: PLC0415
+    from gtvo.refinement.run import refine  # noqa: PLC0415
     from tests.test_odometry_wheel import BASE_TO_CAMERA, K_TRUE  # noqa: PLC0415
 
     seq = make_synthetic_sequence(24, width=240, height=180, step_m=0.1, motion="turn")
@@ -308,10 +310,18 @@ def test_a_run_with_wheels_refines_the_calibration_of_the_log():
                                   nominal_baseline=0.5)
     seq = dataclasses.replace(seq, wheel_odometry=log)
     cfg = as_config({"wheel": {"base_to_camera": BASE_TO_CAMERA}, "refine": {"enabled": True, "max_iterations": 2}})
-    vo, traj, _ = process_sequence(seq, cfg, warn=lambda m: None)
-    refined = refine_vo_run(seq, vo, traj, None, False)
-    assert refined.summary["ran"]
-    np.testing.assert_allclose(refined.summary["wheel_calibration"], K_TRUE, atol=0.02)
+    _, odo = run_odometry(seq, cfg, warn=lambda m: None)
+    poses, depths = odo.trajectory.poses.copy(), {k: p.inverse_depth.copy() for k, p in odo.keyframe_points.items()}
+    covariances = odo.covariances.covariance.copy()
+    refined = refine(odo, seq, warn=lambda m: None)
+    assert refined is not odo and odo.refinement is None and refined.refinement["ran"]
+    np.testing.assert_allclose(refined.refinement["wheel_calibration"], K_TRUE, atol=0.02)
+    assert refined.covariances.source.startswith("gtsam.Marginals of the whole-log")
+    assert not np.array_equal(refined.trajectory.poses, poses)  # the refined trajectory replaced the window's
+    np.testing.assert_array_equal(odo.trajectory.poses, poses)  # ... in the new value only
+    assert all(np.array_equal(odo.keyframe_points[k].inverse_depth, d) for k, d in depths.items())
+    assert any(not np.array_equal(refined.keyframe_points[k].inverse_depth, d) for k, d in depths.items())
+    np.testing.assert_array_equal(odo.covariances.covariance, covariances)
 
 
 @pytest.mark.slow

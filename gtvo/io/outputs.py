@@ -2,14 +2,14 @@
 
 :func:`write_run_outputs` writes ``trajectory.tum``, ``report.json`` (the report it is given:
 :func:`gtvo.report.run_report`), ``trajectory.png`` (and ``errors.png``) and ``points.ply`` into
-one folder, replaced as a set. It computes no metric (those are :mod:`gtvo.evaluation`'s); it
-records only what writing tells: the map's counts (:class:`MapPointsFigures`).
+one folder, replaced as a set. It computes no metric (those are :mod:`gtvo.evaluation`'s) and adds
+nothing to the report: it writes the report as it is given.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Callable, Mapping, TypedDict
+from typing import Any, Callable, Mapping
 
 import numpy as np
 from numpy.typing import NDArray
@@ -25,15 +25,6 @@ from gtvo.datasets.sequence import Sequence
 from gtvo.evaluation.trajectory import Trajectory
 from gtvo.io.trajectory_files import write_tum
 from gtvo.core.map_points import MapPoints
-
-
-class MapPointsFigures(TypedDict, total=False):
-    """The map's counts in ``report.json``, added by :func:`write_run_outputs` when it writes
-    ``points.ply`` (docs/evaluation.md, "The map")."""
-
-    map_points_written: int
-    map_points_left_out: int
-    map_points_left_out_by_reason: dict[str, int]
 
 
 #: Every entry ``gtvo run`` writes into its output folder (an earlier run's set may be replaced).
@@ -85,24 +76,24 @@ def check_run_output_dir(out_dir: str | Path, inputs: tuple[Path | None, set[Pat
     return check_replaceable_dir(out, RUN_OUTPUT_NAMES, RUN_WRITER)
 
 
-def write_run_outputs(out_dir: str | Path, est: Trajectory, seq: Sequence, report: Mapping[str, Any],
+def write_run_outputs(out_dir: str | Path, est: Trajectory, seq: Sequence,
+                      report: Mapping[str, Any] | Callable[[], Mapping[str, Any]],
                       points: MapPoints | tuple[NDArray[np.float64], NDArray[np.float64]] | None = None,
                       loop_closed: Trajectory | None = None,
                       covariances: KeyframeCovariances | None = None,
-                      config_yaml: str | None = None,
-                      stage_figures: Callable[[], Mapping[str, Any]] | None = None) -> dict[str, Any]:
+                      config_yaml: str | None = None, metrics: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """Write a run's outputs into ``out_dir`` as a set and return the report written to ``report.json``.
 
-    ``report``: the run's report (:func:`gtvo.report.run_report`), written as it is, with what
-    writing adds: ``points`` (:class:`gtvo.core.map_points.MapPoints`, or plain ``(points,
-    intensities)``) give :class:`MapPointsFigures`; ``stage_figures``, when given, is called
-    just before ``report.json`` is written and its keys update the report (the run's timing by
-    stage, with the outputs' own time so far: :func:`gtvo.odometry.summary.stage_timing`).
-    ``loop_closed``, when given, is written as ``trajectory_loop_closed.tum``. ``covariances``,
+    ``report``: the run's report (:func:`gtvo.report.run_report`), written as it is; or the function
+    that builds it, called once every other file is written (so that the report's timing of the
+    outputs includes their writing). ``points`` (:class:`gtvo.core.map_points.MapPoints`, or plain
+    ``(points, intensities)``), when given, are written as ``points.ply`` (when there are any).
+    ``metrics``: the accuracy the plots state (its ``ate_rmse_m``; default the report's, when it is
+    given as a mapping). ``loop_closed``, when given, is written as ``trajectory_loop_closed.tum``. ``covariances``,
     when given, is written as ``covariances.npz`` and drawn as position ellipses in
     ``trajectory.png`` (:mod:`gtvo.io.covariances`). ``config_yaml``, when given, is written as
     ``config.yaml`` (the run's configuration, for ``gtvo run --config``). With ground truth the
-    plots show the estimate SE(3)-aligned to it when the report has an ``ate_rmse_m``, else with
+    plots show the estimate SE(3)-aligned to it when the metrics have an ``ate_rmse_m``, else with
     the first poses aligned.
 
     The files are written into a temporary folder beside ``out_dir`` that then replaces it
@@ -111,11 +102,10 @@ def write_run_outputs(out_dir: str | Path, est: Trajectory, seq: Sequence, repor
     empty or an earlier run's output folder, and not the input's (:func:`check_run_output_dir`).
     """
     out_path = check_run_output_dir(out_dir, seq)
-    written: dict[str, Any] = dict(report)
     pair = ground_truth(seq, est)
     if pair is not None:
         est_gt, ref = pair
-        ate_m = written.get("ate_rmse_m")
+        ate_m = (metrics if metrics is not None else report if not callable(report) else {}).get("ate_rmse_m")
         aligned, _ = align_trajectory(est_gt, ref, "se3" if ate_m is not None else "origin")
         title = (f"{seq.name}: ATE {ate_m:.3f} m (SE(3)-aligned)" if ate_m is not None
                  else f"{seq.name} (first poses aligned)")
@@ -134,7 +124,7 @@ def write_run_outputs(out_dir: str | Path, est: Trajectory, seq: Sequence, repor
             plot_trajectory_top_view(aligned, ref, out / "trajectory.png", title=title, ellipses=ellipses, **view)
             errs = np.linalg.norm(aligned.positions - ref.positions, axis=1)
             after = ("SE(3) alignment to the ground truth (least squares over all poses, as the ATE)"
-                     if written.get("ate_rmse_m") is not None else "aligning the first poses")
+                     if ate_m is not None else "aligning the first poses")
             plot_errors_over_time(ref.timestamps, errs, out / "errors.png", title=f"{seq.name}: position error after "
                                   f"{after}", ylabel="position error after alignment [m]")
         else:
@@ -142,22 +132,11 @@ def write_run_outputs(out_dir: str | Path, est: Trajectory, seq: Sequence, repor
                                      ellipses=ellipses, **view)
         if loop_closed is not None:
             write_tum(out / "trajectory_loop_closed.tum", loop_closed)
-        if points is not None:
-            written.update(_write_map(out / "points.ply", points))
-        if stage_figures is not None:
-            written.update(stage_figures())
+        if points is not None and points.written:
+            write_ply_points(out / "points.ply", points.points, points.intensity)  # numpy, no open3d: gtvo.io.ply
+        written = dict(report() if callable(report) else report)
         write_json(out / "report.json", _jsonable(written))
     return written
-
-
-def _write_map(path: Path, points: MapPoints) -> MapPointsFigures:
-    """Write ``points.ply`` (when there are points) and return the map's counts for the report."""
-    figures: MapPointsFigures = {"map_points_written": points.written, "map_points_left_out": points.left_out_total}
-    if points.left_out:
-        figures["map_points_left_out_by_reason"] = dict(points.left_out)
-    if points.written:
-        write_ply_points(path, points.points, points.intensity)  # numpy, no open3d: gtvo.io.ply
-    return figures
 
 
 def _jsonable(obj: Any) -> Any:

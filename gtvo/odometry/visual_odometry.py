@@ -32,7 +32,7 @@ from factors.photometric import GradientImage
 from gtvo.config import OdometryConfig
 from gtvo.core.camera import PinholeCamera, StereoCamera
 from gtvo.core.image import to_float_gray
-from gtvo.core.map_points import MapPoints, constrained_mask
+from gtvo.core.map_points import MapPoints
 from gtvo.core.timing import StageClock
 from gtvo.datasets.sequence import Frame
 from gtvo.datasets.wheel import WheelOdometry
@@ -45,6 +45,7 @@ from gtvo.odometry.frame_tracking import FrameTracker, Track
 from gtvo.odometry.history import FrameHistory
 from gtvo.odometry.keyframer import Keyframer
 from gtvo.odometry.motion import MotionModel
+from gtvo.odometry.result import MapKeyframe, keyframe_map
 from gtvo.odometry.view import OdometryView
 from gtvo.odometry.wheel import wheel_calibration
 
@@ -172,20 +173,9 @@ class VisualOdometry:
         ``keyframe_poses``: ``{keyframe index: 4x4 T_world_cam}`` to place keyframes elsewhere than
         at their odometry poses (e.g. after loop closing); a keyframe missing from it keeps its own.
         """
-        pts, vals = [np.zeros((0, 3))], [np.zeros(0)]
-        left_out: dict[str, int] = {}
-        for kf in self.keyframes:
-            # keyframes no window optimisation included (track mode, a run with one keyframe)
-            # keep their measured depths, under the depth rules alone
-            observed = self.keyframer.observed(kf.index)
-            keep, out = constrained_mask(kf.points.inverse_depth, kf.points.variance,
-                                         None if observed is None else 1 + observed)
-            for k, v in out.items():
-                left_out[k] = left_out.get(k, 0) + v
-            T = None if keyframe_poses is None else keyframe_poses.get(kf.index)
-            pts.append(self.keyframer.world_points(kf, T)[keep])
-            vals.append(np.asarray(kf.points.intensity, dtype=float)[keep])
-        return MapPoints(np.concatenate(pts), np.concatenate(vals), left_out)
+        return keyframe_map(self.pinhole, [MapKeyframe(kf.index, kf.T_world_cam.matrix(), kf.points,
+                                                        self.keyframer.observed(kf.index)) for kf in self.keyframes],
+                            keyframe_poses)
 
     def covariance(self, keyframe: int | Keyframe, inflation: float = 1.0) -> NDArray[np.float64] | None:
         """The 6x6 pose covariance of a keyframe (its frame index, or the :class:`Keyframe`) from the

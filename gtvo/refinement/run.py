@@ -1,5 +1,5 @@
-"""The whole-log refinement joined to a run (:func:`refine_run`): what :func:`gtvo.run` does after
-the window pass and loop closing when ``refine.enabled``.
+"""The whole-log refinement joined to a run: the stage :func:`refine` (what :func:`gtvo.run` does
+after the window pass and loop closing when ``refine.enabled``) over :func:`refine_run`.
 
 The keyframes are refined (:func:`gtvo.refinement.refine_keyframes`, from the loop-closed poses
 and with the accepted loop edges when loops were closed); the other frames move with their
@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import Callable, Mapping, Sequence as Seq, TypedDict
+from typing import Callable, Mapping, Sequence as Seq
 
 import numpy as np
 from numpy.typing import NDArray
@@ -28,6 +28,8 @@ from gtvo.evaluation.trajectory import Trajectory
 from gtvo.frontend.stereo_depth import KeyframePoints
 from gtvo.frontend.tracking import TrackingConfig
 from gtvo.loops.closing import LoopClosingResult, refine_result_frames, relocate_frames
+from gtvo.odometry.result import OdometryResult
+from gtvo.report import RefinementSummary
 from gtvo.config.sections.refine import RefineConfig
 from gtvo.refinement.solve import RefinementResult, refine_keyframes
 from gtvo.window.config import WindowConfig, WindowKeyframe
@@ -38,26 +40,9 @@ F64 = NDArray[np.float64]
 #: The one line a Ctrl-C during the refinement leaves (the run then writes its window-only outputs).
 INTERRUPTED = "refinement interrupted (Ctrl-C): writing the window-only outputs"
 
-
-class RefinementSummary(TypedDict, total=False):
-    """The report's ``refine`` block (docs/evaluation.md, "report.json")."""
-
-    ran: bool
-    reason: str | None
-    solver: str
-    keyframes: int
-    targets_mean: float
-    iterations: int
-    cost_before: float | None
-    cost_after: float | None
-    seconds: float
-    loop_edges: int
-    loop_edges_dropped: int
-    frames_replaced: int
-    wheel_calibration: list[float]
-    window_ate_rmse_m: float | None
-    window_ate_sim3_rmse_m: float | None
-    window_scale_ratio: float | None
+#: ``covariances.npz``'s source when the whole-log refinement was kept (its graph's marginals).
+REFINED_COVARIANCES = {"gtsam": "gtsam.Marginals of the whole-log refinement's graph",
+                       "handrolled": "inverse of the whole-log refinement's reduced Hessian (hand-rolled)"}
 
 
 @dataclass
@@ -82,6 +67,32 @@ class RunRefinement:
     covariances: dict[int, F64] | None
     summary: RefinementSummary
     frames_replaced: int = 0
+
+
+def refine(result: OdometryResult, seq: Sequence, progress: bool = False,
+           warn: Callable[[str], None] = print) -> OdometryResult:
+    """The whole-log refinement as a stage of a run: ``result`` itself when the window kept no
+    keyframes for it (``refine.enabled`` false, or track mode), else a copy with the refinement's
+    outcome (:func:`refine_run`, with the run's settings and what the window left): the trajectory
+    refined (without loop closing), the loop closing's frames re-placed against the refined keyframes
+    (its own copy: ``result.loops`` is left as it was), the keyframes' refined depths and pose
+    covariances, the map on the refined keyframes and the report's ``refine`` block. When the
+    refinement is not kept the run's answer stays the one it would have been without it.
+    """
+    if result.window_keyframes is None:
+        return result
+    config = result.config
+    loops = None if result.loops is None else dataclasses.replace(result.loops)  # type: ignore[type-var]
+    refined = refine_run(seq, result.trajectory, result.frame_indices, result.keyframe_positions,
+                         result.window_keyframes, config.window, config.refine, photometric=config.photometric,
+                         tracking=config.tracking, rig_offset=result.rig_offset,
+                         keyframe_points=result.keyframe_points, odometry_covariances=result.link_covariances,
+                         refine=result.tracked, loop_result=loops, progress=progress, warn=warn, wheel=result.wheel)
+    closed = refined.loop_result
+    map_poses = closed.keyframe_poses if closed is not None else (refined.keyframe_poses or None)
+    return result.with_refined_keyframes(refined.inverse_depths, refined.covariances,
+                                         REFINED_COVARIANCES[config.refine.solver], trajectory=refined.trajectory,
+                                         loops=closed, refinement=refined.summary, map_poses=map_poses)
 
 
 def refine_run(seq: Sequence, trajectory: Trajectory, frame_indices: list[int], keyframes: list[int],
