@@ -25,7 +25,7 @@ def solve_gtsam(problem: WindowProblem) -> WindowResult:
     (:func:`gtvo.window.problem.build_graph`); updates the problem's keyframes in place.
 
     The result's ``rig_offset`` and ``wheel_calibration`` are the optimised rig offset and wheel
-    calibration (None when the problem has none; ``problem.wheel`` itself is not changed), its
+    calibration (None when the problem has none; the problem's sensors are not changed), its
     ``variables`` every variable beyond the keyframes' poses and affines. With the settings'
     ``on_iteration`` the optimiser runs iteration by iteration (:func:`optimize_by_iterations`)."""
     t0 = time.perf_counter()

@@ -134,7 +134,7 @@ class SlidingWindowOptimizer:
         its keyframes (``targets``: theirs, None: chosen at the first use), its marginalisation
         prior, its wheel calibration and ``rig`` (None: no rig variable; :meth:`solved_rig`: the window's)."""
         return WindowProblem.build(WindowMembers(self.camera, self.baseline, self.keyframes, targets),
-                                   WindowSettings(self.config, self.photometric), self.marginal, rig, self.wheel)
+                                   WindowSettings(self.config, self.photometric), self.marginal, rig, (self.wheel,))
 
     def cost(self) -> float:
         """The window cost at the current state (W evaluated at this state)."""
