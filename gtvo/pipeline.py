@@ -2,7 +2,8 @@
 write. Used by ``gtvo run``, ``gtvo demo`` and by Python users (:func:`run`).
 
 The odometry hands back one value (:class:`gtvo.odometry.result.OdometryResult`); loop closing
-(:func:`gtvo.loops.closing.close_loops`) and the whole-log refinement (:func:`gtvo.refinement.run.refine`)
+(:func:`gtvo.loops.closing.run_loop_closing`) and the whole-log refinement
+(:func:`gtvo.refinement.run.run_refinement`)
 are stages that take it and return a new one; the report is built from the last one in one place
 (:func:`gtvo.report.run_report`) and written with the other outputs (:func:`gtvo.io.outputs.write_run_outputs`).
 """
@@ -27,14 +28,14 @@ from gtvo.errors import InputError
 from gtvo.evaluation.trajectory import Trajectory
 from gtvo.io.observer import RunObserver
 from gtvo.io.outputs import check_run_output_dir, write_run_outputs
-from gtvo.loops.closing import close_loops
+from gtvo.loops.closing import run_loop_closing
 from gtvo.odometry import VisualOdometry
 from gtvo.odometry.estimates import trust_warning
 from gtvo.odometry.result import TRACKED_OUTCOMES, OdometryResult
 from gtvo.odometry.rig_report import rig_warning
 from gtvo.odometry.summary import clock_timing, keyframe_covariances, odometry_result
 from gtvo.odometry.wheel import wheel_coverage_warning
-from gtvo.refinement.run import refine
+from gtvo.refinement.run import run_refinement
 from gtvo.report import OdometrySummary, RunReport, run_metrics, run_report
 
 __all__ = ["TRACKED_OUTCOMES", "keyframe_covariances", "process_sequence", "read_input", "run", "run_odometry"]
@@ -166,8 +167,8 @@ def run(path: str | Path | Sequence, out: str | Path | None = None,
     with tidy_on_failure():  # a run that fails leaves no empty output folder behind
         ensure_output_dir(out_dir)  # an unusable --out is reported before the long work
         _, odo = run_odometry(seq, config, progress=progress, strict=strict, observers=observers)  # 2. odometry
-        odo = close_loops(odo, seq, progress)                    # 3. stages: loop closing, the refinement
-        odo = refine(odo, seq, progress, _warn)
+        odo = run_loop_closing(odo, seq, progress)               # 3. stages: loop closing, the refinement
+        odo = run_refinement(odo, seq, progress, _warn)
         raise_if_interrupted()
         with odo.clock.activate() if odo.clock is not None else nullcontext(), stage("outputs", absorb=True):
             metrics = run_metrics(seq, odo)                      # 4. evaluate

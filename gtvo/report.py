@@ -120,7 +120,7 @@ class LoopClosureSummary(TypedDict, total=False):
 
 
 class RefinementSummary(TypedDict, total=False):
-    """The report's ``refine`` block (docs/evaluation.md, "report.json"; :func:`gtvo.refinement.run.refine`)."""
+    """The report's ``refine`` block (docs/evaluation.md, "report.json"; :func:`gtvo.refinement.run.run_refinement`)."""
 
     ran: bool
     reason: str | None

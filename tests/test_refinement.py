@@ -296,14 +296,14 @@ def test_the_whole_log_graph_carries_the_wheel_odometry_and_both_solvers_agree(s
 
 @pytest.mark.slow
 def test_a_run_with_wheels_refines_the_calibration_of_the_log():
-    """``gtvo run``'s refinement stage (:func:`gtvo.refinement.run.refine`) hands the window's wheel
+    """``gtvo run``'s refinement stage (:func:`gtvo.refinement.run.run_refinement`) hands the window's wheel
     calibration to the whole-log graph: the report's refine block has the refined calibration, near
     the wheels' truth (24 synthetic frames with simulated wheels). The stage returns a new result
     and leaves the one it was given as it was: the window's trajectory, depths and covariances."""
     from gtvo.config import WheelConfig, as_config  # noqa: PLC0415
     from gtvo.datasets.wheel import simulate_wheel_odometry  # noqa: PLC0415
     from gtvo.pipeline import run_odometry  # noqa: PLC0415
-    from gtvo.refinement.run import refine  # noqa: PLC0415
+    from gtvo.refinement.run import run_refinement  # noqa: PLC0415
     from tests.test_odometry_wheel import BASE_TO_CAMERA, K_TRUE  # noqa: PLC0415
 
     seq = make_synthetic_sequence(24, width=240, height=180, step_m=0.1, motion="turn")
@@ -315,7 +315,7 @@ def test_a_run_with_wheels_refines_the_calibration_of_the_log():
     _, odo = run_odometry(seq, cfg, warn=lambda m: None)
     poses, depths = odo.trajectory.poses.copy(), {k: p.inverse_depth.copy() for k, p in odo.keyframe_points.items()}
     covariances = odo.covariances.covariance.copy()
-    refined = refine(odo, seq, warn=lambda m: None)
+    refined = run_refinement(odo, seq, warn=lambda m: None)
     assert refined is not odo and odo.refinement is None and refined.refinement["ran"]
     np.testing.assert_allclose(refined.refinement["wheel_calibration"], K_TRUE, atol=0.02)
     assert refined.covariances.source.startswith("gtsam.Marginals of the whole-log")

@@ -43,8 +43,8 @@ from gtvo.odometry.result import OdometryResult, odometry_covariances
 from gtvo.report import LoopClosureSummary
 
 __all__ = ["LOOP_CLOSURE_SOLVER", "ODOMETRY_SIGMAS", "REFINEMENT_POINTS", "LoopClosingResult", "LoopClosureSummary",
-           "close_loops", "close_loops_of_run", "odometry_covariances", "odometry_informations", "refine_result_frames",
-           "relocate_frames"]
+           "close_loops_of_run", "odometry_covariances", "odometry_informations", "refine_result_frames",
+           "relocate_frames", "run_loop_closing"]
 
 #: Odometry edge standard deviations, rotation (rad) and translation (m), for consecutive keyframes
 #: that no successful tracking links (the first keyframe after a re-initialisation, or a run whose
@@ -108,13 +108,13 @@ class _Tracker:
     photometric: PhotometricConfig | None
 
 
-def close_loops(result: OdometryResult, seq: Sequence, progress: bool = False) -> OdometryResult:
+def run_loop_closing(result: OdometryResult, seq: Sequence, progress: bool = False) -> OdometryResult:
     """Loop closing as a stage of a run (``loops.enabled``; otherwise ``result`` itself): the loops
     among ``result``'s keyframes closed (:func:`close_loops_of_run`, with the run's settings, its
     keyframes' points and the covariances of their links) and a copy of ``result`` returned with the
     outcome (``loops``) and the loop-closed keyframe poses as the map's (``map_poses``). Every tracked
     frame is then re-estimated against the final keyframes, unless the whole-log refinement follows
-    (``result.window_keyframes``), which re-places the frames itself (:func:`gtvo.refinement.run.refine`).
+    (``result.window_keyframes``), which re-places the frames itself (:func:`gtvo.refinement.run.run_refinement`).
     """
     config = result.config
     if not config.loops.enabled:

@@ -6,7 +6,7 @@ poses and points, what the window leaves for the whole-log refinement (its keyfr
 images, the rig offset, the wheel calibration), the keyframes' pose covariances, the covariances of
 the links between consecutive keyframes (computed once, read by loop closing and the refinement),
 the odometry's figures and its clock. The stages that follow take it and return a new one
-(:func:`gtvo.loops.closing.close_loops`, :func:`gtvo.refinement.run.refine`): nothing writes into
+(:func:`gtvo.loops.closing.run_loop_closing`, :func:`gtvo.refinement.run.run_refinement`): nothing writes into
 the odometry after its run (DSO's single hand-over between front end and back end; KISS-ICP's
 pipeline of steps). The report is built from the last one (:func:`gtvo.report.run_report`).
 """

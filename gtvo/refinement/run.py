@@ -1,4 +1,4 @@
-"""The whole-log refinement joined to a run: the stage :func:`refine` (what :func:`gtvo.run` does
+"""The whole-log refinement joined to a run: the stage :func:`run_refinement` (what :func:`gtvo.run` does
 after the window pass and loop closing when ``refine.enabled``) over :func:`refine_run`.
 
 The keyframes are refined (:func:`gtvo.refinement.refine_keyframes`, from the loop-closed poses
@@ -70,7 +70,7 @@ class RunRefinement:
     frames_replaced: int = 0
 
 
-def refine(result: OdometryResult, seq: Sequence, progress: bool = False,
+def run_refinement(result: OdometryResult, seq: Sequence, progress: bool = False,
            warn: Callable[[str], None] = print) -> OdometryResult:
     """The whole-log refinement as a stage of a run: ``result`` itself when the window kept no
     keyframes for it (``refine.enabled`` false, or track mode), else a copy with the refinement's

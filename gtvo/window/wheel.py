@@ -23,9 +23,10 @@ from numpy.typing import NDArray
 
 from factors.wheel_odometry import (CALIBRATION_SIZE, DIFF_DRIVE_NAMES, WheelOdometryFactor, calibrated_motion,
                                     nominal_calibration, planar_pose, wheel_step_sigmas)
-from gtvo.config.sections.wheel import WheelConfig
 from gtvo.core.keys import calibration_key, pose_key
 from gtvo.errors import InputError
+
+from gtvo.config.sections.wheel import WheelConfig  # the defaults of the settings
 
 FloatArray = NDArray[np.float64]
 
