@@ -34,6 +34,11 @@ FloatArray = NDArray[np.float64]
 # the problem shared by both solvers
 
 
+def vector_of(values: gtsam.Values, key: int) -> FloatArray | None:
+    """A copy of the vector at ``key`` in ``values``, None when it has none."""
+    return np.asarray(values.atVector(key), dtype=float).copy() if values.exists(key) else None
+
+
 def key_ordering(keys: Sequence[int]) -> gtsam.Ordering:
     o = gtsam.Ordering()
     for k in keys:
