@@ -170,7 +170,7 @@ def run(path: str | Path | Sequence, out: str | Path | None = None,
         ensure_output_dir(out_dir)  # an unusable --out is reported before the long work
         vo, traj, summary = process_sequence(seq, config, progress=progress, strict=strict, observers=observers)
         closed = closed_keyframes = loops = res = refined = None
-        refining = bool(getattr(vo.window, "retain_keyframes", False))  # refine.enabled, sequential window mode
+        refining = vo.window is not None and vo.window.retain_keyframes  # refine.enabled, window mode
         if config.loops.enabled:
             from gtvo.loops.closing import close_loops_of_run, odometry_covariances  # noqa: PLC0415
 
@@ -223,7 +223,7 @@ def refine_vo_run(seq: Sequence, vo: VisualOdometry, trajectory: Trajectory, loo
                          odometry_covariances=odometry_covariances(vo.estimates, keyframes),
                          refine=[e.outcome in TRACKED_OUTCOMES for e in vo.estimates], loop_result=loop_result,
                          progress=progress, warn=lambda msg: print(f"warning: {msg}", file=sys.stderr),
-                         wheel=getattr(vo.window, "wheel", None))
+                         wheel=vo.window.wheel)
     for kf in vo.keyframes:
         if kf.index in refined.inverse_depths:
             kf.points = dataclasses.replace(kf.points, inverse_depth=refined.inverse_depths[kf.index])

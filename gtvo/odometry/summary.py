@@ -140,7 +140,7 @@ def summarize_odometry(vo: VisualOdometry, seconds: float | None = None,
     if config.mode == "window":
         window, results = vo.window, vo.window_results
         out.update({
-            "window_backend": window.backend.name if window is not None else None,
+            "window_backend": window.backend_name if window is not None else None,
             "window_solver": window.solver_name(config.solver.window) if window is not None else None,
             "window_size": config.window.size,
             "window_optimisations": len(results),
@@ -170,10 +170,9 @@ def stage_timing(vo: VisualOdometry) -> StageTiming:
 def window_worker_figures(vo: VisualOdometry) -> WindowWorkerFigures:
     """``window_worker`` (:class:`WindowWorkerFigures`) when the window runs in a worker process;
     empty otherwise. Asks the worker, so call it before the worker is closed."""
-    worker = getattr(vo.keyframer, "worker", None)
-    if worker is None:
+    usage = None if vo.window is None else vo.window.worker_usage()
+    if usage is None:
         return {}
-    usage = worker.usage()
     return {"window_worker": {"cpu_seconds": float(usage.cpu_seconds), "max_rss_mib": float(usage.max_rss_mib),
                               "seconds_by_stage": {k: float(v) for k, v in usage.seconds_by_stage.items()},
                               "kernel_threads": int(usage.kernel_threads),
