@@ -1,10 +1,13 @@
-"""The window beside the tracker: a :class:`gtvo.odometry.window_link.WindowLink` in a worker process.
+"""The window beside the tracker: a :class:`gtvo.odometry.window_link.WindowLink` in a worker
+process, one of the two machines behind :class:`gtvo.odometry.window_port.WindowPort`.
 
 ``window.parallel: true`` (docs/window.md, "The window beside the tracker"). The window's host
 factors hold the GIL, so a thread would not run them beside the tracker: the window lives in a
 worker process (``python -c`` on a socket pair) that owns its whole state (keyframes with their
-images, the marginal prior, the rig offset). The front end sends each new keyframe (pose, points, the keyframe it was tracked
-against) with its two images in grey levels through shared memory (a ring of :data:`SLOTS`
+images, the marginal prior, the rig offset, its copy of the wheel calibration; with ``--refine``
+the keyframes that left, handed back by :meth:`WindowWorker.finish`). The front end sends each new
+keyframe (pose, points, the keyframe it was tracked against) with its two images in grey levels
+through shared memory (a ring of :data:`SLOTS`
 buffers in one ``memfd`` mapped by both: nothing to unlink, nothing for a resource tracker to
 report), and gets back per keyframe one reply: the :class:`gtvo.odometry.window_link.WindowUpdate`
 of the optimisation it asked for (poses, depths, figures), or nothing.
