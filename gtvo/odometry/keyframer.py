@@ -216,7 +216,7 @@ class Keyframer:
         # the next frames may track against its stereo depths, or it waits for its window now
         lag = last is not None and self.schedule.may_go_unrefined(tracked is not None, follows, last.T_world_cam,
                                                                    T_world_cam, pts)
-        updates = self.window.due() if lag else self.window.finish()
+        updates = self.window.due(now=not lag)
         for update in updates:
             T_world_cam = self._apply(update, T_world_cam)
         new = updates[-1].members[-1] if updates else None

@@ -11,7 +11,7 @@ runs it (DSO hands a tracked frame to its mapper in one place, whatever the thre
 
 The port speaks plain data: a :class:`~gtvo.odometry.window_link.KeyframeForWindow` joins
 (:meth:`WindowPort.join`), :class:`~gtvo.odometry.window_link.WindowUpdate` s come back when they
-are due (:meth:`WindowPort.due`) or all at once (:meth:`WindowPort.finish`). What the rest of the
+are due (:meth:`WindowPort.due`), and all at the run's end (:meth:`WindowPort.finish`). What the rest of the
 run reads of the window (the rig offset, the wheel calibration, the keyframes' covariances, every
 keyframe for the whole-log refinement, the marginal covariances for the report) is the port's
 state, as of the updates handed out so far. :func:`open_window` picks the machine from the settings.
@@ -66,11 +66,13 @@ class WindowPort(Protocol):
     def optimize(self) -> None:
         """Ask for an optimisation of the window as it is (its update comes with :meth:`finish`)."""
 
-    def due(self) -> list[WindowUpdate]:
-        """The updates the front end applies now, oldest first (waits for them)."""
+    def due(self, now: bool = False) -> list[WindowUpdate]:
+        """The updates the front end applies now, oldest first (waits for them): those the
+        machine's rule makes due, or with ``now`` every one (the newest keyframe waits for its own)."""
 
     def finish(self) -> list[WindowUpdate]:
-        """Every update not handed out yet, oldest first (waits for all)."""
+        """The run's end: every update not handed out yet, oldest first (waits for all), and the
+        state the run reads after it (:meth:`every_keyframe`) brought up to date."""
 
     def close(self) -> None:
         """Release the machine (idempotent); the state read so far stays readable."""
@@ -154,14 +156,14 @@ class LocalWindow:
         if update is not None:
             self._pending.append(update)
 
-    def due(self) -> list[WindowUpdate]:
+    def due(self, now: bool = False) -> list[WindowUpdate]:
         """:meth:`WindowPort.due`: every update (in this process none waits)."""
-        return self.finish()
-
-    def finish(self) -> list[WindowUpdate]:
-        """:meth:`WindowPort.finish`."""
         out, self._pending = self._pending, []
         return out
+
+    def finish(self) -> list[WindowUpdate]:
+        """:meth:`WindowPort.finish`: every update (the state is the window's own)."""
+        return self.due(now=True)
 
     def close(self) -> None:
         """Nothing to release."""

@@ -182,15 +182,15 @@ class WindowWorker:
         self._send(("optimize",))
         self._joins.append(self._sent - 1)
 
-    def due(self) -> list[WindowUpdate]:
-        """The updates the front end applies now: those of the keyframes joined :data:`LAG` or more
-        keyframes ago (waits for them), oldest first."""
-        return self._hand_out(len(self._joins) - LAG)
+    def due(self, now: bool = False) -> list[WindowUpdate]:
+        """The updates the front end applies now, oldest first (waits for them): those of the
+        keyframes joined :data:`LAG` or more keyframes ago, or with ``now`` every one."""
+        return self._hand_out(len(self._joins) - (0 if now else LAG))
 
     def finish(self) -> list[WindowUpdate]:
-        """Every update not handed out yet (waits for all); with ``retain_keyframes`` also brings
-        back every keyframe the worker's window has had (:meth:`every_keyframe`)."""
-        updates = self._hand_out(len(self._joins))
+        """The run's end: every update not handed out yet (waits for all); with ``retain_keyframes``
+        also brings back every keyframe the worker's window has had (:meth:`every_keyframe`)."""
+        updates = self.due(now=True)
         if self.retain_keyframes:
             self._every = self._ask(("every_keyframe",))
         return updates
