@@ -194,7 +194,7 @@ class Keyframer:
         if self.window is not None:
             self.window.close()
 
-    # -- the window link ------------------------------------------------------------------------
+    # -- the window ----------------------------------------------------------------------------------
     def _join_window(self, frame: Frame, right_image: NDArray[np.float32] | None, T_world_cam: gtsam.Pose3,
                      pts: KeyframePoints,
                      tracked: tuple[int, NDArray[np.float64]] | None,
