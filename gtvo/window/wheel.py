@@ -23,7 +23,7 @@ from numpy.typing import NDArray
 
 from factors.wheel_odometry import (CALIBRATION_SIZE, DIFF_DRIVE_NAMES, WheelOdometryFactor, calibrated_motion,
                                     nominal_calibration, planar_pose, wheel_step_sigmas)
-from gtvo.core.keys import calibration_key
+from gtvo.core.keys import calibration_key, pose_key
 from gtvo.errors import InputError
 
 FloatArray = NDArray[np.float64]
@@ -140,6 +140,17 @@ class WheelCalibration:
                                                s.T_base_cam, sig, s.nominal_baseline)))
         return out
 
+    def add_to(self, problem: Any) -> None:
+        """The wheels in a window problem (:class:`gtvo.window.problem.WindowSensor`): the
+        calibration variable at :attr:`estimate`, the factors between consecutive keyframes
+        (:meth:`factors`) and, until the problem's marginalisation prior carries the calibration,
+        its prior (:meth:`prior_factor`)."""
+        problem.variables.insert(calibration_key(), np.asarray(self.estimate, dtype=float).copy())
+        for _, f in self.factors(problem.keyframes, lambda kf: pose_key(kf.index)):
+            problem.factors.add(f)
+        if problem.marginal is None or calibration_key() not in problem.marginal.keys:
+            problem.factors.add(self.prior_factor())
+
     def prior_sigmas(self) -> FloatArray:
         """The prior's sigma of every parameter."""
         return np.full(self.size, float(self.settings.prior_sigma))
@@ -148,17 +159,6 @@ class WheelCalibration:
         """The calibration's prior (set once: the marginalisation prior carries it afterwards)."""
         return gtsam.PriorFactorVector(calibration_key(), self.settings.mean(),
                                        gtsam.noiseModel.Diagonal.Sigmas(self.prior_sigmas()))
-
-    def prior_terms(self, c: FloatArray, H: FloatArray | None = None, g: FloatArray | None = None,
-                    at: int = 0) -> float:
-        """The prior's cost at ``c`` and (given ``H``, ``g``) its Gauss-Newton terms at entries ``at:at+size``."""
-        sig = self.prior_sigmas()
-        e = (np.asarray(c, dtype=float) - self.settings.mean()) / sig
-        if H is not None and g is not None:
-            idx = np.arange(at, at + self.size)
-            H[idx, idx] += 1.0 / sig ** 2
-            g[idx] += e / sig
-        return 0.5 * float(e @ e)
 
     def predict(self, T_world_cam: gtsam.Pose3, t0: float, t1: float) -> gtsam.Pose3 | None:
         """The camera's pose at ``t1`` carried from ``T_world_cam`` at ``t0`` by the calibrated wheel
