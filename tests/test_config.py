@@ -115,7 +115,7 @@ def test_photometric_reaches_tracker_and_window_as_one_object():
     vo = VisualOdometry(seq.camera, OdometryConfig(photometric=p))
     for frame in seq:
         vo.process(frame)
-    assert vo.window is not None and vo.window.photometric is p
+    assert vo.window is not None and vo.window.optimizer.photometric is p
     assert vo.keyframes[-1].tracker is not None and vo.keyframes[-1].tracker.photometric is p
     assert vo.keyframes[-1].tracker.pattern.tolist() == [[0, 0], [1, 1]]
     with pytest.raises(TypeError):
@@ -134,7 +134,7 @@ def test_clip_range_of_the_config_reaches_every_image_of_a_run():
         for frame in seq:
             vo.process(frame)
         assert vo.keyframes[-1].tracker is not None and vo.keyframes[-1].tracker.photometric.clip_range == clip
-        assert all(w.image.clip_range == clip and w.right.clip_range == clip for w in vo.window.keyframes)
+        assert all(w.image.clip_range == clip and w.right.clip_range == clip for w in vo.window.optimizer.keyframes)
 
 
 def test_matched_gain_leaves_out_clipped_patches_only_with_a_clip_range():

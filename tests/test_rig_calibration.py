@@ -391,7 +391,7 @@ def test_window_depths_are_searched_again_once_delta_x_is_estimated(monkeypatch)
     assert len(calls) == 1 and vo.window.rig.x_estimated
     offset, before, after, n_results = calls[0]
     assert offset[0] > 1.0
-    assert len(vo.window.results) > n_results  # optimised again after the new depths
+    assert len(vo.window.optimizer.results) > n_results  # optimised again after the new depths
     changed = 0
     for index, (w, d) in after.items():
         res = stereo_inverse_depth(w.image.image, correct_right_image(w.right.image, offset), seq.camera, w.pixels,

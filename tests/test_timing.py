@@ -213,7 +213,7 @@ def test_window_run_stages_add_up_to_the_frames_time(short_sequence, solver: str
         vo.process(frame)
         t_wall += time.perf_counter() - t0
     s = vo.clock.snapshot()
-    assert len(vo.window_results) >= 2 and vo.window is not None and vo.window.n_removed >= 1
+    assert len(vo.window_results) >= 2 and vo.window is not None and vo.window.optimizer.n_removed >= 1
     for name in ("tracking", "point_selection", "stereo_search", "keyframe_setup", "window_build", "linearisation",
                  "solve", "marginalisation", "covariances", "other"):
         assert s[name] > 0, name

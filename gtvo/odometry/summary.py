@@ -34,7 +34,7 @@ def odometry_result(vo: VisualOdometry, seconds: float | None = None, skipped: S
     config, estimates = vo.config, tuple(vo.estimates)
     positions = [p for p, e in enumerate(estimates) if e.is_keyframe]
     window = vo.window
-    retained = config.mode == "window" and config.refine.enabled and window is not None
+    retained = window is not None and window.retain_keyframes  # refine.enabled, window mode
     rig = None if window is None else window.rig
     return OdometryResult(
         config=config, pinhole=vo.pinhole, estimates=estimates, trajectory=vo.trajectory(name),
@@ -45,7 +45,7 @@ def odometry_result(vo: VisualOdometry, seconds: float | None = None, skipped: S
         covariances=keyframe_covariances(vo),
         window_keyframes=tuple(window.every_keyframe()) if retained else None,  # type: ignore[union-attr]
         rig_offset=None if rig is None or not retained else rig.solved_offset,
-        wheel=getattr(window, "wheel", None) if retained else None, clock=vo.clock)
+        wheel=window.wheel if retained else None, clock=vo.clock)
 
 
 def keyframe_covariances(vo: VisualOdometry, inflation: float = 1.0) -> KeyframeCovariances | None:
@@ -110,7 +110,7 @@ def summarize_odometry(vo: VisualOdometry, seconds: float | None = None,
     if config.mode == "window":
         window, results = vo.window, vo.window_results
         out.update({
-            "window_backend": window.backend.name if window is not None else None,
+            "window_backend": window.backend_name if window is not None else None,
             "window_solver": window.solver_name(config.solver.window) if window is not None else None,
             "window_size": config.window.size,
             "window_optimisations": len(results),
@@ -145,10 +145,9 @@ def clock_timing(clock: StageClock | None, frames: int) -> StageTiming:
 def window_worker_figures(vo: VisualOdometry) -> WindowWorkerFigures:
     """``window_worker`` (:class:`WindowWorkerFigures`) when the window runs in a worker process;
     empty otherwise. Asks the worker, so call it before the worker is closed."""
-    worker = getattr(vo.keyframer, "worker", None)
-    if worker is None:
+    usage = None if vo.window is None else vo.window.worker_usage()
+    if usage is None:
         return {}
-    usage = worker.usage()
     return {"window_worker": {"cpu_seconds": float(usage.cpu_seconds), "max_rss_mib": float(usage.max_rss_mib),
                               "seconds_by_stage": {k: float(v) for k, v in usage.seconds_by_stage.items()},
                               "kernel_threads": int(usage.kernel_threads),

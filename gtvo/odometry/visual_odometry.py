@@ -83,11 +83,11 @@ class VisualOdometry:
         history, motion, tracker, checks, keyframer: the parts (module docstring).
         estimates: one :class:`FrameEstimate` per processed frame (``history.estimates``).
         keyframes: every keyframe made so far (``keyframer.keyframes``).
-        window: the :class:`gtvo.window.SlidingWindowOptimizer` (window mode), else None; its
-            ``rig`` is the rig offset's estimate when the window calibrates the rig. With
-            ``window.parallel`` the :class:`gtvo.odometry.window_worker.WindowWorker` that runs it in
-            a worker process (its keyframes, covariances and rig as of its last applied update; call
-            :meth:`close`, or use the odometry as a context manager, to end the worker early).
+        window: the sliding window's port (:class:`gtvo.odometry.window_port.WindowPort`; window
+            mode), else None: the window in this process, or with ``window.parallel`` in a worker
+            process (its state as of its last update handed out; call :meth:`close`, or use the
+            odometry as a context manager, to end the worker early). Its ``rig`` is the rig
+            offset's estimate when the window calibrates the rig.
         window_results: one :class:`gtvo.window.WindowResult` per window optimisation.
         failures: frames whose tracking failed (re-initialised or lost).
         lost_frames: frames whose tracking failed and that had too few points to become a

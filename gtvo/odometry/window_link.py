@@ -114,6 +114,8 @@ class WindowLink:
         rig = baseline is not None and wcfg.rig_calibration and wcfg.backend == "lm"
         self.window = SlidingWindowOptimizer(self.pinhole, baseline, WindowSettings(wcfg, config.photometric),
                                              rig_offset=np.zeros(2) if rig else None, wheel=wheel)
+        # the whole-log refinement needs every keyframe (gtvo.refinement): kept only when it runs
+        self.window.retain_keyframes = config.refine.enabled
 
     def join(self, request: KeyframeForWindow) -> None:
         """Add the keyframe to the window (the oldest leaves first when it is full).
