@@ -122,3 +122,11 @@ def test_the_issue_pattern_catches_the_forms_used_before():
 def test_benchmarks_page_is_at_most_700_lines():
     lines = (ROOT / "docs" / "benchmarks.md").read_text(encoding="utf-8").count("\n")
     assert lines <= MAX_BENCHMARK_LINES, lines
+
+
+def test_every_format_synopsis_in_the_docs_lists_the_registry_formats():
+    synopsis = re.compile(r"gtvo (?:run|info|loops)\b[^\n`]*--format ([a-z_]+(?:\|[a-z_]+)+)")
+    found = {path.name: m.group(1) for path in [README, *sorted((ROOT / "docs").glob("*.md"))]
+             for m in synopsis.finditer(path.read_text(encoding="utf-8"))}
+    assert found  # docs/loop_closure.md has one
+    assert all(v.split("|") == ["auto", *FORMATS] for v in found.values()), found
