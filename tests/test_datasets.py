@@ -517,7 +517,10 @@ def test_missing_and_unknown_folders(tmp_path):
 
 def test_the_registry_names_each_reader_once_and_detects_its_own_layout(tmp_path):
     assert FORMATS == tuple(r.name for r in READERS) and len(set(FORMATS)) == len(FORMATS)
-    made = {"kitti": make_kitti(tmp_path / "k"), "euroc": make_euroc(tmp_path / "e"), "tum": make_tum(tmp_path / "t")}
+    from tests.test_kitti_raw import make_raw  # noqa: PLC0415 - its maker of a raw drive
+
+    made = {"kitti": make_kitti(tmp_path / "k"), "euroc": make_euroc(tmp_path / "e"), "tum": make_tum(tmp_path / "t"),
+            "kitti_raw": make_raw(tmp_path / "r")}
     for name, root in made.items():
         assert detect_format(root) == name
         assert reader_named(name).looks_like(root)

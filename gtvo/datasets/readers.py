@@ -16,11 +16,12 @@ Adding a reader is one entry. Write ``gtvo/datasets/NAME.py`` with
   and raise :class:`gtvo.errors.InputError` naming the file for bad input,
 
 then add ``DatasetReader("NAME", "Title (marker files)", "NAME folders", looks_like_NAME,
-read_NAME)`` to :data:`READERS` before the first layout that could also match its folders.
-Every command then accepts ``--format NAME`` and auto-detects it (``tests/test_datasets.py``
-checks that every command offers the same formats); describe the layout in ``docs/datasets.md``.
-A reader with options of its own names them in ``options`` (``open_sequence``'s keyword
-arguments, refused for the other layouts).
+read_NAME)`` to :data:`READERS` (detection tries the entries in order: put it before a layout
+whose test its folders would also pass). Every command then accepts ``--format NAME``, detects
+the layout and lists it in the unknown-layout error (``tests/test_datasets.py`` checks that every
+command offers the same formats and that no other reader claims a layout's folder); describe the
+layout in ``docs/datasets.md``. A reader with options of its own names them in ``options``
+(keyword arguments of ``open_sequence``, refused for the other layouts).
 """
 
 from __future__ import annotations
