@@ -27,7 +27,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("loops", help="detect and verify loop closures among the keyframes of a sequence",
                               description="Place recognition over a logged sequence (every K-th frame a keyframe): "
                                           "print the verified loops, or a JSON object with --json.")
-    p.add_argument("sequence", help="dataset folder (KITTI, EuRoC or TUM RGB-D layout)")
+    p.add_argument("sequence", help="a dataset folder or a ROS bag (any --format layout)")
     p.add_argument("--format", default="auto", choices=("auto",) + FORMATS, help="dataset layout (default: auto)")
     p.add_argument("--max-frames", type=int, default=None, help="use only the first frames")
     p.add_argument("--camera", metavar="FX,FY,CX,CY", default=None, help="intrinsics for TUM folders")

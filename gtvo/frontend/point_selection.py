@@ -26,7 +26,7 @@ from gtvo.config.sections.frontend import DEFAULT_BORDER, PATTERN_RADIUS, PointS
 from gtvo.core.timing import timed
 from gtvo.errors import InputError
 from gtvo.frontend._compiled import block_medians, gradient_norm, pick_cells, smooth_block_thresholds
-from gtvo.core.image import image_gradients, to_float_gray
+from gtvo.core.image import FloatImage, image_gradients, to_float_gray
 
 
 
@@ -80,7 +80,6 @@ def _threshold_grid(grad_mag: NDArray[np.float32], block: int, threshold_offset:
     return smooth_block_thresholds(med, np.float32(threshold_offset))
 
 
-@timed("point_selection")
 def select_points(image: NDArray, target: int = 2000,
                   config: PointSelectionConfig = DEFAULT_POINT_SELECTION) -> NDArray[np.float64]:
     """Select about ``target`` well-spread high-gradient pixels of a gray image.
@@ -96,7 +95,14 @@ def select_points(image: NDArray, target: int = 2000,
         (N, 2) float64 pixel coordinates ``(u, v)`` (integers, pixel centres), sorted by row then
         column. Empty (0, 2) when nothing passes the thresholds (e.g. a flat image).
     """
-    img = to_float_gray(image)
+    return select_points_float(to_float_gray(image), target, config)
+
+
+@timed("point_selection")
+def select_points_float(img: FloatImage, target: int = 2000,
+                        config: PointSelectionConfig = DEFAULT_POINT_SELECTION) -> NDArray[np.float64]:
+    """:func:`select_points` of a float32 gray image :func:`gtvo.core.image.to_float_gray` made
+    already (a frame's image, converted where it was read), not converted or checked again."""
     if int(target) < 1:
         raise InputError(f"point-selection target must be >= 1, got {target}")
     h, w = img.shape

@@ -19,9 +19,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from gtvo.core.camera import StereoCamera
-from gtvo.core.image import bilinear_sample, image_gradients, to_float_gray
+from gtvo.core.image import FloatImage, bilinear_sample, image_gradients, to_float_gray
 from gtvo.errors import InputError
-from gtvo.frontend.stereo_depth import PATCH_5X5, StereoSearchConfig, stereo_inverse_depth
+from gtvo.frontend.stereo_depth import PATCH_5X5, StereoSearchConfig, stereo_inverse_depth_float
 
 FloatArray = NDArray[np.float64]
 
@@ -49,7 +49,12 @@ class VerticalOffset:
 def correct_right_image(right: ArrayLike, offset: ArrayLike | None) -> NDArray[np.float32]:
     """The right image resampled as the rectified rig would have seen it: ``R'(u, v) = R(u + dx, v + dy)``
     (bilinear, border replicated). A zero or None offset returns the gray image unchanged."""
-    img = to_float_gray(right, "right image")
+    return correct_right_image_float(to_float_gray(right, "right image"), offset)
+
+
+def correct_right_image_float(img: FloatImage, offset: ArrayLike | None) -> NDArray[np.float32]:
+    """:func:`correct_right_image` of an image :func:`gtvo.core.image.to_float_gray` made already (a
+    frame's image, converted where it was read), not converted or checked again."""
     if offset is None:
         return img
     dx, dy = (float(x) for x in np.asarray(offset, dtype=float).reshape(2))
@@ -126,8 +131,15 @@ def estimate_vertical_offset(left: ArrayLike, right: ArrayLike, stereo_camera: S
     Returns None when fewer than :data:`MIN_OFFSET_POINTS` points match at any row shift or vote
     (the shift is too large for any stereo match to survive, or the images hold no texture).
     """
-    left_f = to_float_gray(left, "left image")
-    right_f = to_float_gray(right, "right image")
+    return estimate_vertical_offset_float(to_float_gray(left, "left image"), to_float_gray(right, "right image"),
+                                          stereo_camera, pixels, max_disparity=max_disparity, search_rows=search_rows)
+
+
+def estimate_vertical_offset_float(left_f: FloatImage, right_f: FloatImage, stereo_camera: StereoCamera,
+                                   pixels: ArrayLike, *, max_disparity: int = 128,
+                                   search_rows: int = 2) -> VerticalOffset | None:
+    """:func:`estimate_vertical_offset` of a pair :func:`gtvo.core.image.to_float_gray` made already
+    (a frame's images, converted where they were read), not converted or checked again."""
     px = np.asarray(pixels, dtype=float).reshape(-1, 2)
     if int(search_rows) < 0:
         raise InputError(f"search_rows must be >= 0, got {search_rows}")
@@ -135,8 +147,8 @@ def estimate_vertical_offset(left: ArrayLike, right: ArrayLike, stereo_camera: S
     results = {}
 
     def search(k: int) -> None:
-        results[k] = stereo_inverse_depth(left_f, correct_right_image(right_f, (0.0, k)), stereo_camera, px,
-                                          StereoSearchConfig(max_disparity=max_disparity))
+        results[k] = stereo_inverse_depth_float(left_f, correct_right_image_float(right_f, (0.0, k)), stereo_camera,
+                                                px, StereoSearchConfig(max_disparity=max_disparity))
         counts[k] = int(np.count_nonzero(results[k].valid))
 
     for k in (-1, 0, 1)[1 - min(int(search_rows), 1):2 + min(int(search_rows), 1)]:

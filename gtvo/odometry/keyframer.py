@@ -27,7 +27,6 @@ from numpy.typing import NDArray
 from factors.photometric import GradientImage
 from gtvo.config import OdometryConfig
 from gtvo.core.camera import PinholeCamera, StereoCamera
-from gtvo.core.image import to_float_gray
 from gtvo.core.timing import stage
 from gtvo.datasets.sequence import Frame
 from gtvo.frontend import KeyframePoints
@@ -140,9 +139,7 @@ class Keyframer:
         Raises:
             TooFewPoints: the frame has fewer than ``tracking.min_valid_points`` points with a depth.
         """
-        right = None  # the right image in grey levels, converted once for the stereo search and the window
-        if isinstance(self.camera, StereoCamera) and frame.right is not None:
-            right = to_float_gray(frame.right, f"frame {frame.index} right image")
+        right = frame.right if isinstance(self.camera, StereoCamera) else None  # float32 gray (Frame)
         pts = frame_points(frame, left, right, self.camera, self.config, self.rig)
         if len(pts) < self.config.tracking.min_valid_points:
             raise TooFewPoints(f"frame {frame.index}: only {len(pts)} points with a valid depth; "

@@ -31,7 +31,6 @@ from numpy.typing import NDArray
 from factors.photometric import GradientImage
 from gtvo.config import OdometryConfig
 from gtvo.core.camera import PinholeCamera, StereoCamera
-from gtvo.core.image import to_float_gray
 from gtvo.core.map_points import MapPoints
 from gtvo.core.timing import StageClock
 from gtvo.datasets.sequence import Frame
@@ -213,7 +212,7 @@ class VisualOdometry:
         t0 = time.perf_counter()
         if self.estimates and frame.timestamp <= self.estimates[-1].timestamp:
             raise InputError(f"frame {frame.index}: timestamp {frame.timestamp} is not after the previous frame's")
-        left = to_float_gray(frame.left, f"frame {frame.index} left image")
+        left = frame.left  # float32 gray, converted once where the frame was read (Frame)
         if not self.keyframes:                                            # 1. the first frame starts the map
             try:
                 kf = self.keyframer.make(frame, left, gtsam.Pose3())
