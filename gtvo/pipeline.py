@@ -22,7 +22,7 @@ from gtvo.errors import InputError
 from gtvo.config import OdometryConfig, as_config, config_to_yaml
 from gtvo.io.observer import RunObserver
 from gtvo.odometry import VisualOdometry
-from gtvo.odometry.estimates import FrameOutcome, trust_warning
+from gtvo.odometry.estimates import FrameOutcome, frozen_warning, trust_warning
 from gtvo.io.covariances import KeyframeCovariances
 from gtvo.odometry.rig_report import rig_warning
 from gtvo.odometry.summary import OdometrySummary, stage_timing, summarize_odometry
@@ -103,7 +103,7 @@ def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progre
     finally:
         vo.close()
     wheel = info.get("wheel_calibration")
-    for message in (rig_warning(dict(info)), trust_warning(info["frames"], info["undetermined_frames"],
+    for message in (frozen_warning(vo.estimates, vo.wheel is not None), rig_warning(dict(info)), trust_warning(info["frames"], info["undetermined_frames"],
                                                            info["trusted_fraction"]),
                     coverage, None if wheel is None else wheel["warning"]):
         if message is not None:
