@@ -231,7 +231,7 @@ def frozen_warning(estimates: list[FrameEstimate], wheels: bool = False) -> str 
         after = next((e for e in estimates if e.index > last), None)
         before = by_index.get(first - 1)
         what = f"frames {span}" if last > first else f"frame {span}"
-        repeated = "" if before is None else f" repeat frame {before.index}'s image"
+        repeated = "" if before is None else f" {'repeat' if last > first else 'repeats'} frame {before.index}'s image"
         if after is None:
             then = "the log ends frozen"
         elif after.reinitialised:
