@@ -23,7 +23,8 @@ from gtvo.datasets.sequence import Sequence
 from gtvo.datasets.synthetic import make_synthetic_sequence
 from gtvo.errors import InputError
 from gtvo.frontend.frame_checks import (FrameChecker, FrameCheckConfig, ImageChange, StepCheck, fingerprint,
-                                        image_change, image_noise_sigma, measure_step, suspect_reason)
+                                        image_change, measure_step, suspect_reason)
+from gtvo.frontend.image_noise import image_noise_sigma
 from gtvo.frontend.stereo_depth import KeyframePoints
 from gtvo.odometry import FrameEstimate, FrameOutcome, VisualOdometry, frames_by_outcome
 from gtvo.odometry.estimates import frozen_ranges, frozen_warning, trusted_fraction

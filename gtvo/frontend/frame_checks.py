@@ -63,6 +63,7 @@ from numpy.typing import NDArray
 
 from gtvo.core.camera import PinholeCamera
 from gtvo.core.settings import check_settings, setting
+from gtvo.frontend.image_noise import image_noise_sigma
 from gtvo.frontend.stereo_depth import KeyframePoints
 
 
@@ -142,11 +143,6 @@ class ImageChange:
     noise: float
 
 
-#: Immerkaer's noise mask: the difference of two Laplacians, blind to every image that is locally
-#: a plane; its response to white noise of sigma ``s`` has sigma ``6 s``.
-_NOISE_MASK = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], dtype=np.float32)
-
-
 @dataclass(frozen=True)
 class ImageFingerprint:
     """What :func:`image_change` needs of one image, computed once per frame (:func:`fingerprint`).
@@ -162,18 +158,6 @@ class ImageFingerprint:
     small: NDArray[np.float32]
     noise: float
     texture: float
-
-
-def image_noise_sigma(image: NDArray[np.float32]) -> float:
-    """The standard deviation of an image's pixel noise (grey levels), from the image alone:
-    Immerkaer's estimate ``sqrt(pi / 2) mean|N * I| / 6`` (``_NOISE_MASK``, whose response is the
-    noise wherever the image is locally smooth), over the smoother half of the pixels (gradient
-    magnitude at most its median) so that edges, where the response is texture, count little."""
-    img = np.asarray(image, dtype=np.float32)
-    r = np.abs(cv2.filter2D(img, -1, _NOISE_MASK, borderType=cv2.BORDER_REFLECT)[1:-1, 1:-1])
-    g = np.abs(img[1:-1, 2:] - img[1:-1, :-2]) + np.abs(img[2:, 1:-1] - img[:-2, 1:-1])
-    smooth = g <= np.partition(g.ravel(), g.size // 2)[g.size // 2]
-    return float(np.sqrt(np.pi / 2) * np.mean(r[smooth]) / 6.0) if np.any(smooth) else 0.0
 
 
 def fingerprint(image: NDArray[np.float32]) -> ImageFingerprint:
