@@ -24,7 +24,6 @@ from gtvo.datasets.synthetic import make_synthetic_sequence
 from gtvo.errors import InputError
 from gtvo.frontend.frame_checks import (FrameChecker, FrameCheckConfig, ImageChange, StepCheck, fingerprint,
                                         image_change, measure_step, suspect_reason)
-from gtvo.frontend.image_noise import image_noise_sigma
 from gtvo.frontend.stereo_depth import KeyframePoints
 from gtvo.odometry import FrameEstimate, FrameOutcome, VisualOdometry, frames_by_outcome
 from gtvo.odometry.estimates import frozen_ranges, frozen_warning, trusted_fraction
@@ -155,12 +154,6 @@ def _shifted(img: np.ndarray, dx: float) -> np.ndarray:
 
     M = np.array([[1.0, 0.0, dx], [0.0, 1.0, 0.0]], dtype=np.float32)
     return cv2.warpAffine(img, M, (img.shape[1], img.shape[0]), borderMode=cv2.BORDER_REFLECT)
-
-
-def test_the_noise_estimate_finds_the_added_noise():
-    img = _texture()
-    assert image_noise_sigma(_noisy(img, 4.0, 1)) == pytest.approx(4.0, rel=0.3)
-    assert image_noise_sigma(img) < 1.0
 
 
 @pytest.mark.parametrize("sigma", [0.0, 1.0, 3.0, 6.0])
