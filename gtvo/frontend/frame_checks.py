@@ -72,7 +72,7 @@ class FrameCheckConfig:
     """Thresholds of the suspect-frame check (module docstring).
 
     Attributes:
-        enabled: false turns the check off (no frame is ever suspect).
+        enabled: false turns the checks off (no frame is ever suspect or frozen).
         max_deviation: a frame is suspect when its tracked image is further than this many frame
             steps from the predicted one (0.5: a 50 % speed change within one frame interval).
         agree_deviation: the check is armed only when each of the last ``agree_frames`` good
