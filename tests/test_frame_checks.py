@@ -201,6 +201,8 @@ def test_a_still_image_while_the_model_moves_is_frozen_only_with_evidence():
 def test_a_standing_rig_is_never_frozen_and_a_freeze_lasts_while_the_image_is_still():
     agreeing = _agreeing_checker()
     standing = _step(1.0, step_px=0.5)  # the model (or the wheels) says the rig barely moves
+    assert agreeing.frozen(STILL, _step(1.0, step_px=1.5), by_wheels=True, continuing=False)  # measured: it moves
+    assert not agreeing.frozen(STILL, _step(1.0, step_px=1.5), by_wheels=False, continuing=False)  # a crawl
     assert not agreeing.frozen(STILL, standing, by_wheels=False, continuing=False)
     assert not agreeing.frozen(STILL, standing, by_wheels=True, continuing=False)
     assert agreeing.frozen(NOISY_STILL, standing, by_wheels=False, continuing=True)  # any number of frames

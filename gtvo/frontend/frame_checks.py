@@ -35,9 +35,10 @@ all, for as many frames as the fault lasts; the suspect check above stops after
 cheaper test runs first, before tracking, on the image alone: the difference to the previous
 frame's image, with the noise of both images subtracted, converted into the RMS image motion
 (px) that would cause it (:func:`image_change`). A frame is *frozen* when that motion is at most
-``max_still_px`` while the rig is known to move by at least ``min_step_px`` per frame at the
-latest keyframe's points: the wheels say so (with wheel odometry, whose word decides: a standing
-robot's wheels stand), or, without wheels, the motion model predicts it and either the image is
+``max_still_px`` while the rig is known to move at the latest keyframe's points: the wheels say
+it moves by at least twice ``max_still_px`` per frame (with wheel odometry, whose word decides: a
+standing robot's wheels stand), or, without wheels, the motion model predicts at least
+``min_step_px`` per frame (a crawl could stop within a frame) and either the image is
 byte-identical to the previous one (a real sensor's noise never repeats) or the motion model has
 been right (the same agreement that arms the suspect check: a vehicle, which cannot stop from
 speed to no motion at all within one frame interval). Once frozen, every following frame whose
@@ -260,13 +261,16 @@ class FrameChecker:
         (module docstring): still (``motion_px <= max_still_px``) and either ``continuing`` (the
         previous frame was frozen) or the rig moved by ``step`` (the wheels' step when
         ``by_wheels``, else the motion model's) at least ``min_step_px`` per frame, said by the
-        wheels, by a byte-identical image or by a motion model that has been right."""
+        wheels (a step of at least twice ``max_still_px``), by a byte-identical image or by a
+        motion model that has been right."""
         s = self.settings
         if not s.enabled or change.motion_px > s.max_still_px:
             return False
         if continuing:
             return True
-        if not (0 < step.intervals and step.step_px >= s.min_step_px):
+        # the wheels measure the motion: a step of twice the still bound says it moves; a prediction
+        # must be a clear step (min_step_px), a crawl could stop within a frame
+        if not (0 < step.intervals and step.step_px >= (2 * s.max_still_px if by_wheels else s.min_step_px)):
             return False
         return by_wheels or change.identical or self.agreed()
 

@@ -224,7 +224,7 @@ def frozen_warning(estimates: list[FrameEstimate], wheels: bool = False) -> str 
     if not ranges:
         return None
     by_index = {e.index: e for e in estimates}
-    source = "the wheels" if wheels else "the motion model"
+    source = "the wheels'" if wheels else "the motion model's"
     parts = []
     for first, last in ranges:
         span = f"{first}-{last}" if last > first else f"{first}"
@@ -235,17 +235,17 @@ def frozen_warning(estimates: list[FrameEstimate], wheels: bool = False) -> str 
         if after is None:
             then = "the log ends frozen"
         elif after.reinitialised:
-            then = f"frame {after.index} re-initialised at {source}'s pose"
+            then = f"frame {after.index} re-initialised at {source} pose"
         elif after.lost:
-            then = f"frame {after.index} lost, placed by {source}"
+            then = f"frame {after.index} lost, placed at {source} pose"
         elif after.excluded:
-            then = f"frame {after.index} suspect, placed by {source}"
+            then = f"frame {after.index} suspect, placed at {source} pose"
         else:
-            then = f"frame {after.index} tracked again from {source}'s pose"
+            then = f"frame {after.index} tracked again from {source} pose"
         parts.append(f"{what}{repeated} ({then})")
     trusted = trusted_fraction(estimates)
     return (f"the camera froze while the rig moved: {'; '.join(parts)}; flagged as frozen, their poses are "
-            f"{source}'s guesses, not measurements; {trusted:.0%} of the trajectory is trustworthy")
+            f"{source} guesses, not measurements; {trusted:.0%} of the trajectory is trustworthy")
 
 
 class TooFewPoints(Exception):
