@@ -60,6 +60,9 @@ class FrameChecks:
                             self._intervals(frame))
         if not self._checker.frozen(change, step, by_wheels, continuing):
             return None
+        # the motion model's agreement is stale after a freeze: the first frames after it are not
+        # judged by a prediction across the gap (the suspect check re-arms once 3 good frames agree)
+        self._checker.not_checked()
         if not continuing:
             self._repeated = before.index
         how = ("byte-identical" if change.identical
