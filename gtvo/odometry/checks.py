@@ -13,11 +13,10 @@ from __future__ import annotations
 
 import gtsam
 import numpy as np
+from numpy.typing import NDArray
 
 from gtvo.core.camera import PinholeCamera
 from gtvo.datasets.sequence import Frame
-from numpy.typing import NDArray
-
 from gtvo.frontend.frame_checks import (FrameCheckConfig, FrameChecker, ImageFingerprint, fingerprint, image_change,
                                         measure_step)
 from gtvo.odometry.estimates import FrameOutcome, Keyframe, rigid_pose
