@@ -173,6 +173,14 @@ def test_a_moved_image_shows_about_its_motion_through_the_noise(dx):
     assert not change.identical and change.motion_px > 0.7 * min(dx, 2.0)
 
 
+def test_blank_views_show_no_motion_either_way():
+    """Two black (or uniform) frames are byte-identical but not a repeat: tracking finds them lost."""
+    black = np.zeros((120, 160), dtype=np.float32)
+    change = image_change(fingerprint(black), fingerprint(black.copy()))
+    assert change.identical and change.motion_px == float("inf")
+    assert not _agreeing_checker().frozen(change, _step(1.0), by_wheels=True, continuing=True)
+
+
 def test_images_of_different_sizes_are_refused():
     with pytest.raises(ValueError):
         image_change(fingerprint(_texture()), fingerprint(_texture(shape=(100, 160))))

@@ -144,6 +144,12 @@ class ImageChange:
     noise: float
 
 
+#: The least ``ImageFingerprint.texture`` ((grey levels / px)^2) in which image motion can be seen:
+#: an RMS gradient of 0.3 grey levels per px beyond the noise (KITTI_sequence_1: 378 as recorded,
+#: 0.98 at a twentieth of its exposure, 0.07 at a hundredth; a black or a uniform noisy frame 0).
+MIN_TEXTURE = 0.1
+
+
 @dataclass(frozen=True)
 class ImageFingerprint:
     """What :func:`image_change` needs of one image, computed once per frame (:func:`fingerprint`).
@@ -183,11 +189,16 @@ def image_change(previous: ImageFingerprint, current: ImageFingerprint) -> Image
     ``motion_px = 2 sqrt(max(0, mean(d^2) - sigma_d^2) / (texture / 2))`` on the half-size images
     (2: back to full-size pixels). A motion larger than the image's texture scale saturates it at
     a few pixels, far above anything still; a repeated image, with or without fresh noise, gives
-    about 0 (measured on KITTI: 0 for copies with noise of sigma 1 to 8 grey levels, 0.29 for a
+    about 0. Two views without texture (``texture`` below :data:`MIN_TEXTURE`: blank, covered or
+    black frames, which tracking finds lost) show no motion either way: ``motion_px`` is infinite
+    for them, never still (measured on KITTI: 0 for copies with noise of sigma 1 to 8 grey levels, 0.29 for a
     0.3 px shift, 1.2 for 1 px, 4.7 between two frames 1.2 m apart)."""
     if previous.image.shape != current.image.shape:
         raise ValueError(f"images of different sizes: {previous.image.shape} and {current.image.shape}")
-    if np.array_equal(previous.image, current.image):
+    identical = bool(np.array_equal(previous.image, current.image))
+    if min(previous.texture, current.texture) < MIN_TEXTURE:  # a blank or covered view shows no motion
+        return ImageChange(identical, float("inf"), float(np.hypot(previous.noise, current.noise)))
+    if identical:
         return ImageChange(True, 0.0, 0.0)
     d = (current.small - previous.small)[1:-1, 1:-1]
     noise2 = previous.noise ** 2 + current.noise ** 2
