@@ -30,7 +30,7 @@ from gtvo.io.observer import RunObserver
 from gtvo.io.outputs import check_run_output_dir, write_run_outputs
 from gtvo.loops.closing import run_loop_closing
 from gtvo.odometry import VisualOdometry
-from gtvo.odometry.estimates import trust_warning
+from gtvo.odometry.estimates import frozen_warning, trust_warning
 from gtvo.odometry.result import TRACKED_OUTCOMES, OdometryResult
 from gtvo.odometry.rig_report import rig_warning
 from gtvo.odometry.summary import clock_timing, keyframe_covariances, odometry_result
@@ -103,8 +103,8 @@ def run_odometry(seq: Sequence, config: OdometryConfig | None = None, progress: 
         vo.close()
     info = result.summary
     wheel = info.get("wheel_calibration")
-    for message in (rig_warning(dict(info)), trust_warning(info["frames"], info["undetermined_frames"],
-                                                           info["trusted_fraction"]),
+    for message in (frozen_warning(vo.estimates, vo.wheel is not None), rig_warning(dict(info)),
+                    trust_warning(info["frames"], info["undetermined_frames"], info["trusted_fraction"]),
                     coverage, None if wheel is None else wheel["warning"]):
         if message is not None:
             warn(message)

@@ -56,6 +56,7 @@ class WindowFigures(TypedDict, total=False):
     rig_offset_x_estimated: bool
     rig_offset_x_tested_px: float | None
     rig_initial_delta_y_px: float | None
+    rig_offset_withheld: str | None
 
 
 class WheelFigures(TypedDict, total=False):

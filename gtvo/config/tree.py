@@ -50,8 +50,9 @@ class OdometryConfig:
         flow_fallback: when tracking fails from every motion-model guess, try once more from a guess
             of sparse optical flow + PnP (:func:`gtvo.frontend.flow_pose.optical_flow_pose`) before
             declaring the frame lost; null turns it off.
-        frame_checks: when a tracked frame is *suspect* (its image contradicts a motion model that
-            has been right: a duplicated or out-of-order frame; :mod:`gtvo.frontend.frame_checks`).
+        frame_checks: when a frame is *frozen* (its image repeats the previous one's while the rig
+            moves) or a tracked frame *suspect* (its image contradicts a motion model that has been
+            right: an out-of-order frame; :mod:`gtvo.frontend.frame_checks`).
         motion_model: the initial guess of each frame's pose.
         photometric: the photometric model shared by the tracker, the window and the stereo gain
             estimate: noise, Huber threshold, pattern and the sensor's clipped range.

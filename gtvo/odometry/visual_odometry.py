@@ -9,7 +9,8 @@ composed of parts that each own their state, in their own files:
   constant-acceleration Kalman filter), learning from every recorded frame;
 * :class:`gtvo.odometry.frame_tracking.FrameTracker`: tracking against the latest keyframe from
   several guesses, with the optical-flow fallback;
-* :class:`gtvo.odometry.checks.FrameChecks`: whether a tracked frame is *suspect*;
+* :class:`gtvo.odometry.checks.FrameChecks`: whether a frame is *frozen* (its image repeats the
+  previous one's while the rig moves) or a tracked frame *suspect*;
 * :class:`gtvo.odometry.keyframer.Keyframer`: the keyframes (points with stereo or RGB-D depths)
   and their link to the sliding window (schedule, write-back, the rig offset's window).
 
@@ -219,7 +220,15 @@ class VisualOdometry:
             except TooFewPoints as exc:  # nothing can start from the first frame
                 raise InputError(str(exc)) from None
             return self._record(frame, left, Outcome(FrameOutcome.KEYFRAME, kf.T_world_cam), t0)
-        T_pred = self.motion.predict(frame.timestamp)                     # 2. predict
+        T_pred = self.motion.predict(frame.timestamp)                     # 2. predict (the wheels: after a freeze)
+        T_wheel = self._wheel_pose(frame)
+        if (why := self.checks.frozen(frame, left, self.keyframes[-1], T_pred if T_wheel is None else T_wheel,
+                                      T_wheel is not None)) is not None:  # 2b. a frozen camera: a guess, untracked
+            T_guess, kf = T_pred if T_wheel is None else T_wheel, self.keyframes[-1]
+            return self._record(frame, left, Outcome(FrameOutcome.FROZEN, T_guess, None,
+                                                     kf.T_world_cam.between(T_guess), why), t0)
+        if T_wheel is not None and self.estimates[-1].outcome is FrameOutcome.FROZEN:
+            T_pred = T_wheel  # after a freeze the wheels, which measured the gap, are the better guess
         pyramid = self.tracker.pyramid(left, self.keyframes[-1])
         kf, track, T_pred, last = self._track(frame, left, pyramid, T_pred)  # 3. track (guesses, promotion, flow)
         if not track.result.success:                                      # 4. re-initialise, or the frame is lost
@@ -303,7 +312,7 @@ class VisualOdometry:
         candidate (unless it is suspect, lost or just failed to become a keyframe)."""
         kind, result = outcome.kind, None if outcome.track is None else outcome.track.result
         tracked = result is not None and kind is not FrameOutcome.REINITIALISED
-        kf_index = self.keyframes[-1].index if tracked else frame.index
+        kf_index = self.keyframes[-1].index if tracked or kind is FrameOutcome.FROZEN else frame.index
         if tracked and kind is FrameOutcome.KEYFRAME:  # tracked against the keyframe before this one
             kf_index = self.keyframes[-2].index
         flow_reason = outcome.track.flow_reason if outcome.track is not None else None
@@ -313,7 +322,7 @@ class VisualOdometry:
                             time.perf_counter() - t0, kf_index, outcome.T_keyframe_frame, reason, flow)
         self.history.append(est)
         self._last = (outcome.track if tracked else None, self.keyframer.keyframe(kf_index))
-        if not est.suspect:  # a suspect frame: not learnt from; the candidate stays the last good frame
+        if not est.excluded:  # a suspect or frozen frame: not learnt from; the candidate stays the last good frame
             self.keyframer.candidate = (frame, left) if outcome.candidate and not est.lost else None
             self.motion.update(est)
         return est

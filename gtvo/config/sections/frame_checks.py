@@ -12,7 +12,7 @@ class FrameCheckConfig:
     """Thresholds of the suspect-frame check (:mod:`gtvo.frontend.frame_checks`).
 
     Attributes:
-        enabled: false turns the check off (no frame is ever suspect).
+        enabled: false turns the checks off (no frame is ever suspect or frozen).
         max_deviation: a frame is suspect when its tracked image is further than this many frame
             steps from the predicted one (0.5: a 50 % speed change within one frame interval).
         agree_deviation: the check is armed only when each of the last ``agree_frames`` good
@@ -26,6 +26,9 @@ class FrameCheckConfig:
             camera frozen for three frames; longer gaps make the prediction too loose).
         max_consecutive: at most this many frames in a row are flagged (3); the next one is
             accepted whatever it shows.
+        max_still_px: a frame whose image differs from the previous frame's by no more than this
+            RMS image motion (px, :func:`gtvo.frontend.frame_checks.image_change`) while the rig
+            moves is *frozen* (0.5: a sixth of the smallest step the check judges, ``min_step_px``).
     """
 
     enabled: bool = True
@@ -35,6 +38,7 @@ class FrameCheckConfig:
     min_step_px: float = setting(3.0, "(0, 10000]")
     max_intervals: float = setting(4.5, "(0, 1000]")
     max_consecutive: int = setting(3, "[1, 1000]")
+    max_still_px: float = setting(0.5, "(0, 100]")
 
     def __post_init__(self) -> None:
         check_settings(self)
