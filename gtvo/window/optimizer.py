@@ -25,8 +25,8 @@ from gtvo.window.gtsam_solver import solve_gtsam
 from gtvo.window.handrolled import solve_handrolled, window_cost
 from gtvo.window.marginal import marginalize
 from gtvo.window.fixed_lag import FixedLagBackend
-from gtvo.window.problem import (RigVariable, SolvableWindow, WindowMembers, WindowProblem, WindowSensor,
-                                 WindowSettings, build_graph, observation_counts, visible_targets)
+from gtvo.window.problem import (RigVariable, SolvableWindow, WindowMembers, WindowProblem, WindowSettings,
+                                 build_graph, observation_counts, visible_targets)
 from gtvo.window.rig import RigOffset
 from gtvo.window.wheel import WheelCalibration
 
@@ -77,9 +77,6 @@ class SlidingWindowOptimizer:
             raise InputError("wheel odometry is used by the 'lm' window backend only")
         #: the wheel calibration's one owner, updated by every optimisation (None: no wheel odometry)
         self.wheel: WheelCalibration | None = wheel
-        #: the sensors whose variables and factors every problem of the window has, each updated
-        #: after every solve (:class:`gtvo.window.problem.WindowSensor`: the wheels; docs/extending.md)
-        self.sensors: list[WindowSensor] = [] if wheel is None else [wheel]
         self.keyframes: list[WindowKeyframe] = []
         self.n_removed = 0  # keyframes that left the window (not kept unless retain_keyframes: they hold images)
         #: keep the keyframes that leave in :attr:`retired` (the whole-log refinement's input,
@@ -137,7 +134,7 @@ class SlidingWindowOptimizer:
         its keyframes (``targets``: theirs, None: chosen at the first use), its marginalisation
         prior, its wheel calibration and ``rig`` (None: no rig variable; :meth:`solved_rig`: the window's)."""
         return WindowProblem.build(WindowMembers(self.camera, self.baseline, self.keyframes, targets),
-                                   WindowSettings(self.config, self.photometric), self.marginal, rig, tuple(self.sensors))
+                                   WindowSettings(self.config, self.photometric), self.marginal, rig, (self.wheel,))
 
     def cost(self) -> float:
         """The window cost at the current state (W evaluated at this state)."""
@@ -258,8 +255,9 @@ class LMBackend:
         solve = {"gtsam": solve_gtsam, "handrolled": solve_handrolled}.get(solver)
         if solve is None:
             raise InputError(f"unknown window solver {solver!r}: use 'gtsam' or 'handrolled'")
-        if window.sensors:  # each solve starts from the sensors' last estimates and updates them
-            solve = _updating(solve, window.sensors)
+        wheel = window.wheel
+        if wheel is not None:  # the wheel calibration: each solve starts from the last estimate and updates it
+            solve = _updating_wheel(solve, wheel)
         rig = window.rig
         # the rig offset (gtvo.window.rig; docs/window.md, "Rig calibration"): none while rectified
         # (tested as a whole); else delta_x, which trades against the scale, is held at its start
@@ -291,11 +289,11 @@ class LMBackend:
         return res
 
 
-def _updating(solve, sensors: list[WindowSensor]):
-    """``solve`` that has every sensor take its optimised variables (:meth:`WindowSensor.take`)."""
+def _updating_wheel(solve, wheel: WheelCalibration):
+    """``solve`` that writes the optimised calibration back to ``wheel.estimate``."""
     def run(problem: WindowProblem) -> WindowResult:
         res = solve(problem)
-        for sensor in sensors:
-            sensor.take(res)
+        if res.wheel_calibration is not None:
+            wheel.estimate = res.wheel_calibration.copy()
         return res
     return run

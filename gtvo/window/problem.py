@@ -25,7 +25,7 @@ from factors.stacked import stacked
 from gtvo.core.camera import MIN_DEPTH, PinholeCamera
 from gtvo.core.timing import timed
 from gtvo.errors import InputError
-from gtvo.window.config import MarginalPrior, WindowConfig, WindowKeyframe, WindowResult, WindowState
+from gtvo.window.config import MarginalPrior, WindowConfig, WindowKeyframe, WindowState
 
 FloatArray = NDArray[np.float64]
 
@@ -272,17 +272,10 @@ class WindowSensor(Protocol):
         ``problem.keyframe_kinds``) and its factors into ``problem.factors``; a prior set once goes
         in only while ``problem.marginal`` does not carry its variable."""
 
-    def take(self, result: WindowResult) -> None:
-        """Take this sensor's variables from a window solve's ``result`` (``result.variables``) as
-        its estimate (the window calls it after every solve; the refinement does not)."""
-
 
 class SolvableWindow(WindowState, Protocol):
     """What a back end sees of the window it serves: its state and its problem
     (:class:`gtvo.window.SlidingWindowOptimizer`)."""
-
-    #: the sensors in every problem of the window, updated after every solve (:class:`WindowSensor`)
-    sensors: "list[WindowSensor]"
 
     def problem(self, targets: list[list[int]] | None = None, rig: "RigVariable | None" = None) -> "WindowProblem":
         """The window's problem at its current state (``targets``: the hosts' targets, None: chosen

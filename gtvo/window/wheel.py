@@ -151,12 +151,6 @@ class WheelCalibration:
         if problem.marginal is None or calibration_key() not in problem.marginal.keys:
             problem.factors.add(self.prior_factor())
 
-    def take(self, result: Any) -> None:
-        """The optimised calibration of a window solve's ``result`` (its ``variables``) as :attr:`estimate`."""
-        variables = result.variables
-        if variables is not None and variables.exists(calibration_key()):
-            self.estimate = np.asarray(variables.atVector(calibration_key()), dtype=float).copy()
-
     def prior_sigmas(self) -> FloatArray:
         """The prior's sigma of every parameter."""
         return np.full(self.size, float(self.settings.prior_sigma))
