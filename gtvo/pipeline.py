@@ -14,7 +14,7 @@ from typing import Any, Callable, Iterable
 import numpy as np
 
 from gtvo import __version__
-from gtvo.core.atomic import ensure_output_dir, tidy_on_failure
+from gtvo.core.atomic import ensure_output_dir, output_lock, tidy_on_failure
 from gtvo.datasets import detect_format, open_sequence
 from gtvo.core.interrupt import raise_if_interrupted
 from gtvo.core.timing import stage
@@ -166,7 +166,7 @@ def run(path: str | Path | Sequence, out: str | Path | None = None,
     if loop_closure:
         config = dataclasses.replace(config, loops=dataclasses.replace(config.loops, enabled=True))
     fmt = None if isinstance(path, Sequence) else (detect_format(path) if format == "auto" else format)
-    with tidy_on_failure():  # a run that fails leaves no empty output folder behind
+    with tidy_on_failure(), output_lock(out_dir):  # a failed run leaves no empty folder; one writer at a time
         ensure_output_dir(out_dir)  # an unusable --out is reported before the long work
         vo, traj, summary = process_sequence(seq, config, progress=progress, strict=strict, observers=observers)
         closed = closed_keyframes = loops = res = refined = None
