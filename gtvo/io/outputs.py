@@ -88,16 +88,16 @@ def check_run_output_dir(out_dir: str | Path, inputs: tuple[Path | None, set[Pat
     """
     source, images = input_folders(inputs) if isinstance(inputs, Sequence) else inputs
     out = resolved(out_dir, "output folder")
-    if source is not None and os.path.isdir(source) and same_or_inside(out, source):
-        where = "the input folder" if identity(out) == identity(source) else f"inside the input folder {source}"
-        raise InputError(f"output folder is {where}; outputs there would mix with the data: choose another",
-                         path=out_dir)
     for f in sorted(images):
         if same_or_inside(out, f):
             where = ("one of the input's image folders" if identity(out) == identity(f)
                      else f"inside the input's image folder {f}")
             raise InputError(f"output folder is {where}; outputs there would mix with the frames: choose another",
                              path=out_dir)
+    if source is not None and os.path.isdir(source) and same_or_inside(out, source):
+        where = "the input folder" if identity(out) == identity(source) else f"inside the input folder {source}"
+        raise InputError(f"output folder is {where}; outputs there would mix with the data: choose another",
+                         path=out_dir)
     return check_replaceable_dir(out, RUN_OUTPUT_NAMES, RUN_WRITER)
 
 
