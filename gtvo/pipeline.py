@@ -27,6 +27,7 @@ from gtvo.io.covariances import KeyframeCovariances
 from gtvo.odometry.rig_report import rig_warning
 from gtvo.odometry.summary import OdometrySummary, stage_timing, summarize_odometry
 from gtvo.odometry.wheel import wheel_coverage_warning
+from gtvo.io.log_settings import log_wheel_settings, wheel_settings_line
 from gtvo.io.outputs import check_run_output_dir, write_run_outputs
 from gtvo.datasets.sequence import Sequence
 from gtvo.evaluation.trajectory import Trajectory
@@ -153,6 +154,10 @@ def run(path: str | Path | Sequence, out: str | Path | None = None,
         InputError: bad input (unreadable folder, ``frame_step < 1``, ...).
     """
     config = as_config(config)
+    if not isinstance(path, Sequence):  # a log folder's wheel.yaml, read like its calibration
+        config, wheel_file = log_wheel_settings(path, config)
+        if wheel_file is not None:
+            print(f"gtvo: {wheel_settings_line(wheel_file)}", file=sys.stderr)
     seq = path if isinstance(path, Sequence) else open_sequence(  # type: ignore[arg-type]
         path, format=format, max_frames=max_frames, **{"wheel_options": config.wheel.read_options(), **open_options})
     out_dir = Path(out) if out is not None else Path("gtvo_out") / seq.name

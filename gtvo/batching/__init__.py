@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import os
+import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -28,6 +29,7 @@ from gtvo.batching.runners import RECORD_NAME, failure, require_ray, run_in_pool
 from gtvo.batching.spec import LogSpec, read_spec
 from gtvo.batching.summary import summary_row, write_summary
 from gtvo.errors import InputError
+from gtvo.io.log_settings import log_wheel_settings, wheel_settings_line
 
 __all__ = ["BatchResult", "LogSpec", "batch", "read_spec"]
 
@@ -237,6 +239,10 @@ def _job(log: LogSpec, out_dir: Path, base: Any, max_frames: int | None, frame_s
     from gtvo.config import OdometryConfig  # noqa: PLC0415
 
     config = apply_overrides(base if base is not None else OdometryConfig(), log.config, where=where)
+    if log.problem is None:  # the log folder's wheel.yaml, read like its calibration
+        config, wheel_file = log_wheel_settings(log.path, config)
+        if wheel_file is not None:
+            print(f"gtvo batch: {log.name}: {wheel_settings_line(wheel_file)}", file=sys.stderr)
     options = {"max_frames": max_frames, "frame_step": frame_step, "loop_closure": loop_closure,
                "camera": None, "ground_truth": None, **log.options}
     target = out_dir / log.name

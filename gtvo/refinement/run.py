@@ -5,9 +5,9 @@ The keyframes are refined (:func:`gtvo.refinement.refine_keyframes`, from the lo
 and with the accepted loop edges when loops were closed); the other frames move with their
 keyframe and are then re-placed against the refined keyframes and their refined points by the
 loop closing's frame refinement (:func:`gtvo.loops.closing.refine_result_frames`). When the
-refinement does not run, is not kept, or is interrupted (Ctrl-C), the run's answer is the one it
-would have been without it: the window's trajectory, and with loop closing its frames re-placed
-against the loop-closed keyframes as ``--loop-closure`` alone does.
+refinement does not run or is not kept, the run's answer is the one it would have been without
+it: the window's trajectory, and with loop closing its frames re-placed against the loop-closed
+keyframes as ``--loop-closure`` alone does. Ctrl-C during it stops the run as anywhere else.
 """
 
 from __future__ import annotations
@@ -20,9 +20,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from factors.params import PhotometricConfig
-from gtvo.core.interrupt import forget_interrupt, interrupt_requested, raise_if_interrupted
+from gtvo.core.interrupt import raise_if_interrupted
 from gtvo.datasets.sequence import Sequence
-from gtvo.errors import caused_by_interrupt
 from gtvo.evaluation.accuracy import run_accuracy
 from gtvo.evaluation.trajectory import Trajectory
 from gtvo.frontend.stereo_depth import KeyframePoints
@@ -34,10 +33,6 @@ from gtvo.window.config import WindowConfig, WindowKeyframe
 from gtvo.window.wheel import WheelCalibration
 
 F64 = NDArray[np.float64]
-
-#: The one line a Ctrl-C during the refinement leaves (the run then writes its window-only outputs).
-INTERRUPTED = "refinement interrupted (Ctrl-C): writing the window-only outputs"
-
 
 class RefinementSummary(TypedDict, total=False):
     """The report's ``refine`` block (docs/evaluation.md, "report.json")."""
@@ -104,7 +99,7 @@ def refine_run(seq: Sequence, trajectory: Trajectory, frame_indices: list[int], 
             consecutive keyframes (:func:`gtvo.loops.closing.odometry_covariances`).
         refine: per pose, whether the frame may be re-placed (tracked frames).
         loop_result: the loop closing's result before its frame refinement (``refine_frames=False``).
-        progress: progress bars; warn: where the one line of an interrupt or a refinement not kept goes.
+        progress: progress bars; warn: where the one line of a refinement not kept goes.
         wheel: the run's wheel odometry and calibration (the window's), None without wheels
             (:func:`gtvo.refinement.refine_keyframes`).
     """
@@ -114,24 +109,17 @@ def refine_run(seq: Sequence, trajectory: Trajectory, frame_indices: list[int], 
     base = loop_result.trajectory if loop_result is not None else trajectory
     res: RefinementResult | None = None
     out = RunRefinement(trajectory, loop_result, {}, {}, None, {})
-    try:
-        res = refine_keyframes(seq.pinhole, getattr(seq.camera, "baseline", None), window_keyframes, window, config,
-                               loop_edges=edges, rig_offset=rig_offset,
-                               start_poses=loop_result.keyframe_poses if closed else None,
-                               odometry_covariances=odometry_covariances, photometric=photometric,
-                               progress=progress, on_iteration=lambda it, cost: raise_if_interrupted(),
-                               wheel=wheel)
-        if res.ran:
-            out = _re_place(seq, base, frame_indices, kfs, res, keyframe_points, odometry_covariances, tracking,
-                            photometric, refine, loop_result, trajectory, progress)
-    except BaseException as exc:  # noqa: BLE001 (an interrupt, perhaps inside compiled code)
-        if not (isinstance(exc, KeyboardInterrupt) or caused_by_interrupt(exc) or interrupt_requested()):
-            raise
-        forget_interrupt()
-        warn(INTERRUPTED)
-        res = dataclasses.replace(res, ran=False, reason="interrupted (Ctrl-C)") if res is not None else None
-        out = RunRefinement(trajectory, loop_result, {}, {}, None, {})
-    if res is not None and not res.ran and res.reason != "interrupted (Ctrl-C)":
+    # Ctrl-C here is Ctrl-C everywhere (README, "Use"): the run stops, exit 130, the earlier outputs kept
+    res = refine_keyframes(seq.pinhole, getattr(seq.camera, "baseline", None), window_keyframes, window, config,
+                           loop_edges=edges, rig_offset=rig_offset,
+                           start_poses=loop_result.keyframe_poses if closed else None,
+                           odometry_covariances=odometry_covariances, photometric=photometric,
+                           progress=progress, on_iteration=lambda it, cost: raise_if_interrupted(),
+                           wheel=wheel)
+    if res.ran:
+        out = _re_place(seq, base, frame_indices, kfs, res, keyframe_points, odometry_covariances, tracking,
+                        photometric, refine, loop_result, trajectory, progress)
+    if not res.ran:
         warn(f"refinement not kept: {res.reason}")
     if not out.keyframe_poses and loop_result is not None:  # the loop closing's own frame refinement
         refine_result_frames(seq, loop_result, frame_indices, kfs, progress, odometry_covariances, keyframe_points,
@@ -170,7 +158,7 @@ def _summary(res: RefinementResult | None, config: RefineConfig, n_keyframes: in
     the window's and ``loop_closed_*`` the refined ones)."""
     ran = bool(out.keyframe_poses)
     block: RefinementSummary = {
-        "ran": ran, "reason": None if ran else (res.reason if res is not None else "interrupted (Ctrl-C)"),
+        "ran": ran, "reason": None if ran else (res.reason if res is not None else "not run"),
         "solver": config.solver, "keyframes": n_keyframes,
         "targets_mean": None if res is None else round(res.targets_mean, 3),
         "iterations": 0 if res is None else res.iterations,
