@@ -73,7 +73,8 @@ def read_spec(spec: str | Path | list[Any], exclude: tuple[Path, ...] = ()) -> l
     else:
         path = Path(spec)
         if not path.exists():
-            raise InputError("SPEC not found", path=path)
+            broken = link_problem(path)
+            raise InputError(f"SPEC is {broken}" if broken else "SPEC not found", path=path)
         logs = _from_folder(path, exclude) if path.is_dir() else _from_yaml(path)
     if not logs:
         raise InputError("SPEC holds no logs", path=None if isinstance(spec, list) else spec)

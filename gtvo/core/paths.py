@@ -72,3 +72,21 @@ def same_or_inside(path: str | Path, folder: str | Path) -> bool:
     if target is None:
         return False
     return any(identity(p) == target for p in existing_ancestors(path))
+
+
+def check_not_an_input(output: str | Path | None, inputs: dict[str, str | Path | None], flag: str) -> None:
+    """A one-line :class:`InputError` when the output file ``output`` (given as ``flag``) is one of
+    the command's ``inputs`` (``{"its flag or name": path}``) or lies inside an input folder, by file
+    identity (a link, '..', a bind mount): no command writes over or into what it reads."""
+    if not output:
+        return
+    real = os.path.realpath(output)  # (a part not yet made, as in 'new/../input', collapsed as the system will)
+    for name, given in inputs.items():
+        if not given:
+            continue
+        if identity(real) is not None and identity(real) == identity(given):
+            raise InputError(f"{flag} is the {name} {given} itself: writing it would replace the input; "
+                             f"choose another file", path=output)
+        if os.path.isdir(given) and same_or_inside(Path(real).parent, given):
+            raise InputError(f"{flag} is inside the {name} {given}: outputs there would mix with its data; "
+                             f"write it elsewhere", path=output)

@@ -13,6 +13,7 @@ from typing import Any, Literal
 
 from tqdm import tqdm
 
+from gtvo.core.paths import link_problem
 from gtvo.datasets._common import require_dir
 from gtvo.datasets.bag import looks_like_bag, read_bag
 from gtvo.datasets.euroc import looks_like_euroc, read_euroc
@@ -51,6 +52,10 @@ def detect_format(path: str | Path) -> str:
         return "euroc"
     if looks_like_tum(folder):
         return "tum"
+    broken = sorted(e for e in folder.iterdir() if link_problem(e) is not None)
+    if broken:  # a file of the layout that cannot be followed is the cause, not an unknown layout
+        raise InputError(f"{broken[0].name} is {link_problem(broken[0])}: the layout cannot be recognised",
+                         path=folder)
     raise InputError("unknown dataset layout: expected KITTI (calib.txt + image_0/ or image_l/), KITTI raw "
                      "(image_00/data/ + calib_cam_to_cam.txt), EuRoC (mav0/cam0/ + mav0/cam1/), TUM RGB-D "
                      "(rgb.txt + depth.txt), or a ROS bag (a .bag file, or a ROS2 bag folder with metadata.yaml "
