@@ -474,3 +474,45 @@ def test_an_interrupted_batch_leaves_a_summary_of_what_finished_marked_partial(f
     assert [(r["name"], r["status"]) for r in summary["logs"]] == [("seq1", "failed"), ("seq2", "not run")]
     assert "Partial: the batch was interrupted; 1 logs were not run." in (out / "summary.md").read_text()
     assert not [p for p in out.parent.iterdir() if p.name.startswith(".")]  # no lock, no staging left
+
+
+def _bind(source: Path, target: Path, read_only: bool = False) -> bool:
+    """Bind-mount ``source`` on ``target`` (False: not allowed here)."""
+    target.mkdir(parents=True, exist_ok=True)
+    if subprocess.run(["mount", "--bind", str(source), str(target)], capture_output=True).returncode != 0:
+        return False
+    if read_only and subprocess.run(["mount", "-o", "remount,ro,bind", str(target)],
+                                    capture_output=True).returncode != 0:
+        subprocess.run(["umount", str(target)], check=True)
+        return False
+    return True
+
+
+def test_out_through_a_bind_mount_of_the_logs_and_a_read_only_out_are_refused(fleet_copy, tmp_path, capsys):
+    """A bind mount shows the SPEC folder under a path no string comparison relates to it; a
+    read-only mount refuses writes even to root. Both: one line, exit 2, nothing written."""
+    mount, ro = tmp_path / "mnt", tmp_path / "ro"
+    if not _bind(fleet_copy, mount):
+        pytest.skip("cannot bind-mount here")
+    try:
+        before = _listing(fleet_copy)
+        for out in (mount / "seq1", mount / "seq2" / "results"):
+            assert cli.main(["batch", str(fleet_copy), "--out", str(out), "--no-progress"]) == 2, out
+            err = capsys.readouterr().err
+            assert err.count("\n") == 1 and "log" in err, err
+        assert cli.main(["run", str(fleet_copy / "seq1"), "--out", str(mount / "seq1" / "res"), "--no-progress"]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "inside the input folder" in err, err
+        assert _listing(fleet_copy) == before
+    finally:
+        subprocess.run(["umount", str(mount)], check=True)
+    (tmp_path / "empty").mkdir()
+    if not _bind(tmp_path / "empty", ro, read_only=True):
+        pytest.skip("cannot mount read-only here")
+    try:
+        for out in (ro, ro / "new"):
+            assert cli.main(["batch", str(fleet_copy), "--out", str(out), "--no-progress"]) == 2
+            err = capsys.readouterr().err
+            assert err.count("\n") == 1 and ("not writable" in err or "Read-only" in err), err
+    finally:
+        subprocess.run(["umount", str(ro)], check=True)
