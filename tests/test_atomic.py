@@ -197,3 +197,13 @@ def test_output_lock_removes_what_a_killed_writer_left_and_nothing_else(tmp_path
     with output_lock(out, file_names=("summary.json",)):
         assert not staged.exists() and not temp_file.exists()
     assert all(p.exists() for p in keep) and (out / "trajectory.tum").read_text() == "earlier\n"
+
+
+def test_a_killed_writers_lock_file_is_discarded_a_held_one_is_not(tmp_path):
+    from gtvo.core.atomic import discard_unfinished, output_lock
+
+    out = tmp_path / "out"
+    (tmp_path / ".out.lock").write_text("12345\n")  # its writer was killed: nothing holds it
+    assert discard_unfinished([out]) == [tmp_path / ".out.lock"] and not (tmp_path / ".out.lock").exists()
+    with output_lock(out):
+        assert discard_unfinished([out]) == [] and (tmp_path / ".out.lock").exists()

@@ -282,6 +282,27 @@ def output_lock(path: str | Path, file_names: Iterable[str] = ()) -> Iterator[Pa
         os.close(fd)
 
 
+def _discard_stale_lock(lock: Path) -> bool:
+    """Remove the lock file ``lock`` of a writer that was killed (no process holds it); True if removed.
+    A lock some process holds (this one's included) is left alone."""
+    try:
+        fd = os.open(lock, os.O_RDWR | os.O_CLOEXEC)
+    except OSError:
+        return False
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        os.close(fd)
+        return False
+    try:
+        lock.unlink()
+        return True
+    except OSError:
+        return False
+    finally:
+        os.close(fd)
+
+
 def _lock_holder(fd: int) -> str:
     """`` (pid N)`` from a held lock file (its holder writes its pid), else ``""``."""
     try:
@@ -320,13 +341,17 @@ def discard_unfinished(paths: Iterable[str | Path], file_names: Iterable[str] = 
 
     An earlier folder the writer had put aside (``.NAME.old.*``, killed between the two renames
     of the swap) is put back when ``path`` is missing; the temporary folders beside ``path``
-    (``.NAME.*``) and the temporary files of ``file_names`` inside it are removed.
+    (``.NAME.*``), the temporary files of ``file_names`` inside it and a lock file no process
+    holds any more (:func:`output_lock`) are removed.
 
     Returns:
         The temporary folders and files removed.
     """
     removed: list[Path] = []
     names = list(file_names)
+    for path in map(Path, paths):
+        if _discard_stale_lock(path.parent / LOCK_NAME.format(name=path.name)):
+            removed.append(path.parent / LOCK_NAME.format(name=path.name))
     by_parent: dict[Path, list[Path]] = {}
     for path in map(Path, paths):
         by_parent.setdefault(path.parent, []).append(path)
