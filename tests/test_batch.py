@@ -516,3 +516,30 @@ def test_out_through_a_bind_mount_of_the_logs_and_a_read_only_out_are_refused(fl
             assert err.count("\n") == 1 and ("not writable" in err or "Read-only" in err), err
     finally:
         subprocess.run(["umount", str(ro)], check=True)
+
+
+def test_a_killed_batchs_leftovers_are_removed_by_the_next_batch(fleet_copy, tmp_path, monkeypatch):
+    """A batch killed (SIGTERM, SIGKILL) leaves its workers' staging folders, a temporary batch.json
+    and lock files in its --out; the next batch into it removes them, whether its logs run again
+    or not, and leaves what is not gtvo's alone."""
+    import tempfile
+
+    import gtvo.batching as batching
+    from gtvo.batching.runners import failure
+
+    out = tmp_path / "out"
+    (out / "seq1").mkdir(parents=True)
+    leftovers = [Path(tempfile.mkdtemp(prefix=".seq1.", dir=out)), Path(tempfile.mkdtemp(prefix=".seq2.", dir=out)),
+                 Path(tempfile.mkstemp(prefix=".batch.json.", suffix=".json", dir=out / "seq1")[1]),
+                 out / ".seq2.lock", Path(tempfile.mkstemp(prefix=".summary.md.", suffix=".md", dir=out)[1])]
+    leftovers[3].write_text("4242\n")
+    mine = out / ".my-notes"
+    mine.write_text("keep\n")
+
+    def nothing_runs(jobs, workers, on_done):
+        for k in range(len(jobs)):
+            on_done(k, failure(InputError("not run in this test")))
+
+    monkeypatch.setattr(batching, "run_in_pool", nothing_runs)
+    batching.batch(fleet_copy, out, jobs=1, progress=False)
+    assert [p for p in leftovers if p.exists()] == [] and mine.read_text() == "keep\n"

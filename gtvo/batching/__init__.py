@@ -103,6 +103,7 @@ def batch(spec: str | Path | list[Any], out: str | Path, jobs: int | None = None
         jobs_list = [_job(log, out_dir, config, max_frames, frame_step, loop_closure,
                           where=f"{_where(spec)}, log {log.name!r}") for log in logs]
         _check_no_repeats(logs, jobs_list, _where(spec))
+        _discard_leftovers(jobs_list)
         rows, todo = _plan(logs, jobs_list, resume)
         resumed = [r["name"] for r in rows if r is not None and r["resumed"]]
         n_workers = max(1, min(workers, len(todo)))
@@ -123,6 +124,18 @@ def batch(spec: str | Path | list[Any], out: str | Path, jobs: int | None = None
 
 #: The batch's own files in its output folder.
 SUMMARY_NAMES: tuple[str, ...] = ("summary.json", "summary.md", "summary.png")
+
+
+def _discard_leftovers(jobs_list: list[dict[str, Any]]) -> None:
+    """Remove what writers killed before (an earlier batch's workers, a run) left beside or in the
+    logs' output folders: each folder's lock taken for a moment (:func:`gtvo.core.atomic.output_lock`),
+    so a folder another process is writing is left to it (that log's run then says so)."""
+    for job in jobs_list:
+        try:
+            with output_lock(job["out"], (RECORD_NAME,)):
+                pass
+        except InputError:
+            pass
 
 
 def _check_out_outside_logs(out_dir: Path, logs: list[LogSpec]) -> None:
