@@ -432,8 +432,9 @@ def test_broken_links_among_the_logs_are_failed_rows_with_their_reason(fleet_cop
     assert logs["loopy"].problem.endswith("loopy is a symbolic link loop")
     assert "gone is a broken symbolic link" in logs["gone"].problem
     assert logs["seq1"].problem is None
-    yaml = _write(tmp_path / "s.yaml", f"- {fleet_copy / 'loopy'}\n- {fleet_copy / 'seq1'}\n")
-    assert [lg.problem is None for lg in read_spec(yaml)] == [False, True]
+    yaml = _write(tmp_path / "s.yaml", f"- {fleet_copy / 'loopy'}\n- {fleet_copy / 'seq1'}\n"
+                                        f"- {{path: {fleet_copy / 'seq2'}, ground_truth: {fleet_copy / 'loopy'}}}\n")
+    assert [lg.problem is None for lg in read_spec(yaml)] == [False, True, True]  # (seq2 fails when it runs)
 
 
 @pytest.mark.slow

@@ -221,8 +221,14 @@ def _options(item: dict[str, Any], base: Path, at: str) -> dict[str, Any]:
 
 
 def _resolve(base: Path, text: str) -> Path:
+    """``text`` against ``base``, links followed; one that cannot be followed (a loop) is kept as
+    written, made absolute: its log then fails with the reason, the others run."""
     p = Path(text).expanduser()
-    return resolved(p if p.is_absolute() else base / p)
+    p = p if p.is_absolute() else base / p
+    try:
+        return resolved(p)
+    except InputError:
+        return Path(os.path.abspath(p))
 
 
 def _check_name(name: str, at: str) -> str:
