@@ -244,6 +244,9 @@ def output_lock(path: str | Path, file_names: Iterable[str] = ()) -> Iterator[Pa
     back, the temporary files of ``file_names`` inside it): no writer can be busy with them.
     """
     path = resolved(path, "output folder")
+    above = next(p for p in path.parents if p.exists() or p == p.parent)
+    if not above.is_dir():
+        raise InputError(f"cannot create the output folder ({above} is a file)", path=path)
     parent = ensure_output_dir(path.parent)
     lock = parent / LOCK_NAME.format(name=path.name)
     while True:
