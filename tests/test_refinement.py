@@ -14,7 +14,6 @@ import numpy as np
 import pytest
 
 from factors.params import PhotometricConfig
-from gtvo.config import OdometryConfig
 from gtvo.datasets.synthetic import make_synthetic_sequence, write_sequence_kitti
 from gtvo.loops.closure_graph import LoopEdge
 from gtvo.refinement import RefineConfig, covisible_targets, refine_keyframes

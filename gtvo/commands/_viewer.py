@@ -5,7 +5,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import os
-from pathlib import Path
 from typing import Any, Iterator
 
 from gtvo.core.paths import resolved, same_or_inside
