@@ -157,7 +157,7 @@ def run(path: str | Path | Sequence, out: str | Path | None = None,
     if not isinstance(path, Sequence):  # a log folder's wheel.yaml, read like its calibration
         config, wheel_file = log_wheel_settings(path, config)
         if wheel_file is not None:
-            print(f"gtvo: {wheel_settings_line(wheel_file)}", file=sys.stderr)
+            print(f"gtvo: {wheel_settings_line(wheel_file)}", file=sys.stdout)  # (stderr: one line for an error)
     seq = path if isinstance(path, Sequence) else open_sequence(  # type: ignore[arg-type]
         path, format=format, max_frames=max_frames, **{"wheel_options": config.wheel.read_options(), **open_options})
     out_dir = Path(out) if out is not None else Path("gtvo_out") / seq.name

@@ -47,8 +47,8 @@ def test_gtvo_run_reads_the_robots_wheel_yaml_without_config_and_says_so(tmp_pat
                      "--wheel-calibration", "1.02,0.98,1.05", "--no-progress"]) == 0
     capsys.readouterr()
     assert cli.main(["run", str(robot), "--out", str(tmp_path / "out"), "--no-progress"]) == 0
-    err = capsys.readouterr().err
-    assert f"wheel settings from the log's {robot / 'wheel.yaml'}" in err, err
+    out = capsys.readouterr().out  # on stdout: stderr stays one line when the run then fails
+    assert f"wheel settings from the log's {robot / 'wheel.yaml'}" in out, out
     report = json.loads((tmp_path / "out" / "report.json").read_text())
     expected, _ = log_wheel_settings(robot, OdometryConfig())
     from gtvo.config import config_to_dict

@@ -255,7 +255,7 @@ def _job(log: LogSpec, out_dir: Path, base: Any, max_frames: int | None, frame_s
     if log.problem is None:  # the log folder's wheel.yaml, read like its calibration
         config, wheel_file = log_wheel_settings(log.path, config)
         if wheel_file is not None:
-            print(f"gtvo batch: {log.name}: {wheel_settings_line(wheel_file)}", file=sys.stderr)
+            print(f"gtvo batch: {log.name}: {wheel_settings_line(wheel_file)}", file=sys.stdout)
     options = {"max_frames": max_frames, "frame_step": frame_step, "loop_closure": loop_closure,
                "camera": None, "ground_truth": None, **log.options}
     target = out_dir / log.name
