@@ -227,7 +227,7 @@ def test_camera_errors_name_their_source(tmp_path):
     _raises("calib.txt: camera principal point (cx, cy) = (400, 23.5) lies outside the 64x48 image (from P0)",
             open_sequence, root)
     tum = make_tum(tmp_path / "freiburg3_cam", gt=False)
-    _raises("the given camera (--camera): camera principal point", open_sequence, tum, camera=(50, 50, 480, 640))
+    _raises("--camera (50, 50, 480, 640): camera principal point", open_sequence, tum, camera=(50, 50, 480, 640))
 
 
 @pytest.mark.parametrize("labelled", [True, False])
