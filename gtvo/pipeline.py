@@ -19,7 +19,7 @@ from typing import Any, Callable, Iterable
 
 from gtvo import __version__
 from gtvo.config import OdometryConfig, as_config, config_to_yaml
-from gtvo.core.atomic import ensure_output_dir, tidy_on_failure
+from gtvo.core.atomic import ensure_output_dir, output_lock, tidy_on_failure
 from gtvo.core.interrupt import raise_if_interrupted
 from gtvo.core.timing import stage
 from gtvo.datasets import detect_format, open_sequence
@@ -27,6 +27,7 @@ from gtvo.datasets.sequence import Sequence
 from gtvo.errors import InputError
 from gtvo.evaluation.trajectory import Trajectory
 from gtvo.io.observer import RunObserver
+from gtvo.io.log_settings import log_wheel_settings, wheel_settings_line
 from gtvo.io.outputs import check_run_output_dir, write_run_outputs
 from gtvo.loops.closing import run_loop_closing
 from gtvo.odometry import VisualOdometry
@@ -161,10 +162,14 @@ def run(path: str | Path | Sequence, out: str | Path | None = None,
         InputError: bad input (unreadable folder, ``frame_step < 1``, ...).
     """
     config = as_config(config)
+    if not isinstance(path, Sequence):  # a log folder's wheel.yaml, read like its calibration
+        config, wheel_file = log_wheel_settings(path, config)
+        if wheel_file is not None:
+            print(f"gtvo: {wheel_settings_line(wheel_file)}", file=sys.stdout)  # (stderr: one line for an error)
     if loop_closure:
         config = dataclasses.replace(config, loops=dataclasses.replace(config.loops, enabled=True))
     seq, fmt, out_dir = read_input(path, config, out, format, max_frames, frame_step, open_options)  # 1. read
-    with tidy_on_failure():  # a run that fails leaves no empty output folder behind
+    with tidy_on_failure(), output_lock(out_dir):  # a failed run leaves no empty folder; one writer at a time
         ensure_output_dir(out_dir)  # an unusable --out is reported before the long work
         _, odo = run_odometry(seq, config, progress=progress, strict=strict, observers=observers)  # 2. odometry
         odo = run_loop_closing(odo, seq, progress)               # 3. stages: loop closing, the refinement

@@ -229,7 +229,7 @@ def test_camera_errors_name_their_source(tmp_path):
     _raises("calib.txt: camera principal point (cx, cy) = (400, 23.5) lies outside the 64x48 image (from P0)",
             open_sequence, root)
     tum = make_tum(tmp_path / "freiburg3_cam", gt=False)
-    _raises("the given camera (--camera): camera principal point", open_sequence, tum, camera=(50, 50, 480, 640))
+    _raises("--camera (50, 50, 480, 640): camera principal point", open_sequence, tum, camera=(50, 50, 480, 640))
 
 
 @pytest.mark.parametrize("labelled", [True, False])
@@ -669,3 +669,22 @@ def test_real_data_damaged_copies(shared_data, tmp_path):
     root = _link_tree(tum, tmp_path / "teddy")  # the folder name no longer says freiburg3
     _raises("pass --camera", open_sequence, root)
     assert open_sequence(root, camera=(535.4, 539.2, 320.1, 247.6)).camera.fx == 535.4
+
+
+def test_a_log_or_a_file_of_its_layout_that_is_a_link_loop_is_named(tmp_path):
+    """A sequence folder that is a symbolic link loop, or a calib.txt / image folder that is one:
+    the message names the loop (before: "not found", "unknown dataset layout")."""
+    from gtvo.datasets import detect_format
+
+    (tmp_path / "loop").symlink_to("loop")
+    with pytest.raises(InputError, match=r"loop: sequence folder is a symbolic link loop$"):
+        open_sequence(tmp_path / "loop")
+    root = make_kitti(tmp_path / "seq")
+    (root / "calib.txt").unlink()
+    (root / "calib.txt").symlink_to("calib.txt")
+    with pytest.raises(InputError, match=r"seq: calib.txt is a symbolic link loop: the layout cannot be recognised$"):
+        detect_format(root)
+    (root / "calib.txt").unlink()
+    (root / "calib.txt").symlink_to(tmp_path / "gone")
+    with pytest.raises(InputError, match="calib.txt is a broken symbolic link"):
+        open_sequence(root)

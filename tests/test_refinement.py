@@ -14,7 +14,6 @@ import numpy as np
 import pytest
 
 from factors.params import PhotometricConfig
-from gtvo.config import OdometryConfig
 from gtvo.datasets.synthetic import make_synthetic_sequence, write_sequence_kitti
 from gtvo.loops.closure_graph import LoopEdge
 from gtvo.refinement import RefineConfig, covisible_targets
@@ -212,29 +211,27 @@ def test_refine_with_a_parallel_window_is_refused(kitti_like, tmp_path):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("loops", [False, True])
-def test_ctrl_c_during_the_refinement_writes_the_window_only_outputs(kitti_like, tmp_path, monkeypatch, capsys, loops):
-    """A KeyboardInterrupt inside the refinement's solver: the run goes on and writes the whole set
-    of the run without refinement (the same trajectories), says so in one line and in the report."""
-    import gtvo
+def test_ctrl_c_during_the_refinement_is_ctrl_c_everywhere(kitti_like, tmp_path, monkeypatch, capsys):
+    """A KeyboardInterrupt inside the refinement's solver is the README's one rule for Ctrl-C:
+    `gtvo run: interrupted`, exit 130, the earlier output set exactly as it was (before: exit 0 with
+    window-only outputs replacing it)."""
+    from gtvo import cli
     import gtvo.refinement.solve as solve
 
-    plain = gtvo.run(kitti_like, out=tmp_path / "plain", loop_closure=loops)
-    assert "refine" not in plain
+    out = tmp_path / "out"
+    assert cli.main(["run", str(kitti_like), "--out", str(out), "--no-progress", "--max-frames", "4"]) == 0
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
 
     def interrupted(*a, **k):
         raise KeyboardInterrupt
 
     monkeypatch.setattr(solve, "solve_gtsam", interrupted)
-    rep = gtvo.run(kitti_like, out=tmp_path / "cut", loop_closure=loops,
-                   config=OdometryConfig(refine=RefineConfig(enabled=True)))
-    assert "refinement interrupted (Ctrl-C): writing the window-only outputs" in capsys.readouterr().err
-    assert rep["refine"]["ran"] is False and rep["refine"]["reason"] == "interrupted (Ctrl-C)"
-    names = ["trajectory.tum"] + (["trajectory_loop_closed.tum"] if loops else [])
-    for name in names:
-        assert (tmp_path / "cut" / name).read_bytes() == (tmp_path / "plain" / name).read_bytes()
-    names = sorted(p.name for p in (tmp_path / "plain").iterdir())
-    assert sorted(p.name for p in (tmp_path / "cut").iterdir()) == names
+    capsys.readouterr()
+    assert cli.main(["run", str(kitti_like), "--out", str(out), "--no-progress", "--refine"]) == 130
+    err = capsys.readouterr().err
+    assert err.strip().splitlines()[-1] == "gtvo run: interrupted" and "window-only" not in err, err
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]  # no staging, no lock left
 
 
 def test_lm_iteration_by_iteration_is_gtsam_own_loop(seq, keyframes):

@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from gtvo.core.paths import check_not_an_input
 from gtvo.core.atomic import check_output_file, write_json
 from gtvo.commands._common import parse_floats
 from gtvo.datasets import FORMATS, open_sequence
@@ -65,6 +66,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--window must be >= 0, got {args.window}")
     options = {} if args.camera is None else {"camera": parse_floats(args.camera, 4, "--camera")}
     if args.out:
+        check_not_an_input(args.out, {"sequence folder": args.sequence}, "--out")
         check_output_file(args.out)
     seq = open_sequence(args.sequence, format=args.format, max_frames=args.max_frames, **options)
     config = LoopDetectorConfig()

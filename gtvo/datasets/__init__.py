@@ -14,6 +14,7 @@ from typing import Any
 
 from tqdm import tqdm
 
+from gtvo.core.paths import link_problem
 from gtvo.datasets._common import require_dir
 from gtvo.datasets.euroc import read_euroc
 from gtvo.datasets.kitti import read_kitti
@@ -52,6 +53,10 @@ def detect_format(path: str | Path) -> str:
     for reader in READERS:
         if reader.looks_like(folder):
             return reader.name
+    broken = sorted(e for e in folder.iterdir() if link_problem(e) is not None)
+    if broken:  # a file of the layout that cannot be followed is the cause, not an unknown layout
+        raise InputError(f"{broken[0].name} is {link_problem(broken[0])}: the layout cannot be recognised",
+                         path=folder)
     layouts = [r.layout for r in READERS]
     raise InputError(f"unknown dataset layout: expected {', '.join(layouts[:-1])}, or {layouts[-1]}", path=folder)
 

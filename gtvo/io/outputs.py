@@ -8,6 +8,7 @@ nothing to the report: it writes the report as it is given.
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
@@ -15,6 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gtvo.core.atomic import atomic_dir, check_replaceable_dir, write_json
+from gtvo.core.paths import identity, link_problem, resolved, same_or_inside
 from gtvo.errors import InputError
 from gtvo.evaluation.accuracy import ground_truth
 from gtvo.evaluation.alignment import align_trajectory
@@ -48,31 +50,45 @@ def top_view(ref: Trajectory | None) -> dict[str, Any]:
 
 
 def input_folders(seq: Sequence) -> tuple[Path | None, set[Path]]:
-    """The folders a sequence is read from: ``(source folder, folders of its image files)``."""
+    """The folders a sequence is read from: ``(source folder, folders of its image files)``.
+
+    An image file's folder is the one it is listed in and, when it is a symbolic link, the one its
+    target lies in too; a link that cannot be followed (a loop, a broken link: a frame the reader
+    skips or stops at) gives only the former.
+    """
     images: set[Path] = set()
-    for loader in (seq.load_left, seq.load_right, seq.load_depth):
-        images.update(Path(f).resolve().parent for f in getattr(loader, "paths", ()))
-    images.update(Path(n).resolve().parent for n in seq.frame_names if Path(n).is_file())
-    return (None if seq.source is None else Path(seq.source).resolve()), images
+    files = [Path(f) for loader in (seq.load_left, seq.load_right, seq.load_depth)
+             for f in getattr(loader, "paths", ())]
+    files += [Path(n) for n in seq.frame_names if link_problem(n) is None and Path(n).is_file()]
+    for f in files:
+        images.add(Path(os.path.abspath(f)).parent)
+        if link_problem(f) is None:
+            images.add(Path(os.path.realpath(f)).parent)
+    source = None if seq.source is None else Path(os.path.abspath(seq.source))
+    return source, images
 
 
 def check_run_output_dir(out_dir: str | Path, inputs: tuple[Path | None, set[Path]] | Sequence) -> Path:
     """The resolved ``out_dir`` if a run may write its outputs there, else a one-line :class:`InputError`.
 
-    Refused: the input folder itself, an image folder of the input or a folder inside one
-    (``inputs``: the sequence or its :func:`input_folders`), and a folder that is neither new,
-    empty nor an earlier run's output set (:func:`gtvo.core.atomic.check_replaceable_dir`).
+    Refused: the input folder itself or a folder inside it, an image folder of the input or a
+    folder inside one (``inputs``: the sequence or its :func:`input_folders`), whatever the
+    spelling (``..``, symbolic links, bind mounts: compared by file identity,
+    :func:`gtvo.core.paths.same_or_inside`), a symbolic link loop, and a folder that is neither
+    new, empty nor an earlier run's output set (:func:`gtvo.core.atomic.check_replaceable_dir`).
     """
     source, images = input_folders(inputs) if isinstance(inputs, Sequence) else inputs
-    out = Path(out_dir).resolve()
-    if source is not None and out == source:
-        raise InputError("output folder is the input folder; outputs there would mix with the data: "
-                         "choose another", path=out_dir)
+    out = resolved(out_dir, "output folder")
     for f in sorted(images):
-        if out == f or f in out.parents:
-            where = "one of the input's image folders" if out == f else f"inside the input's image folder {f}"
+        if same_or_inside(out, f):
+            where = ("one of the input's image folders" if identity(out) == identity(f)
+                     else f"inside the input's image folder {f}")
             raise InputError(f"output folder is {where}; outputs there would mix with the frames: choose another",
                              path=out_dir)
+    if source is not None and os.path.isdir(source) and same_or_inside(out, source):
+        where = "the input folder" if identity(out) == identity(source) else f"inside the input folder {source}"
+        raise InputError(f"output folder is {where}; outputs there would mix with the data: choose another",
+                         path=out_dir)
     return check_replaceable_dir(out, RUN_OUTPUT_NAMES, RUN_WRITER)
 
 

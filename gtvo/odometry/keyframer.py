@@ -142,8 +142,13 @@ class Keyframer:
         right = frame.right if isinstance(self.camera, StereoCamera) else None  # float32 gray (Frame)
         pts = frame_points(frame, left, right, self.camera, self.config, self.rig)
         if len(pts) < self.config.tracking.min_valid_points:
-            raise TooFewPoints(f"frame {frame.index}: only {len(pts)} points with a valid depth; "
-                               "the images may be blank or the stereo calibration wrong")
+            need = self.config.tracking.min_valid_points
+            raise TooFewPoints(f"frame {frame.index}: only {len(pts)} points with a valid depth, fewer than "
+                               f"tracking.min_valid_points = {need}; "
+                               + ("that setting asks for more than frontend.points_per_keyframe = "
+                                  f"{self.config.frontend.points_per_keyframe} selects"
+                                  if need > self.config.frontend.points_per_keyframe
+                                  else "the images may be blank or the stereo calibration wrong"))
         if self.window is not None:
             if pyramid is None:  # one pyramid for the window keyframe's image and the tracker (no tracking made it)
                 with stage("keyframe_setup"):
