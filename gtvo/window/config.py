@@ -19,7 +19,6 @@ from gtvo.errors import InputError, show
 
 if TYPE_CHECKING:
     from gtvo.window.rig import RigOffset
-    from gtvo.window.problem import RigVariable, WindowProblem
     from gtvo.window.wheel import WheelCalibration
 
 FloatArray = NDArray[np.float64]
@@ -34,11 +33,6 @@ def values_subset(values: gtsam.Values, keys: Sequence[int]) -> gtsam.Values:
         else:
             out.insert(k, values.atVector(k))
     return out
-
-
-def vector_of(values: gtsam.Values, key: int) -> FloatArray | None:
-    """A copy of the vector at ``key`` in ``values``, None when it has none."""
-    return np.asarray(values.atVector(key), dtype=float).copy() if values.exists(key) else None
 
 
 @dataclass(frozen=True)
@@ -275,12 +269,6 @@ class WindowState(Protocol):
     rig: "RigOffset | None"
     #: the wheel calibration's one owner (:class:`gtvo.window.wheel.WheelCalibration`), None without wheels
     wheel: "WheelCalibration | None"
-
-    def problem(self, targets: list[list[int]] | None = None, rig: "RigVariable | None" = None) -> "WindowProblem":
-        """The window's problem at its current state (:class:`gtvo.window.problem.WindowProblem`)."""
-
-    def solved_rig(self) -> "RigVariable | None":
-        """The rig offset as a variable of the window's problem, not held (None: none)."""
 
     def rig_free_estimate(self) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
         """What the window's data say about the rig offset while it is held: ``(estimate, marginal sigmas)``."""

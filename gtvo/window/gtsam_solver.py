@@ -14,8 +14,8 @@ from factors.smart import shared_residual_passes
 from gtvo.core.kernel_threads import kernel_threads
 from gtvo.core.keys import affine_key, calibration_key, pose_key, rig_offset_key
 from gtvo.window.covariance import marginals_of_graph
-from gtvo.window.config import WindowResult, values_subset, vector_of
-from gtvo.window.problem import WindowProblem, build_graph
+from gtvo.window.config import WindowResult, values_subset
+from gtvo.window.problem import WindowProblem, build_graph, vector_of
 
 FloatArray = NDArray[np.float64]
 
