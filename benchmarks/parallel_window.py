@@ -76,7 +76,7 @@ def one_run(seq: Any, frames: list, mode: str) -> dict[str, Any]:
     vo = VisualOdometry(seq.camera, config_for(mode))
     worker = vo.window if isinstance(vo.window, WindowWorker) else None
     try:
-        started = worker.usage() if worker is not None else None  # the worker is up: its start-up CPU
+        started = worker.worker_usage() if worker is not None else None  # the worker is up: its start-up CPU
         startup = time.perf_counter() - t_start
         cpu0, t0 = time.process_time(), time.perf_counter()
         for f in frames:
@@ -84,7 +84,7 @@ def one_run(seq: Any, frames: list, mode: str) -> dict[str, Any]:
         vo.finish()
         wall = time.perf_counter() - t0
         cpu = time.process_time() - cpu0
-        usage = worker.usage() if worker is not None else None
+        usage = worker.worker_usage() if worker is not None else None
     finally:
         vo.close()
     est = vo.trajectory("gtvo")

@@ -204,12 +204,6 @@ def test_refine_with_track_mode_is_refused(kitti_like, tmp_path):
     assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and "--refine needs --mode window" in r.stderr
 
 
-def test_refine_with_a_parallel_window_is_refused(kitti_like, tmp_path):
-    r = _run(kitti_like, "--out", tmp_path / "x", "--refine", "--parallel")
-    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
-    assert "needs every keyframe of the window" in r.stderr and "--no-parallel" in r.stderr
-
-
 @pytest.mark.slow
 def test_ctrl_c_during_the_refinement_is_ctrl_c_everywhere(kitti_like, tmp_path, monkeypatch, capsys):
     """A KeyboardInterrupt inside the refinement's solver is the README's one rule for Ctrl-C:

@@ -50,10 +50,17 @@ class WindowPort(Protocol):
         backend_name: the window's back end, ``"lm"`` or ``"fixed_lag"``.
     """
 
-    rig: RigOffset | None
-    wheel: WheelCalibration | None
-    covariances: dict[int, FloatArray]
-    retain_keyframes: bool
+    @property
+    def rig(self) -> RigOffset | None: ...
+
+    @property
+    def wheel(self) -> WheelCalibration | None: ...
+
+    @property
+    def covariances(self) -> dict[int, FloatArray]: ...
+
+    @property
+    def retain_keyframes(self) -> bool: ...
 
     @property
     def backend_name(self) -> str: ...
@@ -124,23 +131,28 @@ class LocalWindow:
         return self.link.window
 
     @property
-    def rig(self) -> RigOffset | None:  # noqa: D102 - the port's
+    def rig(self) -> RigOffset | None:
+        """The window's rig offset (its one owner), None when not estimated."""
         return self.link.window.rig
 
     @property
-    def wheel(self) -> WheelCalibration | None:  # noqa: D102 - the port's
+    def wheel(self) -> WheelCalibration | None:
+        """The window's wheel calibration (the front end's object), None without wheels in the window."""
         return self.link.window.wheel
 
     @property
-    def covariances(self) -> dict[int, FloatArray]:  # noqa: D102 - the port's
+    def covariances(self) -> dict[int, FloatArray]:
+        """Frame index -> 6x6 pose covariance from the last optimisation that included the keyframe."""
         return self.link.window.covariances
 
     @property
-    def retain_keyframes(self) -> bool:  # noqa: D102 - the port's
+    def retain_keyframes(self) -> bool:
+        """Whether the window keeps every keyframe for the whole-log refinement."""
         return self.link.window.retain_keyframes
 
     @property
-    def backend_name(self) -> str:  # noqa: D102 - the port's
+    def backend_name(self) -> str:
+        """The window's back end, ``"lm"`` or ``"fixed_lag"``."""
         return self.link.window.backend.name
 
     def join(self, request: KeyframeForWindow, optimize: bool) -> None:
@@ -168,26 +180,32 @@ class LocalWindow:
     def close(self) -> None:
         """Nothing to release."""
 
-    def keyframe_indices(self) -> list[int]:  # noqa: D102 - the port's
+    def keyframe_indices(self) -> list[int]:
+        """The frame indices of the window's keyframes now (those waiting for an optimisation included)."""
         return [w.index for w in self.link.window.keyframes]
 
-    def right_brightness(self) -> tuple[float, float] | None:  # noqa: D102 - the port's
+    def right_brightness(self) -> tuple[float, float] | None:
+        """:meth:`WindowPort.right_brightness` of the window now."""
         wk = self.link.window.keyframes
         if not wk or wk[-1].right is None:
             return None
         a, b = wk[-1].stereo_affine
         return float(a), float(b)
 
-    def solver_name(self, requested: WindowSolverName) -> str:  # noqa: D102 - the port's
+    def solver_name(self, requested: WindowSolverName) -> str:
+        """:meth:`gtvo.window.SlidingWindowOptimizer.solver_name`."""
         return self.link.window.solver_name(requested)
 
-    def rig_offset_covariance(self) -> FloatArray | None:  # noqa: D102 - the port's
+    def rig_offset_covariance(self) -> FloatArray | None:
+        """:meth:`gtvo.window.SlidingWindowOptimizer.rig_offset_covariance`."""
         return self.link.window.rig_offset_covariance()
 
-    def wheel_covariance(self) -> FloatArray | None:  # noqa: D102 - the port's
+    def wheel_covariance(self) -> FloatArray | None:
+        """:meth:`gtvo.window.SlidingWindowOptimizer.wheel_covariance`."""
         return self.link.window.wheel_covariance()
 
-    def every_keyframe(self) -> list[WindowKeyframe]:  # noqa: D102 - the port's
+    def every_keyframe(self) -> list[WindowKeyframe]:
+        """:meth:`gtvo.window.SlidingWindowOptimizer.every_keyframe`."""
         return self.link.window.every_keyframe()
 
     def worker_usage(self) -> WorkerUsage | None:

@@ -231,10 +231,6 @@ class WindowWorker:
         """The worker's CPU time, peak memory and stage seconds so far."""
         return self._ask(("usage",))
 
-    def usage(self) -> WorkerUsage:
-        """:meth:`worker_usage`."""
-        return self.worker_usage()
-
     def solver_name(self, requested: str) -> str:
         """The solver the worker's window runs for ``requested`` (:meth:`SlidingWindowOptimizer.solver_name`)."""
         return "gtsam_isam2" if self.backend is FixedLagBackend else str(requested)
