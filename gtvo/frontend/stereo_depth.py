@@ -98,6 +98,35 @@ def _sample_with_gradient_x(image: NDArray[np.float32], u: NDArray, v: NDArray) 
     return vals.reshape(u.shape + (2,)), ok.reshape(u.shape)
 
 
+def _sample_row_cubic(image: NDArray[np.float32], x: NDArray, v: NDArray) -> tuple[NDArray, NDArray, NDArray]:
+    """Keys' cubic convolution (``a = -1/2``) of ``image`` along its rows at real columns ``x`` of
+    integer rows ``v`` (equal shapes): the values, their exact x derivatives and an inside mask
+    (all four taps ``floor(x) - 1 .. floor(x) + 2`` in the image; 0 elsewhere).
+
+    The sub-pixel refinement's interpolant: it reproduces quadratics, so it neither smooths a
+    sample between pixels much nor pulls the minimum towards pixel positions as the bilinear one
+    does, and its derivative is the derivative of what is sampled (a central difference beside a
+    bilinear value is not: Gauss-Newton then stops where the two disagree, not at the minimum).
+    """
+    h, w = image.shape
+    x = np.asarray(x, dtype=np.float64)
+    v = np.asarray(v, dtype=np.int64)
+    x0 = np.floor(x)
+    t = x - x0
+    x0 = x0.astype(np.int64)
+    ok = (x0 >= 1) & (x0 <= w - 3) & (v >= 0) & (v <= h - 1)
+    base = np.where(ok, v * w + x0, w + 1)
+    flat = image.reshape(-1)
+    taps = [flat[base + i].astype(np.float64) for i in (-1, 0, 1, 2)]
+    t2 = t * t
+    t3 = t2 * t
+    weights = (-t3 + 2 * t2 - t, 3 * t3 - 5 * t2 + 2, -3 * t3 + 4 * t2 + t, t3 - t2)
+    slopes = (-3 * t2 + 4 * t - 1, 9 * t2 - 10 * t, -9 * t2 + 8 * t + 1, 3 * t2 - 2 * t)
+    value = 0.5 * sum(wt * tap for wt, tap in zip(weights, taps))
+    slope = 0.5 * sum(sl * tap for sl, tap in zip(slopes, taps))
+    return np.where(ok, value, 0.0), np.where(ok, slope, 0.0), ok
+
+
 def _integer_search(src: NDArray, dst: NDArray, u: NDArray, v: NDArray, pattern: NDArray,
                     disparities: NDArray, sign: int) -> NDArray[np.float64]:
     """ZSSD cost (N, D) of matching ``src`` patterns at integer (u, v) against ``dst`` at
@@ -246,9 +275,8 @@ def _subpixel_stage(right_f: NDArray, u: NDArray, v: NDArray, pat: NDArray, left
     left_c = left_vals - left_vals.mean(axis=1, keepdims=True)
     fu, fv = u[:, None] + pu, v[:, None] + pv
     for _ in range(int(config.gauss_newton_iterations)):
-        vals, ok = _sample_with_gradient_x(right_f, fu - disp[:, None], fv)
+        r_img, r_gx, ok = _sample_row_cubic(right_f, fu - disp[:, None], fv)
         ok_all = ok.all(axis=1)
-        r_img, r_gx = vals[..., 0], vals[..., 1]
         res = left_c - (r_img - r_img.mean(axis=1, keepdims=True))
         jac = r_gx - r_gx.mean(axis=1, keepdims=True)
         jtj = np.sum(jac * jac, axis=1)
@@ -256,8 +284,7 @@ def _subpixel_stage(right_f: NDArray, u: NDArray, v: NDArray, pat: NDArray, left
                         0.0)
         disp = disp + np.clip(step, -0.5, 0.5)
         work &= ok_all
-    vals, ok = _sample_with_gradient_x(right_f, fu - disp[:, None], fv)
-    r_img = vals[..., 0]
+    r_img, _, ok = _sample_row_cubic(right_f, fu - disp[:, None], fv)
     res = left_c - (r_img - r_img.mean(axis=1, keepdims=True))
     mse = np.where(ok.all(axis=1), np.mean(res * res, axis=1), np.inf)
     wandered = (np.abs(disp - d_int) > 1.0) | ~ok.all(axis=1)
@@ -270,14 +297,21 @@ def _subpixel_stage(right_f: NDArray, u: NDArray, v: NDArray, pat: NDArray, left
 def _left_right_stage(left_f: NDArray, right_f: NDArray, u: NDArray, v: NDArray, pat: NDArray, disps: NDArray,
                       disp: NDArray, rej: NDArray, config: StereoSearchConfig) -> None:
     """Stage 3, the left-right check: ``rej`` marks the points whose search back from the right
-    match into the left image does not return within ``lr_tolerance``."""
+    match into the left image does not return within ``lr_tolerance``, or returns with a second
+    minimum (more than 1 px away) within ``uniqueness_ratio`` of its best: the uniqueness of
+    stage 1 asked from the right image too."""
     cand = np.nonzero(rej == 0)[0]
     if cand.size:
         ur = np.rint(u[cand] - disp[cand]).astype(np.int64)
         back = _integer_search(right_f, left_f, ur, v[cand], pat, disps, sign=+1)
         kb = np.argmin(back, axis=1)
         u_back = ur + disps[kb]
-        bad = (np.abs(u_back - u[cand]) > config.lr_tolerance) | ~np.isfinite(back[np.arange(cand.size), kb])
+        best = back[np.arange(cand.size), kb]
+        bad = (np.abs(u_back - u[cand]) > config.lr_tolerance) | ~np.isfinite(best)
+        # the match must be as unambiguous seen from the right image as from the left one
+        far = np.abs(np.arange(disps.size)[None, :] - kb[:, None]) > 1
+        second = np.min(np.where(far, back, np.inf), axis=1)
+        bad |= ~(best < config.uniqueness_ratio * second)
         rej[cand[bad]] = Rejection.LEFT_RIGHT
 
 
