@@ -5,8 +5,6 @@
   pixel of largest gradient above the threshold. The numpy form padded and reshaped two full-size
   arrays per level (about half of ``select_points``' time on KITTI);
 * :func:`gradient_norm`: the point selection's gradient magnitude in one pass;
-* :func:`bilinear_with_gradient_x`: the stereo refinement's samples of the right image and its x
-  gradient, the gradient computed at the sampled corners only;
 * :func:`best_and_second`: the search's best candidate and its uniqueness competitor per point;
 * :func:`cubic_row_with_slope`: the stereo refinement's cubic samples of the right image along
   its rows and their exact x derivatives;
@@ -25,7 +23,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from gtvo.core.image import bilinear_cell
 from gtvo.core.jit import jit
 
 
@@ -338,30 +335,6 @@ def gradients_at(img, u, v):
             if h >= 2:
                 gy[k] = _gy(img, y, x)
     return gx, gy
-
-
-@jit
-def bilinear_with_gradient_x(img, u, v):
-    """``gtvo.core.image.bilinear_sample(np.dstack([img, gx]), u, v)`` (``gx`` the x gradient of
-    ``image_gradients``) of a (H >= 2, W >= 2) float32 image at M positions without making ``gx``
-    or the stack: the corners' gradients are computed where sampled, the same float32 values, and
-    interpolated with the same float64 arithmetic and validity rule as
-    ``gtvo.core.image._bilinear_loop``. Returns ``(values (M, 2), valid (M,))``."""
-    h, w = img.shape
-    m = u.shape[0]
-    out = np.zeros((m, 2))
-    valid = np.zeros(m, dtype=np.bool_)
-    for k in range(m):
-        ok, x0, y0, ax, ay = bilinear_cell(u[k], v[k], w, h, 0.0)
-        if not ok:
-            continue
-        valid[k] = True
-        v00, v01, v10, v11 = img[y0, x0], img[y0, x0 + 1], img[y0 + 1, x0], img[y0 + 1, x0 + 1]
-        out[k, 0] = (1 - ay) * ((1 - ax) * v00 + ax * v01) + ay * ((1 - ax) * v10 + ax * v11)
-        v00, v01 = _gx(img, y0, x0), _gx(img, y0, x0 + 1)
-        v10, v11 = _gx(img, y0 + 1, x0), _gx(img, y0 + 1, x0 + 1)
-        out[k, 1] = (1 - ay) * ((1 - ax) * v00 + ax * v01) + ay * ((1 - ax) * v10 + ax * v11)
-    return out, valid
 
 
 @jit

@@ -37,11 +37,10 @@ from factors.photometric import DEFAULT_CLIP_RANGE, PATTERN_DSO8
 from gtvo.core.camera import StereoCamera
 from gtvo.core.timing import timed
 from gtvo.errors import InputError
-from gtvo.frontend._compiled import (best_and_second, bilinear_with_gradient_x, cubic_row_with_slope,
-                                     gradients_at, zssd_costs)
+from gtvo.frontend._compiled import best_and_second, cubic_row_with_slope, gradients_at, zssd_costs
 from gtvo.frontend.point_selection import DEFAULT_POINT_SELECTION, PointSelectionConfig, select_points
 from gtvo.frontend.stereo_geometry import disparity_variance, epipolar_direction
-from gtvo.core.image import bilinear_sample, check_same_size, image_gradients, to_float_gray
+from gtvo.core.image import check_same_size, to_float_gray
 from gtvo.frontend.stereo_types import (DEFAULT_STEREO_SEARCH, KeyframePoints, Rejection, StereoDepthResult,
                                        StereoSearchConfig)
 
@@ -85,18 +84,6 @@ def _gather_integer(image: NDArray, u: NDArray, v: NDArray) -> tuple[NDArray, ND
     ok = (u >= 0) & (u <= w - 1) & (v >= 0) & (v <= h - 1)
     idx = np.where(ok, v * w + u, 0)
     return np.where(ok, image.reshape(-1)[idx], 0.0), ok
-
-
-def _sample_with_gradient_x(image: NDArray[np.float32], u: NDArray, v: NDArray) -> tuple[NDArray, NDArray]:
-    """``bilinear_sample(np.dstack([image, image_gradients(image)[0]]), u, v)`` without making the
-    gradient or the stack (:func:`gtvo.frontend._compiled.bilinear_with_gradient_x`)."""
-    u = np.asarray(u, dtype=np.float64)
-    v = np.asarray(v, dtype=np.float64)
-    if min(image.shape) < 2 or u.shape != v.shape:  # the numpy form (it raises as it did)
-        return bilinear_sample(np.dstack([image, image_gradients(image)[0]]), u, v)
-    vals, ok = bilinear_with_gradient_x(np.ascontiguousarray(image, dtype=np.float32),
-                                        np.ascontiguousarray(u).reshape(-1), np.ascontiguousarray(v).reshape(-1))
-    return vals.reshape(u.shape + (2,)), ok.reshape(u.shape)
 
 
 def _sample_row_cubic(image: NDArray[np.float32], x: NDArray, v: NDArray) -> tuple[NDArray, NDArray, NDArray]:
