@@ -534,22 +534,3 @@ def test_best_and_second_equals_numpy():
     np.testing.assert_array_equal(k, ref_k)
     np.testing.assert_array_equal(best, cost[np.arange(300), ref_k])
     np.testing.assert_array_equal(second, np.min(np.where(far, cost, np.inf), axis=1))
-
-
-def test_left_right_check_asks_the_back_search_to_be_unique():
-    """A right match that is as good a match for another left pixel of the row is rejected, even
-    when the search from the left is unique and comes back: the left image repeats the band at
-    u in [70, 110) 30 px to the right; from u = 85 the repeat would be at disparity -20, outside
-    the search, but from its match (u - 10) the back search finds both copies."""
-    h, w = 60, 220
-    v, u = np.mgrid[0:h, 0:w].astype(float)
-    left = texture(u, v, seed=3)
-    left[:, 100:140] = left[:, 70:110]
-    right = np.zeros_like(left)
-    right[:, :w - 10] = left[:, 10:]  # disparity 10 everywhere
-    cam = camera(w, h)
-    px = np.array([[85.0, 30.0], [60.0, 30.0]])
-    res = stereo_inverse_depth(left.astype(np.float32), right.astype(np.float32), cam, px,
-                               StereoSearchConfig(max_disparity=48, equalize_gain=False))
-    assert res.rejection[0] == Rejection.LEFT_RIGHT
-    assert res.valid[1] and abs(res.disparity[1] - 10.0) < 0.05

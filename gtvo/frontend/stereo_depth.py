@@ -267,18 +267,14 @@ def _subpixel_stage(right_f: NDArray, u: NDArray, v: NDArray, pat: NDArray, left
 def _left_right_stage(left_f: NDArray, right_f: NDArray, u: NDArray, v: NDArray, pat: NDArray, disps: NDArray,
                       disp: NDArray, rej: NDArray, config: StereoSearchConfig) -> None:
     """Stage 3, the left-right check: ``rej`` marks the points whose search back from the right
-    match into the left image does not return within ``lr_tolerance``, or returns with a second
-    minimum (more than 1 px away) within ``uniqueness_ratio`` of its best: the uniqueness of
-    stage 1 asked from the right image too."""
+    match into the left image does not return within ``lr_tolerance``."""
     cand = np.nonzero(rej == 0)[0]
     if cand.size:
         ur = np.rint(u[cand] - disp[cand]).astype(np.int64)
         back = _integer_search(right_f, left_f, ur, v[cand], pat, disps, sign=+1)
-        kb, best, second = best_and_second(back)
+        kb = np.argmin(back, axis=1)
         u_back = ur + disps[kb]
-        bad = (np.abs(u_back - u[cand]) > config.lr_tolerance) | ~np.isfinite(best)
-        # the match must be as unambiguous seen from the right image as from the left one
-        bad |= ~(best < config.uniqueness_ratio * second)
+        bad = (np.abs(u_back - u[cand]) > config.lr_tolerance) | ~np.isfinite(back[np.arange(cand.size), kb])
         rej[cand[bad]] = Rejection.LEFT_RIGHT
 
 
