@@ -11,7 +11,8 @@ For each selected left pixel ``p = (u, v)`` of a rectified pair (docs/frontend.m
 2. **Sub-pixel refinement**: a parabola through the costs at the best integer disparity and
    its two neighbours, then ``gauss_newton_iterations`` 1-D Gauss-Newton steps on the
    zero-mean photometric residual ``r_k(disp) = (L_k - mean L) - (R(p + o_k - disp e_x) - mean R)``
-   with ``dr_k/d disp = gR_k - mean gR`` (``gR`` the right image's x gradient).
+   with ``dr_k/d disp = R'_k - mean R'``, ``R`` the right row's cubic interpolant and ``R'`` its
+   exact derivative (:func:`_sample_row_cubic`).
 3. **Rejection** (:class:`Rejection`): pattern outside an image, the best cost at the end of the
    search range, not unique (``best >= uniqueness_ratio * second best`` away from +-1 px),
    too high a residual for the patch's contrast, refinement wandering more than 1 px, a left-right check failing,
