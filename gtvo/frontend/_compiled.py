@@ -5,8 +5,9 @@
   pixel of largest gradient above the threshold. The numpy form padded and reshaped two full-size
   arrays per level (about half of ``select_points``' time on KITTI);
 * :func:`gradient_norm`: the point selection's gradient magnitude in one pass;
-* :func:`bilinear_with_gradient_x`: the stereo refinement's samples of the right image and its x
-  gradient, the gradient computed at the sampled corners only;
+* :func:`best_and_second`: the search's best candidate and its uniqueness competitor per point;
+* :func:`cubic_row_with_slope`: the stereo refinement's cubic samples of the right image along
+  its rows and their exact x derivatives;
 * :func:`gradients_at`: the left image's gradients at the stereo patterns' pixels only;
 * :func:`zssd_costs`: the integer epipolar search of :mod:`gtvo.frontend.stereo_depth` (every
   candidate disparity's zero-mean SSD); the numpy form gathered a strip per point and made a
@@ -22,7 +23,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from gtvo.core.image import bilinear_cell
 from gtvo.core.jit import jit
 
 
@@ -338,27 +338,63 @@ def gradients_at(img, u, v):
 
 
 @jit
-def bilinear_with_gradient_x(img, u, v):
-    """``gtvo.core.image.bilinear_sample(np.dstack([img, gx]), u, v)`` (``gx`` the x gradient of
-    ``image_gradients``) of a (H >= 2, W >= 2) float32 image at M positions without making ``gx``
-    or the stack: the corners' gradients are computed where sampled, the same float32 values, and
-    interpolated with the same float64 arithmetic and validity rule as
-    ``gtvo.core.image._bilinear_loop``. Returns ``(values (M, 2), valid (M,))``."""
+def best_and_second(cost):
+    """Per row of an (N, D) cost array: the first position ``k`` of its minimum (``np.argmin``),
+    that minimum, and the smallest cost more than one position from ``k`` (``inf`` when none): the
+    stereo search's uniqueness test in one pass per row instead of three (N, D) numpy passes."""
+    n, d_count = cost.shape
+    k_best = np.zeros(n, dtype=np.int64)
+    best = np.full(n, np.inf)
+    second = np.full(n, np.inf)
+    for i in range(n):
+        k = 0
+        b = cost[i, 0]
+        for j in range(1, d_count):
+            if cost[i, j] < b:
+                b = cost[i, j]
+                k = j
+        s = np.inf
+        for j in range(d_count):
+            if (j < k - 1 or j > k + 1) and cost[i, j] < s:
+                s = cost[i, j]
+        k_best[i] = k
+        best[i] = b
+        second[i] = s
+    return k_best, best, second
+
+
+@jit
+def cubic_row_with_slope(img, x, v):
+    """Keys' cubic convolution (``a = -1/2``) of a float32 (H, W) image along its rows at M real
+    columns ``x`` (float64) of integer rows ``v`` (int64), and its exact x derivative: the
+    sub-pixel refinement's samples of :mod:`gtvo.frontend.stereo_depth`. A sample is valid when
+    its four taps ``floor(x) - 1 .. floor(x) + 2`` and its row are in the image; 0 elsewhere.
+    Returns ``(values (M,), slopes (M,), valid (M,))``; the numpy form in
+    ``tests/test_stereo_depth.py`` is its reference."""
     h, w = img.shape
-    m = u.shape[0]
-    out = np.zeros((m, 2))
+    m = x.shape[0]
+    val = np.zeros(m)
+    slope = np.zeros(m)
     valid = np.zeros(m, dtype=np.bool_)
     for k in range(m):
-        ok, x0, y0, ax, ay = bilinear_cell(u[k], v[k], w, h, 0.0)
-        if not ok:
+        fx = np.floor(x[k])
+        x0 = int(fx)
+        y = v[k]
+        if x0 < 1 or x0 > w - 3 or y < 0 or y > h - 1:
             continue
+        t = x[k] - fx
+        t2 = t * t
+        t3 = t2 * t
+        a = np.float64(img[y, x0 - 1])
+        b = np.float64(img[y, x0])
+        c = np.float64(img[y, x0 + 1])
+        d = np.float64(img[y, x0 + 2])
+        val[k] = 0.5 * ((-t3 + 2 * t2 - t) * a + (3 * t3 - 5 * t2 + 2) * b + (-3 * t3 + 4 * t2 + t) * c
+                        + (t3 - t2) * d)
+        slope[k] = 0.5 * ((-3 * t2 + 4 * t - 1) * a + (9 * t2 - 10 * t) * b + (-9 * t2 + 8 * t + 1) * c
+                          + (3 * t2 - 2 * t) * d)
         valid[k] = True
-        v00, v01, v10, v11 = img[y0, x0], img[y0, x0 + 1], img[y0 + 1, x0], img[y0 + 1, x0 + 1]
-        out[k, 0] = (1 - ay) * ((1 - ax) * v00 + ax * v01) + ay * ((1 - ax) * v10 + ax * v11)
-        v00, v01 = _gx(img, y0, x0), _gx(img, y0, x0 + 1)
-        v10, v11 = _gx(img, y0 + 1, x0), _gx(img, y0 + 1, x0 + 1)
-        out[k, 1] = (1 - ay) * ((1 - ax) * v00 + ax * v01) + ay * ((1 - ax) * v10 + ax * v11)
-    return out, valid
+    return val, slope, valid
 
 
 @jit

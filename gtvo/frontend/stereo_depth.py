@@ -11,7 +11,8 @@ For each selected left pixel ``p = (u, v)`` of a rectified pair (docs/frontend.m
 2. **Sub-pixel refinement**: a parabola through the costs at the best integer disparity and
    its two neighbours, then ``gauss_newton_iterations`` 1-D Gauss-Newton steps on the
    zero-mean photometric residual ``r_k(disp) = (L_k - mean L) - (R(p + o_k - disp e_x) - mean R)``
-   with ``dr_k/d disp = gR_k - mean gR`` (``gR`` the right image's x gradient).
+   with ``dr_k/d disp = R'_k - mean R'``, ``R`` the right row's cubic interpolant and ``R'`` its
+   exact derivative (:func:`_sample_row_cubic`).
 3. **Rejection** (:class:`Rejection`): pattern outside an image, the best cost at the end of the
    search range, not unique (``best >= uniqueness_ratio * second best`` away from +-1 px),
    too high a residual for the patch's contrast, refinement wandering more than 1 px, a left-right check failing,
@@ -37,10 +38,10 @@ from factors.photometric import DEFAULT_CLIP_RANGE, PATTERN_DSO8
 from gtvo.core.camera import StereoCamera
 from gtvo.core.timing import timed
 from gtvo.errors import InputError
-from gtvo.frontend._compiled import bilinear_with_gradient_x, gradients_at, zssd_costs
+from gtvo.frontend._compiled import best_and_second, cubic_row_with_slope, gradients_at, zssd_costs
 from gtvo.frontend.point_selection import DEFAULT_POINT_SELECTION, PointSelectionConfig, select_points_float
 from gtvo.frontend.stereo_geometry import disparity_variance, epipolar_direction
-from gtvo.core.image import FloatImage, bilinear_sample, check_same_size, image_gradients, to_float_gray
+from gtvo.core.image import FloatImage, check_same_size, to_float_gray
 from gtvo.frontend.stereo_types import (DEFAULT_STEREO_SEARCH, KeyframePoints, Rejection, StereoDepthResult,
                                        StereoSearchConfig)
 
@@ -86,45 +87,24 @@ def _gather_integer(image: NDArray, u: NDArray, v: NDArray) -> tuple[NDArray, ND
     return np.where(ok, image.reshape(-1)[idx], 0.0), ok
 
 
-def _sample_with_gradient_x(image: NDArray[np.float32], u: NDArray, v: NDArray) -> tuple[NDArray, NDArray]:
-    """``bilinear_sample(np.dstack([image, image_gradients(image)[0]]), u, v)`` without making the
-    gradient or the stack (:func:`gtvo.frontend._compiled.bilinear_with_gradient_x`)."""
-    u = np.asarray(u, dtype=np.float64)
-    v = np.asarray(v, dtype=np.float64)
-    if min(image.shape) < 2 or u.shape != v.shape:  # the numpy form (it raises as it did)
-        return bilinear_sample(np.dstack([image, image_gradients(image)[0]]), u, v)
-    vals, ok = bilinear_with_gradient_x(np.ascontiguousarray(image, dtype=np.float32),
-                                        np.ascontiguousarray(u).reshape(-1), np.ascontiguousarray(v).reshape(-1))
-    return vals.reshape(u.shape + (2,)), ok.reshape(u.shape)
-
-
 def _sample_row_cubic(image: NDArray[np.float32], x: NDArray, v: NDArray) -> tuple[NDArray, NDArray, NDArray]:
     """Keys' cubic convolution (``a = -1/2``) of ``image`` along its rows at real columns ``x`` of
     integer rows ``v`` (equal shapes): the values, their exact x derivatives and an inside mask
-    (all four taps ``floor(x) - 1 .. floor(x) + 2`` in the image; 0 elsewhere).
+    (all four taps ``floor(x) - 1 .. floor(x) + 2`` in the image; 0 elsewhere). One compiled loop,
+    :func:`gtvo.frontend._compiled.cubic_row_with_slope`.
 
-    The sub-pixel refinement's interpolant: it reproduces quadratics, so it neither smooths a
-    sample between pixels much nor pulls the minimum towards pixel positions as the bilinear one
-    does, and its derivative is the derivative of what is sampled (a central difference beside a
-    bilinear value is not: Gauss-Newton then stops where the two disagree, not at the minimum).
+    The sub-pixel refinement's interpolant: it reproduces quadratics, so it smooths a sample between
+    pixels little and does not pull the minimum towards or away from whole pixels as bilinear
+    sampling does; and its derivative is the derivative of what is sampled (a central-difference
+    gradient beside a bilinear value is not, and Gauss-Newton then stops where the two agree, not
+    at the cost's minimum: docs/frontend.md, "Sub-pixel refinement").
     """
-    h, w = image.shape
     x = np.asarray(x, dtype=np.float64)
-    v = np.asarray(v, dtype=np.int64)
-    x0 = np.floor(x)
-    t = x - x0
-    x0 = x0.astype(np.int64)
-    ok = (x0 >= 1) & (x0 <= w - 3) & (v >= 0) & (v <= h - 1)
-    base = np.where(ok, v * w + x0, w + 1)
-    flat = image.reshape(-1)
-    taps = [flat[base + i].astype(np.float64) for i in (-1, 0, 1, 2)]
-    t2 = t * t
-    t3 = t2 * t
-    weights = (-t3 + 2 * t2 - t, 3 * t3 - 5 * t2 + 2, -3 * t3 + 4 * t2 + t, t3 - t2)
-    slopes = (-3 * t2 + 4 * t - 1, 9 * t2 - 10 * t, -9 * t2 + 8 * t + 1, 3 * t2 - 2 * t)
-    value = 0.5 * sum(wt * tap for wt, tap in zip(weights, taps))
-    slope = 0.5 * sum(sl * tap for sl, tap in zip(slopes, taps))
-    return np.where(ok, value, 0.0), np.where(ok, slope, 0.0), ok
+    shape = x.shape
+    vals, slopes, ok = cubic_row_with_slope(np.ascontiguousarray(image, dtype=np.float32),
+                                            np.ascontiguousarray(x).reshape(-1),
+                                            np.ascontiguousarray(np.broadcast_to(v, shape), dtype=np.int64).reshape(-1))
+    return vals.reshape(shape), slopes.reshape(shape), ok.reshape(shape)
 
 
 def _integer_search(src: NDArray, dst: NDArray, u: NDArray, v: NDArray, pattern: NDArray,
@@ -237,8 +217,7 @@ def _integer_search_stage(left_f: NDArray, right_f: NDArray, u: NDArray, v: NDAr
     n = u.shape[0]
     cost = _integer_search(left_f, right_f, u, v, pat, disps, sign=-1)
     cost[~inside] = np.inf
-    k = np.argmin(cost, axis=1)
-    best = cost[np.arange(n), k]
+    k, best, second = best_and_second(cost)
     some = np.isfinite(best)
     rej[(rej == 0) & ~some] = Rejection.OUTSIDE
     d_count = disps.size
@@ -248,8 +227,6 @@ def _integer_search_stage(left_f: NDArray, right_f: NDArray, u: NDArray, v: NDAr
     c_m, c_p = cost[np.arange(n), km], cost[np.arange(n), kp]
     boundary |= ~np.isfinite(c_m) | ~np.isfinite(c_p)
     rej[(rej == 0) & boundary] = Rejection.RANGE_BOUNDARY
-    far = np.abs(np.arange(d_count)[None, :] - k[:, None]) > 1
-    second = np.min(np.where(far, cost, np.inf), axis=1)
     unique = best < config.uniqueness_ratio * second
     rej[(rej == 0) & ~unique] = Rejection.NOT_UNIQUE
     return k, best, c_m, c_p
@@ -297,21 +274,14 @@ def _subpixel_stage(right_f: NDArray, u: NDArray, v: NDArray, pat: NDArray, left
 def _left_right_stage(left_f: NDArray, right_f: NDArray, u: NDArray, v: NDArray, pat: NDArray, disps: NDArray,
                       disp: NDArray, rej: NDArray, config: StereoSearchConfig) -> None:
     """Stage 3, the left-right check: ``rej`` marks the points whose search back from the right
-    match into the left image does not return within ``lr_tolerance``, or returns with a second
-    minimum (more than 1 px away) within ``uniqueness_ratio`` of its best: the uniqueness of
-    stage 1 asked from the right image too."""
+    match into the left image does not return within ``lr_tolerance``."""
     cand = np.nonzero(rej == 0)[0]
     if cand.size:
         ur = np.rint(u[cand] - disp[cand]).astype(np.int64)
         back = _integer_search(right_f, left_f, ur, v[cand], pat, disps, sign=+1)
         kb = np.argmin(back, axis=1)
         u_back = ur + disps[kb]
-        best = back[np.arange(cand.size), kb]
-        bad = (np.abs(u_back - u[cand]) > config.lr_tolerance) | ~np.isfinite(best)
-        # the match must be as unambiguous seen from the right image as from the left one
-        far = np.abs(np.arange(disps.size)[None, :] - kb[:, None]) > 1
-        second = np.min(np.where(far, back, np.inf), axis=1)
-        bad |= ~(best < config.uniqueness_ratio * second)
+        bad = (np.abs(u_back - u[cand]) > config.lr_tolerance) | ~np.isfinite(back[np.arange(cand.size), kb])
         rej[cand[bad]] = Rejection.LEFT_RIGHT
 
 

@@ -1,0 +1,177 @@
+"""The stereo front end against OpenCV StereoSGBM at the front end's own points, on every shared
+Middlebury 2014 (quarter) pair, and the front end's CPU cost.
+
+For each pair (``<data>/stereo_disparity_gt/middlebury2014_quarter``, its README):
+
+1. ``init_keyframe_points(left, right, camera, target=2000)`` on the raw colour pair with the
+   default settings (the camera from ``cam0``'s f, cx, cy and the baseline; Middlebury's ``doffs``
+   stays in the pixel disparity, ``disparity_offset = 0``);
+2. its disparity ``inverse_depth * fx * baseline`` against ``disp0GT.pfm`` at the kept integer
+   pixels where the ground truth is finite: mean absolute error, bad-1.0 (share more than 1 px
+   off), median signed error, and the share of points whose error is beyond 3 sigma
+   (``sigma = sqrt(variance) * fx * baseline``, the disparity standard deviation the front end
+   gives the point);
+3. ``cv2.StereoSGBM_create(0, numDisparities = max GT rounded up to 16, 5, 8*25, 32*25, 1, 63,
+   10, 100, 1, STEREO_SGBM_MODE_HH)`` on the same colour pair, its disparity / 16 at the same
+   pixels where SGBM gives one (> 0): the same errors.
+
+``--cpu N``: process CPU time (``time.process_time``) of ``init_keyframe_points`` over the
+Middlebury pairs and the first KITTI_sequence_1 pair, N rounds. To compare two checkouts, run the
+script with ``--gtvo CHECKOUT`` for each, alternately, in the same session.
+
+Usage: ``python benchmarks/frontend_middlebury.py [--data DIR] [--cpu N] [--gtvo CHECKOUT]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+TARGET = 2000
+
+
+@dataclass(frozen=True)
+class PairErrors:
+    """Disparity errors of one matcher at one pair's points (px)."""
+
+    points: int
+    mean_abs: float
+    bad1: float
+    median_signed: float
+
+    @staticmethod
+    def of(err: np.ndarray) -> "PairErrors":
+        if err.size == 0:
+            return PairErrors(0, float("nan"), float("nan"), float("nan"))
+        return PairErrors(int(err.size), float(np.mean(np.abs(err))), float(np.mean(np.abs(err) > 1.0)),
+                          float(np.median(err)))
+
+
+def read_pfm(path: Path) -> np.ndarray:
+    """A one-channel PFM image as float64, rows top to bottom."""
+    with open(path, "rb") as f:
+        if f.readline().strip() != b"Pf":
+            raise SystemExit(f"{path}: not a one-channel PFM file")
+        w, h = (int(x) for x in f.readline().split())
+        scale = float(f.readline())
+        data = np.frombuffer(f.read(), dtype="<f4" if scale < 0 else ">f4")
+    if data.size != w * h:
+        raise SystemExit(f"{path}: PFM has {data.size} values, expected {w * h}")
+    return np.flipud(data.reshape(h, w)).astype(np.float64)
+
+
+def read_calib(path: Path) -> dict[str, float]:
+    """``f``, ``cx``, ``cy`` of cam0 and the baseline (mm) of a Middlebury calib.txt."""
+    text = path.read_text()
+    m = re.search(r"cam0\s*=\s*\[\s*([-\d.eE+]+)\s+\S+\s+([-\d.eE+]+)\s*;\s*\S+\s+\S+\s+([-\d.eE+]+)", text)
+    b = re.search(r"baseline\s*=\s*([-\d.eE+]+)", text)
+    if m is None or b is None:
+        raise SystemExit(f"{path}: no cam0 matrix or baseline")
+    f, cx, cy = (float(g) for g in m.groups())
+    return {"f": f, "cx": cx, "cy": cy, "baseline": float(b.group(1))}
+
+
+def pairs(data: Path):
+    """(name, left BGR, right BGR, ground truth, StereoCamera) of every shared Middlebury pair."""
+    from gtvo.core.camera import PinholeCamera, StereoCamera
+
+    root = data / "stereo_disparity_gt" / "middlebury2014_quarter"
+    scenes = sorted(p for p in root.iterdir() if (p / "calib.txt").is_file()) if root.is_dir() else []
+    if not scenes:
+        raise SystemExit(f"{root}: no Middlebury pairs")
+    for sc in scenes:
+        cal = read_calib(sc / "calib.txt")
+        left = cv2.imread(str(sc / "im0.png"), cv2.IMREAD_COLOR)
+        right = cv2.imread(str(sc / "im1.png"), cv2.IMREAD_COLOR)
+        gt = read_pfm(sc / "disp0GT.pfm")
+        h, w = gt.shape
+        cam = StereoCamera(PinholeCamera(cal["f"], cal["f"], cal["cx"], cal["cy"], w, h), cal["baseline"] / 1000.0)
+        yield sc.name, left, right, gt, cam
+
+
+def sgbm_disparity(left: np.ndarray, right: np.ndarray, gt: np.ndarray) -> np.ndarray:
+    """OpenCV SGBM (5x5 blocks, HH mode) over the ground truth's range; <= 0 where it gives none."""
+    nd = int(np.ceil(np.max(gt[np.isfinite(gt)]) / 16.0)) * 16
+    sg = cv2.StereoSGBM_create(0, nd, 5, 8 * 25, 32 * 25, 1, 63, 10, 100, 1, cv2.STEREO_SGBM_MODE_HH)
+    return sg.compute(left, right).astype(np.float32) / 16.0
+
+
+def table(data: Path) -> None:
+    from gtvo.frontend import init_keyframe_points
+
+    print(f"\n### Middlebury 2014 quarter: init_keyframe_points(target={TARGET}) against SGBM at the same "
+          "points\n")
+    print("| pair | points | gtvo: mean abs (px) | gtvo: bad-1.0 | gtvo: median signed (px) | gtvo: beyond 3 sigma | "
+          "SGBM: points | SGBM: mean abs | SGBM: bad-1.0 | SGBM: median signed | gtvo at or below SGBM |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    wins = 0
+    names = []
+    for name, left, right, gt, cam in pairs(data):
+        kp = init_keyframe_points(left, right, cam, target=TARGET)
+        fxb = cam.left.fx * cam.baseline
+        px = kp.pixels.astype(np.intp)
+        g = gt[px[:, 1], px[:, 0]]
+        fin = np.isfinite(g)
+        disp = kp.inverse_depth * fxb
+        err = (disp - g)[fin]
+        sigma = np.sqrt(kp.variance[fin]) * fxb
+        beyond = float(np.mean(np.abs(err) > 3.0 * sigma)) if err.size else float("nan")
+        s = sgbm_disparity(left, right, gt)[px[:, 1], px[:, 0]]
+        sv = fin & (s > 0)
+        ours, theirs = PairErrors.of(err), PairErrors.of((s - g)[sv])
+        win = ours.mean_abs <= theirs.mean_abs and ours.bad1 <= theirs.bad1
+        wins += win
+        names.append(name)
+        print(f"| {name} | {ours.points} | {ours.mean_abs:.2f} | {100 * ours.bad1:.1f} % | {ours.median_signed:+.3f} | "
+              f"{100 * beyond:.1f} % | {theirs.points} | {theirs.mean_abs:.2f} | {100 * theirs.bad1:.1f} % | "
+              f"{theirs.median_signed:+.3f} | {'yes' if win else 'no'} |")
+    print(f"\ngtvo at or below SGBM in both mean abs and bad-1.0 on {wins} of {len(names)} pairs")
+
+
+def cpu(data: Path, rounds: int) -> None:
+    from gtvo.frontend import init_keyframe_points
+    from gtvo.core.camera import PinholeCamera, StereoCamera
+
+    work = [(left, right, cam) for _, left, right, _, cam in pairs(data)]
+    kitti = data / "kitti_stereo_sample" / "KITTI_sequence_1"
+    P = np.loadtxt(kitti / "calib.txt").reshape(2, 3, 4)
+    kl = cv2.imread(str(sorted((kitti / "image_l").glob("*.png"))[0]), cv2.IMREAD_GRAYSCALE)
+    kr = cv2.imread(str(sorted((kitti / "image_r").glob("*.png"))[0]), cv2.IMREAD_GRAYSCALE)
+    kcam = StereoCamera(PinholeCamera.from_matrix(P[0][:, :3], kl.shape[1], kl.shape[0]),
+                        float(-P[1][0, 3] / P[1][0, 0]))
+    work.append((kl, kr, kcam))
+    for left, right, cam in work:  # compile and warm up
+        init_keyframe_points(left, right, cam, target=TARGET)
+    t0 = time.process_time()
+    for _ in range(rounds):
+        for left, right, cam in work:
+            init_keyframe_points(left, right, cam, target=TARGET)
+    t = time.process_time() - t0
+    print(f"init_keyframe_points CPU: {t:.3f} s for {rounds} rounds of {len(work)} pairs "
+          f"({len(work) - 1} Middlebury + 1 KITTI), gtvo from {sys.path[0]}")
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "data")
+    ap.add_argument("--cpu", type=int, default=0, help="rounds of the CPU measurement (0: the table)")
+    ap.add_argument("--gtvo", type=Path, default=ROOT, help="checkout whose gtvo is measured")
+    args = ap.parse_args()
+    sys.path.insert(0, str(args.gtvo.resolve()))
+    if args.cpu > 0:
+        cpu(args.data, args.cpu)
+    else:
+        table(args.data)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
