@@ -130,7 +130,8 @@ def run(path: str | Path | Sequence, out: str | Path | None = None,
             in full in the report (``"config"``) and in ``out/config.yaml``.
         format, max_frames, open_options: passed to :func:`gtvo.datasets.open_sequence` (for bags
             also ``calib``, ``left_topic``, ``right_topic``, ``depth_topic``, ``ground_truth_topic``;
-            ``wheel_odometry``, ``wheel_topic``), with the config's ``wheel:`` section as ``wheel_options``.
+            ``wheel_odometry``, ``wheel_topic``; ``imu``, ``imu_topic``), with the config's ``wheel:``
+            and ``imu:`` sections as ``wheel_options`` and ``imu_options``.
         progress: show a progress bar.
         strict: stop at the first unreadable frame instead of skipping it.
         loop_closure: True sets ``loops.enabled`` of the config (as ``--loop-closure``; False leaves
@@ -154,7 +155,8 @@ def run(path: str | Path | Sequence, out: str | Path | None = None,
     """
     config = as_config(config)
     seq = path if isinstance(path, Sequence) else open_sequence(  # type: ignore[arg-type]
-        path, format=format, max_frames=max_frames, **{"wheel_options": config.wheel.read_options(), **open_options})
+        path, format=format, max_frames=max_frames,
+        **{"wheel_options": config.wheel.read_options(), "imu_options": config.imu.read_options(), **open_options})
     out_dir = Path(out) if out is not None else Path("gtvo_out") / seq.name
     check_run_output_dir(out_dir, seq)  # before the long work
     unpaired = seq.unpaired_warning() if hasattr(seq, "unpaired_warning") else None  # a bag's dropped images

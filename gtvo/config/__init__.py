@@ -19,6 +19,7 @@ component, each field's default and allowed range declared once beside it
       loops                gtvo.loops.config.LoopClosureConfig (enabled, detector: LoopDetectorConfig
                                            (orb: OrbConfig, verification: VerificationConfig, ...))
       wheel                gtvo.config.wheel.WheelConfig (model, base_to_camera, nominal_baseline, ...)
+      imu                  gtvo.config.imu.ImuConfig (enabled, topic, imu_in_camera, noise model, ...)
       refine               gtvo.refinement.config.RefineConfig (the whole-log refinement)
 
 The photometric model (noise, Huber threshold, pattern, clipped range) is set once, in
@@ -40,6 +41,7 @@ from gtvo.config.tree import (MIN_POINTS_PER_KEYFRAME, FlowPoseConfig,
                               FrontendConfig, KeyframeConfig, MotionModelConfig, MotionNoiseConfig, OdometryConfig,
                               PhotometricConfig, PointSelectionConfig, SolverConfig, StereoSearchConfig,
                               TrackingConfig, WindowConfig)
+from gtvo.config.imu import ImuConfig
 from gtvo.config.wheel import WheelConfig
 
 __all__ = [

@@ -12,6 +12,7 @@ from typing import Any, Literal
 
 
 from factors.params import PhotometricConfig
+from gtvo.config.imu import ImuConfig
 from gtvo.config.wheel import WheelConfig
 from gtvo.core.settings import SettingError, check_settings, setting, type_hints
 from gtvo.frontend.flow_pose import FlowPoseConfig
@@ -143,6 +144,9 @@ class OdometryConfig:
             recognition and the verification of a loop (gtvo.loops, docs/loop_closure.md).
         wheel: a ground robot's wheel odometry, when the sequence has it: the calibration model, the
             base-to-camera transform and how readings become metres (docs/wheel_odometry.md).
+        imu: an IMU beside the images, when the log has one: whether it is used, what its files do
+            not say (noise model, pose on the camera, clock offset) and how readings are checked
+            (docs/imu.md).
         refine: the whole-log refinement after the window pass (and loop closing): one graph over
             every keyframe, then the non-keyframes re-placed (gtvo.refinement, docs/refinement.md).
     """
@@ -159,6 +163,7 @@ class OdometryConfig:
     photometric: PhotometricConfig = field(default_factory=PhotometricConfig)
     loops: LoopClosureConfig = field(default_factory=LoopClosureConfig)
     wheel: WheelConfig = field(default_factory=WheelConfig)
+    imu: ImuConfig = field(default_factory=ImuConfig)
     refine: RefineConfig = field(default_factory=RefineConfig)
 
     def __post_init__(self) -> None:

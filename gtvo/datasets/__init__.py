@@ -8,6 +8,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, Literal
 
@@ -21,6 +22,8 @@ from gtvo.datasets.kitti_raw import looks_like_kitti_raw, read_kitti_raw
 from gtvo.datasets.tum import TUM_INTRINSICS, looks_like_tum, read_tum
 from gtvo.errors import InputError
 from gtvo.datasets.sequence import Sequence
+from gtvo.datasets.imu import check_imu_clock
+from gtvo.datasets.imu_files import ImuReadOptions, read_imu_folder
 from gtvo.datasets.wheel_files import WHEEL_CSV, WheelReadOptions, read_wheel_csv
 
 DatasetFormat = Literal["auto", "kitti", "kitti_raw", "euroc", "tum", "bag"]
@@ -61,7 +64,8 @@ def open_sequence(path: str | Path, format: DatasetFormat = "auto",
                   camera: tuple[float, float, float, float] | None = None, max_frames: int | None = None,
                   ground_truth: str | Path | None = None, wheel_odometry: str | Path | None = None,
                   wheel_topic: str | None = None, wheel_options: WheelReadOptions | None = None,
-                  **bag_options: Any) -> Sequence:
+                  imu: str | Path | None = None, imu_topic: str | None = None,
+                  imu_options: ImuReadOptions | None = None, **bag_options: Any) -> Sequence:
     """Open a dataset folder as a lazy :class:`Sequence` (images are read when asked for).
 
     Args:
@@ -77,6 +81,12 @@ def open_sequence(path: str | Path, format: DatasetFormat = "auto",
             ``wheel_options.topic``, else the one candidate.
         wheel_options: how wheel readings become metres (the config's ``wheel:`` section,
             :meth:`gtvo.config.wheel.WheelConfig.read_options`; default its defaults).
+        imu: an IMU CSV to use (``time,wx,wy,wz,ax,ay,az`` or EuRoC's); without it the folder's
+            ``imu0/data.csv`` (or ``mav0/imu0``), a bag's ``sensor_msgs/Imu`` topic (docs/imu.md).
+        imu_topic: ROS bags only: the IMU topic (``"none"``: none); default ``imu_options.topic``,
+            else the one candidate.
+        imu_options: the config's ``imu:`` section (:meth:`gtvo.config.imu.ImuConfig.read_options`;
+            ``enabled=False``: no IMU, ``--no-imu``); default its defaults.
         bag_options: ROS bags only: ``calib``, ``left_topic``, ``right_topic``, ``depth_topic``,
             ``ground_truth_topic``, ``stamp_tolerance`` (:func:`gtvo.datasets.bag.read_bag`).
     """
@@ -94,6 +104,15 @@ def open_sequence(path: str | Path, format: DatasetFormat = "auto",
     if wheel_topic is not None:
         bag_options["wheel_topic"] = wheel_topic
     wheel = wheel_options or WheelReadOptions()
+    imu_read = imu_options or ImuReadOptions()
+    if imu_topic is not None:
+        if kind != "bag":
+            raise InputError(f"--imu-topic applies to ROS bags only, this is {kind}", path=folder)
+        imu_read = replace(imu_read, topic=imu_topic)
+    if imu is not None and not imu_read.enabled:
+        raise InputError("--imu and --no-imu (imu.enabled: false) contradict each other", path=Path(imu))
+    if kind == "bag":
+        bag_options["imu_options"] = replace(imu_read, topic="none") if imu is not None else imu_read
     if kind == "bag" or bag_options:
         if wheel_odometry is not None:
             bag_options["wheel_topic"] = "none"  # the file replaces the bag's topics
@@ -103,20 +122,26 @@ def open_sequence(path: str | Path, format: DatasetFormat = "auto",
     elif kind == "kitti_raw":
         seq = read_kitti_raw(folder, max_frames=n, ground_truth=gt)
     elif kind == "euroc":
-        seq = read_euroc(folder, max_frames=n, ground_truth=gt)
+        seq = read_euroc(folder, max_frames=n, ground_truth=gt, imu_options=imu_read,
+                         imu=None if imu is None else Path(imu))
     else:
         seq = read_tum(folder, max_frames=n, camera=camera, ground_truth=gt)
     if wheel_odometry is None and kind != "bag" and (folder / WHEEL_CSV).is_file():
         wheel_odometry = folder / WHEEL_CSV
     if wheel_odometry is not None:
         seq.wheel_odometry = read_wheel_csv(wheel_odometry, wheel)
+    if kind not in ("bag", "euroc") or (kind == "bag" and imu is not None):
+        base = folder if kind != "bag" or folder.is_dir() else folder.parent
+        seq.imu = read_imu_folder(base, imu_read, csv=None if imu is None else Path(imu))
+    if seq.imu is not None:
+        check_imu_clock(seq.imu, seq.timestamps)
     return seq
 
 
 def _open_bag(path: Path, kind: str, max_frames: int | None, ground_truth: Path | None,
               options: dict[str, Any]) -> Sequence:
     if kind != "bag":
-        given = [k for k in options if k != "wheel_options"]
+        given = [k for k in options if k not in ("wheel_options", "imu_options")]
         raise InputError(f"{', '.join(given)} apply to ROS bags only, this is {kind}", path=path)
     if not looks_like_bag(path):
         raise InputError("not a ROS bag: expected a .bag file or a ROS2 bag folder (metadata.yaml)", path=path)
