@@ -22,6 +22,7 @@ from gtvo.odometry import VisualOdometry
 from gtvo.posegraph.graph import PoseGraph
 from gtvo.window import SlidingWindowOptimizer, WindowConfig, solve_gtsam, solve_handrolled
 from tests.test_window import _keyframes
+from tests._window_problem import problem
 
 
 @pytest.fixture(scope="module")
@@ -44,8 +45,8 @@ def test_gtsam_marginals_equal_the_inverse_reduced_hessian(seq):
     cam = seq.camera
     kfs = _keyframes(seq, [0, 2, 4, 6, 8], perturb=(0.002, 0.006), timed=True)
     cfg = WindowConfig(max_iterations=40, relative_tolerance=1e-12)
-    ra = solve_gtsam(cam.left, cam.baseline, copy.deepcopy(kfs), cfg)
-    rb = solve_handrolled(cam.left, cam.baseline, copy.deepcopy(kfs), cfg)
+    ra = solve_gtsam(problem(cam.left, cam.baseline, copy.deepcopy(kfs), cfg))
+    rb = solve_handrolled(problem(cam.left, cam.baseline, copy.deepcopy(kfs), cfg))
     assert sorted(ra.covariances) == sorted(rb.covariances) == [0, 2, 4, 6, 8]
     assert ra.covariance_seconds > 0 and rb.covariance_seconds > 0
     for i, Pa in ra.covariances.items():
@@ -65,8 +66,8 @@ def test_covariance_shrinks_with_more_points(seq):
     cam = seq.camera
     sig = {}
     for pts in (60, 300):
-        r = solve_handrolled(cam.left, cam.baseline, _keyframes(seq, [0, 2, 4, 6], points=pts),
-                             WindowConfig(max_iterations=5))
+        r = solve_handrolled(problem(cam.left, cam.baseline, _keyframes(seq, [0, 2, 4, 6], points=pts),
+                             WindowConfig(max_iterations=5)))
         sig[pts] = np.array([np.sqrt(np.trace(r.covariances[i][3:, 3:])) for i in (2, 4, 6)])
     assert np.all(sig[300] < 0.65 * sig[60])
 

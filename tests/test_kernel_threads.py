@@ -18,6 +18,7 @@ from gtvo.datasets.synthetic import make_synthetic_sequence
 from gtvo.odometry.window_worker import DEFAULT_WORKER_THREADS, worker_threads
 from gtvo.window import WindowConfig, solve_gtsam
 from tests.test_window import _keyframes
+from tests._window_problem import problem
 
 
 @pytest.fixture
@@ -89,7 +90,7 @@ def test_window_with_two_kernel_threads_gives_the_same_bytes(monkeypatch):
         set_kernel_threads(threads)
         try:
             window = copy.deepcopy(kfs)
-            res = solve_gtsam(cam.left, cam.baseline, window, cfg)
+            res = solve_gtsam(problem(cam.left, cam.baseline, window, cfg))
         finally:
             set_kernel_threads(1)
         results.append((res, window, list(sizes)))

@@ -17,10 +17,11 @@ from factors.params import PhotometricConfig
 from gtvo.config import OdometryConfig
 from gtvo.datasets.synthetic import make_synthetic_sequence, write_sequence_kitti
 from gtvo.loops.closure_graph import LoopEdge
-from gtvo.refinement import RefineConfig, covisible_targets, refine_keyframes
+from gtvo.refinement import RefineConfig, covisible_targets
 from gtvo.refinement.graph import candidate_targets, loop_chi2, scale_change, window_candidates, window_edges
-from gtvo.window import WindowConfig, WindowResult, visible_targets
+from gtvo.window import TargetChoice, WindowConfig, WindowResult, visible_targets
 from tests.test_window import _keyframes
+from tests._window_problem import refine
 
 NO_HUBER = PhotometricConfig(huber_k=None)
 
@@ -44,10 +45,10 @@ def _edge(seq, i, j, dt=(0.0, 0.0, 0.0), sigma_t=0.01):
 def test_visible_targets_takes_candidates_and_a_cap(seq, keyframes):
     cam, cfg = seq.camera.left, WindowConfig()
     every = visible_targets(cam, keyframes, cfg)
-    assert visible_targets(cam, keyframes, cfg, candidates=[list(range(5))] * 5) == every
-    only = visible_targets(cam, keyframes, cfg, candidates=[[1], [0], [], [], []])
+    assert visible_targets(cam, keyframes, cfg, TargetChoice(candidates=[list(range(5))] * 5)) == every
+    only = visible_targets(cam, keyframes, cfg, TargetChoice(candidates=[[1], [0], [], [], []]))
     assert only == [[1] if 1 in every[0] else [], [0] if 0 in every[1] else [], [], [], []]
-    capped = visible_targets(cam, keyframes, cfg, max_targets=1)
+    capped = visible_targets(cam, keyframes, cfg, TargetChoice(max_targets=1))
     assert all(len(c) <= 1 and set(c) <= set(e) for c, e in zip(capped, every))
     assert capped[2] and abs(capped[2][0] - 2) == 1  # of equals in count, a neighbour sees most
 
@@ -76,11 +77,12 @@ def test_window_candidates_are_the_window_span_and_a_revisit_only_across_a_loop(
     cam = seq.camera.left
     kfs = list(keyframes) + [dataclasses.replace(keyframes[0], index=99)]  # the first place again, at the end
     cfg = WindowConfig(size=3)
-    window = covisible_targets(cam, kfs, cfg, 6, None)  # the default: the window's span, 2 on each side
-    space = covisible_targets(cam, kfs, cfg, 6, None, candidates="space")
+    six = RefineConfig(max_targets=6, max_scale_change=None)
+    window = covisible_targets(cam, kfs, cfg, six)  # the default: the window's span, 2 on each side
+    space = covisible_targets(cam, kfs, cfg, dataclasses.replace(six, candidates="space"))
     assert 5 in space[0] and 5 not in window[0] and 0 not in window[5]
     assert all(abs(t - h) <= 2 for h, ts in enumerate(window) for t in ts) and all(window)
-    looped = covisible_targets(cam, kfs, cfg, 6, None, loops=[(0, 5)])  # across a verified loop: compared
+    looped = covisible_targets(cam, kfs, cfg, six, [(0, 5)])  # across a verified loop: compared
     assert 5 in looped[0] and 0 in looped[5]
     assert window_candidates(12, 1, [(1, 10)])[1] == [0, 2, 9, 10, 11]  # the loop's neighbourhoods, both ways
     assert window_candidates(12, 1, [(1, 10)])[5] == [4, 6]
@@ -98,8 +100,8 @@ def test_window_edges_hold_the_refined_keyframes_near_the_window_shape(seq, keyf
     cam = seq.camera
     covs = [1e-10 * np.eye(6)] * (len(keyframes) - 1)  # the window's relative poses, all but certain
     cfg = RefineConfig(max_iterations=3, max_scale_change=None)
-    held = refine_keyframes(cam.left, cam.baseline, keyframes, WindowConfig(), cfg, odometry_covariances=covs)
-    free = refine_keyframes(cam.left, cam.baseline, keyframes, WindowConfig(),
+    held = refine(cam.left, cam.baseline, keyframes, WindowConfig(), cfg, odometry_covariances=covs)
+    free = refine(cam.left, cam.baseline, keyframes, WindowConfig(),
                             dataclasses.replace(cfg, window_edges=False), odometry_covariances=covs)
 
     def moved(res):
@@ -118,7 +120,7 @@ def test_both_solvers_solve_the_same_whole_log_graph_with_a_loop_edge(seq, keyfr
     cam = seq.camera
     cfg = RefineConfig(max_iterations=40, relative_tolerance=1e-12, max_scale_change=None)
     edge = _edge(seq, 0, 8)
-    out = {s: refine_keyframes(cam.left, cam.baseline, keyframes, WindowConfig(), dataclasses.replace(cfg, solver=s),
+    out = {s: refine(cam.left, cam.baseline, keyframes, WindowConfig(), dataclasses.replace(cfg, solver=s),
                                loop_edges=[edge], photometric=NO_HUBER) for s in ("gtsam", "handrolled")}
     a, b = out["gtsam"], out["handrolled"]
     assert a.ran and b.ran and a.loop_edges == b.loop_edges == 1 and a.loop_edges_dropped == 0
@@ -135,10 +137,10 @@ def test_both_solvers_solve_the_same_whole_log_graph_with_a_loop_edge(seq, keyfr
 def test_a_loop_edge_the_refined_cost_rejects_is_dropped_and_counted(seq, keyframes):
     cam = seq.camera
     cfg = RefineConfig(max_iterations=10)
-    good = refine_keyframes(cam.left, cam.baseline, keyframes, WindowConfig(), cfg)
+    good = refine(cam.left, cam.baseline, keyframes, WindowConfig(), cfg)
     bad = _edge(seq, 0, 8, dt=(0.4, 0.0, 0.0), sigma_t=0.1)  # 4 sigma off in one axis: chi-square 16 + the rest
     assert loop_chi2([bad], good.keyframes)[0] > cfg.loop_chi2
-    res = refine_keyframes(cam.left, cam.baseline, keyframes, WindowConfig(), cfg, loop_edges=[bad, _edge(seq, 2, 8)])
+    res = refine(cam.left, cam.baseline, keyframes, WindowConfig(), cfg, loop_edges=[bad, _edge(seq, 2, 8)])
     assert res.ran and res.loop_edges_dropped == 1 and res.loop_edges == 1
     for ka, kb in zip(res.keyframes, good.keyframes):  # solved again without it: as if it never was
         assert np.linalg.norm(ka.pose.translation() - kb.pose.translation()) < 2e-3
@@ -152,18 +154,18 @@ def test_an_lm_that_cannot_improve_keeps_the_window_answer(seq, keyframes, monke
         return WindowResult("gtsam", 10.0, 10.0 * factor, 3, 0.1, 1)
 
     monkeypatch.setattr(solve, "solve_gtsam", no_better)
-    res = refine_keyframes(seq.camera.left, seq.camera.baseline, keyframes, WindowConfig(), RefineConfig())
+    res = refine(seq.camera.left, seq.camera.baseline, keyframes, WindowConfig(), RefineConfig())
     assert not res.ran and res.reason.startswith(reason) and res.reason.endswith("the window's answer is kept")
     assert all(a is b for a, b in zip(res.keyframes, keyframes)) and res.covariances is None
 
 
 def test_targets_over_the_whole_log_respect_the_cap_and_the_scale_change(seq, keyframes):
     cam = seq.camera.left
-    free = covisible_targets(cam, keyframes, WindowConfig(), 6)
+    free = covisible_targets(cam, keyframes, WindowConfig(), RefineConfig(max_targets=6, max_scale_change=None))
     assert free == visible_targets(cam, keyframes, WindowConfig())  # a small log: every pair is a candidate
-    tight = covisible_targets(cam, keyframes, WindowConfig(), 6, max_scale_change=1e-6)
+    tight = covisible_targets(cam, keyframes, WindowConfig(), RefineConfig(max_targets=6, max_scale_change=1e-6))
     assert not any(tight)
-    some = covisible_targets(cam, keyframes, WindowConfig(), 6, max_scale_change=0.06)
+    some = covisible_targets(cam, keyframes, WindowConfig(), RefineConfig(max_targets=6, max_scale_change=0.06))
     assert all(set(s) <= set(f) for s, f in zip(some, free)) and some != free and any(some)
 
 
@@ -260,8 +262,8 @@ def test_the_memory_bounds_change_no_result(seq, keyframes):
     cam = seq.camera
     cfg = RefineConfig(max_iterations=3, max_scale_change=None)
     lean = [dataclasses.replace(k, image=compact_image(k.image), right=compact_image(k.right)) for k in keyframes]
-    a = refine_keyframes(cam.left, cam.baseline, keyframes, WindowConfig(), cfg)
-    b = refine_keyframes(cam.left, cam.baseline, lean, WindowConfig(), dataclasses.replace(cfg, jacobian_cache_mb=0))
+    a = refine(cam.left, cam.baseline, keyframes, WindowConfig(), cfg)
+    b = refine(cam.left, cam.baseline, lean, WindowConfig(), dataclasses.replace(cfg, jacobian_cache_mb=0))
     assert a.ran and b.ran and a.iterations == b.iterations
     assert (a.cost_before, a.cost_after) == (b.cost_before, b.cost_after)
     for ka, kb in zip(a.keyframes, b.keyframes):
@@ -278,9 +280,9 @@ def test_the_whole_log_graph_carries_the_wheel_odometry_and_both_solvers_agree(s
     cam = seq.camera
     wheel = _wheel(seq)
     cfg = RefineConfig(max_iterations=30, relative_tolerance=1e-12, max_scale_change=None)
-    out = {s: refine_keyframes(cam.left, cam.baseline, keyframes, WindowConfig(), dataclasses.replace(cfg, solver=s),
+    out = {s: refine(cam.left, cam.baseline, keyframes, WindowConfig(), dataclasses.replace(cfg, solver=s),
                                photometric=NO_HUBER, wheel=wheel) for s in ("gtsam", "handrolled")}
-    without = refine_keyframes(cam.left, cam.baseline, keyframes, WindowConfig(), dataclasses.replace(cfg, max_iterations=1),
+    without = refine(cam.left, cam.baseline, keyframes, WindowConfig(), dataclasses.replace(cfg, max_iterations=1),
                                photometric=NO_HUBER)
     a, b = out["gtsam"], out["handrolled"]
     assert a.ran and b.ran and without.wheel_calibration is None
@@ -321,10 +323,11 @@ def test_a_dropped_loop_edge_takes_its_photometric_loop_pairs_with_it(seq, keyfr
     cam, window = seq.camera, WindowConfig(size=2)
     cfg = RefineConfig(max_iterations=10, max_scale_change=None)
     bad, kept = _edge(seq, 0, 8, dt=(0.4, 0.0, 0.0), sigma_t=0.1), _edge(seq, 4, 8)
-    loops = covisible_targets(cam.left, keyframes, window, cfg.max_targets, None, loops=[(0, 4)])
-    assert loops != covisible_targets(cam.left, keyframes, window, cfg.max_targets, None)  # the edge brings pairs
-    without = refine_keyframes(cam.left, cam.baseline, keyframes, window, cfg, loop_edges=[kept])
-    res = refine_keyframes(cam.left, cam.baseline, keyframes, window, cfg, loop_edges=[bad, kept])
+    unscaled = dataclasses.replace(cfg, max_scale_change=None)
+    loops = covisible_targets(cam.left, keyframes, window, unscaled, [(0, 4)])
+    assert loops != covisible_targets(cam.left, keyframes, window, unscaled)  # the edge brings pairs
+    without = refine(cam.left, cam.baseline, keyframes, window, cfg, loop_edges=[kept])
+    res = refine(cam.left, cam.baseline, keyframes, window, cfg, loop_edges=[bad, kept])
     assert res.ran and res.loop_edges_dropped == 1 and res.loop_edges == 1
     assert res.targets_mean == without.targets_mean and res.cost_after == without.cost_after
     for ka, kb in zip(res.keyframes, without.keyframes):

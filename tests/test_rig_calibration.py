@@ -25,6 +25,8 @@ from gtvo.odometry import VisualOdometry
 from gtvo.window import (SlidingWindowOptimizer, WindowConfig, WindowKeyframe, build_graph, solve_gtsam,
                          solve_handrolled, window_cost)
 from tests._factors_synthetic import SinusoidImage, small_camera
+from gtvo.window import WindowSettings
+from tests._window_problem import problem
 
 
 #: the photometric model without a robust loss (the solvers' comparisons)
@@ -139,14 +141,14 @@ def test_solvers_agree_with_the_rig_offset(seq):
     kfs = _keyframes(seq, [0, 2, 4, 6], (0.0, 1.0))
     cfg = WindowConfig(max_iterations=30, relative_tolerance=1e-12)
     start = np.array([0.3, 0.6])
-    graph, values, _ = build_graph(cam.left, cam.baseline, kfs, cfg, None, rig_offset=start, photometric=NO_HUBER)
+    graph, values, _ = build_graph(problem(cam.left, cam.baseline, kfs, cfg, None, rig_offset=start, photometric=NO_HUBER))
     assert values.exists(rig_offset_key())
-    cost = window_cost(cam.left, cam.baseline, kfs, cfg, rig_offset=start, photometric=NO_HUBER)
+    cost = window_cost(problem(cam.left, cam.baseline, kfs, cfg, rig_offset=start, photometric=NO_HUBER))
     assert graph.error(values) == pytest.approx(cost,
                                                 rel=1e-9)
     a, b = copy.deepcopy(kfs), copy.deepcopy(kfs)
-    ra = solve_gtsam(cam.left, cam.baseline, a, cfg, rig_offset=start, photometric=NO_HUBER)
-    rb = solve_handrolled(cam.left, cam.baseline, b, cfg, rig_offset=start, photometric=NO_HUBER)
+    ra = solve_gtsam(problem(cam.left, cam.baseline, a, cfg, rig_offset=start, photometric=NO_HUBER))
+    rb = solve_handrolled(problem(cam.left, cam.baseline, b, cfg, rig_offset=start, photometric=NO_HUBER))
     assert ra.cost < 0.5 * ra.initial_cost
     assert ra.cost == pytest.approx(rb.cost, rel=1e-4)
     np.testing.assert_allclose(ra.rig_offset, rb.rig_offset, atol=2e-3)
@@ -166,7 +168,7 @@ def test_marginal_prior_carries_the_rig_offset(seq):
     ends = {}
     for solver in ("gtsam", "handrolled"):
         cfg = WindowConfig(size=2, max_iterations=20, relative_tolerance=1e-12)
-        w = SlidingWindowOptimizer(cam.left, cam.baseline, cfg, rig_offset=np.zeros(2), photometric=NO_HUBER)
+        w = SlidingWindowOptimizer(cam.left, cam.baseline, WindowSettings(cfg, NO_HUBER), rig_offset=np.zeros(2))
         w.rig.x_estimated = True  # delta_x free from the start: no hold, no test (the same problem for both)
         for k in copy.deepcopy(kfs):
             w.add_keyframe(k)

@@ -14,10 +14,11 @@ from factors.smoothness import ConstantVelocityFactor
 from factors.stacked import StackedFactors, stacked
 from gtvo.core.keys import pose_key as X
 from gtvo.errors import InputError
-from gtvo.refinement import RefineConfig, refine_keyframes
+from gtvo.refinement import RefineConfig
 from gtvo.window import WindowConfig
 from tests.test_factors_smart import plane_problem
 from tests.test_refinement import keyframes, seq  # noqa: F401 (fixtures)
+from tests._window_problem import refine
 
 
 def _factors():
@@ -71,8 +72,8 @@ def test_the_refinement_with_stacked_factors_reaches_the_same_keyframes(seq, key
     within round-off of the unstacked graph's."""
     cam = seq.camera
     cfg = RefineConfig(max_iterations=3, max_scale_change=None)
-    a = refine_keyframes(cam.left, cam.baseline, keyframes, WindowConfig(), cfg)
-    b = refine_keyframes(cam.left, cam.baseline, keyframes, WindowConfig(), dataclasses.replace(cfg, stacked_factors=3))
+    a = refine(cam.left, cam.baseline, keyframes, WindowConfig(), cfg)
+    b = refine(cam.left, cam.baseline, keyframes, WindowConfig(), dataclasses.replace(cfg, stacked_factors=3))
     assert a.ran and b.ran and a.iterations == b.iterations
     assert b.cost_before == pytest.approx(a.cost_before, rel=1e-12)
     assert b.cost_after == pytest.approx(a.cost_after, rel=1e-8)

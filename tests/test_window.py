@@ -21,6 +21,8 @@ from gtvo.frontend.tracking import TrackingKeyframe, frame_pyramid, track_handro
 from tests._factors_synthetic import PlaneSceneImage, small_camera
 from gtvo.window import (SlidingWindowOptimizer, WindowConfig, WindowKeyframe, affine_key, build_graph,
                          marginalize, motion_factors, pose_key, solve_gtsam, solve_handrolled, window_cost)
+from gtvo.window import TargetChoice, WindowSettings
+from tests._window_problem import problem
 
 
 #: the photometric model without a robust loss (the solvers' comparisons)
@@ -82,23 +84,23 @@ def test_handrolled_equals_gtsam(seq, huber_k, timed):
     model = PhotometricConfig(huber_k=huber_k)
     a, b = copy.deepcopy(kfs), copy.deepcopy(kfs)
     # the two cost functions agree at the starting point
-    graph, values, _ = build_graph(cam.left, cam.baseline, kfs, cfg, None, photometric=model)
-    assert graph.error(values) == pytest.approx(window_cost(cam.left, cam.baseline, kfs, cfg, photometric=model),
+    graph, values, _ = build_graph(problem(cam.left, cam.baseline, kfs, cfg, None, photometric=model))
+    assert graph.error(values) == pytest.approx(window_cost(problem(cam.left, cam.baseline, kfs, cfg, photometric=model)),
                                                 rel=1e-9)
     no_motion = WindowConfig(**{**cfg.__dict__, "acceleration_sigma": None})
     if timed:  # the motion prior is in the hand-rolled cost as GTSAM's factors have it
-        values = build_graph(cam.left, cam.baseline, kfs, cfg, None, photometric=model)[1]
+        values = build_graph(problem(cam.left, cam.baseline, kfs, cfg, None, photometric=model))[1]
         motion = sum(f.error(values) for _, f in motion_factors(kfs, cfg))
         assert len(motion_factors(kfs, cfg)) == 3 and motion > 1.0
-        with_prior = window_cost(cam.left, cam.baseline, kfs, cfg, photometric=model)
-        assert with_prior - window_cost(cam.left, cam.baseline, kfs, no_motion, photometric=model) \
+        with_prior = window_cost(problem(cam.left, cam.baseline, kfs, cfg, photometric=model))
+        assert with_prior - window_cost(problem(cam.left, cam.baseline, kfs, no_motion, photometric=model)) \
             == pytest.approx(motion, rel=1e-6)
-    ra = solve_gtsam(cam.left, cam.baseline, a, cfg, photometric=model)
-    rb = solve_handrolled(cam.left, cam.baseline, b, cfg, photometric=model)
+    ra = solve_gtsam(problem(cam.left, cam.baseline, a, cfg, photometric=model))
+    rb = solve_handrolled(problem(cam.left, cam.baseline, b, cfg, photometric=model))
     assert ra.cost < 0.5 * ra.initial_cost
     if timed:  # and it moves the optimum (so the agreement below covers its Gauss-Newton terms)
         c = copy.deepcopy(kfs)
-        solve_gtsam(cam.left, cam.baseline, c, no_motion, photometric=model)
+        solve_gtsam(problem(cam.left, cam.baseline, c, no_motion, photometric=model))
         assert max(np.abs(x.pose.localCoordinates(y.pose)).max() for x, y in zip(a, c)) > 1e-3
     tol_cost = 1e-4 if huber_k is None else 2e-3
     assert ra.cost == pytest.approx(rb.cost, rel=tol_cost)
@@ -170,8 +172,8 @@ def test_marginalisation_keeps_a_prior(seq):
             # both solvers agree with the prior in the graph
             a, b = copy.deepcopy(w.keyframes), copy.deepcopy(w.keyframes)
             c2 = WindowConfig(size=3, max_iterations=30, relative_tolerance=1e-12)
-            ra = solve_gtsam(cam.left, cam.baseline, a, c2, m, photometric=NO_HUBER)
-            rb = solve_handrolled(cam.left, cam.baseline, b, c2, m, photometric=NO_HUBER)
+            ra = solve_gtsam(problem(cam.left, cam.baseline, a, c2, m, photometric=NO_HUBER))
+            rb = solve_handrolled(problem(cam.left, cam.baseline, b, c2, m, photometric=NO_HUBER))
             assert ra.cost == pytest.approx(rb.cost, rel=2e-4)  # measured 6e-5
             assert max(np.abs(x.pose.localCoordinates(y.pose)).max() for x, y in zip(a, b)) < 2e-5
         else:
@@ -188,8 +190,8 @@ def test_marginal_prior_holds_the_motion_prior(seq):
     cam = seq.camera
     kfs = _keyframes(seq, [0, 2, 4], points=150, timed=True)
     strong = WindowConfig(acceleration_sigma=(0.01, 0.02))
-    with_motion = marginalize(cam.left, cam.baseline, kfs, strong, None, 0)
-    without = marginalize(cam.left, cam.baseline, kfs, WindowConfig(acceleration_sigma=None), None, 0)
+    with_motion = marginalize(problem(cam.left, cam.baseline, kfs, strong, None), 0)
+    without = marginalize(problem(cam.left, cam.baseline, kfs, WindowConfig(acceleration_sigma=None), None), 0)
     assert with_motion.keys == without.keys and pose_key(4) in with_motion.keys
     i = with_motion.keys.index(pose_key(4))
     block = slice(sum(with_motion.dims[:i]), sum(with_motion.dims[:i]) + 6)
@@ -306,7 +308,7 @@ def test_repeated_marginalisation_same_for_both_solvers(seq):
     ends = {}
     for solver, marg in (("gtsam", True), ("handrolled", True), ("gtsam", False)):
         cfg = WindowConfig(size=2, max_iterations=30, relative_tolerance=1e-12, marginalize=marg)
-        w = SlidingWindowOptimizer(cam.left, cam.baseline, cfg, photometric=NO_HUBER)
+        w = SlidingWindowOptimizer(cam.left, cam.baseline, WindowSettings(cfg, NO_HUBER))
         for k in copy.deepcopy(kfs):
             w.add_keyframe(k)
             w.optimize(solver)
@@ -363,7 +365,7 @@ def test_smart_factor_evaluates_each_state_once(seq, monkeypatch):
 
     cam = seq.camera
     kfs = _keyframes(seq, [0, 2, 4], points=150)
-    graph, values, hosts = build_graph(cam.left, cam.baseline, kfs, WindowConfig(), None)
+    graph, values, hosts = build_graph(problem(cam.left, cam.baseline, kfs, WindowConfig(), None))
     calls = []
     real = host_points.compiled_residuals  # the targets' residuals (GradientImage targets)
     monkeypatch.setattr(host_points, "compiled_residuals", lambda *a, **k: calls.append(1) or real(*a, **k))
@@ -392,8 +394,8 @@ def test_safeguarded_depth_step_never_raises_the_cost_at_the_linearisation_point
     cam = seq.camera
     kfs = _keyframes(seq, [0, 2, 4, 6], perturb=(0.002, 0.006), points=300)
     cfg = WindowConfig(max_iterations=20)
-    solve_gtsam(cam.left, cam.baseline, kfs, cfg)
-    graph, values, hosts = build_graph(cam.left, cam.baseline, kfs, cfg, None)
+    solve_gtsam(problem(cam.left, cam.baseline, kfs, cfg))
+    graph, values, hosts = build_graph(problem(cam.left, cam.baseline, kfs, cfg, None))
     worse = 0
     for f in hosts.values():
         d0 = f.depths.copy()
@@ -419,10 +421,10 @@ def test_visible_targets_of_some_hosts_are_those_of_all(seq):
     cfg = WindowConfig()
     full = visible_targets(cam, kfs, cfg)
     assert any(full)
-    assert visible_targets(cam, kfs, cfg, hosts=[2, 0]) == [full[2], full[0]]
+    assert visible_targets(cam, kfs, cfg, TargetChoice(hosts=[2, 0])) == [full[2], full[0]]
     Xw = host_points_world(cam, kfs[1])
     for t in (0, 2, 3):
         seen = seen_in(cam, kfs[1], kfs[t])
         assert seen.any() and np.array_equal(seen_in(cam, kfs[1], kfs[t], Xw), seen)
     with pytest.raises(InputError, match="host position"):
-        visible_targets(cam, kfs, cfg, hosts=[-1])
+        visible_targets(cam, kfs, cfg, TargetChoice(hosts=[-1]))

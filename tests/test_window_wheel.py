@@ -21,6 +21,7 @@ from gtvo.wheel_calibration.motions import integrate_motions
 from gtvo.window.wheel import WheelCalibration, WheelSettings
 from gtvo.datasets.synthetic import make_synthetic_sequence
 from tests.test_window import _keyframes
+from tests._window_problem import problem
 
 T_BC = WheelConfig(base_to_camera=(0.2, 0.0, 1.0, -0.5, 0.5, -0.5, 0.5)).T_base_cam  # 1 m above the base
 K_TRUE = np.array([1.03, 0.98, 1.05])
@@ -44,15 +45,15 @@ def test_both_solvers_minimise_the_same_cost_with_wheels(seq):
     kfs = _keyframes(seq, [0, 2, 4, 6, 8], perturb=(0.002, 0.006), points=150, timed=True)
     cfg = WindowConfig(max_iterations=30, relative_tolerance=1e-12)
     wheel = _wheel(seq)
-    graph, values, _ = build_graph(cam.left, cam.baseline, kfs, cfg, None, photometric=NO_HUBER, wheel=wheel)
+    graph, values, _ = build_graph(problem(cam.left, cam.baseline, kfs, cfg, None, photometric=NO_HUBER, wheel=wheel))
     assert sum(1 for i in range(graph.size()) if calibration_key() in graph.at(i).keys()) == 5  # 4 factors, 1 prior
-    without = window_cost(cam.left, cam.baseline, kfs, cfg, photometric=NO_HUBER)
-    with_wheels = window_cost(cam.left, cam.baseline, kfs, cfg, photometric=NO_HUBER, wheel=wheel)
+    without = window_cost(problem(cam.left, cam.baseline, kfs, cfg, photometric=NO_HUBER))
+    with_wheels = window_cost(problem(cam.left, cam.baseline, kfs, cfg, photometric=NO_HUBER, wheel=wheel))
     assert graph.error(values) == pytest.approx(with_wheels, rel=1e-9)
     assert with_wheels - without > 1.0
     a, b = copy.deepcopy(kfs), copy.deepcopy(kfs)
-    ra = solve_gtsam(cam.left, cam.baseline, a, cfg, photometric=NO_HUBER, wheel=wheel)
-    rb = solve_handrolled(cam.left, cam.baseline, b, cfg, photometric=NO_HUBER, wheel=wheel)
+    ra = solve_gtsam(problem(cam.left, cam.baseline, a, cfg, photometric=NO_HUBER, wheel=wheel))
+    rb = solve_handrolled(problem(cam.left, cam.baseline, b, cfg, photometric=NO_HUBER, wheel=wheel))
     assert ra.cost == pytest.approx(rb.cost, rel=1e-4)
     assert max(np.abs(x.pose.localCoordinates(y.pose)).max() for x, y in zip(a, b)) < 3e-5
     np.testing.assert_allclose(ra.wheel_calibration, rb.wheel_calibration, atol=1e-4)
@@ -71,7 +72,7 @@ def test_the_marginal_prior_carries_the_calibration(seq):
         w.add_keyframe(k)
         w.optimize("gtsam")
     assert w.marginal is not None and calibration_key() in w.marginal.keys
-    graph, _, _ = build_graph(cam.left, cam.baseline, w.keyframes, w.config, w.marginal, wheel=wheel)
+    graph, _, _ = build_graph(problem(cam.left, cam.baseline, w.keyframes, w.config, w.marginal, wheel=wheel))
     priors = [graph.at(i) for i in range(graph.size()) if isinstance(graph.at(i), gtsam.PriorFactorVector)
               and calibration_key() in graph.at(i).keys()]
     assert priors == []  # carried by the marginal prior, not set again

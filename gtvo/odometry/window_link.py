@@ -26,7 +26,7 @@ from gtvo.frontend import KeyframePoints
 from gtvo.frontend.rig_offset import correct_right_image
 from gtvo.frontend.stereo_affine import estimate_stereo_affine
 from gtvo.frontend.stereo_depth import stereo_inverse_depth
-from gtvo.window import SlidingWindowOptimizer, WindowKeyframe, WindowResult
+from gtvo.window import SlidingWindowOptimizer, WindowKeyframe, WindowResult, WindowSettings
 from gtvo.window.depth_change import tracked_translation_scale
 from gtvo.window.rig import RigOffset
 from gtvo.window.wheel import WheelCalibration
@@ -112,8 +112,8 @@ class WindowLink:
         baseline = camera.baseline if isinstance(camera, StereoCamera) else None
         wcfg = config.window
         rig = baseline is not None and wcfg.rig_calibration and wcfg.backend == "lm"
-        self.window = SlidingWindowOptimizer(self.pinhole, baseline, wcfg, rig_offset=np.zeros(2) if rig else None,
-                                             photometric=config.photometric, wheel=wheel)
+        self.window = SlidingWindowOptimizer(self.pinhole, baseline, WindowSettings(wcfg, config.photometric),
+                                             rig_offset=np.zeros(2) if rig else None, wheel=wheel)
 
     def join(self, request: KeyframeForWindow) -> None:
         """Add the keyframe to the window (the oldest leaves first when it is full).

@@ -1,13 +1,14 @@
 """The whole-log graph's parts that the window does not have: which keyframes a host is compared
 with over the whole log (:func:`covisible_targets`), and the loop edges as factors (:func:`loop_factors`).
 
-Everything else (the host factors, priors, motion prior, rig offset) is the window's own problem
-builder, :func:`gtvo.window.problem.build_graph`, given every keyframe and these targets.
+Everything else (the host factors, priors, motion prior, rig offset, wheels) is the window's own
+problem, :class:`gtvo.window.problem.WindowProblem`, given every keyframe and these targets, with
+the loop edges added to its graph (:func:`gtvo.refinement.solve.refinement_problem`).
 """
 
 from __future__ import annotations
 
-from typing import Literal, Sequence
+from typing import Sequence
 
 import gtsam
 import numpy as np
@@ -18,7 +19,8 @@ from gtvo.core.camera import PinholeCamera
 from gtvo.core.keys import pose_key
 from gtvo.loops.closure_graph import LoopEdge
 from gtvo.window.config import WindowConfig, WindowKeyframe
-from gtvo.window.problem import visible_targets
+from gtvo.refinement.config import RefineConfig
+from gtvo.window.problem import TargetChoice, visible_targets
 
 F64 = NDArray[np.float64]
 
@@ -88,22 +90,21 @@ def scale_change(camera: PinholeCamera, host: WindowKeyframe, target: WindowKeyf
 
 
 def covisible_targets(camera: PinholeCamera, keyframes: Sequence[WindowKeyframe], config: WindowConfig,
-                      max_targets: int, max_scale_change: float | None = None,
-                      candidates: Literal["window", "space"] = "window",
-                      loops: Sequence[tuple[int, int]] = ()) -> list[list[int]]:
+                      refine: RefineConfig, loops: Sequence[tuple[int, int]] = ()) -> list[list[int]]:
     """Per host (position in ``keyframes``), its targets over the whole log: among the candidates
-    (``window``: :func:`window_candidates` over the window's span, ``config.size - 1``, and across
-    the ``loops``, pairs of positions; ``space``:
-    :func:`candidate_targets`) (and, with ``max_scale_change``, those in which its points look at
-    most that much bigger or smaller, :func:`scale_change`), those into which enough of its points
-    project (:func:`gtvo.window.problem.visible_targets`, the window's rule), at most
+    (the refinement's ``candidates``: ``window``, :func:`window_candidates` over the window's span,
+    ``config.size - 1``, and across the ``loops``, pairs of positions; ``space``:
+    :func:`candidate_targets`) (and, with its ``max_scale_change``, those in which its points look
+    at most that much bigger or smaller, :func:`scale_change`), those into which enough of its
+    points project (:func:`gtvo.window.problem.visible_targets`, the window's rule), at most its
     ``max_targets`` (those that see most of them)."""
-    tried = (window_candidates(len(keyframes), config.size - 1, loops) if candidates == "window"
+    max_targets, max_scale_change = refine.max_targets, refine.max_scale_change
+    tried = (window_candidates(len(keyframes), config.size - 1, loops) if refine.candidates == "window"
              else candidate_targets(keyframes, max_targets))
     if max_scale_change is not None:
         tried = [[t for t in ts if scale_change(camera, keyframes[h], keyframes[t]) <= max_scale_change]
                  for h, ts in enumerate(tried)]
-    return visible_targets(camera, keyframes, config, candidates=tried, max_targets=max_targets)
+    return visible_targets(camera, keyframes, config, TargetChoice(candidates=tried, max_targets=max_targets))
 
 
 def loop_factor(edge: LoopEdge) -> gtsam.BetweenFactorPose3:

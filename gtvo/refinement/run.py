@@ -29,9 +29,10 @@ from gtvo.frontend.stereo_depth import KeyframePoints
 from gtvo.frontend.tracking import TrackingConfig
 from gtvo.loops.closing import LoopClosingResult, refine_result_frames, relocate_frames
 from gtvo.refinement.config import RefineConfig
-from gtvo.refinement.solve import RefinementResult, refine_keyframes
+from gtvo.refinement.solve import RefinementInput, RefinementResult, refine_keyframes
 from gtvo.window.config import WindowConfig, WindowKeyframe
 from gtvo.window.wheel import WheelCalibration
+from gtvo.window.problem import WindowMembers, WindowSettings
 
 F64 = NDArray[np.float64]
 
@@ -115,12 +116,11 @@ def refine_run(seq: Sequence, trajectory: Trajectory, frame_indices: list[int], 
     res: RefinementResult | None = None
     out = RunRefinement(trajectory, loop_result, {}, {}, None, {})
     try:
-        res = refine_keyframes(seq.pinhole, getattr(seq.camera, "baseline", None), window_keyframes, window, config,
-                               loop_edges=edges, rig_offset=rig_offset,
-                               start_poses=loop_result.keyframe_poses if closed else None,
-                               odometry_covariances=odometry_covariances, photometric=photometric,
-                               progress=progress, on_iteration=lambda it, cost: raise_if_interrupted(),
-                               wheel=wheel)
+        run = RefinementInput(WindowMembers(seq.pinhole, getattr(seq.camera, "baseline", None), window_keyframes),
+                              WindowSettings(window, photometric, on_iteration=lambda it, cost: raise_if_interrupted()),
+                              rig_offset, wheel, edges, loop_result.keyframe_poses if closed else None,
+                              odometry_covariances)
+        res = refine_keyframes(run, config, progress)
         if res.ran:
             out = _re_place(seq, base, frame_indices, kfs, res, keyframe_points, odometry_covariances, tracking,
                             photometric, refine, loop_result, trajectory, progress)

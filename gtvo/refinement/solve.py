@@ -15,22 +15,21 @@ import dataclasses
 import sys
 import time
 from dataclasses import dataclass
-from typing import Callable, Mapping, Sequence
+from typing import Mapping, Sequence
 
 import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
 from factors.compact_image import packed_cache_budget
-from factors.params import DEFAULT_PHOTOMETRIC, PhotometricConfig
 from factors.smart import JacobianBudget
-from gtvo.core.camera import PinholeCamera
 from gtvo.loops.closure_graph import LoopEdge
 from gtvo.refinement.config import RefineConfig
 from gtvo.refinement.graph import covisible_targets, loop_chi2, loop_factors, window_edges
-from gtvo.window.config import WindowConfig, WindowKeyframe
+from gtvo.window.config import WindowKeyframe
 from gtvo.window.gtsam_solver import solve_gtsam
 from gtvo.window.handrolled import solve_handrolled
+from gtvo.window.problem import RigVariable, WindowMembers, WindowProblem, WindowSettings
 from gtvo.window.wheel import WheelCalibration
 
 F64 = NDArray[np.float64]
@@ -87,57 +86,80 @@ def start_keyframes(keyframes: Sequence[WindowKeyframe], poses: Mapping[int, F64
     return out
 
 
-def refine_keyframes(camera: PinholeCamera, baseline: float | None, keyframes: Sequence[WindowKeyframe],
-                     window: WindowConfig, config: RefineConfig | None = None, *,
-                     loop_edges: Sequence[LoopEdge] = (), rig_offset: F64 | None = None,
-                     start_poses: Mapping[int, F64] | None = None,
-                     odometry_covariances: Sequence[F64 | None] | None = None,
-                     photometric: PhotometricConfig = DEFAULT_PHOTOMETRIC, progress: bool = False,
-                     on_iteration: Callable[[int, float], None] | None = None,
-                     wheel: WheelCalibration | None = None) -> RefinementResult:
-    """Optimise one graph over every keyframe (module docstring); the input is not changed.
+@dataclass(frozen=True)
+class RefinementInput:
+    """What the whole-log refinement takes from a run.
 
-    Args:
-        camera, baseline: the left camera and the stereo baseline (None: RGB-D).
-        keyframes: every keyframe of the run with its points and images, oldest first
-            (:meth:`gtvo.window.SlidingWindowOptimizer.every_keyframe`).
-        window: the window's settings (weights, priors, motion prior, covariances); the LM's
-            iterations and tolerance are ``config``'s.
-        config: the refinement's settings (default :class:`RefineConfig`).
-        loop_edges: accepted loop edges by frame index; those between keyframes not in the list are ignored.
+    Attributes:
+        members: the left camera, the stereo baseline (None: RGB-D) and every keyframe of the run
+            with its points and images, oldest first
+            (:meth:`gtvo.window.SlidingWindowOptimizer.every_keyframe`); its targets are ignored
+            (the refinement chooses them: :func:`gtvo.refinement.graph.covisible_targets`).
+        window: the window's settings (weights, priors, motion prior, covariances; the LM's
+            iterations and tolerance are the refinement's) and the run's photometric model; its
+            ``on_iteration`` is called with ``(iteration, cost)`` after every iteration (after the bar).
         rig_offset: the run's rig offset (one variable for the log), None: the rectified model.
-        start_poses: frame index -> 4x4 ``T_world_cam`` to start from (the loop-closed keyframes).
-        odometry_covariances: per pair of consecutive keyframes, the tracker's covariance
-            (:func:`gtvo.loops.closing.odometry_covariances`); with ``config.window_edges`` the
-            window's relative poses join the graph with them (:func:`gtvo.refinement.graph.window_edges`).
-        photometric: the run's photometric model.
-        progress: a progress bar over the LM iterations.
-        on_iteration: called with ``(iteration, cost)`` after every iteration (after the bar).
         wheel: the run's wheel odometry and calibration (the window's): its factors between every
             two consecutive keyframes the wheel log covers and one calibration variable for the
             log, starting at the window's estimate, with the calibration's prior (``wheel`` itself
             is not changed; the result's ``wheel_calibration`` is the refined one). None: no wheels.
+        loop_edges: accepted loop edges by frame index; those between keyframes not in the list are ignored.
+        start_poses: frame index -> 4x4 ``T_world_cam`` to start from (the loop-closed keyframes).
+        odometry_covariances: per pair of consecutive keyframes, the tracker's covariance
+            (:func:`gtvo.loops.closing.odometry_covariances`); with the refinement's ``window_edges``
+            the window's relative poses join the graph with them (:func:`gtvo.refinement.graph.window_edges`).
     """
+
+    members: WindowMembers
+    window: WindowSettings = WindowSettings()
+    rig_offset: F64 | None = None
+    wheel: WheelCalibration | None = None
+    loop_edges: Sequence[LoopEdge] = ()
+    start_poses: Mapping[int, F64] | None = None
+    odometry_covariances: Sequence[F64 | None] | None = None
+
+
+def refinement_problem(run: RefinementInput, settings: WindowSettings, keyframes: Sequence[WindowKeyframe],
+                       targets: list[list[int]], edges: Sequence[LoopEdge]) -> WindowProblem:
+    """The whole-log graph as a window problem: ``keyframes`` (copies at their start) with
+    ``targets``, no marginalisation prior (the gauge prior holds the oldest), the run's rig offset
+    and wheels, and the loop ``edges`` (:func:`gtvo.refinement.graph.loop_factors`) added to its graph."""
+    members = run.members
+    rig = None if run.rig_offset is None else RigVariable(run.rig_offset)
+    problem = WindowProblem.build(WindowMembers(members.camera, members.baseline, keyframes, targets), settings,
+                                  None, rig, run.wheel)
+    problem.factors.push_back(loop_factors(edges))
+    return problem
+
+
+def refine_keyframes(run: RefinementInput, config: RefineConfig | None = None,
+                     progress: bool = False) -> RefinementResult:
+    """Optimise one graph over every keyframe of ``run`` (module docstring; :class:`RefinementInput`)
+    with the refinement's settings ``config`` (default :class:`RefineConfig`); ``progress``: a
+    progress bar over the LM iterations. The input is not changed."""
     config = config or RefineConfig()
     t0 = time.perf_counter()
+    keyframes = run.members.keyframes
     if len(keyframes) < 2:
         return RefinementResult(list(keyframes), False, "fewer than two keyframes", config.solver)
-    start = start_keyframes(keyframes, start_poses)
-    wcfg = dataclasses.replace(window, max_iterations=config.max_iterations,
+    camera = run.members.camera
+    start = start_keyframes(keyframes, run.start_poses)
+    wcfg = dataclasses.replace(run.window.config, max_iterations=config.max_iterations,
                                relative_tolerance=config.relative_tolerance)
     position = {kf.index: p for p, kf in enumerate(start)}
-    edges = [e for e in loop_edges if e.i in position and e.j in position and e.i != e.j]
+    edges = [e for e in run.loop_edges if e.i in position and e.j in position and e.i != e.j]
 
     def choose_targets(edges: Sequence[LoopEdge]) -> list[list[int]]:  # the loop pairs of these edges only
-        return covisible_targets(camera, start, wcfg, config.max_targets, config.max_scale_change, config.candidates,
-                                 loops=[(position[e.i], position[e.j]) for e in edges])
+        return covisible_targets(camera, start, wcfg, config, [(position[e.i], position[e.j]) for e in edges])
 
     targets = choose_targets(edges)
     if not any(targets):
         return RefinementResult(list(keyframes), False, "no keyframe sees another's points", config.solver,
                                 seconds=time.perf_counter() - t0)
-    held = window_edges(keyframes, odometry_covariances) if config.window_edges and odometry_covariances else []
+    covs = run.odometry_covariances
+    held = window_edges(keyframes, covs) if config.window_edges and covs else []
     solve = solve_gtsam if config.solver == "gtsam" else solve_handrolled
+    on_iteration = run.window.on_iteration
     dropped = 0
     while True:
         current = start_keyframes(start)
@@ -153,11 +175,10 @@ def refine_keyframes(camera: PinholeCamera, baseline: float | None, keyframes: S
         # GTSAM's LM: the host factors keep their cost passes' Jacobians within the budget
         bounded = {} if solve is solve_handrolled else {"jacobian_budget": JacobianBudget(config.jacobian_cache_mb << 20),
                                                         "stack": config.stacked_factors}
+        settings = WindowSettings(wcfg, run.window.photometric, on_iteration=step, **bounded)
         try:  # the compact images' packed records: all at once when they fit the budget
             with packed_cache_budget(config.image_cache_mb << 20):
-                res = solve(camera, baseline, current, wcfg, None, targets, rig_offset, photometric=photometric,
-                            extra_factors=loop_factors(edges + held) if edges or held else None, on_iteration=step,
-                            wheel=wheel, **bounded)
+                res = solve(refinement_problem(run, settings, current, targets, edges + held))
         finally:
             if bar is not None:
                 bar.close()

@@ -48,8 +48,10 @@ from gtvo.window.handrolled import solve_handrolled, window_cost
 from gtvo.window.marginal import marginalize
 from gtvo.window.optimizer import SlidingWindowOptimizer
 from gtvo.window.rig import RigOffset, rig_warning
-from gtvo.window.problem import build_graph, host_factor, motion_factors, prior_factors, visible_targets, window_values
+from gtvo.window.problem import (RigVariable, TargetChoice, WindowMembers, WindowProblem, WindowSettings, build_graph,
+                                 host_factor, motion_factors, prior_factors, visible_targets)
 
-__all__ = ["MarginalPrior", "RigOffset", "SlidingWindowOptimizer", "WindowConfig", "WindowKeyframe", "WindowResult", "WindowSolverName",
+__all__ = ["MarginalPrior", "RigOffset", "RigVariable", "SlidingWindowOptimizer", "TargetChoice", "WindowConfig",
+           "WindowKeyframe", "WindowMembers", "WindowProblem", "WindowResult", "WindowSettings", "WindowSolverName",
            "affine_key", "build_graph", "host_factor", "marginalize", "motion_factors", "pose_key", "prior_factors",
-           "rig_warning", "solve_gtsam", "solve_handrolled", "visible_targets", "window_cost", "window_values"]
+           "rig_warning", "solve_gtsam", "solve_handrolled", "visible_targets", "window_cost"]

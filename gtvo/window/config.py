@@ -19,6 +19,7 @@ from gtvo.errors import InputError, show
 
 if TYPE_CHECKING:
     from gtvo.window.rig import RigOffset
+    from gtvo.window.problem import RigVariable, WindowProblem
     from gtvo.window.wheel import WheelCalibration
 
 FloatArray = NDArray[np.float64]
@@ -33,6 +34,11 @@ def values_subset(values: gtsam.Values, keys: Sequence[int]) -> gtsam.Values:
         else:
             out.insert(k, values.atVector(k))
     return out
+
+
+def vector_of(values: gtsam.Values, key: int) -> FloatArray | None:
+    """A copy of the vector at ``key`` in ``values``, None when it has none."""
+    return np.asarray(values.atVector(key), dtype=float).copy() if values.exists(key) else None
 
 
 @dataclass(frozen=True)
@@ -252,6 +258,9 @@ class WindowResult:
     rig_offset: FloatArray | None = None
     #: the wheel calibration after the optimisation (gtvo.window.wheel), None without wheel odometry
     wheel_calibration: FloatArray | None = None
+    #: every variable beyond the keyframes' poses and affines after the optimisation (the rig
+    #: offset, the wheel calibration, a caller's: :attr:`gtvo.window.problem.WindowProblem.variables`)
+    variables: gtsam.Values | None = None
 
 
 class WindowState(Protocol):
@@ -266,6 +275,12 @@ class WindowState(Protocol):
     rig: "RigOffset | None"
     #: the wheel calibration's one owner (:class:`gtvo.window.wheel.WheelCalibration`), None without wheels
     wheel: "WheelCalibration | None"
+
+    def problem(self, targets: list[list[int]] | None = None, rig: "RigVariable | None" = None) -> "WindowProblem":
+        """The window's problem at its current state (:class:`gtvo.window.problem.WindowProblem`)."""
+
+    def solved_rig(self) -> "RigVariable | None":
+        """The rig offset as a variable of the window's problem, not held (None: none)."""
 
     def rig_free_estimate(self) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
         """What the window's data say about the rig offset while it is held: ``(estimate, marginal sigmas)``."""

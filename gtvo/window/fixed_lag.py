@@ -80,6 +80,7 @@ class FixedLagBackend:
             gauge = prior_factors(window.keyframes[:1], cfg, with_gauge=True)
             for i in range(1, gauge.size()):
                 graph.add(gauge.at(i))
+        problem = window.problem(targets)  # no rig offset, no wheels: the LM back end's
         in_window = {kf.index for kf in window.keyframes}
         remove = [slot for idx, (slot, _) in self._host_slots.items() if idx in in_window]
         # the window's hosts are removed and added again below; a leaving keyframe's host factor
@@ -88,8 +89,7 @@ class FixedLagBackend:
         added: list[tuple[int, HostPointsFactor]] = []
         for h, ts in enumerate(targets):
             if ts:
-                f = host_factor(window.camera, window.baseline, window.keyframes, h, ts, cfg,
-                                photometric=window.photometric)
+                f = host_factor(problem, h)
                 graph.add(f)
                 added.append((window.keyframes[h].index, f))
         n_prior = graph.size() - len(added)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import time
-from typing import TYPE_CHECKING, Callable, Sequence
+from typing import Callable
 
 import gtsam
 import numpy as np
@@ -13,50 +13,26 @@ from numpy.typing import NDArray
 from factors.smart import shared_residual_passes
 from gtvo.core.kernel_threads import kernel_threads
 from gtvo.core.keys import affine_key, calibration_key, pose_key, rig_offset_key
-from gtvo.core.camera import PinholeCamera
 from gtvo.window.covariance import marginals_of_graph
-from factors.params import DEFAULT_PHOTOMETRIC, PhotometricConfig
-from factors.smart import JacobianBudget
-from gtvo.window.config import MarginalPrior, WindowConfig, WindowKeyframe, WindowResult
-from gtvo.window.problem import build_graph, visible_targets
-
-if TYPE_CHECKING:
-    from gtvo.window.wheel import WheelCalibration
+from gtvo.window.config import WindowResult, values_subset, vector_of
+from gtvo.window.problem import WindowProblem, build_graph
 
 FloatArray = NDArray[np.float64]
 
 
-def solve_gtsam(camera: PinholeCamera, baseline: float | None, keyframes: Sequence[WindowKeyframe],
-                config: WindowConfig, marginal: MarginalPrior | None = None,
-                targets: list[list[int]] | None = None, rig_offset: FloatArray | None = None,
-                rig_hold_x: float | None = None, *,
-                photometric: PhotometricConfig = DEFAULT_PHOTOMETRIC,
-                wheel: "WheelCalibration | None" = None,
-                extra_factors: gtsam.NonlinearFactorGraph | None = None,
-                on_iteration: Callable[[int, float], None] | None = None,
-                jacobian_budget: JacobianBudget | None = None, stack: int = 1) -> WindowResult:
-    """Optimise the window with ``gtsam.LevenbergMarquardtOptimizer`` (residuals of the
-    ``photometric`` model); updates ``keyframes`` in place.
+def solve_gtsam(problem: WindowProblem) -> WindowResult:
+    """Optimise the window ``problem`` with ``gtsam.LevenbergMarquardtOptimizer`` on its graph
+    (:func:`gtvo.window.problem.build_graph`); updates the problem's keyframes in place.
 
-    ``rig_offset``: the rig offset's current estimate when it is a variable (the result's
-    ``rig_offset`` is the optimised one), None: the rectified model; ``rig_hold_x``: its ``delta_x``
-    held at this value (:func:`gtvo.window.problem.rig_prior`). ``wheel``: the wheel factors and the
-    calibration variable (from ``wheel.estimate``; the result's ``wheel_calibration`` is the
-    optimised one; ``wheel`` itself is not changed). ``extra_factors``: native GTSAM
-    factors on the keyframes' keys added to the graph (the whole-log refinement's loop edges);
-    ``on_iteration(iteration, cost)``: called after every LM iteration (the optimiser then runs
-    iteration by iteration, :func:`optimize_by_iterations`; a progress bar, a Ctrl-C check);
-    ``jacobian_budget``: the host factors' shared budget of kept Jacobians (the whole-log
-    refinement's memory bound, :class:`factors.smart.JacobianBudget`; None: no limit); ``stack``: the
-    Python factors in runs of this many per GTSAM factor (:func:`gtvo.window.problem.build_graph`)."""
+    The result's ``rig_offset`` and ``wheel_calibration`` are the optimised rig offset and wheel
+    calibration (None when the problem has none; ``problem.wheel`` itself is not changed), its
+    ``variables`` every variable beyond the keyframes' poses and affines. With the settings'
+    ``on_iteration`` the optimiser runs iteration by iteration (:func:`optimize_by_iterations`)."""
     t0 = time.perf_counter()
-    targets = visible_targets(camera, keyframes, config) if targets is None else targets
-    graph, values, hosts = build_graph(camera, baseline, keyframes, config, marginal, targets, rig_offset,
-                                       rig_hold_x, photometric=photometric, wheel=wheel,
-                                       jacobian_budget=jacobian_budget, stack=stack)
-    if extra_factors is not None:
-        graph.push_back(extra_factors)
+    keyframes, config = problem.keyframes, problem.config
+    graph, values, hosts = build_graph(problem)
     params = lm_params(config.max_iterations, config.relative_tolerance)
+    on_iteration = problem.settings.on_iteration
     # the parallel window's worker: the hosts' residuals of each pass at once, on its kernel threads
     together = shared_residual_passes(list(hosts.values())) if kernel_threads() > 1 else contextlib.nullcontext()
     with together:
@@ -73,11 +49,10 @@ def solve_gtsam(camera: PinholeCamera, baseline: float | None, keyframes: Sequen
     for kf in keyframes:
         kf.pose = result.atPose3(pose_key(kf.index))
         kf.affine = np.asarray(result.atVector(affine_key(kf.index)), dtype=float).copy()
-    n_res = sum(len(keyframes[h]) * len(ts) for h, ts in enumerate(targets))
-    rig = None if rig_offset is None else np.asarray(result.atVector(rig_offset_key()), dtype=float).copy()
-    calib = None if wheel is None else np.asarray(result.atVector(calibration_key()), dtype=float).copy()
-    return WindowResult("gtsam", float(initial), float(cost), int(opt.iterations()), time.perf_counter() - t0, n_res,
-                        covs, t_cov if covs is not None else 0.0, rig, calib)
+    variables = values_subset(result, list(problem.variables.keys()))
+    return WindowResult("gtsam", float(initial), float(cost), int(opt.iterations()), time.perf_counter() - t0,
+                        problem.n_residuals(), covs, t_cov if covs is not None else 0.0,
+                        vector_of(variables, rig_offset_key()), vector_of(variables, calibration_key()), variables)
 
 
 def lm_params(max_iterations: int, relative_tolerance: float) -> gtsam.LevenbergMarquardtParams:

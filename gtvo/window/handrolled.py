@@ -11,24 +11,18 @@ compare the two.
 from __future__ import annotations
 
 import time
-from typing import TYPE_CHECKING, Callable, Sequence
+from typing import Sequence
 
 import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
 from factors.host_points import DepthSystem, HostPoints
-from gtvo.core.keys import affine_key, calibration_key, is_pose_key, pose_key, rig_offset_key
-from gtvo.core.camera import PinholeCamera
+from gtvo.core.keys import affine_key, calibration_key, pose_key, rig_offset_key
 from gtvo.core.timing import stage, timed
 from gtvo.window.covariance import marginals_of_hessian
-from factors.params import DEFAULT_PHOTOMETRIC, PhotometricConfig
-from gtvo.window.config import MarginalPrior, WindowConfig, WindowKeyframe, WindowResult
-from gtvo.window.problem import (motion_factors, needs_rig_prior, rig_carried, rig_prior_mean_sigmas,
-                                 visible_targets, wheel_carried, wheel_factors)
-
-if TYPE_CHECKING:
-    from gtvo.window.wheel import WheelCalibration
+from gtvo.window.config import MarginalPrior, WindowResult, vector_of
+from gtvo.window.problem import WindowProblem
 
 FloatArray = NDArray[np.float64]
 
@@ -40,24 +34,24 @@ FloatArray = NDArray[np.float64]
 class _WindowHost:
     """One host of the hand-rolled solver: its :class:`factors.host_points.HostPoints` (the same
     linearisation as :class:`factors.smart.HostPointsFactor`'s) and where its blocks sit in the
-    window's state (8 entries per keyframe: pose, then affine; with ``rig`` the rig offset's 2
-    entries after all keyframes').
+    window's state (8 entries per keyframe: pose, then affine; with the rig variable the rig
+    offset's 2 entries after all keyframes').
 
     W is frozen at the window's starting state, where the host is built, as the smart factor
     does at its first evaluation, so both solvers minimise the same fixed cost.
     """
 
     @timed("window_build")  # the host's set-up (its first residuals: "linearisation")
-    def __init__(self, camera: PinholeCamera, baseline: float | None, keyframes: Sequence[WindowKeyframe],
-                 h: int, targets: Sequence[int], config: WindowConfig, rig_offset: FloatArray | None = None,
-                 photometric: PhotometricConfig = DEFAULT_PHOTOMETRIC) -> None:
+    def __init__(self, problem: WindowProblem, h: int) -> None:
+        keyframes, config, photometric = problem.keyframes, problem.config, problem.settings.photometric
+        rig_offset = problem.rig_offset
         kh = keyframes[h]
-        self.h, self.targets = h, list(targets)
-        self.points = HostPoints(camera, kh.pixels, kh.image, [keyframes[t].image for t in self.targets],
+        self.h, self.targets = h, list(problem.targets[h])
+        self.points = HostPoints(problem.camera, kh.pixels, kh.image, [keyframes[t].image for t in self.targets],
                                  kh.variance, kh.prior_inverse_depth, sigma_intensity=photometric.sigma_intensity,
                                  huber_k=photometric.huber_k, pattern=photometric.pattern_array,
                                  depth_prior=kh.depth_prior,
-                                 right_image=kh.right, baseline=baseline, lambda_stereo=config.lambda_stereo,
+                                 right_image=kh.right, baseline=problem.baseline, lambda_stereo=config.lambda_stereo,
                                  stereo_affine=kh.stereo_affine, rig=rig_offset is not None)
         K = len(keyframes)
         self.rig_columns = np.arange(8 * K, 8 * K + 2) if self.points.rig else None
@@ -78,192 +72,133 @@ class _WindowHost:
         ``lins``: the residuals at this state (:meth:`evaluate_safeguarded`'s or :attr:`start`'s)."""
         return self.points.linearize(lins, d, H, g, self.columns, self.rig_columns)
 
-    def evaluate_safeguarded(self, poses, affines, system: DepthSystem, d_new: FloatArray,
-                             offset: FloatArray | None = None) -> tuple[float, FloatArray, list]:
-        """The cost at a trial state with the back-substituted inverse depths ``d_new``, except for
+    def evaluate_safeguarded(self, state: "_State", system: DepthSystem, d_new: FloatArray
+                             ) -> tuple[float, FloatArray, list]:
+        """The cost at a trial ``state`` with the back-substituted inverse depths ``d_new``, except for
         points whose cost rose above their cost at ``system``'s linearisation point and that cost
         less at their depth there, which keep it (the safeguarded depth step, as the smart factor's):
         ``(cost, depths, linearisations)``."""
-        P, A = self._local(poses, affines)
+        P, A = self._local(state.poses, state.affines)
+        offset = state.vectors.get(rig_offset_key())
         c, d, lins = self.points.safeguard(P, A, system, d_new, self.points.residuals(P, A, d_new, offset=offset),
                                            offset)
         return float(c.sum()), d, lins
 
 
-def _prior_terms(keyframes, poses, affines, config, with_gauge, H=None, g=None, motion=None) -> float:
-    """Affine priors, motion prior and gauge prior: cost, and (given H, g) their Gauss-Newton terms
-    (``motion``: :func:`motion_factors` of these keyframes, if already built)."""
-    E = 0.0
-    for k, f in (motion_factors(keyframes, config) if motion is None else motion):
-        e, J = f.whitened(poses[k], poses[k + 1], poses[k + 2])
-        E += 0.5 * float(e @ e)
-        if H is not None:
-            for i in range(3):
-                ri = slice(8 * (k + i), 8 * (k + i) + 6)
-                g[ri] += J[i].T @ e
-                for j in range(3):
-                    H[ri, 8 * (k + j):8 * (k + j) + 6] += J[i].T @ J[j]
-    s_aff = np.asarray(config.affine_sigma, dtype=float)
-    for k, kf in enumerate(keyframes):
-        e = (affines[k] - kf.affine_prior) / s_aff
-        E += 0.5 * float(e @ e)
-        if H is not None:
-            idx = np.arange(8 * k + 6, 8 * k + 8)
-            H[idx, idx] += 1.0 / s_aff ** 2
-            g[idx] += e / s_aff
-    if with_gauge:
-        k0 = keyframes[0]
-        s2 = config.gauge_sigma ** 2
-        Jp = np.zeros((6, 6), order="F")
-        e = np.asarray(k0.pose.localCoordinates(poses[0], None, Jp), dtype=float)
-        ea = affines[0] - k0.affine
-        E += 0.5 * float(e @ e + ea @ ea) / s2
-        if H is not None:
-            H[:6, :6] += Jp.T @ Jp / s2
-            g[:6] += Jp.T @ e / s2
-            H[6:8, 6:8] += np.eye(2) / s2
-            g[6:8] += ea / s2
-    return E
+class _State:
+    """A state of the hand-rolled solver: the keyframes' poses and affines (8 entries each, in
+    order) and the problem's vector variables (:func:`_vector_columns`: the rig offset, the wheel
+    calibration, then a caller's, after the keyframes' entries)."""
+
+    def __init__(self, problem: WindowProblem, poses: list, affines: list, vectors: dict[int, FloatArray]) -> None:
+        self.problem, self.poses, self.affines, self.vectors = problem, poses, affines, vectors
+
+    @classmethod
+    def start(cls, problem: WindowProblem) -> "_State":
+        """The problem's starting state."""
+        vectors = {key: np.asarray(problem.variables.atVector(key), dtype=float).copy()
+                   for key in _vector_columns(problem)}
+        return cls(problem, [kf.pose for kf in problem.keyframes], [kf.affine.copy() for kf in problem.keyframes],
+                   vectors)
+
+    def retract(self, dx: FloatArray) -> "_State":
+        """The state moved by ``dx`` (poses on the right, the rest added)."""
+        cols = _vector_columns(self.problem)
+        return _State(self.problem, [p.retract(dx[8 * k:8 * k + 6]) for k, p in enumerate(self.poses)],
+                      [a + dx[8 * k + 6:8 * k + 8] for k, a in enumerate(self.affines)],
+                      {key: v + dx[cols[key][0]:cols[key][0] + cols[key][1]] for key, v in self.vectors.items()})
+
+    def values(self) -> gtsam.Values:
+        """The state as GTSAM ``Values``."""
+        values = gtsam.Values()
+        for k, kf in enumerate(self.problem.keyframes):
+            values.insert(pose_key(kf.index), self.poses[k])
+            values.insert(affine_key(kf.index), self.affines[k])
+        for key, v in self.vectors.items():
+            values.insert(key, np.asarray(v, dtype=float))
+        return values
 
 
-def _rig_prior_terms(config: WindowConfig, offset: FloatArray | None, active: bool, H=None, g=None,
-                     hold_x: float | None = None, carried: bool = False) -> float:
-    """The rig offset's prior (``active``: :func:`needs_rig_prior`; mean and sigmas of
-    :func:`rig_prior_mean_sigmas`): cost, and (given H, g) its terms in the rig's entries (the last
-    two of the state)."""
-    if offset is None or not active:
-        return 0.0
-    mean, sigmas = rig_prior_mean_sigmas(config, hold_x, carried)
-    e = (offset - mean) / sigmas
-    if H is not None:
-        H[-2:, -2:] += np.diag(1.0 / sigmas ** 2)
-        g[-2:] += e / sigmas
-    return 0.5 * float(e @ e)
+def _vector_columns(problem: WindowProblem) -> dict[int, tuple[int, int]]:
+    """Vector variable key -> (first column, size) in the hand-rolled state: after the keyframes'
+    8 entries each, the rig offset, the wheel calibration, then the others in key order."""
+    keys = list(problem.variables.keys())
+    first = [k for k in (rig_offset_key(), calibration_key()) if k in keys]
+    out, at = {}, 8 * len(problem.keyframes)
+    for key in first + [k for k in keys if k not in first]:
+        n = int(np.asarray(problem.variables.atVector(key)).size)
+        out[key] = (at, n)
+        at += n
+    return out
 
 
-def _state_values(keyframes, poses, affines, offset: FloatArray | None = None,
-                  calibration: FloatArray | None = None) -> gtsam.Values:
-    """A state of the hand-rolled solver as GTSAM ``Values`` (poses, affines, rig offset, wheel calibration)."""
-    values = gtsam.Values()
-    for k, kf in enumerate(keyframes):
-        values.insert(pose_key(kf.index), poses[k])
-        values.insert(affine_key(kf.index), affines[k])
-    if offset is not None:
-        values.insert(rig_offset_key(), np.asarray(offset, dtype=float))
-    if calibration is not None:
-        values.insert(calibration_key(), np.asarray(calibration, dtype=float))
-    return values
-
-
-def _state_columns(keyframes, offset: FloatArray | None = None, calibration: FloatArray | None = None
-                   ) -> dict[int, int]:
-    """Key -> its first column in the hand-rolled state (8 per keyframe, then the rig offset's 2,
-    then the wheel calibration's)."""
-    pos = {pose_key(kf.index): 8 * k for k, kf in enumerate(keyframes)}
-    pos.update({affine_key(kf.index): 8 * k + 6 for k, kf in enumerate(keyframes)})
-    pos[rig_offset_key()] = 8 * len(keyframes)
-    if calibration is not None:
-        pos[calibration_key()] = 8 * len(keyframes) + (0 if offset is None else 2)
+def _state_columns(problem: WindowProblem) -> dict[int, tuple[int, int]]:
+    """Key -> (first column, size) in the hand-rolled state, for every variable."""
+    pos = {pose_key(kf.index): (8 * k, 6) for k, kf in enumerate(problem.keyframes)}
+    pos.update({affine_key(kf.index): (8 * k + 6, 2) for k, kf in enumerate(problem.keyframes)})
+    pos.update(_vector_columns(problem))
     return pos
 
 
-def _marginal_terms(marginal: MarginalPrior | None, keyframes, poses, affines, H=None, g=None,
-                    offset: FloatArray | None = None, calibration: FloatArray | None = None) -> float:
+def _marginal_terms(marginal: MarginalPrior | None, state: _State, H=None, g=None) -> float:
     """The marginalisation prior's cost, and (given H, g) its terms (Jacobian of delta taken as I,
-    as ``gtsam.LinearContainerFactor`` does); ``offset``: the rig offset (2 entries after the
-    keyframes'); ``calibration``: the wheel calibration (the state's last entries)."""
+    as ``gtsam.LinearContainerFactor`` does)."""
     if marginal is None:
         return 0.0
-    dl = marginal.delta(_state_values(keyframes, poses, affines, offset, calibration))
+    dl = marginal.delta(state.values())
     if H is not None:
-        pos = _state_columns(keyframes, offset, calibration)
-        idx = np.concatenate([np.arange(pos[key], pos[key] + dim) for key, dim in zip(marginal.keys, marginal.dims)])
+        pos = _state_columns(state.problem)
+        idx = np.concatenate([np.arange(pos[key][0], pos[key][0] + dim) for key, dim in zip(marginal.keys, marginal.dims)])
         H[np.ix_(idx, idx)] += marginal.H
         g[idx] += marginal.H @ dl - marginal.eta
     return float(0.5 * dl @ marginal.H @ dl - marginal.eta @ dl + 0.5 * marginal.f)
 
 
-def _extra_terms(factors: gtsam.NonlinearFactorGraph | None, keyframes, poses, affines, H=None, g=None,
-                 offset: FloatArray | None = None, calibration: FloatArray | None = None) -> float:
-    """Native GTSAM factors on the keyframes' keys (the whole-log refinement's loop edges): their
-    cost, and (given H, g) their Gauss-Newton terms from each factor's own linearisation
-    (``JacobianFactor``: ``0.5 |A dx - b|^2``, GTSAM's right-perturbation tangent, as the poses' retraction here)."""
-    if factors is None or factors.size() == 0:
+def _graph_terms(state: _State, H=None, g=None) -> float:
+    """The problem's non-host factors (:attr:`WindowProblem.factors`: priors, motion prior, rig
+    prior, wheel factors, loop edges, a caller's): their cost, and (given H, g) their Gauss-Newton
+    terms from the graph's own linearisation (``graph.linearize(values)``: a ``JacobianFactor``
+    is ``0.5 |A dx - b|^2``, GTSAM's right-perturbation tangent, as the poses' retraction here)."""
+    factors = state.problem.factors
+    if factors.size() == 0:
         return 0.0
-    values = _state_values(keyframes, poses, affines, offset, calibration)
+    values = state.values()
     if H is not None:
-        pos = _state_columns(keyframes, offset, calibration)
-        for i in range(factors.size()):
-            A, b = factors.at(i).linearize(values).jacobian()
-            dims = [6 if is_pose_key(key) else values.atVector(key).shape[0] for key in factors.at(i).keys()]
-            idx = np.concatenate([np.arange(pos[key], pos[key] + d) for key, d in zip(factors.at(i).keys(), dims)])
-            H[np.ix_(idx, idx)] += A.T @ A
-            g[idx] -= A.T @ b
+        pos = _state_columns(state.problem)
+        linear = factors.linearize(values)
+        for i in range(linear.size()):
+            factor = linear.at(i)
+            idx = np.concatenate([np.arange(pos[key][0], pos[key][0] + pos[key][1]) for key in factor.keys()])
+            if isinstance(factor, gtsam.HessianFactor):
+                H[np.ix_(idx, idx)] += factor.information()
+                g[idx] -= np.asarray(factor.linearTerm(), dtype=float).reshape(-1)
+            else:
+                A, b = factor.jacobian()
+                H[np.ix_(idx, idx)] += A.T @ A
+                g[idx] -= A.T @ b
     return float(factors.error(values))
 
 
-def _wheel_terms(wheel: "WheelCalibration | None", factors: list, poses, calibration: FloatArray | None,
-                 prior_on: bool, H=None, g=None) -> float:
-    """The wheel factors (``factors``: :func:`wheel_factors` of the window) and, when ``prior_on``,
-    the calibration's prior: cost, and (given H, g) their Gauss-Newton terms (the calibration's
-    entries are the state's last ``wheel.size``)."""
-    if wheel is None or calibration is None:
-        return 0.0
-    E = 0.0
-    at = None if H is None else H.shape[0] - wheel.size
-    for k, f in factors:
-        e, J = f.whitened(poses[k], poses[k + 1], calibration)
-        E += 0.5 * float(e @ e)
-        if H is not None:
-            cols = [np.arange(8 * k, 8 * k + 6), np.arange(8 * k + 8, 8 * k + 14), np.arange(at, at + wheel.size)]
-            for a in range(3):
-                g[cols[a]] += J[a].T @ e
-                for b in range(3):
-                    H[np.ix_(cols[a], cols[b])] += J[a].T @ J[b]
-    if prior_on:
-        E += wheel.prior_terms(calibration, H, g, 0 if at is None else at)
-    return E
+def _terms(problem: WindowProblem, state: _State, H=None, g=None) -> float:
+    """Every term but the hosts': the problem's graph, then the marginalisation prior."""
+    return _graph_terms(state, H, g) + _marginal_terms(problem.marginal, state, H, g)
 
 
-def window_cost(camera: PinholeCamera, baseline: float | None, keyframes: Sequence[WindowKeyframe],
-                config: WindowConfig, marginal: MarginalPrior | None = None,
-                targets: list[list[int]] | None = None, rig_offset: FloatArray | None = None,
-                rig_hold_x: float | None = None, *, photometric: PhotometricConfig = DEFAULT_PHOTOMETRIC,
-                wheel: "WheelCalibration | None" = None) -> float:
-    """The window cost E at the keyframes' current state, computed the hand-rolled way (W at this
-    state), with the ``photometric`` model (``wheel``: with the wheel factors at ``wheel.estimate``)."""
-    targets = visible_targets(camera, keyframes, config) if targets is None else targets
-    hosts = [_WindowHost(camera, baseline, keyframes, h, ts, config, rig_offset, photometric)
-             for h, ts in enumerate(targets)]
-    poses = [kf.pose for kf in keyframes]
-    affines = [kf.affine for kf in keyframes]
-    off = None if rig_offset is None else np.asarray(rig_offset, dtype=float).reshape(2)
+def window_cost(problem: WindowProblem) -> float:
+    """The window cost E at the problem's starting state, computed the hand-rolled way (W at this state)."""
+    hosts = [_WindowHost(problem, h) for h in range(len(problem.targets))]
     E = sum(host.start[0] for host in hosts)
-    E += _prior_terms(keyframes, poses, affines, config, marginal is None)
-    E += _rig_prior_terms(config, off, needs_rig_prior(off, marginal, rig_hold_x), hold_x=rig_hold_x,
-                          carried=rig_carried(marginal))
-    calib = None if wheel is None else wheel.estimate
-    E += _wheel_terms(wheel, wheel_factors(keyframes, wheel), poses, calib, not wheel_carried(marginal))
-    return E + _marginal_terms(marginal, keyframes, poses, affines, offset=off, calibration=calib)
+    return E + _terms(problem, _State.start(problem))
 
 
-def solve_handrolled(camera: PinholeCamera, baseline: float | None, keyframes: Sequence[WindowKeyframe],
-                     config: WindowConfig, marginal: MarginalPrior | None = None,
-                     targets: list[list[int]] | None = None, rig_offset: FloatArray | None = None,
-                     rig_hold_x: float | None = None, *,
-                     photometric: PhotometricConfig = DEFAULT_PHOTOMETRIC,
-                     wheel: "WheelCalibration | None" = None,
-                     extra_factors: gtsam.NonlinearFactorGraph | None = None,
-                     on_iteration: Callable[[int, float], None] | None = None) -> WindowResult:
-    """Levenberg-Marquardt on the reduced camera system (residuals of the ``photometric`` model);
-    updates ``keyframes`` in place. ``extra_factors`` (native GTSAM factors on the keyframes' keys)
-    and ``on_iteration`` as :func:`gtvo.window.solve_gtsam`'s.
+def solve_handrolled(problem: WindowProblem) -> WindowResult:
+    """Levenberg-Marquardt on the reduced camera system; updates the problem's keyframes in place.
+    The result and the settings' ``on_iteration`` as :func:`gtvo.window.solve_gtsam`'s.
 
-    ``rig_offset``: the rig offset's current estimate when it is a variable (2 more state entries
-    after the keyframes'; the result's ``rig_offset`` is the optimised one); ``rig_hold_x``: its
-    ``delta_x`` held at this value (:func:`gtvo.window.problem.rig_prior_mean_sigmas`). ``wheel``:
-    the wheel factors and the calibration (``wheel.size`` more entries, last; from
-    ``wheel.estimate``, the result's ``wheel_calibration`` is the optimised one).
+    The state: 8 entries per keyframe (pose, affine), then the problem's vector variables (the rig
+    offset's 2, the wheel calibration's, a caller's: :func:`_vector_columns`). The host factors'
+    terms come from their own kernels (:class:`_WindowHost`), every other factor's from the
+    problem's graph linearised by GTSAM (:func:`_graph_terms`), the marginalisation prior's as it is.
 
     Per iteration: every host's Gauss-Newton blocks over (poses, affines) ``x`` (8 per keyframe)
     and its inverse depths ``d`` (diagonal ``H_dd``), the Schur complement
@@ -272,41 +207,20 @@ def solve_handrolled(camera: PinholeCamera, baseline: float | None, keyframes: S
     ``dd = -(g_d + H_xd^T dx) / H_dd``; the step is kept when the true cost decreases.
     """
     t0 = time.perf_counter()
-    targets = visible_targets(camera, keyframes, config) if targets is None else targets
-    off = None if rig_offset is None else np.asarray(rig_offset, dtype=float).reshape(2).copy()
-    hosts = [_WindowHost(camera, baseline, keyframes, h, ts, config, off, photometric)
-             for h, ts in enumerate(targets) if ts]
-    K = len(keyframes)
-    cal = None if wheel is None else np.asarray(wheel.estimate, dtype=float).copy()
-    M = 8 * K + (0 if off is None else 2) + (0 if cal is None else cal.size)
-    at_cal = M - (0 if cal is None else cal.size)
-    wheel_fs = wheel_factors(keyframes, wheel)
-    wheel_prior_on = not wheel_carried(marginal)
-    rig_prior_on = needs_rig_prior(off, marginal, rig_hold_x)
-    carried = rig_carried(marginal)
-    with_gauge = marginal is None
-    poses = [kf.pose for kf in keyframes]
-    affines = [kf.affine.copy() for kf in keyframes]
+    keyframes, config, on_iteration = problem.keyframes, problem.config, problem.settings.on_iteration
+    hosts = [_WindowHost(problem, h) for h, ts in enumerate(problem.targets) if ts]
+    state = _State.start(problem)
+    M = 8 * len(keyframes) + sum(n for _, n in _vector_columns(problem).values())
     depths = {host.h: keyframes[host.h].inverse_depth.copy() for host in hosts}
-    motion = motion_factors(keyframes, config)
 
-    def cost(P, A, O, C, D_new, systems) -> tuple[float, dict[int, FloatArray], dict[int, list]]:
+    def cost(trial: _State, D_new, systems) -> tuple[float, dict[int, FloatArray], dict[int, list]]:
         E, D, L = 0.0, {}, {}
         for host in hosts:
-            e, D[host.h], L[host.h] = host.evaluate_safeguarded(P, A, systems[host.h], D_new[host.h], O)
+            e, D[host.h], L[host.h] = host.evaluate_safeguarded(trial, systems[host.h], D_new[host.h])
             E += e
-        E += _prior_terms(keyframes, P, A, config, with_gauge, motion=motion)
-        E += _rig_prior_terms(config, O, rig_prior_on, hold_x=rig_hold_x, carried=carried)
-        E += _wheel_terms(wheel, wheel_fs, P, C, wheel_prior_on)
-        E += _extra_terms(extra_factors, keyframes, P, A, offset=O, calibration=C)
-        return E + _marginal_terms(marginal, keyframes, P, A, offset=O, calibration=C), D, L
+        return E + _terms(problem, trial), D, L
 
-    E = sum(host.start[0] for host in hosts) \
-        + _prior_terms(keyframes, poses, affines, config, with_gauge, motion=motion) \
-        + _rig_prior_terms(config, off, rig_prior_on, hold_x=rig_hold_x, carried=carried) \
-        + _wheel_terms(wheel, wheel_fs, poses, cal, wheel_prior_on) \
-        + _marginal_terms(marginal, keyframes, poses, affines, offset=off, calibration=cal) \
-        + _extra_terms(extra_factors, keyframes, poses, affines, offset=off, calibration=cal)
+    E = sum(host.start[0] for host in hosts) + _terms(problem, state)
     state_lins = {host.h: host.start[1] for host in hosts}
     initial = E
     lam = 1e-5
@@ -315,22 +229,15 @@ def solve_handrolled(camera: PinholeCamera, baseline: float | None, keyframes: S
         H = np.zeros((M, M))
         g = np.zeros(M)
         systems = {host.h: host.linearize(depths[host.h], H, g, state_lins[host.h]) for host in hosts}
-        _prior_terms(keyframes, poses, affines, config, with_gauge, H, g, motion)
-        _rig_prior_terms(config, off, rig_prior_on, H, g, rig_hold_x, carried)
-        _wheel_terms(wheel, wheel_fs, poses, cal, wheel_prior_on, H, g)
-        _marginal_terms(marginal, keyframes, poses, affines, H, g, off, cal)
-        _extra_terms(extra_factors, keyframes, poses, affines, H, g, off, cal)
+        _terms(problem, state, H, g)
         H = 0.5 * (H + H.T)
         diag = np.maximum(np.diag(H), 1e-12 * max(float(np.max(np.diag(H))), 1e-300))
         accepted = False
         for _ in range(10):
             dx = np.linalg.solve(H + lam * np.diag(diag), -g)
-            P = [p.retract(dx[8 * k:8 * k + 6]) for k, p in enumerate(poses)]
-            A = [a + dx[8 * k + 6:8 * k + 8] for k, a in enumerate(affines)]
-            O = None if off is None else off + dx[8 * K:8 * K + 2]
-            C = None if cal is None else cal + dx[at_cal:]
+            trial = state.retract(dx)
             D = {h: system.back_substitute(dx) for h, system in systems.items()}
-            E_new, D, L_new = cost(P, A, O, C, D, systems)
+            E_new, D, L_new = cost(trial, D, systems)
             if E_new < E:
                 accepted = True
                 break
@@ -338,7 +245,7 @@ def solve_handrolled(camera: PinholeCamera, baseline: float | None, keyframes: S
         if not accepted:
             break
         decrease = E - E_new
-        poses, affines, off, cal, depths, E, state_lins = P, A, O, C, D, E_new, L_new
+        state, depths, E, state_lins = trial, D, E_new, L_new
         lam = max(lam / 10.0, 1e-7)
         if on_iteration is not None:
             on_iteration(it, E)
@@ -352,19 +259,17 @@ def solve_handrolled(camera: PinholeCamera, baseline: float | None, keyframes: S
             g = np.zeros(M)
             for host in hosts:
                 host.linearize(depths[host.h], H, g, state_lins[host.h])
-            _prior_terms(keyframes, poses, affines, config, with_gauge, H, g, motion)
-            _rig_prior_terms(config, off, rig_prior_on, H, g, rig_hold_x, carried)
-            _wheel_terms(wheel, wheel_fs, poses, cal, wheel_prior_on, H, g)
-            _marginal_terms(marginal, keyframes, poses, affines, H, g, off, cal)
-            _extra_terms(extra_factors, keyframes, poses, affines, H, g, off, cal)
+            _terms(problem, state, H, g)
             covs = marginals_of_hessian(H, [kf.index for kf in keyframes])
     t_cov = time.perf_counter() - t_cov
     for k, kf in enumerate(keyframes):
-        kf.pose = poses[k]
-        kf.affine = np.asarray(affines[k], dtype=float).copy()
+        kf.pose = state.poses[k]
+        kf.affine = np.asarray(state.affines[k], dtype=float).copy()
         if k in depths:
             kf.inverse_depth = depths[k].copy()
-    n_res = sum(len(keyframes[h]) * len(ts) for h, ts in enumerate(targets))
-    return WindowResult("handrolled", float(initial), float(E), it, time.perf_counter() - t0, n_res,
-                        covs, t_cov if covs is not None else 0.0, None if off is None else off.copy(),
-                        None if cal is None else cal.copy())
+    variables = gtsam.Values()
+    for key, v in state.vectors.items():
+        variables.insert(key, np.asarray(v, dtype=float).copy())
+    return WindowResult("handrolled", float(initial), float(E), it, time.perf_counter() - t0, problem.n_residuals(),
+                        covs, t_cov if covs is not None else 0.0, vector_of(variables, rig_offset_key()),
+                        vector_of(variables, calibration_key()), variables)

@@ -19,13 +19,14 @@ from gtvo.core.keys import calibration_key, rig_offset_key
 from gtvo.core.timing import stage
 from gtvo.errors import InputError
 from factors.compact_image import compact_image
-from factors.params import DEFAULT_PHOTOMETRIC, PhotometricConfig
+from factors.params import PhotometricConfig
 from gtvo.window.config import MarginalPrior, WindowConfig, WindowKeyframe, WindowResult, WindowSolverName, WindowState
 from gtvo.window.gtsam_solver import solve_gtsam
 from gtvo.window.handrolled import solve_handrolled, window_cost
 from gtvo.window.marginal import marginalize
 from gtvo.window.fixed_lag import FixedLagBackend
-from gtvo.window.problem import build_graph, observation_counts, visible_targets, wheel_factors
+from gtvo.window.problem import (RigVariable, WindowMembers, WindowProblem, WindowSettings, build_graph,
+                                 observation_counts, visible_targets)
 from gtvo.window.rig import RigOffset
 from gtvo.window.wheel import WheelCalibration
 
@@ -38,10 +39,11 @@ class SlidingWindowOptimizer:
     Args:
         camera: left-camera intrinsics (all keyframes share them).
         baseline: stereo baseline (m), or None for RGB-D input.
-        config: window settings.
+        settings: the window's settings (:class:`gtvo.window.config.WindowConfig`) or, with the
+            photometric model of its residuals (noise, Huber threshold, pattern; a VO run's
+            ``OdometryConfig.photometric``), a :class:`gtvo.window.problem.WindowSettings`; default
+            :class:`WindowConfig`'s and :class:`factors.params.PhotometricConfig`'s.
         rig_offset: the rig offset's starting value when it is estimated (docs/window.md, "Rig calibration").
-        photometric: the photometric model of its residuals (noise, Huber threshold, pattern; a VO
-            run's ``OdometryConfig.photometric``); default :class:`factors.params.PhotometricConfig`'s.
         wheel: the wheel odometry and its calibration (:class:`gtvo.window.wheel.WheelCalibration`;
             LM backend only): wheel factors between consecutive keyframes, the calibration a
             variable of every window (docs/window.md, "Wheel odometry"); None: no wheels.
@@ -53,13 +55,14 @@ class SlidingWindowOptimizer:
         result = window.optimize("gtsam")          # keyframes updated in place
     """
 
-    def __init__(self, camera: PinholeCamera, baseline: float | None, config: WindowConfig | None = None,
-                 rig_offset: FloatArray | None = None, photometric: PhotometricConfig | None = None,
+    def __init__(self, camera: PinholeCamera, baseline: float | None,
+                 settings: WindowSettings | WindowConfig | None = None, rig_offset: FloatArray | None = None,
                  wheel: WheelCalibration | None = None) -> None:
         self.camera = camera
         self.baseline = baseline
-        self.config = config or WindowConfig()
-        self.photometric = photometric or DEFAULT_PHOTOMETRIC
+        settings = WindowSettings(settings) if isinstance(settings, WindowConfig) else settings or WindowSettings()
+        self.config: WindowConfig = settings.config
+        self.photometric: PhotometricConfig = settings.photometric
         #: the stereo rig's offset and its state (:class:`gtvo.window.rig.RigOffset`), estimated by
         #: every optimisation when a ``rig_offset`` start is given (docs/window.md, "Rig
         #: calibration"), else None (rectified model)
@@ -120,11 +123,22 @@ class SlidingWindowOptimizer:
         """The prior left by the keyframes that were marginalised (LM back end; None before, and for fixed-lag)."""
         return getattr(self.backend, "marginal", None)
 
+    def solved_rig(self) -> RigVariable | None:
+        """The rig offset as a variable of the window's problem, not held: None while it is not
+        estimated or rectified."""
+        offset = None if self.rig is None else self.rig.solved_offset
+        return None if offset is None else RigVariable(offset)
+
+    def problem(self, targets: list[list[int]] | None = None, rig: RigVariable | None = None) -> WindowProblem:
+        """The window's problem at its current state (:class:`gtvo.window.problem.WindowProblem`):
+        its keyframes (``targets``: theirs, None: chosen at the first use), its marginalisation
+        prior, its wheel calibration and ``rig`` (None: no rig variable; :meth:`solved_rig`: the window's)."""
+        return WindowProblem.build(WindowMembers(self.camera, self.baseline, self.keyframes, targets),
+                                   WindowSettings(self.config, self.photometric), self.marginal, rig, self.wheel)
+
     def cost(self) -> float:
         """The window cost at the current state (W evaluated at this state)."""
-        return window_cost(self.camera, self.baseline, self.keyframes, self.config, self.marginal,
-                           rig_offset=None if self.rig is None else self.rig.solved_offset, photometric=self.photometric,
-                           wheel=self.wheel)
+        return window_cost(self.problem(rig=self.solved_rig()))
 
     def wheel_covariance(self) -> FloatArray | None:
         """The marginal covariance of the wheel calibration at the current state (the window's graph
@@ -132,10 +146,7 @@ class SlidingWindowOptimizer:
         odometry or with fewer than two keyframes."""
         if self.wheel is None or len(self.keyframes) < 2:
             return None
-        targets = visible_targets(self.camera, self.keyframes, self.config)
-        graph, values, _ = build_graph(self.camera, self.baseline, self.keyframes, self.config, self.marginal, targets,
-                                       None if self.rig is None else self.rig.solved_offset,
-                                       photometric=self.photometric, wheel=self.wheel)
+        graph, values, _ = build_graph(self.problem(rig=self.solved_rig()))
         try:
             cov = np.asarray(gtsam.Marginals(graph, values).marginalCovariance(calibration_key()), dtype=float)
         except RuntimeError:  # indeterminate: nothing to say
@@ -161,8 +172,7 @@ class SlidingWindowOptimizer:
         targets = visible_targets(self.camera, self.keyframes, self.config)
         if not any(targets):
             return None
-        graph, values, _ = build_graph(self.camera, self.baseline, self.keyframes, self.config, self.marginal, targets,
-                                       self.rig.offset, photometric=self.photometric, wheel=self.wheel)
+        graph, values, _ = build_graph(self.problem(targets, RigVariable(self.rig.offset)))
         return graph, values
 
     def rig_free_estimate(self) -> tuple[FloatArray, FloatArray] | None:
@@ -194,7 +204,8 @@ class SlidingWindowOptimizer:
         if len(self.keyframes) < 2:
             return None
         targets = visible_targets(self.camera, self.keyframes, self.config)
-        if not any(targets) and not wheel_factors(self.keyframes, self.wheel):  # the wheels alone may hold it
+        if not any(targets) and not (self.wheel and self.wheel.factors(self.keyframes, lambda kf: 0)):
+            # the wheels alone may hold it
             return None
         with stage("solve"):  # less the stages inside: build, linearisation, covariances
             res = self.backend.optimize(self, targets, solver)
@@ -235,9 +246,7 @@ class LMBackend:
     def remove_oldest(self, window: WindowState) -> WindowKeyframe:
         """Marginalise the oldest keyframe into :attr:`marginal` (or drop it, ``marginalize=False``)."""
         if window.config.marginalize:
-            self.marginal = marginalize(window.camera, window.baseline, window.keyframes, window.config,
-                                        self.marginal, 0, None if window.rig is None else window.rig.solved_offset,
-                                        photometric=window.photometric, wheel=window.wheel)
+            self.marginal = marginalize(window.problem(rig=window.solved_rig()), 0)
         return window.keyframes.pop(0)
 
     def optimize(self, window: WindowState, targets: list[list[int]],
@@ -256,14 +265,15 @@ class LMBackend:
         # it clearly away from it (the marginalisation prior never holds the hold)
         solved = None if rig is None else rig.solved_offset
         hold = None if rig is None else rig.hold_x
-        res = solve(window.camera, window.baseline, window.keyframes, window.config, self.marginal, targets,
-                    rig_offset=solved, rig_hold_x=hold, photometric=window.photometric, wheel=wheel)
+
+        def problem(offset: FloatArray | None, hold_x: float | None) -> WindowProblem:
+            return window.problem(targets, None if offset is None else RigVariable(offset, hold_x))
+
+        res = solve(problem(solved, hold))
         full = self.marginal is not None or len(window.keyframes) >= window.config.size
         if rig is not None and solved is None:  # rectified: the offset as a whole is tested
             if full and rig.test_release_both(window.config.size, window.rig_free_estimate):
-                res = solve(window.camera, window.baseline, window.keyframes, window.config, self.marginal,
-                            targets, rig_offset=rig.offset, rig_hold_x=None, photometric=window.photometric,
-                            wheel=wheel)
+                res = solve(problem(rig.offset, None))
                 assert res.rig_offset is not None
                 rig.offset = res.rig_offset.copy()
             return res
@@ -273,8 +283,7 @@ class LMBackend:
         if hold is not None and full and rig.test_release(window.config.size, window.rig_x_free_estimate):
             # solved again with delta_x free, from the held state (LM's damping, not the test's
             # linear step, decides how far it goes along the flat scale direction)
-            res = solve(window.camera, window.baseline, window.keyframes, window.config, self.marginal, targets,
-                        rig_offset=rig.offset, rig_hold_x=None, photometric=window.photometric, wheel=wheel)
+            res = solve(problem(rig.offset, None))
             assert res.rig_offset is not None
             rig.offset = res.rig_offset.copy()
         return res
@@ -282,8 +291,8 @@ class LMBackend:
 
 def _updating_wheel(solve, wheel: WheelCalibration):
     """``solve`` that writes the optimised calibration back to ``wheel.estimate``."""
-    def run(*args, **kwargs) -> WindowResult:
-        res = solve(*args, **kwargs)
+    def run(problem: WindowProblem) -> WindowResult:
+        res = solve(problem)
         if res.wheel_calibration is not None:
             wheel.estimate = res.wheel_calibration.copy()
         return res

@@ -7,7 +7,9 @@ weak affine priors, the constant-velocity priors, the gauge prior and the margin
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Sequence
+import dataclasses
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Callable, Sequence
 
 import gtsam
 import numpy as np
@@ -39,21 +41,6 @@ def key_ordering(keys: Sequence[int]) -> gtsam.Ordering:
     for k in keys:
         o.push_back(k)
     return o
-
-
-def window_values(keyframes: Sequence[WindowKeyframe], rig_offset: FloatArray | None = None,
-                  wheel: "WheelCalibration | None" = None) -> gtsam.Values:
-    """The keyframes' poses and affines (and the rig offset, if estimated, and the wheel
-    calibration, with wheel odometry) as GTSAM ``Values``."""
-    v = gtsam.Values()
-    for kf in keyframes:
-        v.insert(pose_key(kf.index), kf.pose)
-        v.insert(affine_key(kf.index), kf.affine)
-    if rig_offset is not None:
-        v.insert(rig_offset_key(), np.asarray(rig_offset, dtype=float).reshape(2))
-    if wheel is not None:
-        v.insert(calibration_key(), np.asarray(wheel.estimate, dtype=float).copy())
-    return v
 
 
 def wheel_carried(marginal: MarginalPrior | None) -> bool:
@@ -107,20 +94,35 @@ def rig_prior(config: WindowConfig, hold_x: float | None = None, carried: bool =
     return gtsam.PriorFactorVector(rig_offset_key(), mean, gtsam.noiseModel.Diagonal.Precisions(sigmas ** -2.0))
 
 
+@dataclass(frozen=True)
+class TargetChoice:
+    """Which targets :func:`visible_targets` tries and keeps.
+
+    Attributes:
+        hosts: only these hosts' lists (positions, in this order); None: every host.
+        candidates: per host (in the order of ``hosts``), the only positions tried; None: every
+            other keyframe (the window's).
+        max_targets: keep at most this many targets per host, those that see most of its points
+            (ties: the nearer in order), listed in increasing position; None: all (the window's).
+    """
+
+    hosts: Sequence[int] | None = None
+    candidates: Sequence[Sequence[int]] | None = None
+    max_targets: int | None = None
+
+
 @timed("window_build")
 def visible_targets(camera: PinholeCamera, keyframes: Sequence[WindowKeyframe], config: WindowConfig,
-                    hosts: Sequence[int] | None = None, candidates: Sequence[Sequence[int]] | None = None,
-                    max_targets: int | None = None) -> list[list[int]]:
+                    choice: "TargetChoice | None" = None) -> list[list[int]]:
     """For each host (position in ``keyframes``), the positions of the keyframes that see its points.
 
     A point counts as seen when it projects in front of the target and inside its image with a
     2-pixel border (:func:`seen_in`); a target needs ``min_visible_points`` and
-    ``min_visible_fraction`` of them. ``hosts``: only these hosts' lists (in this order; default
-    all). ``candidates``: per host (in the order of ``hosts``), the only positions tried (default
-    every other keyframe: the window's); ``max_targets``: keep at most this many targets per host,
-    those that see most of its points (ties: the nearer in order), listed in increasing position
-    (default all: the window's).
+    ``min_visible_fraction`` of them. ``choice``: which hosts, which candidates and how many
+    targets (:class:`TargetChoice`; default: every host, every other keyframe, all of them: the window's).
     """
+    choice = choice or TargetChoice()
+    hosts, candidates, max_targets = choice.hosts, choice.candidates, choice.max_targets
     out: list[list[int]] = []
     for i, h in enumerate(range(len(keyframes)) if hosts is None else hosts):
         if not 0 <= h < len(keyframes):
@@ -211,64 +213,238 @@ def prior_factors(keyframes: Sequence[WindowKeyframe], config: WindowConfig, wit
     return g
 
 
+# ----------------------------------------------------------------------------------------------
+# the window problem: one value for both solvers, the marginalisation and the refinement
+
+
+@dataclass(frozen=True)
+class WindowMembers:
+    """The keyframes of a window problem and what their points are compared with.
+
+    Attributes:
+        camera: the left camera's intrinsics (all keyframes share them).
+        baseline: the stereo baseline (m), None for RGB-D input.
+        keyframes: the members, oldest first; the solvers update their poses, affines and inverse
+            depths in place.
+        targets: per host (position), the positions of the keyframes its points are compared with
+            (:func:`visible_targets`); None: the window's rule at the keyframes' current state.
+    """
+
+    camera: PinholeCamera
+    baseline: float | None
+    keyframes: Sequence[WindowKeyframe]
+    targets: list[list[int]] | None = None
+
+
+@dataclass(frozen=True)
+class RigVariable:
+    """The stereo rig's offset ``(delta_x, delta_y)`` (px) as a variable of the problem.
+
+    Attributes:
+        offset: its current estimate (the start of the solve).
+        hold_x: ``delta_x`` held at this value (:func:`rig_prior`); None: free.
+    """
+
+    offset: FloatArray
+    hold_x: float | None = None
+
+
+@dataclass(frozen=True)
+class WindowSettings:
+    """How a window problem is built and solved: a parameter object, as GTSAM's
+    ``LevenbergMarquardtParams`` (its ``iterationHook`` is :attr:`on_iteration` here).
+
+    Attributes:
+        config: the window's settings (weights, priors, motion prior, LM iterations and tolerance).
+        photometric: the photometric model of the host factors' residuals.
+        jacobian_budget: the host factors' shared budget of kept Jacobians (the whole-log
+            refinement's memory bound, :class:`factors.smart.JacobianBudget`; None: no limit, the window's).
+        stack: the Python factors in runs of this many per GTSAM factor
+            (:func:`factors.stacked.stacked`: fewer copies of the Values in GTSAM's optimisers).
+        on_iteration: called with ``(iteration, cost)`` after every LM iteration (a progress bar,
+            a Ctrl-C check); GTSAM's optimiser then runs iteration by iteration.
+    """
+
+    config: WindowConfig = field(default_factory=WindowConfig)
+    photometric: PhotometricConfig = DEFAULT_PHOTOMETRIC
+    jacobian_budget: JacobianBudget | None = None
+    stack: int = 1
+    on_iteration: Callable[[int, float], None] | None = None
+
+
+@dataclass(frozen=True)
+class WindowProblem:
+    """Everything a window solve needs, in one value (docs/window.md, "The window problem").
+
+    The host factors (one :class:`factors.smart.HostPointsFactor` per host with targets, the
+    photometric and stereo terms) are built by each solver from :attr:`members` (their fast path);
+    every other factor lives in :attr:`factors`, one ``gtsam.NonlinearFactorGraph`` that both
+    solvers consume: the affine priors, the gauge prior (no marginalisation prior yet), the motion
+    prior, the rig offset's prior, the wheel factors and the calibration's prior, and whatever a
+    caller adds (the refinement's loop edges, a new factor: docs/extending.md). The marginalisation
+    prior :attr:`marginal` is a quadratic kept apart (both solvers add it as it is).
+
+    Build it with :meth:`build`; add a factor with ``problem.factors.add(factor)`` and a new
+    variable with ``problem.variables.insert(key, value)`` (a vector).
+
+    Attributes:
+        members: the keyframes, their camera and their targets (:class:`WindowMembers`).
+        settings: how it is solved (:class:`WindowSettings`).
+        marginal: the marginalisation prior (None: the gauge prior holds the oldest keyframe).
+        rig: the rig offset as a variable (None: the rectified model).
+        wheel: the wheel odometry and its calibration (the variable starts at ``wheel.estimate``;
+            ``wheel`` itself is not changed by a solve); None: no wheels.
+        factors: the problem's non-host factors (see above).
+        variables: the values of the problem's variables beyond the keyframes' poses and affines:
+            the rig offset, the wheel calibration, then any a caller inserts (vectors), in this order.
+        keyframe_kinds: the symbol characters of the variable kinds each keyframe has beyond its
+            pose and affine (``gtsam.symbol(kind, keyframe.index)`` in :attr:`variables`, e.g. a
+            velocity): the marginalisation eliminates them with their keyframe.
+        host_position: in GTSAM's graph the host factors and the marginalisation prior come after
+            this many of :attr:`factors` (the affine, gauge and motion priors): the order of the
+            sums, and so every bit of a result, is as it always was.
+        gauge_factors: the positions in :attr:`factors` of the gauge prior (empty with a
+            marginalisation prior); the marginalisation adds them where the previous prior goes.
+    """
+
+    members: WindowMembers
+    settings: WindowSettings
+    marginal: MarginalPrior | None
+    rig: RigVariable | None
+    wheel: "WheelCalibration | None"
+    factors: gtsam.NonlinearFactorGraph
+    variables: gtsam.Values
+    keyframe_kinds: list[str]
+    host_position: int
+    gauge_factors: range
+
+    @classmethod
+    @timed("window_build")
+    def build(cls, members: WindowMembers, settings: WindowSettings | None = None,
+              marginal: MarginalPrior | None = None, rig: RigVariable | None = None,
+              wheel: "WheelCalibration | None" = None) -> "WindowProblem":
+        """The problem of ``members`` (targets chosen by :func:`visible_targets` when None) with its
+        non-host factors: affine priors, the gauge prior without ``marginal``, the motion prior
+        (in runs of ``settings.stack``), the rig offset's prior (:func:`needs_rig_prior`), the wheel
+        factors and (until ``marginal`` carries it) the calibration's prior."""
+        settings = settings or WindowSettings()
+        config = settings.config
+        keyframes = members.keyframes
+        graph = prior_factors(keyframes, config, with_gauge=marginal is None)
+        gauge = range(len(keyframes), graph.size())  # after the affine priors
+        for f in stacked([f for _, f in motion_factors(keyframes, config)], settings.stack):
+            graph.add(f)
+        host_position = graph.size()
+        offset = None if rig is None else rig.offset
+        hold = None if rig is None else rig.hold_x
+        if needs_rig_prior(offset, marginal, hold):
+            graph.add(rig_prior(config, hold, rig_carried(marginal)))
+        if wheel is not None:
+            for _, f in wheel_factors(keyframes, wheel):
+                graph.add(f)
+            if not wheel_carried(marginal):
+                graph.add(wheel.prior_factor())
+        variables = gtsam.Values()
+        if offset is not None:
+            variables.insert(rig_offset_key(), np.asarray(offset, dtype=float).reshape(2).copy())
+        if wheel is not None:
+            variables.insert(calibration_key(), np.asarray(wheel.estimate, dtype=float).copy())
+        return cls(members, settings, marginal, rig, wheel, graph, variables, [], host_position, gauge)
+
+    @property
+    def camera(self) -> PinholeCamera:
+        """The left camera."""
+        return self.members.camera
+
+    @property
+    def baseline(self) -> float | None:
+        """The stereo baseline (None: RGB-D)."""
+        return self.members.baseline
+
+    @property
+    def keyframes(self) -> Sequence[WindowKeyframe]:
+        """The members, oldest first."""
+        return self.members.keyframes
+
+    @property
+    def targets(self) -> list[list[int]]:
+        """Per host (position), its targets' positions (the members', or chosen by
+        :func:`visible_targets` at the first call and kept)."""
+        if self.members.targets is None:
+            chosen = visible_targets(self.camera, self.keyframes, self.config)
+            object.__setattr__(self, "members", dataclasses.replace(self.members, targets=chosen))
+        assert self.members.targets is not None
+        return self.members.targets
+
+    def keyframe_keys(self, keyframe: WindowKeyframe) -> list[int]:
+        """The keys of ``keyframe``'s variables: its pose, its affine, then one per :attr:`keyframe_kinds`
+        present in :attr:`variables`."""
+        extra = [gtsam.symbol(kind, keyframe.index) for kind in self.keyframe_kinds]
+        return [pose_key(keyframe.index), affine_key(keyframe.index)] + [k for k in extra if self.variables.exists(k)]
+
+    @property
+    def config(self) -> WindowConfig:
+        """The window's settings."""
+        return self.settings.config
+
+    @property
+    def rig_offset(self) -> FloatArray | None:
+        """The rig offset's start when it is a variable, else None."""
+        return None if self.rig is None else np.asarray(self.rig.offset, dtype=float).reshape(2)
+
+    def values(self) -> gtsam.Values:
+        """The keyframes' poses and affines and :attr:`variables`, as GTSAM ``Values``."""
+        v = gtsam.Values()
+        for kf in self.keyframes:
+            v.insert(pose_key(kf.index), kf.pose)
+            v.insert(affine_key(kf.index), kf.affine)
+        v.insert(self.variables)
+        return v
+
+    def n_residuals(self) -> int:
+        """Point-target pairs in the photometric terms."""
+        return sum(len(self.keyframes[h]) * len(ts) for h, ts in enumerate(self.targets))
+
+
 @timed("window_build")
-def host_factor(camera: PinholeCamera, baseline: float | None, keyframes: Sequence[WindowKeyframe], h: int,
-                targets: Sequence[int], config: WindowConfig, rig: bool = False, *,
-                photometric: PhotometricConfig = DEFAULT_PHOTOMETRIC,
-                jacobian_budget: JacobianBudget | None = None) -> HostPointsFactor:
-    """The :class:`HostPointsFactor` of host ``keyframes[h]`` observed in ``targets`` (positions),
-    weighed by the ``photometric`` model; ``rig``: its stereo term has the rig offset variable
-    (:func:`gtvo.core.keys.rig_offset_key`); ``jacobian_budget``: the factor's (shared) budget of
-    kept Jacobians (:class:`factors.smart.JacobianBudget`; None: no limit, the window's)."""
+def host_factor(problem: WindowProblem, h: int, targets: Sequence[int] | None = None) -> HostPointsFactor:
+    """The :class:`HostPointsFactor` of host ``problem.keyframes[h]`` observed in ``targets``
+    (positions; default the problem's), weighed by the settings' photometric model; with the rig
+    variable its stereo term has the rig offset (:func:`gtvo.core.keys.rig_offset_key`); the host
+    factors share the settings' ``jacobian_budget`` (:class:`factors.smart.JacobianBudget`)."""
+    keyframes, config, photometric = problem.keyframes, problem.config, problem.settings.photometric
+    targets = problem.targets[h] if targets is None else targets
     kh = keyframes[h]
     return HostPointsFactor(
-        pose_key(kh.index), [pose_key(keyframes[t].index) for t in targets], camera, kh.pixels,
+        pose_key(kh.index), [pose_key(keyframes[t].index) for t in targets], problem.camera, kh.pixels,
         kh.inverse_depth, kh.image, [keyframes[t].image for t in targets], kh.variance,
         sigma_intensity=photometric.sigma_intensity, huber_k=photometric.huber_k, affine_host_key=affine_key(kh.index),
         affine_target_keys=[affine_key(keyframes[t].index) for t in targets], depth_prior=kh.depth_prior,
-        pattern=photometric.pattern_array, right_image=kh.right, baseline=baseline if kh.right is not None else None,
+        pattern=photometric.pattern_array, right_image=kh.right,
+        baseline=problem.baseline if kh.right is not None else None,
         lambda_stereo=config.lambda_stereo, stereo_affine=kh.stereo_affine,
         prior_inverse_depth=kh.prior_inverse_depth,
-        rig_key=rig_offset_key() if rig and kh.right is not None else None, jacobian_budget=jacobian_budget)
+        rig_key=rig_offset_key() if problem.rig is not None and kh.right is not None else None,
+        jacobian_budget=problem.settings.jacobian_budget)
 
 
 @timed("window_build")
-def build_graph(camera: PinholeCamera, baseline: float | None, keyframes: Sequence[WindowKeyframe],
-                config: WindowConfig, marginal: MarginalPrior | None,
-                targets: list[list[int]] | None = None, rig_offset: FloatArray | None = None,
-                rig_hold_x: float | None = None, *, photometric: PhotometricConfig = DEFAULT_PHOTOMETRIC,
-                wheel: "WheelCalibration | None" = None, jacobian_budget: JacobianBudget | None = None,
-                stack: int = 1) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values, dict[int, HostPointsFactor]]:
-    """The window's factor graph: one smart factor per host with targets, priors, motion prior,
-    marginal prior; with ``rig_offset`` (its current estimate) the rig offset is a variable of
-    every stereo host factor, with :func:`rig_prior` until the marginal prior carries it
-    (``rig_hold_x``: its ``delta_x`` held at that value); with ``wheel`` the wheel factors and the
-    calibration variable, with its prior until the marginal prior carries it; ``jacobian_budget``:
-    shared by the host factors (:func:`host_factor`; the whole-log refinement's); ``stack``: the motion
-    priors and the host factors in runs of this many, each run one GTSAM factor
-    (:func:`factors.stacked.stacked`: fewer copies of the Values in GTSAM's optimisers).
+def build_graph(problem: WindowProblem) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values, dict[int, HostPointsFactor]]:
+    """GTSAM's graph of the problem: its first ``host_position`` factors (affine, gauge and motion
+    priors), the host factors (one per host with targets, in runs of the settings' ``stack``), the
+    marginalisation prior (``gtsam.LinearContainerFactor`` s), then the rest of its factors.
 
     Returns ``(graph, values, host_factors)`` with ``host_factors[position] = factor``.
     """
-    targets = visible_targets(camera, keyframes, config) if targets is None else targets
-    graph = prior_factors(keyframes, config, with_gauge=marginal is None)
-    for f in stacked([f for _, f in motion_factors(keyframes, config)], stack):
+    hosts = {h: host_factor(problem, h) for h, ts in enumerate(problem.targets) if ts}
+    graph = gtsam.NonlinearFactorGraph()
+    for i in range(problem.host_position):
+        graph.add(problem.factors.at(i))
+    for f in stacked(list(hosts.values()), problem.settings.stack):
         graph.add(f)
-    hosts: dict[int, HostPointsFactor] = {}
-    for h, ts in enumerate(targets):
-        if ts:
-            hosts[h] = host_factor(camera, baseline, keyframes, h, ts, config, rig=rig_offset is not None,
-                                   photometric=photometric, jacobian_budget=jacobian_budget)
-    for f in stacked(list(hosts.values()), stack):
-        graph.add(f)
-    if marginal is not None:
-        for f in marginal.nonlinear_factors():
+    if problem.marginal is not None:
+        for f in problem.marginal.nonlinear_factors():
             graph.add(f)
-    if needs_rig_prior(rig_offset, marginal, rig_hold_x):
-        graph.add(rig_prior(config, rig_hold_x, rig_carried(marginal)))
-    if wheel is not None:
-        for _, f in wheel_factors(keyframes, wheel):
-            graph.add(f)
-        if not wheel_carried(marginal):
-            graph.add(wheel.prior_factor())
-    return graph, window_values(keyframes, rig_offset, wheel), hosts
+    for i in range(problem.host_position, problem.factors.size()):
+        graph.add(problem.factors.at(i))
+    return graph, problem.values(), hosts

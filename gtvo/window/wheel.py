@@ -149,17 +149,6 @@ class WheelCalibration:
         return gtsam.PriorFactorVector(calibration_key(), self.settings.mean(),
                                        gtsam.noiseModel.Diagonal.Sigmas(self.prior_sigmas()))
 
-    def prior_terms(self, c: FloatArray, H: FloatArray | None = None, g: FloatArray | None = None,
-                    at: int = 0) -> float:
-        """The prior's cost at ``c`` and (given ``H``, ``g``) its Gauss-Newton terms at entries ``at:at+size``."""
-        sig = self.prior_sigmas()
-        e = (np.asarray(c, dtype=float) - self.settings.mean()) / sig
-        if H is not None and g is not None:
-            idx = np.arange(at, at + self.size)
-            H[idx, idx] += 1.0 / sig ** 2
-            g[idx] += e / sig
-        return 0.5 * float(e @ e)
-
     def predict(self, T_world_cam: gtsam.Pose3, t0: float, t1: float) -> gtsam.Pose3 | None:
         """The camera's pose at ``t1`` carried from ``T_world_cam`` at ``t0`` by the calibrated wheel
         motion (``B_1 = B_0 Z(f(u; c))``, ``B = T T_base_cam^-1``); None when the log does not cover it."""
