@@ -60,7 +60,7 @@ def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progre
     """
     config = config or OdometryConfig()
     coverage = None if seq.wheel_odometry is None else wheel_coverage_warning(seq.wheel_odometry, seq.timestamps)
-    vo = VisualOdometry(seq.camera, config, wheel_odometry=seq.wheel_odometry)
+    vo = VisualOdometry(seq.camera, config, wheel_odometry=seq.wheel_odometry, imu=seq.imu)
     try:  # a parallel window's worker ends here, however the run ends (its figures are in the summary)
         observers = list(observers)
         for o in observers:

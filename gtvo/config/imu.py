@@ -12,6 +12,7 @@ from gtvo.core.lie import pose_from_xyz_quaternion
 from gtvo.core.settings import SettingError, check_settings, setting
 from gtvo.datasets.imu import MAX_GAP_S, MIN_RATE_HZ, ImuNoise
 from gtvo.datasets.imu_files import ImuReadOptions
+from gtvo.window.imu import ImuWindowSettings
 
 
 @dataclass(frozen=True)
@@ -29,6 +30,9 @@ class ImuConfig:
         accel_random_walk: the accelerometer bias's random walk (m/s^3/sqrt(Hz)), as gyro_noise_density.
         min_rate: the lowest median reading rate (Hz) accepted: preintegration between keyframes needs several readings per frame.
         max_gap: the longest time between two IMU readings (s) accepted; a longer gap is refused, naming the file and row.
+        init_seconds: the span of readings and keyframes (s) the window's initialisation waits for (gravity, velocities, gyro bias; docs/imu.md).
+        accel_bias_sigma: the prior sigma of the accelerometer bias (m/s^2) about zero.
+        gyro_bias_sigma: the prior sigma of the gyro bias (rad/s) about the initialisation's estimate.
     """
 
     enabled: bool = True
@@ -41,6 +45,9 @@ class ImuConfig:
     accel_random_walk: float | None = setting(None, "(0, 100]")
     min_rate: float = setting(MIN_RATE_HZ, "(0, 100000]")
     max_gap: float = setting(MAX_GAP_S, "(0, 3600]")
+    init_seconds: float = setting(ImuWindowSettings.init_seconds, "(0, 60]")
+    accel_bias_sigma: float = setting(ImuWindowSettings.accel_bias_sigma, "(0, 100]")
+    gyro_bias_sigma: float = setting(ImuWindowSettings.gyro_bias_sigma, "(0, 10]")
 
     def __post_init__(self) -> None:
         check_settings(self)
@@ -62,3 +69,9 @@ class ImuConfig:
         T = None if self.imu_in_camera is None else pose_from_xyz_quaternion(self.imu_in_camera)
         return ImuReadOptions(enabled=self.enabled, topic=self.topic, noise=noise, T_cam_imu=T,
                               time_shift=self.time_shift, min_rate=self.min_rate, max_gap=self.max_gap)
+
+
+def imu_window_settings(config: ImuConfig) -> ImuWindowSettings:
+    """How the window uses the IMU, from the ``imu:`` section."""
+    return ImuWindowSettings(init_seconds=config.init_seconds, accel_bias_sigma=config.accel_bias_sigma,
+                             gyro_bias_sigma=config.gyro_bias_sigma)

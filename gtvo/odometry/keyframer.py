@@ -36,6 +36,7 @@ from gtvo.odometry.window_schedule import WindowSchedule
 from gtvo.odometry.window_worker import WindowWorker
 from gtvo.window import SlidingWindowOptimizer, WindowResult
 from gtvo.window.rig import RigOffset
+from gtvo.window.imu import ImuWindow
 from gtvo.window.wheel import WheelCalibration
 
 
@@ -61,7 +62,7 @@ class Keyframer:
     """
 
     def __init__(self, camera: StereoCamera | PinholeCamera, config: OdometryConfig, history: FrameHistory,
-                 wheel: WheelCalibration | None = None) -> None:
+                 wheel: WheelCalibration | None = None, imu: ImuWindow | None = None) -> None:
         self.camera = camera
         self.pinhole = camera.left if isinstance(camera, StereoCamera) else camera
         self.config = config
@@ -82,12 +83,15 @@ class Keyframer:
             if wheel is not None:
                 raise InputError("window.parallel does not carry wheel odometry yet: run it with --no-parallel "
                                  "(window.parallel: false)")
+            if imu is not None:
+                raise InputError("window.parallel does not carry the IMU yet: run it with --no-parallel "
+                                 "(window.parallel: false) or --no-imu")
             if config.refine.enabled:
                 raise InputError("the whole-log refinement needs every keyframe of the window, which a parallel "
                                  "window keeps in its worker: run it with --no-parallel (window.parallel: false)")
             self.window = self.worker = WindowWorker(camera, config)
         elif config.mode == "window":
-            self.link = WindowLink(camera, config, wheel=wheel if config.window.backend == "lm" else None)
+            self.link = WindowLink(camera, config, wheel=wheel if config.window.backend == "lm" else None, imu=imu)
             self.window = self.link.window
             # the whole-log refinement needs every keyframe (gtvo.refinement): kept only when it runs
             self.window.retain_keyframes = config.refine.enabled

@@ -35,6 +35,7 @@ from gtvo.core.image import to_float_gray
 from gtvo.core.map_points import MapPoints, constrained_mask
 from gtvo.core.timing import StageClock
 from gtvo.datasets.sequence import Frame
+from gtvo.datasets.imu import ImuMeasurements
 from gtvo.datasets.wheel import WheelOdometry
 from gtvo.errors import InputError
 from gtvo.evaluation.trajectory import Trajectory
@@ -47,6 +48,8 @@ from gtvo.odometry.keyframer import Keyframer
 from gtvo.odometry.motion import MotionModel
 from gtvo.odometry.view import OdometryView
 from gtvo.odometry.wheel import wheel_calibration
+from gtvo.window.imu import ImuWindow
+from gtvo.config.imu import imu_window_settings
 
 
 @dataclass(frozen=True)
@@ -107,7 +110,7 @@ class VisualOdometry:
     """
 
     def __init__(self, camera: StereoCamera | PinholeCamera, config: OdometryConfig | None = None,
-                 wheel_odometry: WheelOdometry | None = None) -> None:
+                 wheel_odometry: WheelOdometry | None = None, imu: ImuMeasurements | None = None) -> None:
         self.camera = camera
         self.pinhole = camera.left if isinstance(camera, StereoCamera) else camera
         self.config = config or OdometryConfig()
@@ -116,7 +119,10 @@ class VisualOdometry:
         self.motion = MotionModel(self.config.motion_model, self.history)
         self.tracker = FrameTracker(self.config, self.pinhole)
         self.checks = FrameChecks(self.config.frame_checks, self.pinhole, self.history)
-        self.keyframer = Keyframer(camera, self.config, self.history, self.wheel)
+        #: the IMU in the window (gtvo.window.imu.ImuWindow; None: no IMU, or not in window mode; docs/imu.md)
+        self.imu = None if imu is None or self.config.mode != "window" else ImuWindow(imu, imu_window_settings(
+            self.config.imu))
+        self.keyframer = Keyframer(camera, self.config, self.history, self.wheel, self.imu)
         self.estimates = self.history.estimates
         self.keyframes = self.keyframer.keyframes
         self.window = self.keyframer.window
