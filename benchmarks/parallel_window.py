@@ -171,7 +171,7 @@ def solve_by_threads(repeat: int) -> int:
     solve = window_optimizer.solve_gtsam
 
     def capture(*args: Any, **kwargs: Any) -> Any:
-        if not captured and len(args[2]) >= 7:
+        if not captured and len(args[0].keyframes) >= 7:
             captured.append(copy.deepcopy((args, kwargs)))
         return solve(*args, **kwargs)
 
@@ -191,7 +191,7 @@ def solve_by_threads(repeat: int) -> int:
             pool0, cpu0, t0 = kernel_threads.pool_cpu_seconds(), time.thread_time(), time.perf_counter()
             result = solve(*args, **kwargs)
             wall, cpu = time.perf_counter() - t0, time.thread_time() - cpu0
-            poses = np.stack([np.asarray(kf.pose.matrix()) for kf in args[2]])
+            poses = np.stack([np.asarray(kf.pose.matrix()) for kf in args[0].keyframes])
             figures[threads].append((wall, cpu, kernel_threads.pool_cpu_seconds() - pool0,
                                      poses.tobytes() + np.float64(result.cost).tobytes()))
     kernel_threads.set_kernel_threads(1)

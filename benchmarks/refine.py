@@ -177,8 +177,8 @@ def scaling_one(n: int, lap: int = 100, stack: int | None = None) -> dict:
     from factors.photometric import GradientImage  # noqa: PLC0415
     from gtvo.core.image import to_float_gray  # noqa: PLC0415
     from gtvo.frontend import init_keyframe_points  # noqa: PLC0415
-    from gtvo.refinement import refine_keyframes  # noqa: PLC0415
-    from gtvo.window import WindowConfig, WindowKeyframe  # noqa: PLC0415
+    from gtvo.refinement import RefinementInput, refine_keyframes  # noqa: PLC0415
+    from gtvo.window import WindowConfig, WindowKeyframe, WindowMembers, WindowSettings  # noqa: PLC0415
 
     seq = make_synthetic_sequence(n_frames=lap, motion="loop", seed=1, noise_sigma=1.0)
     frames = []
@@ -247,10 +247,11 @@ def scaling_one(n: int, lap: int = 100, stack: int | None = None) -> dict:
     smart.HostPointsFactor.__init__ = collect
     packs = SHARED_PACKED_CACHE.packs
     t0 = time.perf_counter()
-    res = refine_keyframes(seq.pinhole, seq.camera.baseline, kfs, WindowConfig(),
+    counting = WindowSettings(WindowConfig(), on_iteration=lambda it, cost: keeping.append(
+        sum(h._reserved > 0 for h in hosts)))
+    res = refine_keyframes(RefinementInput(WindowMembers(seq.pinhole, seq.camera.baseline, kfs), counting),
                            RefineConfig(enabled=True, max_iterations=3, relative_tolerance=0.0,
-                                        stacked_factors=RefineConfig().stacked_factors if stack is None else stack),
-                           on_iteration=lambda it, cost: keeping.append(sum(h._reserved > 0 for h in hosts)))
+                                        stacked_factors=RefineConfig().stacked_factors if stack is None else stack))
     sec = time.perf_counter() - t0
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     copy_seconds, copy_calls = values_copy_seconds(n)

@@ -42,8 +42,8 @@ from gtvo.evaluation.alignment import umeyama_alignment
 from gtvo.loops.closing import close_loops_of_run, odometry_covariances
 from gtvo.loops.closure_graph import LoopEdge
 from gtvo.pipeline import TRACKED_OUTCOMES, process_sequence
-from gtvo.refinement import RefineConfig, refine_keyframes
-from gtvo.window import WindowKeyframe
+from gtvo.refinement import RefineConfig, RefinementInput, refine_keyframes
+from gtvo.window import WindowKeyframe, WindowMembers, WindowSettings
 
 #: seed -> (frames, image noise): seeds 1-3 are benchmarks/refine.py's loops, 4 and 5 held out
 LOOPS = {1: (300, 0.0), 2: (300, 2.0), 3: (320, 1.0), 4: (300, 1.0), 5: (300, 1.0)}
@@ -118,9 +118,10 @@ def variants(run: WindowPass) -> dict[str, dict[int, np.ndarray]]:
 
     def refine(config: RefineConfig = RefineConfig(enabled=True), start=wp.loop_closed, edges=wp.edges,
                keyframes=wp.keyframes) -> dict[int, np.ndarray]:
-        r = refine_keyframes(seq.pinhole, seq.camera.baseline, keyframes, wp.config.window, config, loop_edges=edges,
-                             rig_offset=wp.rig_offset, start_poses=start, odometry_covariances=wp.covariances,
-                             photometric=wp.config.photometric)
+        run = RefinementInput(WindowMembers(seq.pinhole, seq.camera.baseline, keyframes),
+                              WindowSettings(wp.config.window, wp.config.photometric), wp.rig_offset,
+                              loop_edges=edges, start_poses=start, odometry_covariances=wp.covariances)
+        r = refine_keyframes(run, config)
         return {kf.index: kf.pose.matrix() for kf in r.keyframes}
 
     oracle = RefineConfig(enabled=True, max_iterations=20)

@@ -48,7 +48,8 @@ from gtvo.config import OdometryConfig, SolverConfig  # noqa: E402
 from gtvo.pipeline import process_sequence  # noqa: E402
 from gtvo.evaluation.accuracy import evaluate  # noqa: E402
 from gtvo.evaluation.trajectory import Trajectory  # noqa: E402
-from gtvo.window import WindowConfig, WindowKeyframe, solve_gtsam, solve_handrolled  # noqa: E402
+from gtvo.window import (WindowConfig, WindowKeyframe, WindowMembers, WindowProblem, WindowSettings,  # noqa: E402
+                         solve_gtsam, solve_handrolled)
 
 REPEATS = 3
 DEFAULT = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti_stereo_sample" / "KITTI_sequence_1"
@@ -119,10 +120,10 @@ def speed(path: Path) -> None:
         for _ in range(REPEATS):  # the machine is shared: keep the fastest of a few runs
             a, b = copy.deepcopy(kfs), copy.deepcopy(kfs)
             t0 = time.perf_counter()
-            ra = solve_gtsam(cam.left, cam.baseline, a, cfg)
+            ra = solve_gtsam(WindowProblem.build(WindowMembers(cam.left, cam.baseline, a), WindowSettings(cfg)))
             tg = min(tg, time.perf_counter() - t0)
             t0 = time.perf_counter()
-            rb = solve_handrolled(cam.left, cam.baseline, b, cfg)
+            rb = solve_handrolled(WindowProblem.build(WindowMembers(cam.left, cam.baseline, b), WindowSettings(cfg)))
             th = min(th, time.perf_counter() - t0)
         per = (tg / max(ra.iterations, 1), th / max(rb.iterations, 1))
         base = base or per

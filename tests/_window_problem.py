@@ -21,7 +21,7 @@ def problem(camera: Any, baseline: float | None, keyframes: Sequence[WindowKeyfr
     """The problem of ``keyframes`` with these pieces (``settings``: more :class:`WindowSettings` fields)."""
     rig = None if rig_offset is None else RigVariable(rig_offset, rig_hold_x)
     out = WindowProblem.build(WindowMembers(camera, baseline, keyframes, targets),
-                              WindowSettings(config, photometric, **settings), marginal, rig, wheel)
+                              WindowSettings(config, photometric, **settings), marginal, rig, (wheel,))
     if extra_factors is not None:
         out.factors.push_back(extra_factors)
     return out

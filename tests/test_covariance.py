@@ -116,7 +116,7 @@ def test_covariances_add_no_residual_pass_and_change_nothing(seq, monkeypatch, s
         calls = []
         monkeypatch.setattr(host_points, "photometric_residuals", lambda *a, **k: calls.append(1) or real(*a, **k))
         ks = copy.deepcopy(kfs)
-        res = solve(cam.left, cam.baseline, ks, WindowConfig(max_iterations=4, covariances=on))
+        res = solve(problem(cam.left, cam.baseline, ks, WindowConfig(max_iterations=4, covariances=on)))
         assert (res.covariances is not None) == on
         ends[on] = (len(calls), ks)
     assert ends[True][0] == ends[False][0]

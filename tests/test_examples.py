@@ -74,3 +74,14 @@ def test_04_read_a_run_report() -> None:
     assert number_after("ATE", out) < 5.0  # cm (measured 0.69)
     mine, the_report = re.search(r"median position sigma: ([0-9.]+) mm \(report: ([0-9.]+) mm\)", out).groups()
     assert mine == the_report
+
+
+@pytest.mark.slow  # a fresh interpreter and a 25-frame run
+@pytest.mark.realdata  # KITTI_sequence_1 when the shared data is there (else the synthetic sequence)
+def test_05_custom_window_factor() -> None:
+    out = run_example("05_custom_window_factor.py")
+    assert number_after("largest difference to the numerical one", out) < 1e-6  # measured 2e-11
+    without = number_after("position error, window (no GPS):", out)
+    gtsam_lm = number_after("position error, GTSAM LM with GPS:", out)
+    handrolled = number_after("position error, hand-rolled LM with GPS:", out)
+    assert gtsam_lm < without / 2 and abs(gtsam_lm - handrolled) < 0.1  # cm (KITTI: 25.0 -> 4.8, both)

@@ -8,7 +8,7 @@ the loop edges added to its graph (:func:`gtvo.refinement.solve.refinement_probl
 
 from __future__ import annotations
 
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import gtsam
 import numpy as np
@@ -19,8 +19,10 @@ from gtvo.core.camera import PinholeCamera
 from gtvo.core.keys import pose_key
 from gtvo.loops.closure_graph import LoopEdge
 from gtvo.window.config import WindowConfig, WindowKeyframe
-from gtvo.refinement.config import RefineConfig
 from gtvo.window.problem import TargetChoice, visible_targets
+
+if TYPE_CHECKING:
+    from gtvo.refinement.config import RefineConfig
 
 F64 = NDArray[np.float64]
 

@@ -127,7 +127,7 @@ def refinement_problem(run: RefinementInput, settings: WindowSettings, keyframes
     members = run.members
     rig = None if run.rig_offset is None else RigVariable(run.rig_offset)
     problem = WindowProblem.build(WindowMembers(members.camera, members.baseline, keyframes, targets), settings,
-                                  None, rig, run.wheel)
+                                  None, rig, (run.wheel,))
     problem.factors.push_back(loop_factors(edges))
     return problem
 

@@ -36,11 +36,6 @@ def values_subset(values: gtsam.Values, keys: Sequence[int]) -> gtsam.Values:
     return out
 
 
-def vector_of(values: gtsam.Values, key: int) -> FloatArray | None:
-    """A copy of the vector at ``key`` in ``values``, None when it has none."""
-    return np.asarray(values.atVector(key), dtype=float).copy() if values.exists(key) else None
-
-
 @dataclass(frozen=True)
 class WindowConfig:
     """Settings of the window (defaults follow DSO where DSO has one; its photometric model, the

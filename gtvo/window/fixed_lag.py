@@ -15,7 +15,7 @@ from gtvo.core.keys import affine_key, pose_key
 from factors.smart import HostPointsFactor
 from gtvo.window.covariance import marginals_of_smoother
 from gtvo.window.config import WindowKeyframe, WindowResult, WindowState
-from gtvo.window.problem import host_factor, motion_factors, prior_factors
+from gtvo.window.problem import host_factor
 
 
 class FixedLagBackend:
@@ -33,7 +33,7 @@ class FixedLagBackend:
         self._stamp: dict[int, float] = {}
         self._next_stamp = 0
         self._host_slots: dict[int, tuple[int, HostPointsFactor]] = {}  # kf index -> (factor index, factor)
-        self._motion_added: set[tuple[int, ...]] = set()  # keyframe triples whose motion prior is in the smoother
+        self._added: set[tuple[int, ...]] = set()  # the keys of the non-host factors in the smoother
 
     def remove_oldest(self, window: WindowState) -> WindowKeyframe:
         """Drop the oldest keyframe from the window's list: the smoother marginalises it at the next update."""
@@ -43,6 +43,9 @@ class FixedLagBackend:
         """One update of the fixed-lag smoother, then ``max_iterations - 1`` more (iSAM2 takes one
         Gauss-Newton step per update, relinearising every variable).
 
+        The window's problem (:meth:`gtvo.window.config.WindowState.problem`) gives the factors:
+        each non-host factor joins the smoother once (a new keyframe's affine prior, a new triple's
+        motion prior, a caller's factor), the gauge prior at the first update.
         Each call removes the host factors of the keyframes still in the window and adds them again
         with the current targets and depths (a host gains the new keyframe as a target); the host
         factor of a keyframe that has left stays and is marginalised with its pose and affine by
@@ -68,19 +71,16 @@ class FixedLagBackend:
                 values.insert(key, val)
                 stamps[key] = self._stamp[kf.index]
         first = len(self._stamp) == len(new)
-        priors = prior_factors(new, cfg, with_gauge=False)
-        for k, f in motion_factors(window.keyframes, cfg):
-            triple = tuple(kf.index for kf in window.keyframes[k:k + 3])
-            if triple not in self._motion_added:  # each prior once; marginalised with its oldest keyframe
-                self._motion_added.add(triple)
-                priors.add(f)
-        for i in range(priors.size()):
-            graph.add(priors.at(i))
-        if first:  # gauge prior on the oldest keyframe, once (later the marginal fixes the gauge)
-            gauge = prior_factors(window.keyframes[:1], cfg, with_gauge=True)
-            for i in range(1, gauge.size()):
-                graph.add(gauge.at(i))
         problem = window.problem(targets)  # no rig offset, no wheels: the LM back end's
+        factors = problem.factors
+        for i in range(factors.size()):  # each non-host factor once (by its keys): a new keyframe's
+            keys = tuple(factors.at(i).keys())  # affine prior, a new triple's motion prior
+            if i not in problem.gauge_factors and keys not in self._added:
+                self._added.add(keys)
+                graph.add(factors.at(i))
+        if first:  # gauge prior on the oldest keyframe, once (later the marginal fixes the gauge)
+            for i in problem.gauge_factors:
+                graph.add(factors.at(i))
         in_window = {kf.index for kf in window.keyframes}
         remove = [slot for idx, (slot, _) in self._host_slots.items() if idx in in_window]
         # the window's hosts are removed and added again below; a leaving keyframe's host factor

@@ -14,8 +14,8 @@ from factors.smart import shared_residual_passes
 from gtvo.core.kernel_threads import kernel_threads
 from gtvo.core.keys import affine_key, calibration_key, pose_key, rig_offset_key
 from gtvo.window.covariance import marginals_of_graph
-from gtvo.window.config import WindowResult, values_subset, vector_of
-from gtvo.window.problem import WindowProblem, build_graph
+from gtvo.window.config import WindowResult, values_subset
+from gtvo.window.problem import WindowProblem, build_graph, vector_of
 
 FloatArray = NDArray[np.float64]
 
@@ -25,7 +25,7 @@ def solve_gtsam(problem: WindowProblem) -> WindowResult:
     (:func:`gtvo.window.problem.build_graph`); updates the problem's keyframes in place.
 
     The result's ``rig_offset`` and ``wheel_calibration`` are the optimised rig offset and wheel
-    calibration (None when the problem has none; ``problem.wheel`` itself is not changed), its
+    calibration (None when the problem has none; the problem's sensors are not changed), its
     ``variables`` every variable beyond the keyframes' poses and affines. With the settings'
     ``on_iteration`` the optimiser runs iteration by iteration (:func:`optimize_by_iterations`)."""
     t0 = time.perf_counter()

@@ -21,8 +21,8 @@ from factors.host_points import DepthSystem, HostPoints
 from gtvo.core.keys import affine_key, calibration_key, pose_key, rig_offset_key
 from gtvo.core.timing import stage, timed
 from gtvo.window.covariance import marginals_of_hessian
-from gtvo.window.config import MarginalPrior, WindowResult, vector_of
-from gtvo.window.problem import WindowProblem
+from gtvo.window.config import MarginalPrior, WindowResult
+from gtvo.window.problem import WindowProblem, vector_of
 
 FloatArray = NDArray[np.float64]
 

@@ -140,12 +140,11 @@ class SlidingWindowOptimizer:
     def problem(self, targets: list[list[int]] | None = None, rig: RigVariable | None = None) -> WindowProblem:
         """The window's problem at its current state (:class:`gtvo.window.problem.WindowProblem`):
         its keyframes (``targets``: theirs, None: chosen at the first use), its marginalisation
-        prior, its wheel calibration and ``rig`` (None: no rig variable; :meth:`solved_rig`: the window's)."""
-        problem = WindowProblem.build(WindowMembers(self.camera, self.baseline, self.keyframes, targets),
-                                      WindowSettings(self.config, self.photometric), self.marginal, rig, self.wheel)
-        if self.imu is not None:
-            self.imu.add_to(problem)  # the IMU's velocities, biases and factors (gtvo.window.imu)
-        return problem
+        prior, its sensors (the wheel calibration, the IMU) and ``rig`` (None: no rig variable;
+        :meth:`solved_rig`: the window's)."""
+        return WindowProblem.build(WindowMembers(self.camera, self.baseline, self.keyframes, targets),
+                                   WindowSettings(self.config, self.photometric), self.marginal, rig,
+                                   (self.wheel, self.imu))  # the IMU: gtvo.window.imu
 
     def cost(self) -> float:
         """The window cost at the current state (W evaluated at this state)."""

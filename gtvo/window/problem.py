@@ -3,19 +3,21 @@
 The factors of the cost of docs/window.md: one :class:`factors.smart.HostPointsFactor` per host, the
 weak affine priors, the constant-velocity priors, the gauge prior and the marginalisation prior
 (with wheel odometry also the wheel factors and the calibration's prior: :mod:`gtvo.window.wheel`).
+:class:`WindowProblem` carries them, with the keyframes and the settings, to both solvers, the
+marginalisation and the refinement: every factor but the host factors in one GTSAM graph.
 """
 
 from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Callable, Sequence
+from typing import Callable, Protocol, Sequence
 
 import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from gtvo.core.keys import affine_key, calibration_key, pose_key, rig_offset_key
+from gtvo.core.keys import affine_key, pose_key, rig_offset_key
 from factors.params import DEFAULT_PHOTOMETRIC, PhotometricConfig
 from factors.smart import HostPointsFactor, JacobianBudget
 from factors.smoothness import ConstantVelocityFactor
@@ -25,10 +27,6 @@ from gtvo.core.timing import timed
 from gtvo.errors import InputError
 from gtvo.window.config import MarginalPrior, WindowConfig, WindowKeyframe
 
-if TYPE_CHECKING:
-    from factors.wheel_odometry import WheelOdometryFactor
-    from gtvo.window.wheel import WheelCalibration
-
 FloatArray = NDArray[np.float64]
 
 
@@ -36,23 +34,16 @@ FloatArray = NDArray[np.float64]
 # the problem shared by both solvers
 
 
+def vector_of(values: gtsam.Values, key: int) -> FloatArray | None:
+    """A copy of the vector at ``key`` in ``values``, None when it has none."""
+    return np.asarray(values.atVector(key), dtype=float).copy() if values.exists(key) else None
+
+
 def key_ordering(keys: Sequence[int]) -> gtsam.Ordering:
     o = gtsam.Ordering()
     for k in keys:
         o.push_back(k)
     return o
-
-
-def wheel_carried(marginal: MarginalPrior | None) -> bool:
-    """Whether the marginalisation prior carries the wheel calibration (it then holds its prior)."""
-    return marginal is not None and calibration_key() in marginal.keys
-
-
-def wheel_factors(keyframes: Sequence[WindowKeyframe], wheel: "WheelCalibration | None"
-                  ) -> list[tuple[int, "WheelOdometryFactor"]]:
-    """The wheel factors ``(k, factor)`` between keyframes ``k, k+1`` (positions) the wheel log
-    covers (none without wheel odometry)."""
-    return [] if wheel is None else wheel.factors(keyframes, lambda kf: pose_key(kf.index))
 
 
 def needs_rig_prior(rig_offset: FloatArray | None, marginal: MarginalPrior | None,
@@ -272,6 +263,16 @@ class WindowSettings:
     on_iteration: Callable[[int, float], None] | None = None
 
 
+class WindowSensor(Protocol):
+    """A source of variables and factors beyond the camera's, added to every window problem (the
+    wheel odometry, :class:`gtvo.window.wheel.WheelCalibration`; docs/extending.md)."""
+
+    def add_to(self, problem: "WindowProblem") -> None:
+        """Insert this sensor's variables into ``problem.variables`` (per keyframe: a kind in
+        ``problem.keyframe_kinds``) and its factors into ``problem.factors``; a prior set once goes
+        in only while ``problem.marginal`` does not carry its variable."""
+
+
 @dataclass(frozen=True)
 class WindowProblem:
     """Everything a window solve needs, in one value (docs/window.md, "The window problem").
@@ -280,9 +281,10 @@ class WindowProblem:
     photometric and stereo terms) are built by each solver from :attr:`members` (their fast path);
     every other factor lives in :attr:`factors`, one ``gtsam.NonlinearFactorGraph`` that both
     solvers consume: the affine priors, the gauge prior (no marginalisation prior yet), the motion
-    prior, the rig offset's prior, the wheel factors and the calibration's prior, and whatever a
-    caller adds (the refinement's loop edges, a new factor: docs/extending.md). The marginalisation
-    prior :attr:`marginal` is a quadratic kept apart (both solvers add it as it is).
+    prior, the rig offset's prior, the sensors' factors (the wheel factors and the calibration's
+    prior), and whatever a caller adds (the refinement's loop edges, a new factor:
+    docs/extending.md). The marginalisation prior :attr:`marginal` is a quadratic kept apart (both
+    solvers add it as it is).
 
     Build it with :meth:`build`; add a factor with ``problem.factors.add(factor)`` and a new
     variable with ``problem.variables.insert(key, value)`` (a vector).
@@ -292,8 +294,9 @@ class WindowProblem:
         settings: how it is solved (:class:`WindowSettings`).
         marginal: the marginalisation prior (None: the gauge prior holds the oldest keyframe).
         rig: the rig offset as a variable (None: the rectified model).
-        wheel: the wheel odometry and its calibration (the variable starts at ``wheel.estimate``;
-            ``wheel`` itself is not changed by a solve); None: no wheels.
+        sensors: the sensors whose variables and factors the problem has (:class:`WindowSensor`:
+            the wheel odometry, whose calibration variable starts at its estimate; a solve does
+            not change them: the result carries the optimised variables).
         factors: the problem's non-host factors (see above).
         variables: the values of the problem's variables beyond the keyframes' poses and affines:
             the rig offset, the wheel calibration, then any a caller inserts (vectors), in this order.
@@ -311,7 +314,7 @@ class WindowProblem:
     settings: WindowSettings
     marginal: MarginalPrior | None
     rig: RigVariable | None
-    wheel: "WheelCalibration | None"
+    sensors: tuple[WindowSensor, ...]
     factors: gtsam.NonlinearFactorGraph
     variables: gtsam.Values
     keyframe_kinds: list[str]
@@ -322,11 +325,12 @@ class WindowProblem:
     @timed("window_build")
     def build(cls, members: WindowMembers, settings: WindowSettings | None = None,
               marginal: MarginalPrior | None = None, rig: RigVariable | None = None,
-              wheel: "WheelCalibration | None" = None) -> "WindowProblem":
+              sensors: Sequence[WindowSensor | None] = ()) -> "WindowProblem":
         """The problem of ``members`` (targets chosen by :func:`visible_targets` when None) with its
         non-host factors: affine priors, the gauge prior without ``marginal``, the motion prior
-        (in runs of ``settings.stack``), the rig offset's prior (:func:`needs_rig_prior`), the wheel
-        factors and (until ``marginal`` carries it) the calibration's prior."""
+        (in runs of ``settings.stack``), the rig offset's prior (:func:`needs_rig_prior`), then
+        each sensor's variables and factors (:meth:`WindowSensor.add_to`; None entries are skipped:
+        the wheel factors and, until ``marginal`` carries it, the calibration's prior)."""
         settings = settings or WindowSettings()
         config = settings.config
         keyframes = members.keyframes
@@ -339,17 +343,14 @@ class WindowProblem:
         hold = None if rig is None else rig.hold_x
         if needs_rig_prior(offset, marginal, hold):
             graph.add(rig_prior(config, hold, rig_carried(marginal)))
-        if wheel is not None:
-            for _, f in wheel_factors(keyframes, wheel):
-                graph.add(f)
-            if not wheel_carried(marginal):
-                graph.add(wheel.prior_factor())
         variables = gtsam.Values()
         if offset is not None:
             variables.insert(rig_offset_key(), np.asarray(offset, dtype=float).reshape(2).copy())
-        if wheel is not None:
-            variables.insert(calibration_key(), np.asarray(wheel.estimate, dtype=float).copy())
-        return cls(members, settings, marginal, rig, wheel, graph, variables, [], host_position, gauge)
+        problem = cls(members, settings, marginal, rig, tuple(s for s in sensors if s is not None), graph, variables,
+                      [], host_position, gauge)
+        for sensor in problem.sensors:
+            sensor.add_to(problem)
+        return problem
 
     @property
     def camera(self) -> PinholeCamera:

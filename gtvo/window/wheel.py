@@ -23,7 +23,7 @@ from numpy.typing import NDArray
 
 from factors.wheel_odometry import (CALIBRATION_SIZE, DIFF_DRIVE_NAMES, WheelOdometryFactor, calibrated_motion,
                                     nominal_calibration, planar_pose, wheel_step_sigmas)
-from gtvo.core.keys import calibration_key
+from gtvo.core.keys import calibration_key, pose_key
 from gtvo.errors import InputError
 
 FloatArray = NDArray[np.float64]
@@ -139,6 +139,17 @@ class WheelCalibration:
             out.append((k, WheelOdometryFactor(pose_key_of(a), pose_key_of(b), calibration_key(), u, s.model,
                                                s.T_base_cam, sig, s.nominal_baseline)))
         return out
+
+    def add_to(self, problem: Any) -> None:
+        """The wheels in a window problem (:class:`gtvo.window.problem.WindowSensor`): the
+        calibration variable at :attr:`estimate`, the factors between consecutive keyframes
+        (:meth:`factors`) and, until the problem's marginalisation prior carries the calibration,
+        its prior (:meth:`prior_factor`)."""
+        problem.variables.insert(calibration_key(), np.asarray(self.estimate, dtype=float).copy())
+        for _, f in self.factors(problem.keyframes, lambda kf: pose_key(kf.index)):
+            problem.factors.add(f)
+        if problem.marginal is None or calibration_key() not in problem.marginal.keys:
+            problem.factors.add(self.prior_factor())
 
     def prior_sigmas(self) -> FloatArray:
         """The prior's sigma of every parameter."""
