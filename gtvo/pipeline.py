@@ -26,6 +26,7 @@ from gtvo.odometry.estimates import FrameOutcome, trust_warning
 from gtvo.io.covariances import KeyframeCovariances
 from gtvo.odometry.rig_report import rig_warning
 from gtvo.odometry.summary import OdometrySummary, stage_timing, summarize_odometry
+from gtvo.odometry.imu import gravity_alignment
 from gtvo.odometry.wheel import wheel_coverage_warning
 from gtvo.io.outputs import check_run_output_dir, write_run_outputs
 from gtvo.datasets.sequence import Sequence
@@ -193,12 +194,17 @@ def run(path: str | Path | Sequence, out: str | Path | None = None,
             covariances = keyframe_covariances(vo)
             if covariances is not None and refined is not None and refined.covariances is not None:
                 covariances = dataclasses.replace(covariances, source=REFINED_COVARIANCES[vo.config.refine.solver])
+            alignment = gravity_alignment(vo)  # with an IMU: the outputs in the gravity-aligned world (docs/imu.md)
+            if alignment is not None:
+                traj, closed = alignment.trajectory(traj), alignment.trajectory(closed)
             info = run_report(seq, traj, summary, config, format=fmt, frame_step=frame_step, loop_closure=loops,
                               loop_closed=closed, covariances=covariances,
                               refinement=None if refined is None else refined.summary)
             if refined is not None and closed_keyframes is None and refined.keyframe_poses:
                 closed_keyframes = refined.keyframe_poses  # the map on the refined keyframes
-            report = write_run_outputs(out_dir, traj, seq, info, points=vo.map_points(closed_keyframes),
+            points = vo.map_points(closed_keyframes)
+            report = write_run_outputs(out_dir, traj, seq, info,
+                                       points=points if alignment is None else alignment.points(points),
                                        loop_closed=closed, covariances=covariances,
                                        config_yaml=config_to_yaml(config, f"gtvo {__version__}: gtvo run --config this file"),
                                        stage_figures=lambda: stage_timing(vo))

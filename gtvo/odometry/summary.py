@@ -14,6 +14,7 @@ from gtvo.core.timing import per_frame_ms
 from gtvo.odometry.estimates import frames_by_outcome, trusted_fraction, undetermined_frames
 from gtvo.odometry.rig_report import rig_report
 from gtvo.odometry.visual_odometry import VisualOdometry
+from gtvo.odometry.imu import imu_report
 from gtvo.odometry.wheel import wheel_report
 
 
@@ -52,6 +53,13 @@ class WheelFigures(TypedDict, total=False):
     wheel_calibration: dict[str, Any]
 
 
+class ImuFigures(TypedDict, total=False):
+    """The IMU's figures (:func:`gtvo.odometry.imu.imu_report`: gravity, biases, their sigmas, the
+    output frame), present when the run had an IMU in the window."""
+
+    imu: dict[str, Any]
+
+
 class WindowWorkerFigures(TypedDict, total=False):
     """What the window's worker process spent (``window.parallel``): its CPU seconds (user +
     system), peak resident memory (MiB), wall seconds by stage of its own clock, its kernel
@@ -61,7 +69,7 @@ class WindowWorkerFigures(TypedDict, total=False):
     window_worker: dict[str, Any]
 
 
-class OdometrySummary(StageTiming, WindowFigures, WheelFigures, WindowWorkerFigures):
+class OdometrySummary(StageTiming, WindowFigures, WheelFigures, ImuFigures, WindowWorkerFigures):
     """The odometry's figures of a run, in ``report.json`` order (:func:`summarize_odometry`).
 
     Always: what ran (``mode``, ``tracker_solver``, ``motion_model``), the counts, the frame
@@ -150,6 +158,7 @@ def summarize_odometry(vo: VisualOdometry, seconds: float | None = None,
         })
         out.update(rig_report(vo))
     out.update(wheel_report(vo.wheel, vo.window))
+    out.update(imu_report(vo))
     out.update(stage_timing(vo))
     out.update(window_worker_figures(vo))
     out["covariances"] = ("not computed (--no-covariances)" if config.mode == "window" and not config.window.covariances

@@ -1,0 +1,115 @@
+"""The odometry's side of the IMU: what ``report.json`` says about it and the gravity-aligned frame
+the outputs are written in (docs/imu.md, "Outputs").
+
+The IMU itself lives in :class:`gtvo.window.imu.ImuWindow` (``VisualOdometry.imu``): the window
+initialises it and estimates the keyframes' velocities and biases.
+
+**The output frame.** The odometry's world is the first camera's frame (every layer of gtvo works
+in it). With an initialised IMU the outputs (``trajectory.tum``, ``trajectory_loop_closed.tum``,
+``points.ply``) are written in the *gravity-aligned* world instead: the same origin (the first
+camera's centre), rotated by the smallest rotation that takes the estimated gravity direction to
+``-z``: z points up, x and y span the horizontal plane, the yaw (unobservable) is the first
+camera's. :class:`GravityAlignment` is that rotation.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING, Any
+
+import gtsam
+import numpy as np
+from numpy.typing import NDArray
+
+from gtvo.core.keys import imu_bias_key
+from gtvo.core.map_points import MapPoints
+from gtvo.evaluation.trajectory import Trajectory
+from gtvo.window.imu import ImuWindow
+from gtvo.window.problem import build_graph
+
+if TYPE_CHECKING:
+    from gtvo.odometry.visual_odometry import VisualOdometry
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class GravityAlignment:
+    """The rotation ``R_aligned_world`` from the odometry's world to the gravity-aligned one (module doc)."""
+
+    R_aligned_world: FloatArray
+
+    @classmethod
+    def of_gravity(cls, gravity_world: FloatArray) -> "GravityAlignment":
+        """The smallest rotation taking ``gravity_world``'s direction to ``(0, 0, -1)``."""
+        g = np.asarray(gravity_world, dtype=np.float64) / np.linalg.norm(gravity_world)
+        down = np.array([0.0, 0.0, -1.0])
+        axis = np.cross(g, down)
+        s, c = float(np.linalg.norm(axis)), float(g @ down)
+        if s < 1e-12:
+            R = np.eye(3) if c > 0 else np.diag([1.0, -1.0, -1.0])
+        else:
+            R = gtsam.Rot3.Expmap(axis / s * np.arctan2(s, c)).matrix()
+        return cls(R)
+
+    @property
+    def T(self) -> FloatArray:
+        """The rotation as a 4x4 transform."""
+        T = np.eye(4)
+        T[:3, :3] = self.R_aligned_world
+        return T
+
+    def trajectory(self, traj: Trajectory | None) -> Trajectory | None:
+        """``traj``'s poses in the aligned world (None stays None)."""
+        return None if traj is None else replace(traj, poses=self.T @ traj.poses)
+
+    def points(self, points: MapPoints) -> MapPoints:
+        """The map's points in the aligned world."""
+        return replace(points, points=points.points @ self.R_aligned_world.T)
+
+
+def gravity_alignment(vo: "VisualOdometry") -> GravityAlignment | None:
+    """The run's output rotation (module doc), None without an initialised IMU."""
+    imu: ImuWindow | None = getattr(vo, "imu", None)
+    if imu is None:
+        return None
+    if not imu.initialised and vo.window is not None:
+        imu.try_initialise(list(vo.window.keyframes), finishing=True)
+    return None if imu.gravity is None else GravityAlignment.of_gravity(imu.gravity)
+
+
+def bias_covariance(imu: ImuWindow, window: Any) -> FloatArray | None:
+    """The marginal covariance (6x6, ``(b_accel, b_gyro)``) of the newest keyframe's bias in the final
+    window's graph (linearised once, ``gtsam.Marginals``); None when the window has no bias."""
+    if window is None or not getattr(window, "keyframes", None) or not imu.biases:
+        return None
+    problem = window.problem(rig=window.solved_rig())
+    key = imu_bias_key(window.keyframes[-1].index)
+    if not problem.variables.exists(key):
+        return None
+    graph, values, _ = build_graph(problem)
+    try:
+        return np.asarray(gtsam.Marginals(graph, values).marginalCovariance(key), dtype=np.float64)
+    except RuntimeError:  # an indeterminant system: no sigma rather than a wrong one
+        return None
+
+
+def imu_report(vo: "VisualOdometry") -> dict[str, Any]:
+    """``{"imu": ...}`` when the run had an IMU in the window (``VisualOdometry.imu``): its log,
+    the initialisation, gravity and its direction's sigma, the newest keyframe's biases and their
+    marginal sigmas (:meth:`gtvo.window.imu.ImuWindow.report`), the output frame; else nothing."""
+    imu: ImuWindow | None = getattr(vo, "imu", None)
+    if imu is None:
+        return {}
+    alignment = gravity_alignment(vo)
+    figures = imu.report(bias_covariance(imu, vo.window))
+    readings = imu.readings
+    figures.update({
+        "source": getattr(readings, "source", None),
+        "rate_hz": float(1.0 / np.median(np.diff(readings.times))),
+        "T_cam_imu": np.asarray(readings.T_cam_imu).tolist(),
+        "output_frame": ("gravity-aligned: z up, origin and yaw of the first camera" if alignment is not None
+                         else "the first camera's (the IMU was not initialised)"),
+        "R_aligned_world": None if alignment is None else alignment.R_aligned_world.tolist(),
+    })
+    return {"imu": figures}
