@@ -162,6 +162,21 @@ class ImuWindow:
             gtsam.imuBias.ConstantBias(bias[:3], bias[3:]))
         return state.pose().compose(T_ci.inverse()), np.asarray(state.velocity(), dtype=float)
 
+    def predict_at(self, t: float) -> gtsam.Pose3 | None:
+        """The camera's pose at ``t`` predicted from the latest keyframe (by time, up to ``t``) with a
+        velocity and a bias, at its latest estimate; None before the initialisation or when the
+        readings do not cover the step."""
+        if not self.initialised:
+            return None
+        known = [(s.timestamp, i) for i, s in self._seen.items() if i in self.velocities and s.timestamp < t]
+        if not known:
+            return None
+        t0, index = max(known)
+        if not self.readings.covers(t0, t):
+            return None
+        pose, _ = self.predict(self._seen[index].pose, self.velocities[index], self.biases[index], t0, t)
+        return pose
+
     # ------------------------------------------------------------------------------ keyframes
 
     def keyframe_added(self, keyframes: Sequence[WindowKeyframe]) -> None:
