@@ -68,33 +68,57 @@ def _combined(keys: Sequence[int], pim: gtsam.PreintegratedCombinedMeasurements)
     return gtsam.CombinedImuFactor(*keys, pim)
 
 
-def _inner_values(keys: Sequence[int], values: gtsam.Values, T_cam_imu: gtsam.Pose3) -> gtsam.Values:
-    """The custom factor's variables as the GTSAM factor wants them (the IMU's poses, velocities as
-    Vector3, biases as ConstantBias)."""
-    pose_i, vel_i, pose_j, vel_j, bias_i, bias_j = keys
+def _inner_values(keys: Sequence[int], values: gtsam.Values, T_cam_imu: gtsam.Pose3, R_tilt: gtsam.Rot3
+                  ) -> gtsam.Values:
+    """The custom factor's variables as the GTSAM factor wants them: the IMU's poses and velocities in
+    the tilted world (``R_tilt^T`` applied: gravity is the parameters' there), velocities as Vector3,
+    biases as ConstantBias."""
+    pose_i, vel_i, pose_j, vel_j, bias_i, bias_j = keys[:6]
+    untilt = gtsam.Pose3(R_tilt.inverse(), np.zeros(3))
     out = gtsam.Values()
-    out.insert(pose_i, values.atPose3(pose_i).compose(T_cam_imu))
-    out.insert(pose_j, values.atPose3(pose_j).compose(T_cam_imu))
-    out.insertPoint3(vel_i, np.asarray(values.atVector(vel_i), dtype=np.float64))
-    out.insertPoint3(vel_j, np.asarray(values.atVector(vel_j), dtype=np.float64))
+    out.insert(pose_i, untilt.compose(values.atPose3(pose_i).compose(T_cam_imu)))
+    out.insert(pose_j, untilt.compose(values.atPose3(pose_j).compose(T_cam_imu)))
+    out.insertPoint3(vel_i, R_tilt.unrotate(np.asarray(values.atVector(vel_i), dtype=np.float64)))
+    out.insertPoint3(vel_j, R_tilt.unrotate(np.asarray(values.atVector(vel_j), dtype=np.float64)))
     out.insert(bias_i, constant_bias(values.atVector(bias_i)))
     out.insert(bias_j, constant_bias(values.atVector(bias_j)))
     return out
 
 
+def so3_right_jacobian(w: ArrayLike) -> FloatArray:
+    """``J_r(w)``: ``Exp(w + e) = Exp(w) Exp(J_r(w) e)`` to first order."""
+    w = np.asarray(w, dtype=np.float64).reshape(3)
+    th = float(np.linalg.norm(w))
+    W = np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
+    if th < 1e-8:
+        return np.eye(3) - 0.5 * W
+    return (np.eye(3) - (1.0 - np.cos(th)) / th ** 2 * W + (th - np.sin(th)) / th ** 3 * (W @ W))
+
+
 def imu_factor(pose_i: int, velocity_i: int, pose_j: int, velocity_j: int, bias_i: int, bias_j: int,
-               pim: gtsam.PreintegratedCombinedMeasurements, T_cam_imu: ArrayLike) -> gtsam.CustomFactor:
+               pim: gtsam.PreintegratedCombinedMeasurements, T_cam_imu: ArrayLike,
+               gravity_tilt: int | None = None) -> gtsam.CustomFactor:
     """The combined IMU factor between two keyframes' camera poses, IMU velocities (3) and biases (6)
     (module doc): its error is the ``CombinedImuFactor``'s whitened error at the IMU's poses, its
     Jacobians that factor's whitened ones (``factor.linearize(values)``), the poses' carried to the
-    camera's by ``Ad(T_cam_imu^-1)`` (right perturbations: ``T_wc Exp(xi) T_ci = T_wc T_ci Exp(Ad xi)``)."""
+    camera's by ``Ad(T_cam_imu^-1)`` (right perturbations: ``T_wc Exp(xi) T_ci = T_wc T_ci Exp(Ad xi)``).
+
+    ``gravity_tilt``: the key of a rotation vector ``theta`` (3) that tilts the parameters' gravity
+    ``g0`` to ``g = Exp(theta) g0`` (the window refines gravity's direction with it); the GTSAM factor
+    is evaluated in the frame where gravity is ``g0``: poses ``R^T T``, velocities ``R^T v`` with
+    ``R = Exp(theta)``. A tilt ``e`` of ``theta`` turns that frame by ``phi = -J_r(theta) e`` on the
+    left: a pose ``T'`` moves by ``Ad(T'^-1) [phi; 0]`` on the right, a velocity by ``phi x v'``."""
     keys = [pose_i, velocity_i, pose_j, velocity_j, bias_i, bias_j]
     inner = _combined(keys, pim)
+    if gravity_tilt is not None:
+        keys = keys + [gravity_tilt]
     T_ci = gtsam.Pose3(np.asarray(T_cam_imu, dtype=np.float64))
     to_camera = T_ci.inverse().AdjointMap()
 
     def error(this: gtsam.CustomFactor, values: gtsam.Values, jacobians: list | None) -> FloatArray:
-        v = _inner_values(keys, values, T_ci)
+        theta = np.zeros(3) if gravity_tilt is None else np.asarray(values.atVector(gravity_tilt), dtype=np.float64)
+        R_tilt = gtsam.Rot3.Expmap(theta)
+        v = _inner_values(keys, values, T_ci, R_tilt)
         if jacobians is None:
             return np.asarray(inner.whitenedError(v), dtype=np.float64)
         lin = inner.linearize(v)
@@ -103,11 +127,20 @@ def imu_factor(pose_i: int, velocity_i: int, pose_j: int, velocity_j: int, bias_
         blocks = {}
         for key in lin.keys():
             n = 6 if key in (pose_i, pose_j, bias_i, bias_j) else 3
-            blocks[key] = A[:, at:at + n]
+            blocks[key] = np.asarray(A[:, at:at + n], dtype=np.float64)
             at += n
-        for k, key in enumerate(keys):
-            J = np.asarray(blocks[key], dtype=np.float64)
-            jacobians[k] = J @ to_camera if key in (pose_i, pose_j) else J
+        R_t = R_tilt.matrix().T
+        for k, key in enumerate(keys[:6]):
+            J = blocks[key]
+            jacobians[k] = J @ to_camera if key in (pose_i, pose_j) else J @ R_t if key in (velocity_i, velocity_j) else J
+        if gravity_tilt is not None:
+            J_phi = np.zeros((IMU_RESIDUALS, 3))  # d residual / d phi (the frame's left turn)
+            for pose_key, vel_key in ((pose_i, velocity_i), (pose_j, velocity_j)):
+                T_prime = v.atPose3(pose_key)
+                J_phi += blocks[pose_key] @ T_prime.inverse().AdjointMap()[:, :3]
+                vp = np.asarray(v.atPoint3(vel_key), dtype=np.float64)
+                J_phi += blocks[vel_key] @ -np.array([[0.0, -vp[2], vp[1]], [vp[2], 0.0, -vp[0]], [-vp[1], vp[0], 0.0]])
+            jacobians[6] = J_phi @ -so3_right_jacobian(theta)
         return -np.asarray(lin.getb(), dtype=np.float64)
 
     return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(IMU_RESIDUALS), keys, error)

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from factors.params import PhotometricConfig
-from gtvo.core.keys import imu_bias_key, velocity_key
+from gtvo.core.keys import gravity_tilt_key, imu_bias_key, velocity_key
 from gtvo.datasets.synthetic import make_synthetic_sequence
 from gtvo.datasets.synthetic_imu import SYNTHETIC_GRAVITY, ImuSimulation, simulate_imu
 from gtvo.errors import InputError
@@ -90,12 +90,17 @@ def test_both_solvers_minimise_the_same_cost_with_the_imu(seq):
     ra = solve_gtsam(with_imu(a))
     rb = solve_handrolled(with_imu(b))
     assert ra.cost == pytest.approx(rb.cost, rel=1e-4)
-    assert max(np.abs(x.pose.localCoordinates(y.pose)).max() for x, y in zip(a, b)) < 3e-5
+    # a turn of the whole window against gravity's tilt is held by the gauge and tilt priors alone:
+    # flat, so the two solvers stop a little apart along it
+    assert max(np.abs(x.pose.localCoordinates(y.pose)).max() for x, y in zip(a, b)) < 3e-4
+    np.testing.assert_allclose(ra.variables.atVector(gravity_tilt_key()), rb.variables.atVector(gravity_tilt_key()),
+                               atol=3e-4)
     for k in window:
-        np.testing.assert_allclose(ra.variables.atVector(imu_bias_key(k.index)),
-                                   rb.variables.atVector(imu_bias_key(k.index)), atol=1e-5)
+        bias_a, bias_b = ra.variables.atVector(imu_bias_key(k.index)), rb.variables.atVector(imu_bias_key(k.index))
+        np.testing.assert_allclose(bias_a[3:], bias_b[3:], atol=2e-5)  # gyro
+        np.testing.assert_allclose(bias_a[:3], bias_b[:3], atol=2e-3)  # accelerometer: along the flat tilt
         np.testing.assert_allclose(ra.variables.atVector(velocity_key(k.index)),
-                                   rb.variables.atVector(velocity_key(k.index)), atol=1e-4)
+                                   rb.variables.atVector(velocity_key(k.index)), atol=5e-4)
     assert ra.cost < 0.5 * ra.initial_cost
 
 

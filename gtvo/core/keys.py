@@ -28,6 +28,8 @@ CALIBRATION = "c"
 VELOCITY = "V"
 #: A keyframe's IMU bias ``(b_accel, b_gyro)`` (Vector6).
 IMU_BIAS = "B"
+#: The tilt of gravity's direction from its initial estimate (Vector3, a rotation vector).
+GRAVITY_TILT = "g"
 
 
 def pose_key(index: int) -> int:
@@ -74,6 +76,11 @@ def velocity_key(index: int) -> int:
 def imu_bias_key(index: int) -> int:
     """Key of keyframe ``index``'s IMU bias (``B<index>``; docs/imu.md)."""
     return gtsam.symbol(IMU_BIAS, int(index))
+
+
+def gravity_tilt_key(index: int = 0) -> int:
+    """Key of the tilt of gravity's direction (``g<index>``; one per run: docs/imu.md)."""
+    return gtsam.symbol(GRAVITY_TILT, int(index))
 
 
 def is_pose_key(key: int) -> bool:

@@ -21,7 +21,7 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from gtvo.core.keys import imu_bias_key
+from gtvo.core.keys import gravity_tilt_key, imu_bias_key
 from gtvo.core.map_points import MapPoints
 from gtvo.evaluation.trajectory import Trajectory
 from gtvo.window.imu import ImuWindow
@@ -78,20 +78,23 @@ def gravity_alignment(vo: "VisualOdometry") -> GravityAlignment | None:
     return None if imu.gravity is None else GravityAlignment.of_gravity(imu.gravity)
 
 
-def bias_covariance(imu: ImuWindow, window: Any) -> FloatArray | None:
-    """The marginal covariance (6x6, ``(b_accel, b_gyro)``) of the newest keyframe's bias in the final
-    window's graph (linearised once, ``gtsam.Marginals``); None when the window has no bias."""
+def imu_covariances(imu: ImuWindow, window: Any) -> tuple[FloatArray | None, FloatArray | None]:
+    """The marginal covariances of the newest keyframe's bias (6x6, ``(b_accel, b_gyro)``) and of
+    gravity's tilt (3x3) in the final window's graph (linearised once, ``gtsam.Marginals``); None
+    where the window has no such variable or the system is indeterminant."""
     if window is None or not getattr(window, "keyframes", None) or not imu.biases:
-        return None
+        return None, None
     problem = window.problem(rig=window.solved_rig())
-    key = imu_bias_key(window.keyframes[-1].index)
-    if not problem.variables.exists(key):
-        return None
+    bias, tilt = imu_bias_key(window.keyframes[-1].index), gravity_tilt_key()
+    if not problem.variables.exists(bias):
+        return None, None
     graph, values, _ = build_graph(problem)
     try:
-        return np.asarray(gtsam.Marginals(graph, values).marginalCovariance(key), dtype=np.float64)
+        marginals = gtsam.Marginals(graph, values)
+        return (np.asarray(marginals.marginalCovariance(bias), dtype=np.float64),
+                np.asarray(marginals.marginalCovariance(tilt), dtype=np.float64))
     except RuntimeError:  # an indeterminant system: no sigma rather than a wrong one
-        return None
+        return None, None
 
 
 def imu_report(vo: "VisualOdometry") -> dict[str, Any]:
@@ -102,7 +105,7 @@ def imu_report(vo: "VisualOdometry") -> dict[str, Any]:
     if imu is None:
         return {}
     alignment = gravity_alignment(vo)
-    figures = imu.report(bias_covariance(imu, vo.window))
+    figures = imu.report(*imu_covariances(imu, vo.window))
     readings = imu.readings
     figures.update({
         "source": getattr(readings, "source", None),

@@ -14,8 +14,10 @@ between consecutive keyframes (docs/imu.md, "In the window").
     (``v_j = v_i + g dt + R_i dv``, ``p_j = p_i + v_i dt + g dt^2/2 + R_i dp``: linear), gravity
     rescaled to ``gravity`` and the velocities solved again with it held.
 
-  The accelerometer bias starts at zero. Gravity is then fixed in the window's world (the first
-  camera's frame); its direction's sigma comes from the least squares' residuals.
+  The accelerometer bias starts at zero. Gravity's magnitude is then fixed; its direction is refined
+  by every window through a tilt ``theta`` (``g = Exp(theta) g0``, the variable ``g0``, a prior of
+  ``gravity_tilt_sigma`` about zero set once and carried by the marginalisation prior), as VINS-Fusion
+  refines it on its tangent plane.
 * **In every window problem** (:meth:`ImuWindow.add_to`): each keyframe with a state gets a
   velocity ``V<index>`` (the IMU's, 3) and a bias ``B<index>`` (6, ``(b_accel, b_gyro)``) variable, marginalised
   with its keyframe (``WindowProblem.keyframe_kinds``); consecutive keyframes the readings cover get
@@ -35,7 +37,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from factors.imu import bias_prior, imu_factor, imu_params, preintegrate, velocity_prior
-from gtvo.core.keys import imu_bias_key, pose_key, velocity_key
+from gtvo.core.keys import gravity_tilt_key, imu_bias_key, pose_key, velocity_key
 from gtvo.window.config import WindowKeyframe
 
 FloatArray = NDArray[np.float64]
@@ -69,6 +71,7 @@ class ImuWindowSettings:
         velocity_sigma: the weak prior on the oldest keyframe's velocity (m/s), about its estimate.
         static_translation: the most the keyframes may move (m) for a static initialisation.
         static_rotation_deg: ... and turn (deg).
+        gravity_tilt_sigma: the prior sigma of gravity's tilt from its initial direction (rad).
     """
 
     init_seconds: float = 1.0
@@ -78,6 +81,7 @@ class ImuWindowSettings:
     velocity_sigma: float = 1.0
     static_translation: float = 0.02
     static_rotation_deg: float = 0.5
+    gravity_tilt_sigma: float = 0.035
 
 
 #: A re-preintegration is made when a keyframe's bias estimate moved more than this from the one
@@ -99,8 +103,10 @@ class ImuWindow:
     Attributes:
         readings: the IMU's log.
         settings: :class:`ImuWindowSettings`.
-        gravity: gravity in the window's world (m/s^2, 3), None before the initialisation.
-        gravity_sigma_deg: its direction's sigma (deg).
+        gravity0: gravity in the window's world at the initialisation (m/s^2, 3; GTSAM's parameters'),
+            None before it.
+        tilt: the tilt of gravity's direction since (a rotation vector; :attr:`gravity`).
+        gravity_sigma_deg: the initial direction's sigma (deg).
         init_kind: ``"static"`` or ``"moving"`` once initialised, else None.
         velocities, biases: keyframe index -> the IMU's velocity there (m/s, world) and its bias (6).
         factors_added: IMU factors in the window problems built so far (the last one's count).
@@ -109,7 +115,8 @@ class ImuWindow:
     def __init__(self, readings: ImuReadings, settings: ImuWindowSettings = ImuWindowSettings()) -> None:
         self.readings = readings
         self.settings = settings
-        self.gravity: FloatArray | None = None
+        self.gravity0: FloatArray | None = None
+        self.tilt = np.zeros(3)
         self.gravity_sigma_deg: float | None = None
         self.init_kind: str | None = None
         self.init_bias = np.zeros(6)
@@ -123,7 +130,12 @@ class ImuWindow:
     @property
     def initialised(self) -> bool:
         """Whether gravity and the keyframes' states are known."""
-        return self.gravity is not None
+        return self.gravity0 is not None
+
+    @property
+    def gravity(self) -> FloatArray | None:
+        """Gravity in the window's world (m/s^2): the initial one tilted by :attr:`tilt`; None before."""
+        return None if self.gravity0 is None else gtsam.Rot3.Expmap(self.tilt).rotate(self.gravity0)
 
     # ------------------------------------------------------------------------------ preintegration
 
@@ -131,7 +143,7 @@ class ImuWindow:
         """GTSAM's preintegration parameters (after the initialisation: gravity is in them)."""
         if self._params is None:
             n = self.readings.noise
-            g = np.zeros(3) if self.gravity is None else self.gravity
+            g = np.zeros(3) if self.gravity0 is None else self.gravity0
             self._params = imu_params(n.gyro_noise_density, n.accel_noise_density, n.gyro_random_walk,
                                       n.accel_random_walk, g)
         return self._params
@@ -157,10 +169,12 @@ class ImuWindow:
         """The camera's pose and the IMU's velocity at ``t1`` from the camera's pose and the IMU's
         velocity at ``t0``, by the readings."""
         T_ci = gtsam.Pose3(self.readings.T_cam_imu)
+        tilt = gtsam.Pose3(gtsam.Rot3.Expmap(self.tilt), np.zeros(3))  # the parameters' gravity is untilted
         state = self.preintegrated(t0, t1, bias).predict(
-            gtsam.NavState(pose.compose(T_ci), np.asarray(velocity, dtype=float)),
+            gtsam.NavState(tilt.inverse().compose(pose.compose(T_ci)), tilt.rotation().unrotate(velocity)),
             gtsam.imuBias.ConstantBias(bias[:3], bias[3:]))
-        return state.pose().compose(T_ci.inverse()), np.asarray(state.velocity(), dtype=float)
+        return (tilt.compose(state.pose()).compose(T_ci.inverse()),
+                np.asarray(tilt.rotation().rotate(state.velocity()), dtype=float))
 
     def predict_at(self, t: float) -> gtsam.Pose3 | None:
         """The camera's pose at ``t`` predicted from the latest keyframe (by time, up to ``t``) with a
@@ -201,7 +215,9 @@ class ImuWindow:
         self.biases[new.index] = bias
 
     def update(self, variables: gtsam.Values, keyframes: Sequence[WindowKeyframe]) -> None:
-        """Take the solved velocities and biases (``variables``) and the keyframes' solved poses."""
+        """Take the solved velocities, biases and gravity tilt (``variables``) and the keyframes' solved poses."""
+        if variables.exists(gravity_tilt_key()):
+            self.tilt = np.asarray(variables.atVector(gravity_tilt_key()), dtype=float).copy()
         for kf in keyframes:
             if kf.index in self._seen:
                 self._seen[kf.index].pose = kf.pose
@@ -223,6 +239,7 @@ class ImuWindow:
         for kind in ("V", "B"):
             if kind not in problem.keyframe_kinds:
                 problem.keyframe_kinds.append(kind)
+        problem.variables.insert(gravity_tilt_key(), self.tilt.copy())
         for kf in members:
             problem.variables.insert(velocity_key(kf.index), self.velocities[kf.index].copy())
             problem.variables.insert(imu_bias_key(kf.index), self.biases[kf.index].copy())
@@ -231,10 +248,13 @@ class ImuWindow:
                 pim = self._pim(a.index, b.index, a.timestamp, b.timestamp)
                 problem.factors.add(imu_factor(pose_key(a.index), velocity_key(a.index), pose_key(b.index),
                                                velocity_key(b.index), imu_bias_key(a.index), imu_bias_key(b.index),
-                                               pim, self.readings.T_cam_imu))
+                                               pim, self.readings.T_cam_imu, gravity_tilt_key()))
                 self.factors_added += 1
         first = members[0]
         marginal = problem.marginal
+        if marginal is None or gravity_tilt_key() not in marginal.keys:  # set once, then carried
+            problem.factors.add(gtsam.PriorFactorVector(gravity_tilt_key(), np.zeros(3), gtsam.noiseModel.Isotropic.Sigma(
+                3, self.settings.gravity_tilt_sigma)))
         if marginal is None or imu_bias_key(first.index) not in marginal.keys:
             s = self.settings
             problem.factors.add(bias_prior(imu_bias_key(first.index), self.init_bias, s.accel_bias_sigma,
@@ -294,7 +314,7 @@ class ImuWindow:
         R_world_imu = seen[0][1].pose.rotation().matrix() @ r.T_cam_imu[:3, :3]
         g = -R_world_imu @ f.mean(axis=0)
         norm = float(np.linalg.norm(g))
-        self.gravity = g / norm * self.settings.gravity
+        self.gravity0 = g / norm * self.settings.gravity
         # the direction's sigma: the accelerometer's white noise over the averaged readings
         n = int(np.count_nonzero(m))
         sigma_f = float(np.std(f - f.mean(axis=0), axis=0).mean()) / np.sqrt(n)
@@ -317,7 +337,7 @@ class ImuWindow:
             return False
         zero = np.zeros(6)
         # 1. the gyro bias from the relative rotations (GTSAM's params with zero gravity: rotations only)
-        self._params, self.gravity = None, None
+        self._params, self.gravity0 = None, None
         pims = {p: self.preintegrated(times[p[0]], times[p[1]], zero) for p in pairs}
         A, b = [], []
         h = 1e-4  # the preintegrated rotation's derivative in the gyro bias, by differences
@@ -341,7 +361,7 @@ class ImuWindow:
             return False
         g = g / np.linalg.norm(g) * self.settings.gravity
         _, v, _ = _gravity_and_velocities(pairs, pims, imu_poses, times, len(seen), g)
-        self.gravity, self.gravity_sigma_deg = g, sigma_deg
+        self.gravity0, self.gravity_sigma_deg = g, sigma_deg
         self.init_bias = bias
         self.init_kind = "moving"
         for k, (index, kseen) in enumerate(seen):
@@ -355,16 +375,24 @@ class ImuWindow:
 
     # ------------------------------------------------------------------------------ report
 
-    def report(self, bias_covariance: FloatArray | None = None) -> dict:
-        """The IMU's figures for ``report.json``: gravity (world and in the gravity-aligned output
-        frame's terms), its direction's sigma, the latest keyframe's biases and their sigmas."""
+    def report(self, bias_covariance: FloatArray | None = None, tilt_covariance: FloatArray | None = None) -> dict:
+        """The IMU's figures for ``report.json``: gravity in the window's world and its direction's
+        sigma (the tilt's marginal covariance across gravity, else the initialisation's), the latest
+        keyframe's biases and their sigmas."""
         latest = max(self.biases) if self.biases else None
         bias = self.biases[latest] if latest is not None else None
         sig = None if bias_covariance is None else np.sqrt(np.clip(np.diag(bias_covariance), 0, None))
+        g = self.gravity
+        sigma_deg = self.gravity_sigma_deg
+        if g is not None and tilt_covariance is not None:
+            u = g / np.linalg.norm(g)
+            across = np.eye(3) - np.outer(u, u)
+            sigma_deg = float(np.degrees(np.sqrt(max(np.trace(across @ tilt_covariance @ across), 0.0))))
         return {
             "initialised": self.init_kind,
-            "gravity_world": None if self.gravity is None else [float(x) for x in self.gravity],
-            "gravity_sigma_deg": self.gravity_sigma_deg,
+            "gravity_world": None if g is None else [float(x) for x in g],
+            "gravity_sigma_deg": sigma_deg,
+            "gravity_tilt_deg": float(np.degrees(np.linalg.norm(self.tilt))),
             "gyro_bias": None if bias is None else [float(x) for x in bias[3:]],
             "gyro_bias_sigma": None if sig is None else [float(x) for x in sig[3:]],
             "accel_bias": None if bias is None else [float(x) for x in bias[:3]],
