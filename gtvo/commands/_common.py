@@ -140,6 +140,10 @@ def print_report(report: RunReport) -> None:
         from gtvo.odometry.wheel import wheel_calibration_line  # noqa: PLC0415
 
         print(f"  {wheel_calibration_line(report['wheel_calibration'])}")
+    if report.get("imu") is not None:
+        from gtvo.odometry.imu import imu_line  # noqa: PLC0415
+
+        print(f"  {imu_line(report['imu'])}")
     print(f"  outputs in {report['out']}")
 
 

@@ -116,3 +116,17 @@ def imu_report(vo: "VisualOdometry") -> dict[str, Any]:
         "R_aligned_world": None if alignment is None else alignment.R_aligned_world.tolist(),
     })
     return {"imu": figures}
+
+
+def imu_line(figures: dict[str, Any]) -> str:
+    """The console's line about the IMU (``report.json``'s ``imu`` block)."""
+    if figures.get("initialised") is None:
+        return "imu: not initialised (too short a log for its first second); outputs in the first camera's frame"
+    sigma = figures.get("gravity_sigma_deg")
+    gyro = figures.get("gyro_bias")
+    text = f"imu: initialised {figures['initialised']}, outputs gravity-aligned (z up)"
+    if sigma is not None:
+        text += f", gravity direction +-{sigma:.3g} deg"
+    if gyro is not None:
+        text += ", gyro bias [" + ", ".join(f"{x:.4g}" for x in gyro) + "] rad/s"
+    return text
