@@ -21,7 +21,7 @@ from gtvo.refinement import RefineConfig, covisible_targets
 from gtvo.refinement.graph import candidate_targets, loop_chi2, scale_change, window_candidates, window_edges
 from gtvo.window import TargetChoice, WindowConfig, WindowResult, visible_targets
 from tests.test_window import _keyframes
-from tests._window_problem import refine
+from tests._window_problem import problem, refine
 
 NO_HUBER = PhotometricConfig(huber_k=None)
 
@@ -150,7 +150,7 @@ def test_a_loop_edge_the_refined_cost_rejects_is_dropped_and_counted(seq, keyfra
 def test_an_lm_that_cannot_improve_keeps_the_window_answer(seq, keyframes, monkeypatch, factor, reason):
     import gtvo.refinement.solve as solve
 
-    def no_better(camera, baseline, kfs, config, marginal, targets, rig_offset, **kw):
+    def no_better(problem):
         return WindowResult("gtsam", 10.0, 10.0 * factor, 3, 0.1, 1)
 
     monkeypatch.setattr(solve, "solve_gtsam", no_better)
@@ -246,8 +246,8 @@ def test_lm_iteration_by_iteration_is_gtsam_own_loop(seq, keyframes):
     a, b = copy.deepcopy(keyframes), copy.deepcopy(keyframes)
     cfg = WindowConfig(max_iterations=6)
     seen = []
-    ra = solve_gtsam(cam.left, cam.baseline, a, cfg)
-    rb = solve_gtsam(cam.left, cam.baseline, b, cfg, on_iteration=lambda it, cost: seen.append((it, cost)))
+    ra = solve_gtsam(problem(cam.left, cam.baseline, a, cfg))
+    rb = solve_gtsam(problem(cam.left, cam.baseline, b, cfg, on_iteration=lambda it, cost: seen.append((it, cost))))
     assert (ra.iterations, ra.cost) == (rb.iterations, rb.cost) and seen[-1] == (rb.iterations, rb.cost)
     assert [it for it, _ in seen] == list(range(1, rb.iterations + 1))
     for ka, kb in zip(a, b):

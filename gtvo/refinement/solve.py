@@ -1,9 +1,10 @@
 """The whole-log refinement: one graph over every keyframe of a run, solved by the window's solvers.
 
 :func:`refine_keyframes` takes the keyframes as the window left them (and, with loop closing, at
-the loop-closed poses), builds the window's problem over all of them with the targets of
-:func:`gtvo.refinement.graph.covisible_targets`, the accepted loop edges and (``window_edges``) the
-window's relative poses between consecutive keyframes as ``BetweenFactorPose3``,
+the loop-closed poses), builds the window's problem (:class:`gtvo.window.problem.WindowProblem`)
+over all of them with the targets of :func:`gtvo.refinement.graph.covisible_targets`, adds to its
+graph the accepted loop edges and (``window_edges``) the window's relative poses between
+consecutive keyframes as ``BetweenFactorPose3`` (:func:`refinement_problem`),
 and hands it to :func:`gtvo.window.solve_gtsam` (GTSAM's LM) or :func:`gtvo.window.solve_handrolled`.
 A loop edge the refined poses reject (chi-square) is dropped and the graph solved again without
 it (its factor and the photometric loop pairs it brought: the targets are chosen again); an LM that does not lower the cost leaves the keyframes as they were (docs/refinement.md).

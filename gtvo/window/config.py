@@ -19,7 +19,6 @@ from gtvo.errors import InputError, show
 
 if TYPE_CHECKING:
     from gtvo.window.rig import RigOffset
-    from gtvo.window.problem import RigVariable, WindowProblem
     from gtvo.window.wheel import WheelCalibration
 
 FloatArray = NDArray[np.float64]
@@ -270,12 +269,6 @@ class WindowState(Protocol):
     rig: "RigOffset | None"
     #: the wheel calibration's one owner (:class:`gtvo.window.wheel.WheelCalibration`), None without wheels
     wheel: "WheelCalibration | None"
-
-    def problem(self, targets: list[list[int]] | None = None, rig: "RigVariable | None" = None) -> "WindowProblem":
-        """The window's problem at its current state (:class:`gtvo.window.problem.WindowProblem`)."""
-
-    def solved_rig(self) -> "RigVariable | None":
-        """The rig offset as a variable of the window's problem, not held (None: none)."""
 
     def rig_free_estimate(self) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
         """What the window's data say about the rig offset while it is held: ``(estimate, marginal sigmas)``."""

@@ -14,8 +14,8 @@ import numpy as np
 from gtvo.core.keys import affine_key, pose_key
 from factors.smart import HostPointsFactor
 from gtvo.window.covariance import marginals_of_smoother
-from gtvo.window.config import WindowKeyframe, WindowResult, WindowState
-from gtvo.window.problem import host_factor
+from gtvo.window.config import WindowKeyframe, WindowResult
+from gtvo.window.problem import SolvableWindow, host_factor
 
 
 class FixedLagBackend:
@@ -35,15 +35,15 @@ class FixedLagBackend:
         self._host_slots: dict[int, tuple[int, HostPointsFactor]] = {}  # kf index -> (factor index, factor)
         self._added: set[tuple[int, ...]] = set()  # the keys of the non-host factors in the smoother
 
-    def remove_oldest(self, window: WindowState) -> WindowKeyframe:
+    def remove_oldest(self, window: SolvableWindow) -> WindowKeyframe:
         """Drop the oldest keyframe from the window's list: the smoother marginalises it at the next update."""
         return window.keyframes.pop(0)
 
-    def optimize(self, window: WindowState, targets: list[list[int]], solver: str = "gtsam") -> WindowResult:
+    def optimize(self, window: SolvableWindow, targets: list[list[int]], solver: str = "gtsam") -> WindowResult:
         """One update of the fixed-lag smoother, then ``max_iterations - 1`` more (iSAM2 takes one
         Gauss-Newton step per update, relinearising every variable).
 
-        The window's problem (:meth:`gtvo.window.config.WindowState.problem`) gives the factors:
+        The window's problem (:meth:`gtvo.window.problem.SolvableWindow.problem`) gives the factors:
         each non-host factor joins the smoother once (a new keyframe's affine prior, a new triple's
         motion prior, a caller's factor), the gauge prior at the first update.
         Each call removes the host factors of the keyframes still in the window and adds them again

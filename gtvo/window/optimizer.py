@@ -20,13 +20,13 @@ from gtvo.core.timing import stage
 from gtvo.errors import InputError
 from factors.compact_image import compact_image
 from factors.params import PhotometricConfig
-from gtvo.window.config import MarginalPrior, WindowConfig, WindowKeyframe, WindowResult, WindowSolverName, WindowState
+from gtvo.window.config import MarginalPrior, WindowConfig, WindowKeyframe, WindowResult, WindowSolverName
 from gtvo.window.gtsam_solver import solve_gtsam
 from gtvo.window.handrolled import solve_handrolled, window_cost
 from gtvo.window.marginal import marginalize
 from gtvo.window.fixed_lag import FixedLagBackend
-from gtvo.window.problem import (RigVariable, WindowMembers, WindowProblem, WindowSettings, build_graph,
-                                 observation_counts, visible_targets)
+from gtvo.window.problem import (RigVariable, SolvableWindow, WindowMembers, WindowProblem, WindowSettings,
+                                 build_graph, observation_counts, visible_targets)
 from gtvo.window.rig import RigOffset
 from gtvo.window.imu import ImuWindow
 from gtvo.window.wheel import WheelCalibration
@@ -253,13 +253,13 @@ class LMBackend:
         """The LM back end runs the requested solver."""
         return str(requested)
 
-    def remove_oldest(self, window: WindowState) -> WindowKeyframe:
+    def remove_oldest(self, window: SolvableWindow) -> WindowKeyframe:
         """Marginalise the oldest keyframe into :attr:`marginal` (or drop it, ``marginalize=False``)."""
         if window.config.marginalize:
             self.marginal = marginalize(window.problem(rig=window.solved_rig()), 0)
         return window.keyframes.pop(0)
 
-    def optimize(self, window: WindowState, targets: list[list[int]],
+    def optimize(self, window: SolvableWindow, targets: list[list[int]],
                  solver: WindowSolverName) -> WindowResult:
         """Solve the window with ``solver`` ("gtsam" or "handrolled"); keyframes updated in place."""
         solve = {"gtsam": solve_gtsam, "handrolled": solve_handrolled}.get(solver)

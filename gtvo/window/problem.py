@@ -25,7 +25,7 @@ from factors.stacked import stacked
 from gtvo.core.camera import MIN_DEPTH, PinholeCamera
 from gtvo.core.timing import timed
 from gtvo.errors import InputError
-from gtvo.window.config import MarginalPrior, WindowConfig, WindowKeyframe
+from gtvo.window.config import MarginalPrior, WindowConfig, WindowKeyframe, WindowState
 
 FloatArray = NDArray[np.float64]
 
@@ -271,6 +271,18 @@ class WindowSensor(Protocol):
         """Insert this sensor's variables into ``problem.variables`` (per keyframe: a kind in
         ``problem.keyframe_kinds``) and its factors into ``problem.factors``; a prior set once goes
         in only while ``problem.marginal`` does not carry its variable."""
+
+
+class SolvableWindow(WindowState, Protocol):
+    """What a back end sees of the window it serves: its state and its problem
+    (:class:`gtvo.window.SlidingWindowOptimizer`)."""
+
+    def problem(self, targets: list[list[int]] | None = None, rig: "RigVariable | None" = None) -> "WindowProblem":
+        """The window's problem at its current state (``targets``: the hosts' targets, None: chosen
+        at the first use; ``rig``: the rig offset as a variable, None: none)."""
+
+    def solved_rig(self) -> "RigVariable | None":
+        """The rig offset as a variable of the window's problem, not held (None: none)."""
 
 
 @dataclass(frozen=True)
