@@ -384,7 +384,7 @@ class ImuWindow:
         sig = None if bias_covariance is None else np.sqrt(np.clip(np.diag(bias_covariance), 0, None))
         g = self.gravity
         sigma_deg = self.gravity_sigma_deg
-        if g is not None and tilt_covariance is not None:
+        if g is not None and tilt_covariance is not None and self.factors_added > 0:  # else the prior's
             u = g / np.linalg.norm(g)
             across = np.eye(3) - np.outer(u, u)
             sigma_deg = float(np.degrees(np.sqrt(max(np.trace(across @ tilt_covariance @ across), 0.0))))
