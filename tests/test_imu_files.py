@@ -148,6 +148,9 @@ def test_bag_imu_topic_with_its_tf_static_and_the_choice_of_topics(tmp_path):
     assert open_sequence(path, imu_topic="none").imu is None
     with pytest.raises(InputError, match="--imu-topic /nope is not in the bag; sensor_msgs/Imu topics: /imu"):
         open_sequence(path, imu_topic="/nope")
+    ros2 = open_sequence(write_sequence_bag(seq, tmp_path / "ros2")).imu  # a ROS2 bag folder alike
+    np.testing.assert_allclose(ros2.accel, seq.imu.accel)
+    np.testing.assert_allclose(ros2.T_cam_imu, SYNTHETIC_T_CAM_IMU, atol=1e-12)
 
 
 def test_a_bag_with_a_bad_imu_message_names_it(tmp_path):
