@@ -108,7 +108,8 @@ def test_the_marginal_prior_carries_velocities_and_biases(seq):
     cam = seq.camera
     kfs = _keyframes(seq, range(0, 24, 2), points=120, timed=True)
     imu = ImuWindow(seq.imu)
-    w = SlidingWindowOptimizer(cam.left, cam.baseline, WindowConfig(size=4, max_iterations=6), imu=imu)
+    w = SlidingWindowOptimizer(cam.left, cam.baseline, WindowConfig(size=4, max_iterations=6))
+    w.use_imu(imu)
     for k in kfs:
         w.add_keyframe(k)
         w.optimize("gtsam")
@@ -122,4 +123,4 @@ def test_the_marginal_prior_carries_velocities_and_biases(seq):
     gyro = imu.biases[w.keyframes[-1].index][3:]
     np.testing.assert_allclose(gyro, TRUE_BIAS[:3], atol=0.2 * 0.02)
     with pytest.raises(InputError, match="'lm' window backend only"):
-        SlidingWindowOptimizer(cam.left, cam.baseline, WindowConfig(backend="fixed_lag"), imu=imu)
+        SlidingWindowOptimizer(cam.left, cam.baseline, WindowConfig(backend="fixed_lag")).use_imu(imu)

@@ -115,8 +115,9 @@ class WindowLink:
         wcfg = config.window
         rig = baseline is not None and wcfg.rig_calibration and wcfg.backend == "lm"
         self.window = SlidingWindowOptimizer(self.pinhole, baseline, WindowSettings(wcfg, config.photometric),
-                                             rig_offset=np.zeros(2) if rig else None, wheel=wheel,
-                                             imu=imu)
+                                             rig_offset=np.zeros(2) if rig else None, wheel=wheel)
+        if imu is not None:
+            self.window.use_imu(imu)
 
     def join(self, request: KeyframeForWindow) -> None:
         """Add the keyframe to the window (the oldest leaves first when it is full).

@@ -356,11 +356,11 @@ class ImuWindow:
         bias = np.r_[np.zeros(3), bg]
         pims = {p: self.preintegrated(times[p[0]], times[p[1]], bias) for p in pairs}
         # 2. gravity and the IMU's velocities (linear least squares), gravity rescaled, velocities again
-        g, v, sigma_deg = _gravity_and_velocities(pairs, pims, imu_poses, times, len(seen), None)
+        g, v, sigma_deg = _gravity_and_velocities(pairs, pims, imu_poses, times, None)
         if g is None:
             return False
         g = g / np.linalg.norm(g) * self.settings.gravity
-        _, v, _ = _gravity_and_velocities(pairs, pims, imu_poses, times, len(seen), g)
+        _, v, _ = _gravity_and_velocities(pairs, pims, imu_poses, times, g)
         self.gravity0, self.gravity_sigma_deg = g, sigma_deg
         self.init_bias = bias
         self.init_kind = "moving"
@@ -401,11 +401,12 @@ class ImuWindow:
         }
 
 
-def _gravity_and_velocities(pairs, pims, imu_poses, times, n: int, gravity: FloatArray | None
+def _gravity_and_velocities(pairs, pims, imu_poses, times, gravity: FloatArray | None
                             ) -> tuple[FloatArray | None, FloatArray, float | None]:
-    """Least squares for the IMU velocities (n, 3) and (``gravity`` None) gravity from
+    """Least squares for the IMU velocities (one per pose, 3) and (``gravity`` None) gravity from
     ``v_j - v_i - g dt = R_i dv`` and ``v_i dt + g dt^2 / 2 = p_j - p_i - R_i dp`` per pair; with
     the direction's sigma (deg) from the residuals."""
+    n = len(imu_poses)
     cols = 3 * n + (3 if gravity is None else 0)
     rows, rhs = [], []
     for (i, j), pim in zip(pairs, (pims[p] for p in pairs)):

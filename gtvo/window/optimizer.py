@@ -58,7 +58,7 @@ class SlidingWindowOptimizer:
 
     def __init__(self, camera: PinholeCamera, baseline: float | None,
                  settings: WindowSettings | WindowConfig | None = None, rig_offset: FloatArray | None = None,
-                 wheel: WheelCalibration | None = None, imu: ImuWindow | None = None) -> None:
+                 wheel: WheelCalibration | None = None) -> None:
         self.camera = camera
         self.baseline = baseline
         settings = WindowSettings(settings) if isinstance(settings, WindowConfig) else settings or WindowSettings()
@@ -78,11 +78,8 @@ class SlidingWindowOptimizer:
             raise InputError("wheel odometry is used by the 'lm' window backend only")
         #: the wheel calibration's one owner, updated by every optimisation (None: no wheel odometry)
         self.wheel: WheelCalibration | None = wheel
-        if imu is not None and self.config.backend != "lm":
-            raise InputError("the IMU is used by the 'lm' window backend only: drop --window-backend fixed-lag or "
-                             "add --no-imu")
-        #: the IMU's one owner: gravity, the keyframes' velocities and biases (None: no IMU; docs/imu.md)
-        self.imu: ImuWindow | None = imu
+        #: the IMU's one owner: gravity, the keyframes' velocities and biases (None: no IMU; :meth:`use_imu`)
+        self.imu: ImuWindow | None = None
         self.keyframes: list[WindowKeyframe] = []
         self.n_removed = 0  # keyframes that left the window (not kept unless retain_keyframes: they hold images)
         #: keep the keyframes that leave in :attr:`retired` (the whole-log refinement's input,
@@ -99,6 +96,16 @@ class SlidingWindowOptimizer:
         #: per keyframe of the last optimised window, the positions of its targets (:func:`visible_targets`)
         self.last_targets: list[list[int]] = []
         self.backend: LMBackend | FixedLagBackend = FixedLagBackend() if self.config.backend == "fixed_lag" else LMBackend()
+
+    def use_imu(self, imu: ImuWindow) -> None:
+        """Estimate with the IMU (:class:`gtvo.window.imu.ImuWindow`, a sensor of every problem; docs/imu.md),
+        before the first keyframe joins."""
+        if self.config.backend != "lm":
+            raise InputError("the IMU is used by the 'lm' window backend only: drop --window-backend fixed-lag or "
+                             "add --no-imu")
+        if self.keyframes:
+            raise InputError("the IMU joins the window before its first keyframe")
+        self.imu = imu
 
     def add_keyframe(self, keyframe: WindowKeyframe) -> None:
         """Append a keyframe; when the window is full, the oldest leaves first (marginalised)."""
