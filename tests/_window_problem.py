@@ -29,11 +29,12 @@ def problem(camera: Any, baseline: float | None, keyframes: Sequence[WindowKeyfr
 
 def refine(camera: Any, baseline: float | None, keyframes: Sequence[WindowKeyframe], window: WindowConfig,
            config: Any = None, *, photometric: PhotometricConfig = DEFAULT_PHOTOMETRIC, progress: bool = False,
-           on_iteration: Any = None, **inputs: Any) -> Any:
+           on_iteration: Any = None, wheel: Any = None, **inputs: Any) -> Any:
     """:func:`gtvo.refinement.refine_keyframes` of these pieces (``inputs``: more
-    :class:`gtvo.refinement.RefinementInput` fields: loop edges, rig offset, wheels, start poses, covariances)."""
+    :class:`gtvo.refinement.RefinementInput` fields: loop edges, rig offset, start poses, covariances;
+    ``wheel``: the one sensor)."""
     from gtvo.refinement import RefinementInput, refine_keyframes  # noqa: PLC0415
 
     run = RefinementInput(WindowMembers(camera, baseline, keyframes),
-                          WindowSettings(window, photometric, on_iteration=on_iteration), **inputs)
+                          WindowSettings(window, photometric, on_iteration=on_iteration), sensors=(wheel,), **inputs)
     return refine_keyframes(run, config, progress)

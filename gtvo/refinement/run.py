@@ -118,7 +118,7 @@ def refine_run(seq: Sequence, trajectory: Trajectory, frame_indices: list[int], 
     try:
         run = RefinementInput(WindowMembers(seq.pinhole, getattr(seq.camera, "baseline", None), window_keyframes),
                               WindowSettings(window, photometric, on_iteration=lambda it, cost: raise_if_interrupted()),
-                              rig_offset, wheel, edges, loop_result.keyframe_poses if closed else None,
+                              rig_offset, (wheel,), edges, loop_result.keyframe_poses if closed else None,
                               odometry_covariances)
         res = refine_keyframes(run, config, progress)
         if res.ran:

@@ -30,8 +30,7 @@ from gtvo.refinement.graph import covisible_targets, loop_chi2, loop_factors, wi
 from gtvo.window.config import WindowKeyframe
 from gtvo.window.gtsam_solver import solve_gtsam
 from gtvo.window.handrolled import solve_handrolled
-from gtvo.window.problem import RigVariable, WindowMembers, WindowProblem, WindowSettings
-from gtvo.window.wheel import WheelCalibration
+from gtvo.window.problem import RigVariable, WindowMembers, WindowProblem, WindowSensor, WindowSettings
 
 F64 = NDArray[np.float64]
 
@@ -100,10 +99,11 @@ class RefinementInput:
             iterations and tolerance are the refinement's) and the run's photometric model; its
             ``on_iteration`` is called with ``(iteration, cost)`` after every iteration (after the bar).
         rig_offset: the run's rig offset (one variable for the log), None: the rectified model.
-        wheel: the run's wheel odometry and calibration (the window's): its factors between every
-            two consecutive keyframes the wheel log covers and one calibration variable for the
-            log, starting at the window's estimate, with the calibration's prior (``wheel`` itself
-            is not changed; the result's ``wheel_calibration`` is the refined one). None: no wheels.
+        sensors: the run's sensors (the window's, :class:`gtvo.window.problem.WindowSensor`; None
+            entries skipped): the wheel odometry's factors between every two consecutive keyframes
+            the wheel log covers and one calibration variable for the log, starting at the
+            window's estimate, with the calibration's prior (a sensor is not changed; the result's
+            ``wheel_calibration`` is the refined one).
         loop_edges: accepted loop edges by frame index; those between keyframes not in the list are ignored.
         start_poses: frame index -> 4x4 ``T_world_cam`` to start from (the loop-closed keyframes).
         odometry_covariances: per pair of consecutive keyframes, the tracker's covariance
@@ -114,7 +114,7 @@ class RefinementInput:
     members: WindowMembers
     window: WindowSettings = WindowSettings()
     rig_offset: F64 | None = None
-    wheel: WheelCalibration | None = None
+    sensors: tuple[WindowSensor | None, ...] = ()
     loop_edges: Sequence[LoopEdge] = ()
     start_poses: Mapping[int, F64] | None = None
     odometry_covariances: Sequence[F64 | None] | None = None
@@ -128,7 +128,7 @@ def refinement_problem(run: RefinementInput, settings: WindowSettings, keyframes
     members = run.members
     rig = None if run.rig_offset is None else RigVariable(run.rig_offset)
     problem = WindowProblem.build(WindowMembers(members.camera, members.baseline, keyframes, targets), settings,
-                                  None, rig, (run.wheel,))
+                                  None, rig, run.sensors)
     problem.factors.push_back(loop_factors(edges))
     return problem
 
