@@ -12,7 +12,10 @@ between consecutive keyframes (docs/imu.md, "In the window").
     ones (least squares on ``Log(dR_imu^T R_i^T R_j) = J_bg db_g``), then gravity and every
     keyframe's IMU velocity from the preintegrated velocity and position changes
     (``v_j = v_i + g dt + R_i dv``, ``p_j = p_i + v_i dt + g dt^2/2 + R_i dp``: linear), gravity
-    rescaled to ``gravity`` and the velocities solved again with it held.
+    rescaled to ``gravity`` and the velocities solved again with it held; refused, and tried again at
+    the next keyframe, when the gravity found is more than :data:`GRAVITY_CHECK` off in magnitude or
+    its direction's sigma above :data:`MAX_INIT_SIGMA_DEG` (the keyframes used are the latest that
+    span ``init_seconds``, so a bad start ages out).
 
   The accelerometer bias starts at zero. Gravity's magnitude is then fixed; its direction is refined
   by every window through a tilt ``theta`` (``g = Exp(theta) g0``, the variable ``g0``, a prior of
@@ -83,6 +86,13 @@ class ImuWindowSettings:
     static_rotation_deg: float = 0.5
     gravity_tilt_sigma: float = 0.035
 
+
+#: The moving initialisation is refused (and tried again at the next keyframe) when the gravity its
+#: least squares find is off the known magnitude by more than this fraction (VINS-Fusion's check):
+#: the keyframes' poses and the readings disagree.
+GRAVITY_CHECK = 0.1
+#: ... or when the direction it finds is less certain than this (deg, from the residuals).
+MAX_INIT_SIGMA_DEG = 2.0
 
 #: A re-preintegration is made when a keyframe's bias estimate moved more than this from the one
 #: its readings were preintegrated at (accelerometer m/s^2, gyro rad/s; VINS-Fusion's rule).
@@ -282,8 +292,10 @@ class ImuWindow:
         static = self._static(seen)
         if static:
             ok = self._initialise_static(seen, t0)
-        else:
-            ok = len(seen) >= 3 and self._initialise_moving(seen)
+        else:  # the latest keyframes that span init_seconds: a bad start ages out of a refused one
+            last = max(k for k in range(len(seen)) if t_end - seen[k][1].timestamp >= self.settings.init_seconds)
+            recent = seen[last:]
+            ok = len(recent) >= 3 and self._initialise_moving(recent)
         if not ok:
             return False
         self._params = None  # gravity is known now
@@ -357,8 +369,9 @@ class ImuWindow:
         pims = {p: self.preintegrated(times[p[0]], times[p[1]], bias) for p in pairs}
         # 2. gravity and the IMU's velocities (linear least squares), gravity rescaled, velocities again
         g, v, sigma_deg = _gravity_and_velocities(pairs, pims, imu_poses, times, None)
-        if g is None:
-            return False
+        if (g is None or abs(np.linalg.norm(g) - self.settings.gravity) > GRAVITY_CHECK * self.settings.gravity
+                or sigma_deg is None or sigma_deg > MAX_INIT_SIGMA_DEG):
+            return False  # the keyframes and the readings disagree (a bad visual start): try again later
         g = g / np.linalg.norm(g) * self.settings.gravity
         _, v, _ = _gravity_and_velocities(pairs, pims, imu_poses, times, g)
         self.gravity0, self.gravity_sigma_deg = g, sigma_deg
