@@ -10,6 +10,7 @@ bias recovered, the cost.
   of the frames after the black stretch against the clean run's.
 * Gravity's direction (against the synthetic world's) and the gyro bias (against the simulated one)
   after the run (``--frames`` / 10 s).
+* The fast-turning log at every ``--step``-th frame (3: 3.3 Hz, 14 deg per frame).
 * The shared EuRoC static frames (``$GTVO_SHARED_DATA/euroc_v101_static_stereo``): the gravity
   direction the IMU gives against the ground truth's orientation (EuRoC's world has z up).
 * The cost: CPU seconds of the whole run with the IMU over without (tracker and window run
@@ -17,7 +18,7 @@ bias recovered, the cost.
 
 Figures and the command: docs/benchmarks.md, "Stereo + IMU".
 
-    PYTHONPATH=. python benchmarks/imu.py [--frames 100] [--blind 40,60] [--json FILE]
+    PYTHONPATH=. python benchmarks/imu.py [--frames 100] [--blind 40,60] [--step 3] [--json FILE]
 """
 
 from __future__ import annotations
@@ -117,6 +118,20 @@ def blind(frames: int, blind_range: tuple[int, int]) -> dict[str, Any]:
     return out
 
 
+def sparse(frames: int, step: int) -> dict[str, Any]:
+    """The fast-turning log at every ``step``-th frame (10 / step Hz): turns of 14 deg per frame at 3."""
+    seq = make_synthetic_sequence(frames, width=320, height=240, motion="swerve",
+                                  imu=ImuSimulation(gyro_bias=GYRO_BIAS, accel_bias=ACCEL_BIAS)).subsampled(step)
+    vision = run(dataclasses.replace(seq, imu=None))
+    inertial = run(seq)
+    out = {"case": f"synthetic swerve, every {step}th of {frames} frames", "ate_vision_m": vision["ate_m"],
+           "ate_imu_m": inertial["ate_m"], "ate_ratio": inertial["ate_m"] / vision["ate_m"],
+           "end_error_vision_m": float(vision["error_m"][-1]), "end_error_imu_m": float(inertial["error_m"][-1]),
+           "outcomes_vision": vision["outcomes"], "outcomes_imu": inertial["outcomes"]}
+    print(json.dumps(out), flush=True)
+    return out
+
+
 def euroc() -> dict[str, Any] | None:
     root = Path(os.environ.get("GTVO_SHARED_DATA", Path(__file__).resolve().parents[2] / "shared" / "data"))
     root = root / "euroc_v101_static_stereo"
@@ -139,6 +154,7 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--frames", type=int, default=100, help="frames of each synthetic log (10 Hz)")
     p.add_argument("--blind", default="40,60", help="the black frames, first,end (end excluded)")
+    p.add_argument("--step", type=int, default=3, help="the sparse case: the fast-turning log at every STEP-th frame")
     p.add_argument("--json", default=None, help="also write the figures to this file")
     a = p.parse_args(argv)
     first, end = (int(x) for x in a.blind.split(","))
@@ -146,6 +162,7 @@ def main(argv: list[str] | None = None) -> int:
         "fast_turns": synthetic("swerve", a.frames),
         "gentle": synthetic("forward", a.frames),
         "black_frames": blind(a.frames, (first, end)),
+        "sparse_fast_turns": sparse(a.frames, a.step),
         "euroc_static": euroc(),
     }
     if a.json:
