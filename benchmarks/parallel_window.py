@@ -49,7 +49,7 @@ from gtvo.core.atomic import write_json  # noqa: E402
 from gtvo.datasets import open_sequence  # noqa: E402
 from gtvo.evaluation.trajectory import Trajectory  # noqa: E402
 from gtvo.odometry import VisualOdometry  # noqa: E402
-from gtvo.odometry.window_worker import SLOTS  # noqa: E402
+from gtvo.odometry.window_worker import SLOTS, WindowWorker  # noqa: E402
 
 OTHER_LOGS = {"KITTI raw 0001": SHARED_DATA / "kitti_raw_2011_09_26_drive_0001_stereo",
               "EuRoC V1_01 static": SHARED_DATA / "euroc_v101_static_stereo",
@@ -74,9 +74,9 @@ def one_run(seq: Any, frames: list, mode: str) -> dict[str, Any]:
     """One timed run over ``frames`` in ``mode`` (:data:`MODES`); the figures of the module docstring."""
     t_start = time.perf_counter()
     vo = VisualOdometry(seq.camera, config_for(mode))
-    worker = vo.keyframer.worker
+    worker = vo.window if isinstance(vo.window, WindowWorker) else None
     try:
-        started = worker.usage() if worker is not None else None  # the worker is up: its start-up CPU
+        started = worker.worker_usage() if worker is not None else None  # the worker is up: its start-up CPU
         startup = time.perf_counter() - t_start
         cpu0, t0 = time.process_time(), time.perf_counter()
         for f in frames:
@@ -84,7 +84,7 @@ def one_run(seq: Any, frames: list, mode: str) -> dict[str, Any]:
         vo.finish()
         wall = time.perf_counter() - t0
         cpu = time.process_time() - cpu0
-        usage = worker.usage() if worker is not None else None
+        usage = worker.worker_usage() if worker is not None else None
     finally:
         vo.close()
     est = vo.trajectory("gtvo")

@@ -37,8 +37,8 @@ from gtvo.config import OdometryConfig
 from gtvo.datasets import open_sequence
 from gtvo.datasets.synthetic import make_synthetic_sequence
 from gtvo.evaluation.accuracy import run_accuracy
-from gtvo.loops.closing import close_loops_of_run, odometry_covariances, refine_result_frames
-from gtvo.pipeline import TRACKED_OUTCOMES, process_sequence
+from gtvo.loops.closing import close_loops_of_run, refine_result_frames
+from gtvo.pipeline import run_odometry
 from gtvo.refinement import RefineConfig
 from gtvo.refinement.run import refine_run
 from loop_closure_synthetic import DATA  # noqa: E402 (the shared data folder; run from benchmarks/)
@@ -59,13 +59,10 @@ def measure(seq, loops: bool, config: RefineConfig | None = None) -> dict:
     """One window pass, then the window's (or loop closing's) answer and the refined one."""
     cfg = OdometryConfig(refine=config or RefineConfig(enabled=True))
     t0 = time.perf_counter()
-    vo, traj, _ = process_sequence(seq, cfg)
+    _, odo = run_odometry(seq, cfg)
     t_window = time.perf_counter() - t0
-    kfs = [p for p, e in enumerate(vo.estimates) if e.is_keyframe]
-    indices = [e.index for e in vo.estimates]
-    covs = odometry_covariances(vo.estimates, kfs)
-    points = {kf.index: kf.points for kf in vo.keyframes}
-    mask = [e.outcome in TRACKED_OUTCOMES for e in vo.estimates]
+    traj, kfs, indices, covs = odo.trajectory, odo.keyframe_positions, odo.frame_indices, odo.link_covariances
+    points, mask = odo.keyframe_points, odo.tracked
     res = before = None
     if loops:
         res = close_loops_of_run(seq, traj, indices, kfs, odometry_covariances=covs, keyframe_points=points,
@@ -74,12 +71,8 @@ def measure(seq, loops: bool, config: RefineConfig | None = None) -> dict:
         before = copy.deepcopy(res)
         refine_result_frames(seq, before, indices, kfs, False, covs, points, cfg.tracking, mask,
                              photometric=cfg.photometric)
-    rig = vo.window.rig
     t0 = time.perf_counter()
-    out = refine_run(seq, traj, indices, kfs, vo.window.every_keyframe(), cfg.window, cfg.refine,
-                     photometric=cfg.photometric, tracking=cfg.tracking,
-                     rig_offset=None if rig is None else rig.solved_offset, keyframe_points=points,
-                     odometry_covariances=covs, refine=mask, loop_result=res)
+    out = refine_run(seq, odo, res)
     t_refine = time.perf_counter() - t0
     old = before.trajectory if loops else traj
     new = res.trajectory if loops else out.trajectory

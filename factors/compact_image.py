@@ -106,6 +106,19 @@ class CompactGradientImage(GradientImage):
         self._cache = SHARED_PACKED_CACHE if cache is None else cache
         self._records: NDArray[np.float32] | None = None
 
+    def __getstate__(self) -> dict:
+        """Pickled as its grey levels and flags: no packed records, no cache (e.g. a parallel
+        window's keyframes coming back from its worker process)."""
+        state = dict(self.__dict__)
+        state["_records"] = None
+        del state["_cache"]
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        """Unpickled into this process's :data:`SHARED_PACKED_CACHE`."""
+        self.__dict__.update(state)
+        self._cache = SHARED_PACKED_CACHE
+
     @property
     def nbytes(self) -> int:
         """Bytes it keeps between uses (its grey levels)."""

@@ -8,6 +8,8 @@ line on stderr and exit code 2, never a traceback.
 
 from __future__ import annotations
 
+import errno
+import os
 from pathlib import Path
 
 
@@ -43,6 +45,13 @@ def not_a_file(path: str | Path, what: str = "file", line: int | None = None) ->
     not a <what>"`` when it is a folder, else ``"<what> not found"``."""
     if Path(path).is_dir():
         return InputError(f"is a folder, not a {what}", path, line)
+    try:
+        os.stat(path)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            return InputError(f"{what} is a symbolic link loop", path, line)
+        if os.path.islink(path):
+            return InputError(f"{what} is a broken symbolic link (to {os.readlink(path)})", path, line)
     return InputError(f"{what} not found", path, line)
 
 

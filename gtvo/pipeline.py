@@ -1,5 +1,11 @@
-"""The whole job on one sequence: read -> track -> outputs. Used by ``gtvo run``, ``gtvo demo``
-and by Python users (:func:`run`).
+"""The whole job on one sequence, as its steps: read, odometry, loop closing, refinement, evaluate,
+write. Used by ``gtvo run``, ``gtvo demo`` and by Python users (:func:`run`).
+
+The odometry hands back one value (:class:`gtvo.odometry.result.OdometryResult`); loop closing
+(:func:`gtvo.loops.closing.run_loop_closing`) and the whole-log refinement
+(:func:`gtvo.refinement.run.run_refinement`)
+are stages that take it and return a new one; the report is built from the last one in one place
+(:func:`gtvo.report.run_report`) and written with the other outputs (:func:`gtvo.io.outputs.write_run_outputs`).
 """
 
 from __future__ import annotations
@@ -11,43 +17,37 @@ from contextlib import nullcontext
 from pathlib import Path
 from typing import Any, Callable, Iterable
 
-import numpy as np
-
 from gtvo import __version__
-from gtvo.core.atomic import ensure_output_dir, tidy_on_failure
-from gtvo.datasets import detect_format, open_sequence
+from gtvo.config import OdometryConfig, as_config, config_to_yaml
+from gtvo.core.atomic import ensure_output_dir, output_lock, tidy_on_failure
 from gtvo.core.interrupt import raise_if_interrupted
 from gtvo.core.timing import stage
-from gtvo.errors import InputError
-from gtvo.config import OdometryConfig, as_config, config_to_yaml
-from gtvo.io.observer import RunObserver
-from gtvo.odometry import VisualOdometry
-from gtvo.odometry.estimates import FrameOutcome, trust_warning
-from gtvo.io.covariances import KeyframeCovariances
-from gtvo.odometry.rig_report import rig_warning
-from gtvo.odometry.summary import OdometrySummary, stage_timing, summarize_odometry
-from gtvo.odometry.imu import gravity_alignment
-from gtvo.odometry.wheel import wheel_coverage_warning
-from gtvo.io.outputs import check_run_output_dir, write_run_outputs
+from gtvo.datasets import detect_format, open_sequence
+from gtvo.datasets.imu_files import imu_read_options
 from gtvo.datasets.sequence import Sequence
+from gtvo.errors import InputError
 from gtvo.evaluation.trajectory import Trajectory
-from gtvo.report import RunReport, run_report
+from gtvo.io.observer import RunObserver
+from gtvo.io.log_settings import log_wheel_settings, wheel_settings_line
+from gtvo.io.outputs import check_run_output_dir, write_run_outputs
+from gtvo.loops.closing import run_loop_closing
+from gtvo.odometry import VisualOdometry
+from gtvo.odometry.estimates import frozen_warning, trust_warning
+from gtvo.odometry.imu import gravity_aligned
+from gtvo.odometry.result import TRACKED_OUTCOMES, OdometryResult
+from gtvo.odometry.rig_report import rig_warning
+from gtvo.odometry.summary import clock_timing, keyframe_covariances, odometry_result
+from gtvo.odometry.wheel import wheel_coverage_warning
+from gtvo.refinement.run import run_refinement
+from gtvo.report import OdometrySummary, RunReport, run_metrics, run_report
+
+__all__ = ["TRACKED_OUTCOMES", "keyframe_covariances", "process_sequence", "read_input", "run", "run_odometry"]
 
 
-#: Outcomes whose pose comes from tracking (the others are keyframes or predictions): the frames
-#: that ``--loop-closure`` re-estimates against the final keyframes.
-TRACKED_OUTCOMES = (FrameOutcome.TRACKED, FrameOutcome.RECOVERED)
-
-#: ``covariances.npz``'s source when the whole-log refinement was kept (its graph's marginals).
-REFINED_COVARIANCES = {"gtsam": "gtsam.Marginals of the whole-log refinement's graph",
-                       "handrolled": "inverse of the whole-log refinement's reduced Hessian (hand-rolled)"}
-
-
-def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progress: bool = False,
-                     strict: bool = False, warn: Callable[[str], None] | None = None,
-                     observers: Iterable[RunObserver] = (),
-                     ) -> tuple[VisualOdometry, Trajectory, OdometrySummary]:
-    """Run the odometry over ``seq``.
+def run_odometry(seq: Sequence, config: OdometryConfig | None = None, progress: bool = False,
+                 strict: bool = False, warn: Callable[[str], None] | None = None,
+                 observers: Iterable[RunObserver] = ()) -> tuple[VisualOdometry, OdometryResult]:
+    """Run the odometry over ``seq``: the odometry step of a run.
 
     A frame whose images cannot be read is skipped with a warning (and counted), unless
     ``strict``; the first frame must be readable, since everything starts from it.
@@ -55,9 +55,11 @@ def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progre
     every processed frame and the end.
 
     Returns:
-        ``(vo, trajectory, summary)``: the odometry's summary
-        (:func:`gtvo.odometry.summary.summarize_odometry`: frames, keyframes, seconds, frames per
-        second, failures, skipped frames, ``frame_outcomes``, window and rig figures, timing).
+        ``(vo, result)``: the odometry (to inspect; nothing later writes into it) and what it hands
+        on (:func:`gtvo.odometry.summary.odometry_result`): the trajectory, the keyframes, the
+        covariances and the summary (:func:`gtvo.odometry.summary.summarize_odometry`: frames,
+        keyframes, seconds, frames per second, failures, skipped frames, ``frame_outcomes``, window
+        and rig figures, timing), among others.
     """
     config = config or OdometryConfig()
     coverage = None if seq.wheel_odometry is None else wheel_coverage_warning(seq.wheel_odometry, seq.timestamps)
@@ -66,7 +68,7 @@ def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progre
         observers = list(observers)
         for o in observers:
             o.on_start(seq, config)
-        warn = warn or (lambda msg: print(f"warning: {msg}", file=sys.stderr))
+        warn = warn or _warn
         skipped: list[tuple[int, str]] = []
         bar = None
         indices: Any = range(len(seq))
@@ -99,21 +101,29 @@ def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progre
                                     **({"win": len(vo.window_results)} if config.mode == "window" else {}))
         vo.finish()  # the keyframes that joined the window since its last optimisation
         seconds = time.perf_counter() - t0
-        traj = vo.trajectory(seq.name)
-        info = summarize_odometry(vo, seconds, skipped)
+        result = odometry_result(vo, seconds, skipped, seq.name)
     finally:
         vo.close()
+    info = result.summary
     wheel = info.get("wheel_calibration")
-    for message in (rig_warning(dict(info)), trust_warning(info["frames"], info["undetermined_frames"],
-                                                           info["trusted_fraction"]),
+    for message in (frozen_warning(vo.estimates, vo.wheel is not None), rig_warning(dict(info)),
+                    trust_warning(info["frames"], info["undetermined_frames"], info["trusted_fraction"]),
                     coverage, None if wheel is None else wheel["warning"]):
         if message is not None:
             warn(message)
     if observers:
         view = vo.view()
         for o in observers:
-            o.on_finish(view, traj, info)
-    return vo, traj, info
+            o.on_finish(view, result.trajectory, info)
+    return vo, result
+
+
+def process_sequence(seq: Sequence, config: OdometryConfig | None = None, progress: bool = False,
+                     strict: bool = False, warn: Callable[[str], None] | None = None,
+                     observers: Iterable[RunObserver] = ()) -> tuple[VisualOdometry, Trajectory, OdometrySummary]:
+    """:func:`run_odometry` as ``(vo, trajectory, summary)``, for scripts that look into the driver."""
+    vo, result = run_odometry(seq, config, progress, strict, warn, observers)
+    return vo, result.trajectory, result.summary
 
 
 def run(path: str | Path | Sequence, out: str | Path | None = None,
@@ -142,7 +152,7 @@ def run(path: str | Path | Sequence, out: str | Path | None = None,
             ``points.ply`` then holds the map on the loop-closed keyframe poses.
         frame_step: use every ``frame_step``-th frame (after ``max_frames``): the log at a lower
             frame rate (:meth:`Sequence.subsampled`).
-        observers: see the run as it goes (:func:`process_sequence`), e.g.
+        observers: see the run as it goes (:func:`run_odometry`), e.g.
             :class:`gtvo.io.rerun_log.RerunLogger`.
 
     Returns:
@@ -155,9 +165,44 @@ def run(path: str | Path | Sequence, out: str | Path | None = None,
         InputError: bad input (unreadable folder, ``frame_step < 1``, ...).
     """
     config = as_config(config)
+    if not isinstance(path, Sequence):  # a log folder's wheel.yaml, read like its calibration
+        config, wheel_file = log_wheel_settings(path, config)
+        if wheel_file is not None:
+            print(f"gtvo: {wheel_settings_line(wheel_file)}", file=sys.stdout)  # (stderr: one line for an error)
+    if loop_closure:
+        config = dataclasses.replace(config, loops=dataclasses.replace(config.loops, enabled=True))
+    seq, fmt, out_dir = read_input(path, config, out, format, max_frames, frame_step, open_options)  # 1. read
+    with tidy_on_failure(), output_lock(out_dir):  # a failed run leaves no empty folder; one writer at a time
+        ensure_output_dir(out_dir)  # an unusable --out is reported before the long work
+        _, odo = run_odometry(seq, config, progress=progress, strict=strict, observers=observers)  # 2. odometry
+        odo = run_loop_closing(odo, seq, progress)               # 3. stages: loop closing, the refinement
+        odo = run_refinement(odo, seq, progress, _warn)
+        odo = gravity_aligned(odo)  # with an IMU: the outputs in the gravity-aligned world (docs/imu.md)
+        raise_if_interrupted()
+        with odo.clock.activate() if odo.clock is not None else nullcontext(), stage("outputs", absorb=True):
+            metrics = run_metrics(seq, odo)                      # 4. evaluate
+            points = odo.map_points()
+            report = write_run_outputs(                          # 5. write, the report last
+                out_dir, odo.trajectory, seq, lambda: run_report(
+                    seq, odo, metrics, format=fmt, frame_step=frame_step, points=points,
+                    timing=clock_timing(odo.clock, len(odo.estimates))),
+                points=points, loop_closed=odo.loop_closed, covariances=odo.covariances, metrics=metrics,
+                config_yaml=config_to_yaml(config, f"gtvo {__version__}: gtvo run --config this file"))
+    return {**report, "out": str(out_dir)}  # type: ignore[typeddict-item]
+
+
+def read_input(path: str | Path | Sequence, config: OdometryConfig, out: str | Path | None = None,
+               format: str = "auto", max_frames: int | None = None, frame_step: int = 1,
+               open_options: dict[str, Any] | None = None) -> tuple[Sequence, str | None, Path]:
+    """The read step of :func:`run`: the sequence at ``path`` (or ``path`` itself; the config's
+    ``wheel:`` section reads its wheel odometry), truncated to ``max_frames`` and subsampled by
+    ``frame_step``; its format (as given or detected; None for a :class:`Sequence` given directly);
+    and the output folder (``out``, default ``gtvo_out/<sequence name>``), checked before the long work
+    (:func:`gtvo.io.outputs.check_run_output_dir`). A bag's dropped images are warned about."""
     seq = path if isinstance(path, Sequence) else open_sequence(  # type: ignore[arg-type]
-        path, format=format, max_frames=max_frames,
-        **{"wheel_options": config.wheel.read_options(), "imu_options": config.imu.read_options(), **open_options})
+        path, format=format, max_frames=max_frames, **{"wheel_options": config.wheel.read_options(),
+                                                        "imu_options": imu_read_options(config.imu),
+                                                        **(open_options or {})})
     out_dir = Path(out) if out is not None else Path("gtvo_out") / seq.name
     check_run_output_dir(out_dir, seq)  # before the long work
     unpaired = seq.unpaired_warning() if hasattr(seq, "unpaired_warning") else None  # a bag's dropped images
@@ -166,91 +211,9 @@ def run(path: str | Path | Sequence, out: str | Path | None = None,
     if isinstance(path, Sequence) and max_frames is not None:
         seq = seq.truncated(max_frames)
     seq = seq.subsampled(frame_step)
-    if loop_closure:
-        config = dataclasses.replace(config, loops=dataclasses.replace(config.loops, enabled=True))
     fmt = None if isinstance(path, Sequence) else (detect_format(path) if format == "auto" else format)
-    with tidy_on_failure():  # a run that fails leaves no empty output folder behind
-        ensure_output_dir(out_dir)  # an unusable --out is reported before the long work
-        vo, traj, summary = process_sequence(seq, config, progress=progress, strict=strict, observers=observers)
-        closed = closed_keyframes = loops = res = refined = None
-        refining = bool(getattr(vo.window, "retain_keyframes", False))  # refine.enabled, sequential window mode
-        if config.loops.enabled:
-            from gtvo.loops.closing import close_loops_of_run, odometry_covariances  # noqa: PLC0415
-
-            keyframes = [p for p, e in enumerate(vo.estimates) if e.is_keyframe]
-            res = close_loops_of_run(seq, traj, [e.index for e in vo.estimates], keyframes, progress=progress,
-                                     odometry_covariances=odometry_covariances(vo.estimates, keyframes),
-                                     keyframe_points={kf.index: kf.points for kf in vo.keyframes},
-                                     tracking_config=vo.config.tracking, refine_frames=not refining,
-                                     refine=[e.outcome in TRACKED_OUTCOMES for e in vo.estimates],
-                                     detector_config=config.loops.detector, photometric=config.photometric)
-        if refining:  # the whole-log refinement (gtvo.refinement; its frames re-placed, or the loop closing's)
-            refined = refine_vo_run(seq, vo, traj, res, progress)
-            traj = refined.trajectory
-        if res is not None:
-            closed, closed_keyframes, loops = res.trajectory, res.keyframe_poses, res.summary()
-        raise_if_interrupted()
-        with vo.clock.activate() if vo.clock is not None else nullcontext(), stage("outputs", absorb=True):
-            covariances = keyframe_covariances(vo)
-            if covariances is not None and refined is not None and refined.covariances is not None:
-                covariances = dataclasses.replace(covariances, source=REFINED_COVARIANCES[vo.config.refine.solver])
-            alignment = gravity_alignment(vo)  # with an IMU: the outputs in the gravity-aligned world (docs/imu.md)
-            if alignment is not None:
-                traj, closed = alignment.trajectory(traj), alignment.trajectory(closed)
-            info = run_report(seq, traj, summary, config, format=fmt, frame_step=frame_step, loop_closure=loops,
-                              loop_closed=closed, covariances=covariances,
-                              refinement=None if refined is None else refined.summary)
-            if refined is not None and closed_keyframes is None and refined.keyframe_poses:
-                closed_keyframes = refined.keyframe_poses  # the map on the refined keyframes
-            points = vo.map_points(closed_keyframes)
-            report = write_run_outputs(out_dir, traj, seq, info,
-                                       points=points if alignment is None else alignment.points(points),
-                                       loop_closed=closed, covariances=covariances,
-                                       config_yaml=config_to_yaml(config, f"gtvo {__version__}: gtvo run --config this file"),
-                                       stage_figures=lambda: stage_timing(vo))
-    report["out"] = str(out_dir)
-    return report  # type: ignore[return-value]
+    return seq, fmt, out_dir
 
 
-def refine_vo_run(seq: Sequence, vo: VisualOdometry, trajectory: Trajectory, loop_result: Any,
-                  progress: bool) -> Any:
-    """The whole-log refinement of a finished window run (:func:`gtvo.refinement.run.refine_run`;
-    ``loop_result``: the loop closing's, before its frame refinement, or None). When it is kept,
-    the keyframes' points take its depths and the window's covariances its graph's (the map and
-    ``covariances.npz`` come from the refined graph). Returns its :class:`RunRefinement`."""
-    from gtvo.loops.closing import odometry_covariances  # noqa: PLC0415
-    from gtvo.refinement.run import refine_run  # noqa: PLC0415
-
-    assert vo.window is not None
-    keyframes = [p for p, e in enumerate(vo.estimates) if e.is_keyframe]
-    rig = vo.window.rig
-    refined = refine_run(seq, trajectory, [e.index for e in vo.estimates], keyframes, vo.window.every_keyframe(),
-                         vo.config.window, vo.config.refine, photometric=vo.config.photometric,
-                         tracking=vo.config.tracking, rig_offset=None if rig is None else rig.solved_offset,
-                         keyframe_points={kf.index: kf.points for kf in vo.keyframes},
-                         odometry_covariances=odometry_covariances(vo.estimates, keyframes),
-                         refine=[e.outcome in TRACKED_OUTCOMES for e in vo.estimates], loop_result=loop_result,
-                         progress=progress, warn=lambda msg: print(f"warning: {msg}", file=sys.stderr),
-                         wheel=getattr(vo.window, "wheel", None))
-    for kf in vo.keyframes:
-        if kf.index in refined.inverse_depths:
-            kf.points = dataclasses.replace(kf.points, inverse_depth=refined.inverse_depths[kf.index])
-    if refined.covariances is not None:
-        vo.window.covariances.update(refined.covariances)
-    return refined
-
-
-def keyframe_covariances(vo: VisualOdometry, inflation: float = 1.0) -> KeyframeCovariances | None:
-    """Every keyframe's pose covariance from its last window optimisation, times ``inflation``
-    (:meth:`VisualOdometry.covariance`); None when the run computed none (track mode or
-    ``WindowConfig.covariances=False``)."""
-    if vo.window is None or not vo.config.window.covariances:
-        return None
-    stamp = {e.index: e.timestamp for e in vo.estimates}
-    rows = [(kf.index, P) for kf in vo.keyframes if (P := vo.covariance(kf, inflation)) is not None]
-    cw = vo.config.window
-    source = ("iSAM2 marginalCovariance of the fixed-lag smoother" if cw.backend == "fixed_lag" else
-              "gtsam.Marginals of the window's graph" if vo.config.solver.window == "gtsam" else
-              "inverse of the window's reduced Hessian (hand-rolled)")
-    return KeyframeCovariances(np.array([i for i, _ in rows], dtype=np.int64), np.array([stamp[i] for i, _ in rows]),
-                               np.array([P for _, P in rows]).reshape(-1, 6, 6), source, float(inflation))
+def _warn(message: str) -> None:
+    print(f"warning: {message}", file=sys.stderr)

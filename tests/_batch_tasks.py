@@ -39,8 +39,12 @@ def stall_in_staging(job: dict[str, Any]) -> dict[str, Any]:
 
 
 def pass_or_sleep(job: dict[str, Any]) -> dict[str, Any]:
-    """Succeed at once, or first sleep ``job["sleep"]`` seconds."""
+    """Succeed at once, or first sleep ``job["sleep"]`` seconds (then leave ``job["slept"]``, a file,
+    when given: a worker ended during its sleep never writes it)."""
     import time
+    from pathlib import Path
 
     time.sleep(job.get("sleep", 0))
+    if job.get("slept"):
+        Path(job["slept"]).write_text("slept\n")
     return {"status": "done", "record": {"name": job["name"], "pid": os.getpid()}}

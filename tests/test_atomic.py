@@ -1,6 +1,7 @@
 import json
 import os
 import stat
+from pathlib import Path
 
 import pytest
 
@@ -133,3 +134,76 @@ def test_tidy_on_failure_nested_blocks_hand_their_folders_to_the_outer_one(tmp_p
             assert (tmp_path / "a" / "b").is_dir()
             raise KeyboardInterrupt
     assert list(tmp_path.iterdir()) == []
+
+
+def test_output_lock_lets_one_writer_in_whatever_the_spelling(tmp_path):
+    """A second writer of one output folder is refused at once with one line (before: both ran and
+    the later one replaced the earlier one's outputs, each reporting success); the lock is the
+    folder's real path's, so a link to it or '..' reaches the same lock; released when the block ends."""
+    from gtvo.core.atomic import output_lock
+
+    out = tmp_path / "runs" / "out"
+    (tmp_path / "alias").symlink_to(tmp_path / "runs")
+    with output_lock(out) as held:
+        assert held == out.resolve() and (tmp_path / "runs" / ".out.lock").read_text().strip() == str(os.getpid())
+        for spelling in (out, tmp_path / "alias" / "out", tmp_path / "runs" / "x" / ".." / "out"):
+            with pytest.raises(InputError, match=r"another gtvo process \(pid \d+\) is writing into this output "
+                                                 r"folder") as info:
+                with output_lock(spelling):
+                    pass
+            assert "\n" not in str(info.value)
+        with output_lock(tmp_path / "runs" / "other"):  # another folder: its own lock
+            pass
+    assert sorted(p.name for p in (tmp_path / "runs").iterdir()) == []  # no lock file left
+    with output_lock(out):  # released
+        pass
+
+
+def test_output_lock_holds_across_processes(tmp_path):
+    import subprocess
+    import sys
+
+    from gtvo.core.atomic import output_lock
+
+    out = tmp_path / "out"
+    code = ("import sys; from gtvo.core.atomic import output_lock\n"
+            "try:\n    with output_lock(sys.argv[1]): pass\nexcept Exception as e: print(e); sys.exit(2)\n")
+    with output_lock(out):
+        r = subprocess.run([sys.executable, "-c", code, str(out)], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 2 and "another gtvo process" in r.stdout, r
+    r = subprocess.run([sys.executable, "-c", code, str(out)], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r
+
+
+def test_output_lock_removes_what_a_killed_writer_left_and_nothing_else(tmp_path):
+    """A run killed (SIGTERM, SIGKILL: no ``finally``) while writing leaves its hidden staging
+    folder beside the output folder; the next writer, holding the lock, removes it, puts a set
+    that was moved aside back, and leaves everything that is not gtvo's own staging alone."""
+    import tempfile
+
+    from gtvo.core.atomic import output_lock
+
+    runs = tmp_path / "runs"
+    out = runs / "out"
+    out.mkdir(parents=True)
+    (out / DIR_MARKER).write_text("written by gtvo run\n")
+    (out / "trajectory.tum").write_text("earlier\n")
+    staged = Path(tempfile.mkdtemp(prefix=".out.", dir=runs))
+    (staged / "trajectory.tum").write_text("half\n")
+    temp_file = Path(tempfile.mkstemp(prefix=".summary.json.", suffix=".json", dir=out)[1])
+    keep = [runs / ".out.notes", runs / ".other.abcdefgh", runs / "out.abcdefgh", out / ".mine"]
+    for p in keep:
+        p.mkdir()
+    with output_lock(out, file_names=("summary.json",)):
+        assert not staged.exists() and not temp_file.exists()
+    assert all(p.exists() for p in keep) and (out / "trajectory.tum").read_text() == "earlier\n"
+
+
+def test_a_killed_writers_lock_file_is_discarded_a_held_one_is_not(tmp_path):
+    from gtvo.core.atomic import discard_unfinished, output_lock
+
+    out = tmp_path / "out"
+    (tmp_path / ".out.lock").write_text("12345\n")  # its writer was killed: nothing holds it
+    assert discard_unfinished([out]) == [tmp_path / ".out.lock"] and not (tmp_path / ".out.lock").exists()
+    with output_lock(out):
+        assert discard_unfinished([out]) == [] and (tmp_path / ".out.lock").exists()

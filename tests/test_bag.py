@@ -572,3 +572,28 @@ def test_euroc_raw_bag_with_camera_info_or_sensor_yaml_is_the_folder(shared_data
         for i in (0, 3):
             np.testing.assert_array_equal(seq.left(i), folder.left(i))
             np.testing.assert_array_equal(seq.right(i), folder.right(i))
+
+
+def test_stamp_tolerance_the_warning_advises_is_a_flag_of_run_and_info(tmp_path, capsys):
+    """The unpaired-messages warning advises --stamp-tolerance: gtvo run and gtvo info accept it
+    (before: "unrecognized arguments"); a bad value is one line naming the flag."""
+    path = write_small_stereo(tmp_path / "far.bag", right_offset_ns=50_000_000)  # 50 ms apart: never within 5 ms
+    code, out, err = _run_cli(["info", str(path)], capsys)
+    assert code == 0 and "gtvo run would fail" in out and "never pair within 5 ms" in out, out
+    code, out, err = _run_cli(["info", str(path), "--stamp-tolerance", "0.06"], capsys)
+    assert code == 0 and "gtvo run would use: stereo, 3 frames" in out, out
+    for bad in ("0", "-1", "nan", "inf"):
+        code, out, err = _run_cli(["run", str(path), "--stamp-tolerance", bad, "--out", str(tmp_path / "o"),
+                                   "--no-progress"], capsys)
+        assert code == 2 and err.count("\n") == 1 and "--stamp-tolerance must be a positive number" in err, err
+    assert not (tmp_path / "o").exists()
+    text = " ".join(_help_text(capsys, "run").split())
+    assert "--stamp-tolerance SECONDS" in text and "5 ms for a stereo pair" in text
+
+
+def _help_text(capsys, command):
+    from gtvo.cli import main
+
+    with pytest.raises(SystemExit):
+        main([command, "--help"])
+    return capsys.readouterr().out

@@ -353,3 +353,194 @@ def test_a_logs_row_takes_the_sim3_ate_from_its_report_not_from_trajectory_tum(t
     row = summary_row(log, "x", tmp_path / "out", {"status": "done", "record": {}},
                       {"ate_sim3_rmse_m": 0.456, "ate_rmse_m": 0.5}, resumed=False)  # type: ignore[arg-type]
     assert row["sim3_ate_rmse_m"] == 0.456 and row["ate_rmse_m"] == 0.5
+
+
+# ---------------------------------------------------------------------------------------------
+# hostile paths: nothing written into a log, link loops reported, one batch per output folder
+# ---------------------------------------------------------------------------------------------
+
+@pytest.fixture()
+def fleet_copy(logs, tmp_path) -> Path:
+    """Two tiny logs in a SPEC folder of this test's own."""
+    import shutil
+
+    root = tmp_path / "spec"
+    for name in ("seq1", "seq2"):
+        shutil.copytree(logs / name, root / name)
+    return root
+
+
+def _listing(folder: Path) -> list[str]:
+    return sorted(str(p.relative_to(folder)) for p in folder.rglob("*"))
+
+
+def test_out_that_is_a_log_or_inside_one_is_refused_whatever_the_spelling(fleet_copy, tmp_path, capsys):
+    """`gtvo batch SPEC --out SPEC/seq1` (once: exit 0, seq1 dropped and the summary and the other
+    logs' outputs written into seq1's data folder), through a link, '..' or below: exit 2, one line,
+    nothing written anywhere."""
+    (tmp_path / "alias").symlink_to(fleet_copy / "seq1")
+    yaml = _write(tmp_path / "s.yaml", f"- {fleet_copy / 'seq1'}\n- {fleet_copy / 'seq2'}\n")
+    before = _listing(tmp_path)
+    for spec, out in ((fleet_copy, fleet_copy / "seq1"), (fleet_copy, tmp_path / "alias"),
+                      (fleet_copy, fleet_copy / "seq2" / ".." / "seq1"), (fleet_copy, fleet_copy / "seq1" / "out"),
+                      (fleet_copy, tmp_path / "alias" / "image_0" / "new"), (yaml, fleet_copy / "seq2"),
+                      (yaml, tmp_path / "alias" / "deeper" / "out")):
+        assert cli.main(["batch", str(spec), "--out", str(out), "--no-progress"]) == 2, out
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "output folder is" in err and "log" in err, err
+    assert _listing(tmp_path) == before
+
+
+def test_out_that_is_a_link_loop_is_one_line(fleet_copy, tmp_path, capsys):
+    loop = tmp_path / "loop"
+    loop.symlink_to("loop")
+    for out in (loop, loop / "inside"):
+        assert cli.main(["batch", str(fleet_copy), "--out", str(out), "--no-progress"]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "symbolic link loop" in err and "Traceback" not in err, err
+
+
+def test_one_log_given_twice_with_the_same_settings_is_refused(fleet_copy, tmp_path, capsys):
+    (fleet_copy / "again").symlink_to(fleet_copy / "seq1")
+    assert cli.main(["batch", str(fleet_copy), "--out", str(tmp_path / "out"), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "'again' and 'seq1' are the same log" in err, err
+    assert not (tmp_path / "out").exists()
+    # the same log under other settings is a study, not a repeat
+    (fleet_copy / "again").unlink()
+    logs = read_spec(_write(tmp_path / "s.yaml", f"- {{path: {fleet_copy / 'seq1'}}}\n"
+                                                  f"- {{path: {fleet_copy / 'seq1'}, name: b, max_frames: 3}}\n"))
+    assert [lg.name for lg in logs] == ["seq1", "b"]
+
+
+def test_a_second_batch_into_a_held_output_folder_is_refused(fleet_copy, tmp_path, capsys):
+    from gtvo.core.atomic import output_lock
+
+    out = tmp_path / "out"
+    with output_lock(out):
+        assert cli.main(["batch", str(fleet_copy), "--out", str(out), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "another gtvo process" in err, err
+
+
+def test_broken_links_among_the_logs_are_failed_rows_with_their_reason(fleet_copy, tmp_path):
+    """A SPEC folder entry that is a link loop or a broken link (once: a RuntimeError ending the
+    whole batch, or the entry silently dropped) is a log that fails with its reason; the others go on."""
+    (fleet_copy / "loopy").symlink_to("loopy")
+    (fleet_copy / "gone").symlink_to(tmp_path / "nowhere")
+    logs = {lg.name: lg for lg in read_spec(fleet_copy)}
+    assert logs["loopy"].problem.endswith("loopy is a symbolic link loop")
+    assert "gone is a broken symbolic link" in logs["gone"].problem
+    assert logs["seq1"].problem is None
+    yaml = _write(tmp_path / "s.yaml", f"- {fleet_copy / 'loopy'}\n- {fleet_copy / 'seq1'}\n"
+                                        f"- {{path: {fleet_copy / 'seq2'}, ground_truth: {fleet_copy / 'loopy'}}}\n")
+    assert [lg.problem is None for lg in read_spec(yaml)] == [False, True, True]  # (seq2 fails when it runs)
+
+
+@pytest.mark.slow
+def test_a_batch_with_broken_links_and_a_link_loop_image_goes_on(fleet_copy, tmp_path):
+    (fleet_copy / "loopy").symlink_to("loopy")
+    image = fleet_copy / "seq2" / "image_0" / "000002.png"
+    image.unlink()
+    image.symlink_to(image.name)  # a frame that is a link loop: skipped, the log runs
+    out = tmp_path / "out"
+    r = run_cli("batch", fleet_copy, "--out", out, "--jobs", "2", "--no-progress")
+    assert r.returncode == 1 and "Traceback" not in r.stderr, r.stderr
+    assert "2 of 3 logs done, 1 failed" in r.stdout and "failed loopy:" in r.stdout, r.stdout
+    rows = {row["name"]: row for row in json.loads((out / "summary.json").read_text())["logs"]}
+    assert rows["loopy"]["status"] == "failed" and "symbolic link loop" in rows["loopy"]["error"]
+    assert rows["seq1"]["status"] == rows["seq2"]["status"] == "done"
+    assert sorted(p.name for p in out.iterdir()) == ["seq1", "seq2", "summary.json", "summary.md", "summary.png"]
+
+
+def test_an_interrupted_batch_leaves_a_summary_of_what_finished_marked_partial(fleet_copy, tmp_path, monkeypatch):
+    """Ctrl-C after the first log: the earlier batch's summary is not left beside this batch's
+    outputs; the summary says what finished, which logs did not run, and that it is partial."""
+    import gtvo.batching as batching
+    from gtvo.batching.runners import failure
+
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "summary.json").write_text(json.dumps({"logs": [{"name": "earlier"}]}))
+
+    def interrupted(jobs, workers, on_done):
+        on_done(0, failure(InputError("a bad frame")))
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(batching, "run_in_pool", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        batching.batch(fleet_copy, out, jobs=1, progress=False)
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["partial"] is True and summary["logs_not_run"] == 1 and summary["logs_failed"] == 1
+    assert [(r["name"], r["status"]) for r in summary["logs"]] == [("seq1", "failed"), ("seq2", "not run")]
+    assert "Partial: the batch was interrupted; 1 logs were not run." in (out / "summary.md").read_text()
+    assert not [p for p in out.parent.iterdir() if p.name.startswith(".")]  # no lock, no staging left
+
+
+def _bind(source: Path, target: Path, read_only: bool = False) -> bool:
+    """Bind-mount ``source`` on ``target`` (False: not allowed here)."""
+    target.mkdir(parents=True, exist_ok=True)
+    if subprocess.run(["mount", "--bind", str(source), str(target)], capture_output=True).returncode != 0:
+        return False
+    if read_only and subprocess.run(["mount", "-o", "remount,ro,bind", str(target)],
+                                    capture_output=True).returncode != 0:
+        subprocess.run(["umount", str(target)], check=True)
+        return False
+    return True
+
+
+def test_out_through_a_bind_mount_of_the_logs_and_a_read_only_out_are_refused(fleet_copy, tmp_path, capsys):
+    """A bind mount shows the SPEC folder under a path no string comparison relates to it; a
+    read-only mount refuses writes even to root. Both: one line, exit 2, nothing written."""
+    mount, ro = tmp_path / "mnt", tmp_path / "ro"
+    if not _bind(fleet_copy, mount):
+        pytest.skip("cannot bind-mount here")
+    try:
+        before = _listing(fleet_copy)
+        for out in (mount / "seq1", mount / "seq2" / "results"):
+            assert cli.main(["batch", str(fleet_copy), "--out", str(out), "--no-progress"]) == 2, out
+            err = capsys.readouterr().err
+            assert err.count("\n") == 1 and "log" in err, err
+        assert cli.main(["run", str(fleet_copy / "seq1"), "--out", str(mount / "seq1" / "res"), "--no-progress"]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "inside the input folder" in err, err
+        assert _listing(fleet_copy) == before
+    finally:
+        subprocess.run(["umount", str(mount)], check=True)
+    (tmp_path / "empty").mkdir()
+    if not _bind(tmp_path / "empty", ro, read_only=True):
+        pytest.skip("cannot mount read-only here")
+    try:
+        for out in (ro, ro / "new"):
+            assert cli.main(["batch", str(fleet_copy), "--out", str(out), "--no-progress"]) == 2
+            err = capsys.readouterr().err
+            assert err.count("\n") == 1 and ("not writable" in err or "Read-only" in err), err
+    finally:
+        subprocess.run(["umount", str(ro)], check=True)
+
+
+def test_a_killed_batchs_leftovers_are_removed_by_the_next_batch(fleet_copy, tmp_path, monkeypatch):
+    """A batch killed (SIGTERM, SIGKILL) leaves its workers' staging folders, a temporary batch.json
+    and lock files in its --out; the next batch into it removes them, whether its logs run again
+    or not, and leaves what is not gtvo's alone."""
+    import tempfile
+
+    import gtvo.batching as batching
+    from gtvo.batching.runners import failure
+
+    out = tmp_path / "out"
+    (out / "seq1").mkdir(parents=True)
+    leftovers = [Path(tempfile.mkdtemp(prefix=".seq1.", dir=out)), Path(tempfile.mkdtemp(prefix=".seq2.", dir=out)),
+                 Path(tempfile.mkstemp(prefix=".batch.json.", suffix=".json", dir=out / "seq1")[1]),
+                 out / ".seq2.lock", Path(tempfile.mkstemp(prefix=".summary.md.", suffix=".md", dir=out)[1])]
+    leftovers[3].write_text("4242\n")
+    mine = out / ".my-notes"
+    mine.write_text("keep\n")
+
+    def nothing_runs(jobs, workers, on_done):
+        for k in range(len(jobs)):
+            on_done(k, failure(InputError("not run in this test")))
+
+    monkeypatch.setattr(batching, "run_in_pool", nothing_runs)
+    batching.batch(fleet_copy, out, jobs=1, progress=False)
+    assert [p for p in leftovers if p.exists()] == [] and mine.read_text() == "keep\n"

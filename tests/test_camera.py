@@ -1,3 +1,5 @@
+import re
+
 import numpy as np
 import pytest
 
@@ -95,3 +97,22 @@ def test_every_pyramid_level_of_an_accepted_camera_is_accepted():
 def test_bad_baseline_rejected():
     with pytest.raises(InputError, match="baseline"):
         StereoCamera(make_cam(), baseline=-0.1)
+
+
+@pytest.mark.parametrize("fx,fy,needle", [(1e300, 500.0, "camera fx = 1e+300 px is implausible for an image 640 px wide"),
+                                          (1e-300, 500.0, "camera fx = 1e-300 px is implausible"),
+                                          (500.0, 1e-3, "camera fy = 0.001 px is implausible for an image 480 px high"),
+                                          (500.0, 1e7, "field of view of 0.00275 degrees")])
+def test_a_focal_length_no_pinhole_camera_has_is_refused_naming_it(fx, fy, needle):
+    """Finite and positive is not enough: 1e300 px (a field of view of ~0) overflows the tracker's
+    normal equations, 1e-300 px (~180 degrees) makes them vanish."""
+    with pytest.raises(InputError, match=re.escape(needle)) as info:
+        PinholeCamera(fx, fy, 320.0, 240.0, 640, 480)
+    assert "\n" not in str(info.value)
+
+
+def test_plausible_focal_lengths_stay_accepted_at_every_pyramid_level():
+    for cam in (PinholeCamera(5000.0, 5000.0, 320.0, 240.0, 640, 480),  # a telephoto: 7.3 degrees
+                PinholeCamera(100.0, 100.0, 320.0, 240.0, 640, 480)):  # a wide angle: 145 degrees
+        for level in range(4):
+            cam.scaled(level)

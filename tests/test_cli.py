@@ -313,3 +313,27 @@ def test_synthetic_sizes_exit_2_one_line(tmp_path, capsys, argv, needle):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and needle in err[0]
     assert not (tmp_path / "o").exists()
+
+
+def test_no_command_writes_over_or_into_its_input(tmp_path, capsys):
+    """posegraph --out onto its own input file (once: the input silently replaced), through a link
+    too; loops --out inside the sequence folder; calibrate-odometry --plot onto its odometry file:
+    one line each, exit 2, the inputs unchanged."""
+    graph = tmp_path / "in.g2o"
+    graph.write_text("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\nEDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\n")
+    (tmp_path / "alias.g2o").symlink_to(graph)
+    log = write_sequence_kitti(make_synthetic_sequence(n_frames=2, width=160, height=120), tmp_path / "log")
+    odom = tmp_path / "odom.txt"
+    odom.write_text("0.1 0 0\n0.1 0 0.01\n")
+    before = {p: p.read_bytes() for p in (graph, odom)}
+    log_before = sorted(str(p) for p in log.rglob("*"))
+    for argv, needle in ((["posegraph", str(graph), "--out", str(graph)], "--out is the pose-graph file"),
+                         (["posegraph", str(graph), "--out", str(tmp_path / "alias.g2o")], "--out is the pose-graph"),
+                         (["posegraph", str(graph), "--plot", str(tmp_path / "x" / ".." / "in.g2o")], "--plot is the"),
+                         (["loops", str(log), "--out", str(log / "loops.json")], "--out is inside the sequence folder"),
+                         (["calibrate-odometry", str(odom), str(odom), "--plot", str(odom)], "--plot is the odometry")):
+        assert cli.main(argv) == 2, argv
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and needle in err, err
+    assert {p: p.read_bytes() for p in before} == before
+    assert sorted(str(p) for p in log.rglob("*")) == log_before

@@ -143,3 +143,18 @@ def test_a_closed_stdout_pipe_is_exit_0_without_a_word(tmp_path: Path) -> None:
     finally:
         os.close(write_end)
     assert (r.returncode, r.stderr) == (0, "")
+
+
+@pytest.mark.parametrize("camera", ["1e300,1e300,32,24", "1e-300,1e-300,1e-300,1e-300"])
+def test_implausible_camera_is_one_line_and_exit_2(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                    camera: str) -> None:
+    """``--camera`` with a focal length no pinhole camera has (once a ValueError in the tracker's
+    Cholesky): one line naming the option and the value, exit 2, no output folder."""
+    from test_datasets import make_tum
+
+    root = make_tum(tmp_path / "tum")
+    out = tmp_path / "out"
+    assert main(["run", str(root), "--camera", camera, "--out", str(out), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--camera" in err and "is implausible" in err and "Traceback" not in err, err
+    assert not out.exists()

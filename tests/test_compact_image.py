@@ -94,3 +94,23 @@ def test_a_budget_block_holds_more_and_gives_it_back():
             s.sample(np.array([5.5]), np.array([6.5]))
         assert cache.bytes == 3 * 20 * 30 * 16 and cache.packs == 3
     assert cache.max_bytes == 0 and cache.bytes == 0 and all(s._records is None for s in smalls)
+
+
+def test_a_pickled_compact_image_carries_its_grey_levels_only_and_samples_the_same():
+    """A parallel window's keyframes come back from its worker pickled: no packed records, no cache."""
+    import pickle  # noqa: PLC0415
+
+    from factors.compact_image import SHARED_PACKED_CACHE  # noqa: PLC0415
+
+    rng = np.random.default_rng(5)
+    full = GradientImage(np.rint(rng.uniform(0, 255, (40, 60))), clip_range=(0.0, 255.0))
+    small = CompactGradientImage(full, PackedCache())
+    u, v = _points(rng, 60, 40)
+    before = small.sample(u, v)  # its records packed and held by its cache
+    data = pickle.dumps(small)
+    assert len(data) < 40 * 60 + 1000  # the uint8 grey levels and the flags, not the 16-byte records
+    back = pickle.loads(data)
+    assert back._records is None and back._cache is SHARED_PACKED_CACHE
+    after = back.sample(u, v)
+    assert np.array_equal(before[0], after[0]) and np.array_equal(before[1], after[1])
+    assert back.has_clipped == small.has_clipped and back.clip_range == small.clip_range

@@ -115,7 +115,7 @@ def test_photometric_reaches_tracker_and_window_as_one_object():
     vo = VisualOdometry(seq.camera, OdometryConfig(photometric=p))
     for frame in seq:
         vo.process(frame)
-    assert vo.window is not None and vo.window.photometric is p
+    assert vo.window is not None and vo.window.optimizer.photometric is p
     assert vo.keyframes[-1].tracker is not None and vo.keyframes[-1].tracker.photometric is p
     assert vo.keyframes[-1].tracker.pattern.tolist() == [[0, 0], [1, 1]]
     with pytest.raises(TypeError):
@@ -134,7 +134,7 @@ def test_clip_range_of_the_config_reaches_every_image_of_a_run():
         for frame in seq:
             vo.process(frame)
         assert vo.keyframes[-1].tracker is not None and vo.keyframes[-1].tracker.photometric.clip_range == clip
-        assert all(w.image.clip_range == clip and w.right.clip_range == clip for w in vo.window.keyframes)
+        assert all(w.image.clip_range == clip and w.right.clip_range == clip for w in vo.window.optimizer.keyframes)
 
 
 def test_matched_gain_leaves_out_clipped_patches_only_with_a_clip_range():
@@ -172,15 +172,14 @@ def test_every_numeric_setting_has_a_finite_range():
     """Each number of the tree has a range with two finite ends, or infinity as a named, closed
     end (``[0, inf]``: the check switched off); the pattern's offsets are checked by
     PhotometricConfig (within +-8 px)."""
-    from gtvo.config.tree import _dataclass_of  # noqa: PLC0415
-    from gtvo.core.settings import parse_range, type_hints  # noqa: PLC0415
+    from gtvo.core.settings import dataclass_of, parse_range, type_hints  # noqa: PLC0415
 
     numeric, unbounded = [], []
 
     def walk(cls, path):
         hints = type_hints(cls)
         for f in dataclasses.fields(cls):
-            sub = _dataclass_of(hints[f.name])
+            sub = dataclass_of(hints[f.name])
             if sub is not None:
                 walk(sub, f"{path}{f.name}.")
             elif {int, float} & set(_leaf_types(hints[f.name])) and f"{path}{f.name}" != "photometric.pattern":
@@ -403,3 +402,39 @@ def test_kalman_settings_reach_the_filter():
     assert vo.motion.kalman.initial_rate_sigmas == (2.0, 2.0, 0.25)
     with pytest.raises(InputError, match="key 'motion_model.kalman_initial_rate_sigmas': must be in \\[1e-6, 1000\\]"):
         config_from_dict({"motion_model": {"kalman_initial_rate_sigmas": [1, 1, 0]}})
+
+
+#: The packages the settings must not load: readers, front end, motion model, window, loop closing,
+#: refinement, odometry and what stands above them.
+COMPONENTS = ("gtvo.datasets", "gtvo.frontend", "gtvo.motion", "gtvo.window", "gtvo.loops", "gtvo.refinement",
+              "gtvo.odometry", "gtvo.io", "gtvo.pipeline", "gtvo.report", "gtvo.evaluation", "gtvo.posegraph")
+
+
+@pytest.mark.slow
+def test_importing_the_settings_loads_no_component():
+    """``import gtvo.config`` in a fresh interpreter loads the settings core, the factors' parameters
+    and nothing of the components (it loaded 84 gtvo and factors modules when the tree imported its
+    sections from them; 35 now)."""
+    code = ("import sys, json; import gtvo.config; "
+            "print(json.dumps(sorted(m for m in sys.modules if m.split('.')[0] in ('gtvo', 'factors'))))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                         cwd=Path(__file__).resolve().parent.parent)
+    loaded = json.loads(out.stdout)
+    components = [m for m in loaded if m.startswith(tuple(p + "." for p in COMPONENTS)) or m in COMPONENTS]
+    assert components == [], f"import gtvo.config loads {len(components)} component modules: {components}"
+    assert "gtvo.config.tree" in loaded and "factors.params" in loaded  # the probe sees what it imports
+    assert len(loaded) <= 40, f"import gtvo.config loads {len(loaded)} gtvo / factors modules: {loaded}"
+
+
+def test_every_section_imports_only_the_settings_core():
+    """Each module of gtvo/config/sections imports only the core, the errors, ``factors.params`` and
+    other sections (read with ``ast``, imports inside functions included)."""
+    from test_layers import imports_of  # noqa: PLC0415
+
+    root = Path(__file__).resolve().parent.parent
+    allowed = ("gtvo.core", "gtvo.errors", "factors.params", "gtvo.config.sections")
+    sections = sorted((root / "gtvo" / "config" / "sections").glob("*.py"))
+    assert len(sections) >= 10
+    wrong = {p.name: sorted(m for m in imports_of(p) if not m.startswith(allowed) and m not in ("gtvo", "gtvo.config"))
+             for p in sections}
+    assert {k: v for k, v in wrong.items() if v} == {}

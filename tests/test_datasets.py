@@ -10,7 +10,9 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from gtvo.core.camera import PinholeCamera, StereoCamera
-from gtvo.datasets import detect_format, open_sequence, validate
+from gtvo.cli import build_parser
+from gtvo.datasets import FORMATS, READERS, detect_format, open_sequence, validate
+from gtvo.datasets.readers import reader_named
 from gtvo.datasets._common import associate_unique, interpolate_poses
 from gtvo.errors import InputError
 
@@ -227,7 +229,7 @@ def test_camera_errors_name_their_source(tmp_path):
     _raises("calib.txt: camera principal point (cx, cy) = (400, 23.5) lies outside the 64x48 image (from P0)",
             open_sequence, root)
     tum = make_tum(tmp_path / "freiburg3_cam", gt=False)
-    _raises("the given camera (--camera): camera principal point", open_sequence, tum, camera=(50, 50, 480, 640))
+    _raises("--camera (50, 50, 480, 640): camera principal point", open_sequence, tum, camera=(50, 50, 480, 640))
 
 
 @pytest.mark.parametrize("labelled", [True, False])
@@ -502,12 +504,54 @@ def test_missing_and_unknown_folders(tmp_path):
             tmp_path / "file.txt")
     (tmp_path / "empty").mkdir()
     err = _raises("unknown dataset layout", open_sequence, tmp_path / "empty")
-    assert "or a ROS bag (a .bag file, or a ROS2 bag folder with metadata.yaml" in str(err)
+    assert "a ROS bag (a .bag file, or a ROS2 bag folder with metadata.yaml" in str(err)
+    assert all(reader.layout in str(err) for reader in READERS)  # the message lists every reader's layout
     root = make_kitti(tmp_path / "k")
     _raises("max_frames must be >= 1", open_sequence, root, max_frames=0)
     _raises("unknown dataset format", open_sequence, root, format="las")
-    _raises("TUM folders only", open_sequence, root, camera=(1, 1, 1, 1))
+    _raises("camera apply to TUM folders only, this is kitti", open_sequence, root, camera=(1, 1, 1, 1))
+    with pytest.raises(TypeError, match="unexpected keyword argument 'lefttopic'"):
+        open_sequence(root, lefttopic="/l")  # a misspelt option is a programming error, not bad input
     _raises("KITTI sequence folder not found", open_sequence, tmp_path / "nope", format="kitti")
+
+
+def test_the_registry_names_each_reader_once_and_detects_its_own_layout(tmp_path):
+    assert FORMATS == tuple(r.name for r in READERS) and len(set(FORMATS)) == len(FORMATS)
+    from tests.test_kitti_raw import make_raw  # noqa: PLC0415 - its maker of a raw drive
+
+    made = {"kitti": make_kitti(tmp_path / "k"), "euroc": make_euroc(tmp_path / "e"), "tum": make_tum(tmp_path / "t"),
+            "kitti_raw": make_raw(tmp_path / "r")}
+    for name, root in made.items():
+        assert detect_format(root) == name
+        assert reader_named(name).looks_like(root)
+        assert [r.name for r in READERS if r.looks_like(root)] == [name]  # no other reader claims it
+        options = {"camera": (50.0, 50.0, 31.5, 23.5)} if name == "tum" else {}  # TUM's only option
+        assert len(open_sequence(root, format=name, **options)) > 0
+
+
+def _dataset_format_choices() -> dict[str, tuple[str, ...]]:
+    """Every subcommand's ``--format`` choices (``posegraph``'s are graph-file formats, not datasets)."""
+    parser = build_parser()
+    commands = next(a for a in parser._actions if a.dest == "command").choices
+    return {name: tuple(action.choices) for name, sub in commands.items() if name != "posegraph"
+            for action in sub._actions if "--format" in action.option_strings}
+
+
+def test_every_command_offers_the_same_formats_the_registry_has():
+    choices = _dataset_format_choices()
+    assert set(choices) == {"run", "info", "loops"}
+    assert all(c == ("auto",) + FORMATS for c in choices.values()), choices
+    args = build_parser().parse_args(["info", "LOG", "--format", "kitti_raw"])  # once refused by info
+    assert args.format == "kitti_raw"
+
+
+def test_batch_lists_accept_every_format(tmp_path):
+    from gtvo.batching.spec import read_spec  # noqa: PLC0415
+
+    log = str(make_kitti(tmp_path / "k"))
+    entries = [{"path": log, "format": name, "name": name} for name in FORMATS]
+    assert [s.format for s in read_spec(entries)] == list(FORMATS)
+    _raises("unknown 'format' 'las' (known: auto, " + ", ".join(FORMATS), read_spec, [{"path": log, "format": "las"}])
 
 
 # ---------------------------------------------------------------------------------------------
@@ -625,3 +669,22 @@ def test_real_data_damaged_copies(shared_data, tmp_path):
     root = _link_tree(tum, tmp_path / "teddy")  # the folder name no longer says freiburg3
     _raises("pass --camera", open_sequence, root)
     assert open_sequence(root, camera=(535.4, 539.2, 320.1, 247.6)).camera.fx == 535.4
+
+
+def test_a_log_or_a_file_of_its_layout_that_is_a_link_loop_is_named(tmp_path):
+    """A sequence folder that is a symbolic link loop, or a calib.txt / image folder that is one:
+    the message names the loop (before: "not found", "unknown dataset layout")."""
+    from gtvo.datasets import detect_format
+
+    (tmp_path / "loop").symlink_to("loop")
+    with pytest.raises(InputError, match=r"loop: sequence folder is a symbolic link loop$"):
+        open_sequence(tmp_path / "loop")
+    root = make_kitti(tmp_path / "seq")
+    (root / "calib.txt").unlink()
+    (root / "calib.txt").symlink_to("calib.txt")
+    with pytest.raises(InputError, match=r"seq: calib.txt is a symbolic link loop: the layout cannot be recognised$"):
+        detect_format(root)
+    (root / "calib.txt").unlink()
+    (root / "calib.txt").symlink_to(tmp_path / "gone")
+    with pytest.raises(InputError, match="calib.txt is a broken symbolic link"):
+        open_sequence(root)

@@ -2,7 +2,8 @@ import numpy as np
 import pytest
 
 from gtvo.errors import InputError
-from gtvo.core.image import bilinear_sample, build_pyramid, downsample, image_gradients, to_float_gray
+from gtvo.core.image import (as_float_gray, bilinear_sample, build_pyramid, downsample, image_gradients,
+                             to_float_gray)
 
 
 def ramp(h=6, w=8):
@@ -128,3 +129,50 @@ def test_compiled_downsample_equals_the_numpy_form(shape):
         ref = _downsample_numpy(img)
         assert got.dtype == ref.dtype == np.float32 and got.shape == ref.shape
         assert np.array_equal(got, ref)
+
+
+def test_as_float_gray_keeps_float_gray_and_converts_the_rest():
+    img = np.arange(12, dtype=np.float32).reshape(3, 4)
+    assert as_float_gray(img) is img  # converted already: not copied, not scanned again
+    u8 = np.arange(12, dtype=np.uint8).reshape(3, 4)
+    assert as_float_gray(u8).dtype == np.float32 and np.array_equal(as_float_gray(u8), img)
+    with pytest.raises(InputError, match="right image contains NaN"):
+        as_float_gray(np.full((2, 2), np.nan), "right image")  # float64: converted, so checked
+
+
+def _count_conversions(monkeypatch) -> dict[str, int]:
+    """Count ``to_float_gray`` calls by image (``left``/``right``/other) in every gtvo module that
+    imported it (``from gtvo.core.image import to_float_gray`` binds the name in each)."""
+    import sys  # noqa: PLC0415
+
+    import gtvo.core.image as image  # noqa: PLC0415
+
+    original, counts = image.to_float_gray, {"left": 0, "right": 0, "other": 0}
+
+    def counting(img, name="image"):
+        side = next((s for s in ("left", "right") if s in name), "other")
+        counts[side] += 1
+        return original(img, name)
+
+    for module in list(sys.modules.values()):
+        if getattr(module, "__name__", "").startswith("gtvo") and getattr(module, "to_float_gray", None) is original:
+            monkeypatch.setattr(module, "to_float_gray", counting)
+    return counts
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("window", [False, True])
+def test_a_run_converts_each_image_to_float_once(tmp_path, monkeypatch, window):
+    """Over a short run of a KITTI-layout folder (every frame a keyframe at this motion), each left
+    and right image passes ``to_float_gray`` once: where the reader loads it, never again."""
+    import gtvo  # noqa: PLC0415
+    from gtvo.datasets.synthetic import make_synthetic_sequence, write_sequence_kitti  # noqa: PLC0415
+    import gtvo.pipeline  # noqa: F401, PLC0415 - every module of a run imported, so that all are counted
+
+    folder = write_sequence_kitti(make_synthetic_sequence(n_frames=6), tmp_path / "seq")
+    counts = _count_conversions(monkeypatch)
+    config = {"mode": "window" if window else "track", "window": {"covariances": False},
+              "keyframes": {"max_motion": 0.0, "max_flow": 0.0}}  # every frame a keyframe
+    report = gtvo.run(folder, out=tmp_path / "out", config=config)
+    assert report["frames"] == 6 and report["keyframes"] >= 3
+    assert counts == {"left": 6, "right": 6, "other": 0}

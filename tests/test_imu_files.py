@@ -10,7 +10,7 @@ from gtvo.cli import main as cli_main
 from gtvo.config import ImuConfig
 from gtvo.datasets import open_sequence
 from gtvo.datasets.bag_writer import BagWriter, write_sequence_bag
-from gtvo.datasets.imu_files import ImuReadOptions, read_imu_folder, read_imu_table
+from gtvo.datasets.imu_files import ImuReadOptions, imu_read_options, read_imu_folder, read_imu_table
 from gtvo.datasets.synthetic import make_synthetic_sequence, write_sequence_kitti
 from gtvo.datasets.synthetic_imu import SYNTHETIC_T_CAM_IMU, ImuSimulation
 from gtvo.errors import InputError
@@ -43,7 +43,7 @@ def test_the_written_folder_reads_back_exactly(folder):
     np.testing.assert_array_equal(imu.accel, seq.imu.accel)
     np.testing.assert_array_equal(imu.T_cam_imu, SYNTHETIC_T_CAM_IMU)
     assert imu.noise.gyro_noise_density == seq.imu.noise.gyro_noise_density
-    assert open_sequence(out, imu_options=ImuConfig(enabled=False).read_options()).imu is None
+    assert open_sequence(out, imu_options=imu_read_options(ImuConfig(enabled=False))).imu is None
 
 
 def test_kalibr_files_beside_the_log_give_extrinsic_noise_and_time_shift(folder, tmp_path):
@@ -71,14 +71,14 @@ def test_plain_csv_needs_an_extrinsic_from_somewhere(tmp_path, folder):
     assert times[1] == pytest.approx(0.01) and gyro[0, 2] == 0.03 and accel[0, 2] == 9.8
     with pytest.raises(InputError, match="imu.csv: the IMU's pose on the camera is not given"):
         open_sequence(out, imu=csv)
-    options = ImuConfig(imu_in_camera=(0.1, 0, 0, 0, 0, 0, 1), gyro_noise_density=1e-3, accel_noise_density=1e-2,
-                        gyro_random_walk=1e-5, accel_random_walk=1e-3).read_options()
+    options = imu_read_options(ImuConfig(imu_in_camera=(0.1, 0, 0, 0, 0, 0, 1), gyro_noise_density=1e-3,
+                                         accel_noise_density=1e-2, gyro_random_walk=1e-5, accel_random_walk=1e-3))
     imu = open_sequence(out, imu=csv, imu_options=options).imu
     assert imu.T_cam_imu[0, 3] == 0.1 and imu.extrinsic_source == "config imu.T_cam_imu"
     assert imu.noise.source == "config imu:" and imu.noise.accel_noise_density == 1e-2
     with pytest.raises(InputError, match="--imu and --no-imu"):
         open_sequence(out, imu=csv, imu_options=ImuReadOptions(enabled=False))
-    with pytest.raises(InputError, match="--imu-topic applies to ROS bags only"):
+    with pytest.raises(InputError, match="imu_topic apply to ROS bags only"):
         open_sequence(out, imu_topic="/imu")
 
 
@@ -108,7 +108,7 @@ def test_bad_csv_is_one_line_naming_file_and_line(tmp_path, body, line, message)
 def test_images_and_imu_in_other_clocks_are_refused(tmp_path, folder):
     out, _ = folder
     csv = _plain_csv(tmp_path / "imu.csv", start=1.7e9)
-    options = ImuConfig(imu_in_camera=(0, 0, 0, 0, 0, 0, 1)).read_options()
+    options = imu_read_options(ImuConfig(imu_in_camera=(0, 0, 0, 0, 0, 0, 1)))
     with pytest.raises(InputError, match="another clock"):
         open_sequence(out, imu=csv, imu_options=options)
 

@@ -135,3 +135,18 @@ def test_a_keyframe_without_a_tracked_pyramid_builds_one_for_window_and_tracker(
     vo.process(next(iter(forward)))
     assert len(vo.keyframes) == 1
     assert len(full) == 2  # the left image's level 0 and the right image
+
+
+def test_too_few_points_because_of_a_setting_names_the_setting(tmp_path, capsys):
+    """A first frame refused because ``tracking.min_valid_points`` asks for more points than the
+    front end selects: the error names the two keys, not the images or the calibration."""
+    from gtvo import cli
+    from gtvo.datasets.synthetic import make_synthetic_sequence, write_sequence_kitti
+
+    log = write_sequence_kitti(make_synthetic_sequence(n_frames=2, width=160, height=120), tmp_path / "log")
+    (tmp_path / "c.yaml").write_text("tracking: {min_valid_points: 100000}\n")
+    assert cli.main(["run", str(log), "--out", str(tmp_path / "o"), "--no-progress", "--config",
+                     str(tmp_path / "c.yaml")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "fewer than tracking.min_valid_points = 100000" in err, err
+    assert "frontend.points_per_keyframe = 300" in err and "images may be blank" not in err, err

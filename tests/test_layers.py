@@ -103,6 +103,21 @@ def test_the_core_and_factors_stay_at_the_bottom() -> None:
     assert table["factors"] <= {"gtvo.core", "gtvo.errors"}
 
 
+def test_the_report_and_the_settings_sit_below_what_fills_them() -> None:
+    """Independent of the doc: ``gtvo/report.py`` (the report's types) imports no writer, odometry,
+    loop closing, refinement or pipeline (they import their part's type from it), and the settings
+    (``gtvo/config/``) import only the core and the factors' parameters."""
+    above = {"gtvo.io", "gtvo.odometry", "gtvo.loops", "gtvo.refinement", "gtvo.pipeline", "gtvo.batching",
+             "gtvo.commands"}
+    report = {layer_of(m) for m in imports_of(ROOT / "gtvo" / "report.py")}
+    assert report & above == set(), f"gtvo/report.py imports {sorted(report & above)}"
+    settings = {m for p in (ROOT / "gtvo" / "config").rglob("*.py") for m in imports_of(p)}
+    assert {layer_of(m) for m in settings} <= {"gtvo.config", "gtvo.core", "gtvo.errors", "factors"}
+    assert {m for m in settings if layer_of(m) == "factors"} <= {"factors.params", "factors.params.PhotometricConfig"}
+    table = allowed_table()
+    assert table["gtvo.report"] & above == set() and table["gtvo.config"] <= {"factors", "gtvo.core"}
+
+
 def test_no_import_cycle_between_modules() -> None:
     modules = existing_modules()
     graph = {module_name(p): {m for m in imports_of(p) if m in modules and m != module_name(p)}

@@ -74,28 +74,28 @@ def test_map_points_follow_the_keyframe_poses_they_are_given():
 @pytest.mark.slow
 def test_run_with_loop_closure_refines_frames_and_maps_on_the_closed_keyframes(tmp_path, monkeypatch):
     from gtvo.io.trajectory_files import read_tum
-    from gtvo.odometry import VisualOdometry
+    from gtvo.odometry.result import OdometryResult
     from gtvo.pipeline import TRACKED_OUTCOMES, run
 
     seq = make_synthetic_sequence(n_frames=60, motion="loop", seed=2)
     seen = {}
-    own_map_points = VisualOdometry.map_points
+    own_map_points = OdometryResult.map_points
 
-    def spy(self, keyframe_poses=None):
-        seen["poses"], seen["vo"] = keyframe_poses, self
-        return own_map_points(self, keyframe_poses)
+    def spy(self):
+        seen["odo"] = self
+        return own_map_points(self)
 
-    monkeypatch.setattr(VisualOdometry, "map_points", spy)
+    monkeypatch.setattr(OdometryResult, "map_points", spy)
     report = run(seq, out=tmp_path / "out", loop_closure=True)
-    vo = seen["vo"]
+    odo = seen["odo"]
     assert report["loops_accepted"] >= 1
-    assert report["frames_refined"] == sum(e.outcome in TRACKED_OUTCOMES for e in vo.estimates) > 0
+    assert report["frames_refined"] == sum(e.outcome in TRACKED_OUTCOMES for e in odo.estimates) > 0
     assert report["frame_refinement_hosts_mean"] >= 1
     closed = read_tum(tmp_path / "out" / "trajectory_loop_closed.tum")
     by_time = {round(float(t), 6): P for t, P in zip(closed.timestamps, closed.poses)}
     moved = 0
-    for kf in vo.keyframes:  # the map's keyframe poses are the loop-closed trajectory's
-        T = seen["poses"][kf.index]
+    for kf in odo.keyframes:  # the map's keyframe poses are the loop-closed trajectory's
+        T = odo.map_poses[kf.index]
         np.testing.assert_allclose(T, by_time[round(float(seq.timestamps[kf.index]), 6)], atol=1e-5)
-        moved += not np.allclose(T, kf.T_world_cam.matrix(), atol=1e-6)
+        moved += not np.allclose(T, kf.T_world_cam, atol=1e-6)
     assert moved > 0

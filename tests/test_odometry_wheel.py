@@ -137,16 +137,28 @@ def test_a_frame_that_fails_with_points_is_reinitialised_at_the_wheels_pose(turn
     assert ends[True] < 0.03 < 0.05 < ends[False]
 
 
-def test_the_parallel_window_refuses_wheel_odometry_in_one_line(turn):
-    """window.parallel runs the window in a worker that does not carry the wheel calibration (yet):
-    asked for with wheel odometry, the run stops before any work with one line saying what to do."""
-    from gtvo.errors import InputError
+@pytest.mark.slow
+def test_the_parallel_window_estimates_the_wheel_calibration_as_the_sequential_one(turn):
+    """window.parallel: the worker's window estimates its copy of the calibration; each update
+    handed out brings the estimate to the front end's ``vo.wheel`` (which carries blind frames), and
+    the report's marginal covariance is asked of the worker (gtvo/odometry/window_port.py)."""
     from gtvo.odometry import VisualOdometry
+    from gtvo.odometry.wheel import wheel_report
 
     seq, log = turn
-    config = as_config({"wheel": {"base_to_camera": BASE_TO_CAMERA}, "window": {"parallel": True}})
-    with pytest.raises(InputError, match="window.parallel does not carry wheel odometry"):
-        VisualOdometry(seq.camera, config, log)
+    ends = {}
+    for parallel in (False, True):
+        config = as_config({"wheel": {"base_to_camera": BASE_TO_CAMERA}, "window": {"parallel": parallel}})
+        with VisualOdometry(seq.camera, config, log) as vo:
+            for frame in seq:
+                vo.process(frame)
+            vo.finish()
+            assert vo.window.wheel is vo.wheel
+            report = wheel_report(vo.wheel, vo.window)["wheel_calibration"]
+        assert report["sigmas"] is not None and vo.wheel.covariance is not None
+        ends[parallel] = vo.wheel.estimate.copy()
+    assert not np.array_equal(ends[True], vo.wheel.settings.mean())  # estimated, not the prior
+    assert np.allclose(ends[True], ends[False], atol=0.01)
 
 
 def _planar_estimate(index: int, x: float, z: float, outcome: FrameOutcome):
@@ -189,3 +201,29 @@ def test_the_console_prints_the_wheel_calibration_with_its_sigmas():
     line = wheel_calibration_line(linear)
     assert line.startswith("wheel calibration (linear, w.csv): X11 1.0000, X12 0.0000") and line.endswith("(not estimated: "
                                                                                                    "track mode or the fixed-lag back end)")
+
+
+def _frozen(seq, frames, source):
+    def repeat(load):
+        return lambda i: load(source) if i in frames else load(i)
+    return dataclasses.replace(seq, load_left=repeat(seq.load_left), load_right=repeat(seq.load_right))
+
+
+def test_a_frozen_camera_is_placed_by_the_wheels_and_picked_up_from_them(turn):
+    """Frames 9-13 repeat frame 8's images as the robot turns: with wheels they are frozen (the wheels
+    say the rig moves), placed by the calibrated wheels, never keyframes; the first frame after is
+    tracked from the wheels' pose, and the console says so once."""
+    seq, log = turn
+    frozen = set(range(9, 14))
+    warnings: list[str] = []
+    vo, traj, info = process_sequence(dataclasses.replace(_frozen(seq, frozen, 8), wheel_odometry=log),
+                                      as_config({"wheel": {"base_to_camera": BASE_TO_CAMERA}}), warn=warnings.append)
+    assert [e.index for e in vo.estimates if e.outcome is FrameOutcome.FROZEN] == sorted(frozen)
+    assert not frozen & {kf.index for kf in vo.keyframes}
+    assert info["trusted_fraction"] <= 1 - len(frozen) / len(seq)
+    lines = [w for w in warnings if "froze" in w]
+    assert len(lines) == 1 and "frames 9-13 repeat frame 8's image" in lines[0] and "the wheels' pose" in lines[0]
+    err = np.linalg.norm(traj.poses[:, :3, 3] - np.asarray(seq.gt_poses)[:, :3, 3], axis=1)
+    _, _, clean = _run(dataclasses.replace(seq, wheel_odometry=log))
+    assert err[sorted(frozen)].max() < 0.05
+    assert err[14:].max() < clean[14:].max() + 0.02

@@ -28,9 +28,11 @@ from gtvo.io.outputs import RUN_OUTPUT_NAMES, check_run_output_dir, top_view, wr
 from gtvo.io.plots import CAMERA_WORLD_XZ_LABELS
 from gtvo.core.map_points import MAX_RELATIVE_DEPTH_SIGMA, MapPoints, constrained_mask
 from gtvo.config import FrontendConfig, OdometryConfig
+from gtvo.report import map_points_figures
 from gtvo.odometry import VisualOdometry
 
 KITTI = Path("kitti_stereo_sample") / "KITTI_sequence_1"
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def run_cli(*args, cwd=None, timeout=600):
@@ -218,7 +220,9 @@ def test_interrupt_at_every_step_of_the_output_phase_keeps_the_old_set(small_seq
     monkeypatch.setattr(atomic, "_swap_in", interrupting(atomic._swap_in))
     monkeypatch.setattr(atomic, "check_replaceable_dir", interrupting(atomic.check_replaceable_dir))
     if step == 0:  # the whole phase uninterrupted: the new set
-        write_run_outputs(out, _estimate(small_seq, 0.02), small_seq, {"frames": 6}, points=_points(30))
+        points = _points(30)
+        write_run_outputs(out, _estimate(small_seq, 0.02), small_seq, {"frames": 6, **map_points_figures(points)},
+                          points=points)
         rep = json.loads((out / "report.json").read_text())
         ply = {"points.ply"} if rep["map_points_written"] is not None else set()  # None: no open3d (reason given)
         assert set(_snapshot(out)) == {DIR_MARKER, "trajectory.tum", "report.json", "trajectory.png",
@@ -365,10 +369,104 @@ def test_output_folder_in_the_input_is_refused(kitti_like, tmp_path):
         lines = r.stderr.strip().splitlines()
         assert len(lines) == 1 and needle in lines[0], lines
     assert {p: sorted(q.name for q in p.iterdir()) for p in before} == before
-    # a folder for results inside the dataset (not an image folder) is fine
-    r = run_cli("run", seq_copy, "--out", seq_copy / "results", "--no-progress", "--max-frames", "3")
-    assert r.returncode == 0, r.stderr
-    assert sorted(q.name for q in (seq_copy / "image_0").iterdir()) == before[seq_copy / "image_0"]
+
+
+def test_no_output_into_the_log_or_below_it_whatever_the_spelling(kitti_like, tmp_path, capsys):
+    """A folder inside the log (not only its image folders), reached through '..', a symbolic link
+    to the log or one to its image folder: one line, exit 2, the log untouched."""
+    seq_copy = tmp_path / "seq"
+    shutil.copytree(kitti_like, seq_copy)
+    (tmp_path / "alias").symlink_to(seq_copy)
+    (tmp_path / "frames").symlink_to(seq_copy / "image_0")
+    (tmp_path / "elsewhere").mkdir()
+    before = sorted(str(p.relative_to(seq_copy)) for p in seq_copy.rglob("*"))
+    for out, needle in ((seq_copy / "results", "inside the input folder"),
+                        (tmp_path / "elsewhere" / ".." / "seq" / "results", "inside the input folder"),
+                        (tmp_path / "alias", "is the input folder"),
+                        (tmp_path / "alias" / "results" / "deeper", "inside the input folder"),
+                        (tmp_path / "frames", "one of the input's image folders")):
+        assert cli.main(["run", str(seq_copy), "--out", str(out), "--no-progress"]) == 2, out
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and needle in err, err
+    assert sorted(str(p.relative_to(seq_copy)) for p in seq_copy.rglob("*")) == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["alias", "elsewhere", "frames", "seq"]
+
+
+def test_an_output_folder_that_is_a_link_loop_or_a_file_is_one_line(kitti_like, tmp_path, capsys):
+    loop = tmp_path / "loop"
+    loop.symlink_to("loop")
+    (tmp_path / "a_file").write_text("mine\n")
+    for out, needle in ((loop, "loop: output folder is a symbolic link loop"),
+                        (loop / "inside", "symbolic link loop"),
+                        (tmp_path / "a_file", "a_file: output folder is a file"),
+                        (tmp_path / "a_file" / "below", "a_file")):
+        assert cli.main(["run", str(kitti_like), "--out", str(out), "--no-progress"]) == 2, out
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and needle in err and "Traceback" not in err, err
+    assert (tmp_path / "a_file").read_text() == "mine\n"
+
+
+@pytest.mark.slow
+def test_an_image_that_is_a_link_loop_is_a_skipped_frame_named_as_such(kitti_like, tmp_path, capsys):
+    """An image file that is a symbolic link loop (once a RuntimeError from Path.resolve() after the
+    whole run) is an unreadable frame: skipped with one line saying why (--strict: exit 2)."""
+    seq_copy = tmp_path / "seq"
+    shutil.copytree(kitti_like, seq_copy)
+    image = seq_copy / "image_0" / "000002.png"
+    image.unlink()
+    image.symlink_to(image.name)
+    assert cli.main(["run", str(seq_copy), "--out", str(tmp_path / "out"), "--no-progress", "--max-frames", "4"]) == 0
+    err = capsys.readouterr().err
+    assert "skipping frame 2:" in err and "000002.png: image file is a symbolic link loop" in err, err
+    assert "Traceback" not in err and (tmp_path / "out" / "report.json").is_file()
+    assert cli.main(["run", str(seq_copy), "--out", str(tmp_path / "strict"), "--no-progress", "--max-frames", "4",
+                     "--strict"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "image file is a symbolic link loop" in err, err
+
+
+def test_a_second_run_into_a_held_output_folder_is_refused(kitti_like, tmp_path, capsys):
+    """Concurrent runs into one --out: the second is refused at once (before: all reported success
+    and the last replaced the others' outputs)."""
+    from gtvo.core.atomic import output_lock
+
+    out = tmp_path / "out"
+    with output_lock(out):
+        assert cli.main(["run", str(kitti_like), "--out", str(out), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "another gtvo process" in err and str(out) in err, err
+    assert not out.exists()
+
+
+@pytest.mark.slow
+def test_the_next_run_removes_a_killed_runs_staging_folder(kitti_like, tmp_path):
+    """SIGTERM while the outputs are written leaves a hidden staging folder beside --out; the next
+    run into that --out removes it (gtvo's own staging names only)."""
+    out = tmp_path / "out"
+    proc = subprocess.Popen([sys.executable, "-c", _KILLED_WHILE_WRITING.format(root=str(ROOT), out=str(out))],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 300
+    while not any(p.name.startswith(".out.") and p.is_dir() for p in tmp_path.iterdir()):
+        assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
+        time.sleep(0.05)
+    proc.terminate()
+    proc.communicate(timeout=120)
+    left = [p.name for p in tmp_path.iterdir() if p.name.startswith(".out.") and not p.name.endswith(".lock")]
+    assert left, "the killed writer left no staging folder: the case is not built"
+    (tmp_path / ".notes").mkdir()  # not gtvo's: stays
+    assert cli.main(["run", str(kitti_like), "--out", str(out), "--no-progress", "--max-frames", "3"]) == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".notes", "out"]
+
+
+_KILLED_WHILE_WRITING = """
+import sys, time
+sys.path.insert(0, {root!r})
+from gtvo.core.atomic import atomic_dir
+from gtvo.io.outputs import RUN_OUTPUT_NAMES, RUN_WRITER
+with atomic_dir({out!r}, RUN_OUTPUT_NAMES, RUN_WRITER) as staging:
+    (staging / "trajectory.tum").write_text("half")
+    time.sleep(600)
+"""
 
 
 @pytest.mark.slow

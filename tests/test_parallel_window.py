@@ -49,7 +49,7 @@ def busy_loops(n: int) -> list[subprocess.Popen]:
 def test_parallel_window_gives_the_same_bytes_every_run_and_under_load(kitti_snippet):
     seq = kitti_snippet(max_frames=14)
     first, cov1, vo = run_vo(seq, parallel=True)
-    assert vo.keyframer.worker is not None and len(vo.window_results) >= 5
+    assert isinstance(vo.window, WindowWorker) and len(vo.window_results) >= 5
     load = busy_loops(3)
     try:
         second, cov2, _ = run_vo(seq, parallel=True)
@@ -65,7 +65,7 @@ def test_parallel_window_gives_the_same_bytes_every_run_and_under_load(kitti_sni
     assert first.tobytes() == one_thread.tobytes()
     assert all((cov1[k] is None and cov3[k] is None) or cov1[k].tobytes() == cov3[k].tobytes() for k in cov1)
     sequential, _, seq_vo = run_vo(seq, parallel=False)
-    assert seq_vo.keyframer.worker is None
+    assert not isinstance(seq_vo.window, WindowWorker)
     # a different order of the same work: close to the sequential run (cm over 14 KITTI frames), not equal
     assert 0 < np.max(np.abs(first[:, :3, 3] - sequential[:, :3, 3])) < 0.05
 
@@ -95,7 +95,7 @@ def test_a_killed_worker_is_one_error_at_the_next_reply(kitti_snippet):
     frames = iter(seq)
     for _ in range(3):
         vo.process(next(frames))
-    os.kill(vo.keyframer.worker.pid, signal.SIGKILL)
+    os.kill(vo.window.pid, signal.SIGKILL)
     with pytest.raises(WindowWorkerError, match="ended unexpectedly"):
         for frame in frames:
             vo.process(frame)

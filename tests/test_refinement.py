@@ -14,7 +14,6 @@ import numpy as np
 import pytest
 
 from factors.params import PhotometricConfig
-from gtvo.config import OdometryConfig
 from gtvo.datasets.synthetic import make_synthetic_sequence, write_sequence_kitti
 from gtvo.loops.closure_graph import LoopEdge
 from gtvo.refinement import RefineConfig, covisible_targets
@@ -205,36 +204,28 @@ def test_refine_with_track_mode_is_refused(kitti_like, tmp_path):
     assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and "--refine needs --mode window" in r.stderr
 
 
-def test_refine_with_a_parallel_window_is_refused(kitti_like, tmp_path):
-    r = _run(kitti_like, "--out", tmp_path / "x", "--refine", "--parallel")
-    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
-    assert "needs every keyframe of the window" in r.stderr and "--no-parallel" in r.stderr
-
-
 @pytest.mark.slow
-@pytest.mark.parametrize("loops", [False, True])
-def test_ctrl_c_during_the_refinement_writes_the_window_only_outputs(kitti_like, tmp_path, monkeypatch, capsys, loops):
-    """A KeyboardInterrupt inside the refinement's solver: the run goes on and writes the whole set
-    of the run without refinement (the same trajectories), says so in one line and in the report."""
-    import gtvo
+def test_ctrl_c_during_the_refinement_is_ctrl_c_everywhere(kitti_like, tmp_path, monkeypatch, capsys):
+    """A KeyboardInterrupt inside the refinement's solver is the README's one rule for Ctrl-C:
+    `gtvo run: interrupted`, exit 130, the earlier output set exactly as it was (before: exit 0 with
+    window-only outputs replacing it)."""
+    from gtvo import cli
     import gtvo.refinement.solve as solve
 
-    plain = gtvo.run(kitti_like, out=tmp_path / "plain", loop_closure=loops)
-    assert "refine" not in plain
+    out = tmp_path / "out"
+    assert cli.main(["run", str(kitti_like), "--out", str(out), "--no-progress", "--max-frames", "4"]) == 0
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
 
     def interrupted(*a, **k):
         raise KeyboardInterrupt
 
     monkeypatch.setattr(solve, "solve_gtsam", interrupted)
-    rep = gtvo.run(kitti_like, out=tmp_path / "cut", loop_closure=loops,
-                   config=OdometryConfig(refine=RefineConfig(enabled=True)))
-    assert "refinement interrupted (Ctrl-C): writing the window-only outputs" in capsys.readouterr().err
-    assert rep["refine"]["ran"] is False and rep["refine"]["reason"] == "interrupted (Ctrl-C)"
-    names = ["trajectory.tum"] + (["trajectory_loop_closed.tum"] if loops else [])
-    for name in names:
-        assert (tmp_path / "cut" / name).read_bytes() == (tmp_path / "plain" / name).read_bytes()
-    names = sorted(p.name for p in (tmp_path / "plain").iterdir())
-    assert sorted(p.name for p in (tmp_path / "cut").iterdir()) == names
+    capsys.readouterr()
+    assert cli.main(["run", str(kitti_like), "--out", str(out), "--no-progress", "--refine"]) == 130
+    err = capsys.readouterr().err
+    assert err.strip().splitlines()[-1] == "gtvo run: interrupted" and "window-only" not in err, err
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]  # no staging, no lock left
 
 
 def test_lm_iteration_by_iteration_is_gtsam_own_loop(seq, keyframes):
@@ -296,12 +287,14 @@ def test_the_whole_log_graph_carries_the_wheel_odometry_and_both_solvers_agree(s
 
 @pytest.mark.slow
 def test_a_run_with_wheels_refines_the_calibration_of_the_log():
-    """``gtvo run``'s refinement step (:func:`gtvo.pipeline.refine_vo_run`) hands the window's wheel
+    """``gtvo run``'s refinement stage (:func:`gtvo.refinement.run.run_refinement`) hands the window's wheel
     calibration to the whole-log graph: the report's refine block has the refined calibration, near
-    the wheels' truth (24 synthetic frames with simulated wheels)."""
+    the wheels' truth (24 synthetic frames with simulated wheels). The stage returns a new result
+    and leaves the one it was given as it was: the window's trajectory, depths and covariances."""
     from gtvo.config import WheelConfig, as_config  # noqa: PLC0415
     from gtvo.datasets.wheel import simulate_wheel_odometry  # noqa: PLC0415
-    from gtvo.pipeline import process_sequence, refine_vo_run  # noqa: PLC0415
+    from gtvo.pipeline import run_odometry  # noqa: PLC0415
+    from gtvo.refinement.run import run_refinement  # noqa: PLC0415
     from tests.test_odometry_wheel import BASE_TO_CAMERA, K_TRUE  # noqa: PLC0415
 
     seq = make_synthetic_sequence(24, width=240, height=180, step_m=0.1, motion="turn")
@@ -310,10 +303,18 @@ def test_a_run_with_wheels_refines_the_calibration_of_the_log():
                                   nominal_baseline=0.5)
     seq = dataclasses.replace(seq, wheel_odometry=log)
     cfg = as_config({"wheel": {"base_to_camera": BASE_TO_CAMERA}, "refine": {"enabled": True, "max_iterations": 2}})
-    vo, traj, _ = process_sequence(seq, cfg, warn=lambda m: None)
-    refined = refine_vo_run(seq, vo, traj, None, False)
-    assert refined.summary["ran"]
-    np.testing.assert_allclose(refined.summary["wheel_calibration"], K_TRUE, atol=0.02)
+    _, odo = run_odometry(seq, cfg, warn=lambda m: None)
+    poses, depths = odo.trajectory.poses.copy(), {k: p.inverse_depth.copy() for k, p in odo.keyframe_points.items()}
+    covariances = odo.covariances.covariance.copy()
+    refined = run_refinement(odo, seq, warn=lambda m: None)
+    assert refined is not odo and odo.refinement is None and refined.refinement["ran"]
+    np.testing.assert_allclose(refined.refinement["wheel_calibration"], K_TRUE, atol=0.02)
+    assert refined.covariances.source.startswith("gtsam.Marginals of the whole-log")
+    assert not np.array_equal(refined.trajectory.poses, poses)  # the refined trajectory replaced the window's
+    np.testing.assert_array_equal(odo.trajectory.poses, poses)  # ... in the new value only
+    assert all(np.array_equal(odo.keyframe_points[k].inverse_depth, d) for k, d in depths.items())
+    assert any(not np.array_equal(refined.keyframe_points[k].inverse_depth, d) for k, d in depths.items())
+    np.testing.assert_array_equal(odo.covariances.covariance, covariances)
 
 
 @pytest.mark.slow

@@ -114,3 +114,32 @@ def test_read_report_round_trip_and_one_line_errors(reports, tmp_path: Path):
     with pytest.raises(InputError, match="cannot read") as err:
         read_report(tmp_path / "missing.json")
     assert "\n" not in str(err.value) and "missing.json" in str(err.value)
+
+
+@pytest.mark.slow
+def test_the_report_is_built_in_one_place_from_the_result_and_written_as_built(tmp_path):
+    """run_report builds every key from the odometry's result (the map's counts and the timing
+    included, the timing at the odometry's place in the order); the writer adds nothing."""
+    from gtvo.io.outputs import write_run_outputs  # noqa: PLC0415
+    from gtvo.odometry.summary import odometry_result  # noqa: PLC0415
+    from gtvo.report import map_points_figures, run_metrics, run_report  # noqa: PLC0415
+
+    seq = make_synthetic_sequence(n_frames=5)
+    vo = VisualOdometry(seq.camera, OdometryConfig(mode="track"))
+    for i in range(len(seq)):
+        vo.process(seq.frame(i))
+    vo.finish()
+    odo = odometry_result(vo, seconds=1.0, name=seq.name)
+    points = odo.map_points()
+    timing = {"seconds_by_stage": {"tracking": 9.0}, "ms_per_frame_by_stage": {"tracking": 1800.0}}
+    report = run_report(seq, odo, run_metrics(seq, odo), points=points, timing=timing)
+    keys = list(report)
+    assert keys[:2] == ["sequence", "source"] and keys[2:2 + len(odo.summary)] == list(odo.summary)
+    assert report["seconds_by_stage"] == {"tracking": 9.0} and report["frames"] == 5
+    assert {k: report[k] for k in map_points_figures(points)} == map_points_figures(points)
+    assert report["ate_rmse_m"] is not None and report["config"]["mode"] == "track"
+    built = []
+    written = write_run_outputs(tmp_path / "out", odo.trajectory, seq, lambda: built.append(1) or report,
+                                points=points)
+    assert built == [1] and written == report
+    assert json.loads((tmp_path / "out" / "report.json").read_text()).keys() == report.keys()

@@ -214,6 +214,28 @@ def test_connect_to_a_running_server(rerun, tmp_path, capsys):
     assert "did not take the data" not in capsys.readouterr().err
 
 
+def test_connect_to_an_absent_viewer_is_one_line_at_once(rerun, tmp_path, capsys):
+    """Nothing listens at the address: one line naming it, exit 2, before the run (before: the run
+    went on, the SDK retried for about 10 s and printed its coloured log lines into stderr)."""
+    url = f"rerun+http://127.0.0.1:{_free_port()}/proxy"
+    assert cli_main(["demo", "--frames", "2", "--out", str(tmp_path / "o"), "--no-progress",
+                     "--rerun-connect", url]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"--rerun-connect {url}: no Rerun viewer answers at 127.0.0.1:" in err, err
+    assert "\x1b[" not in err and not (tmp_path / "o").exists()
+
+
+def test_a_recording_inside_the_log_is_refused(rerun, tmp_path, capsys):
+    from gtvo.datasets.synthetic import make_synthetic_sequence, write_sequence_kitti
+
+    log = write_sequence_kitti(make_synthetic_sequence(n_frames=2, width=160, height=120), tmp_path / "log")
+    before = sorted(p.name for p in log.iterdir())
+    assert cli_main(["run", str(log), "--out", str(tmp_path / "o"), "--rerun", str(log / "x.rrd")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "is inside the log" in err, err
+    assert sorted(p.name for p in log.iterdir()) == before
+
+
 def test_without_rerun_sdk_one_line_names_the_extra(tmp_path, monkeypatch, capsys):
     real_import = builtins.__import__
 

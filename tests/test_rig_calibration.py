@@ -20,7 +20,9 @@ from gtvo.datasets.shifted import shift_image, shift_right_images
 from gtvo.datasets.synthetic import make_synthetic_sequence
 from gtvo.errors import InputError
 from gtvo.frontend import init_keyframe_points, select_points
-from gtvo.frontend.rig_offset import correct_right_image, estimate_vertical_offset
+from gtvo.frontend.rig_offset import (MIN_OFFSET_CONTRAST, VerticalOffset, correct_right_image,
+                                      estimate_vertical_offset, stereo_contrast)
+from gtvo.window.rig import RigOffset
 from gtvo.odometry import VisualOdometry
 from gtvo.window import (SlidingWindowOptimizer, WindowConfig, WindowKeyframe, build_graph, solve_gtsam,
                          solve_handrolled, window_cost)
@@ -391,7 +393,7 @@ def test_window_depths_are_searched_again_once_delta_x_is_estimated(monkeypatch)
     assert len(calls) == 1 and vo.window.rig.x_estimated
     offset, before, after, n_results = calls[0]
     assert offset[0] > 1.0
-    assert len(vo.window.results) > n_results  # optimised again after the new depths
+    assert len(vo.window.optimizer.results) > n_results  # optimised again after the new depths
     changed = 0
     for index, (w, d) in after.items():
         res = stereo_inverse_depth(w.image.image, correct_right_image(w.right.image, offset), seq.camera, w.pixels,
@@ -504,3 +506,56 @@ def test_shift_image_interpolations_move_content_and_lanczos_keeps_it_sharp():
     assert error["linear"] > 20.0 and error["lanczos4"] < 0.25 * error["linear"], error
     with pytest.raises(InputError, match="interpolation"):
         shift_image(ramp, (0.5, 0.0), "nearest-ish")
+
+
+# -- images that cannot carry the offset ---------------------------------------------------------------
+def _dimmed(seq, factor: float):
+    """``seq`` with every image ``round(factor * I)`` (uint8): a sensor exposed ``factor`` times as long."""
+    import dataclasses  # noqa: PLC0415
+
+    def dim(load):
+        return lambda i: np.clip(np.rint(np.asarray(load(i), dtype=np.float32) * factor), 0, 255).astype(np.uint8)
+    return dataclasses.replace(seq, load_left=dim(seq.load_left), load_right=dim(seq.load_right))
+
+
+def test_the_contrast_of_a_pair_is_measured_against_its_own_noise(seq):
+    left = to_float_gray(seq.frame(0).left, "left")
+    px = select_points(left, target=300)
+    ok = stereo_contrast(left, px)
+    assert ok.gradient > MIN_OFFSET_CONTRAST and ok.too_weak() is None
+    dark = stereo_contrast(np.rint(left * 0.05), px)
+    assert dark.gradient < MIN_OFFSET_CONTRAST and dark.too_weak().startswith("the images are too dark or too flat")
+    noisy = stereo_contrast(left + np.random.default_rng(0).normal(0, 8.0, left.shape), px)
+    assert noisy.to_noise < 5 and noisy.too_weak().startswith("the images are too noisy")
+
+
+def test_a_withheld_rig_stays_rectified_whatever_the_data_say():
+    rig = RigOffset()
+    rig.start_from(VerticalOffset(-0.6, 0.01, 80, {0: 80}), withheld="too dark")
+    assert rig.rectified and rig.solved_offset is None and not rig.y_known
+    assert not any(rig.test_release_both(1, lambda: (np.array([2.0, -0.6]), np.array([0.01, 0.01])))
+                   for _ in range(3))
+    report = rig.report(None)
+    assert report["rig_offset_withheld"] == "too dark" and report["rig_offset_px"] == [0.0, 0.0]
+    from gtvo.odometry.rig_report import rig_warning  # noqa: PLC0415
+
+    assert rig_warning(report) == "too dark: the rig offset is not estimated, the rectified model is kept"
+    released = RigOffset()
+    released.start_from(VerticalOffset(-0.6, 0.01, 80, {0: 80}))
+    assert released.y_known and released.report(None)["rig_offset_withheld"] is None
+
+
+@pytest.mark.slow
+@pytest.mark.realdata
+def test_kitti_at_a_twentieth_of_the_exposure_keeps_the_rectified_model_and_says_why(kitti_snippet):
+    """Before: the dark pair's vertical offset (-0.32 px, against -0.04 px at full exposure) was taken
+    as significant and the offset released, 0.25 px horizontally and -0.38 px vertically, on images
+    of 0-12 grey levels; the clean log stays rectified."""
+    dark = _dimmed(kitti_snippet(max_frames=6), 0.05)
+    vo = VisualOdometry(dark.camera, OdometryConfig(mode="window"))
+    for frame in dark:
+        vo.process(frame)
+    rig = vo.window.rig
+    assert rig.withheld is not None and "too dark or too flat" in rig.withheld
+    assert rig.rectified and not rig.x_estimated and list(rig.offset) == [0.0, 0.0]
+    assert all(r.rig_offset is None for r in vo.window_results)

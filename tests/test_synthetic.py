@@ -376,3 +376,16 @@ def test_right_principal_offset_renders_a_shifted_right_image():
     assert moved.camera == plain.camera
     with pytest.raises(InputError, match="right_principal_offset"):
         make_synthetic_sequence(2, width=96, height=72, right_principal_offset=(np.nan, 0.0))
+
+
+def test_a_second_writer_of_one_synthetic_folder_is_refused(tmp_path, capsys):
+    from gtvo import cli
+    from gtvo.core.atomic import output_lock
+
+    out = tmp_path / "seq"
+    with output_lock(out):
+        assert cli.main(["synthetic", "--out", str(out), "--frames", "2", "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "another gtvo process" in err, err
+    assert cli.main(["synthetic", "--out", str(out), "--frames", "2", "--no-progress"]) == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["seq"]

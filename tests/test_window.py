@@ -212,7 +212,7 @@ def test_visual_odometry_window_mode(seq):
         vo.process(seq.frame(i))
     assert len(vo.window_results) >= 1
     assert all(r.cost <= r.initial_cost for r in vo.window_results)
-    window_poses = {w.index: w.pose for w in vo.window.keyframes}
+    window_poses = {w.index: w.pose for w in vo.window.optimizer.keyframes}
     kf_by_index = {k.index: k for k in vo.keyframes}
     for e in vo.estimates:
         if e.index in kf_by_index:
@@ -273,7 +273,7 @@ def test_rgbd_window_on_tum_teddy(shared_data):
                          keyframes=KeyframeConfig(max_motion=0.01))
     vo, traj, info = process_sequence(seq, cfg)
     assert info["window_optimisations"] >= 1
-    assert all(w.right is None and w.depth_prior for w in vo.window.keyframes)
+    assert all(w.right is None and w.depth_prior for w in vo.window.optimizer.keyframes)
     est, ref = gt_pair(seq, traj)
     assert evaluate(est, ref)["ate_rmse_m"] < 0.01
 

@@ -47,25 +47,12 @@ def _parameter_count(f) -> int:
     return len([p for p in inspect.signature(f).parameters if p not in ("self", "cls")])
 
 
-#: the refinement as a stage of a run (refine_run and its helpers) has its arguments reshaped
-#: with the run's stages; until then it is the one known exception (strict: this fails once it is fixed)
-RUN_STAGE = "gtvo.refinement.run"
-
-
 @pytest.mark.parametrize("package", [gtvo.window, gtvo.refinement], ids=lambda p: p.__name__)
 def test_no_function_of_the_window_or_the_refinement_takes_more_than_five_parameters(package):
     functions = dict(_functions(package))
     assert len(functions) > 10  # the walk finds them (methods too)
     long = {name: _parameter_count(f) for name, f in functions.items() if _parameter_count(f) > MAX_PARAMETERS}
-    assert not {name for name in long if not name.startswith(RUN_STAGE + ".")}, \
-        f"more than {MAX_PARAMETERS} parameters: {long}"
-
-
-@pytest.mark.xfail(strict=True, reason="refine_run's arguments are reshaped with the run's stages")
-def test_the_refinement_stage_takes_at_most_five_parameters_too():
-    long = {name for name, f in _functions(gtvo.refinement)
-            if name.startswith(RUN_STAGE + ".") and _parameter_count(f) > MAX_PARAMETERS}
-    assert not long, long
+    assert not long, f"more than {MAX_PARAMETERS} parameters: {long}"
 
 
 def test_the_parameter_count_sees_a_long_function():

@@ -16,17 +16,20 @@ from __future__ import annotations
 
 import json
 import os
+import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from gtvo.core.atomic import ensure_output_dir, tidy_on_failure
+from gtvo.core.atomic import ensure_output_dir, output_lock, tidy_on_failure
+from gtvo.core.paths import identity, link_problem, resolved, same_or_inside
 from gtvo.batching.overrides import apply_overrides, canonical, config_identity
 from gtvo.batching.runners import RECORD_NAME, failure, require_ray, run_in_pool, run_on_ray, start_ray
 from gtvo.batching.spec import LogSpec, read_spec
 from gtvo.batching.summary import summary_row, write_summary
 from gtvo.errors import InputError
+from gtvo.io.log_settings import log_wheel_settings, wheel_settings_line
 
 __all__ = ["BatchResult", "LogSpec", "batch", "read_spec"]
 
@@ -87,26 +90,104 @@ def batch(spec: str | Path | list[Any], out: str | Path, jobs: int | None = None
     workers = _check_jobs(jobs)
     if ray is not None:
         require_ray()  # a missing extra is said before any work
-    if not isinstance(spec, list) and Path(spec).is_dir() and Path(out).resolve() == Path(spec).resolve():
+    if link_problem(out) is not None:
+        raise InputError(f"output folder is {link_problem(out)}", path=out)
+    if not isinstance(spec, list) and Path(spec).is_dir() and identity(out) == identity(spec):
         raise InputError("output folder is the SPEC folder itself; the logs' outputs would mix with the logs: "
                          "choose another (a new folder, or one inside it)", path=out)
-    with tidy_on_failure():
-        out_dir = ensure_output_dir(out).resolve()
-        logs = read_spec(spec, exclude=(out_dir,))
+    out_path = resolved(out, "output folder")
+    logs = read_spec(spec, exclude=(out_path,))
+    _check_out_outside_logs(out_path, logs)  # before anything is made there
+    with tidy_on_failure(), output_lock(out_path, SUMMARY_NAMES):
+        out_dir = ensure_output_dir(out_path)
         jobs_list = [_job(log, out_dir, config, max_frames, frame_step, loop_closure,
                           where=f"{_where(spec)}, log {log.name!r}") for log in logs]
-    rows, todo = _plan(logs, jobs_list, resume)
-    resumed = [r["name"] for r in rows if r is not None and r["resumed"]]
-    n_workers = max(1, min(workers, len(todo)))
-    _run(logs, jobs_list, todo, rows, n_workers if ray is None else workers, ray, progress)
-    done_rows = [r for r in rows if r is not None]
-    failed = [r["name"] for r in done_rows if r["status"] != "done"]
-    info = {"spec": _where(spec), "out": str(out_dir), "runner": "pool" if ray is None else f"ray ({ray})",
-            "workers": n_workers if ray is None else (workers if ray == "local" else "cluster"),
-            "wall_seconds": time.perf_counter() - t0, "logs_total": len(done_rows), "logs_failed": len(failed),
-            "logs_resumed": len(resumed)}
-    paths = write_summary(out_dir, info, done_rows)
+        _check_no_repeats(logs, jobs_list, _where(spec))
+        _discard_leftovers(jobs_list)
+        rows, todo = _plan(logs, jobs_list, resume)
+        resumed = [r["name"] for r in rows if r is not None and r["resumed"]]
+        n_workers = max(1, min(workers, len(todo)))
+        info = {"spec": _where(spec), "out": str(out_dir), "runner": "pool" if ray is None else f"ray ({ray})",
+                "workers": n_workers if ray is None else (workers if ray == "local" else "cluster")}
+        try:
+            _run(logs, jobs_list, todo, rows, n_workers if ray is None else workers, ray, progress)
+        except KeyboardInterrupt:
+            _write_partial_summary(out_dir, info, logs, jobs_list, rows, t0)
+            raise
+        done_rows = [r for r in rows if r is not None]
+        failed = [r["name"] for r in done_rows if r["status"] != "done"]
+        info.update({"wall_seconds": time.perf_counter() - t0, "logs_total": len(done_rows),
+                     "logs_failed": len(failed), "logs_resumed": len(resumed)})
+        paths = write_summary(out_dir, info, done_rows)
     return BatchResult(out=out_dir, rows=done_rows, failed=failed, resumed=resumed, summary=paths)
+
+
+#: The batch's own files in its output folder.
+SUMMARY_NAMES: tuple[str, ...] = ("summary.json", "summary.md", "summary.png")
+
+
+def _discard_leftovers(jobs_list: list[dict[str, Any]]) -> None:
+    """Remove what writers killed before (an earlier batch's workers, a run) left beside or in the
+    logs' output folders: each folder's lock taken for a moment (:func:`gtvo.core.atomic.output_lock`),
+    so a folder another process is writing is left to it (that log's run then says so)."""
+    for job in jobs_list:
+        try:
+            with output_lock(job["out"], (RECORD_NAME,)):
+                pass
+        except InputError:
+            pass
+
+
+def _check_out_outside_logs(out_dir: Path, logs: list[LogSpec]) -> None:
+    """A one-line :class:`InputError` when the batch's output folder is a log's folder or inside
+    one (by file identity: ``..``, symbolic links, bind mounts): nothing is written into a log."""
+    for log in logs:
+        if log.problem is None and log.path.is_dir() and same_or_inside(out_dir, log.path):
+            where = "the log" if identity(out_dir) == identity(log.path) else "inside the log"
+            raise InputError(f"output folder is {where} {log.path} ({log.name!r}); outputs there would mix with "
+                             f"its data: choose another --out", path=out_dir)
+
+
+def _check_no_repeats(logs: list[LogSpec], jobs_list: list[dict[str, Any]], where: str) -> None:
+    """A one-line :class:`InputError` when two entries are the same log (by file identity) with the
+    same format, options and settings: the second would only repeat the first."""
+    seen: dict[Any, str] = {}
+    for log, job in zip(logs, jobs_list):
+        if log.problem is not None:
+            continue
+        key = (identity(log.path), json.dumps({k: v for k, v in job["key"].items() if k != "path"}, sort_keys=True,
+                                              default=str))
+        if key in seen:
+            raise InputError(f"{where}: logs {seen[key]!r} and {log.name!r} are the same log ({log.path}) with the "
+                             f"same settings; give it once, or give each its own settings")
+        seen[key] = log.name
+
+
+def _write_partial_summary(out_dir: Path, info: dict[str, Any], logs: list[LogSpec],
+                           jobs_list: list[dict[str, Any]], rows: list[dict[str, Any] | None], t0: float) -> None:
+    """After Ctrl-C: the summary of what finished, marked ``"partial": true``, the other logs as not
+    run (so that no earlier summary is left beside this batch's outputs). A second Ctrl-C is held
+    back while it is written (the three files come from one batch)."""
+    from gtvo.batching.runners import failure  # noqa: PLC0415
+    from gtvo.core.atomic import deferred_interrupts  # noqa: PLC0415
+
+    with deferred_interrupts():
+        done_rows = []
+        for i, (log, job) in enumerate(zip(logs, jobs_list)):
+            row = rows[i]
+            if row is None:
+                row = summary_row(log, job["key"]["config_id"], Path(job["out"]),
+                                  failure(InterruptedError("not run: the batch was interrupted")), None, False)
+                row["status"] = "not run"
+            done_rows.append(row)
+        failed = [r["name"] for r in done_rows if r["status"] == "failed"]
+        info = {**info, "partial": True, "wall_seconds": time.perf_counter() - t0, "logs_total": len(done_rows),
+                "logs_failed": len(failed), "logs_not_run": sum(1 for r in done_rows if r["status"] == "not run"),
+                "logs_resumed": sum(1 for r in done_rows if r.get("resumed"))}
+        try:
+            write_summary(out_dir, info, done_rows)
+        except Exception:  # noqa: BLE001 - interrupted: the interrupt is what is reported
+            pass
 
 
 def _plan(logs: list[LogSpec], jobs_list: list[dict[str, Any]], resume: bool,
@@ -171,10 +252,14 @@ def _job(log: LogSpec, out_dir: Path, base: Any, max_frames: int | None, frame_s
     from gtvo.config import OdometryConfig  # noqa: PLC0415
 
     config = apply_overrides(base if base is not None else OdometryConfig(), log.config, where=where)
+    if log.problem is None:  # the log folder's wheel.yaml, read like its calibration
+        config, wheel_file = log_wheel_settings(log.path, config)
+        if wheel_file is not None:
+            print(f"gtvo batch: {log.name}: {wheel_settings_line(wheel_file)}", file=sys.stdout)
     options = {"max_frames": max_frames, "frame_step": frame_step, "loop_closure": loop_closure,
                "camera": None, "ground_truth": None, **log.options}
     target = out_dir / log.name
-    if target == log.path or log.path in target.parents or target in log.path.parents:
+    if log.problem is None and (same_or_inside(target, log.path) or same_or_inside(log.path, target)):
         raise InputError(f"{where}: the output folder {target} would overlap the log {log.path}; choose another --out")
     key = canonical({"path": str(log.path), "format": log.format, "options": options,
                      "config_id": config_identity(config)})

@@ -15,10 +15,12 @@ Every problem with the SPEC itself is an :class:`InputError` naming the file and
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from gtvo.core.paths import identity, link_problem, resolved
 from gtvo.errors import InputError
 
 #: Keys a YAML entry may have (besides ``path``).
@@ -60,7 +62,8 @@ class LogSpec:
 def read_spec(spec: str | Path | list[Any], exclude: tuple[Path, ...] = ()) -> list[LogSpec]:
     """The logs of ``spec`` (a folder, a YAML file, or the YAML's list itself), in order.
 
-    ``exclude``: folders not to take for logs (the batch's output folder when it sits inside).
+    ``exclude``: folders not to take for logs (the batch's output folder when it sits inside; by file
+    identity); one that is a recognised log is refused (:class:`InputError`: outputs would go into it).
 
     Raises:
         InputError: a missing SPEC, unreadable YAML, a bad entry, two logs of one name, no logs.
@@ -70,7 +73,8 @@ def read_spec(spec: str | Path | list[Any], exclude: tuple[Path, ...] = ()) -> l
     else:
         path = Path(spec)
         if not path.exists():
-            raise InputError("SPEC not found", path=path)
+            broken = link_problem(path)
+            raise InputError(f"SPEC is {broken}" if broken else "SPEC not found", path=path)
         logs = _from_folder(path, exclude) if path.is_dir() else _from_yaml(path)
     if not logs:
         raise InputError("SPEC holds no logs", path=None if isinstance(spec, list) else spec)
@@ -88,18 +92,28 @@ def _from_folder(folder: Path, exclude: tuple[Path, ...]) -> list[LogSpec]:
     if kind is not None:
         raise InputError(f"SPEC is itself one log ({kind} layout): give the folder that holds it, or run it "
                          f"with gtvo run", path=folder)
-    skip = {p.resolve() for p in exclude}
+    skip = {identity(p) for p in exclude} - {None}
     logs = []
     for entry in sorted(folder.iterdir(), key=lambda p: p.name):
-        if entry.name.startswith(".") or entry.resolve() in skip:
+        if entry.name.startswith("."):
+            continue
+        broken = link_problem(entry)
+        if broken is not None:  # reported as a failed log: a link that cannot be followed is no note
+            logs.append(LogSpec(name=_check_name(entry.name, str(entry)), path=Path(os.path.abspath(entry)),
+                                problem=f"{entry} is {broken}"))
             continue
         try:
             kind = detect_format(entry)
             problem = None
         except InputError as exc:
+            if identity(entry) in skip:
+                continue  # the batch's own output folder inside the SPEC folder
             if not entry.is_dir():
                 continue  # a note or a file of another kind beside the logs
             kind, problem = "auto", f"not a log: {exc}"
+        if identity(entry) in skip:
+            raise InputError(f"the output folder is the log {entry}: its outputs would be written into the log's "
+                             f"data; choose another --out", path=entry)
         name = entry.name if entry.is_dir() else entry.stem
         logs.append(LogSpec(name=_check_name(name, str(entry)), path=entry.resolve(), format=kind, problem=problem))
     return logs
@@ -146,7 +160,8 @@ def _entry(item: Any, number: int, base: Path, where: str) -> LogSpec:
     unknown = sorted(set(item) - {"path", *ENTRY_KEYS})
     if unknown:
         raise InputError(f"{at}: unknown key {unknown[0]!r} (known: path, {', '.join(ENTRY_KEYS)})")
-    log = _resolve(base, item["path"])
+    broken = link_problem((base / Path(item["path"]).expanduser()))
+    log = _resolve(base, item["path"]) if broken is None else Path(os.path.abspath(base / item["path"]))
     default_name = log.name if log.is_dir() or not log.suffix else log.stem
     name = item.get("name", default_name)
     if not isinstance(name, str):
@@ -157,7 +172,8 @@ def _entry(item: Any, number: int, base: Path, where: str) -> LogSpec:
     if not isinstance(config, dict):
         raise InputError(f"{at}: 'config' must be a mapping of settings, got {config!r}")
     options = _options(item, base, at)
-    return LogSpec(name=_check_name(name, at), path=log, format=fmt, config=config, options=options)
+    return LogSpec(name=_check_name(name, at), path=log, format=fmt, config=config, options=options,
+                   problem=None if broken is None else f"{log} is {broken}")
 
 
 def _check_format(fmt: Any, at: str) -> None:
@@ -205,8 +221,14 @@ def _options(item: dict[str, Any], base: Path, at: str) -> dict[str, Any]:
 
 
 def _resolve(base: Path, text: str) -> Path:
+    """``text`` against ``base``, links followed; one that cannot be followed (a loop) is kept as
+    written, made absolute: its log then fails with the reason, the others run."""
     p = Path(text).expanduser()
-    return (p if p.is_absolute() else base / p).resolve()
+    p = p if p.is_absolute() else base / p
+    try:
+        return resolved(p)
+    except InputError:
+        return Path(os.path.abspath(p))
 
 
 def _check_name(name: str, at: str) -> str:

@@ -67,6 +67,8 @@ def summary_markdown(info: dict[str, Any], rows: list[dict[str, Any]]) -> str:
              f"({info.get('workers')} workers) in {info.get('wall_seconds', 0.0):.1f} s. ATE: SE(3)-aligned, "
              f"Sim(3) ATE: aligned with scale, segment drift: KITTI segment translation error. "
              f"Resumed logs are marked *.", "",
+             *([f"**Partial: the batch was interrupted; {info.get('logs_not_run', 0)} logs were not run.**", ""]
+               if info.get("partial") else []),
              "| " + " | ".join(h for _, h, _ in TABLE) + " |",
              "|" + "|".join("---" for _ in TABLE) + "|"]
     for r in rows:
@@ -102,7 +104,7 @@ def plot_summary(rows: list[dict[str, Any]], path: Path) -> Path:
             ax.barh(ys, [0.0 if v is None else v for v in vals], height=h, color=colour, label=label)
         for i, r in enumerate(rows):
             if r["status"] != "done":
-                ax.text(0.0, i, " failed", va="center", ha="left", color="tab:red", fontsize=8)
+                ax.text(0.0, i, f" {r['status']}", va="center", ha="left", color="tab:red", fontsize=8)
         ax.set_yticks(y)
         ax.set_yticklabels(names if k == 0 else [""] * n, fontsize=8)
         ax.invert_yaxis()

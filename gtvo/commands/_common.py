@@ -151,7 +151,7 @@ def flagged_frame_lines(outcomes: dict[str, Any]) -> list[str]:
     """One line per kind of flagged frame, naming them and their reasons (short forms), e.g.
     ``suspect frames: 25, 30, 31 (no image motion while the rig moved / motion reversed ...)``."""
     lines = []
-    for name in ("suspect", "lost", "reinitialised", "wheel_carried", "imu_carried", "recovered", "skipped"):
+    for name in ("frozen", "suspect", "lost", "reinitialised", "wheel_carried", "imu_carried", "recovered", "skipped"):
         frames = outcomes.get(name)
         if not isinstance(frames, list) or not frames:
             continue

@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-from pathlib import Path
+import os
 from typing import Any, Iterator
 
+from gtvo.core.paths import resolved, same_or_inside
 from gtvo.errors import InputError
 
 
@@ -30,6 +31,11 @@ def viewer_observers(args: Any) -> Iterator[list[Any]]:
         yield []
         return
     _check_outside_output_folder(args.rerun, getattr(args, "out", None))
+    _check_outside_the_log(args.rerun, getattr(args, "sequence", None))
+    if args.rerun_connect is not None:
+        check_viewer_answers(args.rerun_connect)
+    # the SDK's own log lines (coloured, into any stderr) would repeat what gtvo says in one line
+    os.environ.setdefault("RUST_LOG", "off")
     from gtvo.io.rerun_log import RerunLogger  # noqa: PLC0415  (rerun-sdk is imported here, not at start-up)
 
     with RerunLogger(save=args.rerun, connect=args.rerun_connect) as logger:
@@ -41,7 +47,40 @@ def _check_outside_output_folder(rrd: str | None, out: str | None) -> None:
     replace that folder as a set (:func:`gtvo.io.outputs.write_run_outputs`)."""
     if rrd is None or out is None:
         return
-    folder, target = Path(out).resolve(), Path(rrd).resolve()
-    if folder in target.parents:
+    folder, target = resolved(out, "output folder"), resolved(rrd, "--rerun file")
+    if folder in target.parents or same_or_inside(target.parent, folder):  # (a folder not yet made: by name)
         raise InputError(f"--rerun {rrd} is inside the output folder {out}, which the run replaces with its "
                          "output set: write the recording beside it")
+
+
+def _check_outside_the_log(rrd: str | None, log: str | None) -> None:
+    """InputError when the ``.rrd`` would be written into the log folder or below it."""
+    if rrd is None or log is None or not os.path.isdir(log):
+        return
+    if same_or_inside(resolved(rrd, "--rerun file").parent, log):
+        raise InputError(f"--rerun {rrd} is inside the log {log}: a recording there would mix with its data; "
+                         f"write it elsewhere")
+
+
+#: Seconds :func:`check_viewer_answers` waits for a viewer to accept a connection.
+CONNECT_TIMEOUT_S = 3.0
+
+
+def check_viewer_answers(address: str, timeout: float = CONNECT_TIMEOUT_S) -> None:
+    """A one-line :class:`InputError` at once when nothing accepts a connection at the viewer's
+    ``host:port`` (the Rerun SDK itself retries for about 10 s and then logs its own lines)."""
+    import socket  # noqa: PLC0415
+    from urllib.parse import urlsplit  # noqa: PLC0415
+
+    try:
+        parts = urlsplit(address)
+        host, port = parts.hostname, parts.port
+    except ValueError:
+        return  # the logger names a malformed address
+    if not host or port is None:
+        return
+    try:
+        socket.create_connection((host, port), timeout=timeout).close()
+    except OSError as exc:
+        raise InputError(f"--rerun-connect {address}: no Rerun viewer answers at {host}:{port} "
+                         f"({exc.strerror or exc}); start `rerun` first, or record with --rerun FILE.rrd") from None

@@ -7,6 +7,7 @@ import json
 
 import numpy as np
 
+from gtvo.core.paths import check_not_an_input
 from gtvo.core.atomic import check_output_file
 from gtvo.wheel_calibration import calibrate, read_motion_pair
 from gtvo.wheel_calibration.plot import plot_trajectories
@@ -36,6 +37,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run the calibration; print text or JSON; optionally plot."""
     if args.plot:
+        check_not_an_input(args.plot, {"odometry file": args.odom, "reference file": args.reference}, "--plot")
         check_output_file(args.plot)
     odom, ref = read_motion_pair(args.odom, args.reference)
     result = calibrate(odom, ref, model=args.model, solver=args.solver, nominal_baseline=args.baseline)

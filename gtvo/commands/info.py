@@ -7,6 +7,7 @@ import argparse
 import json
 
 from gtvo.commands._bag import add_bag_options, bag_options
+from gtvo.datasets import FORMATS
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -17,7 +18,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "unpaired messages; or the one-line reason it would fail. Exit 0 when the log could be "
                     "read, 2 when it cannot (missing, truncated or corrupt).")
     p.add_argument("log", metavar="LOG", help="a sequence folder, a .bag file or a ROS2 bag folder")
-    p.add_argument("--format", choices=("auto", "kitti", "euroc", "tum", "bag"), default="auto",
+    p.add_argument("--format", choices=("auto",) + FORMATS, default="auto",
                    help="dataset layout (default: auto-detect)")
     p.add_argument("--json", action="store_true", help="print the description as JSON")
     add_bag_options(p)

@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from gtvo.core.paths import check_not_an_input
 from gtvo.core.atomic import check_output_file, write_json
 from gtvo.commands._common import parse_floats
 from gtvo.datasets import FORMATS, open_sequence
@@ -27,7 +28,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("loops", help="detect and verify loop closures among the keyframes of a sequence",
                               description="Place recognition over a logged sequence (every K-th frame a keyframe): "
                                           "print the verified loops, or a JSON object with --json.")
-    p.add_argument("sequence", help="dataset folder (KITTI, EuRoC or TUM RGB-D layout)")
+    p.add_argument("sequence", help="a dataset folder or a ROS bag (any --format layout)")
     p.add_argument("--format", default="auto", choices=("auto",) + FORMATS, help="dataset layout (default: auto)")
     p.add_argument("--max-frames", type=int, default=None, help="use only the first frames")
     p.add_argument("--camera", metavar="FX,FY,CX,CY", default=None, help="intrinsics for TUM folders")
@@ -65,6 +66,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--window must be >= 0, got {args.window}")
     options = {} if args.camera is None else {"camera": parse_floats(args.camera, 4, "--camera")}
     if args.out:
+        check_not_an_input(args.out, {"sequence folder": args.sequence}, "--out")
         check_output_file(args.out)
     seq = open_sequence(args.sequence, format=args.format, max_frames=args.max_frames, **options)
     config = LoopDetectorConfig()

@@ -8,6 +8,7 @@ import math
 import sys
 from typing import TYPE_CHECKING
 
+from gtvo.core.paths import check_not_an_input
 from gtvo.core.atomic import check_output_file
 from gtvo.errors import InputError
 
@@ -104,6 +105,7 @@ def run(args: argparse.Namespace) -> int:
     robot_radius = _parse_metres(args.robot_radius, "robot-radius")
     trajectory_xz = None
     if args.out:
+        check_not_an_input(args.out, {"map (--map)": args.map, "trajectory (--trajectory)": args.trajectory}, "--out")
         check_output_file(args.out)
         trajectory_xz = _trajectory_xz(args.trajectory, args.map)
     points = read_point_cloud(args.map)

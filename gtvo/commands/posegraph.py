@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 from gtvo import posegraph as pg
+from gtvo.core.paths import check_not_an_input
 from gtvo.core.atomic import check_output_file
 from gtvo.errors import InputError
 
@@ -47,8 +48,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Read, optimise, report, write."""
-    for path in (args.out, args.plot, args.covariances):
+    for flag, path in (("--out", args.out), ("--plot", args.plot), ("--covariances", args.covariances)):
         if path:
+            check_not_an_input(path, {"pose-graph file": args.file}, flag)
             check_output_file(path)
     if args.max_iterations < 1:
         raise InputError(f"--max-iterations must be >= 1, got {args.max_iterations}")

@@ -1,4 +1,4 @@
-"""``gtvo run``: offline odometry of a logged sequence (KITTI, EuRoC, TUM layouts, ROS bags)."""
+"""``gtvo run``: offline odometry of a logged sequence (any layout of :data:`gtvo.datasets.FORMATS`)."""
 
 from __future__ import annotations
 
@@ -10,6 +10,7 @@ from gtvo.commands._bag import add_bag_options, bag_options
 from gtvo.commands._common import add_odometry_options, describe_solvers, odometry_config, parse_floats, print_report
 from gtvo.commands._viewer import add_viewer_options, viewer_observers
 from gtvo.core.interrupt import outputs_in_place
+from gtvo.datasets import FORMATS
 from gtvo.errors import InputError
 
 
@@ -29,7 +30,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "and write DIR/trajectory.tum, DIR/report.json (with ATE, RPE and drift when ground truth "
                     "exists), DIR/trajectory.png and DIR/points.ply.")
     p.add_argument("sequence", metavar="SEQUENCE_DIR", help="the sequence folder, or a ROS bag (.bag, ROS2 folder)")
-    p.add_argument("--format", choices=("auto", "kitti", "kitti_raw", "euroc", "tum", "bag"), default="auto",
+    p.add_argument("--format", choices=("auto",) + FORMATS, default="auto",
                    help="dataset layout (default: auto-detect)")
     p.add_argument("--out", metavar="DIR", default=None, help="output folder (default gtvo_out/<name>)")
     p.add_argument("--max-frames", type=int, metavar="N", default=None, help="use only the first N frames")

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 
+from gtvo.core.atomic import output_lock
 from gtvo.commands._common import parse_floats
 from gtvo.datasets.bag_writer import write_sequence_bag
 from gtvo.datasets.imu import DEFAULT_NOISE, ImuNoise
@@ -91,10 +92,11 @@ def run(args: argparse.Namespace) -> int:
     seq = make_synthetic_sequence(n_frames=args.frames, width=args.width, height=args.height, motion=args.motion,
                                   noise_sigma=args.noise_sigma, exposure_change=args.exposure_change, seed=args.seed,
                                   wheels=wheels, imu=imu)
-    if args.bag:
-        out = write_sequence_bag(seq, args.out, wheel_radius=SYNTHETIC_WHEEL_RADIUS, progress=not args.no_progress)
-    else:
-        out = write_sequence_kitti(seq, args.out, progress=not args.no_progress)
+    with output_lock(args.out):  # one writer at a time, as gtvo run's
+        if args.bag:
+            out = write_sequence_bag(seq, args.out, wheel_radius=SYNTHETIC_WHEEL_RADIUS, progress=not args.no_progress)
+        else:
+            out = write_sequence_kitti(seq, args.out, progress=not args.no_progress)
     with_wheels = "" if wheels is None else f" with wheel odometry ({wheels.kind})"
     if imu is not None:
         with_wheels += f" with an IMU ({imu.rate_hz:g} Hz)"

@@ -13,8 +13,8 @@ import typing
 from typing import Any, Literal
 
 from gtvo.config.files import _join, _to_plain
-from gtvo.config.tree import OdometryConfig, _dataclass_of
-from gtvo.core.settings import type_hints
+from gtvo.config.tree import OdometryConfig
+from gtvo.core.settings import dataclass_of, type_hints
 
 def field_docs(cls: type) -> dict[str, str]:
     """Each field's text from the ``Attributes:`` section of ``cls``'s docstring (one line each;
@@ -51,7 +51,7 @@ def describe_key(key: str, config: OdometryConfig | None = None) -> tuple[str, A
     *parents, last = key.split(".")
     for name in parents:
         obj = getattr(obj, name)
-        cls = _dataclass_of(type_hints(cls)[name])  # type: ignore[assignment]
+        cls = dataclass_of(type_hints(cls)[name])  # type: ignore[assignment]
     return field_docs(cls).get(last, ""), getattr(obj, last), type_hints(cls)[last]
 
 
@@ -67,7 +67,7 @@ def _reference_rows(cls: type, obj: Any, path: str, lines: list[str]) -> None:
     for f in dataclasses.fields(cls):
         key = _join(path, f.name)
         value = getattr(obj, f.name)
-        sub = _dataclass_of(hints[f.name])
+        sub = dataclass_of(hints[f.name])
         kind = _type_name(hints[f.name])
         default = "(below)" if sub is not None and value is not None else f"`{_yaml_scalar(_to_plain(value, key))}`"
         rng = f.metadata.get("range", "")

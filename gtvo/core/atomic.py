@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import contextlib
 import contextvars
+import errno
+import fcntl
 import json
 import os
 import re
@@ -19,6 +21,7 @@ import threading
 from pathlib import Path
 from typing import IO, Any, Callable, Iterable, Iterator
 
+from gtvo.core.paths import link_problem, resolved, same_or_inside
 from gtvo.errors import InputError
 
 
@@ -61,6 +64,9 @@ def ensure_output_dir(path: str | Path) -> Path:
     the folders it creates are removed again if the work fails.
     """
     path = Path(path)
+    problem = link_problem(path)
+    if problem is not None:
+        raise InputError(f"output folder is {problem}", path=path)
     if path.exists() and not path.is_dir():
         raise InputError("output folder is a file", path=path)
     missing = []
@@ -199,9 +205,8 @@ def check_replaceable_dir(path: str | Path, replaceable: frozenset[str] | set[st
     It may when it does not exist, is empty, or carries :data:`DIR_MARKER` and holds nothing but
     that and entries named in ``replaceable``; never the current folder or one above it.
     """
-    path = Path(path).resolve()
-    cwd = Path.cwd().resolve()
-    if path == cwd or path in cwd.parents:
+    path = resolved(path, "output folder")
+    if same_or_inside(Path.cwd(), path):
         raise InputError("output folder is the current folder or contains it; choose another", path=path)
     if not path.exists():
         return path
@@ -216,6 +221,98 @@ def check_replaceable_dir(path: str | Path, replaceable: frozenset[str] | set[st
         why = f"it holds other files ({listed})" if foreign else f"it was not written by {writer}"
         raise InputError(f"output folder is not empty and {why}; choose a new or empty folder", path=path)
     return path
+
+
+#: The lock file of an output folder ``NAME``, beside it: ``.NAME.lock`` (a lock inside the folder
+#: would go aside with the old set when :func:`atomic_dir` swaps the new one in).
+LOCK_NAME = ".{name}.lock"
+
+
+@contextlib.contextmanager
+def output_lock(path: str | Path, file_names: Iterable[str] = ()) -> Iterator[Path]:
+    """Hold the lock of the output folder ``path`` during the block; yields ``path`` resolved.
+
+    One writer at a time: a second gtvo process that asks for the lock of the same folder
+    (whatever its spelling: the lock file is found by the folder's real path, and a bind mount
+    of the parent reaches the same file) gets a one-line :class:`InputError` at once, instead of
+    both running and the later one silently replacing the earlier one's outputs. The lock is
+    ``fcntl.flock`` on :data:`LOCK_NAME` beside the folder; the system releases it when the
+    process ends in any way (killed too); the file is removed when the block ends.
+
+    Holding the lock, it removes what an earlier writer that was killed left
+    (:func:`discard_unfinished`: gtvo's own staging folders beside ``path``, a set put aside put
+    back, the temporary files of ``file_names`` inside it): no writer can be busy with them.
+    """
+    path = resolved(path, "output folder")
+    above = next(p for p in path.parents if p.exists() or p == p.parent)
+    if not above.is_dir():
+        raise InputError(f"cannot create the output folder ({above} is a file)", path=path)
+    parent = ensure_output_dir(path.parent)
+    lock = parent / LOCK_NAME.format(name=path.name)
+    while True:
+        try:
+            fd = os.open(lock, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o666 & ~_umask())
+        except OSError as exc:
+            raise InputError(f"cannot create the output folder's lock file {lock.name} beside it "
+                             f"({exc.strerror or exc})", path=path) from None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError as exc:
+            holder = _lock_holder(fd)
+            os.close(fd)
+            if exc.errno not in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
+                raise InputError(f"cannot lock the output folder ({exc.strerror or exc})", path=path) from None
+            raise InputError(f"another gtvo process{holder} is writing into this output folder (its lock "
+                             f"{lock.name} is held); wait for it to end or choose another folder",
+                             path=path) from None
+        try:
+            same = os.fstat(fd).st_ino == os.stat(lock).st_ino  # not a file its last holder removed meanwhile
+        except OSError:
+            same = False
+        if same:
+            break
+        os.close(fd)
+    try:
+        os.ftruncate(fd, 0)
+        os.write(fd, f"{os.getpid()}\n".encode())
+        discard_unfinished([path], file_names)
+        yield path
+    finally:
+        try:
+            lock.unlink()
+        except OSError:
+            pass
+        os.close(fd)
+
+
+def _discard_stale_lock(lock: Path) -> bool:
+    """Remove the lock file ``lock`` of a writer that was killed (no process holds it); True if removed.
+    A lock some process holds (this one's included) is left alone."""
+    try:
+        fd = os.open(lock, os.O_RDWR | os.O_CLOEXEC)
+    except OSError:
+        return False
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        os.close(fd)
+        return False
+    try:
+        lock.unlink()
+        return True
+    except OSError:
+        return False
+    finally:
+        os.close(fd)
+
+
+def _lock_holder(fd: int) -> str:
+    """`` (pid N)`` from a held lock file (its holder writes its pid), else ``""``."""
+    try:
+        text = os.pread(fd, 32, 0).decode("ascii", "replace").strip()
+    except OSError:
+        return ""
+    return f" (pid {text})" if text.isdigit() else ""
 
 
 def _swap_in(tmp: Path, path: Path, parent: Path) -> None:
@@ -247,13 +344,17 @@ def discard_unfinished(paths: Iterable[str | Path], file_names: Iterable[str] = 
 
     An earlier folder the writer had put aside (``.NAME.old.*``, killed between the two renames
     of the swap) is put back when ``path`` is missing; the temporary folders beside ``path``
-    (``.NAME.*``) and the temporary files of ``file_names`` inside it are removed.
+    (``.NAME.*``), the temporary files of ``file_names`` inside it and a lock file no process
+    holds any more (:func:`output_lock`) are removed.
 
     Returns:
         The temporary folders and files removed.
     """
     removed: list[Path] = []
     names = list(file_names)
+    for path in map(Path, paths):
+        if _discard_stale_lock(path.parent / LOCK_NAME.format(name=path.name)):
+            removed.append(path.parent / LOCK_NAME.format(name=path.name))
     by_parent: dict[Path, list[Path]] = {}
     for path in map(Path, paths):
         by_parent.setdefault(path.parent, []).append(path)

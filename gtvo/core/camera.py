@@ -27,6 +27,22 @@ def _check_finite_positive(name: str, value: float) -> float:
     return value
 
 
+#: The fields of view (degrees, along one image axis) a pinhole camera may have: a focal length
+#: outside them is a value in the wrong unit (metres, a normalised focal length), a typo or an
+#: overflow, and no image can be tracked with it (the tracker's normal equations overflow or vanish).
+FIELD_OF_VIEW_DEG: tuple[float, float] = (0.1, 179.0)
+
+
+def _check_field_of_view(name: str, focal: float, size: int, axis: str) -> None:
+    """Raise a one-line :class:`InputError` when the focal length ``focal`` (px) over ``size`` px
+    gives a field of view outside :data:`FIELD_OF_VIEW_DEG`."""
+    fov = float(np.degrees(2.0 * np.arctan2(size / 2.0, focal)))
+    low, high = FIELD_OF_VIEW_DEG
+    if not low <= fov <= high:
+        raise InputError(f"camera {name} = {focal:g} px is implausible for an image {size} px {axis}: a field of "
+                         f"view of {fov:.3g} degrees (a pinhole camera's lies between {low:g} and {high:g})")
+
+
 @dataclass(frozen=True)
 class PinholeCamera:
     """An undistorted pinhole camera ``u = fx * x / z + cx``, ``v = fy * y / z + cy``.
@@ -52,6 +68,8 @@ class PinholeCamera:
                 raise InputError(f"camera {name} must be finite, got {getattr(self, name)!r}")
         if int(self.width) <= 0 or int(self.height) <= 0:
             raise InputError(f"camera image size must be positive, got {self.width}x{self.height}")
+        for name, size, axis in (("fx", self.width, "wide"), ("fy", self.height, "high")):
+            _check_field_of_view(name, float(getattr(self, name)), int(size), axis)
         # A principal point off the image is a calibration for another resolution, swapped
         # values, or a misread file; every real camera's lies inside (KITTI's near the centre).
         # Half a pixel of slack past the far edge: a pyramid level (:meth:`scaled`) rounds its

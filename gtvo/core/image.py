@@ -40,6 +40,20 @@ def to_float_gray(image: NDArray, name: str = "image") -> FloatImage:
     return out
 
 
+def as_float_gray(image: NDArray, name: str = "image") -> FloatImage:
+    """``image`` itself when it is float32 gray (H, W) already, the form :func:`to_float_gray`
+    returns and every reader's loader makes; else ``to_float_gray(image, name)``.
+
+    For the images of a frame (:class:`gtvo.datasets.sequence.Frame`), converted and checked once
+    where they were read: a float32 gray image is taken as that and not scanned again. Anything
+    a user hands to the front end's public functions goes through :func:`to_float_gray` instead.
+    """
+    img = np.asarray(image)
+    if img.dtype == np.float32 and img.ndim == 2:
+        return img
+    return to_float_gray(img, name)
+
+
 def to_uint8(image: NDArray, name: str = "image") -> NDArray[np.uint8]:
     """A gray image (float in 8-bit units, uint8 or uint16) as uint8, for OpenCV's 8-bit routines."""
     img = np.asarray(image)

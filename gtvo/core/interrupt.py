@@ -42,13 +42,6 @@ def raise_if_interrupted() -> None:
         raise KeyboardInterrupt
 
 
-def forget_interrupt() -> None:
-    """Say that an interrupt has been handled where it landed (the whole-log refinement stops and
-    the run writes its window-only outputs): later checks no longer raise it."""
-    global _interrupted
-    _interrupted = False
-
-
 def outputs_in_place() -> None:
     """Say that the command's work is done and its outputs are in place: SIGINT is ignored from
     here on (in the main thread; the command only prints and exits), and an interrupt noted so

@@ -19,7 +19,9 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import inspect
 import math
+import types
 import typing
 from typing import Any, Literal
 
@@ -113,3 +115,26 @@ def check_settings(obj: Any) -> None:
 def _describe(rng: str) -> str:
     t = rng.strip()
     return f"in {t}" if t[0] in "[(" else t
+
+
+def check_nested(obj: Any) -> None:
+    """:func:`check_settings` plus: every nested-config field holds its config class (or None
+    where allowed), so a wrong object fails here, naming the field, not deep in a run."""
+    check_settings(obj)
+    hints = type_hints(type(obj))
+    for f in dataclasses.fields(obj):
+        cls, value = dataclass_of(hints[f.name]), getattr(obj, f.name)
+        if cls is not None and not isinstance(value, cls) and not (value is None and _optional(hints[f.name])):
+            raise SettingError(f.name, f"must be a {cls.__name__}, got {value!r}")
+
+
+def _optional(hint: Any) -> bool:
+    return type(None) in typing.get_args(hint) and typing.get_origin(hint) in (typing.Union, types.UnionType)
+
+
+def dataclass_of(hint: Any) -> type | None:
+    """The dataclass of a ``Config`` or ``Config | None`` hint, else None."""
+    for h in (hint, *typing.get_args(hint)):
+        if inspect.isclass(h) and dataclasses.is_dataclass(h):
+            return h
+    return None

@@ -16,6 +16,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 
 from gtvo.errors import InputError, not_a_file
+from gtvo.core.paths import link_problem
 from gtvo.core.lie import QUATERNION_NORM_TOLERANCE
 from gtvo.core.image import to_float_gray
 from gtvo.core.native_output import captured_native_stderr
@@ -29,7 +30,8 @@ FloatArray = NDArray[np.float64]
 def require_dir(path: Path, what: str = "folder") -> Path:
     """``path`` if it is a directory, else InputError naming it."""
     if not path.exists():
-        raise InputError(f"{what} not found", path=path)
+        broken = link_problem(path)
+        raise InputError(f"{what} is {broken}" if broken else f"{what} not found", path=path)
     if not path.is_dir():
         raise InputError(f"{what} is not a folder", path=path)
     return path

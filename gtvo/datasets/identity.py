@@ -53,7 +53,7 @@ def _relative(name: str, root: Path | None) -> str:
         return name
     try:
         return Path(name).resolve().relative_to(Path(root).resolve()).as_posix()
-    except (ValueError, OSError):
+    except (ValueError, OSError, RuntimeError):  # (RuntimeError: a symbolic link loop, a frame skipped)
         return name
 
 

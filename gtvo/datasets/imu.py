@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from gtvo.config.sections.imu import MAX_GAP_S, MIN_RATE_HZ
 from gtvo.datasets.wheel import reading_error
 from gtvo.errors import InputError, show
 
@@ -33,11 +34,6 @@ FloatArray = NDArray[np.float64]
 
 #: Columns of a plain IMU CSV after ``time`` (rad/s, then m/s^2).
 IMU_COLUMNS: tuple[str, ...] = ("wx", "wy", "wz", "ax", "ay", "az")
-#: The lowest median reading rate (Hz) accepted (``imu.min_rate``): preintegration between keyframes
-#: needs several readings per camera frame.
-MIN_RATE_HZ = 50.0
-#: The longest time between two readings (s) accepted (``imu.max_gap``).
-MAX_GAP_S = 0.05
 #: The fastest angular rate accepted (rad/s): 2000 deg/s, the largest range of common MEMS gyros.
 #: Faster readings are degrees per second.
 MAX_GYRO_RAD_S = 35.0

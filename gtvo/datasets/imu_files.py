@@ -30,6 +30,8 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from gtvo.config.sections.imu import ImuConfig
+from gtvo.core.lie import pose_from_xyz_quaternion
 from gtvo.datasets._common import parse_float_table, read_rows, require_file
 from gtvo.datasets.imu import (DEFAULT_NOISE, IMU_COLUMNS, MAX_GAP_S, MIN_RATE_HZ, FloatArray, ImuMeasurements,
                                ImuNoise, check_imu_readings)
@@ -48,7 +50,7 @@ _NOISE_KEYS = ("gyroscope_noise_density", "accelerometer_noise_density", "gyrosc
 @dataclass(frozen=True)
 class ImuReadOptions:
     """What turns logged IMU readings into :class:`ImuMeasurements` where the files are silent (the
-    config's ``imu:`` section, :meth:`gtvo.config.imu.ImuConfig.read_options`).
+    config's ``imu:`` section, :func:`imu_read_options`).
 
     Attributes:
         enabled: False: no IMU is read (``--no-imu``).
@@ -67,6 +69,18 @@ class ImuReadOptions:
     time_shift: float = 0.0
     min_rate: float = MIN_RATE_HZ
     max_gap: float = MAX_GAP_S
+
+
+def imu_read_options(config: ImuConfig) -> ImuReadOptions:
+    """The settings the IMU readers take, from the config's ``imu:`` section (the readers'
+    ``imu_options``, :func:`gtvo.datasets.open_sequence`)."""
+    noise = None
+    if config.gyro_noise_density is not None:
+        noise = ImuNoise(config.gyro_noise_density, config.accel_noise_density, config.gyro_random_walk,  # type: ignore[arg-type]
+                         config.accel_random_walk, "config imu:")  # type: ignore[arg-type]
+    T = None if config.imu_in_camera is None else pose_from_xyz_quaternion(config.imu_in_camera)
+    return ImuReadOptions(enabled=config.enabled, topic=config.topic, noise=noise, T_cam_imu=T,
+                          time_shift=config.time_shift, min_rate=config.min_rate, max_gap=config.max_gap)
 
 
 @dataclass(frozen=True)

@@ -21,7 +21,7 @@ class LogInfo:
 
     Attributes:
         path: the log (folder, ``.bag`` file or ROS2 bag folder).
-        format: ``kitti``, ``euroc``, ``tum`` or ``bag``.
+        format: a name of :data:`gtvo.datasets.FORMATS` (the reader that opened it).
         topics: for bags, every topic as ``{name, msgtype, count, rate_hz}`` (rate = count over
             the bag's duration); empty for folders.
         usable: True when ``gtvo run`` could open it (with the options given).

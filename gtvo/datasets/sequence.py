@@ -14,17 +14,25 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gtvo.core.camera import PinholeCamera, StereoCamera
+from gtvo.core.image import as_float_gray
 from gtvo.datasets.imu import ImuMeasurements
 from gtvo.datasets.wheel import WheelOdometry
 from gtvo.errors import InputError
 
+#: Image ``i`` of a sequence: float32 gray for left and right as a reader makes it (or any image
+#: :func:`gtvo.core.image.to_float_gray` converts: :class:`Sequence` converts it, once), metres for depth.
 ImageLoader = Callable[[int], NDArray]
 SequenceKind = Literal["stereo", "rgbd"]
 
 
 @dataclass(frozen=True)
 class Frame:
-    """One time step: index, timestamp (s) and its images, loaded when the frame is made."""
+    """One time step: index, timestamp (s) and its images, loaded when the frame is made.
+
+    ``left`` and ``right`` are float32 gray images (:func:`gtvo.core.image.to_float_gray`),
+    converted once where they were read (:meth:`Sequence.left`); the odometry uses them as they
+    are. Images of another type given here are converted once, now.
+    """
 
     index: int
     timestamp: float
@@ -32,6 +40,11 @@ class Frame:
     right: NDArray[np.float32] | None = None
     depth: NDArray[np.float32] | None = None  # metres, 0 = no measurement (RGB-D)
     gt_T_world_cam: NDArray[np.float64] | None = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "left", as_float_gray(self.left, f"frame {self.index} left image"))
+        if self.right is not None:
+            object.__setattr__(self, "right", as_float_gray(self.right, f"frame {self.index} right image"))
 
 
 @dataclass
@@ -104,14 +117,14 @@ class Sequence:
         return self.gt_poses is not None and bool(np.any(np.isfinite(self.gt_poses[:, 0, 0])))
 
     def left(self, i: int) -> NDArray[np.float32]:
-        """Left (or RGB-D colour, as gray) image ``i``, float32 gray."""
-        return self._checked(self.load_left(i), i, "left")
+        """Left (or RGB-D colour, as gray) image ``i``, float32 gray (:meth:`_gray`)."""
+        return self._gray(self._checked(self.load_left(i), i, "left"), i, "left")
 
     def right(self, i: int) -> NDArray[np.float32]:
-        """Right image ``i`` (stereo only)."""
+        """Right image ``i`` (stereo only), float32 gray (:meth:`_gray`)."""
         if self.load_right is None:
             raise InputError(f"sequence {self.name} has no right images")
-        return self._checked(self.load_right(i), i, "right")
+        return self._gray(self._checked(self.load_right(i), i, "right"), i, "right")
 
     def depth(self, i: int) -> NDArray[np.float32]:
         """Metric depth image ``i`` (RGB-D only), metres, 0 where unknown."""
@@ -166,6 +179,14 @@ class Sequence:
                        load_right=pick(self.load_right), load_depth=pick(self.load_depth),
                        gt_poses=None if self.gt_poses is None else self.gt_poses[idx],
                        frame_names=[self.frame_names[i] for i in idx])
+
+    def _gray(self, img: NDArray, i: int, which: str) -> NDArray[np.float32]:
+        """The loader's image as float32 gray: the image itself when the loader converted it (every
+        reader's does, :func:`gtvo.core.image.to_float_gray`), else converted here, once."""
+        try:
+            return as_float_gray(img, f"{which} image")
+        except InputError as exc:
+            raise InputError(str(exc), path=self.frame_names[i] if i < len(self.frame_names) else None) from None
 
     def _checked(self, img: NDArray, i: int, which: str) -> NDArray[np.float32]:
         h, w = self.pinhole.height, self.pinhole.width

@@ -25,7 +25,7 @@ from gtvo.errors import InputError, show
 FloatArray = NDArray[np.float64]
 
 #: ``T_base_cam`` of the synthetic robot as ``[x, y, z, qx, qy, qz, qw]``: a level, forward-looking
-#: camera (``gtvo.config.wheel.FORWARD_CAMERA_ON_BASE``'s rotation) 0.3 m ahead of the axle's
+#: camera (``gtvo.config.sections.wheel.FORWARD_CAMERA_ON_BASE``'s rotation) 0.3 m ahead of the axle's
 #: centre, 0.1 m right of it and 0.8 m above: in a turn the camera's path is not the base's.
 SYNTHETIC_BASE_TO_CAMERA: tuple[float, ...] = (0.3, -0.1, 0.8, -0.5, 0.5, -0.5, 0.5)
 #: The yaw rate's swing: its amplitude (deg per frame) and period (frames): a slalom whose heading

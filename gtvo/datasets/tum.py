@@ -117,9 +117,10 @@ def read_tum(root: Path, max_frames: int | None = None, camera: tuple[float, flo
     shape = (height, width)
     try:
         pinhole = PinholeCamera(fx, fy, cx, cy, width, height)
-    except InputError as exc:
-        where = "the given camera (--camera)" if camera is not None else "TUM's published intrinsics"
-        raise InputError(f"{where}: {exc}", path=rgb_paths[0]) from None
+    except InputError as exc:  # the cause named first: the --camera value, else the published values for this image
+        if camera is not None:
+            raise InputError(f"--camera {show(camera)}: {exc}") from None
+        raise InputError(f"TUM's published intrinsics: {exc}", path=rgb_paths[0]) from None
     return Sequence(
         name=root.resolve().name, kind="rgbd", camera=pinhole,
         timestamps=times, load_left=GrayImageLoader(rgb_paths, shape, "colour"),

@@ -25,6 +25,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from gtvo.config.sections.wheel import DEFAULT_NOMINAL_BASELINE
 from gtvo.core.lie import invert_poses
 from gtvo.errors import InputError, show
 
@@ -33,15 +34,6 @@ WheelKind = Literal["pose", "arcs"]
 
 #: Columns of each kind, in the order of ``values`` (and of the CSV header, after ``time``).
 WHEEL_COLUMNS: dict[str, tuple[str, ...]] = {"pose": ("x", "y", "theta"), "arcs": ("left", "right")}
-#: The largest time between two consecutive readings that the readers accept (s); a longer gap is
-#: refused, naming the row after it (``wheel.max_gap`` in the config).
-MAX_GAP_S = 1.0
-#: The nominal track width (m) when none is configured (``wheel.nominal_baseline``).
-DEFAULT_NOMINAL_BASELINE = 0.5
-#: The fastest a wheel (arcs) or the base (pose) may move between two readings that the readers
-#: accept (m/s, 180 km/h; ``wheel.max_speed``): faster is refused, naming the row, as readings in
-#: the wrong unit (encoder ticks without ``wheel.tick_scale``, millimetres).
-MAX_SPEED_M_S = 50.0
 
 
 def check_readings(times: ArrayLike, values: ArrayLike, kind: str, source: str,

@@ -11,44 +11,17 @@ Times are seconds in the sequence's clock. ``#`` starts a comment line; blank li
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from gtvo.config.sections.wheel import WheelReadOptions
 from gtvo.datasets._common import parse_float_table, read_rows
-from gtvo.datasets.wheel import (DEFAULT_NOMINAL_BASELINE, MAX_GAP_S, MAX_SPEED_M_S, WHEEL_COLUMNS, WheelOdometry,
-                                 check_readings, check_speed)
+from gtvo.datasets.wheel import WHEEL_COLUMNS, WheelOdometry, check_readings, check_speed
 from gtvo.errors import InputError
 
 #: The name of the wheel odometry file beside a sequence (inside its folder).
 WHEEL_CSV = "wheel_odometry.csv"
-
-
-@dataclass(frozen=True)
-class WheelReadOptions:
-    """What turns logged wheel readings into :class:`WheelOdometry` (the config's ``wheel:`` section,
-    :meth:`gtvo.config.wheel.WheelConfig.read_options`).
-
-    Attributes:
-        topic: the bag topic of the wheel odometry; None: the one candidate (docs/wheel_odometry.md);
-            ``"none"``: no wheel odometry from the bag.
-        tick_scale: metres per unit of a file's ``left, right`` columns.
-        nominal_baseline: the nominal track width b0 (m).
-        wheel_radius: metres per radian of a JointState wheel position; None: JointState refused.
-        left_joint, right_joint: JointState joint names; None: the names containing left / right.
-        max_gap: the longest gap between readings (s) accepted.
-        max_speed: the fastest motion between readings (m/s, after ``tick_scale``) accepted.
-    """
-
-    topic: str | None = None
-    tick_scale: float = 1.0
-    nominal_baseline: float = DEFAULT_NOMINAL_BASELINE
-    wheel_radius: float | None = None
-    left_joint: str | None = None
-    right_joint: str | None = None
-    max_gap: float = MAX_GAP_S
-    max_speed: float = MAX_SPEED_M_S
 
 
 def read_wheel_csv(path: str | Path, options: WheelReadOptions = WheelReadOptions()) -> WheelOdometry:

@@ -19,52 +19,15 @@ Pixels within ``border`` of the image edge are never picked.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 from numpy.typing import NDArray
 
-from gtvo.core.settings import check_settings, setting
+from gtvo.config.sections.frontend import DEFAULT_BORDER, PATTERN_RADIUS, PointSelectionConfig
 from gtvo.core.timing import timed
 from gtvo.errors import InputError
 from gtvo.frontend._compiled import block_medians, gradient_norm, pick_cells, smooth_block_thresholds
-from gtvo.core.image import image_gradients, to_float_gray
+from gtvo.core.image import FloatImage, image_gradients, to_float_gray
 
-#: Radius of the 8-pixel DSO pattern and of the 5x5 stereo patch.
-PATTERN_RADIUS = 2
-#: Default free border: pattern radius + 6 px margin (room for the coarse pyramid levels).
-DEFAULT_BORDER = PATTERN_RADIUS + 6
-
-
-@dataclass(frozen=True)
-class PointSelectionConfig:
-    """Settings of :func:`select_points` (the target count is the caller's: points per keyframe).
-
-    Attributes:
-        border: pixels kept free at each image side (pattern radius + a margin for the coarse
-            pyramid levels).
-        block: side of the threshold blocks (px; DSO: 32).
-        threshold_offset: added to each block's median gradient magnitude (grey levels; DSO's
-            ``minGradHistAdd`` = 7).
-        levels: number of cell levels (s, 2s, 4s, ...).
-        downweight: threshold factor per extra cell level.
-        max_iterations: iterations adapting the cell size to the target count.
-        tolerance: accept a count within ``[target, (1 + tolerance) target]`` without iterating
-            further (the surplus is then subsampled away).
-        seed: seed of the random subsample.
-    """
-
-    border: int = setting(DEFAULT_BORDER, "[0, 1000]")
-    block: int = setting(32, "[1, 1024]")
-    threshold_offset: float = setting(7.0, "[0, 255]")
-    levels: int = setting(3, "[1, 10]")
-    downweight: float = setting(0.75, "(0, 1]")
-    max_iterations: int = setting(6, "[1, 100]")
-    tolerance: float = setting(0.25, "[0, 10]")
-    seed: int = setting(0, "[0, 4294967295]")
-
-    def __post_init__(self) -> None:
-        check_settings(self)
 
 
 #: The default point selection (the default argument of :func:`select_points`).
@@ -117,7 +80,6 @@ def _threshold_grid(grad_mag: NDArray[np.float32], block: int, threshold_offset:
     return smooth_block_thresholds(med, np.float32(threshold_offset))
 
 
-@timed("point_selection")
 def select_points(image: NDArray, target: int = 2000,
                   config: PointSelectionConfig = DEFAULT_POINT_SELECTION) -> NDArray[np.float64]:
     """Select about ``target`` well-spread high-gradient pixels of a gray image.
@@ -133,7 +95,14 @@ def select_points(image: NDArray, target: int = 2000,
         (N, 2) float64 pixel coordinates ``(u, v)`` (integers, pixel centres), sorted by row then
         column. Empty (0, 2) when nothing passes the thresholds (e.g. a flat image).
     """
-    img = to_float_gray(image)
+    return select_points_float(to_float_gray(image), target, config)
+
+
+@timed("point_selection")
+def select_points_float(img: FloatImage, target: int = 2000,
+                        config: PointSelectionConfig = DEFAULT_POINT_SELECTION) -> NDArray[np.float64]:
+    """:func:`select_points` of a float32 gray image :func:`gtvo.core.image.to_float_gray` made
+    already (a frame's image, converted where it was read), not converted or checked again."""
     if int(target) < 1:
         raise InputError(f"point-selection target must be >= 1, got {target}")
     h, w = img.shape

@@ -5,13 +5,11 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
+from gtvo.config.sections.frontend import DEPTH_SIGMA_MODEL
 from gtvo.core.timing import timed
-from gtvo.frontend.point_selection import DEFAULT_POINT_SELECTION, PointSelectionConfig, select_points
+from gtvo.frontend.point_selection import DEFAULT_POINT_SELECTION, PointSelectionConfig, select_points_float
 from gtvo.frontend.stereo_depth import KeyframePoints
 
-#: ``(s0, s2)`` of a structured-light sensor's depth noise ``sigma_z = s0 + s2 z^2`` (m): the
-#: default of ``OdometryConfig.frontend.depth_sigma_model``.
-DEPTH_SIGMA_MODEL: tuple[float, float] = (0.0012, 0.0019)
 
 
 @timed("stereo_search")  # the keyframe's depths (from the sensor): the stereo search's stage
@@ -22,9 +20,10 @@ def rgbd_keyframe_points(image: NDArray[np.float32], depth: NDArray[np.float32],
 
     The depth noise ``sigma_z = s0 + s2 z^2`` (structured-light sensors) becomes an inverse-depth
     variance ``V = sigma_z^2 / z^4`` (first-order propagation through ``d = 1/z``). ``selection``:
-    the point selection's settings (default :class:`PointSelectionConfig`'s).
+    the point selection's settings (default :class:`PointSelectionConfig`'s). ``image``: float32
+    gray as :func:`gtvo.core.image.to_float_gray` makes it (a frame's image), not checked again.
     """
-    px = select_points(image, target, selection)
+    px = select_points_float(image, target, selection)
     iu = np.rint(px[:, 0]).astype(np.intp)
     iv = np.rint(px[:, 1]).astype(np.intp)
     z = np.asarray(depth, dtype=np.float64)[iv, iu]

@@ -8,6 +8,13 @@ the sliding window estimates it from the temporal residuals. ``delta_y`` makes t
 which a pair shows: :func:`estimate_vertical_offset` finds it by a 2-D search, and
 :func:`correct_right_image` resamples a right image so that the 1-D stereo search
 (:func:`gtvo.frontend.stereo_inverse_depth`) sees a rectified pair.
+
+Whether a pair can carry the offset at all is measured against its own content
+(:func:`stereo_contrast`): the offset is a fraction of a pixel read from how the intensity changes
+across pixels, and the estimators read it with noise levels fixed in grey levels (the stereo
+search's ``sigma_intensity``, the window's ``sigma_I``), so a log too dark or too flat gives
+offsets that are artefacts of its low contrast (docs/window.md, "Rig calibration", "Too dark or
+too flat to calibrate").
 """
 
 from __future__ import annotations
@@ -19,14 +26,69 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from gtvo.core.camera import StereoCamera
-from gtvo.core.image import bilinear_sample, image_gradients, to_float_gray
+from gtvo.core.image import FloatImage, as_float_gray, bilinear_sample, image_gradients, to_float_gray
 from gtvo.errors import InputError
-from gtvo.frontend.stereo_depth import PATCH_5X5, StereoSearchConfig, stereo_inverse_depth
+from gtvo.frontend.image_noise import image_noise_sigma
+from gtvo.frontend.stereo_depth import PATCH_5X5, StereoSearchConfig, stereo_inverse_depth_float
 
 FloatArray = NDArray[np.float64]
 
 #: Fewest matched points for a vertical offset estimate (fewer: no estimate).
 MIN_OFFSET_POINTS = 20
+#: The rig offset is estimated only when the first pair's points have a median gradient of at
+#: least this (grey levels per px). The offset estimates were validated down to 15 (the synthetic
+#: logs; EuRoC 23, KITTI 50, the raw drive 57); on KITTI_sequence_1 darkened to a tenth of its
+#: exposure (10 grey levels per px) the first pair's vertical offset moves from -0.04..-0.08 px to
+#: -0.21..-0.28 px, at a twentieth (5.4) to -0.29..-0.62 px, with its per-point spread unchanged:
+#: a bias of the low contrast, not noise (docs/window.md, "Too dark or too flat to calibrate").
+MIN_OFFSET_CONTRAST = 12.0
+#: ... and a median gradient at least this many times the images' noise (their own, estimated
+#: from the image, with the 8-bit quantisation's 1/sqrt(12) grey levels in quadrature): a step of
+#: a fifth of a pixel must change a point's intensity by more than the noise.
+MIN_OFFSET_CONTRAST_TO_NOISE = 5.0
+
+
+@dataclass(frozen=True)
+class StereoContrast:
+    """The contrast a stereo pair's points offer the rig offset (:func:`stereo_contrast`).
+
+    Attributes:
+        gradient: the median gradient magnitude of the left image at the points (grey levels / px).
+        noise: the left image's noise (:func:`gtvo.frontend.image_noise.image_noise_sigma`) and its
+            quantisation (1/sqrt(12) grey levels) in quadrature (grey levels).
+    """
+
+    gradient: float
+    noise: float
+
+    @property
+    def to_noise(self) -> float:
+        """``gradient / noise``: how far above the noise a one-pixel step at a point rises."""
+        return self.gradient / self.noise if self.noise > 0 else float("inf")
+
+    def too_weak(self) -> str | None:
+        """Why the pair cannot carry the rig offset (one line), or None when it can:
+        :data:`MIN_OFFSET_CONTRAST`, :data:`MIN_OFFSET_CONTRAST_TO_NOISE`."""
+        figures = (f"median gradient {self.gradient:.1f} grey levels per px at the points, "
+                   f"{self.to_noise:.1f} times the images' noise of {self.noise:.2f}")
+        if self.gradient < MIN_OFFSET_CONTRAST:
+            return (f"the images are too dark or too flat to calibrate the rig ({figures}; at least "
+                    f"{MIN_OFFSET_CONTRAST:g} grey levels per px needed)")
+        if self.to_noise < MIN_OFFSET_CONTRAST_TO_NOISE:
+            return (f"the images are too noisy for their contrast to calibrate the rig ({figures}; at least "
+                    f"{MIN_OFFSET_CONTRAST_TO_NOISE:g} times needed)")
+        return None
+
+
+def stereo_contrast(left: ArrayLike, pixels: ArrayLike) -> StereoContrast:
+    """The :class:`StereoContrast` of a left image (grey levels) at its selected ``pixels`` (N, 2)."""
+    img = as_float_gray(left, "left image")
+    px = np.asarray(pixels, dtype=float).reshape(-1, 2)
+    gx, gy = image_gradients(img)
+    u = np.clip(np.rint(px[:, 0]).astype(int), 0, img.shape[1] - 1)
+    v = np.clip(np.rint(px[:, 1]).astype(int), 0, img.shape[0] - 1)
+    gradient = float(np.median(np.hypot(gx[v, u], gy[v, u]))) if len(px) else 0.0
+    return StereoContrast(gradient, float(np.hypot(image_noise_sigma(img), 1.0 / np.sqrt(12.0))))
 
 
 @dataclass(frozen=True)
@@ -49,7 +111,12 @@ class VerticalOffset:
 def correct_right_image(right: ArrayLike, offset: ArrayLike | None) -> NDArray[np.float32]:
     """The right image resampled as the rectified rig would have seen it: ``R'(u, v) = R(u + dx, v + dy)``
     (bilinear, border replicated). A zero or None offset returns the gray image unchanged."""
-    img = to_float_gray(right, "right image")
+    return correct_right_image_float(to_float_gray(right, "right image"), offset)
+
+
+def correct_right_image_float(img: FloatImage, offset: ArrayLike | None) -> NDArray[np.float32]:
+    """:func:`correct_right_image` of an image :func:`gtvo.core.image.to_float_gray` made already (a
+    frame's image, converted where it was read), not converted or checked again."""
     if offset is None:
         return img
     dx, dy = (float(x) for x in np.asarray(offset, dtype=float).reshape(2))
@@ -126,8 +193,15 @@ def estimate_vertical_offset(left: ArrayLike, right: ArrayLike, stereo_camera: S
     Returns None when fewer than :data:`MIN_OFFSET_POINTS` points match at any row shift or vote
     (the shift is too large for any stereo match to survive, or the images hold no texture).
     """
-    left_f = to_float_gray(left, "left image")
-    right_f = to_float_gray(right, "right image")
+    return estimate_vertical_offset_float(to_float_gray(left, "left image"), to_float_gray(right, "right image"),
+                                          stereo_camera, pixels, max_disparity=max_disparity, search_rows=search_rows)
+
+
+def estimate_vertical_offset_float(left_f: FloatImage, right_f: FloatImage, stereo_camera: StereoCamera,
+                                   pixels: ArrayLike, *, max_disparity: int = 128,
+                                   search_rows: int = 2) -> VerticalOffset | None:
+    """:func:`estimate_vertical_offset` of a pair :func:`gtvo.core.image.to_float_gray` made already
+    (a frame's images, converted where they were read), not converted or checked again."""
     px = np.asarray(pixels, dtype=float).reshape(-1, 2)
     if int(search_rows) < 0:
         raise InputError(f"search_rows must be >= 0, got {search_rows}")
@@ -135,8 +209,8 @@ def estimate_vertical_offset(left: ArrayLike, right: ArrayLike, stereo_camera: S
     results = {}
 
     def search(k: int) -> None:
-        results[k] = stereo_inverse_depth(left_f, correct_right_image(right_f, (0.0, k)), stereo_camera, px,
-                                          StereoSearchConfig(max_disparity=max_disparity))
+        results[k] = stereo_inverse_depth_float(left_f, correct_right_image_float(right_f, (0.0, k)), stereo_camera,
+                                                px, StereoSearchConfig(max_disparity=max_disparity))
         counts[k] = int(np.count_nonzero(results[k].valid))
 
     for k in (-1, 0, 1)[1 - min(int(search_rows), 1):2 + min(int(search_rows), 1)]:

@@ -38,9 +38,9 @@ from gtvo.core.camera import StereoCamera
 from gtvo.core.timing import timed
 from gtvo.errors import InputError
 from gtvo.frontend._compiled import bilinear_with_gradient_x, gradients_at, zssd_costs
-from gtvo.frontend.point_selection import DEFAULT_POINT_SELECTION, PointSelectionConfig, select_points
+from gtvo.frontend.point_selection import DEFAULT_POINT_SELECTION, PointSelectionConfig, select_points_float
 from gtvo.frontend.stereo_geometry import disparity_variance, epipolar_direction
-from gtvo.core.image import bilinear_sample, check_same_size, image_gradients, to_float_gray
+from gtvo.core.image import FloatImage, bilinear_sample, check_same_size, image_gradients, to_float_gray
 from gtvo.frontend.stereo_types import (DEFAULT_STEREO_SEARCH, KeyframePoints, Rejection, StereoDepthResult,
                                        StereoSearchConfig)
 
@@ -118,7 +118,6 @@ def _integer_search(src: NDArray, dst: NDArray, u: NDArray, v: NDArray, pattern:
                       np.ascontiguousarray(disparities, dtype=np.int64), int(sign))
 
 
-@timed("stereo_search")
 def stereo_inverse_depth(left: NDArray, right: NDArray, stereo_camera: StereoCamera, pixels: ArrayLike,
                          config: StereoSearchConfig = DEFAULT_STEREO_SEARCH,
                          clip_range: tuple[float, float] | None = DEFAULT_CLIP_RANGE) -> StereoDepthResult:
@@ -141,7 +140,17 @@ def stereo_inverse_depth(left: NDArray, right: NDArray, stereo_camera: StereoCam
     Returns:
         A :class:`StereoDepthResult`; never NaN.
     """
-    left_f, right_f, px = _checked_pair(left, right, stereo_camera, pixels)
+    return stereo_inverse_depth_float(to_float_gray(left, "left image"), to_float_gray(right, "right image"),
+                                      stereo_camera, pixels, config, clip_range)
+
+
+@timed("stereo_search")
+def stereo_inverse_depth_float(left_f: FloatImage, right_f: FloatImage, stereo_camera: StereoCamera,
+                               pixels: ArrayLike, config: StereoSearchConfig = DEFAULT_STEREO_SEARCH,
+                               clip_range: tuple[float, float] | None = DEFAULT_CLIP_RANGE) -> StereoDepthResult:
+    """:func:`stereo_inverse_depth` of a pair :func:`gtvo.core.image.to_float_gray` made already (a
+    frame's images, converted where they were read), not converted or checked again."""
+    px = _checked_pair(left_f, right_f, stereo_camera, pixels)
     pat = _as_pattern(config.pattern)
     result = _match(left_f, right_f, stereo_camera, px, pat, config)
     if not config.equalize_gain:
@@ -149,11 +158,8 @@ def stereo_inverse_depth(left: NDArray, right: NDArray, stereo_camera: StereoCam
     return _equalized_search(left_f, right_f, stereo_camera, px, pat, config, clip_range, result)
 
 
-def _checked_pair(left: NDArray, right: NDArray, stereo_camera: StereoCamera,
-                  pixels: ArrayLike) -> tuple[NDArray[np.float32], NDArray[np.float32], FloatArray]:
-    """The pair as float gray images and the pixels as an (N, 2) array, checked (one-line errors)."""
-    left_f = to_float_gray(left, "left image")
-    right_f = to_float_gray(right, "right image")
+def _checked_pair(left_f: FloatImage, right_f: FloatImage, stereo_camera: StereoCamera, pixels: ArrayLike) -> FloatArray:
+    """The pixels as an (N, 2) array, checked with the float gray pair's sizes (one-line errors)."""
     check_same_size(left_f, right_f, "stereo pair")
     if left_f.shape != stereo_camera.left.shape:
         raise InputError(f"stereo images are {left_f.shape[1]}x{left_f.shape[0]}, the camera expects "
@@ -165,7 +171,7 @@ def _checked_pair(left: NDArray, right: NDArray, stereo_camera: StereoCamera,
         raise InputError("pixels contain NaN or infinite values")
     if not np.all(px == np.round(px)):
         raise InputError("pixels must be integer pixel centres (as select_points returns)")
-    return left_f, right_f, px
+    return px
 
 
 def _match(left_f: NDArray[np.float32], right_f: NDArray[np.float32], stereo_camera: StereoCamera, px: FloatArray,
@@ -372,9 +378,18 @@ def init_keyframe_points(left: NDArray, right: NDArray, stereo_camera: StereoCam
     ``clip_range``: the search's (:func:`stereo_inverse_depth`). Typically 60-80 % of the
     selected points survive on KITTI (docs/frontend.md).
     """
-    left_f = to_float_gray(left, "left image")
-    pixels = select_points(left_f, target, selection)
-    res = stereo_inverse_depth(left_f, right, stereo_camera, pixels, stereo, clip_range)
+    return init_keyframe_points_float(to_float_gray(left, "left image"), to_float_gray(right, "right image"),
+                                      stereo_camera, target, selection, stereo, clip_range)
+
+
+def init_keyframe_points_float(left_f: FloatImage, right_f: FloatImage, stereo_camera: StereoCamera,
+                               target: int = 2000, selection: PointSelectionConfig = DEFAULT_POINT_SELECTION,
+                               stereo: StereoSearchConfig = DEFAULT_STEREO_SEARCH,
+                               clip_range: tuple[float, float] | None = DEFAULT_CLIP_RANGE) -> KeyframePoints:
+    """:func:`init_keyframe_points` of a pair :func:`gtvo.core.image.to_float_gray` made already (a
+    frame's images, converted where they were read), not converted or checked again."""
+    pixels = select_points_float(left_f, target, selection)
+    res = stereo_inverse_depth_float(left_f, right_f, stereo_camera, pixels, stereo, clip_range)
     keep = res.valid
     px = pixels[keep]
     return KeyframePoints(

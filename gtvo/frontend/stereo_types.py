@@ -6,61 +6,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from enum import IntEnum
-from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
 
-from gtvo.core.settings import SettingError, check_settings, setting
+from gtvo.config.sections.frontend import StereoSearchConfig
 
 FloatArray = NDArray[np.float64]
-
-
-@dataclass(frozen=True)
-class StereoSearchConfig:
-    """Settings of the stereo search :func:`stereo_inverse_depth` (its keyword defaults are these).
-
-    Attributes:
-        min_disparity: smallest integer disparity searched (px).
-        max_disparity: largest integer disparity searched (px).
-        pattern: the matching pattern, ``"patch5x5"`` (a full 5x5 patch) or ``"dso8"`` (DSO's 8 pixels).
-        disparity_offset: added to the disparity before the conversion to inverse depth, for pairs
-            whose principal points differ (Middlebury's ``doffs = cx1 - cx0``); 0 for KITTI-style
-            rectification.
-        uniqueness_ratio: reject a match when ``best >= uniqueness_ratio * second best`` (second
-            best at least 2 px from the best).
-        max_relative_cost: reject when the refined mean squared residual per pattern pixel exceeds
-            ``2 sigma_intensity^2 + max_relative_cost * var(L)`` (``var(L)``: the left pattern's
-            intensity variance).
-        gauss_newton_iterations: 1-D Gauss-Newton steps after the parabola fit (0: parabola only).
-        left_right_check: search back from the right match into the left image.
-        lr_tolerance: allowed left-right discrepancy (px).
-        sigma_intensity: image noise standard deviation sigma_I of the disparity variance (grey levels).
-        sigma_line: epipolar-line position standard deviation sigma_l (px; rectification error).
-        max_disparity_std: reject when the disparity standard deviation exceeds this (px; inf keeps all).
-        equalize_gain: when the matched points say the right camera's gain differs from the left's
-            by more than 10 %, match again against the right image divided by that gain.
-    """
-
-    min_disparity: int = setting(0, "[0, 10000]")
-    max_disparity: int = setting(128, "[1, 10000]")
-    pattern: Literal["patch5x5", "dso8"] = "patch5x5"
-    disparity_offset: float = setting(0.0, "[-10000, 10000]")
-    uniqueness_ratio: float = setting(0.9, "(0, 1]")
-    max_relative_cost: float = setting(0.4, "[0, 100]")
-    gauss_newton_iterations: int = setting(3, "[0, 100]")
-    left_right_check: bool = True
-    lr_tolerance: float = setting(1.0, "[0, 100]")
-    sigma_intensity: float = setting(2.0, "[0, 100]")
-    sigma_line: float = setting(0.3, "[0, 100]")
-    max_disparity_std: float = setting(2.0, "(0, inf]")
-    equalize_gain: bool = True
-
-    def __post_init__(self) -> None:
-        check_settings(self)
-        if self.min_disparity >= self.max_disparity:
-            raise SettingError("max_disparity", f"must be above min_disparity ({self.min_disparity}), "
-                                                f"got {self.max_disparity}")
 
 
 DEFAULT_STEREO_SEARCH = StereoSearchConfig()

@@ -1,4 +1,4 @@
-"""What a run tells its observers: the interface :func:`gtvo.pipeline.process_sequence` calls
+"""What a run tells its observers: the interface :func:`gtvo.pipeline.run_odometry` calls
 once at the start, after every frame and once at the end (e.g.
 :class:`gtvo.io.rerun_log.RerunLogger`).
 

@@ -2,19 +2,21 @@
 
 :func:`write_run_outputs` writes ``trajectory.tum``, ``report.json`` (the report it is given:
 :func:`gtvo.report.run_report`), ``trajectory.png`` (and ``errors.png``) and ``points.ply`` into
-one folder, replaced as a set. It computes no metric (those are :mod:`gtvo.evaluation`'s); it
-records only what writing tells: the map's counts (:class:`MapPointsFigures`).
+one folder, replaced as a set. It computes no metric (those are :mod:`gtvo.evaluation`'s) and adds
+nothing to the report: it writes the report as it is given.
 """
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
-from typing import Any, Callable, Mapping, TypedDict
+from typing import Any, Callable, Mapping
 
 import numpy as np
 from numpy.typing import NDArray
 
 from gtvo.core.atomic import atomic_dir, check_replaceable_dir, write_json
+from gtvo.core.paths import identity, link_problem, resolved, same_or_inside
 from gtvo.errors import InputError
 from gtvo.evaluation.accuracy import ground_truth
 from gtvo.evaluation.alignment import align_trajectory
@@ -25,15 +27,6 @@ from gtvo.datasets.sequence import Sequence
 from gtvo.evaluation.trajectory import Trajectory
 from gtvo.io.trajectory_files import write_tum
 from gtvo.core.map_points import MapPoints
-
-
-class MapPointsFigures(TypedDict, total=False):
-    """The map's counts in ``report.json``, added by :func:`write_run_outputs` when it writes
-    ``points.ply`` (docs/evaluation.md, "The map")."""
-
-    map_points_written: int
-    map_points_left_out: int
-    map_points_left_out_by_reason: dict[str, int]
 
 
 #: Every entry ``gtvo run`` writes into its output folder (an earlier run's set may be replaced).
@@ -57,52 +50,66 @@ def top_view(ref: Trajectory | None) -> dict[str, Any]:
 
 
 def input_folders(seq: Sequence) -> tuple[Path | None, set[Path]]:
-    """The folders a sequence is read from: ``(source folder, folders of its image files)``."""
+    """The folders a sequence is read from: ``(source folder, folders of its image files)``.
+
+    An image file's folder is the one it is listed in and, when it is a symbolic link, the one its
+    target lies in too; a link that cannot be followed (a loop, a broken link: a frame the reader
+    skips or stops at) gives only the former.
+    """
     images: set[Path] = set()
-    for loader in (seq.load_left, seq.load_right, seq.load_depth):
-        images.update(Path(f).resolve().parent for f in getattr(loader, "paths", ()))
-    images.update(Path(n).resolve().parent for n in seq.frame_names if Path(n).is_file())
-    return (None if seq.source is None else Path(seq.source).resolve()), images
+    files = [Path(f) for loader in (seq.load_left, seq.load_right, seq.load_depth)
+             for f in getattr(loader, "paths", ())]
+    files += [Path(n) for n in seq.frame_names if link_problem(n) is None and Path(n).is_file()]
+    for f in files:
+        images.add(Path(os.path.abspath(f)).parent)
+        if link_problem(f) is None:
+            images.add(Path(os.path.realpath(f)).parent)
+    source = None if seq.source is None else Path(os.path.abspath(seq.source))
+    return source, images
 
 
 def check_run_output_dir(out_dir: str | Path, inputs: tuple[Path | None, set[Path]] | Sequence) -> Path:
     """The resolved ``out_dir`` if a run may write its outputs there, else a one-line :class:`InputError`.
 
-    Refused: the input folder itself, an image folder of the input or a folder inside one
-    (``inputs``: the sequence or its :func:`input_folders`), and a folder that is neither new,
-    empty nor an earlier run's output set (:func:`gtvo.core.atomic.check_replaceable_dir`).
+    Refused: the input folder itself or a folder inside it, an image folder of the input or a
+    folder inside one (``inputs``: the sequence or its :func:`input_folders`), whatever the
+    spelling (``..``, symbolic links, bind mounts: compared by file identity,
+    :func:`gtvo.core.paths.same_or_inside`), a symbolic link loop, and a folder that is neither
+    new, empty nor an earlier run's output set (:func:`gtvo.core.atomic.check_replaceable_dir`).
     """
     source, images = input_folders(inputs) if isinstance(inputs, Sequence) else inputs
-    out = Path(out_dir).resolve()
-    if source is not None and out == source:
-        raise InputError("output folder is the input folder; outputs there would mix with the data: "
-                         "choose another", path=out_dir)
+    out = resolved(out_dir, "output folder")
     for f in sorted(images):
-        if out == f or f in out.parents:
-            where = "one of the input's image folders" if out == f else f"inside the input's image folder {f}"
+        if same_or_inside(out, f):
+            where = ("one of the input's image folders" if identity(out) == identity(f)
+                     else f"inside the input's image folder {f}")
             raise InputError(f"output folder is {where}; outputs there would mix with the frames: choose another",
                              path=out_dir)
+    if source is not None and os.path.isdir(source) and same_or_inside(out, source):
+        where = "the input folder" if identity(out) == identity(source) else f"inside the input folder {source}"
+        raise InputError(f"output folder is {where}; outputs there would mix with the data: choose another",
+                         path=out_dir)
     return check_replaceable_dir(out, RUN_OUTPUT_NAMES, RUN_WRITER)
 
 
-def write_run_outputs(out_dir: str | Path, est: Trajectory, seq: Sequence, report: Mapping[str, Any],
+def write_run_outputs(out_dir: str | Path, est: Trajectory, seq: Sequence,
+                      report: Mapping[str, Any] | Callable[[], Mapping[str, Any]],
                       points: MapPoints | tuple[NDArray[np.float64], NDArray[np.float64]] | None = None,
                       loop_closed: Trajectory | None = None,
                       covariances: KeyframeCovariances | None = None,
-                      config_yaml: str | None = None,
-                      stage_figures: Callable[[], Mapping[str, Any]] | None = None) -> dict[str, Any]:
+                      config_yaml: str | None = None, metrics: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """Write a run's outputs into ``out_dir`` as a set and return the report written to ``report.json``.
 
-    ``report``: the run's report (:func:`gtvo.report.run_report`), written as it is, with what
-    writing adds: ``points`` (:class:`gtvo.core.map_points.MapPoints`, or plain ``(points,
-    intensities)``) give :class:`MapPointsFigures`; ``stage_figures``, when given, is called
-    just before ``report.json`` is written and its keys update the report (the run's timing by
-    stage, with the outputs' own time so far: :func:`gtvo.odometry.summary.stage_timing`).
-    ``loop_closed``, when given, is written as ``trajectory_loop_closed.tum``. ``covariances``,
+    ``report``: the run's report (:func:`gtvo.report.run_report`), written as it is; or the function
+    that builds it, called once every other file is written (so that the report's timing of the
+    outputs includes their writing). ``points`` (:class:`gtvo.core.map_points.MapPoints`, or plain
+    ``(points, intensities)``), when given, are written as ``points.ply`` (when there are any).
+    ``metrics``: the accuracy the plots state (its ``ate_rmse_m``; default the report's, when it is
+    given as a mapping). ``loop_closed``, when given, is written as ``trajectory_loop_closed.tum``. ``covariances``,
     when given, is written as ``covariances.npz`` and drawn as position ellipses in
     ``trajectory.png`` (:mod:`gtvo.io.covariances`). ``config_yaml``, when given, is written as
     ``config.yaml`` (the run's configuration, for ``gtvo run --config``). With ground truth the
-    plots show the estimate SE(3)-aligned to it when the report has an ``ate_rmse_m``, else with
+    plots show the estimate SE(3)-aligned to it when the metrics have an ``ate_rmse_m``, else with
     the first poses aligned.
 
     The files are written into a temporary folder beside ``out_dir`` that then replaces it
@@ -111,11 +118,10 @@ def write_run_outputs(out_dir: str | Path, est: Trajectory, seq: Sequence, repor
     empty or an earlier run's output folder, and not the input's (:func:`check_run_output_dir`).
     """
     out_path = check_run_output_dir(out_dir, seq)
-    written: dict[str, Any] = dict(report)
     pair = ground_truth(seq, est)
     if pair is not None:
         est_gt, ref = pair
-        ate_m = written.get("ate_rmse_m")
+        ate_m = (metrics if metrics is not None else report if not callable(report) else {}).get("ate_rmse_m")
         aligned, _ = align_trajectory(est_gt, ref, "se3" if ate_m is not None else "origin")
         title = (f"{seq.name}: ATE {ate_m:.3f} m (SE(3)-aligned)" if ate_m is not None
                  else f"{seq.name} (first poses aligned)")
@@ -134,7 +140,7 @@ def write_run_outputs(out_dir: str | Path, est: Trajectory, seq: Sequence, repor
             plot_trajectory_top_view(aligned, ref, out / "trajectory.png", title=title, ellipses=ellipses, **view)
             errs = np.linalg.norm(aligned.positions - ref.positions, axis=1)
             after = ("SE(3) alignment to the ground truth (least squares over all poses, as the ATE)"
-                     if written.get("ate_rmse_m") is not None else "aligning the first poses")
+                     if ate_m is not None else "aligning the first poses")
             plot_errors_over_time(ref.timestamps, errs, out / "errors.png", title=f"{seq.name}: position error after "
                                   f"{after}", ylabel="position error after alignment [m]")
         else:
@@ -142,22 +148,11 @@ def write_run_outputs(out_dir: str | Path, est: Trajectory, seq: Sequence, repor
                                      ellipses=ellipses, **view)
         if loop_closed is not None:
             write_tum(out / "trajectory_loop_closed.tum", loop_closed)
-        if points is not None:
-            written.update(_write_map(out / "points.ply", points))
-        if stage_figures is not None:
-            written.update(stage_figures())
+        if points is not None and points.written:
+            write_ply_points(out / "points.ply", points.points, points.intensity)  # numpy, no open3d: gtvo.io.ply
+        written = dict(report() if callable(report) else report)
         write_json(out / "report.json", _jsonable(written))
     return written
-
-
-def _write_map(path: Path, points: MapPoints) -> MapPointsFigures:
-    """Write ``points.ply`` (when there are points) and return the map's counts for the report."""
-    figures: MapPointsFigures = {"map_points_written": points.written, "map_points_left_out": points.left_out_total}
-    if points.left_out:
-        figures["map_points_left_out_by_reason"] = dict(points.left_out)
-    if points.written:
-        write_ply_points(path, points.points, points.intensity)  # numpy, no open3d: gtvo.io.ply
-    return figures
 
 
 def _jsonable(obj: Any) -> Any:

@@ -4,7 +4,7 @@ geometric verification by PnP RANSAC on stereo/depth points. Math and convention
 ``docs/loop_closure.md``. The pose graph that consumes :class:`LoopCandidate` lives elsewhere.
 """
 
-from gtvo.loops.config import LoopClosureConfig, LoopDetectorConfig, OrbConfig, VerificationConfig
+from gtvo.config.sections.loops import LoopClosureConfig, LoopDetectorConfig, OrbConfig, VerificationConfig
 from gtvo.loops.detector import Keyframe, LoopCandidate, LoopDetector, detect_loops
 from gtvo.loops.features import (KeypointPoints, OrbFeatures, depth_image_points, extract_orb,
                                  hamming_distances, stereo_points)

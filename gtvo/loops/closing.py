@@ -19,8 +19,9 @@
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
-from typing import Mapping, Sequence as Seq, TypedDict
+from typing import Mapping, Sequence as Seq
 
 import numpy as np
 from numpy.typing import NDArray
@@ -34,10 +35,16 @@ from gtvo.frontend.rgbd import rgbd_keyframe_points
 from gtvo.frontend.stereo_depth import KeyframePoints, init_keyframe_points
 from gtvo.frontend.tracking import PhotometricConfig, TrackingConfig
 from gtvo.loops import LoopCandidate, LoopDetector
-from gtvo.loops.config import LoopDetectorConfig
+from gtvo.config.sections.loops import LoopDetectorConfig
 from gtvo.loops.closure_graph import LoopEdge, close_loops
 from gtvo.loops.direct_refinement import refine_loop_both_ways
 from gtvo.loops.frame_refinement import refine_frames as refine_frame_poses
+from gtvo.odometry.result import OdometryResult, odometry_covariances
+from gtvo.report import LoopClosureSummary
+
+__all__ = ["LOOP_CLOSURE_SOLVER", "ODOMETRY_SIGMAS", "REFINEMENT_POINTS", "LoopClosingResult", "LoopClosureSummary",
+           "close_loops_of_run", "odometry_covariances", "odometry_informations", "refine_result_frames",
+           "relocate_frames", "run_loop_closing"]
 
 #: Odometry edge standard deviations, rotation (rad) and translation (m), for consecutive keyframes
 #: that no successful tracking links (the first keyframe after a re-initialisation, or a run whose
@@ -50,18 +57,6 @@ REFINEMENT_POINTS = 300
 
 #: How the loops are closed, for the report: GTSAM's GncLMOptimizer, then LM on the kept loops.
 LOOP_CLOSURE_SOLVER = "gtsam_gnc_lm"
-
-
-class LoopClosureSummary(TypedDict, total=False):
-    """What loop closing found and did, as ``report.json`` keys (:meth:`LoopClosingResult.summary`
-    gives all six; not required keys because a run's report has them only with ``--loop-closure``)."""
-
-    loops_detected: int
-    loops_unrefined: int
-    loops_accepted: int
-    loop_closure_solver: str
-    frames_refined: int
-    frame_refinement_hosts_mean: float | None
 
 
 @dataclass
@@ -111,6 +106,25 @@ class _Tracker:
 
     config: TrackingConfig | None
     photometric: PhotometricConfig | None
+
+
+def run_loop_closing(result: OdometryResult, seq: Sequence, progress: bool = False) -> OdometryResult:
+    """Loop closing as a stage of a run (``loops.enabled``; otherwise ``result`` itself): the loops
+    among ``result``'s keyframes closed (:func:`close_loops_of_run`, with the run's settings, its
+    keyframes' points and the covariances of their links) and a copy of ``result`` returned with the
+    outcome (``loops``) and the loop-closed keyframe poses as the map's (``map_poses``). Every tracked
+    frame is then re-estimated against the final keyframes, unless the whole-log refinement follows
+    (``result.window_keyframes``), which re-places the frames itself (:func:`gtvo.refinement.run.run_refinement`).
+    """
+    config = result.config
+    if not config.loops.enabled:
+        return result
+    closed = close_loops_of_run(seq, result.trajectory, result.frame_indices, result.keyframe_positions,
+                                progress=progress, odometry_covariances=result.link_covariances,
+                                keyframe_points=result.keyframe_points, tracking_config=config.tracking,
+                                refine_frames=result.window_keyframes is None, refine=result.tracked,
+                                detector_config=config.loops.detector, photometric=config.photometric)
+    return dataclasses.replace(result, loops=closed, map_poses=closed.keyframe_poses)
 
 
 def close_loops_of_run(seq: Sequence, est: Trajectory, frame_indices: list[int], keyframes: list[int],
@@ -256,26 +270,6 @@ def _fresh_points(seq: Sequence, frame: Frame) -> KeyframePoints:
         return init_keyframe_points(frame.left, frame.right, seq.camera, target=REFINEMENT_POINTS)
     return rgbd_keyframe_points(to_float_gray(frame.left, f"frame {frame.index} image"), frame.depth,
                                 REFINEMENT_POINTS)
-
-
-def odometry_covariances(estimates: Seq, keyframes: list[int]) -> list[NDArray[np.float64] | None]:
-    """Per pair of consecutive keyframes (positions in ``estimates``), the covariance of their
-    relative pose: the tracker's covariance of the later keyframe when it was tracked against the
-    earlier one (:attr:`FrameEstimate.keyframe_index`), else None.
-
-    In window mode the keyframe poses are refined jointly after tracking, so the tracker's
-    covariance is an upper bound of the relative pose's; it is the same photometric model as the
-    loops' (:func:`gtvo.loops.direct_refinement.refine_loop`), which is what keeps the two kinds of
-    edge on one scale.
-    """
-    kfs = sorted(set(int(k) for k in keyframes))
-    out: list[NDArray[np.float64] | None] = []
-    for a, b in zip(kfs[:-1], kfs[1:]):
-        e = estimates[b]
-        ok = (e.tracking is not None and e.tracking.success and not e.reinitialised
-              and e.keyframe_index == estimates[a].index and np.all(np.isfinite(e.tracking.covariance)))
-        out.append(np.array(e.tracking.covariance, dtype=float) if ok else None)
-    return out
 
 
 def odometry_informations(n_keyframes: int, covariances: Seq[NDArray[np.float64] | None] | None

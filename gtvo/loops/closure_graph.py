@@ -21,12 +21,12 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
+from gtvo.config.sections.loops import CHI2_6DOF_99
 from gtvo.core.keys import pose_key
 from gtvo.errors import InputError
 
 F64 = NDArray[np.float64]
 METHODS = ("gnc", "huber", "cauchy")
-CHI2_6DOF_99 = 16.812  # 99 % quantile of chi-square with 6 degrees of freedom
 #: GNC's truncated least squares treats a loop as an inlier while its chi-square is below this
 #: quantile (``GncOptimizer.setInlierCostThresholdsAtProbability``): 16.8 for a 6-dof loop.
 GNC_INLIER_PROBABILITY = 0.99

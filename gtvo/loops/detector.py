@@ -32,7 +32,7 @@ from gtvo.core import keys
 from gtvo.core.camera import PinholeCamera, StereoCamera
 from gtvo.errors import InputError, show
 from gtvo.core.image import to_uint8
-from gtvo.loops.config import LoopDetectorConfig, OrbConfig, VerificationConfig
+from gtvo.config.sections.loops import LoopDetectorConfig, OrbConfig, VerificationConfig
 from gtvo.loops.features import (KeypointPoints, OrbFeatures, depth_image_points, extract_orb,
                                  stereo_points)
 from gtvo.loops.verification import match_descriptors, verify_pnp

@@ -22,7 +22,7 @@ from numpy.typing import NDArray
 from gtvo.core.camera import PinholeCamera, StereoCamera
 from gtvo.errors import InputError
 from gtvo.core.image import to_uint8
-from gtvo.loops.config import OrbConfig
+from gtvo.config.sections.loops import OrbConfig
 
 FloatArray = NDArray[np.float64]
 #: Bits in an ORB descriptor (32 bytes).

@@ -18,7 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gtvo.core.camera import PinholeCamera
-from gtvo.loops.config import VerificationConfig
+from gtvo.config.sections.loops import VerificationConfig
 from gtvo.loops.features import hamming_distances
 
 FloatArray = NDArray[np.float64]

@@ -41,7 +41,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from factors.motion import POSE_MEASUREMENT_MATRIX, STATE_DIM, THETA_INDEX, X_INDEX, Z_INDEX, check_dt, transition_matrix
-from gtvo.core.settings import check_settings, setting
+from gtvo.config.sections.motion import INITIAL_RATE_SIGMAS, MotionNoiseConfig
+from gtvo.config.sections.motion import check_sigmas as _check_sigmas
 from gtvo.errors import InputError
 
 FloatArray = NDArray[np.float64]
@@ -51,14 +52,6 @@ def wrap_angle(angle: ArrayLike) -> FloatArray | float:
     a = np.asarray(angle, dtype=np.float64)
     wrapped = np.pi - np.mod(np.pi - a, 2.0 * np.pi)
     return float(wrapped) if wrapped.ndim == 0 else wrapped
-
-
-def _check_sigmas(name: str, values: ArrayLike, n: int, allow_zero: bool = False) -> FloatArray:
-    v = np.asarray(values, dtype=np.float64).reshape(-1)
-    if v.shape != (n,) or not np.all(np.isfinite(v)) or np.any(v < 0) or (not allow_zero and np.any(v == 0)):
-        raise InputError(f"{name} must be {n} finite {'non-negative' if allow_zero else 'positive'} numbers, "
-                         f"got {np.asarray(values).tolist()!r}")
-    return v
 
 
 def noise_gain(dt: float) -> FloatArray:
@@ -125,36 +118,6 @@ def update(mean_bar: ArrayLike, cov_bar: ArrayLike, z: ArrayLike, Q: ArrayLike,
     mean[THETA_INDEX] = wrap_angle(mean[THETA_INDEX])
     cov = (np.eye(STATE_DIM) - K @ C) @ cov_bar
     return mean, 0.5 * (cov + cov.T)
-
-
-#: Default standard deviations of the initial rates ``(dX, dZ, dtheta)`` (m/s, m/s, rad/s) of
-#: :class:`ConstantAccelerationFilter`.
-INITIAL_RATE_SIGMAS: tuple[float, float, float] = (1.0, 1.0, 0.5)
-
-
-@dataclass(frozen=True)
-class MotionNoiseConfig:
-    """Noise of the planar model.
-
-    Attributes:
-        accel_sigmas: ``(k1, k2, k3)``: standard deviations of the X, Z accelerations (m/s^2)
-            and of the angular acceleration (rad/s^2).
-        measurement_sigmas: standard deviations of the measured ``(X, Z, theta)`` (m, m, rad);
-            ``Q = diag(sigmas^2)``.
-    """
-
-    accel_sigmas: tuple[float, float, float] = setting((1.0, 1.0, 0.5), "[0, 1000]")
-    measurement_sigmas: tuple[float, float, float] = setting((0.05, 0.05, 0.01), "[1e-6, 1000]")
-
-    def __post_init__(self) -> None:
-        check_settings(self)
-        _check_sigmas("accel_sigmas", self.accel_sigmas, 3, allow_zero=True)
-        _check_sigmas("measurement_sigmas", self.measurement_sigmas, 3)
-
-    @property
-    def Q(self) -> FloatArray:
-        """Measurement covariance ``Q = diag(measurement_sigmas^2)``."""
-        return np.diag(np.square(np.asarray(self.measurement_sigmas, dtype=np.float64)))
 
 
 @dataclass(frozen=True)

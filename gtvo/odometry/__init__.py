@@ -6,7 +6,7 @@ motion model (:mod:`~gtvo.odometry.motion`), the frame tracker (:mod:`~gtvo.odom
 the frame checks (:mod:`~gtvo.odometry.checks`) and the keyframer with the window's schedule
 (:mod:`~gtvo.odometry.keyframer`, :mod:`~gtvo.odometry.window_schedule`);
 :mod:`gtvo.odometry.estimates` is what it says about each frame, :mod:`gtvo.odometry.view` what
-observers may read.
+observers may read, :mod:`gtvo.odometry.result` the one value it hands to the rest of a run.
 """
 
 from gtvo.odometry.estimates import FrameEstimate, FrameOutcome, Keyframe, frames_by_outcome, rigid_pose

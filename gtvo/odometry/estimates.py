@@ -36,6 +36,10 @@ class FrameOutcome(enum.Enum):
     * ``SUSPECT``: tracked, but its image contradicts a motion model that has been right (a
       duplicated, stale or out-of-order image: :mod:`gtvo.frontend.frame_checks`); it keeps the
       predicted pose, does not become a keyframe and is not used for the next prediction.
+    * ``FROZEN``: its image repeats the previous frame's while the rig moves (a frozen camera or a
+      stuck driver: :mod:`gtvo.frontend.frame_checks`), decided before tracking, for as many frames
+      as it lasts; like a suspect frame it keeps the predicted pose (the wheels' with wheel
+      odometry), does not become a keyframe and is not used for the next prediction.
     * ``SKIPPED``: the frame's images could not be read (the pipeline's; no estimate is made).
     """
 
@@ -47,6 +51,7 @@ class FrameOutcome(enum.Enum):
     IMU_CARRIED = "imu_carried"
     RECOVERED = "recovered"
     SUSPECT = "suspect"
+    FROZEN = "frozen"
     SKIPPED = "skipped"
 
 
@@ -96,6 +101,12 @@ class FrameEstimate:
         return self.outcome is FrameOutcome.SUSPECT
 
     @property
+    def excluded(self) -> bool:
+        """True when the frame's image is not used beyond its own flag (``SUSPECT``, ``FROZEN``):
+        the motion model does not learn from it and the next prediction spans it."""
+        return self.outcome in (FrameOutcome.SUSPECT, FrameOutcome.FROZEN)
+
+    @property
     def is_keyframe(self) -> bool:
         """True when the frame became a keyframe (``KEYFRAME`` or ``REINITIALISED``)."""
         return self.outcome in (FrameOutcome.KEYFRAME, FrameOutcome.REINITIALISED)
@@ -138,7 +149,7 @@ class Keyframe:
 
 
 #: The outcomes ``report.json`` lists frame by frame (with the reason); the others are counted.
-FLAGGED_OUTCOMES = ("suspect", "lost", "reinitialised", "wheel_carried", "imu_carried", "recovered", "skipped")
+FLAGGED_OUTCOMES = ("frozen", "suspect", "lost", "reinitialised", "wheel_carried", "imu_carried", "recovered", "skipped")
 
 
 def frames_by_outcome(estimates: list[FrameEstimate], skipped: Iterable[tuple[int, str]] = ()) -> dict[str, Any]:
@@ -159,7 +170,7 @@ def frames_by_outcome(estimates: list[FrameEstimate], skipped: Iterable[tuple[in
 
 
 #: Outcomes whose pose the run trusts (tracked, or a keyframe made from a tracked frame or the first
-#: frame); the others are predictions (re-initialised, lost, suspect).
+#: frame); the others are predictions (re-initialised, lost, suspect, frozen).
 TRUSTED_OUTCOMES = (FrameOutcome.TRACKED, FrameOutcome.KEYFRAME, FrameOutcome.RECOVERED)
 
 
@@ -193,6 +204,52 @@ def trust_warning(frames: int, undetermined: list[int], trusted: float | None) -
     shown = ", ".join(str(i) for i in undetermined[:10]) + (", ..." if len(undetermined) > 10 else "")
     return (f"{what}the images did not determine the pose of {len(undetermined)} of {frames} frames ({shown}: "
             f"flagged as failed, their poses predicted); {trusted:.0%} of the trajectory is trustworthy")
+
+
+def frozen_ranges(estimates: list[FrameEstimate]) -> list[tuple[int, int]]:
+    """The runs of consecutive ``FROZEN`` frames, as ``(first, last)`` frame indices."""
+    ranges: list[tuple[int, int]] = []
+    previous: FrameEstimate | None = None
+    for e in estimates:
+        if e.outcome is FrameOutcome.FROZEN:
+            if previous is not None and previous.outcome is FrameOutcome.FROZEN:
+                ranges[-1] = (ranges[-1][0], e.index)
+            else:
+                ranges.append((e.index, e.index))
+        previous = e
+    return ranges
+
+
+def frozen_warning(estimates: list[FrameEstimate], wheels: bool = False) -> str | None:
+    """The console's one line on a frozen camera (None when no frame was frozen): the frame
+    ranges, what placed them (the motion model, or the wheels when ``wheels``), how the run went on
+    after each and how much of the trajectory is trustworthy."""
+    ranges = frozen_ranges(estimates)
+    if not ranges:
+        return None
+    by_index = {e.index: e for e in estimates}
+    source = "the wheels'" if wheels else "the motion model's"
+    parts = []
+    for first, last in ranges:
+        span = f"{first}-{last}" if last > first else f"{first}"
+        after = next((e for e in estimates if e.index > last), None)
+        before = by_index.get(first - 1)
+        what = f"frames {span}" if last > first else f"frame {span}"
+        repeated = "" if before is None else f" {'repeat' if last > first else 'repeats'} frame {before.index}'s image"
+        if after is None:
+            then = "the log ends frozen"
+        elif after.reinitialised:
+            then = f"frame {after.index} re-initialised at {source} pose"
+        elif after.lost:
+            then = f"frame {after.index} lost, placed at {source} pose"
+        elif after.excluded:
+            then = f"frame {after.index} suspect, placed at {source} pose"
+        else:
+            then = f"frame {after.index} tracked again from {source} pose"
+        parts.append(f"{what}{repeated} ({then})")
+    trusted = trusted_fraction(estimates)
+    return (f"the camera froze while the rig moved: {'; '.join(parts)}; flagged as frozen, their poses are "
+            f"{source} guesses, not measurements; {trusted:.0%} of the trajectory is trustworthy")
 
 
 class TooFewPoints(Exception):

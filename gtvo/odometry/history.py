@@ -2,7 +2,7 @@
 
 The history is the record the driver appends to once per frame. The motion model reads its last
 good frames, the keyframer re-expresses its poses when the window moves a keyframe, the frame
-checks read the step before. A *good* frame is one that is not suspect: suspect frames keep the
+checks read the step before. A *good* frame is one that is neither suspect nor frozen: those keep the
 predicted pose and are left out of everything that learns from the past.
 """
 
@@ -29,10 +29,10 @@ class FrameHistory:
         self.estimates.append(estimate)
 
     def good(self, n: int) -> list[FrameEstimate]:
-        """The last ``n`` (or fewer) estimates that are not suspect, oldest first."""
+        """The last ``n`` (or fewer) estimates that are not suspect or frozen, oldest first."""
         out: list[FrameEstimate] = []
         for e in reversed(self.estimates):
-            if not e.suspect:
+            if not e.excluded:
                 out.append(e)
                 if len(out) == n:
                     break
@@ -41,7 +41,7 @@ class FrameHistory:
     def last_rms(self) -> float | None:
         """The tracking RMS of the last frame tracked successfully and not suspect, None before one."""
         for e in reversed(self.estimates):
-            if e.tracking is not None and e.tracking.success and not e.suspect:
+            if e.tracking is not None and e.tracking.success and not e.excluded:
                 return e.tracking.rms
         return None
 
@@ -62,7 +62,7 @@ class FrameHistory:
 
     def mark_last_good_as_keyframe(self) -> None:
         """Record that the last good frame (the keyframe candidate) was promoted to a keyframe."""
-        i = next(i for i in range(len(self.estimates) - 1, -1, -1) if not self.estimates[i].suspect)
+        i = next(i for i in range(len(self.estimates) - 1, -1, -1) if not self.estimates[i].excluded)
         self.estimates[i] = dataclasses.replace(self.estimates[i], outcome=FrameOutcome.KEYFRAME)
 
     def rescale_tracked(self, scales: Mapping[int, float], keyframes: Mapping[int, Keyframe]) -> None:

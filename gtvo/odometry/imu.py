@@ -24,6 +24,7 @@ from numpy.typing import NDArray
 from gtvo.core.keys import gravity_tilt_key, imu_bias_key
 from gtvo.core.map_points import MapPoints
 from gtvo.evaluation.trajectory import Trajectory
+from gtvo.odometry.result import OdometryResult
 from gtvo.window.imu import ImuWindow
 from gtvo.window.problem import build_graph
 
@@ -73,9 +74,32 @@ def gravity_alignment(vo: "VisualOdometry") -> GravityAlignment | None:
     imu: ImuWindow | None = getattr(vo, "imu", None)
     if imu is None:
         return None
-    if not imu.initialised and vo.window is not None:
-        imu.try_initialise(list(vo.window.keyframes), finishing=True)
+    window = _optimizer(vo)
+    if not imu.initialised and window is not None:
+        imu.try_initialise(list(window.keyframes), finishing=True)
     return None if imu.gravity is None else GravityAlignment.of_gravity(imu.gravity)
+
+
+def _optimizer(vo: "VisualOdometry") -> Any:
+    """The run's :class:`gtvo.window.SlidingWindowOptimizer` (the IMU runs only in a window in this
+    process: :class:`gtvo.odometry.window_port.LocalWindow`), None without one."""
+    return getattr(vo.window, "optimizer", None)
+
+
+def gravity_aligned(result: OdometryResult) -> OdometryResult:
+    """``result`` with its outputs in the gravity-aligned world (module doc): the trajectory, the
+    loop-closed one and the map's keyframe poses rotated by ``result.gravity_rotation``; ``result``
+    itself without an initialised IMU. The keyframes' covariances are in their own frames: unchanged."""
+    if result.gravity_rotation is None:
+        return result
+    alignment = GravityAlignment(result.gravity_rotation)
+    poses = {kf.index: kf.T_world_cam for kf in result.keyframes}
+    poses.update(result.map_poses or {})
+    loops = result.loops
+    if loops is not None:
+        loops = replace(loops, trajectory=alignment.trajectory(loops.trajectory))  # type: ignore[type-var]
+    return replace(result, trajectory=alignment.trajectory(result.trajectory), loops=loops,
+                   map_poses={i: alignment.T @ np.asarray(T, dtype=np.float64) for i, T in poses.items()})
 
 
 def imu_covariances(imu: ImuWindow, window: Any) -> tuple[FloatArray | None, FloatArray | None]:
@@ -105,7 +129,7 @@ def imu_report(vo: "VisualOdometry") -> dict[str, Any]:
     if imu is None:
         return {}
     alignment = gravity_alignment(vo)
-    figures = imu.report(*imu_covariances(imu, vo.window))
+    figures = imu.report(*imu_covariances(imu, _optimizer(vo)))
     readings = imu.readings
     figures.update({
         "source": getattr(readings, "source", None),

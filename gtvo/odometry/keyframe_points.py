@@ -17,10 +17,12 @@ from gtvo.config import OdometryConfig
 from gtvo.core.camera import PinholeCamera, StereoCamera
 from gtvo.datasets.sequence import Frame
 from gtvo.errors import InputError
-from gtvo.frontend import KeyframePoints, init_keyframe_points
-from gtvo.frontend.point_selection import select_points
+from gtvo.frontend import KeyframePoints
+from gtvo.frontend.point_selection import select_points_float
 from gtvo.frontend.rgbd import rgbd_keyframe_points
-from gtvo.frontend.rig_offset import correct_right_image, estimate_vertical_offset
+from gtvo.frontend.rig_offset import (VerticalOffset, correct_right_image_float, estimate_vertical_offset_float,
+                                      stereo_contrast)
+from gtvo.frontend.stereo_depth import init_keyframe_points_float
 from gtvo.odometry.estimates import TooFewPoints
 from gtvo.window.rig import RigOffset
 
@@ -28,8 +30,8 @@ from gtvo.window.rig import RigOffset
 def frame_points(frame: Frame, left: NDArray[np.float32], right: NDArray[np.float32] | None,
                  camera: StereoCamera | PinholeCamera, config: OdometryConfig,
                  rig: RigOffset | None = None) -> KeyframePoints:
-    """The points ``frame`` would host as a keyframe (``left``, ``right``: its images in grey
-    levels, converted once by the caller; ``right`` None for RGB-D).
+    """The points ``frame`` would host as a keyframe (``left``, ``right``: its float32 gray images,
+    converted once where the frame was read and not checked again; ``right`` None for RGB-D).
 
     ``rig``: the rig offset the window estimates (stereo), None for the rectified model; the
     first call starts it from the pair's vertical-offset search.
@@ -45,8 +47,8 @@ def frame_points(frame: Frame, left: NDArray[np.float32], right: NDArray[np.floa
         if rig is not None:
             if rig.initial is None:
                 start_rig_offset(left, right, camera, config, rig)
-            right = correct_right_image(right, rig.offset)
-        return init_keyframe_points(left, right, camera, cfg.points_per_keyframe, cfg.points, cfg.stereo,
+            right = correct_right_image_float(right, rig.offset)
+        return init_keyframe_points_float(left, right, camera, cfg.points_per_keyframe, cfg.points, cfg.stereo,
                                     config.photometric.clip_range)
     if frame.depth is None:
         raise InputError(f"frame {frame.index}: RGB-D odometry needs a depth image")
@@ -55,16 +57,22 @@ def frame_points(frame: Frame, left: NDArray[np.float32], right: NDArray[np.floa
 
 def start_rig_offset(left: NDArray[np.float32], right: NDArray[np.float32], camera: StereoCamera, config: OdometryConfig,
                      rig: RigOffset) -> None:
-    """Start ``rig``'s ``delta_y`` from the first stereo pair's vertical offset (a 2-D search).
+    """Start ``rig``'s ``delta_y`` from the first stereo pair's vertical offset (a 2-D search), or
+    keep it rectified for the run when the pair's contrast cannot carry an offset
+    (:func:`gtvo.frontend.rig_offset.stereo_contrast`).
 
     Raises:
-        TooFewPoints: no stereo match survives at any row shift (an InputError on the first frame).
+        TooFewPoints: no stereo match survives at any row shift (an InputError on the first frame)
+            although the contrast could carry an offset.
     """
     fcfg = config.frontend
-    pixels = select_points(left, fcfg.points_per_keyframe, fcfg.points)
-    est = estimate_vertical_offset(left, right, camera, pixels, max_disparity=fcfg.stereo.max_disparity)
+    pixels = select_points_float(left, fcfg.points_per_keyframe, fcfg.points)
+    withheld = stereo_contrast(left, pixels).too_weak()
+    est = estimate_vertical_offset_float(left, right, camera, pixels, max_disparity=fcfg.stereo.max_disparity)
+    if est is None and withheld is not None:  # rectified anyway: the keyframe's own stereo search decides
+        est = VerticalOffset(float("nan"), float("nan"), 0, {})
     if est is None:
         raise TooFewPoints("the first stereo pair has no stereo match at any vertical offset within "
                            "+-2 rows: the right camera is offset too far from its calibration (or the "
                            "images hold no texture); no rig offset can be estimated")
-    rig.start_from(est)
+    rig.start_from(est, withheld)

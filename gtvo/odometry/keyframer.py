@@ -8,6 +8,12 @@
 to its keyframes and has the history re-express the frames tracked against them. When the window
 releases the rig offset's ``delta_x``, the window keyframes' depths are searched again against the
 corrected right image. The rig offset itself lives in the window (``window.rig``).
+
+The window is a :class:`gtvo.odometry.window_port.WindowPort`: in this process or in a worker
+process beside the front end (``window.parallel``), the keyframer drives both the same way. A
+keyframe joins; the updates that are due come back and are written to the keyframes; a parallel
+window's update is older than the front end's newest keyframes, which move with the update's newest
+keyframe (in this process every update is due at once and that move is none).
 """
 
 from __future__ import annotations
@@ -21,20 +27,18 @@ from numpy.typing import NDArray
 from factors.photometric import GradientImage
 from gtvo.config import OdometryConfig
 from gtvo.core.camera import PinholeCamera, StereoCamera
-from gtvo.core.image import to_float_gray
 from gtvo.core.timing import stage
 from gtvo.datasets.sequence import Frame
 from gtvo.frontend import KeyframePoints
 from gtvo.frontend.keyframes import needs_keyframe
 from gtvo.frontend.tracking import TrackingKeyframe, TrackingResult, frame_pyramid
-from gtvo.errors import InputError
 from gtvo.odometry.estimates import Keyframe, TooFewPoints, rigid_pose
 from gtvo.odometry.history import FrameHistory
 from gtvo.odometry.keyframe_points import frame_points
-from gtvo.odometry.window_link import KeyframeForWindow, WindowLink, WindowUpdate
+from gtvo.odometry.window_link import KeyframeForWindow, WindowUpdate
+from gtvo.odometry.window_port import WindowPort, open_window
 from gtvo.odometry.window_schedule import WindowSchedule
-from gtvo.odometry.window_worker import WindowWorker
-from gtvo.window import SlidingWindowOptimizer, WindowResult
+from gtvo.window import WindowResult
 from gtvo.window.rig import RigOffset
 from gtvo.window.imu import ImuWindow
 from gtvo.window.wheel import WheelCalibration
@@ -52,8 +56,8 @@ class Keyframer:
 
     Attributes:
         keyframes: every keyframe made so far (window mode: with the last optimised pose and depths).
-        window: the sliding window (window mode), else None: the
-            :class:`gtvo.window.SlidingWindowOptimizer`, or with ``window.parallel`` the
+        window: the sliding window's port (window mode), else None: a
+            :class:`gtvo.odometry.window_port.LocalWindow`, or with ``window.parallel`` the
             :class:`gtvo.odometry.window_worker.WindowWorker` that runs it beside the front end.
         window_results: one :class:`gtvo.window.WindowResult` per window optimisation.
         schedule: when the window is optimised.
@@ -68,53 +72,36 @@ class Keyframer:
         self.config = config
         self.history = history
         self.keyframes: list[Keyframe] = []
-        #: the window's side (:class:`WindowLink`, in this process) or its worker process
-        #: (:class:`WindowWorker`, ``window.parallel``); None in track mode
-        self.link: WindowLink | None = None
-        self.worker: WindowWorker | None = None
-        self.window: SlidingWindowOptimizer | WindowWorker | None = None
+        #: the window's port (window mode, :func:`gtvo.odometry.window_port.open_window`); None in track mode
+        self.window: WindowPort | None = open_window(camera, config, wheel, imu) if config.mode == "window" else None
         self.window_results: list[WindowResult] = []
         self.schedule = WindowSchedule(config.window, config.photometric, self.pinhole)
         self.candidate: tuple[Frame, NDArray[np.float32]] | None = None
         self._by_index: dict[int, Keyframe] = {}
         # keyframe index -> per point, the most other keyframes a window optimisation compared it with
         self._observed: dict[int, NDArray[np.int64]] = {}
-        if config.mode == "window" and config.window.parallel:
-            if wheel is not None:
-                raise InputError("window.parallel does not carry wheel odometry yet: run it with --no-parallel "
-                                 "(window.parallel: false)")
-            if imu is not None:
-                raise InputError("window.parallel does not carry the IMU yet: run it with --no-parallel "
-                                 "(window.parallel: false) or --no-imu")
-            if config.refine.enabled:
-                raise InputError("the whole-log refinement needs every keyframe of the window, which a parallel "
-                                 "window keeps in its worker: run it with --no-parallel (window.parallel: false)")
-            self.window = self.worker = WindowWorker(camera, config)
-        elif config.mode == "window":
-            self.link = WindowLink(camera, config, wheel=wheel if config.window.backend == "lm" else None, imu=imu)
-            self.window = self.link.window
-            # the whole-log refinement needs every keyframe (gtvo.refinement): kept only when it runs
-            self.window.retain_keyframes = config.refine.enabled
 
     @property
     def rig(self) -> RigOffset | None:
         """The rig offset the window estimates (its one owner; a parallel window: the worker's, as of
-        its last applied update), None when not estimated."""
+        its last update handed out), None when not estimated."""
         return None if self.window is None else self.window.rig
 
     def right_brightness(self) -> tuple[float, float] | None:
         """The right camera's brightness ``(a, b)`` relative to the left one from the newest window
         keyframe (a parallel window: as of its last applied update); None without one."""
-        if self.worker is not None:
-            last = self.worker.keyframes[-1].stereo_affine if self.worker.keyframes else None
-        else:
-            wk = self.window.keyframes if self.window is not None else []
-            last = None if not wk or wk[-1].right is None else wk[-1].stereo_affine
-        return None if last is None else (float(last[0]), float(last[1]))
+        return None if self.window is None else self.window.right_brightness()
 
     def keyframe(self, index: int) -> Keyframe | None:
         """The keyframe made from frame ``index``, None when that frame is not a keyframe."""
         return self._by_index.get(index)
+
+    def window_keyframes(self) -> list[Keyframe]:
+        """The keyframes of the window (as of its last update handed out), oldest first; empty in
+        track mode."""
+        if self.window is None:
+            return []
+        return [kf for kf in (self._by_index.get(i) for i in self.window.keyframe_indices()) if kf is not None]
 
     def observed(self, index: int) -> NDArray[np.int64] | None:
         """Per point of keyframe ``index``: the most other keyframes one window optimisation compared
@@ -153,13 +140,16 @@ class Keyframer:
         Raises:
             TooFewPoints: the frame has fewer than ``tracking.min_valid_points`` points with a depth.
         """
-        right = None  # the right image in grey levels, converted once for the stereo search and the window
-        if isinstance(self.camera, StereoCamera) and frame.right is not None:
-            right = to_float_gray(frame.right, f"frame {frame.index} right image")
+        right = frame.right if isinstance(self.camera, StereoCamera) else None  # float32 gray (Frame)
         pts = frame_points(frame, left, right, self.camera, self.config, self.rig)
         if len(pts) < self.config.tracking.min_valid_points:
-            raise TooFewPoints(f"frame {frame.index}: only {len(pts)} points with a valid depth; "
-                               "the images may be blank or the stereo calibration wrong")
+            need = self.config.tracking.min_valid_points
+            raise TooFewPoints(f"frame {frame.index}: only {len(pts)} points with a valid depth, fewer than "
+                               f"tracking.min_valid_points = {need}; "
+                               + ("that setting asks for more than frontend.points_per_keyframe = "
+                                  f"{self.config.frontend.points_per_keyframe} selects"
+                                  if need > self.config.frontend.points_per_keyframe
+                                  else "the images may be blank or the stereo calibration wrong"))
         if self.window is not None:
             if pyramid is None:  # one pyramid for the window keyframe's image and the tracker (no tracking made it)
                 with stage("keyframe_setup"):
@@ -188,85 +178,60 @@ class Keyframer:
             return None
 
     def finish(self) -> None:
-        """Optimise the keyframes that joined the window since its last optimisation and re-express
-        their frames; nothing to do in track mode or when none is waiting. A parallel window: its
-        every update is applied (the front end waits for the worker)."""
-        if self.worker is not None:
-            if self.schedule.waiting:
-                self.schedule.waiting = 0
-                self.worker.optimize()
-            applied = False
-            for update in self.worker.finish():
-                self._apply(update)
-                applied = True
-            if applied:
-                self._re_express()
-        elif self.window is not None and self.schedule.waiting and self._optimize_window():
+        """Optimise the keyframes that joined the window since its last optimisation, apply every
+        update not applied yet (a parallel window: the front end waits for the worker) and
+        re-express their frames; nothing to do in track mode or when nothing is waiting."""
+        if self.window is None:
+            return
+        if self.schedule.waiting:
+            self.schedule.waiting = 0
+            self.window.optimize()
+        updates = self.window.finish()
+        for update in updates:
+            self._apply(update)
+        if updates:
             self._re_express()
 
     def close(self) -> None:
-        """End the window's worker process (``window.parallel``); nothing to do otherwise."""
-        if self.worker is not None:
-            self.worker.close()
+        """Release the window's machine (``window.parallel``: end its worker process)."""
+        if self.window is not None:
+            self.window.close()
 
-    # -- the window link ------------------------------------------------------------------------
+    # -- the window ----------------------------------------------------------------------------------
     def _join_window(self, frame: Frame, right_image: NDArray[np.float32] | None, T_world_cam: gtsam.Pose3,
                      pts: KeyframePoints,
                      tracked: tuple[int, NDArray[np.float64]] | None,
                      pyramid: list[GradientImage]) -> tuple[gtsam.Pose3, KeyframePoints]:
         """Add a new keyframe to the window and optimise on schedule; returns its pose and points
-        (optimised when the window ran; a parallel window: moved by the updates applied now)."""
+        (optimised when its own update was due now; else moved by the updates applied now)."""
         assert self.window is not None
         timestamp = float(frame.timestamp) if np.isfinite(frame.timestamp) else None
-        anchor = None
-        if self.worker is not None and self.keyframes:
-            anchor = (self.keyframes[-1].index, self.keyframes[-1].T_world_cam.matrix())
+        last = self.keyframes[-1] if self.keyframes else None
+        anchor = None if last is None else (last.index, last.T_world_cam.matrix())
         request = KeyframeForWindow(frame.index, timestamp, T_world_cam, pts, tracked, pyramid[0], right_image, anchor)
-        if self.link is not None:
-            self.link.join(request)
         self.schedule.waiting += 1
-        follows = bool(self.keyframes) and self.history.latest_other_than(frame.index) == self.keyframes[-1].index
-        wait = bool(self.keyframes) and self.schedule.may_wait(tracked is not None, follows,
-                                                                self.keyframes[-1].T_world_cam, T_world_cam, pts)
-        if self.worker is not None:
-            if not wait:
-                self.schedule.waiting = 0
-            self.worker.join(request, optimize=not wait)
-            # the next frames may track against its stereo depths, or it waits for its window now
-            lag = bool(self.keyframes) and self.schedule.may_go_unrefined(
-                tracked is not None, follows, self.keyframes[-1].T_world_cam, T_world_cam, pts)
-            updates = self.worker.due() if lag else self.worker.finish()
-            for update in updates:
-                T_world_cam = self._apply(update, T_world_cam)
-            new = updates[-1].members[-1] if updates and not lag else None
-            if new is not None and new.index == frame.index:
-                return new.pose, dataclasses.replace(pts, inverse_depth=new.inverse_depth.copy())
-            return T_world_cam, pts
-        if wait:
-            return T_world_cam, pts
-        update = self._optimize_window()
-        if update is None:
-            return T_world_cam, pts
-        new = update.members[-1]
-        assert new.index == frame.index
-        return new.pose, dataclasses.replace(pts, inverse_depth=new.inverse_depth.copy())
-
-    def _optimize_window(self) -> WindowUpdate | None:
-        """Optimise the window (in this process) and write its poses and depths back to the
-        keyframes made so far (the newest one, not made yet, takes them from the update); None when
-        the window had nothing to optimise (fewer than two keyframes, no target)."""
-        assert self.link is not None
-        self.schedule.waiting = 0
-        update = self.link.optimize()
-        if update is not None:
-            self._apply(update)
-        return update
+        follows = last is not None and self.history.latest_other_than(frame.index) == last.index
+        wait = last is not None and self.schedule.may_wait(tracked is not None, follows, last.T_world_cam,
+                                                            T_world_cam, pts)
+        if not wait:
+            self.schedule.waiting = 0
+        self.window.join(request, optimize=not wait)
+        # the next frames may track against its stereo depths, or it waits for its window now
+        lag = last is not None and self.schedule.may_go_unrefined(tracked is not None, follows, last.T_world_cam,
+                                                                   T_world_cam, pts)
+        updates = self.window.due(now=not lag)
+        for update in updates:
+            T_world_cam = self._apply(update, T_world_cam)
+        new = updates[-1].members[-1] if updates else None
+        if new is not None and new.index == frame.index:  # its own optimisation: its pose and depths
+            return new.pose, dataclasses.replace(pts, inverse_depth=new.inverse_depth.copy())
+        return T_world_cam, pts
 
     def _apply(self, update: WindowUpdate, T_new: gtsam.Pose3 | None = None) -> gtsam.Pose3 | None:
         """Write a window update back: the frames tracked against keyframes whose depths changed
         scale (the rig offset's release), the results, the observation counts, the keyframes'
-        poses and depths. A parallel window's update is older than the front end's newest
-        keyframes: those (and ``T_new``, the pose of the keyframe being made) move with the
+        poses and depths. An update older than the front end's newest keyframes (a parallel
+        window's): those (and ``T_new``, the pose of the keyframe being made) move with the
         update's newest keyframe, as the worker places them. Returns ``T_new`` so moved."""
         if update.tracked_scales:
             self.history.rescale_tracked(update.tracked_scales, self._by_index)
@@ -274,31 +239,26 @@ class Keyframer:
         for index, n in update.observed.items():
             prev = self._observed.get(index)
             self._observed[index] = n if prev is None or len(prev) != len(n) else np.maximum(prev, n)
-        newest = self._by_index.get(update.members[-1].index)
+        newest = update.members[-1]
+        later = [kf for kf in self.keyframes if kf.index > newest.index]  # made since the update's window
         correction = None
-        if self.worker is not None and newest is not None:
-            correction = update.members[-1].pose.compose(newest.T_world_cam.inverse())
+        if (later or T_new is not None) and newest.index in self._by_index:
+            correction = newest.pose.compose(self._by_index[newest.index].T_world_cam.inverse())
         for w in update.members:
             old = self._by_index.get(w.index)
             if old is not None:
                 old.T_world_cam = w.pose
                 old.points = dataclasses.replace(old.points, inverse_depth=w.inverse_depth.copy())
-        if self.worker is not None:
-            self.worker.keyframes = update.members
-            self.worker.rig = update.rig
-            self.worker.results.append(update.result)
-            if update.result.covariances is not None:
-                self.worker.covariances.update(update.result.covariances)
-            if correction is not None:
-                for kf in self.keyframes:
-                    if kf.index > update.members[-1].index:
-                        kf.T_world_cam = correction.compose(kf.T_world_cam)
-                if T_new is not None:
-                    T_new = correction.compose(T_new)
+        if correction is not None:
+            for kf in later:
+                kf.T_world_cam = correction.compose(kf.T_world_cam)
+            if T_new is not None:
+                T_new = correction.compose(T_new)
         return T_new
 
     def _re_express(self) -> None:
         """Have the history re-express the frames of the window's keyframes at their new poses."""
         assert self.window is not None
-        if self.window.keyframes:
-            self.history.re_express(self._by_index, since=self.window.keyframes[0].index)
+        indices = self.window.keyframe_indices()
+        if indices:
+            self.history.re_express(self._by_index, since=indices[0])

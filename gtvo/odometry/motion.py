@@ -9,7 +9,7 @@ learns from every recorded frame (:meth:`MotionModel.update`). Two models (``mot
 * ``kalman``: the constant-acceleration Kalman filter of :mod:`gtvo.motion.model` on the planar
   pose ``(X, Z, theta)``, fed every good frame's pose (a lost frame's pose is the filter's own
   prediction: it only predicts over it; a ``wheel_carried`` frame's pose is the calibrated wheel
-  odometry's, a measurement it fuses; suspect frames are never fed).
+  odometry's, a measurement it fuses; suspect and frozen frames are never fed).
 """
 
 from __future__ import annotations
@@ -43,7 +43,7 @@ class MotionModel:
 
     def predict(self, timestamp: float) -> gtsam.Pose3:
         """The guess of ``T_world_cam`` at ``timestamp`` (after the last recorded frame's)."""
-        good = self.history.good(2)  # suspect frames are left out: the step spans them
+        good = self.history.good(2)  # suspect and frozen frames are left out: the step spans them
         last = rigid_pose(good[-1].T_world_cam)
         if len(good) < 2:
             return last
@@ -58,8 +58,8 @@ class MotionModel:
         return last.compose(gtsam.Pose3.Expmap(xi))
 
     def update(self, estimate: FrameEstimate) -> None:
-        """Learn from ``estimate``, just recorded in the history (suspect frames are ignored)."""
-        if self.kalman is None or estimate.suspect:
+        """Learn from ``estimate``, just recorded in the history (suspect and frozen frames are ignored)."""
+        if self.kalman is None or estimate.excluded:
             return
         z = planar_pose_from_T_world_cam(estimate.T_world_cam)
         if not self.kalman.initialized:

@@ -1,105 +1,69 @@
-"""What a finished odometry run says about itself: :class:`OdometrySummary`, made by
+"""What a finished odometry run says about itself: :class:`gtvo.report.OdometrySummary`, made by
 :func:`summarize_odometry` from the public members of :class:`VisualOdometry`.
 
-The summary is the odometry's part of a run's ``report.json`` (:class:`gtvo.report.RunReport`),
-under the same keys and in the same order; docs/evaluation.md ("report.json") documents each.
+The summary is the odometry's part of a run's ``report.json`` (:class:`gtvo.report.RunReport`,
+whose module holds its type), under the same keys and in the same order; docs/evaluation.md
+("report.json") documents each.
 """
 
 from __future__ import annotations
 
 import statistics
-from typing import Any, Sequence, TypedDict
+from typing import Any, Sequence
 
-from gtvo.core.timing import per_frame_ms
+import numpy as np
+
+from gtvo.core.timing import StageClock, per_frame_ms
+from gtvo.evaluation.covariances import KeyframeCovariances
 from gtvo.odometry.estimates import frames_by_outcome, trusted_fraction, undetermined_frames
+from gtvo.odometry.result import MapKeyframe, OdometryResult, odometry_covariances
 from gtvo.odometry.rig_report import rig_report
 from gtvo.odometry.visual_odometry import VisualOdometry
-from gtvo.odometry.imu import imu_report
+from gtvo.odometry.imu import gravity_alignment, imu_report
 from gtvo.odometry.wheel import wheel_report
+from gtvo.report import OdometrySummary, StageTiming, WindowWorkerFigures
+
+__all__ = ["OdometrySummary", "StageTiming", "WindowWorkerFigures", "clock_timing", "keyframe_covariances",
+           "odometry_result", "stage_timing", "summarize_odometry", "window_worker_figures"]
 
 
-class StageTiming(TypedDict, total=False):
-    """A run's time by stage (docs/evaluation.md, "Where a frame's time goes"); both keys absent
-    when the run was not timed (``vo.clock`` None) or processed no frame."""
-
-    seconds_by_stage: dict[str, float]
-    ms_per_frame_by_stage: dict[str, float]
-
-
-class WindowFigures(TypedDict, total=False):
-    """The window's and the rig's figures of a run, present in window mode (the ``rig_offset_*``
-    keys when the rig offset was estimated: :func:`gtvo.odometry.rig_report.rig_report`)."""
-
-    window_backend: str | None
-    window_solver: str | None
-    window_size: int
-    window_optimisations: int
-    window_seconds_mean: float | None
-    window_iterations_mean: float | None
-    covariance_seconds: float
-    rig_calibration: bool
-    rig_offset_px: list[float]
-    rig_offset_marginal_sigma_px: list[float | None] | None
-    rig_offset_sigma_px: list[float | None] | None
-    rig_offset_x_estimated: bool
-    rig_offset_x_tested_px: float | None
-    rig_initial_delta_y_px: float | None
+def odometry_result(vo: VisualOdometry, seconds: float | None = None, skipped: Sequence[tuple[int, str]] = (),
+                    name: str = "gtvo") -> OdometryResult:
+    """What a finished run of ``vo`` hands on (:class:`gtvo.odometry.result.OdometryResult`), read once
+    after :meth:`VisualOdometry.finish` and before :meth:`VisualOdometry.close`; ``seconds`` and
+    ``skipped`` as :func:`summarize_odometry`'s, ``name`` the trajectory's (the sequence's)."""
+    config, estimates = vo.config, tuple(vo.estimates)
+    positions = [p for p, e in enumerate(estimates) if e.is_keyframe]
+    window = vo.window
+    retained = window is not None and window.retain_keyframes  # refine.enabled, window mode
+    rig = None if window is None else window.rig
+    return OdometryResult(
+        config=config, pinhole=vo.pinhole, estimates=estimates, trajectory=vo.trajectory(name),
+        summary=summarize_odometry(vo, seconds, skipped),
+        keyframes=tuple(MapKeyframe(kf.index, kf.T_world_cam.matrix(), kf.points, vo.keyframer.observed(kf.index))
+                        for kf in vo.keyframes),
+        link_covariances=tuple(odometry_covariances(estimates, positions)),
+        covariances=keyframe_covariances(vo),
+        window_keyframes=tuple(window.every_keyframe()) if retained else None,  # type: ignore[union-attr]
+        rig_offset=None if rig is None or not retained else rig.solved_offset,
+        wheel=window.wheel if retained else None, clock=vo.clock,
+        gravity_rotation=None if (aligned := gravity_alignment(vo)) is None else aligned.R_aligned_world)
 
 
-class WheelFigures(TypedDict, total=False):
-    """The wheel odometry's calibration (:meth:`gtvo.window.wheel.WheelCalibration.report`), present
-    when the run had wheel odometry."""
-
-    wheel_calibration: dict[str, Any]
-
-
-class ImuFigures(TypedDict, total=False):
-    """The IMU's figures (:func:`gtvo.odometry.imu.imu_report`: gravity, biases, their sigmas, the
-    output frame), present when the run had an IMU in the window."""
-
-    imu: dict[str, Any]
-
-
-class WindowWorkerFigures(TypedDict, total=False):
-    """What the window's worker process spent (``window.parallel``): its CPU seconds (user +
-    system), peak resident memory (MiB), wall seconds by stage of its own clock, its kernel
-    threads and the CPU seconds its pool threads spent beside its main thread; present only
-    when the window ran in a worker (the front end's ``seconds_by_stage`` then shows the wait)."""
-
-    window_worker: dict[str, Any]
-
-
-class OdometrySummary(StageTiming, WindowFigures, WheelFigures, ImuFigures, WindowWorkerFigures):
-    """The odometry's figures of a run, in ``report.json`` order (:func:`summarize_odometry`).
-
-    Always: what ran (``mode``, ``tracker_solver``, ``motion_model``), the counts, the frame
-    outcomes, the tracking statistics and ``covariances`` (whether the keyframes' covariances were
-    computed; the report replaces it by what was written). In window mode also the window's and
-    the rig's figures (:func:`gtvo.odometry.rig_report.rig_report`). Then the stage timing.
-    """
-
-    mode: str
-    tracker_solver: str
-    motion_model: str
-    frames: int
-    keyframes: int
-    seconds: float | None
-    frames_per_second: float | None
-    tracking_failures: int
-    reinitialisations: int
-    flow_recoveries: int
-    lost_frames: int
-    suspect_frames: int
-    trusted_fraction: float | None
-    undetermined_frames: list[int]
-    skipped_frames: list[int]
-    frame_outcomes: dict[str, Any]
-    tracking_iterations_mean: float | None
-    tracking_rotation_sigma_deg_median: float | None
-    tracking_rotation_sigma_deg_max: float | None
-    tracking_translation_sigma_m_median: float | None
-    tracking_translation_sigma_m_max: float | None
-    covariances: str
+def keyframe_covariances(vo: VisualOdometry, inflation: float = 1.0) -> KeyframeCovariances | None:
+    """Every keyframe's pose covariance from its last window optimisation, times ``inflation``
+    (:meth:`VisualOdometry.covariance`); None when the run computed none (track mode or
+    ``WindowConfig.covariances=False``)."""
+    if vo.window is None or not vo.config.window.covariances:
+        return None
+    stamp = {e.index: e.timestamp for e in vo.estimates}
+    rows = [(kf.index, P) for kf in vo.keyframes if (P := vo.covariance(kf, inflation)) is not None]
+    cw = vo.config.window
+    source = ("iSAM2 marginalCovariance of the fixed-lag smoother" if cw.backend == "fixed_lag" else
+              "gtsam.Marginals of the window's graph" if vo.config.solver.window == "gtsam" else
+              "inverse of the window's reduced Hessian (hand-rolled)")
+    return KeyframeCovariances(np.array([i for i, _ in rows], dtype=np.int64), np.array([stamp[i] for i, _ in rows]),
+                               np.array([P for _, P in rows]).reshape(-1, 6, 6), source, float(inflation))
 
 
 def summarize_odometry(vo: VisualOdometry, seconds: float | None = None,
@@ -148,7 +112,7 @@ def summarize_odometry(vo: VisualOdometry, seconds: float | None = None,
     if config.mode == "window":
         window, results = vo.window, vo.window_results
         out.update({
-            "window_backend": window.backend.name if window is not None else None,
+            "window_backend": window.backend_name if window is not None else None,
             "window_solver": window.solver_name(config.solver.window) if window is not None else None,
             "window_size": config.window.size,
             "window_optimisations": len(results),
@@ -170,19 +134,23 @@ def stage_timing(vo: VisualOdometry) -> StageTiming:
     """``seconds_by_stage`` (the run's seconds in each stage of :data:`gtvo.core.timing.FRAME_STAGES`,
     an open stage's time so far included) and ``ms_per_frame_by_stage`` (the same per processed
     frame, ms); empty when the run was not timed (``vo.clock`` None) or processed no frame."""
-    seconds = {} if vo.clock is None else vo.clock.snapshot()
-    if not seconds or not vo.estimates:
+    return clock_timing(vo.clock, len(vo.estimates))
+
+
+def clock_timing(clock: StageClock | None, frames: int) -> StageTiming:
+    """:func:`stage_timing` of a run's ``clock`` over its ``frames`` processed frames."""
+    seconds = {} if clock is None else clock.snapshot()
+    if not seconds or not frames:
         return {}
-    return {"seconds_by_stage": seconds, "ms_per_frame_by_stage": per_frame_ms(seconds, len(vo.estimates))}
+    return {"seconds_by_stage": seconds, "ms_per_frame_by_stage": per_frame_ms(seconds, frames)}
 
 
 def window_worker_figures(vo: VisualOdometry) -> WindowWorkerFigures:
     """``window_worker`` (:class:`WindowWorkerFigures`) when the window runs in a worker process;
     empty otherwise. Asks the worker, so call it before the worker is closed."""
-    worker = getattr(vo.keyframer, "worker", None)
-    if worker is None:
+    usage = None if vo.window is None else vo.window.worker_usage()
+    if usage is None:
         return {}
-    usage = worker.usage()
     return {"window_worker": {"cpu_seconds": float(usage.cpu_seconds), "max_rss_mib": float(usage.max_rss_mib),
                               "seconds_by_stage": {k: float(v) for k, v in usage.seconds_by_stage.items()},
                               "kernel_threads": int(usage.kernel_threads),

@@ -116,7 +116,4 @@ def _window_keyframes(keyframer: "Keyframer") -> list[Keyframe]:
     """The keyframes of the window (window mode), else the latest keyframe, oldest first."""
     if not keyframer.keyframes:
         return []
-    if keyframer.window is None or not keyframer.window.keyframes:
-        return [keyframer.keyframes[-1]]
-    found = [keyframer.keyframe(w.index) for w in keyframer.window.keyframes]
-    return [kf for kf in found if kf is not None]
+    return keyframer.window_keyframes() or [keyframer.keyframes[-1]]

@@ -9,7 +9,8 @@ composed of parts that each own their state, in their own files:
   constant-acceleration Kalman filter), learning from every recorded frame;
 * :class:`gtvo.odometry.frame_tracking.FrameTracker`: tracking against the latest keyframe from
   several guesses, with the optical-flow fallback;
-* :class:`gtvo.odometry.checks.FrameChecks`: whether a tracked frame is *suspect*;
+* :class:`gtvo.odometry.checks.FrameChecks`: whether a frame is *frozen* (its image repeats the
+  previous one's while the rig moves) or a tracked frame *suspect*;
 * :class:`gtvo.odometry.keyframer.Keyframer`: the keyframes (points with stereo or RGB-D depths)
   and their link to the sliding window (schedule, write-back, the rig offset's window).
 
@@ -31,8 +32,7 @@ from numpy.typing import NDArray
 from factors.photometric import GradientImage
 from gtvo.config import OdometryConfig
 from gtvo.core.camera import PinholeCamera, StereoCamera
-from gtvo.core.image import to_float_gray
-from gtvo.core.map_points import MapPoints, constrained_mask
+from gtvo.core.map_points import MapPoints
 from gtvo.core.timing import StageClock
 from gtvo.datasets.sequence import Frame
 from gtvo.datasets.imu import ImuMeasurements
@@ -46,10 +46,10 @@ from gtvo.odometry.frame_tracking import FrameTracker, Track
 from gtvo.odometry.history import FrameHistory
 from gtvo.odometry.keyframer import Keyframer
 from gtvo.odometry.motion import MotionModel
+from gtvo.odometry.result import MapKeyframe, keyframe_map
 from gtvo.odometry.view import OdometryView
 from gtvo.odometry.wheel import wheel_calibration
-from gtvo.window.imu import ImuWindow
-from gtvo.config.imu import imu_window_settings
+from gtvo.window.imu import ImuWindow, imu_window_settings
 
 
 @dataclass(frozen=True)
@@ -85,11 +85,11 @@ class VisualOdometry:
         history, motion, tracker, checks, keyframer: the parts (module docstring).
         estimates: one :class:`FrameEstimate` per processed frame (``history.estimates``).
         keyframes: every keyframe made so far (``keyframer.keyframes``).
-        window: the :class:`gtvo.window.SlidingWindowOptimizer` (window mode), else None; its
-            ``rig`` is the rig offset's estimate when the window calibrates the rig. With
-            ``window.parallel`` the :class:`gtvo.odometry.window_worker.WindowWorker` that runs it in
-            a worker process (its keyframes, covariances and rig as of its last applied update; call
-            :meth:`close`, or use the odometry as a context manager, to end the worker early).
+        window: the sliding window's port (:class:`gtvo.odometry.window_port.WindowPort`; window
+            mode), else None: the window in this process, or with ``window.parallel`` in a worker
+            process (its state as of its last update handed out; call :meth:`close`, or use the
+            odometry as a context manager, to end the worker early). Its ``rig`` is the rig
+            offset's estimate when the window calibrates the rig.
         window_results: one :class:`gtvo.window.WindowResult` per window optimisation.
         failures: frames whose tracking failed (re-initialised or lost).
         lost_frames: frames whose tracking failed and that had too few points to become a
@@ -178,20 +178,9 @@ class VisualOdometry:
         ``keyframe_poses``: ``{keyframe index: 4x4 T_world_cam}`` to place keyframes elsewhere than
         at their odometry poses (e.g. after loop closing); a keyframe missing from it keeps its own.
         """
-        pts, vals = [np.zeros((0, 3))], [np.zeros(0)]
-        left_out: dict[str, int] = {}
-        for kf in self.keyframes:
-            # keyframes no window optimisation included (track mode, a run with one keyframe)
-            # keep their measured depths, under the depth rules alone
-            observed = self.keyframer.observed(kf.index)
-            keep, out = constrained_mask(kf.points.inverse_depth, kf.points.variance,
-                                         None if observed is None else 1 + observed)
-            for k, v in out.items():
-                left_out[k] = left_out.get(k, 0) + v
-            T = None if keyframe_poses is None else keyframe_poses.get(kf.index)
-            pts.append(self.keyframer.world_points(kf, T)[keep])
-            vals.append(np.asarray(kf.points.intensity, dtype=float)[keep])
-        return MapPoints(np.concatenate(pts), np.concatenate(vals), left_out)
+        return keyframe_map(self.pinhole, [MapKeyframe(kf.index, kf.T_world_cam.matrix(), kf.points,
+                                                        self.keyframer.observed(kf.index)) for kf in self.keyframes],
+                            keyframe_poses)
 
     def covariance(self, keyframe: int | Keyframe, inflation: float = 1.0) -> NDArray[np.float64] | None:
         """The 6x6 pose covariance of a keyframe (its frame index, or the :class:`Keyframe`) from the
@@ -229,14 +218,23 @@ class VisualOdometry:
         t0 = time.perf_counter()
         if self.estimates and frame.timestamp <= self.estimates[-1].timestamp:
             raise InputError(f"frame {frame.index}: timestamp {frame.timestamp} is not after the previous frame's")
-        left = to_float_gray(frame.left, f"frame {frame.index} left image")
+        left = frame.left  # float32 gray, converted once where the frame was read (Frame)
         if not self.keyframes:                                            # 1. the first frame starts the map
             try:
                 kf = self.keyframer.make(frame, left, gtsam.Pose3())
             except TooFewPoints as exc:  # nothing can start from the first frame
                 raise InputError(str(exc)) from None
             return self._record(frame, left, Outcome(FrameOutcome.KEYFRAME, kf.T_world_cam), t0)
-        T_pred = self._imu_pose(frame) or self.motion.predict(frame.timestamp)  # 2. predict (the IMU's, with one)
+        T_pred = self._imu_pose(frame) or self.motion.predict(frame.timestamp)  # 2. predict (the IMU's, with one;
+        #    the wheels: after a freeze)
+        T_wheel = self._wheel_pose(frame)
+        if (why := self.checks.frozen(frame, left, self.keyframes[-1], T_pred if T_wheel is None else T_wheel,
+                                      T_wheel is not None)) is not None:  # 2b. a frozen camera: a guess, untracked
+            T_guess, kf = T_pred if T_wheel is None else T_wheel, self.keyframes[-1]
+            return self._record(frame, left, Outcome(FrameOutcome.FROZEN, T_guess, None,
+                                                     kf.T_world_cam.between(T_guess), why), t0)
+        if T_wheel is not None and self.estimates[-1].outcome is FrameOutcome.FROZEN:
+            T_pred = T_wheel  # after a freeze the wheels, which measured the gap, are the better guess
         pyramid = self.tracker.pyramid(left, self.keyframes[-1])
         kf, track, T_pred, last = self._track(frame, left, pyramid, T_pred)  # 3. track (guesses, promotion, flow)
         if not track.result.success:                                      # 4. re-initialise, or the frame is lost
@@ -331,7 +329,7 @@ class VisualOdometry:
         candidate (unless it is suspect, lost or just failed to become a keyframe)."""
         kind, result = outcome.kind, None if outcome.track is None else outcome.track.result
         tracked = result is not None and kind is not FrameOutcome.REINITIALISED
-        kf_index = self.keyframes[-1].index if tracked else frame.index
+        kf_index = self.keyframes[-1].index if tracked or kind is FrameOutcome.FROZEN else frame.index
         if tracked and kind is FrameOutcome.KEYFRAME:  # tracked against the keyframe before this one
             kf_index = self.keyframes[-2].index
         flow_reason = outcome.track.flow_reason if outcome.track is not None else None
@@ -342,7 +340,7 @@ class VisualOdometry:
                             time.perf_counter() - t0, kf_index, outcome.T_keyframe_frame, reason, flow)
         self.history.append(est)
         self._last = (outcome.track if tracked else None, self.keyframer.keyframe(kf_index))
-        if not est.suspect:  # a suspect frame: not learnt from; the candidate stays the last good frame
+        if not est.excluded:  # a suspect or frozen frame: not learnt from; the candidate stays the last good frame
             self.keyframer.candidate = (frame, left) if outcome.candidate and not est.lost else None
             self.motion.update(est)
         return est

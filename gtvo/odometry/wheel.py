@@ -8,18 +8,20 @@ a frame the images cannot place by it.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import gtsam
 import numpy as np
 from numpy.typing import ArrayLike
 
-from gtvo.config.wheel import WheelConfig
+from gtvo.config.sections.wheel import WheelConfig
 from gtvo.datasets.wheel import WheelOdometry
 from gtvo.errors import InputError
-from gtvo.window import SlidingWindowOptimizer
 from factors.wheel_odometry import DIFF_DRIVE_NAMES
 from gtvo.window.wheel import WheelCalibration, WheelSettings
+
+if TYPE_CHECKING:
+    from gtvo.odometry.window_port import WindowPort
 
 
 def wheel_calibration(config: WheelConfig, log: WheelOdometry) -> WheelCalibration:
@@ -35,7 +37,7 @@ def wheel_calibration(config: WheelConfig, log: WheelOdometry) -> WheelCalibrati
     return WheelCalibration(settings, log)
 
 
-def wheel_report(wheel: WheelCalibration | None, window: SlidingWindowOptimizer | None) -> dict[str, Any]:
+def wheel_report(wheel: WheelCalibration | None, window: WindowPort | None) -> dict[str, Any]:
     """``{"wheel_calibration": ...}`` (:meth:`gtvo.window.wheel.WheelCalibration.report` at the final
     ``window``'s marginal covariance) when the run had wheel odometry (``wheel``), else nothing."""
     if wheel is None:

@@ -118,6 +118,8 @@ class WindowLink:
                                              rig_offset=np.zeros(2) if rig else None, wheel=wheel)
         if imu is not None:
             self.window.use_imu(imu)
+        # the whole-log refinement needs every keyframe (gtvo.refinement): kept only when it runs
+        self.window.retain_keyframes = config.refine.enabled
 
     def join(self, request: KeyframeForWindow) -> None:
         """Add the keyframe to the window (the oldest leaves first when it is full).

@@ -1,10 +1,13 @@
-"""The window beside the tracker: a :class:`gtvo.odometry.window_link.WindowLink` in a worker process.
+"""The window beside the tracker: a :class:`gtvo.odometry.window_link.WindowLink` in a worker
+process, one of the two machines behind :class:`gtvo.odometry.window_port.WindowPort`.
 
 ``window.parallel: true`` (docs/window.md, "The window beside the tracker"). The window's host
 factors hold the GIL, so a thread would not run them beside the tracker: the window lives in a
 worker process (``python -c`` on a socket pair) that owns its whole state (keyframes with their
-images, the marginal prior, the rig offset). The front end sends each new keyframe (pose, points, the keyframe it was tracked
-against) with its two images in grey levels through shared memory (a ring of :data:`SLOTS`
+images, the marginal prior, the rig offset, its copy of the wheel calibration; with ``--refine``
+the keyframes that left, handed back by :meth:`WindowWorker.finish`). The front end sends each new
+keyframe (pose, points, the keyframe it was tracked against) with its two images in grey levels
+through shared memory (a ring of :data:`SLOTS`
 buffers in one ``memfd`` mapped by both: nothing to unlink, nothing for a resource tracker to
 report), and gets back per keyframe one reply: the :class:`gtvo.odometry.window_link.WindowUpdate`
 of the optimisation it asked for (poses, depths, figures), or nothing.
@@ -48,6 +51,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from factors.compact_image import compact_image
 from factors.photometric import GradientImage
 from gtvo.config import OdometryConfig
 from gtvo.core.camera import PinholeCamera, StereoCamera
@@ -58,7 +62,9 @@ from gtvo.odometry.blas import single_threaded_blas
 from gtvo.odometry.window_link import KeyframeForWindow, WindowLink, WindowMember, WindowUpdate
 from gtvo.window.fixed_lag import FixedLagBackend
 from gtvo.window.optimizer import LMBackend
+from gtvo.window import WindowKeyframe, WindowResult
 from gtvo.window.rig import RigOffset
+from gtvo.window.wheel import WheelCalibration
 
 #: The front end applies the reply for keyframe ``n`` once it has sent keyframe ``n + LAG``.
 LAG = 2
@@ -88,23 +94,33 @@ class WorkerUsage:
 
 
 class WindowWorker:
-    """The window in a worker process (module docstring), as the keyframer sees it: the window's
-    members as of the last applied update, their covariances, the rig offset, the results.
+    """The window in a worker process (module docstring): a
+    :class:`gtvo.odometry.window_port.WindowPort` whose state is the window's as of the last
+    update handed out (its members, their covariances, the rig offset, the wheel calibration, the
+    results), and, after :meth:`finish` with ``retain_keyframes``, every keyframe it has had.
 
     Args:
         camera: a :class:`StereoCamera` for stereo input, a :class:`PinholeCamera` for RGB-D.
         config: the run's settings (``config.window.parallel``).
+        wheel: the wheel calibration the window estimates (LM back end), or None. The worker
+            estimates its own copy; this one (the front end's) takes each handed-out update's estimate.
     """
 
-    def __init__(self, camera: StereoCamera | PinholeCamera, config: OdometryConfig) -> None:
+    def __init__(self, camera: StereoCamera | PinholeCamera, config: OdometryConfig,
+                 wheel: WheelCalibration | None = None) -> None:
         pinhole = camera.left if isinstance(camera, StereoCamera) else camera
         self.config = config
         self.backend = FixedLagBackend if config.window.backend == "fixed_lag" else LMBackend
-        #: the window's keyframes after the last applied update, oldest first
-        self.keyframes: list[WindowMember] = []
+        #: the window's keyframes after the last update handed out, oldest first
+        self.members: list[WindowMember] = []
         #: frame index -> 6x6 pose covariance (as :attr:`SlidingWindowOptimizer.covariances`)
         self.covariances: dict[int, NDArray[np.float64]] = {}
-        self.results: list[Any] = []
+        self.results: list[WindowResult] = []
+        #: the wheel calibration (the front end's object), its estimate as of the last update handed out
+        self.wheel = wheel
+        #: the worker's window keeps every keyframe for the whole-log refinement (``refine.enabled``)
+        self.retain_keyframes = bool(config.refine.enabled)
+        self._every: list[WindowKeyframe] | None = None  # every keyframe, brought back by finish()
         stereo = isinstance(camera, StereoCamera)
         rig = stereo and config.window.rig_calibration and config.window.backend == "lm"
         #: the worker's rig offset as of the last applied update (the front end's stereo search reads it)
@@ -130,13 +146,19 @@ class WindowWorker:
         parent_sock.close()
         self._finalizer = weakref.finalize(self, _stop, self._conn, self._process, self._memory)
         try:  # the worker's settings: the one message without a reply
-            self._conn.send(("start", camera, config, self._shape, SLOTS, self._slot_size))
+            self._conn.send(("start", camera, config, wheel, self._shape, SLOTS, self._slot_size))
         except OSError:
             raise self._died() from None
 
-    # -- what the keyframer calls --------------------------------------------------------------
+    # -- the port: driving the window ---------------------------------------------------------
+    @property
+    def backend_name(self) -> str:
+        """The worker's window back end, ``"lm"`` or ``"fixed_lag"``."""
+        return str(self.backend.name)
+
     def join(self, request: KeyframeForWindow, optimize: bool) -> None:
         """Send a new keyframe (and whether the window is optimised after it joins)."""
+        self._every = None
         slot = self._sent % SLOTS
         self._receive_until(self._sent - SLOTS)  # the slot's last keyframe was read
         left = request.left.image if isinstance(request.left, GradientImage) else request.left
@@ -160,20 +182,52 @@ class WindowWorker:
         self._send(("optimize",))
         self._joins.append(self._sent - 1)
 
-    def due(self) -> list[WindowUpdate]:
-        """The updates the front end applies now: those of the keyframes joined :data:`LAG` or more
-        keyframes ago (waits for them), oldest first."""
-        return self._hand_out(len(self._joins) - LAG)
+    def due(self, now: bool = False) -> list[WindowUpdate]:
+        """The updates the front end applies now, oldest first (waits for them): those of the
+        keyframes joined :data:`LAG` or more keyframes ago, or with ``now`` every one."""
+        return self._hand_out(len(self._joins) - (0 if now else LAG))
 
     def finish(self) -> list[WindowUpdate]:
-        """Every update not handed out yet (waits for all)."""
-        return self._hand_out(len(self._joins))
+        """The run's end: every update not handed out yet (waits for all); with ``retain_keyframes``
+        also brings back every keyframe the worker's window has had (:meth:`every_keyframe`)."""
+        updates = self.due(now=True)
+        if self.retain_keyframes:
+            self._every = self._ask(("every_keyframe",))
+        return updates
+
+    # -- the port: the window's state ----------------------------------------------------------
+    def keyframe_indices(self) -> list[int]:
+        """The frame indices of the window's keyframes as of the last update handed out."""
+        return [m.index for m in self.members]
+
+    def right_brightness(self) -> tuple[float, float] | None:
+        """The newest member's right-camera brightness ``(a, b)`` as of the last update handed out."""
+        last = self.members[-1].stereo_affine if self.members else None
+        return None if last is None else (float(last[0]), float(last[1]))
 
     def rig_offset_covariance(self) -> NDArray[np.float64] | None:
         """:meth:`gtvo.window.SlidingWindowOptimizer.rig_offset_covariance` of the worker's window now."""
         return self._ask(("rig_offset_covariance",))
 
-    def usage(self) -> WorkerUsage:
+    def wheel_covariance(self) -> NDArray[np.float64] | None:
+        """:meth:`gtvo.window.SlidingWindowOptimizer.wheel_covariance` of the worker's window now,
+        also kept in the front end's ``wheel.covariance``."""
+        if self.wheel is None:
+            return None
+        cov = self._ask(("wheel_covariance",))
+        if cov is not None:
+            self.wheel.covariance = cov
+        return cov
+
+    def every_keyframe(self) -> list[WindowKeyframe]:
+        """Every keyframe the worker's window has had (``retain_keyframes``), oldest first, their
+        images compact (:mod:`factors.compact_image`), as of the last :meth:`finish` (asked now
+        when a keyframe joined since and the worker still runs)."""
+        if self._every is None:
+            self._every = self._ask(("every_keyframe",))
+        return self._every
+
+    def worker_usage(self) -> WorkerUsage:
         """The worker's CPU time, peak memory and stage seconds so far."""
         return self._ask(("usage",))
 
@@ -205,8 +259,19 @@ class WindowWorker:
             self._receive_until(number)
             reply = self._received.popleft()
             if reply is not None:
+                self._take(reply)
                 out.append(reply)
         return out
+
+    def _take(self, update: WindowUpdate) -> None:
+        """The port's state as of ``update`` (handed out now)."""
+        self.members = update.members
+        self.rig = update.rig
+        self.results.append(update.result)
+        if update.result.covariances is not None:
+            self.covariances.update(update.result.covariances)
+        if self.wheel is not None and update.result.wheel_calibration is not None:
+            self.wheel.estimate = update.result.wheel_calibration.copy()
 
     def _ask(self, message: tuple) -> Any:
         self._send(message)
@@ -294,14 +359,14 @@ def main(socket_fd: int, memory_fd: int) -> None:
     """The worker process: its pipe and shared memory from the parent, then :func:`serve`."""
     conn = Connection(socket_fd)
     try:
-        kind, camera, config, shape, slots, slot_size = conn.recv()
+        kind, camera, config, wheel, shape, slots, slot_size = conn.recv()
     except (EOFError, OSError):
         return
     memory = mmap.mmap(memory_fd, slots * slot_size)
     set_kernel_threads(worker_threads(config))
     with single_threaded_blas():
         warm_up(camera, config)
-    serve(conn, camera, config, memory, slot_size, shape)
+    serve(conn, camera, config, memory, slot_size, shape, wheel)
 
 
 def worker_threads(config: OdometryConfig) -> int:
@@ -339,10 +404,11 @@ def warm_up(camera: StereoCamera | PinholeCamera, config: OdometryConfig) -> Non
 
 
 def serve(conn: Connection, camera: StereoCamera | PinholeCamera, config: OdometryConfig,
-          memory: mmap.mmap, slot_size: int, shape: tuple[int, int]) -> None:
-    """The worker's loop: one reply per message, in order, until the pipe closes."""
+          memory: mmap.mmap, slot_size: int, shape: tuple[int, int], wheel: WheelCalibration | None = None) -> None:
+    """The worker's loop: one reply per message, in order, until the pipe closes (``wheel``: the
+    worker's copy of the wheel calibration its window estimates)."""
     clock = StageClock()
-    link = WindowLink(camera, config)
+    link = WindowLink(camera, config, wheel=wheel)
     while True:
         try:
             message = conn.recv()
@@ -381,6 +447,11 @@ def _handle(link: WindowLink, message: tuple, memory: mmap.mmap, slot_size: int,
         return link.optimize()
     if kind == "rig_offset_covariance":
         return link.window.rig_offset_covariance()
+    if kind == "wheel_covariance":
+        return link.window.wheel_covariance()
+    if kind == "every_keyframe":  # images compact: grey levels only (factors.compact_image)
+        return [dataclasses.replace(k, image=compact_image(k.image), right=compact_image(k.right))
+                for k in link.window.every_keyframe()]
     if kind == "usage":
         ru = resource.getrusage(resource.RUSAGE_SELF)
         return WorkerUsage(ru.ru_utime + ru.ru_stime, ru.ru_maxrss / 1024.0, clock.snapshot(), kernel_threads(),

@@ -8,7 +8,7 @@ tree's ``refine`` section. :func:`gtvo.run` runs it when ``refine.enabled``
 (:mod:`gtvo.refinement.run` joins it to a run's outputs).
 """
 
-from gtvo.refinement.config import RefineConfig
+from gtvo.config.sections.refine import RefineConfig
 from gtvo.refinement.graph import covisible_targets, loop_factors
 from gtvo.refinement.solve import RefinementInput, RefinementResult, refine_keyframes
 

@@ -22,7 +22,7 @@ from gtvo.window.config import WindowConfig, WindowKeyframe
 from gtvo.window.problem import TargetChoice, visible_targets
 
 if TYPE_CHECKING:
-    from gtvo.refinement.config import RefineConfig
+    from gtvo.config.sections.refine import RefineConfig
 
 F64 = NDArray[np.float64]
 

@@ -1,64 +1,40 @@
-"""The whole-log refinement joined to a run (:func:`refine_run`): what :func:`gtvo.run` does after
-the window pass and loop closing when ``refine.enabled``.
+"""The whole-log refinement joined to a run: the stage :func:`run_refinement` (what :func:`gtvo.run` does
+after the window pass and loop closing when ``refine.enabled``) over :func:`refine_run`.
 
 The keyframes are refined (:func:`gtvo.refinement.refine_keyframes`, from the loop-closed poses
 and with the accepted loop edges when loops were closed); the other frames move with their
 keyframe and are then re-placed against the refined keyframes and their refined points by the
 loop closing's frame refinement (:func:`gtvo.loops.closing.refine_result_frames`). When the
-refinement does not run, is not kept, or is interrupted (Ctrl-C), the run's answer is the one it
-would have been without it: the window's trajectory, and with loop closing its frames re-placed
-against the loop-closed keyframes as ``--loop-closure`` alone does.
+refinement does not run or is not kept, the run's answer is the one it would have been without
+it: the window's trajectory, and with loop closing its frames re-placed against the loop-closed
+keyframes as ``--loop-closure`` alone does. Ctrl-C during it stops the run as anywhere else.
 """
 
 from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import Callable, Mapping, Sequence as Seq, TypedDict
+from typing import Callable, Mapping
 
 import numpy as np
 from numpy.typing import NDArray
 
-from factors.params import PhotometricConfig
-from gtvo.core.interrupt import forget_interrupt, interrupt_requested, raise_if_interrupted
+from gtvo.core.interrupt import raise_if_interrupted
 from gtvo.datasets.sequence import Sequence
-from gtvo.errors import caused_by_interrupt
 from gtvo.evaluation.accuracy import run_accuracy
 from gtvo.evaluation.trajectory import Trajectory
 from gtvo.frontend.stereo_depth import KeyframePoints
-from gtvo.frontend.tracking import TrackingConfig
 from gtvo.loops.closing import LoopClosingResult, refine_result_frames, relocate_frames
-from gtvo.refinement.config import RefineConfig
+from gtvo.odometry.result import OdometryResult
+from gtvo.report import RefinementSummary
 from gtvo.refinement.solve import RefinementInput, RefinementResult, refine_keyframes
-from gtvo.window.config import WindowConfig, WindowKeyframe
-from gtvo.window.wheel import WheelCalibration
 from gtvo.window.problem import WindowMembers, WindowSettings
 
 F64 = NDArray[np.float64]
 
-#: The one line a Ctrl-C during the refinement leaves (the run then writes its window-only outputs).
-INTERRUPTED = "refinement interrupted (Ctrl-C): writing the window-only outputs"
-
-
-class RefinementSummary(TypedDict, total=False):
-    """The report's ``refine`` block (docs/evaluation.md, "report.json")."""
-
-    ran: bool
-    reason: str | None
-    solver: str
-    keyframes: int
-    targets_mean: float
-    iterations: int
-    cost_before: float | None
-    cost_after: float | None
-    seconds: float
-    loop_edges: int
-    loop_edges_dropped: int
-    frames_replaced: int
-    wheel_calibration: list[float]
-    window_ate_rmse_m: float | None
-    window_ate_sim3_rmse_m: float | None
-    window_scale_ratio: float | None
+#: ``covariances.npz``'s source when the whole-log refinement was kept (its graph's marginals).
+REFINED_COVARIANCES = {"gtsam": "gtsam.Marginals of the whole-log refinement's graph",
+                       "handrolled": "inverse of the whole-log refinement's reduced Hessian (hand-rolled)"}
 
 
 @dataclass
@@ -85,104 +61,123 @@ class RunRefinement:
     frames_replaced: int = 0
 
 
-def refine_run(seq: Sequence, trajectory: Trajectory, frame_indices: list[int], keyframes: list[int],
-               window_keyframes: Seq[WindowKeyframe], window: WindowConfig, config: RefineConfig, *,
-               photometric: PhotometricConfig, tracking: TrackingConfig, rig_offset: F64 | None,
-               keyframe_points: Mapping[int, KeyframePoints], odometry_covariances: Seq[F64 | None],
-               refine: Seq[bool], loop_result: LoopClosingResult | None = None, progress: bool = False,
-               warn: Callable[[str], None] = print, wheel: WheelCalibration | None = None) -> RunRefinement:
+def run_refinement(result: OdometryResult, seq: Sequence, progress: bool = False,
+                   warn: Callable[[str], None] = print) -> OdometryResult:
+    """The whole-log refinement as a stage of a run: ``result`` itself when the window kept no
+    keyframes for it (``refine.enabled`` false, or track mode), else a copy with the refinement's
+    outcome (:func:`refine_run`, with the run's settings and what the window left): the trajectory
+    refined (without loop closing), the loop closing's frames re-placed against the refined keyframes
+    (its own copy: ``result.loops`` is left as it was), the keyframes' refined depths and pose
+    covariances, the map on the refined keyframes and the report's ``refine`` block. When the
+    refinement is not kept the run's answer stays the one it would have been without it.
+    """
+    if result.window_keyframes is None:
+        return result
+    loops = None if result.loops is None else dataclasses.replace(result.loops)  # type: ignore[type-var]
+    refined = refine_run(seq, result, loops, progress, warn)
+    closed = refined.loop_result
+    map_poses = closed.keyframe_poses if closed is not None else (refined.keyframe_poses or None)
+    return result.with_refined_keyframes(refined.inverse_depths, refined.covariances,
+                                         REFINED_COVARIANCES[result.config.refine.solver],
+                                         trajectory=refined.trajectory, loops=closed, refinement=refined.summary,
+                                         map_poses=map_poses)
+
+
+@dataclass(frozen=True)
+class _Job:
+    """One refinement of a run: the sequence it read, the odometry's result (trajectory, keyframes,
+    their points and link covariances, the window's keyframes, rig offset and wheels, the settings),
+    the keyframes' positions in the trajectory and whether to show progress bars."""
+
+    seq: Sequence
+    odometry: OdometryResult
+    keyframes: list[int]
+    progress: bool
+
+    def re_place(self, result: LoopClosingResult, points: Mapping[int, KeyframePoints]) -> None:
+        """Re-place the tracked frames of ``result`` against its keyframes and ``points``
+        (:func:`gtvo.loops.closing.refine_result_frames`)."""
+        odo, config = self.odometry, self.odometry.config
+        refine_result_frames(self.seq, result, odo.frame_indices, self.keyframes, self.progress,
+                             odo.link_covariances, points, config.tracking, odo.tracked, photometric=config.photometric)
+
+
+def refine_run(seq: Sequence, odometry: OdometryResult, loop_result: LoopClosingResult | None = None,
+               progress: bool = False, warn: Callable[[str], None] = print) -> RunRefinement:
     """Refine a run's keyframes and re-place its frames (module docstring).
 
     Args:
-        seq: the sequence the run read; trajectory: the window's trajectory (every frame).
-        frame_indices: per pose of ``trajectory``, its frame index; keyframes: the keyframes'
-            positions in ``trajectory`` (increasing).
-        window_keyframes: every keyframe of the window pass with its images
-            (:meth:`gtvo.window.SlidingWindowOptimizer.every_keyframe`).
-        window, config, photometric, tracking: the run's settings.
-        rig_offset: the window's final rig offset (None: the rectified model).
-        keyframe_points: the VO's keyframe points by frame index; odometry_covariances: per pair of
-            consecutive keyframes (:func:`gtvo.loops.closing.odometry_covariances`).
-        refine: per pose, whether the frame may be re-placed (tracked frames).
+        seq: the sequence the run read.
+        odometry: the odometry's result with the window's keyframes kept for the refinement
+            (``window_keyframes``; its trajectory, frames, keyframe points and link covariances, the
+            window's final rig offset and wheel calibration, and the run's settings are used).
         loop_result: the loop closing's result before its frame refinement (``refine_frames=False``).
-        progress: progress bars; warn: where the one line of an interrupt or a refinement not kept goes.
-        wheel: the run's wheel odometry and calibration (the window's), None without wheels
-            (:func:`gtvo.refinement.refine_keyframes`).
+        progress: progress bars; warn: where the one line of a refinement not kept goes.
     """
-    kfs = sorted(set(int(k) for k in keyframes))
+    if odometry.window_keyframes is None:
+        raise ValueError("refine_run: the odometry kept no window keyframes (refine.enabled was off)")
+    job = _Job(seq, odometry, sorted(set(int(k) for k in odometry.keyframe_positions)), progress)
+    config, trajectory = odometry.config, odometry.trajectory
     closed = loop_result is not None and any(loop_result.accepted)
     edges = [e for e, a in zip(loop_result.measured_edges, loop_result.accepted) if a] if loop_result else []
-    base = loop_result.trajectory if loop_result is not None else trajectory
-    res: RefinementResult | None = None
     out = RunRefinement(trajectory, loop_result, {}, {}, None, {})
-    try:
-        run = RefinementInput(WindowMembers(seq.pinhole, getattr(seq.camera, "baseline", None), window_keyframes),
-                              WindowSettings(window, photometric, on_iteration=lambda it, cost: raise_if_interrupted()),
-                              rig_offset, (wheel,), edges, loop_result.keyframe_poses if closed else None,
-                              odometry_covariances)
-        res = refine_keyframes(run, config, progress)
-        if res.ran:
-            out = _re_place(seq, base, frame_indices, kfs, res, keyframe_points, odometry_covariances, tracking,
-                            photometric, refine, loop_result, trajectory, progress)
-    except BaseException as exc:  # noqa: BLE001 (an interrupt, perhaps inside compiled code)
-        if not (isinstance(exc, KeyboardInterrupt) or caused_by_interrupt(exc) or interrupt_requested()):
-            raise
-        forget_interrupt()
-        warn(INTERRUPTED)
-        res = dataclasses.replace(res, ran=False, reason="interrupted (Ctrl-C)") if res is not None else None
-        out = RunRefinement(trajectory, loop_result, {}, {}, None, {})
-    if res is not None and not res.ran and res.reason != "interrupted (Ctrl-C)":
+    # Ctrl-C here is Ctrl-C everywhere (README, "Failures and exit codes"): the run stops, exit 130,
+    # the earlier outputs kept
+    run = RefinementInput(WindowMembers(seq.pinhole, getattr(seq.camera, "baseline", None), odometry.window_keyframes),
+                          WindowSettings(config.window, config.photometric,
+                                         on_iteration=lambda it, cost: raise_if_interrupted()),
+                          odometry.rig_offset, (odometry.wheel,), edges,
+                          loop_result.keyframe_poses if closed else None, odometry.link_covariances)
+    res = refine_keyframes(run, config.refine, progress)
+    if res.ran:
+        out = _re_place(job, res, loop_result)
+    else:
         warn(f"refinement not kept: {res.reason}")
     if not out.keyframe_poses and loop_result is not None:  # the loop closing's own frame refinement
-        refine_result_frames(seq, loop_result, frame_indices, kfs, progress, odometry_covariances, keyframe_points,
-                             tracking, refine, photometric=photometric)
-    out.summary = _summary(res, config, len(window_keyframes), out, seq, trajectory, loop_result is None)
+        job.re_place(loop_result, odometry.keyframe_points)
+    out.summary = _summary(job, res, out, loop_result is None)
     return out
 
 
-def _re_place(seq: Sequence, base: Trajectory, frame_indices: list[int], kfs: list[int], res: RefinementResult,
-              keyframe_points: Mapping[int, KeyframePoints], odometry_covariances: Seq[F64 | None],
-              tracking: TrackingConfig, photometric: PhotometricConfig, refine: Seq[bool],
-              loop_result: LoopClosingResult | None, window_trajectory: Trajectory, progress: bool) -> RunRefinement:
-    """The frames of ``base`` moved with their refined keyframes, then re-placed against them; with
-    loop closing the refined trajectory is the loop-closed one (``trajectory.tum`` stays the
-    window's), without it the run's."""
+def _re_place(job: _Job, res: RefinementResult, loop_result: LoopClosingResult | None) -> RunRefinement:
+    """The frames of the run (the loop-closed ones with loop closing) moved with their refined
+    keyframes, then re-placed against them; with loop closing the refined trajectory is the
+    loop-closed one (``trajectory.tum`` stays the window's), without it the run's."""
+    odo, kfs = job.odometry, job.keyframes
+    base = loop_result.trajectory if loop_result is not None else odo.trajectory
     poses = {kf.index: kf.pose.matrix() for kf in res.keyframes}
     depths = {kf.index: kf.inverse_depth.copy() for kf in res.keyframes}
+    frame_indices = odo.frame_indices
     moved = relocate_frames(base.poses, kfs, np.stack([poses[int(frame_indices[k])] for k in kfs]))
     holder = LoopClosingResult(Trajectory(base.timestamps.copy(), moved, name=base.name), keyframe_poses=poses)
     points = {i: dataclasses.replace(p, inverse_depth=depths[i]) if i in depths else p
-              for i, p in keyframe_points.items()}
-    refine_result_frames(seq, holder, frame_indices, kfs, progress, odometry_covariances, points, tracking, refine,
-                         photometric=photometric)
+              for i, p in odo.keyframe_points.items()}
+    job.re_place(holder, points)
     n = int(np.count_nonzero(holder.frame_hosts)) if holder.frame_hosts is not None else 0
     if loop_result is None:
         return RunRefinement(holder.trajectory, None, poses, depths, res.covariances, {}, n)
     loop_result.trajectory, loop_result.keyframe_poses = holder.trajectory, poses
     loop_result.frame_hosts = holder.frame_hosts
-    return RunRefinement(window_trajectory, loop_result, poses, depths, res.covariances, {}, n)
+    return RunRefinement(odo.trajectory, loop_result, poses, depths, res.covariances, {}, n)
 
 
-def _summary(res: RefinementResult | None, config: RefineConfig, n_keyframes: int, out: RunRefinement,
-             seq: Sequence, window_trajectory: Trajectory, replaces_window: bool) -> RefinementSummary:
+def _summary(job: _Job, res: RefinementResult, out: RunRefinement, replaces_window: bool) -> RefinementSummary:
     """The report's ``refine`` block; ``window_*``: the window's accuracy, when the refinement
     replaced the run's trajectory (without loop closing; with it, the report's own ``ate_*`` are
     the window's and ``loop_closed_*`` the refined ones)."""
     ran = bool(out.keyframe_poses)
+    config = job.odometry.config.refine
     block: RefinementSummary = {
-        "ran": ran, "reason": None if ran else (res.reason if res is not None else "interrupted (Ctrl-C)"),
-        "solver": config.solver, "keyframes": n_keyframes,
-        "targets_mean": None if res is None else round(res.targets_mean, 3),
-        "iterations": 0 if res is None else res.iterations,
-        "cost_before": None if res is None else res.cost_before, "cost_after": None if res is None else res.cost_after,
-        "seconds": 0.0 if res is None else round(res.seconds, 3),
-        "loop_edges": 0 if res is None else res.loop_edges,
-        "loop_edges_dropped": 0 if res is None else res.loop_edges_dropped}
+        "ran": ran, "reason": None if ran else res.reason,
+        "solver": config.solver, "keyframes": len(job.odometry.window_keyframes or ()),
+        "targets_mean": round(res.targets_mean, 3), "iterations": res.iterations,
+        "cost_before": res.cost_before, "cost_after": res.cost_after, "seconds": round(res.seconds, 3),
+        "loop_edges": res.loop_edges, "loop_edges_dropped": res.loop_edges_dropped}
     block["frames_replaced"] = out.frames_replaced
-    if ran and res is not None and res.wheel_calibration is not None:
+    if ran and res.wheel_calibration is not None:
         block["wheel_calibration"] = [float(x) for x in res.wheel_calibration]
     if replaces_window and ran:
-        acc = run_accuracy(seq, window_trajectory)
+        acc = run_accuracy(job.seq, job.odometry.trajectory)
         block.update(window_ate_rmse_m=acc.get("ate_rmse_m"), window_ate_sim3_rmse_m=acc.get("ate_sim3_rmse_m"),
                      window_scale_ratio=acc.get("scale_ratio"))
     return block

@@ -25,7 +25,7 @@ from numpy.typing import NDArray
 from factors.compact_image import packed_cache_budget
 from factors.smart import JacobianBudget
 from gtvo.loops.closure_graph import LoopEdge
-from gtvo.refinement.config import RefineConfig
+from gtvo.config.sections.refine import RefineConfig
 from gtvo.refinement.graph import covisible_targets, loop_chi2, loop_factors, window_edges
 from gtvo.window.config import WindowKeyframe
 from gtvo.window.gtsam_solver import solve_gtsam

@@ -40,6 +40,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from factors.imu import bias_prior, imu_factor, imu_params, preintegrate, velocity_prior
+from gtvo.config.sections.imu import ACCEL_BIAS_SIGMA, GYRO_BIAS_SIGMA, INIT_SECONDS, ImuConfig
 from gtvo.core.keys import gravity_tilt_key, imu_bias_key, pose_key, velocity_key
 from gtvo.window.config import WindowKeyframe
 
@@ -64,7 +65,7 @@ class ImuReadings(Protocol):
 
 @dataclass(frozen=True)
 class ImuWindowSettings:
-    """How the window uses the IMU (the config's ``imu:`` section, :mod:`gtvo.config.imu`).
+    """How the window uses the IMU (the config's ``imu:`` section, :func:`imu_window_settings`).
 
     Attributes:
         init_seconds: the span of readings and keyframes the initialisation waits for (s).
@@ -77,15 +78,21 @@ class ImuWindowSettings:
         gravity_tilt_sigma: the prior sigma of gravity's tilt from its initial direction (rad).
     """
 
-    init_seconds: float = 1.0
+    init_seconds: float = INIT_SECONDS
     gravity: float = 9.80665
-    accel_bias_sigma: float = 0.2
-    gyro_bias_sigma: float = 0.05
+    accel_bias_sigma: float = ACCEL_BIAS_SIGMA
+    gyro_bias_sigma: float = GYRO_BIAS_SIGMA
     velocity_sigma: float = 1.0
     static_translation: float = 0.02
     static_rotation_deg: float = 0.5
     gravity_tilt_sigma: float = 0.035
 
+
+
+def imu_window_settings(config: ImuConfig) -> ImuWindowSettings:
+    """How the window uses the IMU, from the config's ``imu:`` section."""
+    return ImuWindowSettings(init_seconds=config.init_seconds, accel_bias_sigma=config.accel_bias_sigma,
+                             gyro_bias_sigma=config.gyro_bias_sigma)
 
 #: The moving initialisation is refused (and tried again at the next keyframe) when the gravity its
 #: least squares find is off the known magnitude by more than this fraction (VINS-Fusion's check):

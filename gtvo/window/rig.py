@@ -12,6 +12,10 @@ window's front end, which reads the worker's as of its last applied update: docs
   full windows tests the offset as a whole (:meth:`RigOffset.test_release_both`): once either axis
   is significant, both are released for the rest of the run. A rig that stays rectified runs bit
   for bit as without calibration.
+* When the front end finds that the first pair's images cannot carry the offset (too dark or too
+  flat: :func:`gtvo.frontend.rig_offset.stereo_contrast`), the window solves the rectified model for
+  the whole run and never tests the offset (:attr:`RigOffset.withheld` says why; the report and
+  :func:`rig_warning` say it too).
 * When it is significant, ``delta_y`` is corrected and a free variable of every window, and
   ``delta_x`` (which trades against the scale) is held at its start value
   (:attr:`RigOffset.hold_x`) until the first full window (:meth:`RigOffset.test_release`): held at
@@ -79,6 +83,8 @@ class RigOffset:
         x_held_windows: full windows solved with ``delta_x`` held.
         initial: the first stereo pair's vertical-offset search
             (:class:`gtvo.frontend.rig_offset.VerticalOffset`), None before it ran.
+        withheld: why the images cannot carry the offset (the rectified model is kept for the
+            run, never tested), None when they can.
     """
 
     def __init__(self, start: ArrayLike = (0.0, 0.0)) -> None:
@@ -91,6 +97,7 @@ class RigOffset:
         self.test: tuple[FloatArray, FloatArray] | None = None
         self.x_held_windows = 0
         self.initial: Any = None
+        self.withheld: str | None = None
 
     @property
     def solved_offset(self) -> FloatArray | None:
@@ -103,12 +110,15 @@ class RigOffset:
         while :attr:`rectified`: there is no variable to hold)."""
         return None if self.x_estimated or self.rectified else self.x_start
 
-    def start_from(self, initial: Any) -> None:
+    def start_from(self, initial: Any, withheld: str | None = None) -> None:
         """Start from the first stereo pair's vertical-offset search ``initial`` (``delta_y`` and its
         standard error ``sigma``): a significant ``delta_y`` is corrected (:attr:`y_known`),
-        otherwise the window starts rectified (:attr:`rectified`); ``delta_x`` from 0."""
+        otherwise the window starts rectified (:attr:`rectified`); ``delta_x`` from 0. With
+        ``withheld`` (why the images cannot carry the offset) the window stays rectified for the
+        whole run, whatever ``initial`` says."""
         self.initial = initial
-        if offset_significant(initial.delta_y, initial.sigma, 1):
+        self.withheld = withheld
+        if withheld is None and offset_significant(initial.delta_y, initial.sigma, 1):
             self.offset = np.array([0.0, float(initial.delta_y)])
             self.y_known = True
         else:
@@ -126,8 +136,9 @@ class RigOffset:
         """While :attr:`rectified`: count a full window; every ``window_size``-th one (from the
         first), test the offset as a whole (``free_estimate()``: ``(estimate, marginal sigmas)``,
         kept in :attr:`test`, ``delta_x``'s in :attr:`x_test`): is either axis more than
-        :data:`RIG_SIGNIFICANCE` error bars from 0? Then both are released and True returned."""
-        if not self._due(window_size):
+        :data:`RIG_SIGNIFICANCE` error bars from 0? Then both are released and True returned.
+        Never while :attr:`withheld`."""
+        if self.withheld is not None or not self._due(window_size):
             return False
         test = free_estimate()
         if test is None:
@@ -168,7 +179,9 @@ class RigOffset:
         while it is held, its last test's, None if never tested), ``rig_offset_sigma_px`` (the
         error bar: :func:`rig_honest_sigma`; None where the marginal one is),
         ``rig_offset_x_estimated``, ``rig_offset_x_tested_px`` (the last test's estimate while
-        held, None if never tested) and ``rig_initial_delta_y_px`` (the first pair's 2-D search)."""
+        held, None if never tested), ``rig_initial_delta_y_px`` (the first pair's 2-D search; None
+        when it found none) and ``rig_offset_withheld`` (why the images cannot carry the offset,
+        None when they can)."""
         out: dict[str, Any] = {"rig_calibration": True, "rig_offset_px": [float(x) for x in self.offset]}
         sigma = None if covariance is None else [float(np.sqrt(max(covariance[i, i], 0.0))) for i in range(2)]
         test = self.x_test
@@ -180,13 +193,18 @@ class RigOffset:
             None if s is None else rig_honest_sigma(s, axis) for axis, s in enumerate(sigma)]
         out["rig_offset_x_estimated"] = bool(self.x_estimated)
         out["rig_offset_x_tested_px"] = None if test is None or self.x_estimated else test[0]
-        out["rig_initial_delta_y_px"] = None if self.initial is None else float(self.initial.delta_y)
+        initial = None if self.initial is None else float(self.initial.delta_y)
+        out["rig_initial_delta_y_px"] = initial if initial is not None and np.isfinite(initial) else None
+        out["rig_offset_withheld"] = self.withheld
         return out
 
 
 def rig_warning(report: dict[str, Any]) -> str | None:
-    """The warning line for a rig offset estimated large and clearly (None: nothing to say), from
-    the figures of :meth:`RigOffset.report`."""
+    """The warning line for a rig offset estimated large and clearly, or for one the images could
+    not carry (None: nothing to say), from the figures of :meth:`RigOffset.report`."""
+    withheld = report.get("rig_offset_withheld")
+    if withheld:
+        return f"{withheld}: the rig offset is not estimated, the rectified model is kept"
     offset = report.get("rig_offset_px")
     if not offset:
         return None

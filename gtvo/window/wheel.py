@@ -26,6 +26,8 @@ from factors.wheel_odometry import (CALIBRATION_SIZE, DIFF_DRIVE_NAMES, WheelOdo
 from gtvo.core.keys import calibration_key, pose_key
 from gtvo.errors import InputError
 
+from gtvo.config.sections.wheel import WheelConfig  # the defaults of the settings
+
 FloatArray = NDArray[np.float64]
 
 #: A parameter is reported "observed" when its marginal sigma is below this fraction of its prior sigma.
@@ -65,12 +67,12 @@ class WheelSettings:
     model: str = "diff_drive"
     nominal_baseline: float = 1.0
     prior_mean: tuple[float, ...] | None = None
-    prior_sigma: float = 0.1
-    translation_sigma: float = 0.01
-    rotation_sigma: float = 0.002
-    per_metre: float = 0.01
-    planar_rotation_sigma: float = 0.01
-    planar_height_sigma: float = 0.02
+    prior_sigma: float = WheelConfig.calibration_prior_sigma  # the defaults of the config's wheel section
+    translation_sigma: float = WheelConfig.translation_sigma
+    rotation_sigma: float = WheelConfig.rotation_sigma
+    per_metre: float = WheelConfig.sigma_per_metre
+    planar_rotation_sigma: float = WheelConfig.planar_rotation_sigma
+    planar_height_sigma: float = WheelConfig.planar_height_sigma
 
     @property
     def size(self) -> int:

@@ -6,8 +6,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal
 
+from gtvo.config.sections.loops import CHI2_6DOF_99
 from gtvo.core.settings import check_settings, setting
-from gtvo.loops.closure_graph import CHI2_6DOF_99
 
 
 @dataclass(frozen=True)

@@ -1,5 +1,6 @@
-"""The ``wheel:`` section of the tree: how a ground robot's wheel odometry is read and where its base
-carries the camera (docs/wheel_odometry.md). Used only when a sequence has wheel odometry."""
+"""The ``wheel:`` section of the tree: how a ground robot's wheel odometry is read
+(:class:`WheelReadOptions`, what the readers take) and where its base carries the camera
+(docs/wheel_odometry.md). Used only when a sequence has wheel odometry."""
 
 from __future__ import annotations
 
@@ -10,12 +11,19 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gtvo.core.lie import pose_from_xyz_quaternion
-from gtvo.datasets.wheel import DEFAULT_NOMINAL_BASELINE, MAX_GAP_S, MAX_SPEED_M_S
-from gtvo.datasets.wheel_files import WheelReadOptions
 from gtvo.core.settings import SettingError, check_settings, setting
-from gtvo.window.wheel import WheelSettings
 
 WheelModelName = Literal["linear", "diff_drive"]
+
+#: The largest time between two consecutive readings that the readers accept (s); a longer gap is
+#: refused, naming the row after it (``wheel.max_gap`` in the config).
+MAX_GAP_S = 1.0
+#: The nominal track width (m) when none is configured (``wheel.nominal_baseline``).
+DEFAULT_NOMINAL_BASELINE = 0.5
+#: The fastest a wheel (arcs) or the base (pose) may move between two readings that the readers
+#: accept (m/s, 180 km/h; ``wheel.max_speed``): faster is refused, naming the row, as readings in
+#: the wrong unit (encoder ticks without ``wheel.tick_scale``, millimetres).
+MAX_SPEED_M_S = 50.0
 
 #: ``T_base_cam`` of a forward-looking camera at the base's origin, as ``[x, y, z, qx, qy, qz, qw]``:
 #: the rotation that takes the camera's axes (z forward, x right, y down) to a REP 103 base's
@@ -23,6 +31,32 @@ WheelModelName = Literal["linear", "diff_drive"]
 #: ``(0, -1, 0)``, ``(0, 0, -1)``, ``(1, 0, 0)``.
 FORWARD_CAMERA_ON_BASE: tuple[float, float, float, float, float, float, float] = (0.0, 0.0, 0.0,
                                                                                  -0.5, 0.5, -0.5, 0.5)
+
+
+@dataclass(frozen=True)
+class WheelReadOptions:
+    """What turns logged wheel readings into :class:`gtvo.datasets.wheel.WheelOdometry` (the config's ``wheel:`` section,
+    :meth:`WheelConfig.read_options`).
+
+    Attributes:
+        topic: the bag topic of the wheel odometry; None: the one candidate (docs/wheel_odometry.md);
+            ``"none"``: no wheel odometry from the bag.
+        tick_scale: metres per unit of a file's ``left, right`` columns.
+        nominal_baseline: the nominal track width b0 (m).
+        wheel_radius: metres per radian of a JointState wheel position; None: JointState refused.
+        left_joint, right_joint: JointState joint names; None: the names containing left / right.
+        max_gap: the longest gap between readings (s) accepted.
+        max_speed: the fastest motion between readings (m/s, after ``tick_scale``) accepted.
+    """
+
+    topic: str | None = None
+    tick_scale: float = 1.0
+    nominal_baseline: float = DEFAULT_NOMINAL_BASELINE
+    wheel_radius: float | None = None
+    left_joint: str | None = None
+    right_joint: str | None = None
+    max_gap: float = MAX_GAP_S
+    max_speed: float = MAX_SPEED_M_S
 
 
 @dataclass(frozen=True)
@@ -79,12 +113,12 @@ class WheelConfig:
     max_gap: float = setting(MAX_GAP_S, "(0, 3600]")
     max_speed: float = setting(MAX_SPEED_M_S, "(0, 10000]")
     calibration_prior: tuple[float, ...] | None = setting(None, "[-100, 100]")
-    calibration_prior_sigma: float = setting(WheelSettings.prior_sigma, "(0, 10]")
-    translation_sigma: float = setting(WheelSettings.translation_sigma, "(0, 100]")
-    rotation_sigma: float = setting(WheelSettings.rotation_sigma, "(0, 10]")
-    sigma_per_metre: float = setting(WheelSettings.per_metre, "[0, 10]")
-    planar_rotation_sigma: float = setting(WheelSettings.planar_rotation_sigma, "(0, 10]")
-    planar_height_sigma: float = setting(WheelSettings.planar_height_sigma, "(0, 100]")
+    calibration_prior_sigma: float = setting(0.1, "(0, 10]")
+    translation_sigma: float = setting(0.01, "(0, 100]")
+    rotation_sigma: float = setting(0.002, "(0, 10]")
+    sigma_per_metre: float = setting(0.01, "[0, 10]")
+    planar_rotation_sigma: float = setting(0.01, "(0, 10]")
+    planar_height_sigma: float = setting(0.02, "(0, 100]")
 
     def __post_init__(self) -> None:
         check_settings(self)

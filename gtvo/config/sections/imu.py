@@ -1,6 +1,7 @@
 """The ``imu:`` section of the tree: what an IMU's files do not say (its noise model, its pose on the
 camera, its clock's offset), how its readings are checked, and whether it is used (docs/imu.md).
-Used only when a sequence has an IMU."""
+Used only when a sequence has an IMU. The readers (:func:`gtvo.datasets.imu_files.imu_read_options`)
+and the window (:func:`gtvo.window.imu.imu_window_settings`) take their settings from it."""
 
 from __future__ import annotations
 
@@ -8,11 +9,19 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from gtvo.core.lie import pose_from_xyz_quaternion
 from gtvo.core.settings import SettingError, check_settings, setting
-from gtvo.datasets.imu import MAX_GAP_S, MIN_RATE_HZ, ImuNoise
-from gtvo.datasets.imu_files import ImuReadOptions
-from gtvo.window.imu import ImuWindowSettings
+
+#: The lowest median reading rate (Hz) accepted (``imu.min_rate``): preintegration between keyframes
+#: needs several readings per camera frame.
+MIN_RATE_HZ = 50.0
+#: The longest time between two readings (s) accepted (``imu.max_gap``).
+MAX_GAP_S = 0.05
+#: The span of readings and keyframes (s) the window's initialisation waits for (``imu.init_seconds``).
+INIT_SECONDS = 1.0
+#: The accelerometer bias prior's sigma (m/s^2) about zero (``imu.accel_bias_sigma``).
+ACCEL_BIAS_SIGMA = 0.2
+#: The gyro bias prior's sigma (rad/s) about the initialisation's estimate (``imu.gyro_bias_sigma``).
+GYRO_BIAS_SIGMA = 0.05
 
 
 @dataclass(frozen=True)
@@ -45,9 +54,9 @@ class ImuConfig:
     accel_random_walk: float | None = setting(None, "(0, 100]")
     min_rate: float = setting(MIN_RATE_HZ, "(0, 100000]")
     max_gap: float = setting(MAX_GAP_S, "(0, 3600]")
-    init_seconds: float = setting(ImuWindowSettings.init_seconds, "(0, 60]")
-    accel_bias_sigma: float = setting(ImuWindowSettings.accel_bias_sigma, "(0, 100]")
-    gyro_bias_sigma: float = setting(ImuWindowSettings.gyro_bias_sigma, "(0, 10]")
+    init_seconds: float = setting(INIT_SECONDS, "(0, 60]")
+    accel_bias_sigma: float = setting(ACCEL_BIAS_SIGMA, "(0, 100]")
+    gyro_bias_sigma: float = setting(GYRO_BIAS_SIGMA, "(0, 10]")
 
     def __post_init__(self) -> None:
         check_settings(self)
@@ -59,19 +68,3 @@ class ImuConfig:
         if any(v is None for v in noise) and any(v is not None for v in noise):
             raise SettingError("gyro_noise_density", "the noise model is the four numbers gyro_noise_density, "
                                                      "accel_noise_density, gyro_random_walk, accel_random_walk together")
-
-    def read_options(self) -> ImuReadOptions:
-        """The settings the IMU readers take (:func:`gtvo.datasets.open_sequence`'s ``imu_options``)."""
-        noise = None
-        if self.gyro_noise_density is not None:
-            noise = ImuNoise(self.gyro_noise_density, self.accel_noise_density, self.gyro_random_walk,  # type: ignore[arg-type]
-                             self.accel_random_walk, "config imu:")  # type: ignore[arg-type]
-        T = None if self.imu_in_camera is None else pose_from_xyz_quaternion(self.imu_in_camera)
-        return ImuReadOptions(enabled=self.enabled, topic=self.topic, noise=noise, T_cam_imu=T,
-                              time_shift=self.time_shift, min_rate=self.min_rate, max_gap=self.max_gap)
-
-
-def imu_window_settings(config: ImuConfig) -> ImuWindowSettings:
-    """How the window uses the IMU, from the ``imu:`` section."""
-    return ImuWindowSettings(init_seconds=config.init_seconds, accel_bias_sigma=config.accel_bias_sigma,
-                             gyro_bias_sigma=config.gyro_bias_sigma)

@@ -10,6 +10,10 @@ from typing import Any
 
 from gtvo.core.settings import check_settings, setting
 
+#: The 99 % quantile of chi-square with 6 degrees of freedom: the test of a loop edge (a 6-dof
+#: relative pose) against its covariance.
+CHI2_6DOF_99 = 16.812
+
 
 @dataclass(frozen=True)
 class OrbConfig:
