@@ -23,6 +23,7 @@ from gtvo.core.atomic import ensure_output_dir, output_lock, tidy_on_failure
 from gtvo.core.interrupt import raise_if_interrupted
 from gtvo.core.timing import stage
 from gtvo.datasets import detect_format, open_sequence
+from gtvo.datasets.imu_files import imu_read_options
 from gtvo.datasets.sequence import Sequence
 from gtvo.errors import InputError
 from gtvo.evaluation.trajectory import Trajectory
@@ -32,6 +33,7 @@ from gtvo.io.outputs import check_run_output_dir, write_run_outputs
 from gtvo.loops.closing import run_loop_closing
 from gtvo.odometry import VisualOdometry
 from gtvo.odometry.estimates import frozen_warning, trust_warning
+from gtvo.odometry.imu import gravity_aligned
 from gtvo.odometry.result import TRACKED_OUTCOMES, OdometryResult
 from gtvo.odometry.rig_report import rig_warning
 from gtvo.odometry.summary import clock_timing, keyframe_covariances, odometry_result
@@ -61,7 +63,7 @@ def run_odometry(seq: Sequence, config: OdometryConfig | None = None, progress: 
     """
     config = config or OdometryConfig()
     coverage = None if seq.wheel_odometry is None else wheel_coverage_warning(seq.wheel_odometry, seq.timestamps)
-    vo = VisualOdometry(seq.camera, config, wheel_odometry=seq.wheel_odometry)
+    vo = VisualOdometry(seq.camera, config, wheel_odometry=seq.wheel_odometry, imu=seq.imu)
     try:  # a parallel window's worker ends here, however the run ends (its figures are in the summary)
         observers = list(observers)
         for o in observers:
@@ -139,7 +141,8 @@ def run(path: str | Path | Sequence, out: str | Path | None = None,
             in full in the report (``"config"``) and in ``out/config.yaml``.
         format, max_frames, open_options: passed to :func:`gtvo.datasets.open_sequence` (for bags
             also ``calib``, ``left_topic``, ``right_topic``, ``depth_topic``, ``ground_truth_topic``;
-            ``wheel_odometry``, ``wheel_topic``), with the config's ``wheel:`` section as ``wheel_options``.
+            ``wheel_odometry``, ``wheel_topic``; ``imu``, ``imu_topic``), with the config's ``wheel:``
+            and ``imu:`` sections as ``wheel_options`` and ``imu_options``.
         progress: show a progress bar.
         strict: stop at the first unreadable frame instead of skipping it.
         loop_closure: True sets ``loops.enabled`` of the config (as ``--loop-closure``; False leaves
@@ -174,6 +177,7 @@ def run(path: str | Path | Sequence, out: str | Path | None = None,
         _, odo = run_odometry(seq, config, progress=progress, strict=strict, observers=observers)  # 2. odometry
         odo = run_loop_closing(odo, seq, progress)               # 3. stages: loop closing, the refinement
         odo = run_refinement(odo, seq, progress, _warn)
+        odo = gravity_aligned(odo)  # with an IMU: the outputs in the gravity-aligned world (docs/imu.md)
         raise_if_interrupted()
         with odo.clock.activate() if odo.clock is not None else nullcontext(), stage("outputs", absorb=True):
             metrics = run_metrics(seq, odo)                      # 4. evaluate
@@ -197,6 +201,7 @@ def read_input(path: str | Path | Sequence, config: OdometryConfig, out: str | P
     (:func:`gtvo.io.outputs.check_run_output_dir`). A bag's dropped images are warned about."""
     seq = path if isinstance(path, Sequence) else open_sequence(  # type: ignore[arg-type]
         path, format=format, max_frames=max_frames, **{"wheel_options": config.wheel.read_options(),
+                                                        "imu_options": imu_read_options(config.imu),
                                                         **(open_options or {})})
     out_dir = Path(out) if out is not None else Path("gtvo_out") / seq.name
     check_run_output_dir(out_dir, seq)  # before the long work

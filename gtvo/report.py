@@ -66,6 +66,13 @@ class WheelFigures(TypedDict, total=False):
     wheel_calibration: dict[str, Any]
 
 
+class ImuFigures(TypedDict, total=False):
+    """The IMU's figures (:func:`gtvo.odometry.imu.imu_report`: gravity, biases, their sigmas, the
+    output frame), present when the run had an IMU in the window."""
+
+    imu: dict[str, Any]
+
+
 class WindowWorkerFigures(TypedDict, total=False):
     """What the window's worker process spent (``window.parallel``): its CPU seconds (user +
     system), peak resident memory (MiB), wall seconds by stage of its own clock, its kernel
@@ -75,7 +82,7 @@ class WindowWorkerFigures(TypedDict, total=False):
     window_worker: dict[str, Any]
 
 
-class OdometrySummary(StageTiming, WindowFigures, WheelFigures, WindowWorkerFigures):
+class OdometrySummary(StageTiming, WindowFigures, WheelFigures, ImuFigures, WindowWorkerFigures):
     """The odometry's figures of a run, in ``report.json`` order (:func:`summarize_odometry`).
 
     Always: what ran (``mode``, ``tracker_solver``, ``motion_model``), the counts, the frame

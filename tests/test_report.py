@@ -19,10 +19,12 @@ from gtvo.window.config import WindowConfig
 
 #: Keys a report holds only in situations these runs do not make: no ground truth, an ATE whose
 #: alignment is undetermined, a ROS bag, no open3d (or open3d), no point left out, the output folder,
-#: wheel odometry (tests/test_odometry_wheel.py reads its ``wheel_calibration``).
+#: wheel odometry (tests/test_odometry_wheel.py reads its ``wheel_calibration``), an IMU
+#: (tests/test_odometry_imu.py reads its ``imu``).
 RARE_KEYS = {"ground_truth", "ate_skipped", "unpaired_messages", "map_points_left_out_by_reason",
              "out", "wheel_calibration", "refine",  # refine: tests/test_refinement.py
-             "window_worker"}  # tests/test_parallel_window.py
+             "window_worker",  # tests/test_parallel_window.py
+             "imu"}
 
 
 def fields(typed_dict) -> set[str]:

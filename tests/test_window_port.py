@@ -21,11 +21,14 @@ from factors.compact_image import CompactGradientImage
 from gtvo.config import OdometryConfig
 from gtvo.core.image import to_float_gray
 from gtvo.datasets.synthetic import make_synthetic_sequence
+from gtvo.datasets.synthetic_imu import ImuSimulation
+from gtvo.errors import InputError
 from gtvo.odometry import keyframer
 from gtvo.odometry.keyframe_points import frame_points
 from gtvo.odometry.window_link import KeyframeForWindow
 from gtvo.odometry.window_port import LocalWindow, WindowPort, open_window
 from gtvo.odometry.window_worker import WindowWorker
+from gtvo.window.imu import ImuWindow, ImuWindowSettings
 
 
 def config(parallel: bool, refine: bool = False) -> OdometryConfig:
@@ -153,3 +156,16 @@ def test_wheels_and_the_refinement_run_with_the_parallel_window_the_same_bytes_e
     seq_ = json.loads((tmp_path / "s" / "report.json").read_text())["wheel_calibration"]
     for name in ("left_wheel_scale", "right_wheel_scale", "track_width_scale"):
         assert par[name] == pytest.approx(seq_[name], abs=0.02), name
+
+
+def test_the_imu_goes_to_the_local_window_and_a_parallel_one_refuses_it_in_one_line():
+    seq = make_synthetic_sequence(3, width=120, height=90, imu=ImuSimulation())
+    imu = ImuWindow(seq.imu, ImuWindowSettings())
+    local = open_window(seq.camera, config(parallel=False), imu=imu)
+    try:
+        assert isinstance(local, LocalWindow) and local.optimizer.imu is imu
+    finally:
+        local.close()
+    with pytest.raises(InputError, match=r"^window\.parallel does not carry the IMU yet: run it with --no-parallel "
+                                         r"\(window\.parallel: false\) or --no-imu$"):
+        open_window(seq.camera, config(parallel=True), imu=imu)

@@ -69,7 +69,10 @@ def run_log(job: dict[str, Any]) -> dict[str, Any]:
         opts = job["options"]
         open_opts = {k: v for k, v in opts.items()
                      if k not in ("max_frames", "frame_step", "loop_closure") and v is not None}
+        from gtvo.datasets.imu_files import imu_read_options  # noqa: PLC0415
+
         open_opts.setdefault("wheel_options", as_config(job["config"]).wheel.read_options())
+        open_opts.setdefault("imu_options", imu_read_options(as_config(job["config"]).imu))  # as gtvo run's
         seq = open_sequence(job["path"], format=job["format"], max_frames=opts.get("max_frames"), **open_opts)
         report = run(seq, out=out, config=job["config"], progress=False, frame_step=opts.get("frame_step", 1),
                      loop_closure=bool(opts.get("loop_closure", False)))

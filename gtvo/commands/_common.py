@@ -140,6 +140,10 @@ def print_report(report: RunReport) -> None:
         from gtvo.odometry.wheel import wheel_calibration_line  # noqa: PLC0415
 
         print(f"  {wheel_calibration_line(report['wheel_calibration'])}")
+    if report.get("imu") is not None:
+        from gtvo.odometry.imu import imu_line  # noqa: PLC0415
+
+        print(f"  {imu_line(report['imu'])}")
     print(f"  outputs in {report['out']}")
 
 
@@ -147,7 +151,7 @@ def flagged_frame_lines(outcomes: dict[str, Any]) -> list[str]:
     """One line per kind of flagged frame, naming them and their reasons (short forms), e.g.
     ``suspect frames: 25, 30, 31 (no image motion while the rig moved / motion reversed ...)``."""
     lines = []
-    for name in ("frozen", "suspect", "lost", "reinitialised", "wheel_carried", "recovered", "skipped"):
+    for name in ("frozen", "suspect", "lost", "reinitialised", "wheel_carried", "imu_carried", "recovered", "skipped"):
         frames = outcomes.get(name)
         if not isinstance(frames, list) or not frames:
             continue

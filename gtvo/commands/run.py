@@ -57,6 +57,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     wheel = p.add_argument_group("wheel odometry (docs/wheel_odometry.md)")
     for flag, metavar, text in WHEEL_FLAGS:
         wheel.add_argument(flag, metavar=metavar, default=None, help=text)
+    imu = p.add_argument_group("IMU (docs/imu.md)")
+    imu.add_argument("--imu", metavar="FILE", default=None,
+                     help="an IMU CSV (time,wx,wy,wz,ax,ay,az in s, rad/s, m/s^2, or EuRoC's imu0/data.csv) instead "
+                          "of the sequence folder's imu0/data.csv or the bag's sensor_msgs/Imu topic")
+    imu.add_argument("--imu-topic", metavar="TOPIC", default=None,
+                     help="the bag's IMU topic (sensor_msgs/Imu; default: the only one; 'none': no IMU)")
+    imu.add_argument("--no-imu", action="store_true",
+                     help="vision only on a log that has an IMU (config key imu.enabled)")
     _on_off(p, "parallel",
             "run the window in a worker process beside the front end (config key window.parallel: "
             "the second core; the same answer every run; docs/window.md)",
@@ -86,8 +94,11 @@ def main(args: argparse.Namespace) -> int:
         options["camera"] = parse_floats(args.camera, 4, "--camera")
     if args.ground_truth is not None:
         options["ground_truth"] = args.ground_truth
-    options.update({k: getattr(args, k) for k in ("wheel_odometry", "wheel_topic") if getattr(args, k) is not None})
+    options.update({k: getattr(args, k) for k in ("wheel_odometry", "wheel_topic", "imu", "imu_topic")
+                    if getattr(args, k) is not None})
     config = odometry_config(args)
+    if args.no_imu:
+        config = dataclasses.replace(config, imu=dataclasses.replace(config.imu, enabled=False))
     if args.no_covariances:
         config = dataclasses.replace(config, window=dataclasses.replace(config.window, covariances=False))
     if args.rig_calibration and config.mode != "window":

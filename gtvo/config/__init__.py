@@ -19,6 +19,7 @@ component, each field's default and allowed range declared once beside it
       loops                LoopClosureConfig (enabled, detector: LoopDetectorConfig
                                            (orb: OrbConfig, verification: VerificationConfig, ...))
       wheel                WheelConfig (model, base_to_camera, nominal_baseline, ...)
+      imu                  ImuConfig (enabled, topic, imu_in_camera, noise model, ...)
       refine               RefineConfig (the whole-log refinement)
 
 Each section lives in its own module of :mod:`gtvo.config.sections`, which imports only the
@@ -42,13 +43,13 @@ from gtvo.config.files import (MOVED_KEYS, ConfigKeyError, as_config, config_fro
                                load_config)
 from gtvo.config.reference import config_reference, describe_key, field_docs
 from gtvo.config.tree import (MIN_POINTS_PER_KEYFRAME, FlowPoseConfig, FrameCheckConfig, FrontendConfig,
-                              KeyframeConfig, LoopClosureConfig, MotionModelConfig, MotionNoiseConfig, OdometryConfig,
+                              ImuConfig, KeyframeConfig, LoopClosureConfig, MotionModelConfig, MotionNoiseConfig, OdometryConfig,
                               PhotometricConfig, PointSelectionConfig, RefineConfig, SolverConfig, StereoSearchConfig,
                               TrackingConfig, WheelConfig, WindowConfig)
 
 __all__ = [
     "MIN_POINTS_PER_KEYFRAME", "MOVED_KEYS", "ConfigKeyError", "FlowPoseConfig", "FrameCheckConfig",
-    "FrontendConfig", "KeyframeConfig", "LoopClosureConfig", "MotionModelConfig", "MotionNoiseConfig", "OdometryConfig",
+    "FrontendConfig", "ImuConfig", "KeyframeConfig", "LoopClosureConfig", "MotionModelConfig", "MotionNoiseConfig", "OdometryConfig",
     "PhotometricConfig", "PointSelectionConfig", "RefineConfig", "SolverConfig", "StereoSearchConfig", "TrackingConfig",
     "WheelConfig", "WindowConfig", "as_config",
     "config_from_dict", "config_reference", "config_to_dict", "config_to_yaml", "describe_key", "field_docs",

@@ -11,6 +11,7 @@ from gtvo.config.sections.flow_fallback import FlowPoseConfig
 from gtvo.config.sections.frame_checks import FrameCheckConfig
 from gtvo.config.sections.frontend import (MIN_POINTS_PER_KEYFRAME, FrontendConfig, PointSelectionConfig,
                                            StereoSearchConfig)
+from gtvo.config.sections.imu import ImuConfig
 from gtvo.config.sections.keyframes import KeyframeConfig
 from gtvo.config.sections.loops import LoopClosureConfig
 from gtvo.config.sections.motion import MotionModelConfig, MotionNoiseConfig
@@ -23,7 +24,7 @@ from gtvo.core.settings import check_nested
 
 ModeName = Literal["track", "window"]
 
-__all__ = ["MIN_POINTS_PER_KEYFRAME", "FlowPoseConfig", "FrameCheckConfig", "FrontendConfig", "KeyframeConfig",
+__all__ = ["MIN_POINTS_PER_KEYFRAME", "FlowPoseConfig", "FrameCheckConfig", "FrontendConfig", "ImuConfig", "KeyframeConfig",
            "LoopClosureConfig", "MotionModelConfig", "MotionNoiseConfig", "OdometryConfig", "PhotometricConfig",
            "PointSelectionConfig", "RefineConfig", "SolverConfig", "StereoSearchConfig", "TrackingConfig",
            "WheelConfig", "WindowConfig"]
@@ -60,6 +61,9 @@ class OdometryConfig:
             recognition and the verification of a loop (gtvo.loops, docs/loop_closure.md).
         wheel: a ground robot's wheel odometry, when the sequence has it: the calibration model, the
             base-to-camera transform and how readings become metres (docs/wheel_odometry.md).
+        imu: an IMU beside the images, when the log has one: whether it is used, what its files do
+            not say (noise model, pose on the camera, clock offset) and how readings are checked
+            (docs/imu.md).
         refine: the whole-log refinement after the window pass (and loop closing): one graph over
             every keyframe, then the non-keyframes re-placed (gtvo.refinement, docs/refinement.md).
     """
@@ -76,6 +80,7 @@ class OdometryConfig:
     photometric: PhotometricConfig = field(default_factory=PhotometricConfig)
     loops: LoopClosureConfig = field(default_factory=LoopClosureConfig)
     wheel: WheelConfig = field(default_factory=WheelConfig)
+    imu: ImuConfig = field(default_factory=ImuConfig)
     refine: RefineConfig = field(default_factory=RefineConfig)
 
     def __post_init__(self) -> None:

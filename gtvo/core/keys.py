@@ -24,6 +24,12 @@ RIG_OFFSET = "o"
 MOTION_STATE = "v"
 #: Wheel-odometry calibration parameters (Vector).
 CALIBRATION = "c"
+#: A keyframe's velocity in the world (Vector3, m/s) when an IMU is used.
+VELOCITY = "V"
+#: A keyframe's IMU bias ``(b_accel, b_gyro)`` (Vector6).
+IMU_BIAS = "B"
+#: The tilt of gravity's direction from its initial estimate (Vector3, a rotation vector).
+GRAVITY_TILT = "g"
 
 
 def pose_key(index: int) -> int:
@@ -60,6 +66,21 @@ def motion_state_key(index: int) -> int:
 def calibration_key(index: int = 0) -> int:
     """Key of the wheel-odometry calibration variable ``index`` (``c<index>``)."""
     return gtsam.symbol(CALIBRATION, int(index))
+
+
+def velocity_key(index: int) -> int:
+    """Key of keyframe ``index``'s velocity (``V<index>``; docs/imu.md)."""
+    return gtsam.symbol(VELOCITY, int(index))
+
+
+def imu_bias_key(index: int) -> int:
+    """Key of keyframe ``index``'s IMU bias (``B<index>``; docs/imu.md)."""
+    return gtsam.symbol(IMU_BIAS, int(index))
+
+
+def gravity_tilt_key(index: int = 0) -> int:
+    """Key of the tilt of gravity's direction (``g<index>``; one per run: docs/imu.md)."""
+    return gtsam.symbol(GRAVITY_TILT, int(index))
 
 
 def is_pose_key(key: int) -> bool:

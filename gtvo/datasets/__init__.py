@@ -9,6 +9,7 @@ lazy :class:`gtvo.datasets.sequence.Sequence`, each an entry of the one registry
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -23,6 +24,8 @@ from gtvo.datasets.readers import READERS, DatasetReader, reader_named, reader_t
 from gtvo.datasets.tum import TUM_INTRINSICS, read_tum
 from gtvo.errors import InputError
 from gtvo.datasets.sequence import Sequence
+from gtvo.datasets.imu import check_imu_clock
+from gtvo.datasets.imu_files import ImuReadOptions, read_imu_folder
 from gtvo.datasets.wheel_files import WHEEL_CSV, WheelReadOptions, read_wheel_csv
 
 #: ``"auto"`` or a name of :data:`FORMATS`.
@@ -65,7 +68,8 @@ def open_sequence(path: str | Path, format: DatasetFormat = "auto",
                   camera: tuple[float, float, float, float] | None = None, max_frames: int | None = None,
                   ground_truth: str | Path | None = None, wheel_odometry: str | Path | None = None,
                   wheel_topic: str | None = None, wheel_options: WheelReadOptions | None = None,
-                  **bag_options: Any) -> Sequence:
+                  imu: str | Path | None = None, imu_topic: str | None = None,
+                  imu_options: ImuReadOptions | None = None, **bag_options: Any) -> Sequence:
     """Open a dataset folder as a lazy :class:`Sequence` (images are read when asked for), with the
     reader of its layout (:data:`gtvo.datasets.readers.READERS`).
 
@@ -82,6 +86,12 @@ def open_sequence(path: str | Path, format: DatasetFormat = "auto",
             ``wheel_options.topic``, else the one candidate.
         wheel_options: how wheel readings become metres (the config's ``wheel:`` section,
             :meth:`gtvo.config.sections.wheel.WheelConfig.read_options`; default its defaults).
+        imu: an IMU CSV to use (``time,wx,wy,wz,ax,ay,az`` or EuRoC's); without it the folder's
+            ``imu0/data.csv`` (or ``mav0/imu0``), a bag's ``sensor_msgs/Imu`` topic (docs/imu.md).
+        imu_topic: ROS bags only: the IMU topic (``"none"``: none); default ``imu_options.topic``,
+            else the one candidate.
+        imu_options: the config's ``imu:`` section (:func:`gtvo.datasets.imu_files.imu_read_options`;
+            ``enabled=False``: no IMU, ``--no-imu``); default its defaults.
         bag_options: ROS bags only: ``calib``, ``left_topic``, ``right_topic``, ``depth_topic``,
             ``ground_truth_topic``, ``stamp_tolerance`` (:func:`gtvo.datasets.bag.read_bag`).
 
@@ -92,18 +102,32 @@ def open_sequence(path: str | Path, format: DatasetFormat = "auto",
     if max_frames is not None and int(max_frames) < 1:
         raise InputError(f"max_frames must be >= 1, got {max_frames}")
     reader = reader_named(detect_format(folder) if format == "auto" else format)
-    options = _reader_options(reader, folder, {"camera": camera, **bag_options, "wheel_topic": wheel_topic})
+    options = _reader_options(reader, folder, {"camera": camera, **bag_options, "wheel_topic": wheel_topic,
+                                               "imu_topic": imu_topic})
     wheel = wheel_options or WheelReadOptions()
+    imu_read = imu_options or ImuReadOptions()
+    if "imu_topic" in options:
+        imu_read = replace(imu_read, topic=options.pop("imu_topic"))
+    if imu is not None and not imu_read.enabled:
+        raise InputError("--imu and --no-imu (imu.enabled: false) contradict each other", path=Path(imu))
     if reader.logs_wheels:
         if wheel_odometry is not None:
             options["wheel_topic"] = "none"  # the file replaces the log's topics
         options["wheel_options"] = wheel
+    if reader.reads_imu:
+        options["imu_options"] = imu_read
+        if imu is not None:
+            options["imu"] = Path(imu)
     seq = reader.read(folder, max_frames=None if max_frames is None else int(max_frames),
                       ground_truth=None if ground_truth is None else Path(ground_truth), **options)
     if wheel_odometry is None and not reader.logs_wheels and (folder / WHEEL_CSV).is_file():
         wheel_odometry = folder / WHEEL_CSV
     if wheel_odometry is not None:
         seq.wheel_odometry = read_wheel_csv(wheel_odometry, wheel)
+    if not reader.reads_imu:  # the folder's imu0/data.csv (a KITTI-layout synthetic log writes one), or --imu
+        seq.imu = read_imu_folder(folder, imu_read, csv=None if imu is None else Path(imu))
+    if seq.imu is not None:
+        check_imu_clock(seq.imu, seq.timestamps)
     return seq
 
 

@@ -42,7 +42,9 @@ from gtvo.datasets.bag_types import (CAMERA_INFO, GROUND_TRUTH_TYPES, GT_MAX_GAP
                                      RGBD_TOLERANCE_S, STEREO_TOLERANCE_S)
 from gtvo.datasets.bag_stream import BagImageLoader, BagStream, first_line, open_reader, reader_errors, bag_location
 from gtvo.datasets.bag_topics import TopicChoice, TopicSummary, camera_info_topic, choose_topics, topic_summaries
+from gtvo.datasets.bag_imu import bag_imu
 from gtvo.datasets.bag_wheel import bag_wheel_odometry
+from gtvo.datasets.imu_files import ImuReadOptions
 from gtvo.datasets.wheel_files import WheelReadOptions
 
 
@@ -223,7 +225,7 @@ def _ground_truth(samples: list[tuple[int, FloatArray]], gt_topic: str | None, g
 def read_bag(path: Path, max_frames: int | None = None, calib: Path | None = None, left_topic: str | None = None,
              right_topic: str | None = None, depth_topic: str | None = None, ground_truth_topic: str | None = None,
              ground_truth: Path | None = None, stamp_tolerance: float | None = None, wheel_topic: str | None = None,
-             wheel_options: WheelReadOptions | None = None) -> BagSequence:
+             wheel_options: WheelReadOptions | None = None, imu_options: ImuReadOptions | None = None) -> BagSequence:
     """Open a ROS1 ``.bag`` or a ROS2 bag folder as a lazy, streamed stereo or RGB-D sequence.
 
     Args:
@@ -237,6 +239,8 @@ def read_bag(path: Path, max_frames: int | None = None, calib: Path | None = Non
         wheel_topic: the wheel odometry topic (``"none"``: none), default ``wheel_options.topic`` or
             the one candidate (:mod:`gtvo.datasets.bag_wheel`).
         wheel_options: how wheel readings become metres (:class:`WheelReadOptions`).
+        imu_options: the IMU's topic and what the bag does not give (:mod:`gtvo.datasets.bag_imu`);
+            None: no IMU.
     """
     where = bag_location(path)
     reader = open_reader(where)
@@ -281,7 +285,9 @@ def read_bag(path: Path, max_frames: int | None = None, calib: Path | None = Non
                        camera=calibration.camera, timestamps=times, load_left=load_left,
                        load_right=load_second if stereo else None, load_depth=None if stereo else load_second,
                        gt_poses=gt_poses, source=where, frame_names=names, unpaired=unpaired, topics=choice,
-                       calibration_source=calibration.source, wheel_odometry=wheel_odometry)
+                       calibration_source=calibration.source, wheel_odometry=wheel_odometry,
+                       imu=None if imu_options is None else bag_imu(where, topics, imu_options, choice.first,
+                                                                     calibration.T_raw_rect))
 
 
 def _check_gt_topic(topic: str, topics: list[TopicSummary], where: Path) -> None:

@@ -170,6 +170,19 @@ class BagWriter:
                          position=np.asarray(positions, dtype=np.float64), velocity=np.zeros(0), effort=np.zeros(0))
         self.write(topic, "sensor_msgs/msg/JointState", stamp_ns, msg)
 
+    def imu(self, topic: str, stamp_ns: int, gyro: np.ndarray, accel: np.ndarray, frame_id: str = "imu") -> None:
+        """A ``sensor_msgs/Imu`` of an angular rate (rad/s) and a specific force (m/s^2); no orientation
+        (its covariance's first entry -1, REP 145), zero covariances."""
+        cov = np.zeros(9)
+        orientation_cov = cov.copy()
+        orientation_cov[0] = -1.0
+        msg = self._make("sensor_msgs/msg/Imu", header=self.header(stamp_ns, frame_id),
+                         orientation=self._make("geometry_msgs/msg/Quaternion", x=0.0, y=0.0, z=0.0, w=1.0),
+                         orientation_covariance=orientation_cov, angular_velocity=self._vector(*gyro),
+                         angular_velocity_covariance=cov, linear_acceleration=self._vector(*accel),
+                         linear_acceleration_covariance=cov)
+        self.write(topic, "sensor_msgs/msg/Imu", stamp_ns, msg)
+
     def tf_static(self, stamp_ns: int, transforms: list[tuple[str, str, np.ndarray]]) -> None:
         """A ``/tf_static`` message of ``(parent, child, T_parent_child)`` transforms."""
         msg = self._make(TF_MESSAGE,
@@ -179,7 +192,7 @@ class BagWriter:
 
 #: Topics and frames of :func:`write_sequence_bag`.
 SEQUENCE_TOPICS = {"left": "/cam/left/image_rect", "right": "/cam/right/image_rect", "ground_truth": "/ground_truth",
-                   "odometry": "/odom", "joints": "/joint_states"}
+                   "odometry": "/odom", "joints": "/joint_states", "imu": "/imu"}
 WHEEL_JOINTS = ("left_wheel_joint", "right_wheel_joint")
 
 
@@ -192,7 +205,8 @@ def write_sequence_bag(seq: Sequence, path: str | Path, wheel_radius: float = 0.
     (``--ground-truth-topic /ground_truth``), and with wheel odometry: ``/odom``
     (``nav_msgs/Odometry``: the planar pose the robot integrates, and its twist), ``/joint_states``
     (``sensor_msgs/JointState``: :data:`WHEEL_JOINTS` at arc / ``wheel_radius``) and ``/tf_static``
-    (``base_link`` to the left camera's frame ``cam_left``).
+    (``base_link`` to the left camera's frame ``cam_left``); with an IMU: ``/imu``
+    (``sensor_msgs/Imu`` in the frame ``imu``) and ``/tf_static`` from ``imu`` to ``cam_left``.
     """
     path = Path(path)
     if seq.kind != "stereo" or not isinstance(seq.camera, StereoCamera):
@@ -212,6 +226,10 @@ def write_sequence_bag(seq: Sequence, path: str | Path, wheel_radius: float = 0.
             bag.camera_info(f"/cam/{side}/camera_info", stamps[0], cam.left.width, cam.left.height, cam.left.K, P)
         if seq.wheel_odometry is not None:
             _write_wheels(bag, seq.wheel_odometry, stamps[0], wheel_radius)
+        if seq.imu is not None:
+            bag.tf_static(stamps[0], [("imu", "cam_left", np.linalg.inv(seq.imu.T_cam_imu))])
+            for t, w, a in zip(seq.imu.times, seq.imu.gyro, seq.imu.accel):
+                bag.imu(SEQUENCE_TOPICS["imu"], int(round(t * 1e9)) + 1_000_000_000, w, a)
         for i in frames:
             for side, image in (("left", seq.left(i)), ("right", seq.right(i))):
                 bag.image(SEQUENCE_TOPICS[side], stamps[i], np.clip(np.rint(image), 0, 255).astype(np.uint8),

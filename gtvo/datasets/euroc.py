@@ -26,6 +26,7 @@ from gtvo.datasets._common import (FloatArray, GrayImageLoader, image_size, inte
                                    parse_timestamp_ns,
                                    read_rows, read_trajectory, require_dir, require_file, require_overlap)
 from gtvo.errors import InputError, show
+from gtvo.datasets.imu_files import ImuReadOptions, read_imu_folder
 from gtvo.datasets.rectify import RawCamera, StereoRectification, stereo_rectification
 from gtvo.datasets.sequence import Sequence
 from gtvo.core.lie import rotation_block_error
@@ -192,7 +193,8 @@ def _gt_sensor_T_BS(gt_path: Path, mav0: Path) -> FloatArray:
 
 
 def read_euroc(path: Path, max_frames: int | None = None, ground_truth: Path | None = None,
-               alpha: float = 0.0) -> Sequence:
+               alpha: float = 0.0, imu_options: ImuReadOptions | None = None,
+               imu: Path | None = None) -> Sequence:
     """Open an EuRoC/ASL sequence (its root or its ``mav0`` folder) as rectified stereo.
 
     Args:
@@ -200,6 +202,9 @@ def read_euroc(path: Path, max_frames: int | None = None, ground_truth: Path | N
         max_frames: keep only the first frames.
         ground_truth: an ASL csv or TUM file of body poses, instead of the one found in the folder.
         alpha: rectification free scaling (0: valid pixels only), see :func:`stereo_rectification`.
+        imu_options: read ``mav0/imu0`` with these options (:mod:`gtvo.datasets.imu_files`; its
+            ``T_cam_imu`` in the rectified left camera); None: no IMU.
+        imu: an IMU CSV instead of ``mav0/imu0/data.csv`` (its ``sensor.yaml`` beside it).
     """
     require_dir(path, "EuRoC sequence folder")
     mav0 = find_mav0(path)
@@ -236,4 +241,6 @@ def read_euroc(path: Path, max_frames: int | None = None, ground_truth: Path | N
     return Sequence(
         name=root.resolve().name, kind="stereo", camera=rect.camera, timestamps=times,
         load_left=RectifiedLoader(lefts, shape, "left", rect), load_right=RectifiedLoader(rights, shape, "right", rect),
-        gt_poses=gt_poses, source=path, frame_names=[str(p) for p in lefts])
+        gt_poses=gt_poses, source=path, frame_names=[str(p) for p in lefts],
+        imu=None if imu_options is None else read_imu_folder(mav0.parent, imu_options, T_B_cam0 @ rect.T_cam0_rect,
+                                                                imu))

@@ -39,6 +39,11 @@ def sequence_identity(seq: Sequence, format: str | None = None) -> dict[str, Any
     if wheels is not None:  # nothing hashed without: the identity of a log without wheels is as it was
         h.update(f"wheels:{wheels.kind}:{len(wheels)}\n".encode())
         h.update(np.ascontiguousarray(np.column_stack([wheels.times, wheels.values]), dtype="<f8").tobytes())
+    imu = seq.imu
+    if imu is not None:  # likewise: a log without an IMU (or run with --no-imu) keeps its identity
+        h.update(f"imu:{len(imu)}\n".encode())
+        h.update(np.ascontiguousarray(np.column_stack([imu.times, imu.gyro, imu.accel]), dtype="<f8").tobytes())
+        h.update(np.ascontiguousarray(imu.T_cam_imu, dtype="<f8").tobytes())
     return {"path": None if seq.source is None else os.path.abspath(seq.source), "format": format, "kind": seq.kind,
             "frames": len(seq), "first_frame": names[0], "last_frame": names[-1], "sha256": h.hexdigest()}
 

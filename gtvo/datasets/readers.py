@@ -26,11 +26,12 @@ layout in ``docs/datasets.md``. A reader with options of its own names them in `
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Callable
 
 from gtvo.datasets.bag import looks_like_bag, read_bag
+from gtvo.datasets.imu_files import ImuReadOptions, read_imu_folder
 from gtvo.datasets.euroc import looks_like_euroc, read_euroc
 from gtvo.datasets.kitti import looks_like_kitti, read_kitti
 from gtvo.datasets.kitti_raw import looks_like_kitti_raw, read_kitti_raw
@@ -40,7 +41,7 @@ from gtvo.errors import InputError
 
 #: ``open_sequence``'s options for ROS bags (:func:`gtvo.datasets.bag.read_bag`).
 BAG_OPTIONS: tuple[str, ...] = ("calib", "left_topic", "right_topic", "depth_topic", "ground_truth_topic",
-                                "stamp_tolerance", "wheel_topic")
+                                "stamp_tolerance", "wheel_topic", "imu_topic")
 
 
 @dataclass(frozen=True)
@@ -57,6 +58,10 @@ class DatasetReader:
             when given).
         logs_wheels: the log itself carries the wheel odometry (a bag's topics): ``read`` also takes
             ``wheel_options``, and no ``wheel_odometry.csv`` is looked for beside it.
+        reads_imu: the reader reads the log's IMU itself (EuRoC's ``mav0/imu0``, a bag's
+            ``sensor_msgs/Imu`` topic): ``read`` also takes ``imu_options``
+            (:class:`gtvo.datasets.imu_files.ImuReadOptions`) and ``imu`` (an IMU CSV to use instead).
+            The other layouts get the folder's ``imu0/data.csv`` (or ``imu``) from ``open_sequence``.
     """
 
     name: str
@@ -66,20 +71,27 @@ class DatasetReader:
     read: Callable[..., Sequence]
     options: tuple[str, ...] = ()
     logs_wheels: bool = False
+    reads_imu: bool = False
 
 
 def read_bag_log(path: Path, max_frames: int | None = None, ground_truth: Path | None = None,
-                 calib: str | Path | None = None, **options: Any) -> Sequence:
+                 calib: str | Path | None = None, imu: Path | None = None, **options: Any) -> Sequence:
     """:func:`gtvo.datasets.bag.read_bag` for ``open_sequence`` (also when ``format="bag"`` is given
-    for a path that is not one).
+    for a path that is not one); ``imu``: an IMU CSV that replaces the bag's IMU topics.
 
     Raises:
         InputError: ``path`` is not a ROS bag, or the bag's own errors.
     """
     if not looks_like_bag(path):
         raise InputError("not a ROS bag: expected a .bag file or a ROS2 bag folder (metadata.yaml)", path=path)
-    return read_bag(path, max_frames=max_frames, calib=None if calib is None else Path(calib),
-                    ground_truth=ground_truth, **options)
+    imu_options = options.get("imu_options") or ImuReadOptions()
+    if imu is not None:
+        options["imu_options"] = replace(imu_options, topic="none")  # the file replaces the bag's topics
+    seq = read_bag(path, max_frames=max_frames, calib=None if calib is None else Path(calib),
+                   ground_truth=ground_truth, **options)
+    if imu is not None:
+        seq.imu = read_imu_folder(path if path.is_dir() else path.parent, imu_options, csv=imu)
+    return seq
 
 
 #: Every layout, in the order :func:`gtvo.datasets.detect_format` tries them (a path that is not a
@@ -89,10 +101,12 @@ READERS: tuple[DatasetReader, ...] = (
                   looks_like_kitti, read_kitti),
     DatasetReader("kitti_raw", "KITTI raw (image_00/data/ + calib_cam_to_cam.txt)", "KITTI raw drives",
                   looks_like_kitti_raw, read_kitti_raw),
-    DatasetReader("euroc", "EuRoC (mav0/cam0/ + mav0/cam1/)", "EuRoC folders", looks_like_euroc, read_euroc),
+    DatasetReader("euroc", "EuRoC (mav0/cam0/ + mav0/cam1/)", "EuRoC folders", looks_like_euroc, read_euroc,
+                  reads_imu=True),
     DatasetReader("tum", "TUM RGB-D (rgb.txt + depth.txt)", "TUM folders", looks_like_tum, read_tum, ("camera",)),
     DatasetReader("bag", "a ROS bag (a .bag file, or a ROS2 bag folder with metadata.yaml and its .db3 or "
-                         ".mcap files)", "ROS bags", looks_like_bag, read_bag_log, BAG_OPTIONS, logs_wheels=True),
+                         ".mcap files)", "ROS bags", looks_like_bag, read_bag_log, BAG_OPTIONS, logs_wheels=True,
+                  reads_imu=True),
 )
 
 

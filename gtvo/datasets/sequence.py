@@ -15,6 +15,7 @@ from numpy.typing import NDArray
 
 from gtvo.core.camera import PinholeCamera, StereoCamera
 from gtvo.core.image import as_float_gray
+from gtvo.datasets.imu import ImuMeasurements
 from gtvo.datasets.wheel import WheelOdometry
 from gtvo.errors import InputError
 
@@ -62,6 +63,9 @@ class Sequence:
         wheel_odometry: the robot's raw wheel odometry in the same clock, when logged
             (:class:`gtvo.datasets.wheel.WheelOdometry`; docs/wheel_odometry.md); kept whole by
             :meth:`truncated` and :meth:`subsampled`.
+        imu: the IMU's readings in the same clock, its noise model and its pose on the left camera,
+            when logged (:class:`gtvo.datasets.imu.ImuMeasurements`; docs/imu.md); kept whole like
+            the wheel odometry.
     """
 
     name: str
@@ -75,6 +79,7 @@ class Sequence:
     source: Path | None = None
     frame_names: list[str] = field(default_factory=list)
     wheel_odometry: WheelOdometry | None = None
+    imu: ImuMeasurements | None = None
 
     def __post_init__(self) -> None:
         self.timestamps = np.asarray(self.timestamps, dtype=np.float64).reshape(-1)

@@ -32,14 +32,16 @@ from scipy import ndimage
 from gtvo.core.atomic import atomic_dir
 from gtvo.core.camera import PinholeCamera, StereoCamera
 from gtvo.errors import InputError, show
+from gtvo.datasets.imu_files import write_imu_files
 from gtvo.datasets.sequence import Sequence
+from gtvo.datasets.synthetic_imu import ImuSimulation, simulate_imu
 from gtvo.datasets.synthetic_robot import WheelSimulation, ground_robot_trajectory, simulate_sequence_wheels, \
     wheel_config_yaml
 from gtvo.datasets.synthetic_scene import Rendering, SyntheticScene, make_scene
 from gtvo.datasets.wheel_files import WHEEL_CSV, write_wheel_csv
 
 FloatArray = NDArray[np.float64]
-Motion = Literal["forward", "loop", "turn", "ground"]
+Motion = Literal["forward", "loop", "turn", "ground", "swerve"]
 
 #: Frame rate of the generated sequences (Hz), KITTI's.
 FRAME_RATE_HZ = 10.0
@@ -80,6 +82,10 @@ def synthetic_trajectory(n_frames: int, motion: Motion = "forward", step_m: floa
     room's side wall, close and with little texture at that range (a conditioning test).
     ``"ground"``: a ground robot's slalom in the plane, the camera level on the base
     (:func:`gtvo.datasets.synthetic_robot.ground_robot_trajectory`).
+    ``"swerve"``: ``"forward"``'s path with fast turns: the yaw swings by :data:`SWERVE_YAW_DEG`
+    with a period of :data:`SWERVE_PERIOD_S` (peak rate about 47 deg/s, 4.7 deg per frame at
+    10 Hz), the pitch and roll wobbles of ``"forward"``: smooth, so an IMU can be simulated along it
+    (:func:`synthetic_poses_at`).
     """
     n = int(n_frames)
     if n < 1:
@@ -87,40 +93,76 @@ def synthetic_trajectory(n_frames: int, motion: Motion = "forward", step_m: floa
     if not (np.isfinite(step_m) and step_m > 0):
         raise InputError(f"step_m must be a finite positive number, got {show(step_m)}")
     dt = 1.0 / float(frame_rate_hz)
-    t = np.arange(n) * dt
-    deg = np.pi / 180.0
-    if motion == "forward":
-        v = step_m / dt
-        pos = np.stack([0.25 * np.sin(2 * np.pi * t / 5.0), 0.04 * np.sin(2 * np.pi * t / 2.9), v * t], axis=1)
-        yaw = 4.0 * deg * np.sin(2 * np.pi * t / 6.0)
-        pitch = 1.5 * deg * np.sin(2 * np.pi * t / 3.7)
-        roll = 1.0 * deg * np.sin(2 * np.pi * t / 4.3)
-    elif motion == "loop":
-        period = n * dt
-        s = 2 * np.pi * np.arange(n) / n
-        a, b = 1.0, 0.5  # unit ellipse, scaled to the wanted perimeter (Ramanujan's formula)
-        perimeter = np.pi * (3 * (a + b) - np.sqrt((3 * a + b) * (a + 3 * b)))
-        a_z = n * step_m / perimeter
-        k = max(1, int(round(period / 6.0)))  # wobble cycles per loop: about 1/6 Hz
-        rate_cap = 5.0 * deg / (2 * np.pi * k / period)  # keep peak rates <= ~5 deg/s
-        pos = np.stack([0.5 * a_z * (1 - np.cos(s)), 0.04 * np.sin(2 * k * s), a_z * np.sin(s)], axis=1)
-        yaw = min(4.0 * deg, rate_cap) * np.sin(k * s)
-        pitch = min(1.5 * deg, rate_cap) * np.sin(2 * k * s) / 2
-        roll = min(1.0 * deg, rate_cap) * np.sin(k * s + np.sin(s))
-    elif motion == "ground":
+    if motion == "ground":
         return ground_robot_trajectory(n, step_m)
-    elif motion == "turn":
+    if motion == "turn":
+        deg = np.pi / 180.0
         yaw = TURN_DEG_PER_FRAME * deg * np.maximum(np.arange(n) - TURN_START_FRAME, 0)
         heading = np.stack([np.sin(yaw), np.zeros(n), np.cos(yaw)], axis=1)
         pos = np.concatenate([np.zeros((1, 3)), np.cumsum(step_m * heading[1:], axis=0)])
-        pitch = roll = np.zeros(n)
-    else:
-        raise InputError(f"motion must be 'forward', 'loop', 'turn' or 'ground', got {motion!r}")
-    T = np.tile(np.eye(4), (n, 1, 1))
-    for i in range(n):
+        return _poses(pos, yaw, np.zeros(n), np.zeros(n))
+    if motion not in SMOOTH_MOTIONS:
+        raise InputError(f"motion must be 'forward', 'loop', 'turn', 'ground' or 'swerve', got {motion!r}")
+    return _poses(*_smooth_motion(np.arange(n) * dt, 2 * np.pi * np.arange(n) / n, n, motion, step_m, dt))
+
+
+#: The motions whose poses are smooth functions of time (:func:`synthetic_poses_at`).
+SMOOTH_MOTIONS: tuple[str, ...] = ("forward", "loop", "swerve")
+#: The ``"swerve"`` motion's yaw swing (deg) and period (s).
+SWERVE_YAW_DEG = 30.0
+SWERVE_PERIOD_S = 4.0
+
+
+def _smooth_motion(t: FloatArray, s: FloatArray, n: int, motion: str, step_m: float,
+                   dt: float) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """``(positions, yaw, pitch, roll)`` of a smooth motion at the times ``t`` (``s``: the loop's
+    angle at them, ``2 pi t / (n dt)``)."""
+    deg = np.pi / 180.0
+    if motion in ("forward", "swerve"):
+        v = step_m / dt
+        pos = np.stack([0.25 * np.sin(2 * np.pi * t / 5.0), 0.04 * np.sin(2 * np.pi * t / 2.9), v * t], axis=1)
+        yaw = 4.0 * deg * np.sin(2 * np.pi * t / 6.0)
+        if motion == "swerve":
+            yaw = SWERVE_YAW_DEG * deg * np.sin(2 * np.pi * t / SWERVE_PERIOD_S)
+        pitch = 1.5 * deg * np.sin(2 * np.pi * t / 3.7)
+        roll = 1.0 * deg * np.sin(2 * np.pi * t / 4.3)
+        return pos, yaw, pitch, roll
+    period = n * dt
+    a, b = 1.0, 0.5  # unit ellipse, scaled to the wanted perimeter (Ramanujan's formula)
+    perimeter = np.pi * (3 * (a + b) - np.sqrt((3 * a + b) * (a + 3 * b)))
+    a_z = n * step_m / perimeter
+    k = max(1, int(round(period / 6.0)))  # wobble cycles per loop: about 1/6 Hz
+    rate_cap = 5.0 * deg / (2 * np.pi * k / period)  # keep peak rates <= ~5 deg/s
+    pos = np.stack([0.5 * a_z * (1 - np.cos(s)), 0.04 * np.sin(2 * k * s), a_z * np.sin(s)], axis=1)
+    yaw = min(4.0 * deg, rate_cap) * np.sin(k * s)
+    pitch = min(1.5 * deg, rate_cap) * np.sin(2 * k * s) / 2
+    roll = min(1.0 * deg, rate_cap) * np.sin(k * s + np.sin(s))
+    return pos, yaw, pitch, roll
+
+
+def _poses(pos: FloatArray, yaw: FloatArray, pitch: FloatArray, roll: FloatArray) -> FloatArray:
+    T = np.tile(np.eye(4), (len(pos), 1, 1))
+    for i in range(len(pos)):
         T[i, :3, :3] = _rotation_ypr(yaw[i], pitch[i], roll[i])
     T[:, :3, 3] = pos
     return T
+
+
+def synthetic_poses_at(times: ArrayLike, n_frames: int, motion: Motion = "forward", step_m: float = 0.15,
+                       frame_rate_hz: float = FRAME_RATE_HZ) -> FloatArray:
+    """``T_world_cam`` (M, 4, 4) of a smooth motion (:data:`SMOOTH_MOTIONS`) at any times (s): the
+    curve :func:`synthetic_trajectory` samples at its frames (to rounding), for an IMU along it.
+
+    Raises:
+        InputError: a motion that is not smooth (``"turn"``, ``"ground"``: one arc per frame).
+    """
+    if motion not in SMOOTH_MOTIONS:
+        raise InputError(f"motion {motion!r} is not a smooth function of time: an IMU needs one of "
+                         f"{', '.join(SMOOTH_MOTIONS)}")
+    n = int(n_frames)
+    dt = 1.0 / float(frame_rate_hz)
+    t = np.asarray(times, dtype=np.float64).reshape(-1)
+    return _poses(*_smooth_motion(t, 2 * np.pi * t / (n * dt), n, motion, step_m, dt))
 
 
 def synthetic_exposures(n_frames: int, exposure_change: bool,
@@ -286,7 +328,7 @@ def make_synthetic_sequence(n_frames: int = 30, width: int = 320, height: int = 
                             exposure_change: bool = False, seed: int = 0, motion: Motion = "forward",
                             supersample: int = 1, cache_size: int = 32,
                             right_principal_offset: tuple[float, float] = (0.0, 0.0),
-                            wheels: WheelSimulation | None = None) -> SyntheticSequence:
+                            wheels: WheelSimulation | None = None, imu: ImuSimulation | None = None) -> SyntheticSequence:
     """A deterministic synthetic stereo sequence with exact poses and depth, rendered on demand.
 
     Args:
@@ -306,6 +348,9 @@ def make_synthetic_sequence(n_frames: int = 30, width: int = 320, height: int = 
             calibration, rendered rather than resampled (docs/window.md, "Rig calibration").
         wheels: the wheel odometry the robot logs (``Sequence.wheel_odometry``; best with
             ``motion="ground"``, docs/wheel_odometry.md).
+        imu: the IMU the camera carries (``Sequence.imu``, readings from the first frame's time to
+            the last's along the exact motion: :mod:`gtvo.datasets.synthetic_imu`; a smooth
+            ``motion`` only, docs/imu.md).
     """
     for name, value in (("noise_sigma", noise_sigma), ("baseline", baseline)):
         if not np.isfinite(value) or value < 0 or (name == "baseline" and value == 0):
@@ -327,8 +372,12 @@ def make_synthetic_sequence(n_frames: int = 30, width: int = 320, height: int = 
     name = f"synthetic-{motion}-seed{int(seed)}" + (f"+right-pp({offset[0]:+g},{offset[1]:+g})px" if any(offset) else "")
     times = np.arange(n) / FRAME_RATE_HZ
     wheel = None if wheels is None else simulate_sequence_wheels(times, poses, wheels, f"{name} wheels")
+    imu_log = None
+    if imu is not None:
+        imu_log = simulate_imu(float(times[0]), float(times[-1]),
+                               lambda t: synthetic_poses_at(t, n_frames, motion, step_m), imu, source=f"{name} IMU")
     return SyntheticSequence(name, "stereo", camera, times, renderer.left, renderer.right,
-                             None, poses, None, [], wheel, scene=scene, affine_left=affine_left,
+                             None, poses, None, [], wheel, imu_log, scene=scene, affine_left=affine_left,
                              affine_right=affine_right, noise_sigma=float(noise_sigma),
                              wheel_model=None if wheels is None else wheels.model, _renderer=renderer)
 
@@ -364,7 +413,8 @@ def write_sequence_kitti(seq: Sequence, folder: str | Path, progress: bool = Fal
 
 
 #: What :func:`write_sequence_kitti` writes into its folder (and may therefore replace there).
-KITTI_LAYOUT_ENTRIES = frozenset({"calib.txt", "times.txt", "poses.txt", "image_0", "image_1", WHEEL_CSV, "wheel.yaml"})
+KITTI_LAYOUT_ENTRIES = frozenset({"calib.txt", "times.txt", "poses.txt", "image_0", "image_1", WHEEL_CSV, "wheel.yaml",
+                                  "imu0"})
 
 
 def _write_kitti_files(seq: Sequence, out: Path, shown: Path, progress: bool) -> None:
@@ -394,3 +444,5 @@ def _write_kitti_files(seq: Sequence, out: Path, shown: Path, progress: bool) ->
         write_wheel_csv(seq.wheel_odometry, out / WHEEL_CSV)
         model = getattr(seq, "wheel_model", None) or "diff_drive"
         (out / "wheel.yaml").write_text(wheel_config_yaml(seq.wheel_odometry, model), encoding="utf-8")
+    if seq.imu is not None:
+        write_imu_files(seq.imu, out)

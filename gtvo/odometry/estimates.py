@@ -27,6 +27,9 @@ class FrameOutcome(enum.Enum):
     * ``WHEEL_CARRIED``: like ``LOST`` (tracking failed, too few points to re-initialise), but the
       run has wheel odometry: its pose is the last good frame's carried by the calibrated wheel
       motion, not the motion model's prediction (:attr:`FrameEstimate.lost` is True for it too).
+    * ``IMU_CARRIED``: like ``WHEEL_CARRIED``, but the run has an IMU in the window: its pose is the
+      latest keyframe's carried by the preintegrated IMU readings (:attr:`FrameEstimate.lost` is
+      True for it too; docs/imu.md).
     * ``RECOVERED``: failed from every motion-model guess, tracked from the optical-flow guess
       (a recovered frame the keyframe rule makes a keyframe is ``KEYFRAME``, with
       :attr:`FrameEstimate.recovered` True).
@@ -45,6 +48,7 @@ class FrameOutcome(enum.Enum):
     REINITIALISED = "reinitialised"
     LOST = "lost"
     WHEEL_CARRIED = "wheel_carried"
+    IMU_CARRIED = "imu_carried"
     RECOVERED = "recovered"
     SUSPECT = "suspect"
     FROZEN = "frozen"
@@ -120,8 +124,8 @@ class FrameEstimate:
         that keyframe), ``tracking`` holds the failed attempt, and no keyframe is made from it:
         the next frames are tracked against the latest keyframe (which may be the frame before
         it, promoted when it failed) again. Also True for a ``WHEEL_CARRIED`` frame (its pose the
-        wheels' instead of the prediction)."""
-        return self.outcome in (FrameOutcome.LOST, FrameOutcome.WHEEL_CARRIED)
+        wheels' instead of the prediction) and an ``IMU_CARRIED`` one (the IMU's)."""
+        return self.outcome in (FrameOutcome.LOST, FrameOutcome.WHEEL_CARRIED, FrameOutcome.IMU_CARRIED)
 
 
 @dataclass
@@ -145,7 +149,7 @@ class Keyframe:
 
 
 #: The outcomes ``report.json`` lists frame by frame (with the reason); the others are counted.
-FLAGGED_OUTCOMES = ("frozen", "suspect", "lost", "reinitialised", "wheel_carried", "recovered", "skipped")
+FLAGGED_OUTCOMES = ("frozen", "suspect", "lost", "reinitialised", "wheel_carried", "imu_carried", "recovered", "skipped")
 
 
 def frames_by_outcome(estimates: list[FrameEstimate], skipped: Iterable[tuple[int, str]] = ()) -> dict[str, Any]:

@@ -40,6 +40,7 @@ from gtvo.odometry.window_port import WindowPort, open_window
 from gtvo.odometry.window_schedule import WindowSchedule
 from gtvo.window import WindowResult
 from gtvo.window.rig import RigOffset
+from gtvo.window.imu import ImuWindow
 from gtvo.window.wheel import WheelCalibration
 
 
@@ -65,14 +66,14 @@ class Keyframer:
     """
 
     def __init__(self, camera: StereoCamera | PinholeCamera, config: OdometryConfig, history: FrameHistory,
-                 wheel: WheelCalibration | None = None) -> None:
+                 wheel: WheelCalibration | None = None, imu: ImuWindow | None = None) -> None:
         self.camera = camera
         self.pinhole = camera.left if isinstance(camera, StereoCamera) else camera
         self.config = config
         self.history = history
         self.keyframes: list[Keyframe] = []
         #: the window's port (window mode, :func:`gtvo.odometry.window_port.open_window`); None in track mode
-        self.window: WindowPort | None = open_window(camera, config, wheel) if config.mode == "window" else None
+        self.window: WindowPort | None = open_window(camera, config, wheel, imu) if config.mode == "window" else None
         self.window_results: list[WindowResult] = []
         self.schedule = WindowSchedule(config.window, config.photometric, self.pinhole)
         self.candidate: tuple[Frame, NDArray[np.float32]] | None = None

@@ -110,6 +110,9 @@ class OdometryResult:
         loops: the loop closing's outcome, None when it did not run.
         refinement: the refinement's ``refine`` block, None when it was not asked for.
         map_poses: where the map's keyframes go (loop-closed or refined), None: their own poses.
+        gravity_rotation: ``R_aligned_world``, the rotation from the odometry's world to the
+            gravity-aligned one (an initialised IMU: :func:`gtvo.odometry.imu.gravity_aligned` writes
+            the outputs there; docs/imu.md), None without one.
     """
 
     config: OdometryConfig
@@ -127,6 +130,7 @@ class OdometryResult:
     loops: LoopClosing | None = None
     refinement: RefinementSummary | None = None
     map_poses: Mapping[int, F64] | None = None
+    gravity_rotation: F64 | None = None
 
     @property
     def frame_indices(self) -> list[int]:

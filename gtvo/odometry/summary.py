@@ -19,6 +19,7 @@ from gtvo.odometry.estimates import frames_by_outcome, trusted_fraction, undeter
 from gtvo.odometry.result import MapKeyframe, OdometryResult, odometry_covariances
 from gtvo.odometry.rig_report import rig_report
 from gtvo.odometry.visual_odometry import VisualOdometry
+from gtvo.odometry.imu import gravity_alignment, imu_report
 from gtvo.odometry.wheel import wheel_report
 from gtvo.report import OdometrySummary, StageTiming, WindowWorkerFigures
 
@@ -45,7 +46,8 @@ def odometry_result(vo: VisualOdometry, seconds: float | None = None, skipped: S
         covariances=keyframe_covariances(vo),
         window_keyframes=tuple(window.every_keyframe()) if retained else None,  # type: ignore[union-attr]
         rig_offset=None if rig is None or not retained else rig.solved_offset,
-        wheel=window.wheel if retained else None, clock=vo.clock)
+        wheel=window.wheel if retained else None, clock=vo.clock,
+        gravity_rotation=None if (aligned := gravity_alignment(vo)) is None else aligned.R_aligned_world)
 
 
 def keyframe_covariances(vo: VisualOdometry, inflation: float = 1.0) -> KeyframeCovariances | None:
@@ -120,6 +122,7 @@ def summarize_odometry(vo: VisualOdometry, seconds: float | None = None,
         })
         out.update(rig_report(vo))
     out.update(wheel_report(vo.wheel, vo.window))
+    out.update(imu_report(vo))
     out.update(stage_timing(vo))
     out.update(window_worker_figures(vo))
     out["covariances"] = ("not computed (--no-covariances)" if config.mode == "window" and not config.window.covariances

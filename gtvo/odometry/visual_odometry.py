@@ -35,6 +35,7 @@ from gtvo.core.camera import PinholeCamera, StereoCamera
 from gtvo.core.map_points import MapPoints
 from gtvo.core.timing import StageClock
 from gtvo.datasets.sequence import Frame
+from gtvo.datasets.imu import ImuMeasurements
 from gtvo.datasets.wheel import WheelOdometry
 from gtvo.errors import InputError
 from gtvo.evaluation.trajectory import Trajectory
@@ -48,6 +49,7 @@ from gtvo.odometry.motion import MotionModel
 from gtvo.odometry.result import MapKeyframe, keyframe_map
 from gtvo.odometry.view import OdometryView
 from gtvo.odometry.wheel import wheel_calibration
+from gtvo.window.imu import ImuWindow, imu_window_settings
 
 
 @dataclass(frozen=True)
@@ -108,7 +110,7 @@ class VisualOdometry:
     """
 
     def __init__(self, camera: StereoCamera | PinholeCamera, config: OdometryConfig | None = None,
-                 wheel_odometry: WheelOdometry | None = None) -> None:
+                 wheel_odometry: WheelOdometry | None = None, imu: ImuMeasurements | None = None) -> None:
         self.camera = camera
         self.pinhole = camera.left if isinstance(camera, StereoCamera) else camera
         self.config = config or OdometryConfig()
@@ -117,7 +119,10 @@ class VisualOdometry:
         self.motion = MotionModel(self.config.motion_model, self.history)
         self.tracker = FrameTracker(self.config, self.pinhole)
         self.checks = FrameChecks(self.config.frame_checks, self.pinhole, self.history)
-        self.keyframer = Keyframer(camera, self.config, self.history, self.wheel)
+        #: the IMU in the window (gtvo.window.imu.ImuWindow; None: no IMU, or not in window mode; docs/imu.md)
+        self.imu = None if imu is None or self.config.mode != "window" else ImuWindow(imu, imu_window_settings(
+            self.config.imu))
+        self.keyframer = Keyframer(camera, self.config, self.history, self.wheel, self.imu)
         self.estimates = self.history.estimates
         self.keyframes = self.keyframer.keyframes
         self.window = self.keyframer.window
@@ -220,7 +225,8 @@ class VisualOdometry:
             except TooFewPoints as exc:  # nothing can start from the first frame
                 raise InputError(str(exc)) from None
             return self._record(frame, left, Outcome(FrameOutcome.KEYFRAME, kf.T_world_cam), t0)
-        T_pred = self.motion.predict(frame.timestamp)                     # 2. predict (the wheels: after a freeze)
+        T_pred = self._imu_pose(frame) or self.motion.predict(frame.timestamp)  # 2. predict (the IMU's, with one;
+        #    the wheels: after a freeze)
         T_wheel = self._wheel_pose(frame)
         if (why := self.checks.frozen(frame, left, self.keyframes[-1], T_pred if T_wheel is None else T_wheel,
                                       T_wheel is not None)) is not None:  # 2b. a frozen camera: a guess, untracked
@@ -282,22 +288,33 @@ class VisualOdometry:
         """Tracking failed: the frame becomes a keyframe at the motion model's prediction, or, with
         too few points for that (a blank or covered view), it is lost and keeps the prediction.
         With wheel odometry that covers the step from the last good frame, the calibrated wheel
-        motion places it instead (a lost frame is then ``WHEEL_CARRIED``)."""
+        motion places it instead (a lost frame is then ``WHEEL_CARRIED``); with an initialised IMU
+        that covers it, the IMU's prediction from the latest keyframe (``IMU_CARRIED``)."""
         self.failures += 1
         self.checks.not_checked()
-        T_wheel = self._wheel_pose(frame)
-        T_place = T_pred if T_wheel is None else T_wheel
-        by_wheel = "" if T_wheel is None else ", placed by the calibrated wheel odometry"
+        T_imu = self._imu_pose(frame)
+        T_wheel = self._wheel_pose(frame) if T_imu is None else None
+        T_place = T_imu or T_wheel or T_pred
+        by_wheel = ("" if T_wheel is None else ", placed by the calibrated wheel odometry") + (
+            "" if T_imu is None else ", placed by the IMU")
         new_kf = self.keyframer.try_make(frame, left, T_place, pyramid=pyramid)
         if new_kf is None:
-            if T_wheel is None:  # a wheel-carried frame is placed by a measurement: not lost
+            carried = (FrameOutcome.IMU_CARRIED if T_imu is not None else
+                       FrameOutcome.WHEEL_CARRIED if T_wheel is not None else FrameOutcome.LOST)
+            if carried is FrameOutcome.LOST:  # a carried frame is placed by a measurement: not lost
                 self.lost_frames += 1
-            return Outcome(FrameOutcome.LOST if T_wheel is None else FrameOutcome.WHEEL_CARRIED, T_place, track,
+            return Outcome(carried, T_place, track,
                            kf.T_world_cam.between(T_place),
                            f"tracking failed ({track.result.reason}); too few points with a depth to re-initialise"
                            + by_wheel)
         return Outcome(FrameOutcome.REINITIALISED, new_kf.T_world_cam, track,
                        reason=f"tracking failed ({track.result.reason}){by_wheel}")
+
+    def _imu_pose(self, frame: Frame) -> gtsam.Pose3 | None:
+        """The frame's pose predicted by the IMU from the latest keyframe with a velocity and a bias
+        (:meth:`gtvo.window.imu.ImuWindow.predict_at`); None without an initialised IMU or when its
+        readings do not cover the step."""
+        return None if self.imu is None else self.imu.predict_at(float(frame.timestamp))
 
     def _wheel_pose(self, frame: Frame) -> gtsam.Pose3 | None:
         """The frame's pose carried from the last good frame by the calibrated wheel motion; None
@@ -316,7 +333,8 @@ class VisualOdometry:
         if tracked and kind is FrameOutcome.KEYFRAME:  # tracked against the keyframe before this one
             kf_index = self.keyframes[-2].index
         flow_reason = outcome.track.flow_reason if outcome.track is not None else None
-        flow = tracked and kind not in (FrameOutcome.LOST, FrameOutcome.WHEEL_CARRIED) and flow_reason is not None
+        flow = tracked and kind not in (FrameOutcome.LOST, FrameOutcome.WHEEL_CARRIED,
+                                        FrameOutcome.IMU_CARRIED) and flow_reason is not None
         reason = outcome.reason or (flow_reason or "" if flow else "")
         est = FrameEstimate(frame.index, float(frame.timestamp), outcome.T_world_cam.matrix(), kind, result,
                             time.perf_counter() - t0, kf_index, outcome.T_keyframe_frame, reason, flow)

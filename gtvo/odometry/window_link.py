@@ -29,6 +29,7 @@ from gtvo.frontend.stereo_depth import stereo_inverse_depth
 from gtvo.window import SlidingWindowOptimizer, WindowKeyframe, WindowResult, WindowSettings
 from gtvo.window.depth_change import tracked_translation_scale
 from gtvo.window.rig import RigOffset
+from gtvo.window.imu import ImuWindow
 from gtvo.window.wheel import WheelCalibration
 
 FloatArray = NDArray[np.float64]
@@ -102,10 +103,11 @@ class WindowLink:
         config: the run's settings.
         wheel: the wheel odometry's calibration the window estimates with its wheel factors (LM
             backend), or None.
+        imu: the IMU's owner in the window (:class:`gtvo.window.imu.ImuWindow`), or None.
     """
 
     def __init__(self, camera: StereoCamera | PinholeCamera, config: OdometryConfig,
-                 wheel: WheelCalibration | None = None) -> None:
+                 wheel: WheelCalibration | None = None, imu: ImuWindow | None = None) -> None:
         self.camera = camera
         self.pinhole = camera.left if isinstance(camera, StereoCamera) else camera
         self.config = config
@@ -114,6 +116,8 @@ class WindowLink:
         rig = baseline is not None and wcfg.rig_calibration and wcfg.backend == "lm"
         self.window = SlidingWindowOptimizer(self.pinhole, baseline, WindowSettings(wcfg, config.photometric),
                                              rig_offset=np.zeros(2) if rig else None, wheel=wheel)
+        if imu is not None:
+            self.window.use_imu(imu)
         # the whole-log refinement needs every keyframe (gtvo.refinement): kept only when it runs
         self.window.retain_keyframes = config.refine.enabled
 

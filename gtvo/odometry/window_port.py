@@ -29,7 +29,9 @@ from gtvo.config import OdometryConfig
 from gtvo.core.camera import PinholeCamera, StereoCamera
 from gtvo.odometry.window_link import KeyframeForWindow, WindowLink, WindowUpdate
 from gtvo.odometry.window_worker import WindowWorker, WorkerUsage
+from gtvo.errors import InputError
 from gtvo.window import SlidingWindowOptimizer, WindowKeyframe, WindowSolverName
+from gtvo.window.imu import ImuWindow
 from gtvo.window.rig import RigOffset
 from gtvo.window.wheel import WheelCalibration
 
@@ -118,11 +120,12 @@ class LocalWindow:
         camera: a :class:`StereoCamera` for stereo input, a :class:`PinholeCamera` for RGB-D.
         config: the run's settings.
         wheel: the wheel calibration the window estimates (LM back end), or None.
+        imu: the IMU's owner in the window (:class:`gtvo.window.imu.ImuWindow`), or None.
     """
 
     def __init__(self, camera: StereoCamera | PinholeCamera, config: OdometryConfig,
-                 wheel: WheelCalibration | None = None) -> None:
-        self.link = WindowLink(camera, config, wheel=wheel)
+                 wheel: WheelCalibration | None = None, imu: ImuWindow | None = None) -> None:
+        self.link = WindowLink(camera, config, wheel=wheel, imu=imu)
         self._pending: list[WindowUpdate] = []
 
     @property
@@ -214,11 +217,19 @@ class LocalWindow:
 
 
 def open_window(camera: StereoCamera | PinholeCamera, config: OdometryConfig,
-                wheel: WheelCalibration | None = None) -> WindowPort:
+                wheel: WheelCalibration | None = None, imu: ImuWindow | None = None) -> WindowPort:
     """The window's machine for ``config``: a :class:`gtvo.odometry.window_worker.WindowWorker`
     with ``window.parallel``, else a :class:`LocalWindow`. ``wheel``: the wheel calibration the
-    window estimates (the LM back end's; the fixed-lag back end leaves it at its prior)."""
+    window estimates (the LM back end's; the fixed-lag back end leaves it at its prior); ``imu``:
+    the IMU's owner in the window (:class:`gtvo.window.imu.ImuWindow`), or None.
+
+    Raises:
+        InputError: an IMU with ``window.parallel`` (the worker does not carry it).
+    """
     wheel = wheel if config.window.backend == "lm" else None
     if config.window.parallel:
+        if imu is not None:
+            raise InputError("window.parallel does not carry the IMU yet: run it with --no-parallel "
+                             "(window.parallel: false) or --no-imu")
         return WindowWorker(camera, config, wheel)
-    return LocalWindow(camera, config, wheel)
+    return LocalWindow(camera, config, wheel, imu)

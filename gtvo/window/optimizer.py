@@ -28,6 +28,7 @@ from gtvo.window.fixed_lag import FixedLagBackend
 from gtvo.window.problem import (RigVariable, SolvableWindow, WindowMembers, WindowProblem, WindowSettings,
                                  build_graph, observation_counts, visible_targets)
 from gtvo.window.rig import RigOffset
+from gtvo.window.imu import ImuWindow
 from gtvo.window.wheel import WheelCalibration
 
 FloatArray = NDArray[np.float64]
@@ -77,6 +78,8 @@ class SlidingWindowOptimizer:
             raise InputError("wheel odometry is used by the 'lm' window backend only")
         #: the wheel calibration's one owner, updated by every optimisation (None: no wheel odometry)
         self.wheel: WheelCalibration | None = wheel
+        #: the IMU's one owner: gravity, the keyframes' velocities and biases (None: no IMU; :meth:`use_imu`)
+        self.imu: ImuWindow | None = None
         self.keyframes: list[WindowKeyframe] = []
         self.n_removed = 0  # keyframes that left the window (not kept unless retain_keyframes: they hold images)
         #: keep the keyframes that leave in :attr:`retired` (the whole-log refinement's input,
@@ -94,6 +97,16 @@ class SlidingWindowOptimizer:
         self.last_targets: list[list[int]] = []
         self.backend: LMBackend | FixedLagBackend = FixedLagBackend() if self.config.backend == "fixed_lag" else LMBackend()
 
+    def use_imu(self, imu: ImuWindow) -> None:
+        """Estimate with the IMU (:class:`gtvo.window.imu.ImuWindow`, a sensor of every problem; docs/imu.md),
+        before the first keyframe joins."""
+        if self.config.backend != "lm":
+            raise InputError("the IMU is used by the 'lm' window backend only: drop --window-backend fixed-lag or "
+                             "add --no-imu")
+        if self.keyframes:
+            raise InputError("the IMU joins the window before its first keyframe")
+        self.imu = imu
+
     def add_keyframe(self, keyframe: WindowKeyframe) -> None:
         """Append a keyframe; when the window is full, the oldest leaves first (marginalised)."""
         if any(k.index == keyframe.index for k in self.keyframes):
@@ -101,6 +114,8 @@ class SlidingWindowOptimizer:
         while len(self.keyframes) >= self.config.size:
             self.remove_oldest()
         self.keyframes.append(keyframe)
+        if self.imu is not None:
+            self.imu.keyframe_added(self.keyframes)
 
     def remove_oldest(self) -> WindowKeyframe:
         """Remove the oldest keyframe: marginalised into the prior (or dropped, per the config).
@@ -132,9 +147,11 @@ class SlidingWindowOptimizer:
     def problem(self, targets: list[list[int]] | None = None, rig: RigVariable | None = None) -> WindowProblem:
         """The window's problem at its current state (:class:`gtvo.window.problem.WindowProblem`):
         its keyframes (``targets``: theirs, None: chosen at the first use), its marginalisation
-        prior, its wheel calibration and ``rig`` (None: no rig variable; :meth:`solved_rig`: the window's)."""
+        prior, its sensors (the wheel calibration, the IMU) and ``rig`` (None: no rig variable;
+        :meth:`solved_rig`: the window's)."""
         return WindowProblem.build(WindowMembers(self.camera, self.baseline, self.keyframes, targets),
-                                   WindowSettings(self.config, self.photometric), self.marginal, rig, (self.wheel,))
+                                   WindowSettings(self.config, self.photometric), self.marginal, rig,
+                                   (self.wheel, self.imu))  # the IMU: gtvo.window.imu
 
     def cost(self) -> float:
         """The window cost at the current state (W evaluated at this state)."""
@@ -258,6 +275,9 @@ class LMBackend:
         wheel = window.wheel
         if wheel is not None:  # the wheel calibration: each solve starts from the last estimate and updates it
             solve = _updating_wheel(solve, wheel)
+        imu = getattr(window, "imu", None)
+        if imu is not None:  # the keyframes' velocities and biases: each solve starts from the last estimates
+            solve = _updating_imu(solve, imu)
         rig = window.rig
         # the rig offset (gtvo.window.rig; docs/window.md, "Rig calibration"): none while rectified
         # (tested as a whole); else delta_x, which trades against the scale, is held at its start
@@ -287,6 +307,16 @@ class LMBackend:
             assert res.rig_offset is not None
             rig.offset = res.rig_offset.copy()
         return res
+
+
+def _updating_imu(solve, imu: ImuWindow):
+    """``solve`` that writes the solved velocities and biases back to ``imu``."""
+    def run(problem: WindowProblem) -> WindowResult:
+        res = solve(problem)
+        if res.variables is not None:
+            imu.update(res.variables, problem.keyframes)
+        return res
+    return run
 
 
 def _updating_wheel(solve, wheel: WheelCalibration):
