@@ -20,13 +20,12 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from gtvo.datasets._common import (FloatArray, GrayImageLoader, image_size, interpolate_poses, nearest_indices,
                                    parse_timestamp_ns,
                                    read_rows, read_trajectory, require_dir, require_file, require_overlap)
 from gtvo.errors import InputError, show
-from gtvo.datasets.imu_files import ImuReadOptions, read_imu_folder
+from gtvo.datasets.imu_files import ImuReadOptions, load_yaml_mapping, read_imu_folder
 from gtvo.datasets.rectify import RawCamera, StereoRectification, stereo_rectification
 from gtvo.datasets.sequence import Sequence
 from gtvo.core.lie import rotation_block_error
@@ -53,18 +52,9 @@ def looks_like_euroc(path: Path) -> bool:
 
 
 def _load_yaml(path: Path) -> dict:
-    """A yaml mapping; OpenCV's ``%YAML:1.0`` directive (which PyYAML rejects) is dropped."""
-    text = path.read_text(encoding="utf-8", errors="replace")
-    text = "\n".join("" if line.startswith("%YAML") else line for line in text.splitlines())
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        raise InputError(f"malformed yaml ({getattr(exc, 'problem', 'parse error')})", path=path,
-                         line=None if mark is None else mark.line + 1) from None
-    if not isinstance(data, dict):
-        raise InputError("not a sensor.yaml (no mapping)", path=path)
-    return data
+    """A sensor.yaml's mapping (:func:`gtvo.datasets.imu_files.load_yaml_mapping`: OpenCV's
+    ``%YAML:1.0`` directive, which PyYAML rejects, is dropped)."""
+    return load_yaml_mapping(path, "sensor.yaml")
 
 
 def _yaml_numbers(data: dict, key: str, count: int, path: Path) -> FloatArray:
