@@ -15,11 +15,20 @@ For each pair (``<data>/stereo_disparity_gt/middlebury2014_quarter``, its README
    10, 100, 1, STEREO_SGBM_MODE_HH)`` on the same colour pair, its disparity / 16 at the same
    pixels where SGBM gives one (> 0): the same errors.
 
+``--gt-check``: how exact the quarter-size ground truth is, judged by the images themselves. At
+the points the front end keeps on a smooth, non-occluded surface (ground truth finite, mask 255
+and spanning less than 1 px over the 5x5 patch), the right image is sampled at the ground truth
+of every patch pixel (``u - gt(u, v)``, the surface's slant included) minus one free shift, and
+the zero-mean SSD is minimised over that shift (:func:`ground_truth_shift`; 1-D, then 2-D with a
+free vertical shift as well, for the pairs' residual vertical disparity). The median shift is what
+the images say the ground truth is off by; it is printed beside gtvo's median signed error at the
+same points.
+
 ``--cpu N``: process CPU time (``time.process_time``) of ``init_keyframe_points`` over the
 Middlebury pairs and the first KITTI_sequence_1 pair, N rounds. To compare two checkouts, run the
 script with ``--gtvo CHECKOUT`` for each, alternately, in the same session.
 
-Usage: ``python benchmarks/frontend_middlebury.py [--data DIR] [--cpu N] [--gtvo CHECKOUT]``
+Usage: ``python benchmarks/frontend_middlebury.py [--data DIR] [--cpu N | --gt-check] [--gtvo CHECKOUT]``
 """
 
 from __future__ import annotations
@@ -136,6 +145,105 @@ def table(data: Path) -> None:
     print(f"\ngtvo at or below SGBM in both mean abs and bad-1.0 on {wins} of {len(names)} pairs")
 
 
+#: The 5x5 patch of the ground-truth check, offsets (du, dv) row by row.
+_PATCH = np.array([[du, dv] for dv in range(-2, 3) for du in range(-2, 3)], dtype=np.float64)
+
+
+def _keys_weights(t: np.ndarray) -> np.ndarray:
+    """Keys' cubic convolution weights (``a = -1/2``) of the taps ``floor - 1 .. floor + 2`` for the
+    fractions ``t`` (any shape): (..., 4)."""
+    t2, t3 = t * t, t * t * t
+    return 0.5 * np.stack([-t3 + 2 * t2 - t, 3 * t3 - 5 * t2 + 2, -3 * t3 + 4 * t2 + t, t3 - t2], -1)
+
+
+def _sample_cubic(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Separable Keys cubic samples of an image at real positions (equal shapes), taps clamped to
+    the image (exact positions: OpenCV's remap rounds them to 1/32 px)."""
+    h, w = image.shape
+    fx, fy = np.floor(x), np.floor(y)
+    wx, wy = _keys_weights(x - fx), _keys_weights(y - fy)
+    taps = np.arange(-1, 3)
+    xs = np.clip(fx[..., None].astype(np.intp) + taps, 0, w - 1)
+    ys = np.clip(fy[..., None].astype(np.intp) + taps, 0, h - 1)
+    img = np.asarray(image, dtype=np.float64)
+    rows = img[ys[..., :, None], xs[..., None, :]]  # (..., 4 rows, 4 columns)
+    return np.einsum("...ij,...i,...j->...", rows, wy, wx)
+
+
+def ground_truth_shift(left: np.ndarray, right: np.ndarray, gt: np.ndarray, pixels: np.ndarray,
+                       vertical: bool = False, iterations: int = 8) -> np.ndarray:
+    """Per pixel, the shift ``s`` (px, (N,)) that best aligns the left 5x5 patch with the right
+    image sampled at ``(u_k - gt(u_k, v_k) - s, v_k [+ t])``: Gauss-Newton on the zero-mean
+    residual with cubic samples (numerical slopes, 0.05 px). ``gt`` is read at every patch
+    pixel, so a slanted surface needs no shift; the shift is the images' disagreement with the
+    ground truth. ``vertical``: a free vertical shift ``t`` too (returned shifts still ``s``).
+    Samples by separable Keys cubic convolution at exact positions.
+    NaN where the patch leaves the image or the ground truth is not finite over it.
+
+    Args:
+        left, right: float32 gray images (H, W).
+        gt: the left image's disparity (H, W), inf where unknown.
+        pixels: (N, 2) integer ``(u, v)``.
+    """
+    h, w = gt.shape
+    uu = pixels[:, :1] + _PATCH[:, 0]
+    vv = pixels[:, 1:] + _PATCH[:, 1]
+    ok = (uu >= 2).all(1) & (uu <= w - 3).all(1) & (vv >= 2).all(1) & (vv <= h - 3).all(1)
+    ui, vi = np.clip(uu, 0, w - 1).astype(np.intp), np.clip(vv, 0, h - 1).astype(np.intp)
+    g = gt[vi, ui]
+    ok &= np.isfinite(g).all(1)
+    g = np.where(np.isfinite(g), g, 0.0)
+    lc = left[vi, ui].astype(np.float64)
+    lc -= lc.mean(1, keepdims=True)
+    p = np.zeros((pixels.shape[0], 2))
+    eps = 0.05
+    for _ in range(iterations):
+        x, y = uu - g - p[:, :1], vv + p[:, 1:]
+        r = lc - _sample_cubic(right, x, y)
+        r -= r.mean(1, keepdims=True)  # zero-mean residual: lc - (R - mean R)
+        jx = (_sample_cubic(right, x + eps, y) - _sample_cubic(right, x - eps, y)) / (2 * eps)  # dr/ds
+        jy = (_sample_cubic(right, x, y - eps) - _sample_cubic(right, x, y + eps)) / (2 * eps)  # dr/dt
+        jx -= jx.mean(1, keepdims=True)
+        jy -= jy.mean(1, keepdims=True)
+        if vertical:
+            a = np.stack([np.stack([(jx * jx).sum(1), (jx * jy).sum(1)], -1),
+                          np.stack([(jx * jy).sum(1), (jy * jy).sum(1)], -1)], -2) + 1e-6 * np.eye(2)
+            b = np.stack([(jx * r).sum(1), (jy * r).sum(1)], -1)
+            p -= np.clip(np.linalg.solve(a, b[..., None])[..., 0], -0.3, 0.3)
+        else:
+            jtj = (jx * jx).sum(1)
+            p[:, 0] -= np.clip((jx * r).sum(1) / np.maximum(jtj, 1e-6), -0.3, 0.3)
+    return np.where(ok & (np.abs(p) < 1.0).all(1), p[:, 0], np.nan)
+
+
+def gt_check(data: Path) -> None:
+    from gtvo.core.image import to_float_gray
+    from gtvo.frontend import init_keyframe_points
+
+    print("\n### Middlebury 2014 quarter: the images against the ground truth at gtvo's smooth, non-occluded "
+          "points\n")
+    print("| pair | points | images' shift from GT, median (px) | the same with a free vertical shift | "
+          "gtvo: median signed error at these points (px) |")
+    print("|---|---|---|---|---|")
+    root = data / "stereo_disparity_gt" / "middlebury2014_quarter"
+    for name, left, right, gt, cam in pairs(data):
+        kp = init_keyframe_points(left, right, cam, target=TARGET)
+        px = kp.pixels.astype(np.intp)
+        mask = cv2.imread(str(root / name / "mask0nocc.png"), cv2.IMREAD_GRAYSCALE)
+        ui = np.clip(px[:, :1] + _PATCH[:, 0].astype(np.intp), 0, gt.shape[1] - 1)
+        vi = np.clip(px[:, 1:] + _PATCH[:, 1].astype(np.intp), 0, gt.shape[0] - 1)
+        g = gt[vi, ui]
+        smooth = (mask[vi, ui] == 255).all(1) & np.isfinite(g).all(1)
+        smooth &= np.where(smooth, np.ptp(np.where(np.isfinite(g), g, 0.0), axis=1), np.inf) < 1.0
+        lf, rf = to_float_gray(left), to_float_gray(right)
+        s1 = ground_truth_shift(lf, rf, gt, px[smooth])
+        s2 = ground_truth_shift(lf, rf, gt, px[smooth], vertical=True)
+        err = kp.inverse_depth[smooth] * cam.left.fx * cam.baseline - gt[px[smooth, 1], px[smooth, 0]]
+        both = np.isfinite(s1) & np.isfinite(s2)
+        print(f"| {name} | {int(both.sum())} | {np.median(s1[both]):+.3f} | {np.median(s2[both]):+.3f} | "
+              f"{np.median(err[both]):+.3f} |")
+
+
 def cpu(data: Path, rounds: int) -> None:
     from gtvo.frontend import init_keyframe_points
     from gtvo.core.camera import PinholeCamera, StereoCamera
@@ -163,11 +271,14 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "data")
     ap.add_argument("--cpu", type=int, default=0, help="rounds of the CPU measurement (0: the table)")
+    ap.add_argument("--gt-check", action="store_true", help="the images' shift from the ground truth per pair")
     ap.add_argument("--gtvo", type=Path, default=ROOT, help="checkout whose gtvo is measured")
     args = ap.parse_args()
     sys.path.insert(0, str(args.gtvo.resolve()))
     if args.cpu > 0:
         cpu(args.data, args.cpu)
+    elif args.gt_check:
+        gt_check(args.data)
     else:
         table(args.data)
     return 0
