@@ -22,7 +22,7 @@ of every patch pixel (``u - gt(u, v)``, the surface's slant included) minus one 
 the zero-mean SSD is minimised over that shift (:func:`ground_truth_shift`; 1-D, then 2-D with a
 free vertical shift as well, for the pairs' residual vertical disparity). The median shift is what
 the images say the ground truth is off by; it is printed beside gtvo's median signed error at the
-same points.
+same points, and the median of their difference per point (gtvo's bias against the images).
 
 ``--cpu N``: process CPU time (``time.process_time``) of ``init_keyframe_points`` over the
 Middlebury pairs and the first KITTI_sequence_1 pair, N rounds. To compare two checkouts, run the
@@ -226,8 +226,8 @@ def gt_check(data: Path) -> None:
     print("\n### Middlebury 2014 quarter: the images against the ground truth at gtvo's smooth, non-occluded "
           "points\n")
     print("| pair | points | images' shift from GT, median (px) | the same with a free vertical shift | "
-          "gtvo: median signed error at these points (px) |")
-    print("|---|---|---|---|---|")
+          "gtvo: median signed error at these points (px) | gtvo: median of (error - images' shift) (px) |")
+    print("|---|---|---|---|---|---|")
     root = data / "stereo_disparity_gt" / "middlebury2014_quarter"
     for name, left, right, gt, cam in pairs(data):
         kp = init_keyframe_points(left, right, cam, target=TARGET)
@@ -244,7 +244,7 @@ def gt_check(data: Path) -> None:
         err = kp.inverse_depth[smooth] * cam.left.fx * cam.baseline - gt[px[smooth, 1], px[smooth, 0]]
         both = np.isfinite(s1) & np.isfinite(s2)
         print(f"| {name} | {int(both.sum())} | {np.median(s1[both]):+.3f} | {np.median(s2[both]):+.3f} | "
-              f"{np.median(err[both]):+.3f} |")
+              f"{np.median(err[both]):+.3f} | {np.median(err[both] - s1[both]):+.3f} |")
 
 
 def cpu(data: Path, rounds: int) -> None:
