@@ -68,7 +68,7 @@ def run(seq: Sequence) -> dict[str, Any]:
     err = np.linalg.norm(traj.poses[:, :3, 3] - np.asarray(seq.gt_poses)[:, :3, 3], axis=1)
     outcomes = {k: (len(v) if isinstance(v, list) else v) for k, v in info["frame_outcomes"].items()}
     return {"cpu_seconds": cpu, "ate_m": evaluate(est, ref)["ate_rmse_m"], "outcomes": outcomes, "error_m": err,
-            "imu": info.get("imu"), "window_seconds_mean": info.get("window_seconds_mean")}
+            "imu": info.get("imu"), "window_seconds_mean": info.get("window_seconds_mean"), "poses": traj.poses}
 
 
 def angle_deg(a: np.ndarray, b: np.ndarray) -> float:
