@@ -16,7 +16,8 @@ force beyond :data:`MAX_ACCEL_M_S2` (milli-g?) or an accelerometer whose median 
 below gravity (g instead of m/s^2?). :func:`check_imu_clock` refuses an IMU whose times do not
 overlap the images' (another clock, nanoseconds for seconds).
 
-Pure numpy (the shape, finiteness, order and gap checks are the wheel readings' own: :func:`gtvo.datasets.wheel.check_timed_readings`).
+Pure numpy (the shape, finiteness, order and gap checks are the wheel readings' own:
+:func:`gtvo.datasets.wheel.check_timed_readings`).
 """
 
 from __future__ import annotations

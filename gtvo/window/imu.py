@@ -193,6 +193,17 @@ class ImuWindow:
         return (tilt.compose(state.pose()).compose(T_ci.inverse()),
                 np.asarray(tilt.rotation().rotate(state.velocity()), dtype=float))
 
+    def camera_rotation(self, t0: float, t1: float) -> gtsam.Rot3 | None:
+        """The left camera's rotation from ``t0`` to ``t1`` (``R_cam0_cam1``) by the gyro alone, at the
+        newest gyro bias estimate (zero before the initialisation): the rotation the gyro measures
+        needs neither gravity nor a velocity, so it is known from the first frame on. None when the
+        readings do not cover the step."""
+        if not (t1 > t0 and self.readings.covers(t0, t1)):
+            return None
+        bias = self.biases[max(self.biases)] if self.biases else self.init_bias
+        R_ci = gtsam.Rot3(self.readings.T_cam_imu[:3, :3])
+        return R_ci.compose(self.preintegrated(t0, t1, bias).deltaRij()).compose(R_ci.inverse())
+
     def predict_at(self, t: float) -> gtsam.Pose3 | None:
         """The camera's pose at ``t`` predicted from the latest keyframe (by time, up to ``t``) with a
         velocity and a bias, at its latest estimate; None before the initialisation or when the
