@@ -144,3 +144,12 @@ def test_the_gyro_turns_the_camera_before_the_initialisation():
         assert np.degrees(np.linalg.norm(gtsam.Rot3.Logmap(truth))) > 10
         assert np.degrees(np.linalg.norm(gtsam.Rot3.Logmap(truth.between(R)))) < tol_deg
     assert imu.camera_rotation(1.9, 2.5) is None and imu.camera_rotation(0.4, 0.1) is None
+
+
+def test_the_moving_initialisation_waits_for_three_keyframe_pairs(seq):
+    """Two pairs of keyframes fit any poses exactly (12 equations for 3 velocities and gravity): no
+    residual, a zero sigma, no check can refuse; the initialisation waits for a third pair."""
+    imu, kfs = _initialised(seq, [0, 5, 10])
+    assert kfs[-1].timestamp - kfs[0].timestamp >= imu.settings.init_seconds and not imu.initialised
+    imu.keyframe_added(kfs + _keyframes(seq, [14], points=150, timed=True))
+    assert imu.init_kind == "moving" and imu.gravity_sigma_deg > 0
