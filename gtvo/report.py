@@ -143,6 +143,7 @@ class RefinementSummary(TypedDict, total=False):
     loop_edges_dropped: int
     frames_replaced: int
     wheel_calibration: list[float]
+    imu_factors: int
     window_ate_rmse_m: float | None
     window_ate_sim3_rmse_m: float | None
     window_scale_ratio: float | None

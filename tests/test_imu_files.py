@@ -179,3 +179,11 @@ def test_cli_run_no_imu_and_a_bad_imu_file(folder, tmp_path, capsys):
     assert cli_main(["run", str(out), "--imu", str(bad), "--no-imu", "--out", str(tmp_path / "o"),
                      "--no-progress"]) == 2
     assert "--imu and --no-imu" in capsys.readouterr().err
+
+
+def test_info_lists_the_imu_with_its_rate_count_and_file(folder, capsys):
+    out, seq = folder
+    assert cli_main(["info", str(out)]) == 0
+    line = [x for x in capsys.readouterr().out.splitlines() if x.strip().startswith("imu ")]
+    assert len(line) == 1 and "imu0/data.csv" in line[0] and f"{len(seq.imu)} readings at 200 Hz" in line[0]
+    assert "T_cam_imu " in line[0] and "noise " in line[0]

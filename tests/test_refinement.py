@@ -333,3 +333,26 @@ def test_a_dropped_loop_edge_takes_its_photometric_loop_pairs_with_it(seq, keyfr
     assert res.targets_mean == without.targets_mean and res.cost_after == without.cost_after
     for ka, kb in zip(res.keyframes, without.keyframes):
         assert np.allclose(ka.pose.matrix(), kb.pose.matrix(), rtol=0, atol=1e-12)
+
+
+@pytest.mark.slow
+def test_a_run_with_an_imu_carries_its_factors_into_the_whole_log_graph():
+    """With an IMU the whole-log graph has the window's IMU factors between consecutive keyframes
+    with a state (their velocities, biases and gravity's tilt as variables, started at the window's
+    estimates; docs/refinement.md): the report's refine block counts them, the refined trajectory
+    is no worse than the window's (24 frames of the fast-turning synthetic log, 200 Hz IMU)."""
+    from gtvo.config import as_config  # noqa: PLC0415
+    from gtvo.datasets.synthetic_imu import ImuSimulation  # noqa: PLC0415
+    from gtvo.evaluation.accuracy import evaluate, ground_truth  # noqa: PLC0415
+    from gtvo.pipeline import run_odometry  # noqa: PLC0415
+    from gtvo.refinement.run import run_refinement  # noqa: PLC0415
+
+    seq = make_synthetic_sequence(24, width=240, height=180, motion="swerve", imu=ImuSimulation())
+    _, odo = run_odometry(seq, as_config({"refine": {"enabled": True, "max_iterations": 3}}), warn=lambda m: None)
+    assert odo.imu is not None and odo.imu.initialised
+    refined = run_refinement(odo, seq, warn=lambda m: None)
+    block = refined.refinement
+    with_state = sum(1 for kf in odo.window_keyframes if kf.index in odo.imu.velocities)
+    assert block["ran"] and with_state >= 5 and block["imu_factors"] == with_state - 1
+    ate = [evaluate(*ground_truth(seq, t))["ate_rmse_m"] for t in (odo.trajectory, refined.trajectory)]
+    assert ate[1] <= 1.1 * ate[0]

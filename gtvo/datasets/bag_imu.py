@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from gtvo.datasets.bag_topics import TopicSummary
-from gtvo.datasets.bag_wheel import TF_STATIC, _messages, _stamp, first_frame_id, static_transform
+from gtvo.datasets.bag_wheel import TF_STATIC, first_frame_id, stamped_messages, static_transform
 from gtvo.datasets.imu import FloatArray, ImuMeasurements, check_imu_readings
 from gtvo.datasets.imu_files import ImuCalibration, ImuReadOptions, find_imu_files, imu_from_table, kalibr_calibration
 from gtvo.errors import InputError
@@ -59,15 +59,12 @@ def bag_imu(where: Path, topics: list[TopicSummary], options: ImuReadOptions, ca
     topic = choose_imu_topic(topics, options, where)
     if topic is None:
         return None
-    messages = _messages(where, topic)
-    source = f"{where}:{topic}"
-    if not messages:
-        raise InputError(f"IMU topic {topic} has no message", path=where)
-    times = np.array([_stamp(m) for m, _ in messages])
+    stamped = stamped_messages(where, topic, "IMU")
+    messages, source = stamped.messages, stamped.source
     gyro = np.array([[m.angular_velocity.x, m.angular_velocity.y, m.angular_velocity.z] for m, _ in messages])
     accel = np.array([[m.linear_acceleration.x, m.linear_acceleration.y, m.linear_acceleration.z]
                       for m, _ in messages])
-    times, gyro, accel = check_imu_readings(times, gyro, accel, source, np.arange(1, len(messages) + 1), "message",
+    times, gyro, accel = check_imu_readings(stamped.times, gyro, accel, source, stamped.rows, "message",
                                             options.min_rate, options.max_gap)
     calibrations = []
     imu_frame = str(messages[0][0].header.frame_id).lstrip("/")

@@ -16,10 +16,12 @@ one candidate of these types; JointState topics are candidates only when a wheel
 from __future__ import annotations
 
 from collections import deque
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from gtvo.core.lie import invert_poses, quaternions_to_rotations, se2_exp
 from gtvo.datasets.bag_stream import first_line, open_reader, reader_errors
@@ -85,6 +87,36 @@ def _stamp(msg: Any) -> float:
     return int(msg.header.stamp.sec) + int(msg.header.stamp.nanosec) * 1e-9
 
 
+@dataclass(frozen=True)
+class StampedMessages:
+    """A topic's messages as a reader of timed readings wants them (the wheels' and the IMU's).
+
+    Attributes:
+        messages: every message, deserialised, in log order, with its type.
+        times: (N,) their header stamps (s).
+        rows: (N,) their numbers from 1, as the refusals name them ("message 13").
+        source: ``<bag>:<topic>``.
+    """
+
+    messages: list[tuple[Any, str]]
+    times: FloatArray
+    rows: NDArray[np.int64]
+    source: str
+
+
+def stamped_messages(where: Path, topic: str, what: str) -> StampedMessages:
+    """``topic``'s messages with their stamps and numbers (``what`` names the stream in the refusal).
+
+    Raises:
+        InputError: the topic cannot be read or has no message.
+    """
+    messages = _messages(where, topic)
+    if not messages:
+        raise InputError(f"{what} topic {topic} has no message", path=where)
+    return StampedMessages(messages, np.array([_stamp(m) for m, _ in messages]), np.arange(1, len(messages) + 1),
+                           f"{where}:{topic}")
+
+
 def _yaw(q: Any) -> float:
     return float(np.arctan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z)))
 
@@ -121,13 +153,9 @@ def _wheel_positions(msg: Any, wheels: tuple[str, str], number: int, where: str)
 
 def read_wheel_topic(where: Path, topic: str, options: WheelReadOptions) -> tuple[WheelOdometry, str | None]:
     """The wheel odometry of ``topic`` (module doc) and the base frame its messages name (or None)."""
-    messages = _messages(where, topic)
-    source = f"{where}:{topic}"
-    if not messages:
-        raise InputError(f"wheel odometry topic {topic} has no message", path=where)
+    stamped = stamped_messages(where, topic, "wheel odometry")
+    messages, times, rows, source = stamped.messages, stamped.times, stamped.rows, stamped.source
     msgtype = messages[0][1]
-    times = np.array([_stamp(m) for m, _ in messages])
-    rows = np.arange(1, len(messages) + 1)
     base_frame = None
     if msgtype == JOINT_STATE:
         if options.wheel_radius is None:

@@ -16,7 +16,8 @@ force beyond :data:`MAX_ACCEL_M_S2` (milli-g?) or an accelerometer whose median 
 below gravity (g instead of m/s^2?). :func:`check_imu_clock` refuses an IMU whose times do not
 overlap the images' (another clock, nanoseconds for seconds).
 
-Pure numpy (the reading rules of the wheel odometry, :mod:`gtvo.datasets.wheel`).
+Pure numpy (the shape, finiteness, order and gap checks are the wheel readings' own:
+:func:`gtvo.datasets.wheel.check_timed_readings`).
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from gtvo.config.sections.imu import MAX_GAP_S, MIN_RATE_HZ
-from gtvo.datasets.wheel import reading_error
+from gtvo.datasets.wheel import check_gaps, check_timed_readings, reading_error
 from gtvo.errors import InputError, show
 
 FloatArray = NDArray[np.float64]
@@ -86,37 +87,18 @@ def check_imu_readings(times: ArrayLike, gyro: ArrayLike, accel: ArrayLike, sour
             (:func:`gtvo.datasets.wheel.reading_error`; ``rows``: the file's line numbers or a bag's
             message numbers, default the index).
     """
-    t = np.asarray(times, dtype=np.float64).reshape(-1)
-    w = np.asarray(gyro, dtype=np.float64)
-    a = np.asarray(accel, dtype=np.float64)
-    if w.shape != (t.size, 3) or a.shape != (t.size, 3):
-        raise InputError(f"an IMU needs {t.size} rows of 3 angular rates and 3 accelerations, got shapes "
-                         f"{w.shape} and {a.shape}", source)
-    if t.size < 2:
-        raise InputError(f"an IMU log needs at least 2 readings, got {t.size}", source)
-    where = np.arange(t.size) if rows is None else np.asarray(rows).reshape(-1)
-
-    def refuse(i: int, message: str) -> InputError:
-        return reading_error(message, source, row_name, int(where[i]))
-
-    bad = ~(np.isfinite(t) & np.isfinite(w).all(axis=1) & np.isfinite(a).all(axis=1))
-    if bad.any():
-        i = int(np.flatnonzero(bad)[0])
-        raise refuse(i, f"not a finite IMU reading (time, wx..az = {show([float(t[i]), *w[i], *a[i]])})")
+    checked = check_timed_readings(times, [(gyro, IMU_COLUMNS[:3]), (accel, IMU_COLUMNS[3:])], "an IMU",
+                                   "IMU reading", source, rows, row_name)
+    t, (w, a) = checked.times, checked.values
+    refuse = checked.refuse
     step = np.diff(t)
-    if np.any(step <= 0):
-        i = int(np.flatnonzero(step <= 0)[0]) + 1
-        raise refuse(i, f"time {t[i]:.9g} s is not after the previous reading's {t[i - 1]:.9g} s "
-                        "(times must be strictly increasing)")
     if min_rate is not None:
         rate = 1.0 / float(np.median(step))
         if rate < min_rate:
             raise refuse(1, f"the IMU's rate is {rate:.4g} Hz, below the {min_rate:g} Hz that preintegration between "
                             "keyframes needs (imu.min_rate; times in another unit?)")
-    if max_gap is not None and np.any(step > max_gap):
-        i = int(np.flatnonzero(step > max_gap)[0]) + 1
-        raise refuse(i, f"a gap of {step[i - 1]:.4g} s since the previous IMU reading (at most {max_gap:g} s: "
-                        "imu.max_gap)")
+    if max_gap is not None:  # after the rate: a slow log has long gaps too, and its rate says why
+        check_gaps(checked, max_gap, "IMU reading", "imu.max_gap")
     rate_norm = np.linalg.norm(w, axis=1)
     if np.any(rate_norm > MAX_GYRO_RAD_S):
         i = int(np.flatnonzero(rate_norm > MAX_GYRO_RAD_S)[0])

@@ -31,6 +31,8 @@ class LogInfo:
             and the image messages that found no partner.
         wheel_odometry: the wheel odometry ``gtvo run`` would read (its source, kind, readings and
             time span), or None (docs/wheel_odometry.md).
+        imu: the IMU ``gtvo run`` would read (its source file or topic, readings, rate, time span and
+            where its noise model and extrinsic came from), or None (docs/imu.md).
     """
 
     path: str
@@ -47,6 +49,7 @@ class LogInfo:
     calibration: str | None = None
     unpaired: dict[str, int] = field(default_factory=dict)
     wheel_odometry: str | None = None
+    imu: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """A JSON-ready dict."""
@@ -73,6 +76,8 @@ class LogInfo:
         out.append(f"  ground truth {'yes' if self.ground_truth else 'no'}")
         if self.wheel_odometry is not None:
             out.append(f"  wheels       {self.wheel_odometry}")
+        if self.imu is not None:
+            out.append(f"  imu          {self.imu}")
         poses = [t["name"] for t in self.topics if t["msgtype"] in GROUND_TRUTH_TYPES]
         if poses and not self.ground_truth:
             out.append(f"  pose topics  {', '.join(poses)} (--ground-truth-topic)")
@@ -116,6 +121,10 @@ def describe_log(path: str | Path, format: str = "auto", **options: Any) -> LogI
     if wheels is not None:
         info.wheel_odometry = (f"{wheels.source}: {wheels.kind}, {len(wheels)} readings over "
                                f"{wheels.times[0]:.3f}..{wheels.times[-1]:.3f} s")
+    imu = seq.imu
+    if imu is not None:
+        info.imu = (f"{imu.source}: {len(imu)} readings at {imu.rate_hz:.4g} Hz over {imu.times[0]:.3f}.."
+                    f"{imu.times[-1]:.3f} s; noise {imu.noise.source}; T_cam_imu {imu.extrinsic_source or 'given'}")
     if getattr(seq, "topics", None) is not None:
         info.topics_used = str(seq.topics)  # type: ignore[attr-defined]
         info.calibration = seq.calibration_source  # type: ignore[attr-defined]

@@ -20,7 +20,7 @@ opening a sequence does not load GTSAM).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from typing import Literal, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -49,36 +49,92 @@ def check_readings(times: ArrayLike, values: ArrayLike, kind: str, source: str,
     """
     if kind not in WHEEL_COLUMNS:
         raise InputError(f"wheel odometry kind must be 'pose' or 'arcs', got {show(kind)}", source)
+    checked = check_timed_readings(times, [(values, WHEEL_COLUMNS[kind])], f"wheel odometry ({kind})", "reading",
+                                   source, rows, row_name, max_gap, "wheel.max_gap: longer gaps are not interpolated")
+    t, (v,) = checked.times, checked.values
+    if max_speed is not None:
+        check_speed(t, v, kind, source, checked.rows, row_name, max_speed)
+    return t, v
+
+
+@dataclass(frozen=True)
+class CheckedReadings:
+    """Timed readings that passed :func:`check_timed_readings`.
+
+    Attributes:
+        times: (N,) seconds, strictly increasing.
+        values: each block of columns as an (N, width) float array, in the order given.
+        rows: (N,) what each reading is called in messages (a file's line numbers, a bag's message
+            numbers, or the index).
+        source: the file or ``bag:/topic`` the readings came from.
+        row_name: ``"line"``, ``"message"``, ``"row"`` or ``"reading"``.
+    """
+
+    times: FloatArray
+    values: list[FloatArray]
+    rows: NDArray[np.int64]
+    source: str
+    row_name: str
+
+    def refuse(self, i: int, message: str) -> InputError:
+        """The refusal of reading ``i`` (:func:`reading_error`)."""
+        return reading_error(message, self.source, self.row_name, int(self.rows[i]))
+
+
+def check_timed_readings(times: ArrayLike, blocks: Sequence[tuple[ArrayLike, tuple[str, ...]]], what: str,
+                         noun: str, source: str, rows: ArrayLike | None = None, row_name: str = "row",
+                         max_gap: float | None = None, gap_setting: str = "") -> CheckedReadings:
+    """The checks every stream of timed readings beside the images passes (the wheels' and the IMU's
+    readers share them): each block ``(values, column names)`` of shape (N, len(names)) for N times,
+    at least 2 readings, all finite, times strictly increasing and (with ``max_gap``) no gap longer
+    than ``max_gap`` seconds. ``what`` names the stream in the shape refusal (``"an IMU"``), ``noun``
+    one reading (``"IMU reading"``), ``gap_setting`` the setting that bounds the gap.
+
+    Raises:
+        InputError: one line naming ``source`` and the first bad reading (:func:`reading_error`;
+            ``rows``: the file's line numbers or the bag's message numbers; default the index).
+    """
     t = np.asarray(times, dtype=np.float64).reshape(-1)
-    v = np.asarray(values, dtype=np.float64)
-    width = len(WHEEL_COLUMNS[kind])
-    if v.shape != (t.size, width):
-        raise InputError(f"wheel odometry ({kind}) needs {t.size} rows of {width} values "
-                         f"({', '.join(WHEEL_COLUMNS[kind])}), got shape {v.shape}", source)
+    values = [np.asarray(v, dtype=np.float64) for v, _ in blocks]
+    names = [n for _, n in blocks]
+    if any(v.shape != (t.size, len(n)) for v, n in zip(values, names)):
+        wanted = " and ".join(f"{len(n)} values ({', '.join(n)})" for n in names)
+        got = " and ".join(str(v.shape) for v in values)
+        raise InputError(f"{what} needs {t.size} rows of {wanted}, got shape{'s' if len(values) > 1 else ''} {got}",
+                         source)
     if t.size < 2:
-        raise InputError(f"wheel odometry needs at least 2 readings, got {t.size}", source)
+        raise InputError(f"{what} needs at least 2 readings, got {t.size}", source)
     where = np.arange(t.size) if rows is None else np.asarray(rows).reshape(-1)
-
-    def refuse(i: int, message: str) -> InputError:
-        return reading_error(message, source, row_name, int(where[i]))
-
-    bad = ~(np.isfinite(t) & np.isfinite(v).all(axis=1))
+    checked = CheckedReadings(t, values, where, source, row_name)
+    bad = ~np.isfinite(t)
+    for v in values:
+        bad |= ~np.isfinite(v).all(axis=1)
     if bad.any():
         i = int(np.flatnonzero(bad)[0])
-        reading = [float(t[i]), *v[i].tolist()]
-        raise refuse(i, f"not a finite reading (time, {', '.join(WHEEL_COLUMNS[kind])} = {show(reading)})")
+        reading = [float(t[i]), *np.concatenate([v[i] for v in values]).tolist()]
+        columns = ", ".join(c for n in names for c in n)
+        raise checked.refuse(i, f"not a finite {noun} (time, {columns} = {show(reading)})")
     step = np.diff(t)
     if np.any(step <= 0):
         i = int(np.flatnonzero(step <= 0)[0]) + 1
-        raise refuse(i, f"time {t[i]:.9g} s is not after the previous reading's {t[i - 1]:.9g} s "
-                        "(times must be strictly increasing)")
-    if max_gap is not None and np.any(step > max_gap):
+        raise checked.refuse(i, f"time {t[i]:.9g} s is not after the previous {noun}'s {t[i - 1]:.9g} s "
+                                "(times must be strictly increasing)")
+    if max_gap is not None:
+        check_gaps(checked, max_gap, noun, gap_setting)
+    return checked
+
+
+def check_gaps(checked: CheckedReadings, max_gap: float, noun: str, gap_setting: str) -> None:
+    """Refuse readings (:func:`check_timed_readings`) with a gap longer than ``max_gap`` seconds.
+
+    Raises:
+        InputError: one line naming the reading after the gap.
+    """
+    step = np.diff(checked.times)
+    if np.any(step > max_gap):
         i = int(np.flatnonzero(step > max_gap)[0]) + 1
-        raise refuse(i, f"a gap of {step[i - 1]:.3f} s since the previous reading (at most {max_gap:g} s is "
-                        "interpolated: wheel.max_gap)")
-    if max_speed is not None:
-        check_speed(t, v, kind, source, where, row_name, max_speed)
-    return t, v
+        raise checked.refuse(i, f"a gap of {step[i - 1]:.4g} s since the previous {noun} (at most {max_gap:g} s: "
+                                f"{gap_setting})")
 
 
 def check_speed(times: FloatArray, values: FloatArray, kind: str, source: str, rows: ArrayLike,

@@ -30,6 +30,7 @@ from gtvo.frontend.stereo_depth import KeyframePoints
 from gtvo.odometry.estimates import FrameEstimate, FrameOutcome
 from gtvo.report import LoopClosureSummary, OdometrySummary, RefinementSummary
 from gtvo.window.config import WindowKeyframe
+from gtvo.window.imu import ImuWindow
 from gtvo.window.wheel import WheelCalibration
 
 F64 = NDArray[np.float64]
@@ -106,6 +107,8 @@ class OdometryResult:
             refinement (``refine.enabled``, window mode), else None.
         rig_offset: the window's final rig offset (px), None: the rectified model.
         wheel: the window's wheel calibration, None without wheel odometry or refinement.
+        imu: the window's IMU (its keyframes' velocities and biases, gravity), None without an IMU
+            or refinement (the whole-log refinement carries its factors: docs/refinement.md).
         clock: the run's stage clock (None: untimed).
         loops: the loop closing's outcome, None when it did not run.
         refinement: the refinement's ``refine`` block, None when it was not asked for.
@@ -126,6 +129,7 @@ class OdometryResult:
     window_keyframes: tuple[WindowKeyframe, ...] | None = None
     rig_offset: F64 | None = None
     wheel: WheelCalibration | None = None
+    imu: ImuWindow | None = None
     clock: StageClock | None = None
     loops: LoopClosing | None = None
     refinement: RefinementSummary | None = None

@@ -46,7 +46,7 @@ def odometry_result(vo: VisualOdometry, seconds: float | None = None, skipped: S
         covariances=keyframe_covariances(vo),
         window_keyframes=tuple(window.every_keyframe()) if retained else None,  # type: ignore[union-attr]
         rig_offset=None if rig is None or not retained else rig.solved_offset,
-        wheel=window.wheel if retained else None, clock=vo.clock,
+        wheel=window.wheel if retained else None, imu=vo.imu if retained else None, clock=vo.clock,
         gravity_rotation=None if (aligned := gravity_alignment(vo)) is None else aligned.R_aligned_world)
 
 

@@ -225,8 +225,9 @@ class VisualOdometry:
             except TooFewPoints as exc:  # nothing can start from the first frame
                 raise InputError(str(exc)) from None
             return self._record(frame, left, Outcome(FrameOutcome.KEYFRAME, kf.T_world_cam), t0)
-        T_pred = self._imu_pose(frame) or self.motion.predict(frame.timestamp)  # 2. predict (the IMU's, with one;
-        #    the wheels: after a freeze)
+        T_pred = self._imu_pose(frame) or self._gyro_turned(frame, self.motion.predict(frame.timestamp))  # 2. predict
+        #    (the IMU's, with one; before its initialisation the motion model's turned by the gyro; after a freeze
+        #    the wheels)
         T_wheel = self._wheel_pose(frame)
         if (why := self.checks.frozen(frame, left, self.keyframes[-1], T_pred if T_wheel is None else T_wheel,
                                       T_wheel is not None)) is not None:  # 2b. a frozen camera: a guess, untracked
@@ -315,6 +316,18 @@ class VisualOdometry:
         (:meth:`gtvo.window.imu.ImuWindow.predict_at`); None without an initialised IMU or when its
         readings do not cover the step."""
         return None if self.imu is None else self.imu.predict_at(float(frame.timestamp))
+
+    def _gyro_turned(self, frame: Frame, T_motion: gtsam.Pose3) -> gtsam.Pose3:
+        """``T_motion`` (the motion model's guess) with its rotation the gyro's from the last good frame
+        (:meth:`gtvo.window.imu.ImuWindow.camera_rotation`: a turn the images have not seen yet is
+        measured); ``T_motion`` itself without an IMU or when the readings do not cover the step."""
+        if self.imu is None:
+            return T_motion
+        last = self.history.good(1)[0]
+        R = self.imu.camera_rotation(last.timestamp, float(frame.timestamp))
+        if R is None:
+            return T_motion
+        return gtsam.Pose3(rigid_pose(last.T_world_cam).rotation().compose(R), T_motion.translation())
 
     def _wheel_pose(self, frame: Frame) -> gtsam.Pose3 | None:
         """The frame's pose carried from the last good frame by the calibrated wheel motion; None

@@ -126,7 +126,7 @@ def refine_run(seq: Sequence, odometry: OdometryResult, loop_result: LoopClosing
     run = RefinementInput(WindowMembers(seq.pinhole, getattr(seq.camera, "baseline", None), odometry.window_keyframes),
                           WindowSettings(config.window, config.photometric,
                                          on_iteration=lambda it, cost: raise_if_interrupted()),
-                          odometry.rig_offset, (odometry.wheel,), edges,
+                          odometry.rig_offset, (odometry.wheel, odometry.imu), edges,
                           loop_result.keyframe_poses if closed else None, odometry.link_covariances)
     res = refine_keyframes(run, config.refine, progress)
     if res.ran:
@@ -176,6 +176,9 @@ def _summary(job: _Job, res: RefinementResult, out: RunRefinement, replaces_wind
     block["frames_replaced"] = out.frames_replaced
     if ran and res.wheel_calibration is not None:
         block["wheel_calibration"] = [float(x) for x in res.wheel_calibration]
+    imu = job.odometry.imu
+    if ran and imu is not None:  # the IMU factors the whole-log graph carried (its last build's count)
+        block["imu_factors"] = imu.factors_added
     if replaces_window and ran:
         acc = run_accuracy(job.seq, job.odometry.trajectory)
         block.update(window_ate_rmse_m=acc.get("ate_rmse_m"), window_ate_sim3_rmse_m=acc.get("ate_sim3_rmse_m"),

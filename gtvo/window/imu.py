@@ -15,7 +15,8 @@ between consecutive keyframes (docs/imu.md, "In the window").
     rescaled to ``gravity`` and the velocities solved again with it held; refused, and tried again at
     the next keyframe, when the gravity found is more than :data:`GRAVITY_CHECK` off in magnitude or
     its direction's sigma above :data:`MAX_INIT_SIGMA_DEG` (the keyframes used are the latest that
-    span ``init_seconds``, so a bad start ages out).
+    span ``init_seconds``, so a bad start ages out, and at least :data:`MIN_INIT_PAIRS` pairs of them:
+    fewer fit any poses exactly).
 
   The accelerometer bias starts at zero. Gravity's magnitude is then fixed; its direction is refined
   by every window through a tilt ``theta`` (``g = Exp(theta) g0``, the variable ``g0``, a prior of
@@ -100,6 +101,10 @@ def imu_window_settings(config: ImuConfig) -> ImuWindowSettings:
 GRAVITY_CHECK = 0.1
 #: ... or when the direction it finds is less certain than this (deg, from the residuals).
 MAX_INIT_SIGMA_DEG = 2.0
+#: The moving initialisation waits for this many consecutive keyframe pairs: with P pairs its least
+#: squares has 6 P equations for 3 (P + 1) velocities and gravity, so 2 pairs fit any poses exactly
+#: (no residual: a zero sigma, and neither check above can refuse); 3 leave 3 degrees of freedom.
+MIN_INIT_PAIRS = 3
 
 #: A re-preintegration is made when a keyframe's bias estimate moved more than this from the one
 #: its readings were preintegrated at (accelerometer m/s^2, gyro rad/s; VINS-Fusion's rule).
@@ -192,6 +197,17 @@ class ImuWindow:
             gtsam.imuBias.ConstantBias(bias[:3], bias[3:]))
         return (tilt.compose(state.pose()).compose(T_ci.inverse()),
                 np.asarray(tilt.rotation().rotate(state.velocity()), dtype=float))
+
+    def camera_rotation(self, t0: float, t1: float) -> gtsam.Rot3 | None:
+        """The left camera's rotation from ``t0`` to ``t1`` (``R_cam0_cam1``) by the gyro alone, at the
+        newest gyro bias estimate (zero before the initialisation): the rotation the gyro measures
+        needs neither gravity nor a velocity, so it is known from the first frame on. None when the
+        readings do not cover the step."""
+        if not (t1 > t0 and self.readings.covers(t0, t1)):
+            return None
+        bias = self.biases[max(self.biases)] if self.biases else self.init_bias
+        R_ci = gtsam.Rot3(self.readings.T_cam_imu[:3, :3])
+        return R_ci.compose(self.preintegrated(t0, t1, bias).deltaRij()).compose(R_ci.inverse())
 
     def predict_at(self, t: float) -> gtsam.Pose3 | None:
         """The camera's pose at ``t`` predicted from the latest keyframe (by time, up to ``t``) with a
@@ -302,7 +318,7 @@ class ImuWindow:
         else:  # the latest keyframes that span init_seconds: a bad start ages out of a refused one
             last = max(k for k in range(len(seen)) if t_end - seen[k][1].timestamp >= self.settings.init_seconds)
             recent = seen[last:]
-            ok = len(recent) >= 3 and self._initialise_moving(recent)
+            ok = len(recent) >= MIN_INIT_PAIRS + 1 and self._initialise_moving(recent)
         if not ok:
             return False
         self._params = None  # gravity is known now
@@ -352,7 +368,7 @@ class ImuWindow:
         times = [k.timestamp for _, k in seen]
         pairs = [(i, i + 1) for i in range(len(seen) - 1) if times[i + 1] > times[i]
                  and r.covers(times[i], times[i + 1])]
-        if len(pairs) < 2:
+        if len(pairs) < MIN_INIT_PAIRS:  # fewer: no residual, no sigma, no check (module doc)
             return False
         zero = np.zeros(6)
         # 1. the gyro bias from the relative rotations (GTSAM's params with zero gravity: rotations only)
