@@ -46,8 +46,23 @@ COMMAND_MODULES: tuple[str, ...] = (
 )
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The argument parser with every subcommand registered."""
+def command_module(name: str) -> str | None:
+    """The module of the subcommand ``name`` (``calibrate-odometry``: ``gtvo.commands.calibrate_odometry``),
+    None when no subcommand has that name."""
+    for module in COMMAND_MODULES:
+        if module.rsplit(".", 1)[1].replace("_", "-") == name:
+            return module
+    return None
+
+
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The argument parser with every subcommand registered, or only the subcommand ``command``.
+
+    A command module imports what its parser needs (``gtvo run``'s: the readers); registering only
+    the command that is run (:func:`_run`) leaves the others' imports out of its start-up time. The
+    one command's parser, its help and its errors are the same as with all registered.
+    """
+    only = command_module(command) if command is not None else None
     parser = argparse.ArgumentParser(
         prog="gtvo",
         description="Direct stereo visual odometry on GTSAM: sliding-window optimisation of logged tracks.",
@@ -55,7 +70,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"gtvo {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
-    for name in COMMAND_MODULES:
+    for name in COMMAND_MODULES if only is None else (only,):
         importlib.import_module(name).register(sub)
     return parser
 
@@ -97,10 +112,12 @@ def _main(argv: Sequence[str] | None = None) -> int:
 
 
 def _run(argv: Sequence[str] | None) -> int:
+    words = list(sys.argv[1:] if argv is None else argv)
     try:
-        args = build_parser().parse_args(argv)
+        # `gtvo CMD ...` builds only CMD's parser (start-up time); `gtvo`, `gtvo --help`, a bad name: all of them
+        args = build_parser(words[0] if words else None).parse_args(words)
     except KeyboardInterrupt:  # while the command modules are imported
-        words = [a for a in (sys.argv[1:] if argv is None else argv) if not a.startswith("-")]
+        words = [a for a in words if not a.startswith("-")]
         known = {m.rsplit(".", 1)[1].replace("_", "-") for m in COMMAND_MODULES}
         name = f"gtvo {words[0]}" if words and words[0] in known else "gtvo"
         print(f"{name}: interrupted", file=sys.stderr)

@@ -30,7 +30,6 @@ from gtvo.evaluation.trajectory import Trajectory
 from gtvo.io.observer import RunObserver
 from gtvo.io.log_settings import log_wheel_settings, wheel_settings_line
 from gtvo.io.outputs import check_run_output_dir, write_run_outputs
-from gtvo.loops.closing import run_loop_closing
 from gtvo.odometry import VisualOdometry
 from gtvo.odometry.estimates import frozen_warning, trust_warning
 from gtvo.odometry.imu import gravity_aligned
@@ -38,7 +37,6 @@ from gtvo.odometry.result import TRACKED_OUTCOMES, OdometryResult
 from gtvo.odometry.rig_report import rig_warning
 from gtvo.odometry.summary import clock_timing, keyframe_covariances, odometry_result
 from gtvo.odometry.wheel import wheel_coverage_warning
-from gtvo.refinement.run import run_refinement
 from gtvo.report import OdometrySummary, RunReport, run_metrics, run_report
 
 __all__ = ["TRACKED_OUTCOMES", "keyframe_covariances", "process_sequence", "read_input", "run", "run_odometry"]
@@ -175,6 +173,8 @@ def run(path: str | Path | Sequence, out: str | Path | None = None,
     with tidy_on_failure(), output_lock(out_dir):  # a failed run leaves no empty folder; one writer at a time
         ensure_output_dir(out_dir)  # an unusable --out is reported before the long work
         _, odo = run_odometry(seq, config, progress=progress, strict=strict, observers=observers)  # 2. odometry
+        from gtvo.loops.closing import run_loop_closing  # noqa: PLC0415 - imported after the frames: not in
+        from gtvo.refinement.run import run_refinement  # noqa: PLC0415 - the time before the first one
         odo = run_loop_closing(odo, seq, progress)               # 3. stages: loop closing, the refinement
         odo = run_refinement(odo, seq, progress, _warn)
         odo = gravity_aligned(odo)  # with an IMU: the outputs in the gravity-aligned world (docs/imu.md)
