@@ -98,6 +98,15 @@ def load_in_background() -> None:
         _loader.start()
 
 
+def load_now() -> None:
+    """What :func:`load_in_background` loads, in the calling thread (it waits for it): for a process
+    that must stay on one core, e.g. a ``gtvo batch`` worker; later :func:`load_in_background` calls
+    then start nothing."""
+    load_in_background()
+    if _loader is not None:
+        _loader.join()
+
+
 def _load_matplotlib() -> None:
     try:
         fig = _new_figure((1.0, 1.0), wait=False)
