@@ -366,6 +366,7 @@ def test_exit_without_teardown_joins_threads_and_runs_exit_handlers(monkeypatch)
     worker = threading.Thread(target=lambda: (time.sleep(0.05), events.append("thread")))
     worker.start()
     monkeypatch.setattr(cli.atexit, "_run_exitfuncs", lambda: events.append("atexit"))
+    monkeypatch.setattr(cli.threading, "_shutdown", lambda: (worker.join(), events.append("threads joined")))
 
     def fake_exit(code):
         events.append(f"exit {code}")
@@ -374,4 +375,4 @@ def test_exit_without_teardown_joins_threads_and_runs_exit_handlers(monkeypatch)
     monkeypatch.setattr(cli.os, "_exit", fake_exit)
     with pytest.raises(SystemExit):
         cli._exit_without_teardown(3)
-    assert events == ["thread", "atexit", "exit 3"]
+    assert events == ["thread", "threads joined", "atexit", "exit 3"]
