@@ -2,6 +2,8 @@
 
 * :func:`plot_trajectory_top_view`: estimate (and ground truth) seen from above.
 * :func:`plot_errors_over_time`: an error curve (e.g. ATE per pose) against time.
+* :func:`load_in_background` (``gtvo run`` after its first frame), :func:`load_now`: matplotlib's
+  import and font loaded before the plots are drawn, so that a run's end does not wait for them.
 
 The top view projects the positions onto a plane (``plane=``):
 
