@@ -24,3 +24,15 @@ def test_plots_after_loading_in_the_background(tmp_path):
     assert not plots._loader.is_alive()  # the plots waited for it: one figure drawn at a time
     for path in (top, errs):
         assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_loading_starts_once_and_load_now_waits(monkeypatch):
+    calls: list[str] = []
+    monkeypatch.setattr(plots, "_loader", None)
+    monkeypatch.setattr(plots, "_load_matplotlib", lambda: calls.append("loaded"))
+    plots.load_in_background()
+    first = plots._loader
+    plots.load_in_background()
+    plots.load_now()
+    assert plots._loader is first and not first.is_alive()
+    assert calls == ["loaded"]
