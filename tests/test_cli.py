@@ -337,3 +337,42 @@ def test_no_command_writes_over_or_into_its_input(tmp_path, capsys):
         assert err.count("\n") == 1 and needle in err, err
     assert {p: p.read_bytes() for p in before} == before
     assert sorted(str(p) for p in log.rglob("*")) == log_before
+
+
+def test_a_named_command_registers_only_its_parser(capsys):
+    """`gtvo CMD` builds CMD's parser alone (start-up time); its help is the one of the whole parser's."""
+    def commands(parser):
+        return set(next(a for a in parser._actions if a.dest == "command").choices)
+
+    assert commands(cli.build_parser("run")) == {"run"}
+    assert commands(cli.build_parser("calibrate-odometry")) == {"calibrate-odometry"}
+    assert commands(cli.build_parser("no-such-command")) == commands(cli.build_parser())  # the error lists them all
+    assert cli.command_module("calibrate-odometry") == "gtvo.commands.calibrate_odometry"
+    assert cli.command_module("nope") is None
+    helps = []
+    for parser in (cli.build_parser(), cli.build_parser("plan")):
+        with pytest.raises(SystemExit):
+            parser.parse_args(["plan", "--help"])
+        helps.append(capsys.readouterr().out)
+    assert helps[0] == helps[1] and "usage: gtvo plan" in helps[0]
+
+
+def test_exit_without_teardown_joins_threads_and_runs_exit_handlers(monkeypatch):
+    """A finished command skips the interpreter's teardown, not its exit handlers or its threads."""
+    import threading
+    import time
+
+    events: list[str] = []
+    worker = threading.Thread(target=lambda: (time.sleep(0.05), events.append("thread")))
+    worker.start()
+    monkeypatch.setattr(cli.atexit, "_run_exitfuncs", lambda: events.append("atexit"))
+    monkeypatch.setattr(cli.threading, "_shutdown", lambda: (worker.join(), events.append("threads joined")))
+
+    def fake_exit(code):
+        events.append(f"exit {code}")
+        raise SystemExit(code)
+
+    monkeypatch.setattr(cli.os, "_exit", fake_exit)
+    with pytest.raises(SystemExit):
+        cli._exit_without_teardown(3)
+    assert events == ["thread", "threads joined", "atexit", "exit 3"]

@@ -64,7 +64,10 @@ def run_log(job: dict[str, Any]) -> dict[str, Any]:
         from gtvo.datasets import open_sequence  # noqa: PLC0415
         from gtvo.core.atomic import write_json  # noqa: PLC0415
         from gtvo.config import as_config  # noqa: PLC0415
+        from gtvo.io.plots import load_now  # noqa: PLC0415
         from gtvo.pipeline import run  # noqa: PLC0415
+
+        load_now()  # the plots' imports here, not in a thread beside the run: one core per log
 
         opts = job["options"]
         open_opts = {k: v for k, v in opts.items()

@@ -13,7 +13,6 @@ from pathlib import Path
 import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.spatial.transform import Rotation
 
 from gtvo.errors import InputError, not_a_file
 from gtvo.core.paths import link_problem
@@ -193,6 +192,8 @@ def poses_from_quaternions(translations: ArrayLike, quats_xyzw: ArrayLike, path:
     if bad.size:
         k = int(bad[0])
         raise InputError(f"quaternion is not unit length (norm {norms[k]:.6g})", path=path, line=lines[k])
+    from scipy.spatial.transform import Rotation  # noqa: PLC0415 - scipy.spatial: 0.3 s of a run's start
+
     poses = np.tile(np.eye(4), (t.shape[0], 1, 1))
     poses[:, :3, :3] = Rotation.from_quat(q / norms[:, None]).as_matrix()
     poses[:, :3, 3] = t
@@ -255,6 +256,8 @@ def interpolate_poses(gt_times: FloatArray, gt_poses: FloatArray, query_times: F
         gap = gt_times[i1] - gt_times[i0]
         interp = inside & (gap <= max_gap) & (gap > 0)
         if np.any(interp):
+            from scipy.spatial.transform import Rotation  # noqa: PLC0415 - as above
+
             a, b = i0[interp], i1[interp]
             alpha = (query[interp] - gt_times[a]) / (gt_times[b] - gt_times[a])
             r_a = Rotation.from_matrix(gt_poses[a, :3, :3])

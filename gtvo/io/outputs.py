@@ -22,7 +22,7 @@ from gtvo.evaluation.accuracy import ground_truth
 from gtvo.evaluation.alignment import align_trajectory
 from gtvo.io.covariances import KeyframeCovariances, position_ellipses, write_covariances
 from gtvo.io.ply import write_ply_points
-from gtvo.io.plots import CAMERA_WORLD_XZ_LABELS, plot_errors_over_time, plot_trajectory_top_view
+from gtvo.io.plots import CAMERA_WORLD_XZ_LABELS, load_in_background, plot_errors_over_time, plot_trajectory_top_view
 from gtvo.datasets.sequence import Sequence
 from gtvo.evaluation.trajectory import Trajectory
 from gtvo.io.trajectory_files import write_tum
@@ -34,6 +34,12 @@ RUN_OUTPUT_NAMES = frozenset({"trajectory.tum", "trajectory_loop_closed.tum", "r
                               "errors.png", "points.ply", "covariances.npz", "config.yaml"})
 #: Who writes run output folders (recorded in their :data:`gtvo.core.atomic.DIR_MARKER`).
 RUN_WRITER = "gtvo run"
+
+
+def load_plotting() -> None:
+    """Start loading what :func:`write_run_outputs` plots with while the run goes
+    (:func:`gtvo.io.plots.load_in_background`): its plots then do not wait for matplotlib's import."""
+    load_in_background()
 
 
 def top_view(ref: Trajectory | None) -> dict[str, Any]:
