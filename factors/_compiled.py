@@ -3,12 +3,12 @@
 Each is the loop form of vectorised numpy code that stays the reference (tests compare them to it,
 and to numerical derivatives through it):
 
-* :func:`sample_stack`: :meth:`GradientImage.sample` (bilinear intensity and gradients, the
-  border and clipped-cell validity rule);
+* :func:`sample_stack`: :meth:`GradientImage.sample` (the cubic B-spline's intensity and exact
+  gradients, the border and clipped-cell validity rule);
 * :func:`warp_residuals`: :func:`photometric_residuals` for a :class:`GradientImage` target in
   three tight loops (warp, gather, residuals and Jacobians) instead of about 40 numpy passes;
-* :func:`pack_gradient_image`: ``GradientImage``'s record array (intensity, central-difference
-  gradients as ``gtvo.core.image.image_gradients``, clipped-cell flag) in one pass over the image;
+* :func:`pack_gradient_image`: ``GradientImage``'s record array (the image's cubic B-spline
+  coefficients, clipped-cell flag);
 (The window's Gauss-Newton sums and Huber terms: :mod:`factors._compiled_sums`.)
 
 Why compiled: the numpy form makes about 40 passes over (N, P) arrays per call, each a
@@ -27,46 +27,72 @@ from gtvo.core.jit import jit
 
 
 @jit
-def _bilinear(packed, has_clip, width, height, border, u, v):
-    """Bilinear ``(valid, I, gx, gy)`` at ``(u, v)`` of ``packed`` ((H*W, 4) float32 records
-    ``I, gx, gy, clipped cell``, ``GradientImage._packed``).
+def _mirror(i, n):
+    """Index ``i`` of a line of ``n`` samples, mirrored at its ends (``-1 -> 1``, ``n -> n - 2``)."""
+    if i < 0:
+        return -i
+    if i > n - 1:
+        return 2 * (n - 1) - i
+    return i
 
+
+@jit
+def _spline(packed, has_clip, width, height, border, u, v):
+    """Cubic B-spline ``(valid, I, gx, gy)`` at ``(u, v)`` of ``packed`` ((H*W, 2) float32 records
+    ``spline coefficient, clipped cell``, ``GradientImage._packed``): the interpolating cubic spline
+    of the image (it passes through every pixel) and its exact derivatives.
+
+    ``I = sum_jk wy_j wx_k c[y0 - 1 + j, x0 - 1 + k]`` over the 4 x 4 coefficients around the cell,
+    with the cubic B-spline weights ``w(t)`` of ``t = u - x0`` and, for the gradients, their
+    derivatives ``w'(t)``; coefficients beyond the image are its mirror (as in the prefilter).
     Not valid (and zeros) when the sample is within ``border`` of the image edge, not finite, or
     its 2x2 cell touches a clipped pixel (the cell's top-left record says so, checked when
     ``has_clip``): the rule of ``GradientImage.sample``. (A tuple, not an output array: numba
-    keeps it in registers, 4x faster.)
+    keeps it in registers.)
     """
     if not (u >= border and u <= width - 1 - border and v >= border and v <= height - 1 - border):
         return False, 0.0, 0.0, 0.0
     x0 = min(int(u), width - 2)
     y0 = min(int(v), height - 2)
-    i = y0 * width + x0
-    if has_clip and packed[i, 3] != 0.0:
+    if has_clip and packed[y0 * width + x0, 1] != 0.0:
         return False, 0.0, 0.0, 0.0
-    ax = u - x0
-    ay = v - y0
-    j = i + width
-    top = packed[i, 0] + ax * (packed[i + 1, 0] - packed[i, 0])
-    bot = packed[j, 0] + ax * (packed[j + 1, 0] - packed[j, 0])
-    intensity = top + ay * (bot - top)
-    top = packed[i, 1] + ax * (packed[i + 1, 1] - packed[i, 1])
-    bot = packed[j, 1] + ax * (packed[j + 1, 1] - packed[j, 1])
-    gx = top + ay * (bot - top)
-    top = packed[i, 2] + ax * (packed[i + 1, 2] - packed[i, 2])
-    bot = packed[j, 2] + ax * (packed[j + 1, 2] - packed[j, 2])
-    gy = top + ay * (bot - top)
+    tx = u - x0
+    ty = v - y0
+    sx = 1.0 - tx
+    sy = 1.0 - ty
+    # cubic B-spline weights of the taps -1, 0, 1, 2 and their derivatives
+    wx0, wx1, wx2, wx3 = sx * sx * sx / 6.0, (3.0 * tx * tx * (tx - 2.0) + 4.0) / 6.0, \
+        (3.0 * sx * sx * (sx - 2.0) + 4.0) / 6.0, tx * tx * tx / 6.0
+    dx0, dx1, dx2, dx3 = -0.5 * sx * sx, tx * (1.5 * tx - 2.0), -sx * (1.5 * sx - 2.0), 0.5 * tx * tx
+    wy0, wy1, wy2, wy3 = sy * sy * sy / 6.0, (3.0 * ty * ty * (ty - 2.0) + 4.0) / 6.0, \
+        (3.0 * sy * sy * (sy - 2.0) + 4.0) / 6.0, ty * ty * ty / 6.0
+    dy0, dy1, dy2, dy3 = -0.5 * sy * sy, ty * (1.5 * ty - 2.0), -sy * (1.5 * sy - 2.0), 0.5 * ty * ty
+    c0, c1, c2, c3 = _mirror(x0 - 1, width), x0, _mirror(x0 + 1, width), _mirror(x0 + 2, width)
+    intensity = 0.0
+    gx = 0.0
+    gy = 0.0
+    for j in range(4):
+        row = _mirror(y0 - 1 + j, height) * width
+        a0, a1, a2, a3 = packed[row + c0, 0], packed[row + c1, 0], packed[row + c2, 0], packed[row + c3, 0]
+        line = wx0 * a0 + wx1 * a1 + wx2 * a2 + wx3 * a3
+        slope = dx0 * a0 + dx1 * a1 + dx2 * a2 + dx3 * a3
+        wy = wy0 if j == 0 else (wy1 if j == 1 else (wy2 if j == 2 else wy3))
+        dy = dy0 if j == 0 else (dy1 if j == 1 else (dy2 if j == 2 else dy3))
+        intensity += wy * line
+        gx += wy * slope
+        gy += dy * line
     return True, intensity, gx, gy
 
 
 @jit
 def sample_stack(packed, has_clip, width, height, border, u, v):
-    """:func:`_bilinear` at every ``(u[k], v[k])`` (1-D float64): ``(values (M, 3), valid (M,))``,
+    """:func:`_spline` at every ``(u[k], v[k])`` (1-D float64): ``(values (M, 3), valid (M,))``,
     values 0 where invalid."""
     m = u.shape[0]
     values = np.zeros((m, 3))
     valid = np.zeros(m, dtype=np.bool_)
     for k in range(m):
-        ok, intensity, gx, gy = _bilinear(packed, has_clip, width, height, border, u[k], v[k])
+        ok, intensity, gx, gy = _spline(packed, has_clip, width, height, border, u[k], v[k])
         if ok:
             valid[k] = True
             values[k, 0] = intensity
@@ -80,7 +106,7 @@ def warp_residuals(packed, has_clip, width, height, border, fx, fy, cx, cy, min_
                    host_intensity, host_valid, e, b_h, b_t, jacobians, host_jacobians, target_jacobians=True):
     """The loop form of ``photometric_residuals`` (same names, same outputs, same zeros).
 
-    Args: the target's sampler arrays (see :func:`_bilinear`), the target camera's intrinsics,
+    Args: the target's sampler arrays (see :func:`_spline`), the target camera's intrinsics,
     ``MIN_DEPTH``, ``R, t`` of ``T_th`` (float64), bearings ``f`` (N, P, 3), inverse depths
     ``d`` (N,), host intensities and validity (N, P), ``e = exp(a_t - a_h)``, ``b_h``, ``b_t``.
 
@@ -148,7 +174,7 @@ def warp_residuals(packed, has_clip, width, height, border, fx, fy, cx, cy, min_
     for i in range(n):
         for k in range(p):
             if state[i, k] == 2 and host_valid[i, k]:
-                ok, intensity, gx, gy = _bilinear(packed, has_clip, width, height, border, uv[i, k, 0], uv[i, k, 1])
+                ok, intensity, gx, gy = _spline(packed, has_clip, width, height, border, uv[i, k, 0], uv[i, k, 1])
                 inside[i, k] = ok
                 S[i, k, 0] = intensity
                 S[i, k, 1] = gx
@@ -204,54 +230,83 @@ def warp_residuals(packed, has_clip, width, height, border, fx, fy, cx, cy, min_
 
 @jit
 def _flag_clipped_cells(packed, y, x, h, w):
-    """Pixel ``(y, x)`` is clipped: flag the bilinear cells it is a corner of (top-left at
+    """Pixel ``(y, x)`` is clipped: flag the 2x2 cells it is a corner of (top-left at
     ``(y, x)``, ``(y, x-1)``, ``(y-1, x)``, ``(y-1, x-1)``), all written already."""
     for dy in range(2):
         for dx in range(2):
             cy, cx = y - dy, x - dx
             if 0 <= cy < h - 1 and 0 <= cx < w - 1:
-                packed[cy, cx, 3] = 1.0
+                packed[cy, cx, 1] = 1.0
+
+
+#: the pole of the cubic B-spline's prefilter, ``sqrt(3) - 2``
+_SPLINE_POLE = 3.0 ** 0.5 - 2.0
+
+
+@jit
+def _spline_prefilter(line):
+    """The cubic B-spline coefficients of one line of samples (float64, in place), mirror
+    boundaries: the causal and anticausal first-order recursions of the pole ``z`` with their
+    exact initial values and the gain 6 (Unser's recursive interpolation, as in Thevenaz et al.'s
+    "Interpolation revisited")."""
+    n = line.shape[0]
+    if n < 2:
+        return
+    z = _SPLINE_POLE
+    for k in range(n):
+        line[k] *= 6.0  # (1 - z) (1 - 1/z)
+    # causal initial value: the whole mirrored line (exact; lines are short)
+    zn = z
+    z2n = z ** (n - 1)
+    total = line[0] + z2n * line[n - 1]
+    z2n = z2n * z2n / z
+    for k in range(1, n - 1):
+        total += (zn + z2n) * line[k]
+        zn *= z
+        z2n /= z
+    line[0] = total / (1.0 - zn * zn)
+    for k in range(1, n):
+        line[k] += z * line[k - 1]
+    line[n - 1] = (z / (z * z - 1.0)) * (z * line[n - 2] + line[n - 1])
+    for k in range(n - 2, -1, -1):
+        line[k] = z * (line[k + 1] - line[k])
 
 
 @jit
 def pack_gradient_image(img, lo, hi, check_clip):
     """``GradientImage``'s packed records of a (H, W) float32 image (H, W >= 2): per pixel the
-    intensity, ``image_gradients``' central differences (one-sided at the borders, the same float32
-    arithmetic) and, with ``check_clip``, 1.0 where the bilinear cell with this top-left corner
-    touches a pixel at or beyond ``lo`` / ``hi``. Returns ``(packed (H, W, 4), any pixel clipped,
-    all finite)``.
-
-    Row by row: the two border columns (one-sided differences), then the interior ones without a
-    branch (1.6x faster than one loop with the border tests in it), then the row's clip and
-    finiteness checks; a clipped pixel flags cells of this row and the one above, written already.
-    The flags' channel is written 0 for every pixel first (no zeroed allocation of the whole
-    array)."""
+    coefficient of the image's interpolating cubic B-spline (mirror boundaries; float64 arithmetic,
+    stored float32) and, with ``check_clip``, 1.0 where the 2x2 cell with this top-left corner
+    touches a pixel at or beyond ``lo`` / ``hi``. Returns ``(packed (H, W, 2), any pixel clipped,
+    all finite)``. Rows, then columns, through :func:`_spline_prefilter`."""
     h, w = img.shape
-    packed = np.empty((h, w, 4), dtype=np.float32)
-    half = np.float32(0.5)
+    packed = np.empty((h, w, 2), dtype=np.float32)
+    coef = np.empty((h, w))
     clipped_any = False
     finite = True
     for y in range(h):
-        ym = y - 1 if y > 0 else 0
-        yp = y + 1 if y < h - 1 else h - 1
-        fy = half if 0 < y < h - 1 else np.float32(1.0)  # 1 * difference: the one-sided one, exactly
-        for x in (0, w - 1):
-            xm = x - 1 if x > 0 else 0
-            xp = x + 1 if x < w - 1 else w - 1
-            packed[y, x, 0] = img[y, x]
-            packed[y, x, 1] = img[y, xp] - img[y, xm]
-            packed[y, x, 2] = fy * (img[yp, x] - img[ym, x])
-            packed[y, x, 3] = 0.0
-        for x in range(1, w - 1):
-            packed[y, x, 0] = img[y, x]
-            packed[y, x, 1] = half * (img[y, x + 1] - img[y, x - 1])
-            packed[y, x, 2] = fy * (img[yp, x] - img[ym, x])
-            packed[y, x, 3] = 0.0
         for x in range(w):
             c = img[y, x]
+            coef[y, x] = c
+            packed[y, x, 1] = 0.0
             if not np.isfinite(c):
                 finite = False
-            if check_clip and (c <= lo or c >= hi):
-                clipped_any = True
-                _flag_clipped_cells(packed, y, x, h, w)
+    if not finite:
+        return packed, clipped_any, finite
+    for y in range(h):
+        _spline_prefilter(coef[y])
+    column = np.empty(h)
+    for x in range(w):
+        for y in range(h):
+            column[y] = coef[y, x]
+        _spline_prefilter(column)
+        for y in range(h):
+            packed[y, x, 0] = column[y]
+    if check_clip:
+        for y in range(h):
+            for x in range(w):
+                c = img[y, x]
+                if c <= lo or c >= hi:
+                    clipped_any = True
+                    _flag_clipped_cells(packed, y, x, h, w)
     return packed, clipped_any, finite
