@@ -186,6 +186,10 @@ def main(argv: list[str]) -> None:
     def arg(name, default):
         return argv[argv.index(name) + 1] if name in argv else default
     seed, host = int(arg("--seed", 1)), int(arg("--host", 60))
+    if "--graph" in argv:
+        for s in (int(x) for x in arg("--supersample", "2").split(",")):
+            truth_graph(seed, s, int(arg("--frames", 150)), int(arg("--step", 5)))
+        return
     gaps = [int(x) for x in arg("--gaps", "1,2,3,5").split(",")]
     pattern = PATTERN_SINGLE if arg("--pattern", "dso8") == "single" else PATTERN_DSO8
     which = tuple(arg("--samplers", "bilinear,exact,bicubic").split(","))
@@ -194,9 +198,6 @@ def main(argv: list[str]) -> None:
         print(f"supersample {s}, seed {seed}: relative inverse-depth (disparity, d|t|) change at the least cost")
         measure(seq, host, gaps, pattern, which)
 
-
-if __name__ == "__main__":
-    main(sys.argv[1:])
 
 
 def use_spline_kernel() -> None:
@@ -245,3 +246,44 @@ def use_spline_kernel() -> None:
     _compiled.pack_gradient_image = pack
     _compiled.sample_stack = numba.njit(nogil=True)(_compiled.sample_stack.py_func)
     _compiled.warp_residuals = numba.njit(nogil=True)(_compiled.warp_residuals.py_func)
+
+
+def truth_graph(seed: int, supersample: int, frames: int, step: int, span: int = 10) -> None:
+    """The whole-log graph on keyframes every ``step`` frames at their TRUE poses, their points
+    (the front end's selection) at their TRUE inverse depths, started there (no window pass, no
+    window or loop edges: the photometric, stereo, affine and motion terms alone). Printed: how
+    far its optimum is from the truth, as the local scale error (the relative error of the
+    distance between keyframes ``span`` apart: mean / RMS / max), the Sim(3) scale, the SE(3) ATE."""
+    import gtsam  # noqa: PLC0415
+
+    from gtvo.config import OdometryConfig  # noqa: PLC0415
+    from gtvo.evaluation.alignment import umeyama_alignment  # noqa: PLC0415
+    from gtvo.refinement import RefineConfig, RefinementInput, refine_keyframes  # noqa: PLC0415
+    from gtvo.window import WindowKeyframe, WindowMembers, WindowSettings  # noqa: PLC0415
+
+    seq = make_synthetic_sequence(n_frames=300, noise_sigma=0.0, seed=seed, motion="loop", supersample=supersample)
+    cfg = OdometryConfig()
+    kfs = []
+    for i in range(0, frames, step):
+        left, right = seq.left(i), seq.right(i)
+        pts = init_keyframe_points(left, right, seq.camera, target=2000)
+        px = np.asarray(pts.pixels)
+        z = seq.true_depth(i)[px[:, 1].astype(int), px[:, 0].astype(int)].astype(float)
+        kfs.append(WindowKeyframe(i, gtsam.Pose3(seq.gt_poses[i]), np.zeros(2), GradientImage(left), px, 1.0 / z,
+                                  np.asarray(pts.variance), right=GradientImage(right), timestamp=0.1 * i))
+    run = RefinementInput(WindowMembers(seq.pinhole, seq.camera.baseline, kfs),
+                          WindowSettings(cfg.window, cfg.photometric), None,
+                          start_poses={kf.index: seq.gt_poses[kf.index] for kf in kfs})
+    out = refine_keyframes(run, RefineConfig(enabled=True, max_iterations=20, window_edges=False))
+    est = np.array([kf.pose.translation() for kf in out.keyframes])
+    gt = np.array([seq.gt_poses[kf.index][:3, 3] for kf in out.keyframes])
+    local = 100 * (np.linalg.norm(est[span:] - est[:-span], axis=1) / np.linalg.norm(gt[span:] - gt[:-span], axis=1) - 1)
+    ate = float(np.sqrt(np.mean(np.sum((umeyama_alignment(est, gt).apply(est) - gt) ** 2, axis=1))))
+    print(f"truth graph: loop seed {seed}, supersample {supersample}, {len(kfs)} keyframes every {step} frames: "
+          f"local scale error over {span} keyframes mean {np.mean(local):+.3f} / RMS {np.sqrt(np.mean(local ** 2)):.3f}"
+          f" / max {np.max(np.abs(local)):.3f} %, Sim(3) scale {umeyama_alignment(est, gt, with_scale=True).scale:.5f},"
+          f" SE(3) ATE {1000 * ate:.2f} mm", flush=True)
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])
