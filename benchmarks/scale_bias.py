@@ -30,6 +30,7 @@ Usage: python benchmarks/scale_bias.py [--supersample 1,2] [--seed 1] [--host 60
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 
 import numpy as np
@@ -209,18 +210,17 @@ def main(argv: list[str]) -> None:
     def arg(name, default):
         return argv[argv.index(name) + 1] if name in argv else default
     seed, host = int(arg("--seed", 1)), int(arg("--host", 60))
+    pattern = PATTERN_SINGLE if arg("--pattern", "dso8") == "single" else PATTERN_DSO8
     if "--graph" in argv:
         for s in (int(x) for x in arg("--supersample", "2").split(",")):
-            truth_graph(seed, s, int(arg("--frames", 150)), int(arg("--step", 5)))
+            truth_graph(seed, s, int(arg("--frames", 150)), int(arg("--step", 5)), single=pattern is PATTERN_SINGLE)
         return
     gaps = [int(x) for x in arg("--gaps", "1,2,3,5").split(",")]
-    pattern = PATTERN_SINGLE if arg("--pattern", "dso8") == "single" else PATTERN_DSO8
     which = tuple(arg("--samplers", "kernel,bilinear,exact,spline").split(","))
     for s in (int(x) for x in arg("--supersample", "1,2").split(",")):
         seq = make_synthetic_sequence(n_frames=300, noise_sigma=0.0, seed=seed, motion="loop", supersample=s)
         print(f"supersample {s}, seed {seed}: relative inverse-depth (disparity, d|t|) change at the least cost")
         measure(seq, host, gaps, pattern, which)
-
 
 
 def use_spline_kernel() -> None:
@@ -271,7 +271,7 @@ def use_spline_kernel() -> None:
     _compiled.warp_residuals = numba.njit(nogil=True)(_compiled.warp_residuals.py_func)
 
 
-def truth_graph(seed: int, supersample: int, frames: int, step: int, span: int = 10) -> None:
+def truth_graph(seed: int, supersample: int, frames: int, step: int, span: int = 10, single: bool = False) -> None:
     """The whole-log graph on keyframes every ``step`` frames at their TRUE poses, their points
     (the front end's selection) at their TRUE inverse depths, started there (no window pass, no
     window or loop edges: the photometric, stereo, affine and motion terms alone). Printed: how
@@ -286,6 +286,8 @@ def truth_graph(seed: int, supersample: int, frames: int, step: int, span: int =
 
     seq = make_synthetic_sequence(n_frames=300, noise_sigma=0.0, seed=seed, motion="loop", supersample=supersample)
     cfg = OdometryConfig()
+    if single:  # one pixel, no pattern
+        cfg = dataclasses.replace(cfg, photometric=dataclasses.replace(cfg.photometric, pattern=((0.0, 0.0),)))
     kfs = []
     for i in range(0, frames, step):
         left, right = seq.left(i), seq.right(i)
@@ -302,7 +304,8 @@ def truth_graph(seed: int, supersample: int, frames: int, step: int, span: int =
     gt = np.array([seq.gt_poses[kf.index][:3, 3] for kf in out.keyframes])
     local = 100 * (np.linalg.norm(est[span:] - est[:-span], axis=1) / np.linalg.norm(gt[span:] - gt[:-span], axis=1) - 1)
     ate = float(np.sqrt(np.mean(np.sum((umeyama_alignment(est, gt).apply(est) - gt) ** 2, axis=1))))
-    print(f"truth graph: loop seed {seed}, supersample {supersample}, {len(kfs)} keyframes every {step} frames: "
+    print(f"truth graph: loop seed {seed}, supersample {supersample}, {len(kfs)} keyframes every {step} frames, "
+          f"pattern of {len(cfg.photometric.pattern)} px: "
           f"local scale error over {span} keyframes mean {np.mean(local):+.3f} / RMS {np.sqrt(np.mean(local ** 2)):.3f}"
           f" / max {np.max(np.abs(local)):.3f} %, Sim(3) scale {umeyama_alignment(est, gt, with_scale=True).scale:.5f},"
           f" SE(3) ATE {1000 * ate:.2f} mm", flush=True)
