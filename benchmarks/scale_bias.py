@@ -135,12 +135,12 @@ class SplineSampler:
         return out, ok
 
 
-def host_points(seq: SyntheticSequence, host: int, margin: int = 4):
+def host_points(seq: SyntheticSequence, host: int, margin: int = 4, every_point: bool = False):
     """The front end's points of frame ``host`` whose pattern sees one face: pixels, true inverse depths."""
     kp = init_keyframe_points(seq.left(host), seq.right(host), seq.camera, target=2000)
     px = np.asarray(kp.pixels, float)
     u, v = px[:, 0].astype(int), px[:, 1].astype(int)
-    inside = seq.interior_mask(host, margin=margin)[v, u]
+    inside = seq.interior_mask(host, margin=margin)[v, u] | every_point
     z = seq.true_depth(host)[v, u].astype(float)
     return px[inside], 1.0 / z[inside]
 
@@ -162,9 +162,10 @@ def gn_eps(residuals_of_eps, iterations: int = 6) -> float:
     return e
 
 
-def measure(seq: SyntheticSequence, host: int, gaps: list[int], pattern=PATTERN_DSO8, which=("bilinear", "exact", "bicubic")) -> None:
+def measure(seq: SyntheticSequence, host: int, gaps: list[int], pattern=PATTERN_DSO8, which=("bilinear", "exact", "bicubic"),
+            every_point: bool = False) -> None:
     cam, b = seq.pinhole, seq.camera.baseline
-    px, d = host_points(seq, host)
+    px, d = host_points(seq, host, every_point=every_point)
     left = GradientImage(seq.left(host))
     Ih, hv = sample_host(left, px, pattern)
     f = pattern_bearings(cam, px, pattern)
@@ -220,7 +221,7 @@ def main(argv: list[str]) -> None:
     for s in (int(x) for x in arg("--supersample", "1,2").split(",")):
         seq = make_synthetic_sequence(n_frames=300, noise_sigma=0.0, seed=seed, motion="loop", supersample=s)
         print(f"supersample {s}, seed {seed}: relative inverse-depth (disparity, d|t|) change at the least cost")
-        measure(seq, host, gaps, pattern, which)
+        measure(seq, host, gaps, pattern, which, "--every-point" in argv)
 
 
 def use_spline_kernel() -> None:

@@ -68,19 +68,24 @@ def _spline(packed, has_clip, width, height, border, u, v):
         (3.0 * sy * sy * (sy - 2.0) + 4.0) / 6.0, ty * ty * ty / 6.0
     dy0, dy1, dy2, dy3 = -0.5 * sy * sy, ty * (1.5 * ty - 2.0), -sy * (1.5 * sy - 2.0), 0.5 * ty * ty
     c0, c1, c2, c3 = _mirror(x0 - 1, width), x0, _mirror(x0 + 1, width), _mirror(x0 + 2, width)
-    intensity = 0.0
-    gx = 0.0
-    gy = 0.0
-    for j in range(4):
-        row = _mirror(y0 - 1 + j, height) * width
-        a0, a1, a2, a3 = packed[row + c0, 0], packed[row + c1, 0], packed[row + c2, 0], packed[row + c3, 0]
-        line = wx0 * a0 + wx1 * a1 + wx2 * a2 + wx3 * a3
-        slope = dx0 * a0 + dx1 * a1 + dx2 * a2 + dx3 * a3
-        wy = wy0 if j == 0 else (wy1 if j == 1 else (wy2 if j == 2 else wy3))
-        dy = dy0 if j == 0 else (dy1 if j == 1 else (dy2 if j == 2 else dy3))
-        intensity += wy * line
-        gx += wy * slope
-        gy += dy * line
+    r0, r1, r2, r3 = (_mirror(y0 - 1, height) * width, y0 * width, _mirror(y0 + 1, height) * width,
+                      _mirror(y0 + 2, height) * width)
+    # the four rows of taps, each as (value along x, its x slope)
+    a0, a1, a2, a3 = packed[r0 + c0, 0], packed[r0 + c1, 0], packed[r0 + c2, 0], packed[r0 + c3, 0]
+    l0 = wx0 * a0 + wx1 * a1 + wx2 * a2 + wx3 * a3
+    s0 = dx0 * a0 + dx1 * a1 + dx2 * a2 + dx3 * a3
+    a0, a1, a2, a3 = packed[r1 + c0, 0], packed[r1 + c1, 0], packed[r1 + c2, 0], packed[r1 + c3, 0]
+    l1 = wx0 * a0 + wx1 * a1 + wx2 * a2 + wx3 * a3
+    s1 = dx0 * a0 + dx1 * a1 + dx2 * a2 + dx3 * a3
+    a0, a1, a2, a3 = packed[r2 + c0, 0], packed[r2 + c1, 0], packed[r2 + c2, 0], packed[r2 + c3, 0]
+    l2 = wx0 * a0 + wx1 * a1 + wx2 * a2 + wx3 * a3
+    s2 = dx0 * a0 + dx1 * a1 + dx2 * a2 + dx3 * a3
+    a0, a1, a2, a3 = packed[r3 + c0, 0], packed[r3 + c1, 0], packed[r3 + c2, 0], packed[r3 + c3, 0]
+    l3 = wx0 * a0 + wx1 * a1 + wx2 * a2 + wx3 * a3
+    s3 = dx0 * a0 + dx1 * a1 + dx2 * a2 + dx3 * a3
+    intensity = wy0 * l0 + wy1 * l1 + wy2 * l2 + wy3 * l3
+    gx = wy0 * s0 + wy1 * s1 + wy2 * s2 + wy3 * s3
+    gy = dy0 * l0 + dy1 * l1 + dy2 * l2 + dy3 * l3
     return True, intensity, gx, gy
 
 
@@ -241,21 +246,21 @@ def _flag_clipped_cells(packed, y, x, h, w):
 
 #: the pole of the cubic B-spline's prefilter, ``sqrt(3) - 2``
 _SPLINE_POLE = 3.0 ** 0.5 - 2.0
+#: samples summed for a causal initial value: ``|z|^24`` is 2e-14 (shorter lines: the exact mirror sum)
+_SPLINE_HORIZON = 24
 
 
 @jit
-def _spline_prefilter(line):
-    """The cubic B-spline coefficients of one line of samples (float64, in place), mirror
-    boundaries: the causal and anticausal first-order recursions of the pole ``z`` with their
-    exact initial values and the gain 6 (Unser's recursive interpolation, as in Thevenaz et al.'s
-    "Interpolation revisited")."""
-    n = line.shape[0]
-    if n < 2:
-        return
-    z = _SPLINE_POLE
-    for k in range(n):
-        line[k] *= 6.0  # (1 - z) (1 - 1/z)
-    # causal initial value: the whole mirrored line (exact; lines are short)
+def _causal_start(line, n, z):
+    """The causal recursion's initial value of a line of ``n`` samples, mirror boundaries: the exact
+    sum over the mirrored line when it is short, else its first ``_SPLINE_HORIZON`` terms."""
+    if n > _SPLINE_HORIZON:
+        total = line[0]
+        zk = z
+        for k in range(1, _SPLINE_HORIZON):
+            total += zk * line[k]
+            zk *= z
+        return total
     zn = z
     z2n = z ** (n - 1)
     total = line[0] + z2n * line[n - 1]
@@ -264,12 +269,7 @@ def _spline_prefilter(line):
         total += (zn + z2n) * line[k]
         zn *= z
         z2n /= z
-    line[0] = total / (1.0 - zn * zn)
-    for k in range(1, n):
-        line[k] += z * line[k - 1]
-    line[n - 1] = (z / (z * z - 1.0)) * (z * line[n - 2] + line[n - 1])
-    for k in range(n - 2, -1, -1):
-        line[k] = z * (line[k + 1] - line[k])
+    return total / (1.0 - zn * zn)
 
 
 @jit
@@ -278,30 +278,62 @@ def pack_gradient_image(img, lo, hi, check_clip):
     coefficient of the image's interpolating cubic B-spline (mirror boundaries; float64 arithmetic,
     stored float32) and, with ``check_clip``, 1.0 where the 2x2 cell with this top-left corner
     touches a pixel at or beyond ``lo`` / ``hi``. Returns ``(packed (H, W, 2), any pixel clipped,
-    all finite)``. Rows, then columns, through :func:`_spline_prefilter`."""
+    all finite)``.
+
+    The prefilter is Unser's recursive one (as in Thevenaz et al.'s "Interpolation revisited"):
+    along each row and then each column, a causal and an anticausal first-order recursion of the
+    pole ``z`` with their mirror-boundary initial values and the gain 6 per axis. The columns run
+    row by row over all columns at once (memory in order)."""
     h, w = img.shape
     packed = np.empty((h, w, 2), dtype=np.float32)
     coef = np.empty((h, w))
     clipped_any = False
     finite = True
+    z = _SPLINE_POLE
+    tail = z / (z * z - 1.0)
     for y in range(h):
+        row = coef[y]
         for x in range(w):
             c = img[y, x]
-            coef[y, x] = c
+            row[x] = 36.0 * c  # the gain (1 - z)(1 - 1/z) = 6 of both axes
             packed[y, x, 1] = 0.0
             if not np.isfinite(c):
                 finite = False
-    if not finite:
-        return packed, clipped_any, finite
-    for y in range(h):
-        _spline_prefilter(coef[y])
+        if not finite:
+            return packed, clipped_any, finite
+        row[0] = _causal_start(row, w, z)
+        for x in range(1, w):
+            row[x] += z * row[x - 1]
+        row[w - 1] = tail * (z * row[w - 2] + row[w - 1])
+        for x in range(w - 2, -1, -1):
+            row[x] = z * (row[x + 1] - row[x])
+    # the columns, row by row: the causal initial values (all columns at once), the recursions
+    start = np.empty(w)
     column = np.empty(h)
+    if h > _SPLINE_HORIZON:
+        start[:] = coef[0]
+        zk = z
+        for k in range(1, _SPLINE_HORIZON):
+            for x in range(w):
+                start[x] += zk * coef[k, x]
+            zk *= z
+    else:
+        for x in range(w):
+            for y in range(h):
+                column[y] = coef[y, x]
+            start[x] = _causal_start(column, h, z)
     for x in range(w):
-        for y in range(h):
-            column[y] = coef[y, x]
-        _spline_prefilter(column)
-        for y in range(h):
-            packed[y, x, 0] = column[y]
+        coef[0, x] = start[x]
+    for y in range(1, h):
+        for x in range(w):
+            coef[y, x] += z * coef[y - 1, x]
+    for x in range(w):
+        coef[h - 1, x] = tail * (z * coef[h - 2, x] + coef[h - 1, x])
+        packed[h - 1, x, 0] = coef[h - 1, x]
+    for y in range(h - 2, -1, -1):
+        for x in range(w):
+            coef[y, x] = z * (coef[y + 1, x] - coef[y, x])
+            packed[y, x, 0] = coef[y, x]
     if check_clip:
         for y in range(h):
             for x in range(w):
