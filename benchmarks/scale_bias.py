@@ -12,9 +12,8 @@ the Gauss-Newton fixed point with the kernel's analytic derivative (``sum J r = 
 the graph stops). Zero for an unbiased model.
 
 Target samplers compared (the host is always the rendered image at its pixels, exact):
-* ``kernel``: the factors' own (``GradientImage``), and ``kernel GN``: the Gauss-Newton fixed point
-  with its gradients (before the fix: bilinear intensity and bilinear central differences; now the
-  cubic B-spline and its exact derivative);
+* ``kernel``: the factors' own (``GradientImage``: bilinear intensity, bilinear central-difference
+  gradients), and ``kernel GN``: the Gauss-Newton fixed point with its gradients;
 * ``bilinear``: bilinear interpolation of the rendered image (``gtvo.core.image.bilinear_sample``);
 * ``exact``: the scene rendered again at the warped sub-pixel positions with the same pixel model
   (point or area-integrated): no interpolation at all, the model's ideal;
@@ -22,10 +21,13 @@ Target samplers compared (the host is always the rendered image at its pixels, e
 * ``spline``: cubic B-spline interpolation (prefiltered) of the rendered image.
 
 ``--graph``: the whole-log graph on keyframes at their true poses and depths (:func:`truth_graph`).
+``--interpolation spline``: the factors' kernel samples the cubic B-spline and its exact derivative
+instead, in this process (:func:`use_spline_kernel`; the ``kernel`` columns and the graph then use it).
+``--every-point``: also the points whose pattern touches a crease or a silhouette.
 
 Usage: python benchmarks/scale_bias.py [--supersample 1,2] [--seed 1] [--host 60] [--gaps 1,2,3,5]
-       [--pattern dso8|single] [--samplers kernel,bilinear,exact,spline,bicubic]
-       python benchmarks/scale_bias.py --graph [--supersample 2] [--frames 150] [--step 5]
+       [--pattern dso8|single] [--samplers kernel,bilinear,exact,spline,bicubic] [--every-point] [--interpolation spline]
+       python benchmarks/scale_bias.py --graph [--supersample 2] [--frames 150] [--step 5] [--pattern single] [--interpolation spline]
 """
 
 from __future__ import annotations
@@ -212,6 +214,8 @@ def main(argv: list[str]) -> None:
         return argv[argv.index(name) + 1] if name in argv else default
     seed, host = int(arg("--seed", 1)), int(arg("--host", 60))
     pattern = PATTERN_SINGLE if arg("--pattern", "dso8") == "single" else PATTERN_DSO8
+    if arg("--interpolation", "bilinear") == "spline":
+        use_spline_kernel()
     if "--graph" in argv:
         for s in (int(x) for x in arg("--supersample", "2").split(",")):
             truth_graph(seed, s, int(arg("--frames", 150)), int(arg("--step", 5)), single=pattern is PATTERN_SINGLE)

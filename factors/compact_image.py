@@ -24,7 +24,6 @@ from numpy.typing import NDArray
 
 from factors import _compiled
 from factors.photometric import GradientImage
-from gtvo.core.image import image_gradients
 
 #: The shared cache's budget outside a :func:`packed_cache_budget` block: 64 MiB of packed records
 #: (8 KITTI-sized images, 54 at 320 x 240).
@@ -133,7 +132,7 @@ class CompactGradientImage(GradientImage):
     @property
     def stack(self) -> NDArray[np.float32]:  # type: ignore[override]
         """(H, W, 3) float32: intensity and its central-difference gradients (packed on demand)."""
-        return np.dstack((self.image, *image_gradients(self.image)))
+        return self._packed_records().reshape(self.height, self.width, 4)[..., :3]
 
     def drop_records(self) -> int:
         """Forget the packed records (the cache's eviction); returns the bytes freed."""
@@ -148,7 +147,7 @@ class CompactGradientImage(GradientImage):
         lo, hi = (0.0, 0.0) if self.clip_range is None else self.clip_range
         packed, _, _ = _compiled.pack_gradient_image(np.ascontiguousarray(self.image), np.float32(lo),
                                                      np.float32(hi), self.clip_range is not None)
-        records = packed.reshape(-1, 2)
+        records = packed.reshape(-1, 4)
         self._records = records
         self._cache.add(self, int(records.nbytes))
         return records

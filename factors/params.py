@@ -36,7 +36,7 @@ class PhotometricConfig:
             (default DSO's 8 pixels), each within +-8 px (the keyframes' point selection keeps
             that border free).
         clip_range: ``(lo, hi)`` grey levels at or beyond which the sensor clipped: a sample whose
-            2x2 cell touches such a pixel is invalid (:class:`factors.photometric.GradientImage`),
+            bilinear cell touches such a pixel is invalid (:class:`factors.photometric.GradientImage`),
             and the stereo gain estimate leaves such patches out; None: no check.
     """
 

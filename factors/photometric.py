@@ -38,7 +38,6 @@ from numpy.typing import ArrayLike, NDArray
 
 from factors import _compiled
 from gtvo.core.camera import MIN_DEPTH, PinholeCamera
-from gtvo.core.image import image_gradients
 from gtvo.errors import InputError
 from gtvo.core.lie import invert_poses
 
@@ -69,22 +68,14 @@ class GradientSampler(Protocol):
 
 
 class GradientImage:
-    """An image sampled through its interpolating cubic B-spline: intensity and exact gradients.
-
-    The spline passes through every pixel and its gradients are its own derivatives, so the
-    Jacobians are those of the residual that is minimised. Bilinear interpolation with
-    central-difference gradients (what this was, and DSO's) blurs a sample by a variance
-    ``t (1 - t)`` px^2 that depends on its sub-pixel position ``t`` (none at a pixel, 1/4 half
-    way): a cost whose minimum is pulled towards whole-pixel shifts, and gradients that are not the
-    derivative of the bilinear image; measured as a scale bias of the whole-log graph
-    (docs/refinement.md, "The model's scale bias").
+    """An image stacked with its central-difference gradients, sampled bilinearly.
 
     Args:
         image: 2-D float image in 8-bit units.
         border: pixels kept free at each side for a sample to count as valid.
         clip_range: ``(lo, hi)`` grey levels at which the sensor clipped; default
             :data:`DEFAULT_CLIP_RANGE` (0 and 255, the ends of 8-bit units). A
-            sample whose 2x2 cell touches a pixel at or beyond them is invalid: a clipped
+            sample whose bilinear cell touches a pixel at or beyond them is invalid: a clipped
             intensity says nothing about the scene's radiance, and under a brightness change (auto
             exposure) the affine model cannot explain it. None: no check.
     """
@@ -96,11 +87,11 @@ class GradientImage:
             raise InputError(f"GradientImage needs a 2-D image of at least 2x2, got shape {img.shape}")
         if clip_range is not None and (isinstance(clip_range, str) or len(clip_range) != 2):
             raise InputError(f"GradientImage: clip_range must be (lo, hi) or None, got {clip_range!r}")
-        # per pixel: the cubic B-spline coefficient and whether the 2x2 cell with this top-left
-        # corner touches a clipped pixel (1.0) or not (0.0), one 8-byte record (a row of the 4x4
-        # taps is one 32-byte read; a separate mask array made the bilinear sampler 3x slower),
-        # made in one compiled pass. Only the sample's own cell is checked; the spline's taps reach
-        # one pixel further.
+        # per pixel: I, gx, gy (gtvo.core.image.image_gradients) and whether the bilinear cell with
+        # this top-left corner touches a clipped pixel (1.0) or not (0.0), one 16-byte record (the
+        # compiled sampler reads one cache line per corner; a separate mask array made it 3x
+        # slower), made in one compiled pass. Only the intensity's cell is checked; the gradients of
+        # its pixels reach one pixel further.
         lo, hi = (0.0, 0.0) if clip_range is None else clip_range
         packed, clipped, finite = _compiled.pack_gradient_image(np.ascontiguousarray(img), np.float32(lo),
                                                                 np.float32(hi), clip_range is not None)
@@ -111,24 +102,19 @@ class GradientImage:
         self.border = float(border)
         self.clip_range = clip_range
         self.has_clipped = bool(clipped)
-        self._packed = packed.reshape(-1, 2)
-
-    @property
-    def stack(self) -> NDArray[np.float32]:
-        """(H, W, 3) float32: the intensity and its central-difference gradients
-        (``gtvo.core.image.image_gradients``; made when read, not what :meth:`sample` uses)."""
-        return np.dstack((self.image, *image_gradients(self.image)))
+        self._packed = packed.reshape(-1, 4)
+        #: (H, W, 3) float32: intensity and its central-difference gradients (a view)
+        self.stack = packed[..., :3]
 
     def _sampler_args(self) -> tuple:
         """The leading arguments of :mod:`factors._compiled`'s functions for this image."""
         return (self._packed, self.has_clipped, self.width, self.height, self.border)
 
     def sample(self, u: NDArray, v: NDArray) -> tuple[FloatArray, BoolArray]:
-        """The cubic B-spline's (I, gx, gy) at ``(u, v)``; 0 and False where invalid, never NaN.
+        """Bilinear (I, gx, gy) at ``(u, v)``; 0 and False where invalid, never NaN.
 
-        The validity rule of :func:`gtvo.core.image.bilinear_sample` (``border``), the values those
-        of the image's interpolating cubic spline (``scipy.ndimage.map_coordinates`` of order 3 with
-        mirror boundaries, tested to 1e-3 grey levels) and its exact derivatives, in one compiled
+        Same result and validity rule as :func:`gtvo.core.image.bilinear_sample` on :attr:`stack`
+        up to float32 rounding of the stored image (tested to 1e-4 grey levels), in one compiled
         pass (:func:`factors._compiled.sample_stack`; the hot path of tracking). In addition, a
         sample next to a clipped pixel is invalid (``clip_range``).
         """

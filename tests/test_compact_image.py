@@ -52,7 +52,7 @@ def test_the_compiled_kernel_gives_the_same_residuals_on_a_compact_target():
 def test_the_cache_keeps_at_most_its_budget_and_packs_again_the_same():
     rng = np.random.default_rng(3)
     fulls = [GradientImage(rng.uniform(1, 254, (30, 40))) for _ in range(3)]
-    record_bytes = 30 * 40 * 8
+    record_bytes = 30 * 40 * 16
     cache = PackedCache(max_bytes=2 * record_bytes)
     smalls = [CompactGradientImage(f, cache) for f in fulls]
     u, v = _points(rng, 40, 30)
@@ -89,10 +89,10 @@ def test_a_budget_block_holds_more_and_gives_it_back():
     rng = np.random.default_rng(4)
     cache = PackedCache(max_bytes=0)
     smalls = [CompactGradientImage(GradientImage(rng.uniform(1, 254, (20, 30))), cache) for _ in range(3)]
-    with packed_cache_budget(10 * 20 * 30 * 8, cache):
+    with packed_cache_budget(10 * 20 * 30 * 16, cache):
         for s in smalls:
             s.sample(np.array([5.5]), np.array([6.5]))
-        assert cache.bytes == 3 * 20 * 30 * 8 and cache.packs == 3
+        assert cache.bytes == 3 * 20 * 30 * 16 and cache.packs == 3
     assert cache.max_bytes == 0 and cache.bytes == 0 and all(s._records is None for s in smalls)
 
 
@@ -108,7 +108,7 @@ def test_a_pickled_compact_image_carries_its_grey_levels_only_and_samples_the_sa
     u, v = _points(rng, 60, 40)
     before = small.sample(u, v)  # its records packed and held by its cache
     data = pickle.dumps(small)
-    assert len(data) < 40 * 60 + 1000  # the uint8 grey levels and the flags, not the 8-byte records
+    assert len(data) < 40 * 60 + 1000  # the uint8 grey levels and the flags, not the 16-byte records
     back = pickle.loads(data)
     assert back._records is None and back._cache is SHARED_PACKED_CACHE
     after = back.sample(u, v)

@@ -138,34 +138,20 @@ def test_stereo_factor_alone_recovers_inverse_depth():
     np.testing.assert_allclose([res.atDouble(D(j)) for j in range(len(d))], d, rtol=1e-6)
 
 
-def test_gradient_image_sample_is_the_cubic_spline_and_its_derivative():
-    """GradientImage samples the interpolating cubic B-spline (scipy's, mirror boundaries) with
-    gtvo.core.image.bilinear_sample's validity rule; its gradients are the spline's derivatives
-    (against central differences of its own samples) and it passes through every pixel."""
-    from scipy import ndimage
-
+def test_gradient_image_sample_matches_gtvo_bilinear_sample():
     from gtvo.core.image import bilinear_sample
     rng = np.random.default_rng(0)
-    img = rng.uniform(0, 255, (40, 60))
-    g = GradientImage(img)
+    g = GradientImage(rng.uniform(0, 255, (40, 60)))
     u = rng.uniform(-3, 62, (50, 8))
     v = rng.uniform(-3, 42, (50, 8))
     u[0, 0] = np.nan
     v[1, 1] = np.inf
     a, va = g.sample(u, v)
-    _, vb = bilinear_sample(g.stack, u, v, border=1.0)
+    b, vb = bilinear_sample(g.stack, u, v, border=1.0)
     np.testing.assert_array_equal(va, vb)
     assert 0.2 < va.mean() < 0.95
+    np.testing.assert_allclose(a, b, atol=1e-4)  # float32 interpolation weights
     assert np.all(np.isfinite(a)) and np.all(a[~va] == 0)
-    ref = ndimage.map_coordinates(img, [v[va], u[va]], order=3, mode="mirror")
-    np.testing.assert_allclose(a[va][:, 0], ref, atol=1e-3)  # float32 coefficients
-    h = 1e-4
-    for axis, (du, dv) in ((1, (h, 0.0)), (2, (0.0, h))):
-        plus, _ = g.sample(u + du, v + dv)
-        minus, _ = g.sample(u - du, v - dv)
-        np.testing.assert_allclose(a[va][:, axis], ((plus - minus) / (2 * h))[va][:, 0], atol=2e-3)
-    uu, vv = np.meshgrid(np.arange(1.0, 59.0), np.arange(1.0, 39.0))
-    np.testing.assert_allclose(g.sample(uu, vv)[0][..., 0], img[1:-1, 1:-1], atol=1e-3)
 
 
 def test_kernel_rejects_mismatched_input():
