@@ -28,6 +28,7 @@ instead, in this process (:func:`use_spline_kernel`; the ``kernel`` columns and 
 Usage: python benchmarks/scale_bias.py [--supersample 1,2] [--seed 1] [--host 60] [--gaps 1,2,3,5]
        [--pattern dso8|single] [--samplers kernel,bilinear,exact,spline,bicubic] [--every-point] [--interpolation spline]
        python benchmarks/scale_bias.py --graph [--supersample 2] [--frames 150] [--step 5] [--pattern single] [--interpolation spline]
+       [--interior]
 """
 
 from __future__ import annotations
@@ -218,7 +219,8 @@ def main(argv: list[str]) -> None:
         use_spline_kernel()
     if "--graph" in argv:
         for s in (int(x) for x in arg("--supersample", "2").split(",")):
-            truth_graph(seed, s, int(arg("--frames", 150)), int(arg("--step", 5)), single=pattern is PATTERN_SINGLE)
+            truth_graph(seed, s, int(arg("--frames", 150)), int(arg("--step", 5)), single=pattern is PATTERN_SINGLE,
+                        interior="--interior" in argv)
         return
     gaps = [int(x) for x in arg("--gaps", "1,2,3,5").split(",")]
     which = tuple(arg("--samplers", "kernel,bilinear,exact,spline").split(","))
@@ -276,7 +278,8 @@ def use_spline_kernel() -> None:
     _compiled.warp_residuals = numba.njit(nogil=True)(_compiled.warp_residuals.py_func)
 
 
-def truth_graph(seed: int, supersample: int, frames: int, step: int, span: int = 10, single: bool = False) -> None:
+def truth_graph(seed: int, supersample: int, frames: int, step: int, span: int = 10, single: bool = False,
+                interior: bool = False) -> None:
     """The whole-log graph on keyframes every ``step`` frames at their TRUE poses, their points
     (the front end's selection) at their TRUE inverse depths, started there (no window pass, no
     window or loop edges: the photometric, stereo, affine and motion terms alone). Printed: how
@@ -298,9 +301,11 @@ def truth_graph(seed: int, supersample: int, frames: int, step: int, span: int =
         left, right = seq.left(i), seq.right(i)
         pts = init_keyframe_points(left, right, seq.camera, target=2000)
         px = np.asarray(pts.pixels)
+        keep = seq.interior_mask(i, margin=4)[px[:, 1].astype(int), px[:, 0].astype(int)] if interior else slice(None)
+        px, variance = px[keep], np.asarray(pts.variance)[keep]
         z = seq.true_depth(i)[px[:, 1].astype(int), px[:, 0].astype(int)].astype(float)
         kfs.append(WindowKeyframe(i, gtsam.Pose3(seq.gt_poses[i]), np.zeros(2), GradientImage(left), px, 1.0 / z,
-                                  np.asarray(pts.variance), right=GradientImage(right), timestamp=0.1 * i))
+                                  variance, right=GradientImage(right), timestamp=0.1 * i))
     run = RefinementInput(WindowMembers(seq.pinhole, seq.camera.baseline, kfs),
                           WindowSettings(cfg.window, cfg.photometric), None,
                           start_poses={kf.index: seq.gt_poses[kf.index] for kf in kfs})
@@ -310,7 +315,7 @@ def truth_graph(seed: int, supersample: int, frames: int, step: int, span: int =
     local = 100 * (np.linalg.norm(est[span:] - est[:-span], axis=1) / np.linalg.norm(gt[span:] - gt[:-span], axis=1) - 1)
     ate = float(np.sqrt(np.mean(np.sum((umeyama_alignment(est, gt).apply(est) - gt) ** 2, axis=1))))
     print(f"truth graph: loop seed {seed}, supersample {supersample}, {len(kfs)} keyframes every {step} frames, "
-          f"pattern of {len(cfg.photometric.pattern)} px: "
+          f"pattern of {len(cfg.photometric.pattern)} px, {'interior points' if interior else 'every point'}: "
           f"local scale error over {span} keyframes mean {np.mean(local):+.3f} / RMS {np.sqrt(np.mean(local ** 2)):.3f}"
           f" / max {np.max(np.abs(local)):.3f} %, Sim(3) scale {umeyama_alignment(est, gt, with_scale=True).scale:.5f},"
           f" SE(3) ATE {1000 * ate:.2f} mm", flush=True)
