@@ -38,8 +38,15 @@ import sys
 
 import numpy as np
 
-from factors.photometric import (PATTERN_DSO8, PATTERN_SINGLE, GradientImage, pattern_bearings, sample_host,
-                                 photometric_residuals, stereo_residuals)
+from factors.photometric import (
+    PATTERN_DSO8,
+    PATTERN_SINGLE,
+    GradientImage,
+    pattern_bearings,
+    photometric_residuals,
+    sample_host,
+    stereo_residuals,
+)
 from gtvo.core.image import bilinear_sample
 from gtvo.datasets.synthetic import SyntheticSequence, make_synthetic_sequence
 from gtvo.frontend.stereo_depth import init_keyframe_points
@@ -123,7 +130,7 @@ class SplineSampler:
     """Cubic B-spline interpolation of an image (prefiltered: it passes through the pixels; intensity only)."""
 
     def __init__(self, image: np.ndarray):
-        from scipy import ndimage  # noqa: PLC0415
+        from scipy import ndimage
         self._ndimage = ndimage
         self.coef = ndimage.spline_filter(np.asarray(image, float), order=3, mode="mirror")
         self.height, self.width = self.coef.shape
@@ -188,7 +195,7 @@ def measure(seq: SyntheticSequence, host: int, gaps: list[int], pattern=PATTERN_
         row = []
         grad = GradientImage(img)
 
-        def res(sampler, e):
+        def res(sampler, e, name=name, T_t=T_t, aff_h=aff_h, aff_t=aff_t):
             if name == "stereo":
                 return stereo_residuals(cam, b, Ih, hv, px, d * (1 + e), sampler, aff_h, aff_t, pattern,
                                         bearings=f)
@@ -197,12 +204,12 @@ def measure(seq: SyntheticSequence, host: int, gaps: list[int], pattern=PATTERN_
 
         base = res(grad, 0.0).valid
         for label, sampler in samplers.items():
-            def cost(e, sampler=sampler):
+            def cost(e, sampler=sampler, res=res, base=base):
                 lin = res(sampler, e)
                 return float(np.sum(np.where(base & lin.valid, lin.residual, 0.0) ** 2))
             row.append(f"{label} min {100 * best_eps(cost):+.4f} %")
 
-        def r_and_j(e):
+        def r_and_j(e, res=res, grad=grad, base=base):
             lin = res(grad, e)
             ok = base & lin.valid
             return np.where(ok, lin.residual, 0.0), np.where(ok, lin.J_depth * (d * (1 + e))[:, None], 0.0)
@@ -235,10 +242,10 @@ def use_spline_kernel() -> None:
     derivative, in this process only (an experiment on the graph: ``refine_oracle.py
     --interpolation spline``). Call before any kernel runs. Packed records hold the spline
     coefficients in the intensity's channel; the clipped-cell flags are not checked."""
-    import numba  # noqa: PLC0415
-    from scipy import ndimage  # noqa: PLC0415
+    import numba
+    from scipy import ndimage
 
-    from factors import _compiled  # noqa: PLC0415
+    from factors import _compiled
 
     @numba.njit(nogil=True)
     def _spline(packed, has_clip, width, height, border, u, v):
@@ -267,7 +274,7 @@ def use_spline_kernel() -> None:
         return True, intensity, gx, gy
 
     def pack(img, lo, hi, check_clip):
-        packed, clipped, finite = pack_bilinear(img, lo, hi, check_clip)
+        packed, _, finite = pack_bilinear(img, lo, hi, check_clip)
         packed[..., 0] = ndimage.spline_filter(np.asarray(img, float), order=3, mode="mirror")
         return packed, False, finite
 
@@ -285,12 +292,12 @@ def truth_graph(seed: int, supersample: int, frames: int, step: int, span: int =
     window or loop edges: the photometric, stereo, affine and motion terms alone). Printed: how
     far its optimum is from the truth, as the local scale error (the relative error of the
     distance between keyframes ``span`` apart: mean / RMS / max), the Sim(3) scale, the SE(3) ATE."""
-    import gtsam  # noqa: PLC0415
+    import gtsam
 
-    from gtvo.config import OdometryConfig  # noqa: PLC0415
-    from gtvo.evaluation.alignment import umeyama_alignment  # noqa: PLC0415
-    from gtvo.refinement import RefineConfig, RefinementInput, refine_keyframes  # noqa: PLC0415
-    from gtvo.window import WindowKeyframe, WindowMembers, WindowSettings  # noqa: PLC0415
+    from gtvo.config import OdometryConfig
+    from gtvo.evaluation.alignment import umeyama_alignment
+    from gtvo.refinement import RefineConfig, RefinementInput, refine_keyframes
+    from gtvo.window import WindowKeyframe, WindowMembers, WindowSettings
 
     seq = make_synthetic_sequence(n_frames=300, noise_sigma=0.0, seed=seed, motion="loop", supersample=supersample)
     cfg = OdometryConfig()
