@@ -21,12 +21,14 @@ one panel per log, to docs/refinement_error_along_log.png.
 ``--supersample N``: the synthetic images rendered with N x N rays per pixel (area-integrated pixels,
 as a sensor's; docs/benchmarks.md "Longer logs and area-integrated pixels").
 
-``--oracles-only``: only the two oracles (with the window's and the pose graph's rows). ``--cache DIR``:
+``--oracles-only``: only the two oracles (with the window's and the pose graph's rows; not with
+``--plot``). ``--interpolation spline``: the factors' kernel samples the cubic B-spline instead
+(``scale_bias.use_spline_kernel``; docs/refinement.md, "The model's scale bias"). ``--cache DIR``:
 the window pass pickled there and read back on the next run. The last column: the local scale error,
 the relative error of the distance between keyframes 10 apart, over the log.
 
 Usage: python benchmarks/refine_oracle.py [--seeds 1,2,3,4,5] [--motion loop] [--supersample N] [--plot]
-       [--oracles-only] [--cache DIR]
+       [--oracles-only] [--cache DIR] [--interpolation spline]
 """
 
 from __future__ import annotations
