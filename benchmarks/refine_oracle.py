@@ -21,13 +21,21 @@ one panel per log, to docs/refinement_error_along_log.png.
 ``--supersample N``: the synthetic images rendered with N x N rays per pixel (area-integrated pixels,
 as a sensor's; docs/benchmarks.md "Longer logs and area-integrated pixels").
 
+``--oracles-only``: only the two oracles (with the window's and the pose graph's rows; not with
+``--plot``). ``--interpolation spline``: the factors' kernel samples the cubic B-spline instead
+(``scale_bias.use_spline_kernel``; docs/refinement.md, "The model's scale bias"). ``--cache DIR``:
+the window pass pickled there and read back on the next run. The last column: the local scale error,
+the relative error of the distance between keyframes 10 apart, over the log.
+
 Usage: python benchmarks/refine_oracle.py [--seeds 1,2,3,4,5] [--motion loop] [--supersample N] [--plot]
+       [--oracles-only] [--cache DIR] [--interpolation spline]
 """
 
 from __future__ import annotations
 
 import contextlib
 import dataclasses
+import pickle
 import sys
 import time
 from pathlib import Path
@@ -79,6 +87,24 @@ def window_pass(seq: SyntheticSequence) -> WindowPass:
                       None if rig is None else rig.solved_offset)
 
 
+def window_pass_cached(seq: SyntheticSequence, key: str, argv: list[str]) -> WindowPass:
+    """:func:`window_pass`, kept in ``--cache DIR`` (pickled) when given: the oracles of two versions
+    of the factors then start from the same keyframes and points."""
+    if "--cache" not in argv:
+        return window_pass(seq)
+    path = Path(argv[argv.index("--cache") + 1]) / f"window_pass-{key}.pkl"
+    if path.exists():
+        with open(path, "rb") as fh:
+            run = pickle.load(fh)
+        run.seq = seq
+        return run
+    run = window_pass(seq)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "wb") as fh:
+        pickle.dump(dataclasses.replace(run, seq=None), fh)
+    return run
+
+
 def keyframe_errors(seq: SyntheticSequence, poses: dict[int, np.ndarray]) -> tuple[np.ndarray, float]:
     """Per keyframe (by frame index), its position error after the SE(3) alignment; the Sim(3) scale."""
     idx = sorted(poses)
@@ -86,6 +112,15 @@ def keyframe_errors(seq: SyntheticSequence, poses: dict[int, np.ndarray]) -> tup
     gt = np.array([seq.gt_poses[i][:3, 3] for i in idx])
     err = np.linalg.norm(umeyama_alignment(est, gt).apply(est) - gt, axis=1)
     return err, float(umeyama_alignment(est, gt, with_scale=True).scale)
+
+
+def local_scale_errors(seq: SyntheticSequence, poses: dict[int, np.ndarray], span: int = 10) -> np.ndarray:
+    """Per keyframe ``i``, the relative error of the distance from keyframe ``i`` to keyframe ``i + span``
+    (the local scale over about 50 frames; no alignment needed)."""
+    idx = sorted(poses)
+    est = np.array([np.asarray(poses[i])[:3, 3] for i in idx])
+    gt = np.array([seq.gt_poses[i][:3, 3] for i in idx])
+    return np.linalg.norm(est[span:] - est[:-span], axis=1) / np.linalg.norm(gt[span:] - gt[:-span], axis=1) - 1.0
 
 
 def true_depths(seq: SyntheticSequence, keyframes: list[WindowKeyframe]) -> list[WindowKeyframe]:
@@ -110,8 +145,9 @@ def without_loop_pairs() -> Iterator[None]:
         refinement_solve.covisible_targets = choose
 
 
-def variants(run: WindowPass) -> dict[str, dict[int, np.ndarray]]:
-    """Keyframe poses (frame index -> 4x4) of every variant (module docstring)."""
+def variants(run: WindowPass, oracles_only: bool = False) -> dict[str, dict[int, np.ndarray]]:
+    """Keyframe poses (frame index -> 4x4) of every variant (module docstring); ``oracles_only``:
+    the window's, the pose graph's and the two oracles'."""
     seq, wp = run.seq, run
     truth = {kf.index: seq.gt_poses[kf.index] for kf in wp.keyframes}
     weak = [dataclasses.replace(e, information=NEGLIGIBLE * np.eye(6)) for e in wp.edges]
@@ -125,8 +161,12 @@ def variants(run: WindowPass) -> dict[str, dict[int, np.ndarray]]:
         return {kf.index: kf.pose.matrix() for kf in r.keyframes}
 
     oracle = RefineConfig(enabled=True, max_iterations=20)
-    out = {"window": {kf.index: kf.pose.matrix() for kf in wp.keyframes}, "loop-closed pose graph": wp.loop_closed,
-           "refined (defaults)": refine()}
+    out = {"window": {kf.index: kf.pose.matrix() for kf in wp.keyframes}, "loop-closed pose graph": wp.loop_closed}
+    if oracles_only:
+        out["oracle: from the true poses"] = refine(oracle, start=truth)
+        out["oracle: true poses and depths"] = refine(oracle, start=truth, keyframes=true_depths(seq, wp.keyframes))
+        return out
+    out["refined (defaults)"] = refine()
     with without_loop_pairs():
         out["loop edges only (no loop pairs)"] = refine()
     out["photometric loop pairs only"] = refine(edges=weak)
@@ -162,21 +202,29 @@ def main(argv: list[str]) -> None:
     seeds = [int(s) for s in argv[argv.index("--seeds") + 1].split(",")] if "--seeds" in argv else sorted(LOOPS)
     motion = argv[argv.index("--motion") + 1] if "--motion" in argv else "loop"
     supersample = int(argv[argv.index("--supersample") + 1]) if "--supersample" in argv else 1
-    print("| log | variant | keyframe ATE SE(3) [m] | / pose graph | Sim(3) scale |\n|---|---|---|---|---|")
+    oracles_only = "--oracles-only" in argv
+    if "--interpolation" in argv and argv[argv.index("--interpolation") + 1] == "spline":
+        from scale_bias import use_spline_kernel  # noqa: PLC0415 (run from benchmarks/)
+        use_spline_kernel()
+    print("| log | variant | keyframe ATE SE(3) [m] | / pose graph | Sim(3) scale | local scale error over 10 keyframes,"
+          " mean / RMS / max [%] |\n|---|---|---|---|---|---|")
     panels = []
     for seed in seeds:
         frames, noise = LOOPS.get(seed, (300, 1.0))
         t0 = time.perf_counter()
-        run = window_pass(make_synthetic_sequence(n_frames=frames, noise_sigma=noise, seed=seed, motion=motion,
-                                                  supersample=supersample))
+        seq = make_synthetic_sequence(n_frames=frames, noise_sigma=noise, seed=seed, motion=motion,
+                                      supersample=supersample)
+        run = window_pass_cached(seq, f"{motion}-{seed}-{frames}-{noise:g}-{supersample}", argv)
         name = f"synthetic {motion} seed {seed}, noise {noise:g}, {frames} frames / {len(run.keyframes)} keyframes"
         errors = {}
-        for label, poses in variants(run).items():
+        for label, poses in variants(run, oracles_only).items():
             err, scale = keyframe_errors(run.seq, poses)
+            local = 100 * local_scale_errors(run.seq, poses)
             errors[label] = err
             ate = float(np.sqrt(np.mean(err ** 2)))
             base = float(np.sqrt(np.mean(errors["loop-closed pose graph"] ** 2))) if len(errors) > 1 else ate
-            print(f"| {name} | {label} | {ate:.4f} | {ate / base:.3f} | {scale:.4f} |", flush=True)
+            print(f"| {name} | {label} | {ate:.4f} | {ate / base:.3f} | {scale:.4f} | "
+                  f"{np.mean(local):+.3f} / {np.sqrt(np.mean(local ** 2)):.3f} / {np.max(np.abs(local)):.3f} |", flush=True)
         print(f"({name}: {time.perf_counter() - t0:.0f} s)", file=sys.stderr)
         panels.append((name, errors))
     if "--plot" in argv:
