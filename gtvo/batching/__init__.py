@@ -14,6 +14,8 @@ BLAS threads.
 
 from __future__ import annotations
 
+import dataclasses
+
 import json
 import os
 import sys
@@ -252,6 +254,8 @@ def _job(log: LogSpec, out_dir: Path, base: Any, max_frames: int | None, frame_s
     from gtvo.config import OdometryConfig  # noqa: PLC0415
 
     config = apply_overrides(base if base is not None else OdometryConfig(), log.config, where=where)
+    if config.window.parallel == "auto":  # one core per log (--jobs N on N cores) unless its config asks
+        config = dataclasses.replace(config, window=dataclasses.replace(config.window, parallel=False))
     if log.problem is None:  # the log folder's wheel.yaml, read like its calibration
         config, wheel_file = log_wheel_settings(log.path, config)
         if wheel_file is not None:
