@@ -251,7 +251,8 @@ def test_auto_moves_the_window_to_the_worker_where_keyframes_come_at_every_frame
     assert first.tobytes() == second.tobytes()
     assert all((cov1[k] is None and cov2[k] is None) or cov1[k].tobytes() == cov2[k].tobytes() for k in cov1)
     sequential, _, _ = run_vo(seq, False, cfg=config(False, every_frame=True))
-    before = AUTO_DECISION_KEYFRAME - 1  # the frames before the move: the sequential order's, to the bit
-    assert first[:before].tobytes() == sequential[:before].tobytes()
+    # the frames whose keyframes left the window before the move: the sequential order's, to the bit
+    before = AUTO_DECISION_KEYFRAME - OdometryConfig().window.size
+    assert first[:before].tobytes() == sequential[:before].tobytes() and first.tobytes() != sequential.tobytes()
     _, _, between = run_vo(imu_sequence, "auto")  # frames between keyframes: nothing overlaps
     assert not isinstance(between.window, WindowWorker)
