@@ -55,6 +55,15 @@ def test_a_short_run_and_the_forced_settings_never_move_the_window():
     assert decisions(False, [False] + [True] * 40) == []  # --no-parallel: the sequential order
 
 
+def test_the_fixed_lag_back_end_stays_where_it_started():
+    """Its iSAM2 smoother cannot move between processes: ``auto`` keeps it in this one."""
+    s = WindowSchedule(WindowConfig(parallel="auto", backend="fixed_lag"), PhotometricConfig(),
+                       PinholeCamera(100.0, 100.0, 50.0, 40.0, 100, 80))
+    for overlap in [False] + [True] * 30:
+        s.note_keyframe(overlap)
+        assert not s.moves_to_worker()
+
+
 @pytest.mark.parametrize("value", ["yes", 1, None])
 def test_parallel_takes_true_false_or_auto(value):
     from gtvo.core.settings import SettingError  # noqa: PLC0415

@@ -237,6 +237,8 @@ class LocalWindow:
         that starts from this window's state (its link, pickled; the sensors stay the front end's)."""
         if self._pending:
             raise RuntimeError("the window moves to its worker only after its updates were handed out")
+        if self.backend_name != "lm":
+            raise RuntimeError("the fixed-lag back end's smoother cannot move to another process")
         return WindowWorker(self.link.camera, self.link.config, link=self.link)
 
 

@@ -16,7 +16,8 @@ next frames: keyframes at every frame whose own stereo depths the next frames ma
 unrefined while the window runs in this process, and at the :data:`AUTO_DECISION_KEYFRAME`-th
 keyframe moves it to the worker when at least :data:`AUTO_MIN_OVERLAP` of them could
 (:meth:`WindowSchedule.moves_to_worker`): a count over the sequence, so two runs decide alike
-whatever the load; a short run (fewer keyframes) never pays a worker's start.
+whatever the load; a short run (fewer keyframes) never pays a worker's start. The LM back end
+only (the fixed-lag smoother's state does not move between processes).
 """
 
 from __future__ import annotations
@@ -69,8 +70,10 @@ class WindowSchedule:
     def moves_to_worker(self) -> bool:
         """True exactly once, at the :data:`AUTO_DECISION_KEYFRAME`-th keyframe of a run with
         ``window.parallel: auto``, when at least :data:`AUTO_MIN_OVERLAP` of the keyframes after the
-        first could have gone unrefined (module docstring): the window continues in a worker."""
-        if self.config.parallel != "auto" or self.keyframes != AUTO_DECISION_KEYFRAME:
+        first could have gone unrefined (module docstring): the window continues in a worker. The
+        LM back end only: the fixed-lag smoother's iSAM2 state cannot move to another process (with
+        it ``auto`` stays in this one; ``window.parallel: true`` starts it in the worker)."""
+        if self.config.parallel != "auto" or self.config.backend != "lm" or self.keyframes != AUTO_DECISION_KEYFRAME:
             return False
         return self.overlapping >= AUTO_MIN_OVERLAP * (self.keyframes - 1)
 
