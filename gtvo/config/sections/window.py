@@ -72,7 +72,8 @@ class WindowConfig:
             knows of the keyframes so far (:meth:`gtvo.odometry.window_schedule.WindowSchedule.moves_to_worker`:
             how many could have left their window to the second core, keyframes at every frame
             whose stereo depths suffice), whether the rest of the run overlaps the window with the
-            front end; then as ``true``. The decision depends on the sequence only, never on timing.
+            front end; then as ``true`` (the LM back end; the fixed-lag one stays in this process).
+            The decision depends on the sequence only, never on timing.
             ``true``: the window runs in a worker process beside the front end (the second core)
             from the first keyframe, and the front end applies the window's result of its ``n``-th
             keyframe once it has sent keyframe ``n + 2`` (at once when the next frames should not
