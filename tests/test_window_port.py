@@ -166,6 +166,7 @@ def _imu_state(window) -> tuple[str, int, bool]:
     return type(window.imu).__name__, len(window.imu.readings.times), window.imu.initialised
 
 
+@pytest.mark.slow
 def test_the_imu_goes_to_either_machine_and_a_worker_carries_its_own_copy():
     seq = make_synthetic_sequence(3, width=120, height=90, imu=ImuSimulation())
     imu = ImuWindow(seq.imu, ImuWindowSettings())
