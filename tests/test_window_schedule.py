@@ -10,7 +10,11 @@ import pytest
 
 from factors.params import PhotometricConfig
 from gtvo.core.camera import PinholeCamera
-from gtvo.odometry.window_schedule import AUTO_DECISION_KEYFRAME, AUTO_MIN_OVERLAP, WindowSchedule
+from gtvo.odometry.window_schedule import (
+    AUTO_DECISION_KEYFRAME,
+    AUTO_MIN_OVERLAP,
+    WindowSchedule,
+)
 from gtvo.window import WindowConfig
 
 
@@ -66,7 +70,7 @@ def test_the_fixed_lag_back_end_stays_where_it_started():
 
 @pytest.mark.parametrize("value", ["yes", 1, None])
 def test_parallel_takes_true_false_or_auto(value):
-    from gtvo.core.settings import SettingError  # noqa: PLC0415
+    from gtvo.core.settings import SettingError
 
     with pytest.raises(SettingError, match="must be true, false or 'auto'"):
         WindowConfig(parallel=value)

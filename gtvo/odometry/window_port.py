@@ -119,7 +119,7 @@ class WindowPort(Protocol):
         """``probe`` run on the window's :class:`gtvo.window.SlidingWindowOptimizer` as it is now,
         where it is (a worker: ``probe`` is pickled, so a module-level function), and its value."""
 
-    def on_second_core(self) -> "WindowPort":
+    def on_second_core(self) -> WindowPort:
         """This window continued on the second core, in a worker process, from its state now (every
         update handed out; ``window.parallel: auto``); a worker's window is itself. The port to use
         from now on; this one is not used again."""

@@ -255,7 +255,7 @@ class WindowWorker:
         """``probe`` (a module-level function: it is pickled) on the worker's window as it is now."""
         return self._ask(("inspect", probe))
 
-    def on_second_core(self) -> "WindowWorker":
+    def on_second_core(self) -> WindowWorker:
         """This window (it runs on the second core already)."""
         return self
 
