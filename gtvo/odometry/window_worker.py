@@ -8,8 +8,9 @@ pair) that owns its whole state (keyframes with their images, the marginal prior
 its copies of the window's sensors: the wheel calibration, the IMU; with ``--refine`` the
 keyframes that left, handed back by :meth:`WindowWorker.finish`). It starts from a
 :class:`gtvo.odometry.window_link.WindowLink` the front end gives it, new or with the state a window
-in this process reached (``window.parallel: auto``), sent once, pickled whole (its images as grey
-levels, the gradients built again bit for bit in the worker): whatever sensor the window has goes
+in this process reached (``window.parallel: auto``), pickled whole (its images as grey levels,
+the gradients built again bit for bit in the worker) into an anonymous file the worker reads once it
+is up (the front end does not wait for its start): whatever sensor the window has goes
 with it, and each update the worker hands out carries every sensor's
 :meth:`~gtvo.odometry.window_link.CarriedSensor.window_state` back to the front end's copy. The front end sends each new
 keyframe (pose, points, the keyframe it was tracked against) with its two images in grey levels
@@ -157,20 +158,22 @@ class WindowWorker:
         planes = 2 if stereo else 1
         self._slot_size = planes * self._shape[0] * self._shape[1] * 4
         self._memory, memory_fd = _shared_memory(SLOTS * self._slot_size)
+        state_fd = _state_file(window_bytes(link))  # read by the worker when it is up: the front end goes on
         parent_sock, child_sock = socket.socketpair()
         env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in sys.path if isinstance(p, str)))
         with interrupts_held():  # the worker starts with SIGINT blocked, then ignores it
             self._process = subprocess.Popen(
-                [sys.executable, "-c", _WORKER_MAIN, str(child_sock.fileno()), str(memory_fd)],
-                pass_fds=(child_sock.fileno(), memory_fd), stdin=subprocess.DEVNULL, env=env, close_fds=True)
+                [sys.executable, "-c", _WORKER_MAIN, str(child_sock.fileno()), str(memory_fd), str(state_fd)],
+                pass_fds=(child_sock.fileno(), memory_fd, state_fd), stdin=subprocess.DEVNULL, env=env,
+                close_fds=True)
         child_sock.close()
         os.close(memory_fd)
+        os.close(state_fd)
         self._conn = Connection(os.dup(parent_sock.fileno()))
         parent_sock.close()
         self._finalizer = weakref.finalize(self, _stop, self._conn, self._process, self._memory)
-        try:  # the worker's settings and its window: the one message without a reply
+        try:  # the worker's settings: the one message without a reply (its window is in its state file)
             self._conn.send(("start", camera, config, self._shape, SLOTS, self._slot_size))
-            self._conn.send_bytes(window_bytes(link))
         except OSError:
             raise self._died() from None
 
@@ -393,6 +396,21 @@ def _shared_memory(size: int) -> tuple[mmap.mmap, int]:
     return mmap.mmap(fd, size), fd
 
 
+def _state_file(data: bytes) -> int:
+    """An anonymous file holding ``data`` (the worker's starting window), its descriptor for the worker."""
+    if hasattr(os, "memfd_create"):
+        fd = os.memfd_create("gtvo-window-state", os.MFD_CLOEXEC)
+    else:  # pragma: no cover - not Linux: an unlinked temporary file
+        import tempfile  # noqa: PLC0415
+
+        with tempfile.TemporaryFile() as f:
+            fd = os.dup(f.fileno())
+    view = memoryview(data)
+    while view:
+        view = view[os.write(fd, view):]
+    return fd
+
+
 def _slot(memory: mmap.mmap, slot: int, slot_size: int, shape: tuple[int, int]) -> NDArray[np.float32]:
     """The images of shared slot ``slot`` as a (planes, H, W) float32 view."""
     return np.frombuffer(memory, dtype=np.float32, count=slot_size // 4, offset=slot * slot_size).reshape(-1, *shape)
@@ -402,15 +420,18 @@ def _slot(memory: mmap.mmap, slot: int, slot_size: int, shape: tuple[int, int]) 
 #: the run; this process follows its pipe), then :func:`serve` on the descriptors it was given.
 _WORKER_MAIN = ("import signal, sys; signal.signal(signal.SIGINT, signal.SIG_IGN); "
                 "signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT}); "
-                "from gtvo.odometry.window_worker import main; main(int(sys.argv[1]), int(sys.argv[2]))")
+                "from gtvo.odometry.window_worker import main; main(int(sys.argv[1]), int(sys.argv[2]), int(sys.argv[3]))")
 
 
-def main(socket_fd: int, memory_fd: int) -> None:
-    """The worker process: its pipe and shared memory from the parent, then :func:`serve`."""
+def main(socket_fd: int, memory_fd: int, state_fd: int) -> None:
+    """The worker process: its pipe, shared memory and starting window (``state_fd``: the pickled
+    :class:`gtvo.odometry.window_link.WindowLink`, :func:`window_bytes`) from the parent, then :func:`serve`."""
     conn = Connection(socket_fd)
+    with os.fdopen(state_fd, "rb") as state:
+        state.seek(0)
+        link: WindowLink = pickle.load(state)
     try:
         kind, camera, config, shape, slots, slot_size = conn.recv()
-        link: WindowLink = pickle.loads(conn.recv_bytes())
     except (EOFError, OSError):
         return
     memory = mmap.mmap(memory_fd, slots * slot_size)
