@@ -24,15 +24,19 @@ from tests.test_batch_interrupt import end_group, live_processes_in_group
 from tests.test_cli import copy_with_truncated_frame
 
 
-def config(parallel: bool, worker_threads: int | None = None) -> OdometryConfig:
+def config(parallel: bool | str, worker_threads: int | None = None, every_frame: bool = False) -> OdometryConfig:
+    """The default settings with ``window.parallel``; ``every_frame``: a keyframe at every frame (as
+    KITTI at 10 Hz makes them)."""
     base = OdometryConfig()
+    keyframes = dataclasses.replace(base.keyframes, max_motion=0.0) if every_frame else base.keyframes
     return dataclasses.replace(base, window=dataclasses.replace(base.window, parallel=parallel,
-                                                                worker_threads=worker_threads))
+                                                                worker_threads=worker_threads), keyframes=keyframes)
 
 
-def run_vo(seq, parallel: bool, worker_threads: int | None = None
+def run_vo(seq, parallel: bool | str, worker_threads: int | None = None, cfg: OdometryConfig | None = None
            ) -> tuple[np.ndarray, dict[int, np.ndarray], VisualOdometry]:
-    with VisualOdometry(seq.camera, config(parallel, worker_threads)) as vo:
+    cfg = cfg or config(parallel, worker_threads)
+    with VisualOdometry(seq.camera, cfg, imu=getattr(seq, "imu", None)) as vo:
         for frame in seq:
             vo.process(frame)
         vo.finish()
@@ -162,14 +166,17 @@ def test_no_parallel_flag_and_config_key(tmp_path):
     from gtvo.config import as_config  # noqa: PLC0415
 
     assert as_config({"window": {"parallel": True}}).window.parallel is True
-    assert OdometryConfig().window.parallel is False
+    assert as_config({"window": {"parallel": "auto"}}).window.parallel == "auto"
+    assert OdometryConfig().window.parallel == "auto"
 
 
 def test_a_batch_log_runs_its_window_in_its_own_process_unless_its_config_asks():
+    from gtvo.batching import one_core_per_log  # noqa: PLC0415
     from gtvo.batching.overrides import apply_overrides  # noqa: PLC0415
 
-    assert apply_overrides(OdometryConfig(), None).window.parallel is False  # one core per log
-    assert apply_overrides(OdometryConfig(), {"window": {"parallel": True}}).window.parallel is True
+    assert one_core_per_log(apply_overrides(OdometryConfig(), None)).window.parallel is False  # one core per log
+    asked = apply_overrides(OdometryConfig(), {"window": {"parallel": True}})
+    assert one_core_per_log(asked).window.parallel is True
 
 
 def test_a_parallel_runs_summary_says_what_the_worker_spent_and_a_sequential_one_has_no_worker():
@@ -187,3 +194,65 @@ def test_a_parallel_runs_summary_says_what_the_worker_spent_and_a_sequential_one
     assert parallel["seconds_by_stage"].get("linearisation", 0.0) == 0.0  # not the front end's
     _, _, sequential = process_sequence(seq, OdometryConfig(), warn=lambda m: None)
     assert "window_worker" not in sequential and sequential["seconds_by_stage"]["linearisation"] > 0.0
+
+
+@pytest.fixture(scope="module")
+def imu_sequence():
+    """A fast-turning synthetic log with its IMU (docs/imu.md), small: 18 frames, 1.7 s."""
+    from gtvo.datasets.synthetic_imu import ImuSimulation  # noqa: PLC0415
+
+    return make_synthetic_sequence(n_frames=18, width=160, height=120, motion="swerve", imu=ImuSimulation())
+
+
+@pytest.mark.slow
+def test_the_imu_rides_with_the_window_in_its_worker(imu_sequence):
+    """Where no keyframe's window overlaps the next frames (frames between keyframes) the worker's
+    order is the sequential one: the same bytes. With keyframes at every frame the front end
+    tracks on with the IMU's state two keyframes old: the same bytes every run and under load,
+    within 5 mm (a quarter of the log's ATE scale) of the sequential run's, and the IMU initialised alike."""
+    sequential, _, seq_vo = run_vo(imu_sequence, False)
+    parallel, _, vo = run_vo(imu_sequence, True)
+    assert isinstance(vo.window, WindowWorker) and vo.imu.initialised and seq_vo.imu.initialised
+    assert vo.keyframer.schedule.overlapping == 0 and parallel.tobytes() == sequential.tobytes()
+    every = config(False, every_frame=True)
+    sequential, _, seq_vo = run_vo(imu_sequence, False, cfg=every)
+    first, _, vo = run_vo(imu_sequence, True, cfg=dataclasses.replace(every, window=dataclasses.replace(
+        every.window, parallel=True)))
+    assert vo.keyframer.schedule.overlapping >= 14 and vo.imu.initialised and vo.imu.init_kind == seq_vo.imu.init_kind
+    assert vo.imu.factors_added > 0 and set(vo.imu.biases) >= {vo.keyframes[-1].index}
+    load = busy_loops(3)
+    try:
+        second, _, _ = run_vo(imu_sequence, True, cfg=vo.config)
+    finally:
+        for p in load:
+            p.kill()
+            p.wait()
+    assert first.tobytes() == second.tobytes()
+    assert 0 < np.max(np.abs(first[:, :3, 3] - sequential[:, :3, 3])) < 0.005
+    assert np.allclose(vo.imu.gravity, seq_vo.imu.gravity, atol=0.02)
+
+
+@pytest.mark.slow
+def test_auto_moves_the_window_to_the_worker_where_keyframes_come_at_every_frame(imu_sequence):
+    """The default (``auto``): sequential up to the decision keyframe, then the worker; the same
+    bytes in every run and under load; a log with frames between keyframes never starts one."""
+    from gtvo.odometry.window_schedule import AUTO_DECISION_KEYFRAME  # noqa: PLC0415
+
+    seq = make_synthetic_sequence(n_frames=AUTO_DECISION_KEYFRAME + 4, width=160, height=120)
+    first, cov1, vo = run_vo(seq, "auto", cfg=config("auto", every_frame=True))
+    assert isinstance(vo.window, WindowWorker) and vo.keyframer.schedule.keyframes == len(seq)
+    load = busy_loops(3)
+    try:
+        second, cov2, _ = run_vo(seq, "auto", cfg=vo.config)
+    finally:
+        for p in load:
+            p.kill()
+            p.wait()
+    assert first.tobytes() == second.tobytes()
+    assert all((cov1[k] is None and cov2[k] is None) or cov1[k].tobytes() == cov2[k].tobytes() for k in cov1)
+    sequential, _, _ = run_vo(seq, False, cfg=config(False, every_frame=True))
+    # the frames whose keyframes left the window before the move: the sequential order's, to the bit
+    before = AUTO_DECISION_KEYFRAME - OdometryConfig().window.size
+    assert first[:before].tobytes() == sequential[:before].tobytes() and first.tobytes() != sequential.tobytes()
+    _, _, between = run_vo(imu_sequence, "auto")  # frames between keyframes: nothing overlaps
+    assert not isinstance(between.window, WindowWorker)

@@ -1,8 +1,9 @@
 """The window's one port (gtvo/odometry/window_port.py): the window in this process and in a worker
 process are both a ``WindowPort``; the keyframer drives either the same way; what the worker holds
 (poses, covariances, the rig offset, the wheel calibration, every keyframe for the whole-log
-refinement) comes back through the port, so wheel odometry and ``--refine`` run with ``--parallel``,
-the same bytes in every run."""
+refinement, the IMU's state) comes back through the port, so wheel odometry, the IMU and
+``--refine`` run with ``--parallel``, the same bytes in every run; a window in this process moves
+to a worker from its state (``window.parallel: auto``) and continues there as it would have here."""
 
 from __future__ import annotations
 
@@ -28,7 +29,8 @@ from gtvo.odometry.keyframe_points import frame_points
 from gtvo.odometry.window_link import KeyframeForWindow
 from gtvo.odometry.window_port import LocalWindow, WindowPort, open_window
 from gtvo.odometry.window_worker import WindowWorker
-from gtvo.window.imu import ImuWindow, ImuWindowSettings
+from gtvo.window.imu import ImuWindow, ImuWindowSettings, _Seen
+from gtvo.window.wheel import WheelCalibration, WheelSettings
 
 
 def config(parallel: bool, refine: bool = False) -> OdometryConfig:
@@ -158,14 +160,82 @@ def test_wheels_and_the_refinement_run_with_the_parallel_window_the_same_bytes_e
         assert par[name] == pytest.approx(seq_[name], abs=0.02), name
 
 
-def test_the_imu_goes_to_the_local_window_and_a_parallel_one_refuses_it_in_one_line():
+def _imu_state(window) -> tuple[str, int, bool]:
+    """A probe run on the window where it is (pickled: module level): its IMU's type, readings, and
+    whether it is the window's own copy."""
+    return type(window.imu).__name__, len(window.imu.readings.times), window.imu.initialised
+
+
+@pytest.mark.slow
+def test_the_imu_goes_to_either_machine_and_a_worker_carries_its_own_copy():
     seq = make_synthetic_sequence(3, width=120, height=90, imu=ImuSimulation())
     imu = ImuWindow(seq.imu, ImuWindowSettings())
     local = open_window(seq.camera, config(parallel=False), imu=imu)
+    worker = open_window(seq.camera, config(parallel=True), imu=imu)
     try:
         assert isinstance(local, LocalWindow) and local.optimizer.imu is imu
+        assert isinstance(worker, WindowWorker) and worker.sensors == (imu,)  # the front end's, updated
+        assert worker.inspect(_imu_state) == local.inspect(_imu_state) == ("ImuWindow", len(seq.imu.times), False)
     finally:
-        local.close()
-    with pytest.raises(InputError, match=r"^window\.parallel does not carry the IMU yet: run it with --no-parallel "
-                                         r"\(window\.parallel: false\) or --no-imu$"):
-        open_window(seq.camera, config(parallel=True), imu=imu)
+        worker.close()
+    with pytest.raises(InputError, match=r"^the IMU is used by the 'lm' window backend only: drop --window-backend "
+                                         r"fixed-lag or add --no-imu$"):
+        fixed_lag = dataclasses.replace(config(parallel=True), window=dataclasses.replace(
+            config(parallel=True).window, backend="fixed_lag"))
+        open_window(seq.camera, fixed_lag, imu=imu)
+
+
+def test_a_sensors_window_state_brings_a_copy_up_to_date():
+    """What the worker hands back of the IMU (:meth:`ImuWindow.window_state`) makes the front end's
+    copy predict as the worker's does, bit for bit, and report its biases; the wheel calibration's
+    carries its estimate."""
+    seq = make_synthetic_sequence(3, width=120, height=90, imu=ImuSimulation())
+    worker_copy, front = ImuWindow(seq.imu, ImuWindowSettings()), ImuWindow(seq.imu, ImuWindowSettings())
+    assert front.predict_at(0.15) is None
+    worker_copy.gravity0 = np.array([0.0, 9.80665, 0.0])
+    worker_copy.tilt = np.array([0.01, 0.0, -0.02])
+    for i in range(3):
+        worker_copy.velocities[i] = np.array([0.0, 0.0, 1.0 + i])
+        worker_copy.biases[i] = np.full(6, 0.01 * i)
+        worker_copy._seen[i] = _Seen(0.1 * i, gtsam.Pose3(seq.gt_poses[i]))
+    front.take_window_state(worker_copy.window_state([1, 2]))  # the window's keyframes: 1 and 2
+    assert front.initialised and set(front.velocities) == set(front.biases) == {1, 2}
+    expected, got = worker_copy.predict_at(0.15), front.predict_at(0.15)
+    assert expected is not None and np.array_equal(expected.matrix(), got.matrix())
+    assert front.report()["gyro_bias"] == worker_copy.report()["gyro_bias"]
+    wheel_front, wheel_worker = WheelCalibration(WheelSettings(np.eye(4)), None), WheelCalibration(WheelSettings(np.eye(4)), None)
+    wheel_worker.estimate = wheel_worker.estimate * 1.01
+    wheel_front.take_window_state(wheel_worker.window_state([1, 2]))
+    assert np.array_equal(wheel_front.estimate, wheel_worker.estimate)
+
+
+@pytest.mark.slow
+def test_a_window_moved_to_a_worker_continues_there_as_it_would_have_here():
+    """``window.parallel: auto``: a window in this process moves to a worker with its state (images
+    as grey levels, gradients built again) and its next optimisation there equals, to the bit, the
+    one the window in this process makes."""
+    seq = make_synthetic_sequence(n_frames=3, width=160, height=120, step_m=0.1)
+    here, moved = LocalWindow(seq.camera, config(False)), LocalWindow(seq.camera, config(False))
+    for window in (here, moved):
+        for request in requests(seq):
+            window.join(request, optimize=request.index == 1)
+        (update,) = window.due()
+    third = dataclasses.replace(requests(seq)[1], index=2, timestamp=0.2, T_world_cam=gtsam.Pose3(seq.gt_poses[2]),
+                                tracked=(1, np.zeros(2)), anchor=(1, update.members[-1].pose.matrix()))
+    frame = seq.frame(2)
+    third.left, third.right = to_float_gray(frame.left, "left"), to_float_gray(frame.right, "right")
+    third.points = frame_points(frame, third.left, third.right, seq.camera, OdometryConfig())
+    worker = moved.on_second_core()
+    try:
+        assert isinstance(worker, WindowWorker) and worker.on_second_core() is worker
+        assert worker.keyframe_indices() == [0, 1] and worker.covariances.keys() == here.covariances.keys()
+        here.join(third, optimize=True)
+        worker.join(third, optimize=True)
+        (a,), (b,) = here.due(), worker.due(now=True)
+        assert [m.index for m in a.members] == [m.index for m in b.members] == [0, 1, 2]
+        for x, y in zip(a.members, b.members):
+            assert x.pose.matrix().tobytes() == y.pose.matrix().tobytes()
+            assert x.inverse_depth.tobytes() == y.inverse_depth.tobytes()
+        assert a.result.cost == b.result.cost and a.result.initial_cost == b.result.initial_cost
+    finally:
+        worker.close()

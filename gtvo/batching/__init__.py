@@ -14,6 +14,8 @@ BLAS threads.
 
 from __future__ import annotations
 
+import dataclasses
+
 import json
 import os
 import sys
@@ -246,12 +248,21 @@ def _check_jobs(jobs: int | None) -> int:
     return jobs
 
 
+def one_core_per_log(config: Any) -> Any:
+    """``config`` for one log of a batch: ``window.parallel: auto`` runs as ``false`` (``--jobs N``
+    on N cores keeps one core per log); ``true``, which a log's config may ask for, stays."""
+    if config.window.parallel != "auto":
+        return config
+    return dataclasses.replace(config, window=dataclasses.replace(config.window, parallel=False))
+
+
 def _job(log: LogSpec, out_dir: Path, base: Any, max_frames: int | None, frame_step: int, loop_closure: bool,
          where: str) -> dict[str, Any]:
     """The worker's job for ``log``: resolved configuration, options, output folder, identity key."""
     from gtvo.config import OdometryConfig  # noqa: PLC0415
 
     config = apply_overrides(base if base is not None else OdometryConfig(), log.config, where=where)
+    config = one_core_per_log(config)
     if log.problem is None:  # the log folder's wheel.yaml, read like its calibration
         config, wheel_file = log_wheel_settings(log.path, config)
         if wheel_file is not None:

@@ -70,20 +70,31 @@ class GravityAlignment:
 
 
 def gravity_alignment(vo: "VisualOdometry") -> GravityAlignment | None:
-    """The run's output rotation (module doc), None without an initialised IMU."""
+    """The run's output rotation (module doc), None without an initialised IMU. An IMU not
+    initialised by the run's end is tried once more on the final window's keyframes (a static log
+    makes one keyframe), where the window is (in a worker too: :meth:`gtvo.odometry.window_port.WindowPort.inspect`)."""
     imu: ImuWindow | None = getattr(vo, "imu", None)
     if imu is None:
         return None
-    window = _optimizer(vo)
-    if not imu.initialised and window is not None:
-        imu.try_initialise(list(window.keyframes), finishing=True)
+    if not imu.initialised and vo.window is not None:
+        state = vo.window.inspect(_initialised_at_end)
+        if state is not None:
+            imu.take_window_state(state)
     return None if imu.gravity is None else GravityAlignment.of_gravity(imu.gravity)
 
 
-def _optimizer(vo: "VisualOdometry") -> Any:
-    """The run's :class:`gtvo.window.SlidingWindowOptimizer` (the IMU runs only in a window in this
-    process: :class:`gtvo.odometry.window_port.LocalWindow`), None without one."""
-    return getattr(vo.window, "optimizer", None)
+def _initialised_at_end(window: Any) -> Any:
+    """On the window (a :class:`gtvo.window.SlidingWindowOptimizer`): its IMU initialised on its
+    keyframes as the run ends, and its state for the front end's copy; None without an IMU."""
+    if window.imu is None:
+        return None
+    window.imu.try_initialise(list(window.keyframes), finishing=True)
+    return window.imu.window_state([k.index for k in window.keyframes])
+
+
+def _final_covariances(window: Any) -> tuple[FloatArray | None, FloatArray | None]:
+    """On the window: :func:`imu_covariances` of its IMU (None, None without one)."""
+    return (None, None) if window.imu is None else imu_covariances(window.imu, window)
 
 
 def gravity_aligned(result: OdometryResult) -> OdometryResult:
@@ -129,7 +140,7 @@ def imu_report(vo: "VisualOdometry") -> dict[str, Any]:
     if imu is None:
         return {}
     alignment = gravity_alignment(vo)
-    figures = imu.report(*imu_covariances(imu, _optimizer(vo)))
+    figures = imu.report(*(vo.window.inspect(_final_covariances) if vo.window is not None else (None, None)))
     readings = imu.readings
     figures.update({
         "source": getattr(readings, "source", None),

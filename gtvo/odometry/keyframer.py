@@ -10,7 +10,8 @@ releases the rig offset's ``delta_x``, the window keyframes' depths are searched
 corrected right image. The rig offset itself lives in the window (``window.rig``).
 
 The window is a :class:`gtvo.odometry.window_port.WindowPort`: in this process or in a worker
-process beside the front end (``window.parallel``), the keyframer drives both the same way. A
+process beside the front end (``window.parallel``; with ``auto`` the schedule moves it there when
+keyframes come often enough for it to pay), the keyframer drives both the same way. A
 keyframe joins; the updates that are due come back and are written to the keyframes; a parallel
 window's update is older than the front end's newest keyframes, which move with the update's newest
 keyframe (in this process every update is due at once and that move is none).
@@ -219,9 +220,12 @@ class Keyframer:
         # the next frames may track against its stereo depths, or it waits for its window now
         lag = last is not None and self.schedule.may_go_unrefined(tracked is not None, follows, last.T_world_cam,
                                                                    T_world_cam, pts)
+        self.schedule.note_keyframe(lag)
         updates = self.window.due(now=not lag)
         for update in updates:
             T_world_cam = self._apply(update, T_world_cam)
+        if self.schedule.moves_to_worker():  # window.parallel: auto, and keyframes come often enough
+            self.window = self.window.on_second_core()
         new = updates[-1].members[-1] if updates else None
         if new is not None and new.index == frame.index:  # its own optimisation: its pose and depths
             return new.pose, dataclasses.replace(pts, inverse_depth=new.inverse_depth.copy())

@@ -49,6 +49,7 @@ from gtvo.odometry.motion import MotionModel
 from gtvo.odometry.result import MapKeyframe, keyframe_map
 from gtvo.odometry.view import OdometryView
 from gtvo.odometry.wheel import wheel_calibration
+from gtvo.odometry.window_port import WindowPort
 from gtvo.window.imu import ImuWindow, imu_window_settings
 
 
@@ -86,7 +87,8 @@ class VisualOdometry:
         estimates: one :class:`FrameEstimate` per processed frame (``history.estimates``).
         keyframes: every keyframe made so far (``keyframer.keyframes``).
         window: the sliding window's port (:class:`gtvo.odometry.window_port.WindowPort`; window
-            mode), else None: the window in this process, or with ``window.parallel`` in a worker
+            mode; the keyframer's, which ``window.parallel: auto`` may move to a worker during the
+            run), else None: the window in this process, or with ``window.parallel`` in a worker
             process (its state as of its last update handed out; call :meth:`close`, or use the
             odometry as a context manager, to end the worker early). Its ``rig`` is the rig
             offset's estimate when the window calibrates the rig.
@@ -125,7 +127,6 @@ class VisualOdometry:
         self.keyframer = Keyframer(camera, self.config, self.history, self.wheel, self.imu)
         self.estimates = self.history.estimates
         self.keyframes = self.keyframer.keyframes
-        self.window = self.keyframer.window
         self.window_results = self.keyframer.window_results
         self.failures = 0
         self.lost_frames = 0
@@ -149,6 +150,11 @@ class VisualOdometry:
         still follow (the next keyframe joins the window as usual)."""
         with self.clock.activate("other") if self.clock is not None else nullcontext(), single_threaded_blas():
             self.keyframer.finish()
+
+    @property
+    def window(self) -> WindowPort | None:
+        """The sliding window's port (class docstring), None in track mode."""
+        return self.keyframer.window
 
     def close(self) -> None:
         """End the window's worker process (``window.parallel``; it also ends when this object is

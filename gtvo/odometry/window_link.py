@@ -13,6 +13,7 @@ docs/window.md, "The window beside the tracker").
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any, Protocol, Sequence
 
 import gtsam
 import numpy as np
@@ -33,6 +34,10 @@ from gtvo.window.imu import ImuWindow
 from gtvo.window.wheel import WheelCalibration
 
 FloatArray = NDArray[np.float64]
+
+#: Two poses whose 4x4 matrices differ by no more than this (rad, m) in every entry are the same
+#: pose for :meth:`WindowLink._placed` (the front end's copy of a window pose, re-orthonormalised).
+SAME_POSE = 1e-12
 
 
 @dataclass
@@ -86,6 +91,10 @@ class WindowUpdate:
         tracked_scales: when the rig offset's ``delta_x`` was released: per keyframe index, the
             scale by which the frames tracked against it move (:mod:`gtvo.window.depth_change`).
         rig: the rig offset after the optimisation (None: not estimated).
+        sensor_states: a window in a worker process: per sensor of the window
+            (:attr:`gtvo.window.SlidingWindowOptimizer.sensors`, in order), what the front end
+            reads of it (:meth:`CarriedSensor.window_state`); None in this process (the sensors
+            are the front end's own).
     """
 
     members: list[WindowMember]
@@ -93,6 +102,21 @@ class WindowUpdate:
     observed: dict[int, NDArray[np.int64]]
     tracked_scales: dict[int, float] | None
     rig: RigOffset | None
+    sensor_states: list[Any] | None = None
+
+
+class CarriedSensor(Protocol):
+    """A window sensor (:class:`gtvo.window.problem.WindowSensor`) that a window in a worker process
+    carries: the worker estimates its own copy, and each update it hands out brings the front end's
+    copy up to date (the wheel calibration, :class:`gtvo.window.wheel.WheelCalibration`; the IMU,
+    :class:`gtvo.window.imu.ImuWindow`)."""
+
+    def window_state(self, indices: Sequence[int]) -> Any:
+        """What the front end reads of the sensor between updates, as plain data (``indices``: the
+        window's keyframes, for per-keyframe estimates)."""
+
+    def take_window_state(self, state: Any) -> None:
+        """Take a copy's :meth:`window_state` as this sensor's."""
 
 
 class WindowLink:
@@ -162,13 +186,17 @@ class WindowLink:
 
     def _placed(self, request: KeyframeForWindow) -> gtsam.Pose3:
         """The new keyframe's pose in the window: as given, or (``anchor``) moved with its anchor
-        keyframe from where the front end knew it to where the window has it."""
+        keyframe from where the front end knew it to where the window has it; not moved when the two
+        agree to :data:`SAME_POSE` (every update applied already: a correction of rounding errors
+        only, which would make the window's order differ from the sequential one in the last bits)."""
         if request.anchor is None:
             return request.T_world_cam
         index, T_front = request.anchor
         found = [w.pose for w in self.window.keyframes if w.index == index]
         if not found:
             return request.T_world_cam
+        if np.allclose(found[0].matrix(), T_front, rtol=0.0, atol=SAME_POSE):
+            return request.T_world_cam  # the window has the anchor where the front end does: the sequential order
         correction = found[0].compose(gtsam.Pose3(T_front).inverse())
         return correction.compose(request.T_world_cam)
 

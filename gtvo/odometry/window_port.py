@@ -4,23 +4,27 @@ The keyframer drives the window through :class:`WindowPort` and nothing else, wh
 runs it (DSO hands a tracked frame to its mapper in one place, whatever the threading):
 
 * :class:`LocalWindow`: the window (:class:`gtvo.odometry.window_link.WindowLink`) in this
-  process; every optimisation's update is due at once (``window.parallel: false``).
+  process; every optimisation's update is due at once (``window.parallel: false``, and ``auto``
+  until the schedule decides).
 * :class:`gtvo.odometry.window_worker.WindowWorker`: the same link in a worker process beside the
   front end; an update is due :data:`gtvo.odometry.window_worker.LAG` keyframes later
-  (``window.parallel: true``; docs/window.md, "The window beside the tracker").
+  (``window.parallel: true``, and ``auto`` once the schedule moves the window there:
+  :meth:`WindowPort.on_second_core`; docs/window.md, "The window beside the tracker").
 
 The port speaks plain data: a :class:`~gtvo.odometry.window_link.KeyframeForWindow` joins
 (:meth:`WindowPort.join`), :class:`~gtvo.odometry.window_link.WindowUpdate` s come back when they
 are due (:meth:`WindowPort.due`), and all at the run's end (:meth:`WindowPort.finish`). What the rest of the
 run reads of the window (the rig offset, the wheel calibration, the keyframes' covariances, every
 keyframe for the whole-log refinement, the marginal covariances for the report) is the port's
-state, as of the updates handed out so far. :func:`open_window` picks the machine from the settings.
+state, as of the updates handed out so far; what else the run asks of the window's state (the IMU's
+figures at the end) is a function run on it where it is (:meth:`WindowPort.inspect`).
+:func:`open_window` picks the machine from the settings.
 """
 
 from __future__ import annotations
 
 import dataclasses
-from typing import Protocol, runtime_checkable
+from typing import Callable, Protocol, TypeVar, runtime_checkable
 
 import numpy as np
 from numpy.typing import NDArray
@@ -29,13 +33,13 @@ from gtvo.config import OdometryConfig
 from gtvo.core.camera import PinholeCamera, StereoCamera
 from gtvo.odometry.window_link import KeyframeForWindow, WindowLink, WindowUpdate
 from gtvo.odometry.window_worker import WindowWorker, WorkerUsage
-from gtvo.errors import InputError
 from gtvo.window import SlidingWindowOptimizer, WindowKeyframe, WindowSolverName
 from gtvo.window.imu import ImuWindow
 from gtvo.window.rig import RigOffset
 from gtvo.window.wheel import WheelCalibration
 
 FloatArray = NDArray[np.float64]
+T = TypeVar("T")
 
 
 @runtime_checkable
@@ -110,6 +114,15 @@ class WindowPort(Protocol):
 
     def worker_usage(self) -> WorkerUsage | None:
         """The worker process's own figures (CPU, memory, stages); None for a window in this process."""
+
+    def inspect(self, probe: Callable[[SlidingWindowOptimizer], T]) -> T:
+        """``probe`` run on the window's :class:`gtvo.window.SlidingWindowOptimizer` as it is now,
+        where it is (a worker: ``probe`` is pickled, so a module-level function), and its value."""
+
+    def on_second_core(self) -> WindowPort:
+        """This window continued on the second core, in a worker process, from its state now (every
+        update handed out; ``window.parallel: auto``); a worker's window is itself. The port to use
+        from now on; this one is not used again."""
 
 
 class LocalWindow:
@@ -215,21 +228,32 @@ class LocalWindow:
         """None: no worker."""
         return None
 
+    def inspect(self, probe: Callable[[SlidingWindowOptimizer], T]) -> T:
+        """:meth:`WindowPort.inspect`: ``probe`` on the window in this process."""
+        return probe(self.link.window)
+
+    def on_second_core(self) -> WindowWorker:
+        """:meth:`WindowPort.on_second_core`: a :class:`gtvo.odometry.window_worker.WindowWorker`
+        that starts from this window's state (its link, pickled; the sensors stay the front end's)."""
+        if self._pending:
+            raise RuntimeError("the window moves to its worker only after its updates were handed out")
+        if self.backend_name != "lm":
+            raise RuntimeError("the fixed-lag back end's smoother cannot move to another process")
+        return WindowWorker(self.link.camera, self.link.config, link=self.link)
+
 
 def open_window(camera: StereoCamera | PinholeCamera, config: OdometryConfig,
                 wheel: WheelCalibration | None = None, imu: ImuWindow | None = None) -> WindowPort:
     """The window's machine for ``config``: a :class:`gtvo.odometry.window_worker.WindowWorker`
-    with ``window.parallel``, else a :class:`LocalWindow`. ``wheel``: the wheel calibration the
+    with ``window.parallel: true``, else a :class:`LocalWindow` (with ``auto`` the schedule may move
+    it to a worker later: :meth:`WindowPort.on_second_core`). ``wheel``: the wheel calibration the
     window estimates (the LM back end's; the fixed-lag back end leaves it at its prior); ``imu``:
     the IMU's owner in the window (:class:`gtvo.window.imu.ImuWindow`), or None.
 
     Raises:
-        InputError: an IMU with ``window.parallel`` (the worker does not carry it).
+        InputError: the IMU with the fixed-lag back end (:meth:`gtvo.window.SlidingWindowOptimizer.use_imu`).
     """
     wheel = wheel if config.window.backend == "lm" else None
-    if config.window.parallel:
-        if imu is not None:
-            raise InputError("window.parallel does not carry the IMU yet: run it with --no-parallel "
-                             "(window.parallel: false) or --no-imu")
-        return WindowWorker(camera, config, wheel)
+    if config.window.parallel is True:
+        return WindowWorker(camera, config, wheel, imu)
     return LocalWindow(camera, config, wheel, imu)

@@ -6,6 +6,18 @@ tracked (not re-initialised), comes right after the last keyframe (keyframes at 
 at 10 Hz: no frame was tracked against a keyframe the window has not refined) and its own stereo
 depths suffice to track the next frame against (:meth:`WindowSchedule.depths_suffice`). The LM
 back end only; the fixed-lag smoother updates at every keyframe.
+
+**Where the window runs** (``window.parallel: auto``, docs/window.md, "The window beside the
+tracker"). A window in a worker process pays only where its optimisation overlaps the front end's
+next frames: keyframes at every frame whose own stereo depths the next frames may track against
+(:meth:`WindowSchedule.may_go_unrefined`). Where a keyframe's window must be waited for at once
+(frames between keyframes, steps too long for the stereo depths) the worker only adds its hand-over
+(0.83-0.89x the sequential frames/s). The schedule counts the keyframes that could have gone
+unrefined while the window runs in this process, and at the :data:`AUTO_DECISION_KEYFRAME`-th
+keyframe moves it to the worker when at least :data:`AUTO_MIN_OVERLAP` of them could
+(:meth:`WindowSchedule.moves_to_worker`): a count over the sequence, so two runs decide alike
+whatever the load; a short run (fewer keyframes) never pays a worker's start. The LM back end
+only (the fixed-lag smoother's state does not move between processes).
 """
 
 from __future__ import annotations
@@ -18,6 +30,14 @@ from gtvo.core.camera import PinholeCamera
 from gtvo.frontend import KeyframePoints
 from gtvo.window import WindowConfig
 
+#: ``window.parallel: auto`` decides at this keyframe (counted from 1): after two windows of the
+#: default size, when the start (the rig offset's first test, the first marginalisations) is over and
+#: a worker's start (about a second of CPU on the other core) still has a run ahead to pay for.
+AUTO_DECISION_KEYFRAME = 15
+#: ... for the worker when at least this fraction of the keyframes after the first could have gone
+#: unrefined (KITTI at 10 Hz: all of them; frames between keyframes, TUM and EuRoC: none).
+AUTO_MIN_OVERLAP = 0.75
+
 
 class WindowSchedule:
     """Counts the keyframes waiting for the window's optimisation and decides whether the next may wait.
@@ -29,6 +49,9 @@ class WindowSchedule:
 
     Attributes:
         waiting: keyframes that joined the window since its last optimisation.
+        keyframes: keyframes that joined the window so far.
+        overlapping: of those, the ones whose next frames could track against their own stereo
+            depths (:meth:`may_go_unrefined`): with a worker, their windows overlap the front end.
     """
 
     def __init__(self, config: WindowConfig, photometric: PhotometricConfig, camera: PinholeCamera) -> None:
@@ -36,6 +59,23 @@ class WindowSchedule:
         self.photometric = photometric
         self.camera = camera
         self.waiting = 0
+        self.keyframes = 0
+        self.overlapping = 0
+
+    def note_keyframe(self, could_go_unrefined: bool) -> None:
+        """Count a keyframe that joined the window (and whether :meth:`may_go_unrefined` said yes)."""
+        self.keyframes += 1
+        self.overlapping += int(could_go_unrefined)
+
+    def moves_to_worker(self) -> bool:
+        """True exactly once, at the :data:`AUTO_DECISION_KEYFRAME`-th keyframe of a run with
+        ``window.parallel: auto``, when at least :data:`AUTO_MIN_OVERLAP` of the keyframes after the
+        first could have gone unrefined (module docstring): the window continues in a worker. The
+        LM back end only: the fixed-lag smoother's iSAM2 state cannot move to another process (with
+        it ``auto`` stays in this one; ``window.parallel: true`` starts it in the worker)."""
+        if self.config.parallel != "auto" or self.config.backend != "lm" or self.keyframes != AUTO_DECISION_KEYFRAME:
+            return False
+        return self.overlapping >= AUTO_MIN_OVERLAP * (self.keyframes - 1)
 
     def may_wait(self, tracked: bool, follows_last_keyframe: bool, T_last_keyframe: gtsam.Pose3,
                  T_new: gtsam.Pose3, points: KeyframePoints) -> bool:

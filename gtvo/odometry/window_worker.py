@@ -1,11 +1,18 @@
 """The window beside the tracker: a :class:`gtvo.odometry.window_link.WindowLink` in a worker
 process, one of the two machines behind :class:`gtvo.odometry.window_port.WindowPort`.
 
-``window.parallel: true`` (docs/window.md, "The window beside the tracker"). The window's host
-factors hold the GIL, so a thread would not run them beside the tracker: the window lives in a
-worker process (``python -c`` on a socket pair) that owns its whole state (keyframes with their
-images, the marginal prior, the rig offset, its copy of the wheel calibration; with ``--refine``
-the keyframes that left, handed back by :meth:`WindowWorker.finish`). The front end sends each new
+``window.parallel: true``, or ``auto`` once the schedule moves the window here (docs/window.md,
+"The window beside the tracker"). The window's host factors hold the GIL, so a thread would not
+run them beside the tracker: the window lives in a worker process (``python -c`` on a socket
+pair) that owns its whole state (keyframes with their images, the marginal prior, the rig offset,
+its copies of the window's sensors: the wheel calibration, the IMU; with ``--refine`` the
+keyframes that left, handed back by :meth:`WindowWorker.finish`). It starts from a
+:class:`gtvo.odometry.window_link.WindowLink` the front end gives it, new or with the state a window
+in this process reached (``window.parallel: auto``), pickled whole (its images as grey levels,
+the gradients built again bit for bit in the worker) into an anonymous file the worker reads once it
+is up (the front end does not wait for its start): whatever sensor the window has goes
+with it, and each update the worker hands out carries every sensor's
+:meth:`~gtvo.odometry.window_link.CarriedSensor.window_state` back to the front end's copy. The front end sends each new
 keyframe (pose, points, the keyframe it was tracked against) with its two images in grey levels
 through shared memory (a ring of :data:`SLOTS`
 buffers in one ``memfd`` mapped by both: nothing to unlink, nothing for a resource tracker to
@@ -33,6 +40,8 @@ reply; a worker that died (killed) is one :class:`WindowWorkerError`.
 
 from __future__ import annotations
 
+import copyreg
+import io
 import mmap
 import os
 import pickle
@@ -46,7 +55,7 @@ import dataclasses
 from collections import deque
 from dataclasses import dataclass
 from multiprocessing.connection import Connection
-from typing import Any
+from typing import Any, Callable, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -62,9 +71,12 @@ from gtvo.odometry.blas import single_threaded_blas
 from gtvo.odometry.window_link import KeyframeForWindow, WindowLink, WindowMember, WindowUpdate
 from gtvo.window.fixed_lag import FixedLagBackend
 from gtvo.window.optimizer import LMBackend
-from gtvo.window import WindowKeyframe, WindowResult
+from gtvo.window import SlidingWindowOptimizer, WindowKeyframe, WindowResult
+from gtvo.window.imu import ImuWindow
 from gtvo.window.rig import RigOffset
 from gtvo.window.wheel import WheelCalibration
+
+T = TypeVar("T")
 
 #: The front end applies the reply for keyframe ``n`` once it has sent keyframe ``n + LAG``.
 LAG = 2
@@ -102,30 +114,42 @@ class WindowWorker:
     Args:
         camera: a :class:`StereoCamera` for stereo input, a :class:`PinholeCamera` for RGB-D.
         config: the run's settings (``config.window.parallel``).
-        wheel: the wheel calibration the window estimates (LM back end), or None. The worker
-            estimates its own copy; this one (the front end's) takes each handed-out update's estimate.
+        wheel: the wheel calibration the window estimates (LM back end), or None.
+        imu: the IMU's owner in the window (:class:`gtvo.window.imu.ImuWindow`), or None.
+        link: the window to continue, with the state it reached in this process (its sensors are
+            the front end's; ``wheel`` and ``imu`` are then unused); None: a new window with
+            ``wheel`` and ``imu``. The worker estimates its own copies of the window's sensors;
+            those of the front end take each handed-out update's state
+            (:class:`gtvo.odometry.window_link.CarriedSensor`).
     """
 
     def __init__(self, camera: StereoCamera | PinholeCamera, config: OdometryConfig,
-                 wheel: WheelCalibration | None = None) -> None:
+                 wheel: WheelCalibration | None = None, imu: ImuWindow | None = None,
+                 link: WindowLink | None = None) -> None:
         pinhole = camera.left if isinstance(camera, StereoCamera) else camera
         self.config = config
+        if link is None:
+            link = WindowLink(camera, config, wheel=wheel, imu=imu)
+        window = link.window
         self.backend = FixedLagBackend if config.window.backend == "fixed_lag" else LMBackend
         #: the window's keyframes after the last update handed out, oldest first
-        self.members: list[WindowMember] = []
+        self.members: list[WindowMember] = [
+            WindowMember(w.index, w.pose, w.inverse_depth.copy(), None if w.right is None else w.stereo_affine.copy())
+            for w in window.keyframes]
         #: frame index -> 6x6 pose covariance (as :attr:`SlidingWindowOptimizer.covariances`)
-        self.covariances: dict[int, NDArray[np.float64]] = {}
-        self.results: list[WindowResult] = []
+        self.covariances: dict[int, NDArray[np.float64]] = dict(window.covariances)
+        self.results: list[WindowResult] = list(window.results)
+        #: the window's sensors (the front end's objects), each as of the last update handed out
+        self.sensors = window.sensors
         #: the wheel calibration (the front end's object), its estimate as of the last update handed out
-        self.wheel = wheel
+        self.wheel = window.wheel
         #: the worker's window keeps every keyframe for the whole-log refinement (``refine.enabled``)
         self.retain_keyframes = bool(config.refine.enabled)
         self._every: list[WindowKeyframe] | None = None  # every keyframe, brought back by finish()
         stereo = isinstance(camera, StereoCamera)
-        rig = stereo and config.window.rig_calibration and config.window.backend == "lm"
         #: the worker's rig offset as of the last applied update (the front end's stereo search reads it)
-        self.rig: RigOffset | None = RigOffset(np.zeros(2)) if rig else None
-        self._rig_sent = False
+        self.rig: RigOffset | None = window.rig
+        self._rig_sent = self.rig is None or self.rig.initial is not None  # the worker's link has it
         self._sent = 0  # messages sent
         self._received: deque[Any] = deque()  # replies received, not yet handed out, in order
         self._n_received = 0
@@ -134,19 +158,22 @@ class WindowWorker:
         planes = 2 if stereo else 1
         self._slot_size = planes * self._shape[0] * self._shape[1] * 4
         self._memory, memory_fd = _shared_memory(SLOTS * self._slot_size)
+        state_fd = _state_file(window_bytes(link))  # read by the worker when it is up: the front end goes on
         parent_sock, child_sock = socket.socketpair()
         env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in sys.path if isinstance(p, str)))
         with interrupts_held():  # the worker starts with SIGINT blocked, then ignores it
             self._process = subprocess.Popen(
-                [sys.executable, "-c", _WORKER_MAIN, str(child_sock.fileno()), str(memory_fd)],
-                pass_fds=(child_sock.fileno(), memory_fd), stdin=subprocess.DEVNULL, env=env, close_fds=True)
+                [sys.executable, "-c", _WORKER_MAIN, str(child_sock.fileno()), str(memory_fd), str(state_fd)],
+                pass_fds=(child_sock.fileno(), memory_fd, state_fd), stdin=subprocess.DEVNULL, env=env,
+                close_fds=True)
         child_sock.close()
         os.close(memory_fd)
+        os.close(state_fd)
         self._conn = Connection(os.dup(parent_sock.fileno()))
         parent_sock.close()
         self._finalizer = weakref.finalize(self, _stop, self._conn, self._process, self._memory)
-        try:  # the worker's settings: the one message without a reply
-            self._conn.send(("start", camera, config, wheel, self._shape, SLOTS, self._slot_size))
+        try:  # the worker's settings: the one message without a reply (its window is in its state file)
+            self._conn.send(("start", camera, config, self._shape, SLOTS, self._slot_size))
         except OSError:
             raise self._died() from None
 
@@ -227,6 +254,14 @@ class WindowWorker:
             self._every = self._ask(("every_keyframe",))
         return self._every
 
+    def inspect(self, probe: Callable[[SlidingWindowOptimizer], T]) -> T:
+        """``probe`` (a module-level function: it is pickled) on the worker's window as it is now."""
+        return self._ask(("inspect", probe))
+
+    def on_second_core(self) -> WindowWorker:
+        """This window (it runs on the second core already)."""
+        return self
+
     def worker_usage(self) -> WorkerUsage:
         """The worker's CPU time, peak memory and stage seconds so far."""
         return self._ask(("usage",))
@@ -270,8 +305,8 @@ class WindowWorker:
         self.results.append(update.result)
         if update.result.covariances is not None:
             self.covariances.update(update.result.covariances)
-        if self.wheel is not None and update.result.wheel_calibration is not None:
-            self.wheel.estimate = update.result.wheel_calibration.copy()
+        for sensor, state in zip(self.sensors, update.sensor_states or ()):
+            sensor.take_window_state(state)
 
     def _ask(self, message: tuple) -> Any:
         self._send(message)
@@ -304,6 +339,24 @@ class WindowWorker:
         self.close()
         return WindowWorkerError(f"the window's worker process ended unexpectedly (exit code {code}): "
                                  "killed, or out of memory; run with --no-parallel to keep the window in one process")
+
+
+def window_bytes(link: WindowLink) -> bytes:
+    """``link`` pickled for the worker, its full images (:class:`GradientImage`) as their grey
+    levels: the worker builds their gradients again, bit for bit (the same compiled pass on the same
+    float32 values), so the window's state crosses at a fifth of its size."""
+    buffer = io.BytesIO()
+    pickler = pickle.Pickler(buffer, protocol=pickle.HIGHEST_PROTOCOL)
+    pickler.dispatch_table = copyreg.dispatch_table.copy()
+    pickler.dispatch_table[GradientImage] = _grey_levels_only
+    pickler.dump(link)
+    return buffer.getvalue()
+
+
+def _grey_levels_only(image: GradientImage) -> tuple:
+    """The pickle reduction of a :class:`GradientImage` to its constructor's arguments (exact type
+    only: a compact image keeps its own)."""
+    return GradientImage, (image.image, image.border, image.clip_range)
 
 
 def _without_images(request: KeyframeForWindow, left: Any = None, right: Any = None) -> KeyframeForWindow:
@@ -343,6 +396,21 @@ def _shared_memory(size: int) -> tuple[mmap.mmap, int]:
     return mmap.mmap(fd, size), fd
 
 
+def _state_file(data: bytes) -> int:
+    """An anonymous file holding ``data`` (the worker's starting window), its descriptor for the worker."""
+    if hasattr(os, "memfd_create"):
+        fd = os.memfd_create("gtvo-window-state", os.MFD_CLOEXEC)
+    else:  # pragma: no cover - not Linux: an unlinked temporary file
+        import tempfile  # noqa: PLC0415
+
+        with tempfile.TemporaryFile() as f:
+            fd = os.dup(f.fileno())
+    view = memoryview(data)
+    while view:
+        view = view[os.write(fd, view):]
+    return fd
+
+
 def _slot(memory: mmap.mmap, slot: int, slot_size: int, shape: tuple[int, int]) -> NDArray[np.float32]:
     """The images of shared slot ``slot`` as a (planes, H, W) float32 view."""
     return np.frombuffer(memory, dtype=np.float32, count=slot_size // 4, offset=slot * slot_size).reshape(-1, *shape)
@@ -352,21 +420,25 @@ def _slot(memory: mmap.mmap, slot: int, slot_size: int, shape: tuple[int, int]) 
 #: the run; this process follows its pipe), then :func:`serve` on the descriptors it was given.
 _WORKER_MAIN = ("import signal, sys; signal.signal(signal.SIGINT, signal.SIG_IGN); "
                 "signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT}); "
-                "from gtvo.odometry.window_worker import main; main(int(sys.argv[1]), int(sys.argv[2]))")
+                "from gtvo.odometry.window_worker import main; main(int(sys.argv[1]), int(sys.argv[2]), int(sys.argv[3]))")
 
 
-def main(socket_fd: int, memory_fd: int) -> None:
-    """The worker process: its pipe and shared memory from the parent, then :func:`serve`."""
+def main(socket_fd: int, memory_fd: int, state_fd: int) -> None:
+    """The worker process: its pipe, shared memory and starting window (``state_fd``: the pickled
+    :class:`gtvo.odometry.window_link.WindowLink`, :func:`window_bytes`) from the parent, then :func:`serve`."""
     conn = Connection(socket_fd)
+    with os.fdopen(state_fd, "rb") as state:
+        state.seek(0)
+        link: WindowLink = pickle.load(state)
     try:
-        kind, camera, config, wheel, shape, slots, slot_size = conn.recv()
+        kind, camera, config, shape, slots, slot_size = conn.recv()
     except (EOFError, OSError):
         return
     memory = mmap.mmap(memory_fd, slots * slot_size)
     set_kernel_threads(worker_threads(config))
     with single_threaded_blas():
         warm_up(camera, config)
-    serve(conn, camera, config, memory, slot_size, shape, wheel)
+    serve(conn, link, memory, slot_size, shape)
 
 
 def worker_threads(config: OdometryConfig) -> int:
@@ -403,12 +475,10 @@ def warm_up(camera: StereoCamera | PinholeCamera, config: OdometryConfig) -> Non
         pass
 
 
-def serve(conn: Connection, camera: StereoCamera | PinholeCamera, config: OdometryConfig,
-          memory: mmap.mmap, slot_size: int, shape: tuple[int, int], wheel: WheelCalibration | None = None) -> None:
-    """The worker's loop: one reply per message, in order, until the pipe closes (``wheel``: the
-    worker's copy of the wheel calibration its window estimates)."""
+def serve(conn: Connection, link: WindowLink, memory: mmap.mmap, slot_size: int, shape: tuple[int, int]) -> None:
+    """The worker's loop on its window ``link`` (with the worker's copies of its sensors): one reply
+    per message, in order, until the pipe closes."""
     clock = StageClock()
-    link = WindowLink(camera, config, wheel=wheel)
     while True:
         try:
             message = conn.recv()
@@ -442,9 +512,11 @@ def _handle(link: WindowLink, message: tuple, memory: mmap.mmap, slot_size: int,
             request.left = buf[0].copy()
             request.right = buf[1].copy() if stereo else None
         link.join(request)
-        return link.optimize() if optimize else None
+        return _with_sensor_states(link, link.optimize()) if optimize else None
     if kind == "optimize":
-        return link.optimize()
+        return _with_sensor_states(link, link.optimize())
+    if kind == "inspect":
+        return message[1](link.window)
     if kind == "rig_offset_covariance":
         return link.window.rig_offset_covariance()
     if kind == "wheel_covariance":
@@ -457,6 +529,14 @@ def _handle(link: WindowLink, message: tuple, memory: mmap.mmap, slot_size: int,
         return WorkerUsage(ru.ru_utime + ru.ru_stime, ru.ru_maxrss / 1024.0, clock.snapshot(), kernel_threads(),
                            pool_cpu_seconds())
     raise ValueError(f"unknown window worker message {kind!r}")
+
+
+def _with_sensor_states(link: WindowLink, update: WindowUpdate | None) -> WindowUpdate | None:
+    """``update`` with what the front end reads of each of the window's sensors now."""
+    if update is not None:
+        indices = [w.index for w in link.window.keyframes]
+        update.sensor_states = [sensor.window_state(indices) for sensor in link.window.sensors]
+    return update
 
 
 def _portable(exc: BaseException) -> BaseException:

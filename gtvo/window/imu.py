@@ -258,6 +258,30 @@ class ImuWindow:
                 if variables.exists(key):
                     store[kf.index] = np.asarray(variables.atVector(key), dtype=float).copy()
 
+    def window_state(self, indices: Sequence[int]) -> dict:
+        """What the front end reads of the IMU between window updates (its prediction of the next
+        frames, the report): gravity, the initialisation's figures and, for the keyframes
+        ``indices`` (the window's), their velocities, biases and poses. A window in a worker
+        process hands it back with each update (:meth:`take_window_state`)."""
+        keep = set(indices)
+        return {"gravity0": None if self.gravity0 is None else self.gravity0.copy(), "tilt": self.tilt.copy(),
+                "gravity_sigma_deg": self.gravity_sigma_deg, "init_kind": self.init_kind,
+                "init_bias": self.init_bias.copy(), "factors_added": self.factors_added,
+                "velocities": {i: v.copy() for i, v in self.velocities.items() if i in keep},
+                "biases": {i: b.copy() for i, b in self.biases.items() if i in keep},
+                "seen": {i: (s.timestamp, s.pose) for i, s in self._seen.items() if i in keep}}
+
+    def take_window_state(self, state: dict) -> None:
+        """Take the worker's :meth:`window_state` (its keyframes' entries join those known)."""
+        if state["gravity0"] is None or self.gravity0 is None or not np.array_equal(state["gravity0"], self.gravity0):
+            self._params = None  # preintegrated with the new gravity
+        self.gravity0, self.tilt = state["gravity0"], state["tilt"]
+        self.gravity_sigma_deg, self.init_kind = state["gravity_sigma_deg"], state["init_kind"]
+        self.init_bias, self.factors_added = state["init_bias"], state["factors_added"]
+        self.velocities.update(state["velocities"])
+        self.biases.update(state["biases"])
+        self._seen.update({i: _Seen(t, pose) for i, (t, pose) in state["seen"].items()})
+
     # ------------------------------------------------------------------------------ the problem
 
     def add_to(self, problem) -> None:

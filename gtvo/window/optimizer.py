@@ -97,6 +97,12 @@ class SlidingWindowOptimizer:
         self.last_targets: list[list[int]] = []
         self.backend: LMBackend | FixedLagBackend = FixedLagBackend() if self.config.backend == "fixed_lag" else LMBackend()
 
+    @property
+    def sensors(self) -> tuple[WheelCalibration | ImuWindow, ...]:
+        """The window's sensors beyond the cameras, those it has (the wheel calibration, the IMU):
+        what a window continued in another process carries with it."""
+        return tuple(s for s in (self.wheel, self.imu) if s is not None)
+
     def use_imu(self, imu: ImuWindow) -> None:
         """Estimate with the IMU (:class:`gtvo.window.imu.ImuWindow`, a sensor of every problem; docs/imu.md),
         before the first keyframe joins."""

@@ -109,6 +109,15 @@ class WheelCalibration:
         self.covariance: FloatArray | None = None
         self._raw: dict[tuple[float, float], FloatArray | None] = {}
 
+    def window_state(self, indices: Sequence[int]) -> FloatArray:
+        """What the front end reads of the calibration between window updates: the estimate (a
+        window in a worker process hands it back with each update; ``indices``: its keyframes)."""
+        return self.estimate.copy()
+
+    def take_window_state(self, state: FloatArray) -> None:
+        """Take the worker's :meth:`window_state` as this calibration's."""
+        self.estimate = np.asarray(state, dtype=float).copy()
+
     @property
     def size(self) -> int:
         """Number of calibration parameters."""

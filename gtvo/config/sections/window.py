@@ -66,13 +66,22 @@ class WindowConfig:
             False; once either is, both are estimated. False: the rectified model throughout.
         rig_offset_sigma: sigma (px) of the zero-mean prior on the rig offset, set once (with the
             gauge prior); afterwards the marginalisation prior carries what the window learnt.
-        parallel: in :class:`gtvo.odometry.VisualOdometry`, the window runs in a worker process
-            beside the front end (the second core), and the front end applies the window's result
-            of its ``n``-th keyframe once it has sent keyframe ``n + 2`` (at once when the next
-            frames should not track against its stereo depths): the same answer in every
-            run, a little different from the sequential order (False), in which every keyframe
-            waits for its window (docs/window.md, "The window beside the tracker"). ``gtvo run
-            --no-parallel`` turns it off; ``gtvo batch`` turns it off unless its config asks.
+        parallel: where the window runs in :class:`gtvo.odometry.VisualOdometry`. ``"auto"`` (the
+            default): in this process (the sequential order) until the schedule decides, at the
+            :data:`gtvo.odometry.window_schedule.AUTO_DECISION_KEYFRAME`-th keyframe, from what it
+            knows of the keyframes so far (:meth:`gtvo.odometry.window_schedule.WindowSchedule.moves_to_worker`:
+            how many could have left their window to the second core, keyframes at every frame
+            whose stereo depths suffice), whether the rest of the run overlaps the window with the
+            front end; then as ``true`` (the LM back end; the fixed-lag one stays in this process).
+            The decision depends on the sequence only, never on timing.
+            ``true``: the window runs in a worker process beside the front end (the second core)
+            from the first keyframe, and the front end applies the window's result of its ``n``-th
+            keyframe once it has sent keyframe ``n + 2`` (at once when the next frames should not
+            track against its stereo depths): the same answer in every run, a little different
+            from the sequential order (``false``), in which every keyframe waits for its window
+            (docs/window.md, "The window beside the tracker"). ``gtvo run --parallel`` forces
+            ``true``, ``--no-parallel`` ``false``; ``gtvo batch`` runs ``"auto"`` as ``false`` (one
+            core per log) unless its config asks for ``true``.
         worker_threads: threads the parallel window's worker runs its compiled kernels on (the
             hosts' residuals of each LM pass at once, docs/window.md, "Kernel threads in the
             worker"): the results are the same, to the bit, for any number. None (the default):
@@ -97,11 +106,13 @@ class WindowConfig:
     covariances: bool = True
     rig_calibration: bool = True
     rig_offset_sigma: float = setting(2.0, "[0.01, 100]")
-    parallel: bool = False
+    parallel: bool | Literal["auto"] = "auto"
     worker_threads: int | None = setting(None, "[1, 16]")
 
     def __post_init__(self) -> None:
         check_settings(self)  # backend and the ranges declared above
+        if self.parallel not in (True, False, "auto") or not isinstance(self.parallel, (bool, str)):
+            raise SettingError("parallel", f"must be true, false or 'auto', got {show(self.parallel)}")
         if self.worker_threads is not None and (isinstance(self.worker_threads, bool)
                                                 or not isinstance(self.worker_threads, int)):
             raise SettingError("worker_threads", f"must be a whole number, got {show(self.worker_threads)}")
