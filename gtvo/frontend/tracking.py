@@ -30,6 +30,7 @@ from typing import Callable, Sequence
 import gtsam
 import numpy as np
 import scipy.linalg
+import scipy.linalg.lapack
 from numpy.typing import ArrayLike, NDArray
 
 from factors.gtsam_factors import PhotometricBatchFactor
@@ -78,11 +79,11 @@ def _residuals(kf: TrackingKeyframe, level: int, target: GradientImage, T: gtsam
     the compiled loops without ``photometric_residuals``' per-call checks and layout (the
     keyframe's arrays are laid out once) for a :class:`GradientImage`, the same values."""
     Ih, hv = kf.host_samples[level]
-    d = kf.inverse_depth[kf.level_index[level]]
+    d = kf.level_inverse_depth[level]
     if isinstance(target, GradientImage):
         a_h, b_h = (float(x) for x in kf.affine)
         a_t, b_t = (float(x) for x in np.asarray(affine, dtype=float).reshape(2))
-        return compiled_residuals(kf.cameras[level], Ih, hv, kf.level_bearings[level], np.ascontiguousarray(d),
+        return compiled_residuals(kf.cameras[level], Ih, hv, kf.level_bearings[level], d,
                                   _IDENTITY, T.matrix(), target, a_t - a_h, b_h, b_t, jacobians, False)
     return photometric_residuals(kf.cameras[level], Ih, hv, kf.level_pixels[level], d, _IDENTITY, T.matrix(), target,
                                  kf.affine, affine, kf.pattern, jacobians=jacobians, host_jacobians=False,
@@ -93,22 +94,20 @@ def level_weights(kf: TrackingKeyframe, level: int, target: GradientImage, T: gt
                   affine: NDArray) -> NDArray[np.float64]:
     """The variance weights W (N, P) at state (T, affine) on a level; frozen for that level's LM."""
     lin = _residuals(kf, level, target, T, affine, False)
-    return variance_weight(lin.J_depth, kf.variance[kf.level_index[level]], kf.photometric.sigma_intensity)
+    return variance_weight(lin.J_depth, kf.level_variance[level], kf.photometric.sigma_intensity)
 
 
 def _evaluate(kf: TrackingKeyframe, level: int, target: GradientImage, T: gtsam.Pose3, affine: NDArray,
               with_normal_equations: bool, W: NDArray | None = None) -> _Eval:
     cfg, model = kf.config, kf.photometric
-    hv = kf.host_samples[level][1]
-    idx = kf.level_index[level]
     lin = _residuals(kf, level, target, T, affine, with_normal_equations)
     if W is None:
-        W = variance_weight(lin.J_depth, kf.variance[idx], model.sigma_intensity)
+        W = variance_weight(lin.J_depth, kf.level_variance[level], model.sigma_intensity)
     w, loss = point_robust_terms(W, lin.residual, model.huber_k)
     point_valid = lin.valid.any(axis=1)
-    lost = int(np.count_nonzero(hv & (kf.inverse_depth[idx] > 0)[:, None] & ~lin.valid))
+    lost = int(np.count_nonzero(kf.level_countable[level] & ~lin.valid))
     data_cost = float(loss.sum())
-    cost = data_cost + lost * _lost_pixel_loss(kf)
+    cost = data_cost + lost * _lost_pixel_loss(kf) if lost else data_cost  # (+ 0.0: the same cost)
     n_out = int(np.count_nonzero(point_valid & (w < 1.0)))
     A = b = None
     if with_normal_equations:
@@ -139,11 +138,22 @@ def _step_norm(dx: NDArray) -> float:
 
 
 def _solve(A: NDArray, b: NDArray, lam: float) -> NDArray:
+    """The damped step ``-(A + lam diag(A) + eps I)^-1 b`` by Cholesky, least squares when that
+    fails. LAPACK's ``potrf`` / ``potrs`` called directly: what ``scipy.linalg.cho_factor`` and
+    ``cho_solve`` call (the same numbers) without their per-call checks and wrappers, which cost
+    7x the 8x8 factorisation itself; a non-finite system raises ``ValueError`` as they do."""
     Ad = A + lam * np.diag(np.diag(A)) + 1e-12 * np.trace(A) / A.shape[0] * np.eye(A.shape[0])
-    try:
-        return -scipy.linalg.cho_solve(scipy.linalg.cho_factor(Ad), b)
-    except np.linalg.LinAlgError:
-        return -np.linalg.lstsq(Ad, b, rcond=None)[0]
+    if not (np.all(np.isfinite(Ad)) and np.all(np.isfinite(b))):
+        raise ValueError("tracking: the normal equations contain infs or NaNs")
+    c, info = _POTRF(Ad, lower=0, overwrite_a=0, clean=0)
+    if info == 0:
+        x, info = _POTRS(c, b, lower=0, overwrite_b=0)
+        if info == 0:
+            return -x
+    return -np.linalg.lstsq(Ad, b, rcond=None)[0]
+
+
+_POTRF, _POTRS = scipy.linalg.lapack.get_lapack_funcs(("potrf", "potrs"), (np.zeros((2, 2)),))
 
 
 def _lm_level(kf: TrackingKeyframe, level: int, target: GradientImage, T: gtsam.Pose3,
