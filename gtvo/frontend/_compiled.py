@@ -16,13 +16,17 @@
   ``np.median`` over each block (numpy partitioned a transposed copy of the whole image, the largest
   cost of making a keyframe on KITTI): histograms narrow the values down to the bins of the middle
   ones, a small sort of those gives them;
-* :func:`smooth_block_thresholds`: the block thresholds' 3x3 smoothing.
+* :func:`smooth_block_thresholds`: the block thresholds' 3x3 smoothing;
+* :func:`tracker_terms`: one evaluation of the tracker's cost (residuals, weights, Huber terms,
+  counts, normal equations) in one call instead of a dozen numpy passes and calls.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from factors import _compiled as _fc
+from factors import _compiled_sums as _fs
 from gtvo.core.jit import jit
 
 
@@ -430,3 +434,54 @@ def smooth_block_thresholds(med, offset):
             mean = np.float64(tot) / np.float64(cnt) if cnt > 0 else np.nan  # nanmean's 0 / 0
             smooth[by, bx] = np.float32(mean) + offset
     return smooth
+
+
+@jit
+def tracker_terms(packed, has_clip, width, height, border, fx, fy, cx, cy, min_depth, R, t, f, d, host_intensity,
+                  host_valid, e, b_h, b_t, jacobians, W, weights_given, V, two_sigma2, k, robust, countable,
+                  with_affine):
+    """One evaluation of the tracker's cost on a level in one call (``tracking._evaluate``'s numpy
+    steps, the same numbers): the residuals and target Jacobians
+    (:func:`factors._compiled.warp_residuals`, target only), the variance weights
+    ``W = 1 / (2 sigma_I^2 + J_depth^2 V)`` unless given (``weights_given``: frozen for the
+    level), each point's Huber weight and loss (:func:`factors._compiled_sums.point_huber`), the
+    counts and, with ``jacobians``, the normal equations with the weights ``W w``
+    (:func:`factors._compiled_sums.target_normal_equations`; the affine's columns with
+    ``with_affine``). ``countable`` (N, P): the host samples of points with a positive inverse depth.
+
+    Returns ``(r, valid, J_depth, uv, W, w, loss, counts, ints, A, b)``: ``counts`` the warp's
+    (n_bad_depth, n_behind, n_outside), ``ints`` = (points with a valid pixel, of those outliers
+    ``w < 1``, valid pixels, lost pixels); A and b empty without ``jacobians``."""
+    r, valid, J_depth, uv, J_t, J_h, J_at, J_ah, counts = _fc.warp_residuals(
+        packed, has_clip, width, height, border, fx, fy, cx, cy, min_depth, R, t, f, d, host_intensity, host_valid,
+        e, b_h, b_t, jacobians, False, True)
+    n, p = r.shape
+    if not weights_given:
+        W = np.empty((n, p))
+        for i in range(n):
+            v = V[i]
+            for m in range(p):
+                W[i, m] = 1.0 / (two_sigma2 + J_depth[i, m] * J_depth[i, m] * v)
+    w, loss = _fs.point_huber(W, r, k, robust)
+    ints = np.zeros(4, dtype=np.int64)
+    for i in range(n):
+        seen = False
+        for m in range(p):
+            if valid[i, m]:
+                seen = True
+                ints[2] += 1
+            elif countable[i, m]:
+                ints[3] += 1
+        if seen:
+            ints[0] += 1
+            if w[i] < 1.0:
+                ints[1] += 1
+    if not jacobians:
+        return r, valid, J_depth, uv, W, w, loss, counts, ints, np.zeros((0, 0)), np.zeros(0)
+    weight = np.empty((n, p))
+    for i in range(n):
+        for m in range(p):
+            weight[i, m] = W[i, m] * w[i]
+    aff = J_at if with_affine else np.zeros((0, 1, 2))
+    A, b = _fs.target_normal_equations(J_t, aff, weight, r)
+    return r, valid, J_depth, uv, W, w, loss, counts, ints, A, b

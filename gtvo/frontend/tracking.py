@@ -38,8 +38,11 @@ from factors.host_points import target_normal_equations
 from factors.photometric import (GradientImage, PhotometricLinearization, compiled_residuals,
                                  photometric_residuals)
 from factors.weights import huber_loss, point_robust_terms, variance_weight
+from gtvo.core.camera import MIN_DEPTH
 from gtvo.core.keys import affine_key, pose_key
+from gtvo.core.lie import invert_poses
 from gtvo.errors import InputError
+from gtvo.frontend._compiled import tracker_terms
 
 from gtvo.frontend.tracking_types import (PhotometricConfig, PointResiduals, TrackingConfig, TrackingKeyframe,
                                           TrackingResult, frame_pyramid, largest_sigma, pose_covariance)
@@ -100,6 +103,8 @@ def level_weights(kf: TrackingKeyframe, level: int, target: GradientImage, T: gt
 def _evaluate(kf: TrackingKeyframe, level: int, target: GradientImage, T: gtsam.Pose3, affine: NDArray,
               with_normal_equations: bool, W: NDArray | None = None) -> _Eval:
     cfg, model = kf.config, kf.photometric
+    if isinstance(target, GradientImage):
+        return _evaluate_compiled(kf, level, target, T, affine, with_normal_equations, W)
     lin = _residuals(kf, level, target, T, affine, with_normal_equations)
     if W is None:
         W = variance_weight(lin.J_depth, kf.level_variance[level], model.sigma_intensity)
@@ -114,6 +119,40 @@ def _evaluate(kf: TrackingKeyframe, level: int, target: GradientImage, T: gtsam.
         A, b = target_normal_equations(lin, W * w[:, None], cfg.estimate_affine)
     return _Eval(cost, A, b, int(np.count_nonzero(point_valid)), n_out, int(np.count_nonzero(lin.valid)), W,
                  data_cost, lin)
+
+
+def _evaluate_compiled(kf: TrackingKeyframe, level: int, target: GradientImage, T: gtsam.Pose3, affine: NDArray,
+                       with_normal_equations: bool, W: NDArray | None) -> _Eval:
+    """:func:`_evaluate` for a :class:`GradientImage` target in one compiled call
+    (:func:`gtvo.frontend._compiled.tracker_terms`): the residuals of :func:`_residuals`, the
+    weights, Huber terms, counts and normal equations of the numpy steps, the same numbers, without
+    their dozen passes over the residuals and the arrays between them."""
+    model = kf.photometric
+    Ih, hv = kf.host_samples[level]
+    cam = kf.cameras[level]
+    a_h, b_h = (float(x) for x in kf.affine)
+    a_t, b_t = (float(x) for x in np.asarray(affine, dtype=float).reshape(2))
+    T_target_host = invert_poses(T.matrix()) @ _IDENTITY  # factors.photometric's T_world_target^-1 T_world_host
+    given = W is not None
+    k = model.huber_k
+    r, valid, J_depth, uv, W_out, w, loss, counts, ints, A, b = tracker_terms(
+        *target._sampler_args(), float(cam.fx), float(cam.fy), float(cam.cx), float(cam.cy), float(MIN_DEPTH),
+        np.ascontiguousarray(T_target_host[:3, :3]), np.ascontiguousarray(T_target_host[:3, 3]),
+        kf.level_bearings[level], kf.level_inverse_depth[level], Ih, hv, float(np.exp(a_t - a_h)), b_h, b_t,
+        bool(with_normal_equations), np.ascontiguousarray(W, dtype=float) if given else _NO_WEIGHTS, given,
+        kf.level_variance[level], 2.0 * model.sigma_intensity ** 2, 0.0 if k is None else float(k), k is not None,
+        kf.level_countable[level], bool(kf.config.estimate_affine))
+    n_bad, n_behind, n_out_px = (int(c) for c in counts)
+    n_valid, n_out, n_pixels, lost = (int(c) for c in ints)
+    lin = PhotometricLinearization(r, valid, J_depth, None, None, None, None, uv, n_bad, n_behind, n_out_px)
+    data_cost = float(loss.sum())
+    cost = data_cost + lost * _lost_pixel_loss(kf) if lost else data_cost  # (+ 0.0: the same cost)
+    if not with_normal_equations:
+        A = b = None
+    return _Eval(cost, A, b, n_valid, n_out, n_pixels, W if given else W_out, data_cost, lin)
+
+
+_NO_WEIGHTS = np.zeros((0, 0))  # tracker_terms' "compute the weights"
 
 
 def _lost_pixel_loss(kf: TrackingKeyframe) -> float:
