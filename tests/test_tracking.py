@@ -264,8 +264,8 @@ def test_compiled_evaluation_equals_numpy_steps(frozen):
     lost = int(np.count_nonzero(kf.host_samples[0][1] & (d > 0)[:, None] & ~lin.valid))
     assert lost > 0
     point_valid = lin.valid.any(axis=1)
-    np.testing.assert_array_equal(ev.lin.residual, lin.residual)
-    np.testing.assert_array_equal(ev.lin.valid, lin.valid)
+    np.testing.assert_array_equal(ev.residual, lin.residual)
+    np.testing.assert_array_equal(ev.valid, lin.valid)
     np.testing.assert_array_equal(ev.W, W)
     np.testing.assert_array_equal(ev.A, A)
     np.testing.assert_array_equal(ev.b, b)

@@ -70,7 +70,8 @@ class _Eval:
     n_pixels: int
     W: NDArray[np.float64]
     data_cost: float  # without the lost-pixel cost
-    lin: PhotometricLinearization  # the residuals it was computed from (the unrelated-image RMS reads them)
+    residual: NDArray[np.float64]  # (N, P) the residuals it was computed from
+    valid: NDArray[np.bool_]  # (N, P) their validity (the unrelated-image RMS reads it)
 
 
 _IDENTITY = np.eye(4)  # the keyframe's own pose: the tracker works in its frame
@@ -118,7 +119,7 @@ def _evaluate(kf: TrackingKeyframe, level: int, target: GradientImage, T: gtsam.
     if with_normal_equations:
         A, b = target_normal_equations(lin, W * w[:, None], cfg.estimate_affine)
     return _Eval(cost, A, b, int(np.count_nonzero(point_valid)), n_out, int(np.count_nonzero(lin.valid)), W,
-                 data_cost, lin)
+                 data_cost, lin.residual, lin.valid)
 
 
 def _evaluate_compiled(kf: TrackingKeyframe, level: int, target: GradientImage, T: gtsam.Pose3, affine: NDArray,
@@ -135,21 +136,19 @@ def _evaluate_compiled(kf: TrackingKeyframe, level: int, target: GradientImage, 
     T_target_host = invert_poses(T.matrix()) @ _IDENTITY  # factors.photometric's T_world_target^-1 T_world_host
     given = W is not None
     k = model.huber_k
-    r, valid, J_depth, uv, W_out, w, loss, counts, ints, A, b = tracker_terms(
+    r, valid, W_out, loss, ints, A, b = tracker_terms(
         *target._sampler_args(), float(cam.fx), float(cam.fy), float(cam.cx), float(cam.cy), float(MIN_DEPTH),
         np.ascontiguousarray(T_target_host[:3, :3]), np.ascontiguousarray(T_target_host[:3, 3]),
         kf.level_bearings[level], kf.level_inverse_depth[level], Ih, hv, float(np.exp(a_t - a_h)), b_h, b_t,
         bool(with_normal_equations), np.ascontiguousarray(W, dtype=float) if given else _NO_WEIGHTS, given,
         kf.level_variance[level], 2.0 * model.sigma_intensity ** 2, 0.0 if k is None else float(k), k is not None,
         kf.level_countable[level], bool(kf.config.estimate_affine))
-    n_bad, n_behind, n_out_px = (int(c) for c in counts)
     n_valid, n_out, n_pixels, lost = (int(c) for c in ints)
-    lin = PhotometricLinearization(r, valid, J_depth, None, None, None, None, uv, n_bad, n_behind, n_out_px)
     data_cost = float(loss.sum())
     cost = data_cost + lost * _lost_pixel_loss(kf) if lost else data_cost  # (+ 0.0: the same cost)
     if not with_normal_equations:
         A = b = None
-    return _Eval(cost, A, b, n_valid, n_out, n_pixels, W if given else W_out, data_cost, lin)
+    return _Eval(cost, A, b, n_valid, n_out, n_pixels, W if given else W_out, data_cost, r, valid)
 
 
 _NO_WEIGHTS = np.zeros((0, 0))  # tracker_terms' "compute the weights"
@@ -272,7 +271,7 @@ def _unrelated_rms(kf: TrackingKeyframe, ev: _Eval) -> float:
     """The whitened RMS residual on level 0 of an image unrelated to the keyframe but of its contrast:
     ``sqrt(2 Var(I_kf) mean(W))`` over the valid pattern pixels (two independent draws of the
     keyframe's intensities differ by ``2 Var`` in the mean square); NaN without valid pixels."""
-    valid = ev.lin.valid
+    valid = ev.valid
     if not valid.any():
         return float("nan")
     host = kf.host_samples[0][0]
