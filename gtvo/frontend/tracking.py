@@ -155,10 +155,15 @@ _NO_WEIGHTS = np.zeros((0, 0))  # tracker_terms' "compute the weights"
 
 
 def _lost_pixel_loss(kf: TrackingKeyframe) -> float:
-    """Constant cost of a pattern pixel that the state pushes out of the frame (or behind it)."""
-    norm, k = kf.config.lost_point_norm, kf.photometric.huber_k
+    """Constant cost of a pattern pixel that the state pushes out of the frame (or behind it);
+    computed once per keyframe and settings (the tracker asks at every cost evaluation)."""
+    norm, k, p = kf.config.lost_point_norm, kf.photometric.huber_k, kf.pattern.shape[0]
+    cached = kf.__dict__.get("_lost_pixel_loss")
+    if cached is not None and cached[0] == (norm, k, p):
+        return cached[1]
     loss = 0.5 * norm * norm if k is None else float(huber_loss(norm, k))  # no robust kernel: the square's
-    return loss / kf.pattern.shape[0]
+    kf._lost_pixel_loss = ((norm, k, p), loss / p)
+    return loss / p
 
 
 def _apply(T: gtsam.Pose3, affine: NDArray, dx: NDArray) -> tuple[gtsam.Pose3, NDArray]:
