@@ -1,6 +1,13 @@
 """Front-end speed per KITTI keyframe: point selection and stereo inverse depth.
 
     python benchmarks/frontend_speed.py [--root CHECKOUT] [--sequence DIR] [--points 300,2000] [--repeats 3]
+    python benchmarks/frontend_speed.py --stages [--root CHECKOUT] [--sequence DIR] [--repeats 3]
+
+``--stages``: a whole default run (window mode, preloaded frames, after a warm-up on the first 10)
+with the stage clock on this process's CPU time (``time.process_time``, all threads): CPU ms per
+frame by stage, the front end's (tracking, point_selection, stereo_search, keyframe_setup, other)
+summed, the median over ``--repeats`` runs. Run it for two checkouts alternately (``--root``) and
+compare the ratios: a loaded machine inflates both alike.
 
 For every frame of the sequence (preloaded), times ``select_points`` and ``init_keyframe_points``
 (selection + stereo search + refinement + checks, what ``VisualOdometry`` runs for each new
@@ -37,8 +44,12 @@ def main() -> int:
     ap.add_argument("--sequence", type=Path, default=None, help="KITTI folder (default KITTI_sequence_1)")
     ap.add_argument("--points", default="300,2000", help="point targets per keyframe")
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--stages", action="store_true", help="CPU ms per frame by stage of a whole default run")
     args = ap.parse_args()
     sys.path.insert(0, str(args.root.resolve()))  # the gtvo measured
+    if args.stages:
+        return stage_cpu(args.root, args.sequence or here.parent / "shared" / "data" / "kitti_stereo_sample" /
+                         "KITTI_sequence_1", args.repeats)
     import cv2  # noqa: PLC0415
     import numpy as np  # noqa: PLC0415
 
@@ -92,6 +103,46 @@ def main() -> int:
     print("|---|---|---|---|---|")
     for target, n_pts, sel, init, digest in rows:
         print(f"| {target} | {n_pts} | {sel:.1f} ({sel / ref:.2f}) | {init:.1f} ({init / ref:.2f}) | {digest} |")
+    return 0
+
+
+FRONT_END_STAGES = ("tracking", "point_selection", "stereo_search", "keyframe_setup", "other")
+
+
+def stage_cpu(root: Path, sequence: Path, repeats: int) -> int:
+    """``--stages``: CPU ms per frame by stage of whole default runs (median over ``repeats``)."""
+    import statistics  # noqa: PLC0415
+
+    import gtvo  # noqa: PLC0415
+    from gtvo.config import OdometryConfig  # noqa: PLC0415
+    from gtvo.core.timing import StageClock  # noqa: PLC0415
+    from gtvo.datasets import open_sequence  # noqa: PLC0415
+    from gtvo.odometry import VisualOdometry  # noqa: PLC0415
+
+    seq = open_sequence(sequence)
+    frames = list(seq)
+
+    def run(part: list) -> dict[str, float]:
+        vo = VisualOdometry(seq.camera, OdometryConfig())
+        vo.clock = StageClock(timer=time.process_time)
+        t0 = time.process_time()
+        for f in part:
+            vo.process(f)
+        vo.finish()
+        total = time.process_time() - t0
+        vo.close()
+        out = {k: 1000.0 * v / len(part) for k, v in vo.clock.snapshot().items()}
+        out["front end"] = sum(out[k] for k in FRONT_END_STAGES)
+        out["frame"] = 1000.0 * total / len(part)
+        return out
+
+    run(frames[:10])  # compiled kernels loaded
+    runs = [run(frames) for _ in range(max(1, repeats))]
+    print(f"gtvo at {Path(gtvo.__file__).resolve().parents[1]}, {seq.name}, {len(frames)} frames, "
+          f"CPU ms per frame (median of {len(runs)})")
+    for name in runs[0]:
+        if any(r[name] for r in runs):
+            print(f"{name:16s} {statistics.median(r[name] for r in runs):8.2f}")
     return 0
 
 

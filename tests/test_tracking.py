@@ -237,3 +237,41 @@ def test_a_keyframe_built_on_the_frames_pyramid_is_the_same_keyframe():
                          pyramid=frame_pyramid(Ih[:100, :100], cfg.levels, own.photometric.clip_range))
     with pytest.raises(InputError, match="pyramid"):
         TrackingKeyframe(CAM, Ih, px, d, np.full(len(d), 1e-4), config=cfg, pyramid=frame_pyramid(Ih, cfg.levels, None))
+
+
+@pytest.mark.parametrize("frozen", [False, True])
+def test_compiled_evaluation_equals_numpy_steps(frozen):
+    """The tracker's one compiled call per cost evaluation (``_compiled.tracker_terms``) gives the
+    numpy steps' numbers to the bit: residuals, weights, Huber terms, counts, normal equations and
+    cost, with the weights computed or frozen, and with points pushed out of the frame."""
+    from factors.host_points import target_normal_equations
+    from factors.weights import point_robust_terms, variance_weight
+    from gtvo.frontend import tracking as trk
+
+    T_true, host_img, tgt_img, px, d = scene(seed=3, n=300)
+    V = np.full(len(d), 1e-4)
+    kf = TrackingKeyframe(CAM, host_img, px, d, V, (0.0, 0.0), TrackingConfig(levels=2))
+    target = frame_pyramid(tgt_img, 2)[0]
+    T = gtsam.Pose3(gtsam.Rot3.Expmap(np.array([0.0, 0.1, 0.0])), np.array([0.4, 0.0, 0.0]))  # some pixels leave
+    affine = np.array([0.05, 3.0])
+    W0 = trk.level_weights(kf, 0, target, T_true, affine) if frozen else None
+    ev = trk._evaluate(kf, 0, target, T, affine, True, W0)
+
+    lin = trk._residuals(kf, 0, target, T, affine, True)
+    W = W0 if frozen else variance_weight(lin.J_depth, kf.variance, kf.photometric.sigma_intensity)
+    w, loss = point_robust_terms(W, lin.residual, kf.photometric.huber_k)
+    A, b = target_normal_equations(lin, W * w[:, None], kf.config.estimate_affine)
+    lost = int(np.count_nonzero(kf.host_samples[0][1] & (d > 0)[:, None] & ~lin.valid))
+    assert lost > 0
+    point_valid = lin.valid.any(axis=1)
+    np.testing.assert_array_equal(ev.residual, lin.residual)
+    np.testing.assert_array_equal(ev.valid, lin.valid)
+    np.testing.assert_array_equal(ev.W, W)
+    np.testing.assert_array_equal(ev.A, A)
+    np.testing.assert_array_equal(ev.b, b)
+    assert ev.data_cost == float(loss.sum())
+    assert ev.cost == float(loss.sum()) + lost * trk._lost_pixel_loss(kf)
+    assert (ev.n_valid, ev.n_outliers, ev.n_pixels) == (int(point_valid.sum()), int((point_valid & (w < 1)).sum()),
+                                                         int(lin.valid.sum()))
+    no_eq = trk._evaluate(kf, 0, target, T, affine, False, W0)
+    assert no_eq.A is None and no_eq.cost == ev.cost

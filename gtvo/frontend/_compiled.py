@@ -16,13 +16,16 @@
   ``np.median`` over each block (numpy partitioned a transposed copy of the whole image, the largest
   cost of making a keyframe on KITTI): histograms narrow the values down to the bins of the middle
   ones, a small sort of those gives them;
-* :func:`smooth_block_thresholds`: the block thresholds' 3x3 smoothing.
+* :func:`smooth_block_thresholds`: the block thresholds' 3x3 smoothing;
+* :func:`tracker_terms`: one evaluation of the tracker's cost (residuals, weights, Huber terms,
+  counts, normal equations) in one call instead of a dozen numpy passes and calls.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from factors import _compiled as _fc
 from gtvo.core.jit import jit
 
 
@@ -430,3 +433,160 @@ def smooth_block_thresholds(med, offset):
             mean = np.float64(tot) / np.float64(cnt) if cnt > 0 else np.nan  # nanmean's 0 / 0
             smooth[by, bx] = np.float32(mean) + offset
     return smooth
+
+
+@jit
+def tracker_terms(packed, has_clip, width, height, border, fx, fy, cx, cy, min_depth, R, t, f, d, host_intensity,
+                  host_valid, e, b_h, b_t, jacobians, W, weights_given, V, two_sigma2, k, robust, countable,
+                  with_affine):
+    """One evaluation of the tracker's cost on a level in one pass over the points
+    (``tracking._evaluate``'s numpy steps, the same numbers): per point its pattern's residuals
+    and target Jacobians (the arithmetic of :func:`factors._compiled.warp_residuals`, target
+    only), the variance weights ``W = 1 / (2 sigma_I^2 + J_depth^2 V)`` unless given
+    (``weights_given``: frozen for the level), its Huber weight and loss
+    (:func:`factors._compiled_sums.point_huber`'s) and, with ``jacobians``, its terms added to
+    the normal equations with the weights ``W w`` (:func:`factors._compiled_sums._gram8`'s sums,
+    in the same order; an invalid residual, whose Jacobian and residual are 0, adds exactly 0 and
+    is skipped). ``countable`` (N, P): the host samples of points with a positive inverse depth.
+    No (N, P, 6) Jacobian array is made: the point's rows stay in registers.
+
+    Returns ``(r, valid, W, loss, ints, A, b)``: ``ints`` = (points with a valid pixel, of those
+    outliers ``w < 1``, valid pixels, lost pixels); A (8, 8) and b (8,) (6 without
+    ``with_affine``), empty without ``jacobians``."""
+    n, p = host_intensity.shape
+    r = np.zeros((n, p))
+    valid = np.zeros((n, p), dtype=np.bool_)
+    W_out = W if weights_given else np.empty((n, p))
+    loss = np.empty(n)
+    ints = np.zeros(4, dtype=np.int64)
+    jrow = np.zeros((p, 8))
+    jd_pt = np.zeros(p)
+    R00, R01, R02 = R[0, 0], R[0, 1], R[0, 2]
+    R10, R11, R12 = R[1, 0], R[1, 1], R[1, 2]
+    R20, R21, R22 = R[2, 0], R[2, 1], R[2, 2]
+    t0, t1, t2 = t[0], t[1], t[2]
+    h00 = h01 = h02 = h03 = h04 = h05 = h06 = h07 = 0.0
+    h11 = h12 = h13 = h14 = h15 = h16 = h17 = 0.0
+    h22 = h23 = h24 = h25 = h26 = h27 = 0.0
+    h33 = h34 = h35 = h36 = h37 = 0.0
+    h44 = h45 = h46 = h47 = 0.0
+    h55 = h56 = h57 = 0.0
+    h66 = h67 = 0.0
+    h77 = 0.0
+    g0 = g1 = g2 = g3 = g4 = g5 = g6 = g7 = 0.0
+    for i in range(n):
+        di = d[i]
+        good = np.isfinite(di) and di > 0.0
+        ds = di if good else 1.0
+        seen = False
+        for m in range(p):
+            jd_pt[m] = 0.0
+            if not good:
+                if countable[i, m]:
+                    ints[3] += 1
+                continue
+            f0, f1, f2 = f[i, m, 0], f[i, m, 1], f[i, m, 2]
+            q0 = R00 * f0 + R01 * f1 + R02 * f2 + ds * t0
+            q1 = R10 * f0 + R11 * f1 + R12 * f2 + ds * t1
+            q2 = R20 * f0 + R21 * f1 + R22 * f2 + ds * t2
+            ok = False
+            if q2 > min_depth * ds and host_valid[i, m]:
+                iz = 1.0 / q2
+                ok, intensity, gx, gy = _fc._bilinear(packed, has_clip, width, height, border,
+                                                      fx * q0 * iz + cx, fy * q1 * iz + cy)
+            if not ok:
+                if countable[i, m]:
+                    ints[3] += 1
+                continue
+            valid[i, m] = True
+            seen = True
+            ints[2] += 1
+            hb = e * (host_intensity[i, m] - b_h)
+            r[i, m] = intensity - b_t - hb
+            a0 = gx * fx * iz
+            a1 = gy * fy * iz
+            a2 = -(a0 * q0 + a1 * q1) * iz
+            jd_pt[m] = a0 * t0 + a1 * t1 + a2 * t2
+            jrow[m, 0] = a1 * q2 - a2 * q1
+            jrow[m, 1] = a2 * q0 - a0 * q2
+            jrow[m, 2] = a0 * q1 - a1 * q0
+            jrow[m, 3] = -ds * a0
+            jrow[m, 4] = -ds * a1
+            jrow[m, 5] = -ds * a2
+            jrow[m, 6] = -hb if with_affine else 0.0
+            jrow[m, 7] = -1.0 if with_affine else 0.0
+        if not weights_given:
+            v = V[i]
+            for m in range(p):
+                W_out[i, m] = 1.0 / (two_sigma2 + jd_pt[m] * jd_pt[m] * v)
+        s = 0.0
+        for m in range(p):
+            s += W_out[i, m] * r[i, m] * r[i, m]
+        x = np.sqrt(s)
+        wi = 1.0
+        if not robust or x <= k:
+            loss[i] = 0.5 * x * x
+        else:
+            loss[i] = k * x - 0.5 * k * k
+            wi = k / x
+        if seen:
+            ints[0] += 1
+            if wi < 1.0:
+                ints[1] += 1
+        if not (jacobians and seen):
+            continue
+        for m in range(p):
+            if not valid[i, m]:
+                continue
+            w = W_out[i, m] * wi
+            rr = r[i, m]
+            k0, k1, k2, k3 = jrow[m, 0], jrow[m, 1], jrow[m, 2], jrow[m, 3]
+            k4, k5, k6, k7 = jrow[m, 4], jrow[m, 5], jrow[m, 6], jrow[m, 7]
+            w0 = w * k0
+            w1 = w * k1
+            w2 = w * k2
+            w3 = w * k3
+            w4 = w * k4
+            w5 = w * k5
+            w6 = w * k6
+            w7 = w * k7
+            g0 += w0 * rr
+            h00 += w0 * k0; h01 += w0 * k1; h02 += w0 * k2; h03 += w0 * k3
+            h04 += w0 * k4; h05 += w0 * k5; h06 += w0 * k6; h07 += w0 * k7
+            g1 += w1 * rr
+            h11 += w1 * k1; h12 += w1 * k2; h13 += w1 * k3; h14 += w1 * k4
+            h15 += w1 * k5; h16 += w1 * k6; h17 += w1 * k7
+            g2 += w2 * rr
+            h22 += w2 * k2; h23 += w2 * k3; h24 += w2 * k4
+            h25 += w2 * k5; h26 += w2 * k6; h27 += w2 * k7
+            g3 += w3 * rr
+            h33 += w3 * k3; h34 += w3 * k4; h35 += w3 * k5
+            h36 += w3 * k6; h37 += w3 * k7
+            g4 += w4 * rr
+            h44 += w4 * k4; h45 += w4 * k5
+            h46 += w4 * k6; h47 += w4 * k7
+            g5 += w5 * rr
+            h55 += w5 * k5; h56 += w5 * k6
+            h57 += w5 * k7
+            g6 += w6 * rr
+            h66 += w6 * k6
+            h67 += w6 * k7
+            g7 += w7 * rr
+            h77 += w7 * k7
+    if not jacobians:
+        return r, valid, W_out, loss, ints, np.zeros((0, 0)), np.zeros(0)
+    HK = np.empty((8, 8))  # upper triangle from the sums, then mirrored (as _gram8)
+    HK[0, 0:] = (h00, h01, h02, h03, h04, h05, h06, h07)
+    HK[1, 1:] = (h11, h12, h13, h14, h15, h16, h17)
+    HK[2, 2:] = (h22, h23, h24, h25, h26, h27)
+    HK[3, 3:] = (h33, h34, h35, h36, h37)
+    HK[4, 4:] = (h44, h45, h46, h47)
+    HK[5, 5:] = (h55, h56, h57)
+    HK[6, 6:] = (h66, h67)
+    HK[7, 7:] = (h77,)
+    for a in range(8):
+        for c in range(a):
+            HK[a, c] = HK[c, a]
+    gK = np.array([g0, g1, g2, g3, g4, g5, g6, g7])
+    kk = 8 if (with_affine and n > 0) else 6
+    return r, valid, W_out, loss, ints, np.ascontiguousarray(HK[:kk, :kk]), np.ascontiguousarray(gK[:kk])

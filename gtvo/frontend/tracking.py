@@ -30,6 +30,7 @@ from typing import Callable, Sequence
 import gtsam
 import numpy as np
 import scipy.linalg
+import scipy.linalg.lapack
 from numpy.typing import ArrayLike, NDArray
 
 from factors.gtsam_factors import PhotometricBatchFactor
@@ -37,8 +38,11 @@ from factors.host_points import target_normal_equations
 from factors.photometric import (GradientImage, PhotometricLinearization, compiled_residuals,
                                  photometric_residuals)
 from factors.weights import huber_loss, point_robust_terms, variance_weight
+from gtvo.core.camera import MIN_DEPTH
 from gtvo.core.keys import affine_key, pose_key
+from gtvo.core.lie import invert_poses
 from gtvo.errors import InputError
+from gtvo.frontend._compiled import tracker_terms
 
 from gtvo.frontend.tracking_types import (PhotometricConfig, PointResiduals, TrackingConfig, TrackingKeyframe,
                                           TrackingResult, frame_pyramid, largest_sigma, pose_covariance)
@@ -66,7 +70,8 @@ class _Eval:
     n_pixels: int
     W: NDArray[np.float64]
     data_cost: float  # without the lost-pixel cost
-    lin: PhotometricLinearization  # the residuals it was computed from (the unrelated-image RMS reads them)
+    residual: NDArray[np.float64]  # (N, P) the residuals it was computed from
+    valid: NDArray[np.bool_]  # (N, P) their validity (the unrelated-image RMS reads it)
 
 
 _IDENTITY = np.eye(4)  # the keyframe's own pose: the tracker works in its frame
@@ -78,11 +83,11 @@ def _residuals(kf: TrackingKeyframe, level: int, target: GradientImage, T: gtsam
     the compiled loops without ``photometric_residuals``' per-call checks and layout (the
     keyframe's arrays are laid out once) for a :class:`GradientImage`, the same values."""
     Ih, hv = kf.host_samples[level]
-    d = kf.inverse_depth[kf.level_index[level]]
+    d = kf.level_inverse_depth[level]
     if isinstance(target, GradientImage):
         a_h, b_h = (float(x) for x in kf.affine)
         a_t, b_t = (float(x) for x in np.asarray(affine, dtype=float).reshape(2))
-        return compiled_residuals(kf.cameras[level], Ih, hv, kf.level_bearings[level], np.ascontiguousarray(d),
+        return compiled_residuals(kf.cameras[level], Ih, hv, kf.level_bearings[level], d,
                                   _IDENTITY, T.matrix(), target, a_t - a_h, b_h, b_t, jacobians, False)
     return photometric_residuals(kf.cameras[level], Ih, hv, kf.level_pixels[level], d, _IDENTITY, T.matrix(), target,
                                  kf.affine, affine, kf.pattern, jacobians=jacobians, host_jacobians=False,
@@ -93,35 +98,72 @@ def level_weights(kf: TrackingKeyframe, level: int, target: GradientImage, T: gt
                   affine: NDArray) -> NDArray[np.float64]:
     """The variance weights W (N, P) at state (T, affine) on a level; frozen for that level's LM."""
     lin = _residuals(kf, level, target, T, affine, False)
-    return variance_weight(lin.J_depth, kf.variance[kf.level_index[level]], kf.photometric.sigma_intensity)
+    return variance_weight(lin.J_depth, kf.level_variance[level], kf.photometric.sigma_intensity)
 
 
 def _evaluate(kf: TrackingKeyframe, level: int, target: GradientImage, T: gtsam.Pose3, affine: NDArray,
               with_normal_equations: bool, W: NDArray | None = None) -> _Eval:
     cfg, model = kf.config, kf.photometric
-    hv = kf.host_samples[level][1]
-    idx = kf.level_index[level]
+    if isinstance(target, GradientImage):
+        return _evaluate_compiled(kf, level, target, T, affine, with_normal_equations, W)
     lin = _residuals(kf, level, target, T, affine, with_normal_equations)
     if W is None:
-        W = variance_weight(lin.J_depth, kf.variance[idx], model.sigma_intensity)
+        W = variance_weight(lin.J_depth, kf.level_variance[level], model.sigma_intensity)
     w, loss = point_robust_terms(W, lin.residual, model.huber_k)
     point_valid = lin.valid.any(axis=1)
-    lost = int(np.count_nonzero(hv & (kf.inverse_depth[idx] > 0)[:, None] & ~lin.valid))
+    lost = int(np.count_nonzero(kf.level_countable[level] & ~lin.valid))
     data_cost = float(loss.sum())
-    cost = data_cost + lost * _lost_pixel_loss(kf)
+    cost = data_cost + lost * _lost_pixel_loss(kf) if lost else data_cost  # (+ 0.0: the same cost)
     n_out = int(np.count_nonzero(point_valid & (w < 1.0)))
     A = b = None
     if with_normal_equations:
         A, b = target_normal_equations(lin, W * w[:, None], cfg.estimate_affine)
     return _Eval(cost, A, b, int(np.count_nonzero(point_valid)), n_out, int(np.count_nonzero(lin.valid)), W,
-                 data_cost, lin)
+                 data_cost, lin.residual, lin.valid)
+
+
+def _evaluate_compiled(kf: TrackingKeyframe, level: int, target: GradientImage, T: gtsam.Pose3, affine: NDArray,
+                       with_normal_equations: bool, W: NDArray | None) -> _Eval:
+    """:func:`_evaluate` for a :class:`GradientImage` target in one compiled call
+    (:func:`gtvo.frontend._compiled.tracker_terms`): the residuals of :func:`_residuals`, the
+    weights, Huber terms, counts and normal equations of the numpy steps, the same numbers, without
+    their dozen passes over the residuals and the arrays between them."""
+    model = kf.photometric
+    Ih, hv = kf.host_samples[level]
+    cam = kf.cameras[level]
+    a_h, b_h = (float(x) for x in kf.affine)
+    a_t, b_t = (float(x) for x in np.asarray(affine, dtype=float).reshape(2))
+    T_target_host = invert_poses(T.matrix()) @ _IDENTITY  # factors.photometric's T_world_target^-1 T_world_host
+    given = W is not None
+    k = model.huber_k
+    r, valid, W_out, loss, ints, A, b = tracker_terms(
+        *target._sampler_args(), float(cam.fx), float(cam.fy), float(cam.cx), float(cam.cy), float(MIN_DEPTH),
+        np.ascontiguousarray(T_target_host[:3, :3]), np.ascontiguousarray(T_target_host[:3, 3]),
+        kf.level_bearings[level], kf.level_inverse_depth[level], Ih, hv, float(np.exp(a_t - a_h)), b_h, b_t,
+        bool(with_normal_equations), np.ascontiguousarray(W, dtype=float) if given else _NO_WEIGHTS, given,
+        kf.level_variance[level], 2.0 * model.sigma_intensity ** 2, 0.0 if k is None else float(k), k is not None,
+        kf.level_countable[level], bool(kf.config.estimate_affine))
+    n_valid, n_out, n_pixels, lost = (int(c) for c in ints)
+    data_cost = float(loss.sum())
+    cost = data_cost + lost * _lost_pixel_loss(kf) if lost else data_cost  # (+ 0.0: the same cost)
+    if not with_normal_equations:
+        A = b = None
+    return _Eval(cost, A, b, n_valid, n_out, n_pixels, W if given else W_out, data_cost, r, valid)
+
+
+_NO_WEIGHTS = np.zeros((0, 0))  # tracker_terms' "compute the weights"
 
 
 def _lost_pixel_loss(kf: TrackingKeyframe) -> float:
-    """Constant cost of a pattern pixel that the state pushes out of the frame (or behind it)."""
-    norm, k = kf.config.lost_point_norm, kf.photometric.huber_k
+    """Constant cost of a pattern pixel that the state pushes out of the frame (or behind it);
+    computed once per keyframe and settings (the tracker asks at every cost evaluation)."""
+    norm, k, p = kf.config.lost_point_norm, kf.photometric.huber_k, kf.pattern.shape[0]
+    cached = kf.__dict__.get("_lost_pixel_loss")
+    if cached is not None and cached[0] == (norm, k, p):
+        return cached[1]
     loss = 0.5 * norm * norm if k is None else float(huber_loss(norm, k))  # no robust kernel: the square's
-    return loss / kf.pattern.shape[0]
+    kf._lost_pixel_loss = ((norm, k, p), loss / p)
+    return loss / p
 
 
 def _apply(T: gtsam.Pose3, affine: NDArray, dx: NDArray) -> tuple[gtsam.Pose3, NDArray]:
@@ -139,11 +181,22 @@ def _step_norm(dx: NDArray) -> float:
 
 
 def _solve(A: NDArray, b: NDArray, lam: float) -> NDArray:
+    """The damped step ``-(A + lam diag(A) + eps I)^-1 b`` by Cholesky, least squares when that
+    fails. LAPACK's ``potrf`` / ``potrs`` called directly: what ``scipy.linalg.cho_factor`` and
+    ``cho_solve`` call (the same numbers) without their per-call checks and wrappers, which cost
+    7x the 8x8 factorisation itself; a non-finite system raises ``ValueError`` as they do."""
     Ad = A + lam * np.diag(np.diag(A)) + 1e-12 * np.trace(A) / A.shape[0] * np.eye(A.shape[0])
-    try:
-        return -scipy.linalg.cho_solve(scipy.linalg.cho_factor(Ad), b)
-    except np.linalg.LinAlgError:
-        return -np.linalg.lstsq(Ad, b, rcond=None)[0]
+    if not (np.all(np.isfinite(Ad)) and np.all(np.isfinite(b))):
+        raise ValueError("tracking: the normal equations contain infs or NaNs")
+    c, info = _POTRF(Ad, lower=0, overwrite_a=0, clean=0)
+    if info == 0:
+        x, info = _POTRS(c, b, lower=0, overwrite_b=0)
+        if info == 0:
+            return -x
+    return -np.linalg.lstsq(Ad, b, rcond=None)[0]
+
+
+_POTRF, _POTRS = scipy.linalg.lapack.get_lapack_funcs(("potrf", "potrs"), (np.zeros((2, 2)),))
 
 
 def _lm_level(kf: TrackingKeyframe, level: int, target: GradientImage, T: gtsam.Pose3,
@@ -223,7 +276,7 @@ def _unrelated_rms(kf: TrackingKeyframe, ev: _Eval) -> float:
     """The whitened RMS residual on level 0 of an image unrelated to the keyframe but of its contrast:
     ``sqrt(2 Var(I_kf) mean(W))`` over the valid pattern pixels (two independent draws of the
     keyframe's intensities differ by ``2 Var`` in the mean square); NaN without valid pixels."""
-    valid = ev.lin.valid
+    valid = ev.valid
     if not valid.any():
         return float("nan")
     host = kf.host_samples[0][0]

@@ -170,6 +170,12 @@ class TrackingKeyframe:
         self.level_pixels: list[NDArray[np.float64]] = []
         self.level_bearings: list[NDArray[np.float64]] = []
         self.host_samples: list[tuple[NDArray, NDArray]] = []
+        #: per level, laid out once for the tracker's hot loop: the points' inverse depths and
+        #: variances (C-contiguous) and the host samples whose point has a positive inverse depth
+        #: (a pattern pixel lost in the frame costs only where one of these is invalid)
+        self.level_inverse_depth: list[NDArray[np.float64]] = []
+        self.level_variance: list[NDArray[np.float64]] = []
+        self.level_countable: list[NDArray[np.bool_]] = []
         for lv in range(self.levels):
             step = max(1, int(np.ceil(self.config.coarse_decay ** lv)))
             step = min(step, max(1, n // max(1, self.config.min_coarse_points)))
@@ -181,6 +187,9 @@ class TrackingKeyframe:
             level = pyramid[lv] if pyramid is not None else GradientImage(pyr[lv], clip_range=self.photometric.clip_range)
             Ih, hv = sample_host(level, lp, pat)  # laid out once for the compiled residuals
             self.host_samples.append((np.ascontiguousarray(Ih, dtype=float), np.ascontiguousarray(hv, dtype=bool)))
+            self.level_inverse_depth.append(np.ascontiguousarray(d[idx]))
+            self.level_variance.append(np.ascontiguousarray(V[idx]))
+            self.level_countable.append(self.host_samples[-1][1] & (d[idx] > 0)[:, None])
 
 
 def frame_pyramid(image: ArrayLike, levels: int,
