@@ -167,7 +167,7 @@ def test_no_parallel_flag_and_config_key(tmp_path):
 
     assert as_config({"window": {"parallel": True}}).window.parallel is True
     assert as_config({"window": {"parallel": "auto"}}).window.parallel == "auto"
-    assert OdometryConfig().window.parallel == "auto"
+    assert OdometryConfig().window.parallel is False
 
 
 def test_a_batch_log_runs_its_window_in_its_own_process_unless_its_config_asks():
@@ -234,7 +234,7 @@ def test_the_imu_rides_with_the_window_in_its_worker(imu_sequence):
 
 @pytest.mark.slow
 def test_auto_moves_the_window_to_the_worker_where_keyframes_come_at_every_frame(imu_sequence):
-    """The default (``auto``): sequential up to the decision keyframe, then the worker; the same
+    """``auto``: sequential up to the decision keyframe, then the worker; the same
     bytes in every run and under load; a log with frames between keyframes never starts one."""
     from gtvo.odometry.window_schedule import AUTO_DECISION_KEYFRAME  # noqa: PLC0415
 

@@ -34,8 +34,8 @@ def decisions(parallel, overlaps: list[bool]) -> list[int]:
     return moved
 
 
-def test_auto_is_the_default():
-    assert WindowConfig().parallel == "auto"
+def test_the_sequential_order_is_the_default():
+    assert WindowConfig().parallel is False
 
 
 def test_keyframes_at_every_frame_move_the_window_to_the_worker_once_at_the_decision_keyframe():
