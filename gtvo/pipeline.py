@@ -75,6 +75,9 @@ def run_odometry(seq: Sequence, config: OdometryConfig | None = None, progress: 
         if progress:
             from tqdm import tqdm  # noqa: PLC0415
 
+            from gtvo.core.jit import announce_compilation  # noqa: PLC0415
+
+            announce_compilation()  # the first run after an install: one line before its kernels compile
             bar = tqdm(indices, desc=f"gtvo {seq.name}", unit="frame", dynamic_ncols=True, file=sys.stderr)
             indices = bar
         t0 = time.perf_counter()

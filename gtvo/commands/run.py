@@ -84,10 +84,7 @@ def _on_off(p: argparse.ArgumentParser, name: str, on_help: str, off_help: str) 
 
 
 def main(args: argparse.Namespace) -> int:
-    from gtvo.core.jit import announce_compilation  # noqa: PLC0415
     from gtvo.pipeline import run  # noqa: PLC0415
-
-    announce_compilation()  # the first run after an install: one line, before the kernels compile
 
     for flag, value in (("--max-frames", args.max_frames), ("--frame-step", args.frame_step)):
         if value is not None and value < 1:
