@@ -36,7 +36,10 @@ from typing import Any  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+#: set in a --compare child: it imports gtvo from its PYTHONPATH (the checkout measured), not from here
+CHILD_ENV = "GTVO_WINDOW_COST_CHILD"
+if not os.environ.get(CHILD_ENV):
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 #: the stage clock's stages that are the window's work (gtvo.core.timing.FRAME_STAGES)
 WINDOW_STAGES = ("window_build", "linearisation", "solve", "marginalisation", "covariances")
@@ -47,6 +50,7 @@ WARMUP_FRAMES = 8
 
 def measure(sequence: Path, max_frames: int | None, frame_step: int, solver: str | None) -> dict[str, Any]:
     """One warm-up run and one measured run in this process: CPU ms per frame, window and whole."""
+    import gtvo  # noqa: PLC0415
     from gtvo.config import OdometryConfig, SolverConfig  # noqa: PLC0415
     from gtvo.core.timing import StageClock  # noqa: PLC0415
     from gtvo.datasets import open_sequence  # noqa: PLC0415
@@ -75,7 +79,8 @@ def measure(sequence: Path, max_frames: int | None, frame_step: int, solver: str
     return {"frames": n, "frame_ms": 1000.0 * total / n, "window_ms": sum(stages.get(s, 0.0) for s in WINDOW_STAGES),
             "stage_ms": stages, "window_optimisations": len(vo.window_results),
             "iterations": float(np.mean([r.iterations for r in vo.window_results])) if vo.window_results else 0.0,
-            "failures": vo.failures, "trajectory_sha256": digest}
+            "failures": vo.failures, "trajectory_sha256": digest,
+            "gtvo_path": str(Path(gtvo.__file__).resolve().parents[1])}
 
 
 def _child_args(args: argparse.Namespace) -> list[str]:
@@ -88,11 +93,14 @@ def _child_args(args: argparse.Namespace) -> list[str]:
 
 
 def _run_child(checkout: Path, args: argparse.Namespace) -> dict[str, Any]:
-    env = dict(os.environ, PYTHONPATH=str(checkout))
-    script = Path(__file__).resolve()
+    env = dict(os.environ, PYTHONPATH=str(checkout), **{CHILD_ENV: "1"})
+    script = Path(__file__).resolve()  # this script, measuring the gtvo of ``checkout`` (its PYTHONPATH)
     out = subprocess.run([sys.executable, str(script)] + _child_args(args), env=env, cwd=str(checkout),
                          capture_output=True, text=True, check=True)
-    return json.loads(out.stdout.strip().splitlines()[-1])
+    result = json.loads(out.stdout.strip().splitlines()[-1])
+    if Path(result["gtvo_path"]).resolve() != checkout.resolve():
+        raise RuntimeError(f"window_cost: the child measured {result['gtvo_path']}, not {checkout}")
+    return result
 
 
 def main(argv: list[str] | None = None) -> int:
