@@ -39,6 +39,7 @@ from gtvo.config import OdometryConfig  # noqa: E402
 from gtvo.core.timing import StageClock  # noqa: E402
 from gtvo.datasets import open_sequence  # noqa: E402
 from gtvo.odometry import VisualOdometry  # noqa: E402
+from gtvo.odometry import window_worker  # noqa: E402
 from gtvo.odometry.window_worker import FrontEndEvent, MessageSpan, WindowWorker  # noqa: E402
 
 #: messages that carry the window's work (scaled by ``--window-scale``)
@@ -137,6 +138,7 @@ def main() -> int:
     ap.add_argument("--window-scale", default="1,0.5", help="window message CPU factors replayed")
     ap.add_argument("--repeat", type=int, default=1)
     args = ap.parse_args()
+    window_worker.STAGE_TIMER = time.process_time  # the forked worker's stages in CPU seconds
     seq = open_sequence(args.log)
     frames = load_frames(seq, progress=False)
     if args.frames:
@@ -166,8 +168,10 @@ def main() -> int:
                 print(f"    worker asked for at front-end CPU {run['started'][1] - run['cpu0']:.2f} s "
                       f"(first send {move[0].cpu - run['started'][1]:.3f} s of CPU later)" if move else "")
             stages = run["stages"]
-            if stages:
-                print("    front end stages (CPU s): " + ", ".join(f"{k} {v:.2f}" for k, v in stages.items() if v > 0.005))
+            print("    front end stages (CPU s): " + ", ".join(f"{k} {v:.2f}" for k, v in stages.items() if v > 0.005))
+            if run["worker_stages"]:
+                print("    worker stages (CPU s): " + ", ".join(f"{k} {v:.2f}" for k, v in run["worker_stages"].items()
+                                                           if v > 0.005))
             for scale in scales:
                 rp = replay(run, scale)
                 seq_scaled = replay(seqrun, scale)["seconds"]

@@ -88,6 +88,9 @@ SLOTS = LAG + 1
 #: The worker's kernel threads when ``window.worker_threads`` is unset: one (a second gave no
 #: frames/s on the idle machine, docs/window.md, "Kernel threads in the worker").
 DEFAULT_WORKER_THREADS = 1
+#: The worker's stage clock's timer (wall time; a forked worker takes this process's value, so a
+#: benchmark may set ``time.process_time`` for CPU seconds by stage: benchmarks/window_timeline.py).
+STAGE_TIMER = time.perf_counter
 #: How the worker starts: ``"fork"`` (a copy of the front end's process, Linux) or ``"spawn"`` (a new
 #: interpreter that imports gtvo and unpickles the window: elsewhere).
 START_METHOD = "fork" if sys.platform.startswith("linux") and hasattr(os, "fork") else "spawn"
@@ -631,7 +634,7 @@ def serve(conn: Connection, link: WindowLink, memory: mmap.mmap, slot_size: int,
     """The worker's loop on its window ``link`` (with the worker's copies of its sensors): one reply
     per message, in order, until the pipe closes. ``timeline``: the worker's spans so far (its
     start), each message's appended (:class:`MessageSpan`, read with the ``timeline`` message)."""
-    clock = StageClock()
+    clock = StageClock(timer=STAGE_TIMER)
     spans: list[MessageSpan] = [] if timeline is None else timeline
     while True:
         try:
