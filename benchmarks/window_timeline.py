@@ -40,7 +40,7 @@ from gtvo.core.timing import StageClock  # noqa: E402
 from gtvo.datasets import open_sequence  # noqa: E402
 from gtvo.odometry import VisualOdometry  # noqa: E402
 from gtvo.odometry import window_worker  # noqa: E402
-from gtvo.odometry.window_worker import FrontEndEvent, MessageSpan, WindowWorker  # noqa: E402
+from gtvo.odometry.window_worker import LAG, FrontEndEvent, MessageSpan, WindowWorker  # noqa: E402
 
 #: messages that carry the window's work (scaled by ``--window-scale``)
 WINDOW_MESSAGES = ("join", "optimize")
@@ -79,9 +79,13 @@ def one_run(camera: Any, frames: list, parallel: bool | str) -> dict[str, Any]:
             "worker_stages": None if usage is None else usage.seconds_by_stage}
 
 
-def replay(run: dict[str, Any], scale: float = 1.0) -> dict[str, float]:
+def replay(run: dict[str, Any], scale: float = 1.0, lag: int = LAG, rows: list[str] | None = None) -> dict[str, float]:
     """The run's schedule on two idle cores (module docstring): seconds, the front end's waits, the
-    worker's idle seconds between its first and last message."""
+    worker's idle seconds between its first and last message. ``lag``: the waits the run made
+    :data:`LAG` messages behind its last send are replayed ``lag`` behind instead (the waits at once
+    stay; the results, which would change with the lag, are not replayed). ``rows``: one line per
+    message appended (sent at, worker start and end, the worker's idle before it, the front end's
+    wait for it), in replayed seconds."""
     spans: list[MessageSpan] = run["spans"]
     events: list[FrontEndEvent] = run["events"]
     local_window = sum(run["stages"].get(k, 0.0) for k in WINDOW_STAGES)  # the window in this process
@@ -103,20 +107,32 @@ def replay(run: dict[str, Any], scale: float = 1.0) -> dict[str, float]:
             cost = span.cpu_seconds * (scale if span.kind in WINDOW_MESSAGES else 1.0)
             begin = max(worker_free, arrival[next_message])
             idle += begin - worker_free
+            if rows is not None:
+                rows.append(f"{next_message:4d} {span.kind:9s} sent {arrival[next_message]:7.3f} worker "
+                            f"{begin:7.3f}-{begin + cost:7.3f} (idle before {begin - worker_free:6.3f})")
             worker_free = begin + cost
             done[next_message] = worker_free
             next_message += 1
 
+    last_sent = -1
     for ev in events:
         t_front += ev.cpu - cpu_prev
         cpu_prev = ev.cpu
         if ev.kind == "send":
             arrival[ev.number] = t_front
+            last_sent = ev.number
         else:
-            run_worker_until(ev.number)
-            if done[ev.number] > t_front:
-                waits += done[ev.number] - t_front
-                t_front = done[ev.number]
+            number = ev.number
+            if number == last_sent - LAG:
+                number = last_sent - lag
+            if number < 0:
+                continue
+            run_worker_until(number)
+            if done[number] > t_front:
+                if rows is not None:
+                    rows.append(f"     front end waits {done[number] - t_front:6.3f} at {t_front:7.3f} for {number}")
+                waits += done[number] - t_front
+                t_front = done[number]
     t_front += run["cpu1"] - cpu_prev
     # the window's stages in this process ran before the move (auto), the schedule then sequential
     return {"seconds": t_front - (1 - scale) * local_window, "waits": waits, "idle": idle}
@@ -137,6 +153,8 @@ def main() -> int:
     ap.add_argument("--modes", default="auto", help="parallel modes beside the sequential one: auto, parallel")
     ap.add_argument("--window-scale", default="1,0.5", help="window message CPU factors replayed")
     ap.add_argument("--repeat", type=int, default=1)
+    ap.add_argument("--per-message", action="store_true", help="print the replayed timeline (window x1, the run's lag)")
+    ap.add_argument("--lags", default=str(LAG), help="lags replayed (the run's own: gtvo.odometry.window_worker.LAG)")
     args = ap.parse_args()
     window_worker.STAGE_TIMER = time.process_time  # the forked worker's stages in CPU seconds
     seq = open_sequence(args.log)
@@ -172,10 +190,14 @@ def main() -> int:
             if run["worker_stages"]:
                 print("    worker stages (CPU s): " + ", ".join(f"{k} {v:.2f}" for k, v in run["worker_stages"].items()
                                                            if v > 0.005))
-            for scale in scales:
-                rp = replay(run, scale)
+            if args.per_message:
+                lines: list[str] = []
+                replay(run, 1.0, LAG, lines)
+                print("\n".join("      " + line for line in lines))
+            for scale, lag in ((x, int(n)) for x in scales for n in args.lags.split(",")):
+                rp = replay(run, scale, lag)
                 seq_scaled = replay(seqrun, scale)["seconds"]
-                print(f"    window x{scale:g}: replay {rp['seconds']:.2f} s -> {seq_scaled / rp['seconds']:.3f}x the "
+                print(f"    window x{scale:g}, lag {lag}: replay {rp['seconds']:.2f} s -> {seq_scaled / rp['seconds']:.3f}x the "
                       f"sequential frames/s (sequential {seq_scaled:.2f} s); front end waits {rp['waits']:.2f} s, "
                       f"worker idle {rp['idle']:.2f} s")
     return 0

@@ -3,14 +3,19 @@ process, one of the two machines behind :class:`gtvo.odometry.window_port.Window
 
 ``window.parallel: true``, or ``auto`` once the schedule moves the window here (docs/window.md,
 "The window beside the tracker"). The window's host factors hold the GIL, so a thread would not
-run them beside the tracker: the window lives in a worker process (``python -c`` on a socket
-pair) that owns its whole state (keyframes with their images, the marginal prior, the rig offset,
-its copies of the window's sensors: the wheel calibration, the IMU; with ``--refine`` the
-keyframes that left, handed back by :meth:`WindowWorker.finish`). It starts from a
-:class:`gtvo.odometry.window_link.WindowLink` the front end gives it, new or with the state a window
-in this process reached (``window.parallel: auto``), pickled whole (its images as grey levels,
-the gradients built again bit for bit in the worker) into an anonymous file the worker reads once it
-is up (the front end does not wait for its start): whatever sensor the window has goes
+run them beside the tracker: the window lives in a worker process that owns its whole state
+(keyframes with their images, the marginal prior, the rig offset, its copies of the window's
+sensors: the wheel calibration, the IMU; with ``--refine`` the keyframes that left, handed back by
+:meth:`WindowWorker.finish`). It starts from a :class:`gtvo.odometry.window_link.WindowLink` the
+front end gives it, new or with the state a window in this process reached (``window.parallel:
+auto``). On Linux (:data:`START_METHOD` ``"fork"``) the worker is a fork of the front end's
+process: the link, the modules and the compiled kernels are already there, and the hand-over
+costs milliseconds of CPU (a new interpreter spent 1.5-2 s of CPU importing gtvo, unpickling the
+window, building its gradients again and loading the kernels: 20-25 % of a sequential run of
+KITTI_sequence_1, and the front end waited for it at its first reply). Elsewhere (``"spawn"``: a
+``python -c`` on a socket pair) the link is pickled whole (its images as grey levels, the
+gradients built again bit for bit in the worker) into an anonymous file the worker reads once it
+is up (the front end does not wait for its start). Either way whatever sensor the window has goes
 with it, and each update the worker hands out carries every sensor's
 :meth:`~gtvo.odometry.window_link.CarriedSensor.window_state` back to the front end's copy. The front end sends each new
 keyframe (pose, points, the keyframe it was tracked against) with its two images in grey levels
@@ -411,7 +416,8 @@ def _forked_worker(link: WindowLink, camera: StereoCamera | PinholeCamera, confi
     milliseconds instead of the second or two of CPU a new interpreter takes. The child closes
     every descriptor but its end of the pipe (a pipe of this process's other workers it held would
     keep them from seeing their end), freezes the objects it inherited (the cyclic collector leaves
-    them, and their finalizers, to this process) and never returns: it ends with ``os._exit``."""
+    them, and their finalizers, to this process), opens its own standard streams and never returns:
+    it ends with ``os._exit``."""
     parent_sock, child_sock = socket.socketpair()
     for stream in (sys.stdout, sys.stderr):
         try:
@@ -429,6 +435,10 @@ def _forked_worker(link: WindowLink, camera: StereoCamera | PinholeCamera, confi
                 os.closerange(3, keep)
                 os.closerange(keep + 1, _max_fd())
                 gc.freeze()
+                # its own standard streams: a lock another thread of this process held at the fork
+                # (a progress bar writing) stays held in the child's copies
+                sys.stdout = open(1, "w", buffering=1, closefd=False)  # noqa: SIM115
+                sys.stderr = open(2, "w", buffering=1, closefd=False)  # noqa: SIM115
                 wall0, cpu0 = time.perf_counter(), time.process_time()
                 conn = Connection(keep)
                 set_kernel_threads(worker_threads(config))
