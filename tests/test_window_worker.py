@@ -6,6 +6,7 @@ message, and the front end's sends and waits are recorded."""
 from __future__ import annotations
 
 import dataclasses
+import os
 
 import pytest
 
@@ -76,7 +77,7 @@ def test_closing_one_forked_worker_ends_it_while_another_lives(seq, monkeypatch)
 
 @pytest.mark.slow
 def test_the_timeline_has_the_start_and_one_span_per_message_and_the_front_ends_events(seq, monkeypatch):
-    worker, updates = solve_two(seq, window_worker.START_METHOD, monkeypatch)
+    worker, _ = solve_two(seq, window_worker.START_METHOD, monkeypatch)
     try:
         spans = worker.timeline()
     finally:
@@ -92,8 +93,6 @@ def test_the_timeline_has_the_start_and_one_span_per_message_and_the_front_ends_
 def test_a_forked_process_handle_reports_its_exit_code():
     if window_worker.START_METHOD != "fork":
         pytest.skip("os.fork is used on Linux only")
-    import os  # noqa: PLC0415
-
     pid = os.fork()
     if pid == 0:  # pragma: no cover - the child
         os._exit(3)
