@@ -24,7 +24,7 @@ from gtvo.core.image import to_float_gray
 from gtvo.datasets.synthetic import make_synthetic_sequence
 from gtvo.datasets.synthetic_imu import ImuSimulation
 from gtvo.errors import InputError
-from gtvo.odometry import keyframer
+from gtvo.odometry import keyframer, window_worker
 from gtvo.odometry.keyframe_points import frame_points
 from gtvo.odometry.window_link import KeyframeForWindow
 from gtvo.odometry.window_port import LocalWindow, WindowPort, open_window
@@ -210,10 +210,14 @@ def test_a_sensors_window_state_brings_a_copy_up_to_date():
 
 
 @pytest.mark.slow
-def test_a_window_moved_to_a_worker_continues_there_as_it_would_have_here():
-    """``window.parallel: auto``: a window in this process moves to a worker with its state (images
-    as grey levels, gradients built again) and its next optimisation there equals, to the bit, the
-    one the window in this process makes."""
+@pytest.mark.parametrize("method", ["fork", "spawn"])
+def test_a_window_moved_to_a_worker_continues_there_as_it_would_have_here(method, monkeypatch):
+    """``window.parallel: auto``: a window in this process moves to a worker with its state (forked:
+    this process's own; spawned: pickled, images as grey levels, gradients built again) and its next
+    optimisation there equals, to the bit, the one the window in this process makes."""
+    if method == "fork" and window_worker.START_METHOD != "fork":
+        pytest.skip("os.fork is used on Linux only")
+    monkeypatch.setattr(window_worker, "START_METHOD", method)
     seq = make_synthetic_sequence(n_frames=3, width=160, height=120, step_m=0.1)
     here, moved = LocalWindow(seq.camera, config(False)), LocalWindow(seq.camera, config(False))
     for window in (here, moved):

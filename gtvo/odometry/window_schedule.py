@@ -32,7 +32,7 @@ from gtvo.window import WindowConfig
 
 #: ``window.parallel: auto`` decides at this keyframe (counted from 1): after two windows of the
 #: default size, when the start (the rig offset's first test, the first marginalisations) is over and
-#: a worker's start (about a second of CPU on the other core) still has a run ahead to pay for.
+#: the count of keyframes that could overlap says enough about the log.
 AUTO_DECISION_KEYFRAME = 15
 #: ... for the worker when at least this fraction of the keyframes after the first could have gone
 #: unrefined (KITTI at 10 Hz: all of them; frames between keyframes, TUM and EuRoC: none).

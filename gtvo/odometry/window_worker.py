@@ -3,14 +3,19 @@ process, one of the two machines behind :class:`gtvo.odometry.window_port.Window
 
 ``window.parallel: true``, or ``auto`` once the schedule moves the window here (docs/window.md,
 "The window beside the tracker"). The window's host factors hold the GIL, so a thread would not
-run them beside the tracker: the window lives in a worker process (``python -c`` on a socket
-pair) that owns its whole state (keyframes with their images, the marginal prior, the rig offset,
-its copies of the window's sensors: the wheel calibration, the IMU; with ``--refine`` the
-keyframes that left, handed back by :meth:`WindowWorker.finish`). It starts from a
-:class:`gtvo.odometry.window_link.WindowLink` the front end gives it, new or with the state a window
-in this process reached (``window.parallel: auto``), pickled whole (its images as grey levels,
-the gradients built again bit for bit in the worker) into an anonymous file the worker reads once it
-is up (the front end does not wait for its start): whatever sensor the window has goes
+run them beside the tracker: the window lives in a worker process that owns its whole state
+(keyframes with their images, the marginal prior, the rig offset, its copies of the window's
+sensors: the wheel calibration, the IMU; with ``--refine`` the keyframes that left, handed back by
+:meth:`WindowWorker.finish`). It starts from a :class:`gtvo.odometry.window_link.WindowLink` the
+front end gives it, new or with the state a window in this process reached (``window.parallel:
+auto``). On Linux (:data:`START_METHOD` ``"fork"``) the worker is a fork of the front end's
+process: the link, the modules and the compiled kernels are already there, and the hand-over
+costs milliseconds of CPU (a new interpreter spent 1.5-2 s of CPU importing gtvo, unpickling the
+window, building its gradients again and loading the kernels: 20-25 % of a sequential run of
+KITTI_sequence_1, and the front end waited for it at its first reply). Elsewhere (``"spawn"``: a
+``python -c`` on a socket pair) the link is pickled whole (its images as grey levels, the
+gradients built again bit for bit in the worker) into an anonymous file the worker reads once it
+is up (the front end does not wait for its start). Either way whatever sensor the window has goes
 with it, and each update the worker hands out carries every sensor's
 :meth:`~gtvo.odometry.window_link.CarriedSensor.window_state` back to the front end's copy. The front end sends each new
 keyframe (pose, points, the keyframe it was tracked against) with its two images in grey levels
@@ -41,14 +46,17 @@ reply; a worker that died (killed) is one :class:`WindowWorkerError`.
 from __future__ import annotations
 
 import copyreg
+import gc
 import io
 import mmap
 import os
 import pickle
 import resource
+import signal
 import socket
 import subprocess
 import sys
+import time
 import traceback
 import weakref
 import dataclasses
@@ -85,6 +93,12 @@ SLOTS = LAG + 1
 #: The worker's kernel threads when ``window.worker_threads`` is unset: one (a second gave no
 #: frames/s on the idle machine, docs/window.md, "Kernel threads in the worker").
 DEFAULT_WORKER_THREADS = 1
+#: The worker's stage clock's timer (wall time; a forked worker takes this process's value, so a
+#: benchmark may set ``time.process_time`` for CPU seconds by stage: benchmarks/window_timeline.py).
+STAGE_TIMER = time.perf_counter
+#: How the worker starts: ``"fork"`` (a copy of the front end's process, Linux) or ``"spawn"`` (a new
+#: interpreter that imports gtvo and unpickles the window: elsewhere).
+START_METHOD = "fork" if sys.platform.startswith("linux") and hasattr(os, "fork") else "spawn"
 
 
 class WindowWorkerError(RuntimeError):
@@ -103,6 +117,31 @@ class WorkerUsage:
     seconds_by_stage: dict[str, float]
     kernel_threads: int = 1
     pool_cpu_seconds: float = 0.0
+
+
+@dataclass
+class MessageSpan:
+    """One message the worker handled (or its start, ``kind`` ``"start"``: from the process's
+    start to its first message): wall clock (``time.perf_counter``, system-wide) at its start and
+    end, and the worker's CPU seconds (all threads) in between."""
+
+    kind: str
+    wall_start: float
+    wall_end: float
+    cpu_seconds: float
+
+
+@dataclass
+class FrontEndEvent:
+    """What the front end did with the worker: ``"send"`` (message ``number`` sent) or ``"wait"``
+    (for the reply of message ``number``: wall clock before and after), with the front end's
+    process CPU seconds (``time.process_time``) at the event's start."""
+
+    kind: str
+    number: int
+    wall_start: float
+    wall_end: float
+    cpu: float
 
 
 class WindowWorker:
@@ -154,28 +193,22 @@ class WindowWorker:
         self._received: deque[Any] = deque()  # replies received, not yet handed out, in order
         self._n_received = 0
         self._joins: deque[int] = deque()  # per keyframe sent whose reply is not handed out: its message number
+        #: the front end's sends and waits (:class:`FrontEndEvent`), for the timeline (benchmarks/parallel_window.py)
+        self.events: list[FrontEndEvent] = []
+        #: wall clock and this process's CPU seconds when the worker was asked for
+        self.started = (time.perf_counter(), time.process_time())
         self._shape = (int(pinhole.height), int(pinhole.width))
         planes = 2 if stereo else 1
         self._slot_size = planes * self._shape[0] * self._shape[1] * 4
         self._memory, memory_fd = _shared_memory(SLOTS * self._slot_size)
-        state_fd = _state_file(window_bytes(link))  # read by the worker when it is up: the front end goes on
-        parent_sock, child_sock = socket.socketpair()
-        env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in sys.path if isinstance(p, str)))
-        with interrupts_held():  # the worker starts with SIGINT blocked, then ignores it
-            self._process = subprocess.Popen(
-                [sys.executable, "-c", _WORKER_MAIN, str(child_sock.fileno()), str(memory_fd), str(state_fd)],
-                pass_fds=(child_sock.fileno(), memory_fd, state_fd), stdin=subprocess.DEVNULL, env=env,
-                close_fds=True)
-        child_sock.close()
-        os.close(memory_fd)
-        os.close(state_fd)
-        self._conn = Connection(os.dup(parent_sock.fileno()))
-        parent_sock.close()
+        if START_METHOD == "fork":
+            self._process, self._conn = _forked_worker(link, camera, config, self._memory, self._shape,
+                                                       self._slot_size)
+            os.close(memory_fd)
+        else:
+            self._process, self._conn = _spawned_worker(link, camera, config, memory_fd, self._shape,
+                                                        self._slot_size)
         self._finalizer = weakref.finalize(self, _stop, self._conn, self._process, self._memory)
-        try:  # the worker's settings: the one message without a reply (its window is in its state file)
-            self._conn.send(("start", camera, config, self._shape, SLOTS, self._slot_size))
-        except OSError:
-            raise self._died() from None
 
     # -- the port: driving the window ---------------------------------------------------------
     @property
@@ -262,6 +295,10 @@ class WindowWorker:
         """This window (it runs on the second core already)."""
         return self
 
+    def timeline(self) -> list[MessageSpan]:
+        """The worker's spans so far: its start, then one per message handled, in order."""
+        return self._ask(("timeline",))
+
     def worker_usage(self) -> WorkerUsage:
         """The worker's CPU time, peak memory and stage seconds so far."""
         return self._ask(("usage",))
@@ -281,10 +318,12 @@ class WindowWorker:
 
     # -- the pipe ------------------------------------------------------------------------------
     def _send(self, message: tuple) -> None:
+        wall, cpu = time.perf_counter(), time.process_time()
         try:
             self._conn.send(message)
         except (BrokenPipeError, EOFError, OSError):
             raise self._died() from None
+        self.events.append(FrontEndEvent("send", self._sent, wall, time.perf_counter(), cpu))
         self._sent += 1
 
     def _hand_out(self, count: int) -> list[WindowUpdate]:
@@ -319,6 +358,7 @@ class WindowWorker:
         """Receive replies until that of message ``number`` is in (the front end waits here)."""
         if self._n_received > number:
             return
+        wall, cpu = time.perf_counter(), time.process_time()
         with stage("window_wait"):
             while self._n_received <= number:
                 try:
@@ -330,6 +370,7 @@ class WindowWorker:
                     self.close()
                     raise value
                 self._received.append(value)
+        self.events.append(FrontEndEvent("wait", number, wall, time.perf_counter(), cpu))
 
     def _died(self) -> WindowWorkerError:
         try:
@@ -339,6 +380,126 @@ class WindowWorker:
         self.close()
         return WindowWorkerError(f"the window's worker process ended unexpectedly (exit code {code}): "
                                  "killed, or out of memory; run with --no-parallel to keep the window in one process")
+
+
+def _spawned_worker(link: WindowLink, camera: StereoCamera | PinholeCamera, config: OdometryConfig, memory_fd: int,
+                    shape: tuple[int, int], slot_size: int) -> tuple[subprocess.Popen, Connection]:
+    """A new interpreter (``python -c`` on a socket pair) that imports gtvo, reads ``link`` pickled
+    (:func:`window_bytes`) from an anonymous file once it is up, loads the compiled kernels and
+    serves: the start method where ``os.fork`` is not safe to use (not Linux)."""
+    state_fd = _state_file(window_bytes(link))  # read by the worker when it is up: the front end goes on
+    parent_sock, child_sock = socket.socketpair()
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in sys.path if isinstance(p, str)))
+    with interrupts_held():  # the worker starts with SIGINT blocked, then ignores it
+        process = subprocess.Popen(
+            [sys.executable, "-c", _WORKER_MAIN, str(child_sock.fileno()), str(memory_fd), str(state_fd)],
+            pass_fds=(child_sock.fileno(), memory_fd, state_fd), stdin=subprocess.DEVNULL, env=env,
+            close_fds=True)
+    child_sock.close()
+    os.close(memory_fd)
+    os.close(state_fd)
+    conn = Connection(os.dup(parent_sock.fileno()))
+    parent_sock.close()
+    try:  # the worker's settings: the one message without a reply (its window is in its state file)
+        conn.send(("start", camera, config, shape, SLOTS, slot_size))
+    except OSError:
+        process.wait()
+        raise WindowWorkerError("the window's worker process did not start") from None
+    return process, conn
+
+
+def _forked_worker(link: WindowLink, camera: StereoCamera | PinholeCamera, config: OdometryConfig,
+                   memory: mmap.mmap, shape: tuple[int, int], slot_size: int) -> tuple[ForkedProcess, Connection]:
+    """A copy of this process (``os.fork``) that serves ``link`` as it is here: nothing imported,
+    pickled or built again (its modules, compiled kernels and the window's images are this
+    process's pages, copied by the kernel only where one side writes), so the hand-over costs
+    milliseconds instead of the second or two of CPU a new interpreter takes. The child closes
+    every descriptor but its end of the pipe (a pipe of this process's other workers it held would
+    keep them from seeing their end), freezes the objects it inherited (the cyclic collector leaves
+    them, and their finalizers, to this process), opens its own standard streams and never returns:
+    it ends with ``os._exit``."""
+    parent_sock, child_sock = socket.socketpair()
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()  # nothing buffered here is written twice
+        except (AttributeError, OSError, ValueError):
+            pass
+    with interrupts_held():  # the child starts with SIGINT blocked, then ignores it
+        pid = os.fork()
+        if pid == 0:  # pragma: no cover - the child (covered by the parallel window's tests)
+            code = 1
+            try:
+                signal.signal(signal.SIGINT, signal.SIG_IGN)
+                signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+                keep = child_sock.fileno()
+                os.closerange(3, keep)
+                os.closerange(keep + 1, _max_fd())
+                gc.freeze()
+                # its own standard streams: a lock another thread of this process held at the fork
+                # (a progress bar writing) stays held in the child's copies
+                sys.stdout = open(1, "w", buffering=1, closefd=False)  # noqa: SIM115
+                sys.stderr = open(2, "w", buffering=1, closefd=False)  # noqa: SIM115
+                wall0, cpu0 = time.perf_counter(), time.process_time()
+                conn = Connection(keep)
+                set_kernel_threads(worker_threads(config))
+                with single_threaded_blas():
+                    if not link.window.keyframes:  # a new window: its kernels loaded before the first keyframe
+                        warm_up(camera, config)
+                start = MessageSpan("start", wall0, time.perf_counter(), time.process_time() - cpu0)
+                serve(conn, link, memory, slot_size, shape, [start])
+                code = 0
+            finally:
+                os._exit(code)
+    child_sock.close()
+    return ForkedProcess(pid), Connection(parent_sock.detach())
+
+
+def _max_fd() -> int:
+    """One more than the highest descriptor number this process may have open."""
+    try:
+        return max(int(name) for name in os.listdir("/proc/self/fd")) + 1
+    except (OSError, ValueError):
+        return int(os.sysconf("SC_OPEN_MAX"))
+
+
+class ForkedProcess:
+    """The forked worker, with the part of :class:`subprocess.Popen`'s interface the port uses."""
+
+    def __init__(self, pid: int) -> None:
+        self.pid = pid
+        self.returncode: int | None = None
+
+    def poll(self) -> int | None:
+        """The exit code (negative: the signal that ended it) once the process ended, else None."""
+        if self.returncode is None:
+            try:
+                pid, status = os.waitpid(self.pid, os.WNOHANG)
+            except ChildProcessError:  # reaped elsewhere
+                self.returncode = -1
+                return self.returncode
+            if pid != 0:
+                self.returncode = os.waitstatus_to_exitcode(status)
+        return self.returncode
+
+    def wait(self, timeout: float | None = None) -> int:
+        """Wait for the process to end (``subprocess.TimeoutExpired`` after ``timeout`` seconds)."""
+        deadline = None if timeout is None else time.monotonic() + timeout
+        delay = 0.0005
+        while self.poll() is None:
+            if deadline is not None and time.monotonic() > deadline:
+                raise subprocess.TimeoutExpired(f"window worker {self.pid}", timeout or 0.0)
+            time.sleep(delay)
+            delay = min(2 * delay, 0.05)
+        assert self.returncode is not None
+        return self.returncode
+
+    def kill(self) -> None:
+        """SIGKILL, unless it has ended."""
+        if self.poll() is None:
+            try:
+                os.kill(self.pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
 
 
 def window_bytes(link: WindowLink) -> bytes:
@@ -426,6 +587,7 @@ _WORKER_MAIN = ("import signal, sys; signal.signal(signal.SIGINT, signal.SIG_IGN
 def main(socket_fd: int, memory_fd: int, state_fd: int) -> None:
     """The worker process: its pipe, shared memory and starting window (``state_fd``: the pickled
     :class:`gtvo.odometry.window_link.WindowLink`, :func:`window_bytes`) from the parent, then :func:`serve`."""
+    wall0 = time.perf_counter()
     conn = Connection(socket_fd)
     with os.fdopen(state_fd, "rb") as state:
         state.seek(0)
@@ -438,7 +600,9 @@ def main(socket_fd: int, memory_fd: int, state_fd: int) -> None:
     set_kernel_threads(worker_threads(config))
     with single_threaded_blas():
         warm_up(camera, config)
-    serve(conn, link, memory, slot_size, shape)
+    ru = resource.getrusage(resource.RUSAGE_SELF)
+    start = MessageSpan("start", wall0, time.perf_counter(), ru.ru_utime + ru.ru_stime)
+    serve(conn, link, memory, slot_size, shape, [start])
 
 
 def worker_threads(config: OdometryConfig) -> int:
@@ -475,18 +639,25 @@ def warm_up(camera: StereoCamera | PinholeCamera, config: OdometryConfig) -> Non
         pass
 
 
-def serve(conn: Connection, link: WindowLink, memory: mmap.mmap, slot_size: int, shape: tuple[int, int]) -> None:
+def serve(conn: Connection, link: WindowLink, memory: mmap.mmap, slot_size: int, shape: tuple[int, int],
+          timeline: list[MessageSpan] | None = None) -> None:
     """The worker's loop on its window ``link`` (with the worker's copies of its sensors): one reply
-    per message, in order, until the pipe closes."""
-    clock = StageClock()
+    per message, in order, until the pipe closes. ``timeline``: the worker's spans so far (its
+    start), each message's appended (:class:`MessageSpan`, read with the ``timeline`` message)."""
+    clock = StageClock(timer=STAGE_TIMER)
+    spans: list[MessageSpan] = [] if timeline is None else timeline
     while True:
         try:
             message = conn.recv()
         except (EOFError, OSError):
             return
+        wall0, cpu0 = time.perf_counter(), time.process_time()
         try:
-            with clock.activate("other"), single_threaded_blas():
-                reply = _handle(link, message, memory, slot_size, shape, clock)
+            if message[0] == "timeline":
+                reply: Any = list(spans)
+            else:
+                with clock.activate("other"), single_threaded_blas():
+                    reply = _handle(link, message, memory, slot_size, shape, clock)
         except BaseException as exc:  # noqa: BLE001 - every failure goes back to the front end
             try:
                 conn.send(("error", _portable(exc)))
@@ -497,6 +668,7 @@ def serve(conn: Connection, link: WindowLink, memory: mmap.mmap, slot_size: int,
             conn.send(("ok", reply))
         except (BrokenPipeError, EOFError, OSError):
             return
+        spans.append(MessageSpan(str(message[0]), wall0, time.perf_counter(), time.process_time() - cpu0))
 
 
 def _handle(link: WindowLink, message: tuple, memory: mmap.mmap, slot_size: int, shape: tuple[int, int],
