@@ -17,6 +17,8 @@
   cost of making a keyframe on KITTI): histograms narrow the values down to the bins of the middle
   ones, a small sort of those gives them;
 * :func:`smooth_block_thresholds`: the block thresholds' 3x3 smoothing;
+* :func:`noise_gradient`, :func:`values_where_at_most`: the noise estimate's gradient and its
+  responses over the smoother half of the pixels (``image_noise``) without numpy's temporaries;
 * :func:`tracker_terms`: one evaluation of the tracker's cost (residuals, weights, Huber terms,
   counts, normal equations) in one call instead of a dozen numpy passes and calls.
 """
@@ -674,3 +676,32 @@ def tracker_terms(packed, has_clip, width, height, border, fx, fy, cx, cy, min_d
     gK = np.array([g0, g1, g2, g3, g4, g5, g6, g7])
     kk = 8 if (with_affine and n > 0) else 6
     return r, valid, W_out, loss, ints, np.ascontiguousarray(HK[:kk, :kk]), np.ascontiguousarray(gK[:kk])
+
+
+@jit
+def noise_gradient(img):
+    """The noise estimate's gradient (``image_noise``) of a float32 image (H, W >= 3):
+    ``|I(x+1) - I(x-1)| + |I(y+1) - I(y-1)|`` (float32) at the interior pixels, (H - 2, W - 2), in
+    one pass (numpy made four temporary images)."""
+    h, w = img.shape
+    g = np.empty((h - 2, w - 2), dtype=np.float32)
+    for y in range(1, h - 1):
+        row, up, down, gy = img[y], img[y - 1], img[y + 1], g[y - 1]
+        for x in range(1, w - 1):
+            gy[x - 1] = abs(row[x + 1] - row[x - 1]) + abs(down[x] - up[x])
+    return g
+
+
+@jit
+def values_where_at_most(values, key, limit):
+    """``values[key <= limit]`` of two (H, W) arrays (row-major order, the values' dtype) in one pass."""
+    h, w = key.shape
+    out = np.empty(h * w, dtype=values.dtype)
+    n = 0
+    for y in range(h):
+        ky, vy = key[y], values[y]
+        for x in range(w):
+            if ky[x] <= limit:
+                out[n] = vy[x]
+                n += 1
+    return out[:n]
