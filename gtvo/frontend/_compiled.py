@@ -19,6 +19,8 @@
 * :func:`smooth_block_thresholds`: the block thresholds' 3x3 smoothing;
 * :func:`noise_gradient`, :func:`values_where_at_most`: the noise estimate's gradient and its
   responses over the smoother half of the pixels (``image_noise``) without numpy's temporaries;
+* :func:`damped_system`: the tracker's damped normal matrix and its finiteness in one call instead
+  of nine numpy ones (each as costly as the 8x8 system's whole arithmetic);
 * :func:`tracker_terms`: one evaluation of the tracker's cost (residuals, weights, Huber terms,
   counts, normal equations) in one call instead of a dozen numpy passes and calls.
 """
@@ -705,3 +707,22 @@ def values_where_at_most(values, key, limit):
                 out[n] = vy[x]
                 n += 1
     return out[:n]
+
+
+@jit
+def damped_system(A, b, lam, eps):
+    """``A + lam * diag(diag(A)) + eps * I`` of a square ``A`` (``tracking._solve``'s numpy
+    expression: the same operations in the same order per element, ``lam * 0`` and ``eps * 0``
+    off the diagonal included) and whether it and ``b`` are all finite."""
+    n = A.shape[0]
+    Ad = np.empty((n, n))
+    finite = True
+    for i in range(n):
+        for j in range(n):
+            on = i == j
+            v = (A[i, j] + lam * (A[i, i] if on else 0.0)) + eps * (1.0 if on else 0.0)
+            Ad[i, j] = v
+            finite &= np.isfinite(v)
+    for i in range(b.shape[0]):
+        finite &= np.isfinite(b[i])
+    return Ad, finite
