@@ -6,6 +6,8 @@
   arrays per level (about half of ``select_points``' time on KITTI);
 * :func:`gradient_norm`: the point selection's gradient magnitude in one pass;
 * :func:`best_and_second`: the search's best candidate and its uniqueness competitor per point;
+* :func:`subpixel_refine`: the stereo refinement's Gauss-Newton loop, per point, with numpy's
+  sums (a dozen (N, P) numpy passes per step before);
 * :func:`cubic_row_with_slope`: the stereo refinement's cubic samples of the right image along
   its rows and their exact x derivatives;
 * :func:`gradients_at`: the left image's gradients at the stereo patterns' pixels only;
@@ -455,6 +457,30 @@ def best_and_second(cost):
 
 
 @jit
+def _cubic_at(img, x, y):
+    """Keys' cubic convolution (``a = -1/2``) of a float32 (H, W) image along row ``y`` at the real
+    column ``x`` and its exact x derivative: ``(valid, value, slope)``; valid when the four taps
+    ``floor(x) - 1 .. floor(x) + 2`` and the row are in the image (0, 0 otherwise)."""
+    h, w = img.shape
+    fx = np.floor(x)
+    x0 = int(fx)
+    if x0 < 1 or x0 > w - 3 or y < 0 or y > h - 1:
+        return False, 0.0, 0.0
+    t = x - fx
+    t2 = t * t
+    t3 = t2 * t
+    a = np.float64(img[y, x0 - 1])
+    b = np.float64(img[y, x0])
+    c = np.float64(img[y, x0 + 1])
+    d = np.float64(img[y, x0 + 2])
+    val = 0.5 * ((-t3 + 2 * t2 - t) * a + (3 * t3 - 5 * t2 + 2) * b + (-3 * t3 + 4 * t2 + t) * c
+                 + (t3 - t2) * d)
+    slope = 0.5 * ((-3 * t2 + 4 * t - 1) * a + (9 * t2 - 10 * t) * b + (-9 * t2 + 8 * t + 1) * c
+                   + (3 * t2 - 2 * t) * d)
+    return True, val, slope
+
+
+@jit
 def cubic_row_with_slope(img, x, v):
     """Keys' cubic convolution (``a = -1/2``) of a float32 (H, W) image along its rows at M real
     columns ``x`` (float64) of integer rows ``v`` (int64), and its exact x derivative: the
@@ -462,30 +488,99 @@ def cubic_row_with_slope(img, x, v):
     its four taps ``floor(x) - 1 .. floor(x) + 2`` and its row are in the image; 0 elsewhere.
     Returns ``(values (M,), slopes (M,), valid (M,))``; the numpy form in
     ``tests/test_stereo_depth.py`` is its reference."""
-    h, w = img.shape
     m = x.shape[0]
     val = np.zeros(m)
     slope = np.zeros(m)
     valid = np.zeros(m, dtype=np.bool_)
     for k in range(m):
-        fx = np.floor(x[k])
-        x0 = int(fx)
-        y = v[k]
-        if x0 < 1 or x0 > w - 3 or y < 0 or y > h - 1:
-            continue
-        t = x[k] - fx
-        t2 = t * t
-        t3 = t2 * t
-        a = np.float64(img[y, x0 - 1])
-        b = np.float64(img[y, x0])
-        c = np.float64(img[y, x0 + 1])
-        d = np.float64(img[y, x0 + 2])
-        val[k] = 0.5 * ((-t3 + 2 * t2 - t) * a + (3 * t3 - 5 * t2 + 2) * b + (-3 * t3 + 4 * t2 + t) * c
-                        + (t3 - t2) * d)
-        slope[k] = 0.5 * ((-3 * t2 + 4 * t - 1) * a + (9 * t2 - 10 * t) * b + (-9 * t2 + 8 * t + 1) * c
-                          + (3 * t2 - 2 * t) * d)
-        valid[k] = True
+        valid[k], val[k], slope[k] = _cubic_at(img, x[k], v[k])
     return val, slope, valid
+
+
+@jit
+def _row_sum(a, n):
+    """``np.sum`` of the float64 ``a[:n]`` (n >= 8) in numpy's order: eight running sums over
+    blocks of eight, added pairwise, then the rest one by one (its pairwise summation below 128)."""
+    r0, r1, r2, r3, r4, r5, r6, r7 = a[0], a[1], a[2], a[3], a[4], a[5], a[6], a[7]
+    i = 8
+    end = n - n % 8
+    while i < end:
+        r0 += a[i]
+        r1 += a[i + 1]
+        r2 += a[i + 2]
+        r3 += a[i + 3]
+        r4 += a[i + 4]
+        r5 += a[i + 5]
+        r6 += a[i + 6]
+        r7 += a[i + 7]
+        i += 8
+    s = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while i < n:
+        s += a[i]
+        i += 1
+    return s
+
+
+@jit
+def _centred_samples(right, u, v, pu, pv, d, rv, rs):
+    """The right row's cubic samples (into ``rv``) and slopes (``rs``) of one point's pattern at
+    disparity ``d``, each less its pattern mean; whether all are inside."""
+    p = pu.shape[0]
+    ok_all = True
+    for k in range(p):
+        ok, rv[k], rs[k] = _cubic_at(right, np.float64(u + pu[k]) - d, v + pv[k])
+        ok_all &= ok
+    mean_v = _row_sum(rv, p) / p
+    mean_s = _row_sum(rs, p) / p
+    for k in range(p):
+        rv[k] = rv[k] - mean_v
+        rs[k] = rs[k] - mean_s
+    return ok_all
+
+
+@jit
+def subpixel_refine(right, u, v, pu, pv, left_c, disp, work, iterations):
+    """The stereo search's sub-pixel Gauss-Newton steps and final residual
+    (``stereo_depth._subpixel_stage``'s numpy loop, the same numbers: its sums in numpy's order,
+    :func:`_row_sum`; patterns of at least 8 pixels). Per point ``i`` from ``disp[i]``:
+    ``iterations`` steps ``-sum(J r) / sum(J^2)`` (clipped to +-0.5 px; none once a sample left
+    the image or where ``work`` is False or ``sum(J^2) <= 1e-9``) on
+    ``r_k = left_c[i, k] - (R_k - mean R)``, ``J_k = R'_k - mean R'`` (:func:`_cubic_at` of
+    ``right`` at ``(u + pu_k - disp, v + pv_k)``), then the mean squared residual at the result.
+    Returns ``(disp, mse (inf where a final sample is outside), final samples all inside)``."""
+    n = u.shape[0]
+    p = pu.shape[0]
+    out = disp.copy()
+    mse = np.empty(n)
+    inside = np.zeros(n, dtype=np.bool_)
+    rv = np.empty(p)
+    rs = np.empty(p)
+    prod = np.empty(p)
+    res = np.empty(p)
+    for i in range(n):
+        d = out[i]
+        going = work[i]
+        for _ in range(iterations):
+            ok_all = _centred_samples(right, u[i], v[i], pu, pv, d, rv, rs)
+            for k in range(p):
+                res[k] = np.float64(left_c[i, k]) - rv[k]
+                prod[k] = rs[k] * rs[k]
+            jtj = _row_sum(prod, p)
+            step = 0.0
+            if going and ok_all and jtj > 1e-9:
+                for k in range(p):
+                    prod[k] = rs[k] * res[k]
+                step = -_row_sum(prod, p) / jtj
+            d = d + min(max(step, -0.5), 0.5)
+            going = going and ok_all
+        ok_all = _centred_samples(right, u[i], v[i], pu, pv, d, rv, rs)
+        for k in range(p):
+            r = np.float64(left_c[i, k]) - rv[k]
+            prod[k] = r * r
+        out[i] = d
+        inside[i] = ok_all
+        mse[i] = _row_sum(prod, p) / p if ok_all else np.inf
+    return out, mse, inside
 
 
 @jit
