@@ -131,8 +131,8 @@ def _evaluate_compiled(kf: TrackingKeyframe, level: int, target: GradientImage, 
     model = kf.photometric
     Ih, hv = kf.host_samples[level]
     cam = kf.cameras[level]
-    a_h, b_h = (float(x) for x in kf.affine)
-    a_t, b_t = (float(x) for x in np.asarray(affine, dtype=float).reshape(2))
+    a_h, b_h = kf.affine.tolist()  # Python floats, as float() of each
+    a_t, b_t = np.asarray(affine, dtype=float).reshape(2).tolist()
     T_target_host = invert_poses(T.matrix()) @ _IDENTITY  # factors.photometric's T_world_target^-1 T_world_host
     given = W is not None
     k = model.huber_k
