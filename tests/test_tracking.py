@@ -275,3 +275,24 @@ def test_compiled_evaluation_equals_numpy_steps(frozen):
                                                          int(lin.valid.sum()))
     no_eq = trk._evaluate(kf, 0, target, T, affine, False, W0)
     assert no_eq.A is None and no_eq.cost == ev.cost
+
+
+def test_damped_system_is_the_numpy_expression_to_the_bit():
+    """``_solve``'s compiled damping (``_compiled.damped_system``) makes numpy's
+    ``A + lam diag(diag(A)) + eps I`` byte for byte and says when it or ``b`` is not finite."""
+    from gtvo.frontend._compiled import damped_system  # noqa: PLC0415
+
+    rng = np.random.default_rng(4)
+    for n, lam in [(6, 0.0), (8, 0.2), (8, 3.2), (6, 1e-7)]:
+        J = rng.normal(size=(40, n))
+        A = J.T @ J
+        A[0, 1] = A[1, 0] = -0.0  # a signed zero off the diagonal
+        b = rng.normal(size=n)
+        eps = 1e-12 * np.trace(A) / n
+        Ad, finite = damped_system(A, b, lam, eps)
+        ref = A + lam * np.diag(np.diag(A)) + eps * np.eye(n)
+        assert finite and Ad.tobytes() == ref.tobytes()
+        b[2] = np.nan
+        assert not damped_system(A, b, lam, eps)[1]
+        A[3, 4] = np.inf
+        assert not damped_system(A, b[:0], lam, eps)[1]

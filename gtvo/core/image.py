@@ -35,7 +35,8 @@ def to_float_gray(image: NDArray, name: str = "image") -> FloatImage:
     out = img.astype(np.float32, copy=False)
     if scale is not None:
         out = out * np.float32(scale)
-    if not np.all(np.isfinite(out)):
+    # an integer image converts to finite values: only float (and converted colour) images are checked
+    if (img.dtype.kind not in "iub") and not np.all(np.isfinite(out)):
         raise InputError(f"{name} contains NaN or infinite values")
     return out
 

@@ -11,6 +11,8 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from gtvo.frontend._compiled import noise_gradient, values_where_at_most
+
 #: Immerkaer's noise mask: the difference of two Laplacians, blind to every image that is locally
 #: a plane; its response to white noise of sigma ``s`` has sigma ``6 s``.
 NOISE_MASK = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], dtype=np.float32)
@@ -26,6 +28,6 @@ def image_noise_sigma(image: NDArray[np.float32]) -> float:
     if img.ndim != 2 or min(img.shape) < 3:
         raise ValueError(f"a grey-level image of at least 3x3 pixels is needed, got shape {img.shape}")
     r = np.abs(cv2.filter2D(img, -1, NOISE_MASK, borderType=cv2.BORDER_REFLECT)[1:-1, 1:-1])
-    g = np.abs(img[1:-1, 2:] - img[1:-1, :-2]) + np.abs(img[2:, 1:-1] - img[:-2, 1:-1])
-    smooth = g <= np.partition(g.ravel(), g.size // 2)[g.size // 2]
-    return float(np.sqrt(np.pi / 2) * np.mean(r[smooth]) / 6.0)
+    g = noise_gradient(np.ascontiguousarray(img))  # np.abs(dx) + np.abs(dy), one pass
+    median = np.partition(g.ravel(), g.size // 2)[g.size // 2]
+    return float(np.sqrt(np.pi / 2) * np.mean(values_where_at_most(r, g, median)) / 6.0)  # r[g <= median]

@@ -38,7 +38,7 @@ from factors.photometric import DEFAULT_CLIP_RANGE, PATTERN_DSO8
 from gtvo.core.camera import StereoCamera
 from gtvo.core.timing import timed
 from gtvo.errors import InputError
-from gtvo.frontend._compiled import best_and_second, cubic_row_with_slope, gradients_at, zssd_costs
+from gtvo.frontend._compiled import best_and_second, cubic_row_with_slope, gradients_at, subpixel_refine, zssd_costs
 from gtvo.frontend.point_selection import DEFAULT_POINT_SELECTION, PointSelectionConfig, select_points_float
 from gtvo.frontend.stereo_geometry import disparity_variance, epipolar_direction
 from gtvo.core.image import FloatImage, check_same_size, to_float_gray
@@ -250,8 +250,22 @@ def _subpixel_stage(right_f: NDArray, u: NDArray, v: NDArray, pat: NDArray, left
 
     pu, pv = pat[:, 0], pat[:, 1]
     left_c = left_vals - left_vals.mean(axis=1, keepdims=True)
+    # numpy's sums are reproduced (pairwise, in blocks of 8) for patterns of 8 pixels and more
+    refine = subpixel_refine if pat.shape[0] >= 8 else _refined_numpy
+    disp, mse, ok_all = refine(np.ascontiguousarray(right_f, dtype=np.float32), u, v, np.ascontiguousarray(pu),
+                               np.ascontiguousarray(pv), np.ascontiguousarray(left_c), disp, work,
+                               int(config.gauss_newton_iterations))
+    return _judged_refinement(disp, d_int, mse, ok_all, left_c, rej, config)
+
+
+def _refined_numpy(right_f: NDArray, u: NDArray, v: NDArray, pu: NDArray, pv: NDArray, left_c: NDArray,
+                   disp: NDArray, work: NDArray, iterations: int) -> tuple[NDArray, NDArray, NDArray]:
+    """The Gauss-Newton steps of stage 2 and the final residual in numpy
+    (:func:`gtvo.frontend._compiled.subpixel_refine`'s reference, and its stand-in for patterns of
+    fewer than 8 pixels): ``(disp, mse, final samples all inside)``."""
+    work = work.copy()
     fu, fv = u[:, None] + pu, v[:, None] + pv
-    for _ in range(int(config.gauss_newton_iterations)):
+    for _ in range(iterations):
         r_img, r_gx, ok = _sample_row_cubic(right_f, fu - disp[:, None], fv)
         ok_all = ok.all(axis=1)
         res = left_c - (r_img - r_img.mean(axis=1, keepdims=True))
@@ -263,8 +277,16 @@ def _subpixel_stage(right_f: NDArray, u: NDArray, v: NDArray, pat: NDArray, left
         work &= ok_all
     r_img, _, ok = _sample_row_cubic(right_f, fu - disp[:, None], fv)
     res = left_c - (r_img - r_img.mean(axis=1, keepdims=True))
-    mse = np.where(ok.all(axis=1), np.mean(res * res, axis=1), np.inf)
-    wandered = (np.abs(disp - d_int) > 1.0) | ~ok.all(axis=1)
+    ok_all = ok.all(axis=1)
+    return disp, np.where(ok_all, np.mean(res * res, axis=1), np.inf), ok_all
+
+
+def _judged_refinement(disp: NDArray, d_int: NDArray, mse: NDArray, ok_all: NDArray, left_c: NDArray, rej: NDArray,
+                       config: StereoSearchConfig) -> tuple[NDArray, NDArray, NDArray]:
+    """The end of stage 2: ``rej`` marks the points whose refined disparity ``disp`` wandered more
+    than 1 px from ``d_int`` or whose final samples left the image (not ``ok_all``), and those whose
+    mean squared residual ``mse`` is too high for their contrast (``left_c``: the zero-mean left patterns)."""
+    wandered = (np.abs(disp - d_int) > 1.0) | ~ok_all
     rej[(rej == 0) & wandered] = Rejection.REFINEMENT
     max_mse = 2.0 * config.sigma_intensity ** 2 + config.max_relative_cost * np.mean(left_c * left_c, axis=1)
     rej[(rej == 0) & ~(mse <= max_mse)] = Rejection.HIGH_COST

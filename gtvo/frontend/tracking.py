@@ -42,7 +42,7 @@ from gtvo.core.camera import MIN_DEPTH
 from gtvo.core.keys import affine_key, pose_key
 from gtvo.core.lie import invert_poses
 from gtvo.errors import InputError
-from gtvo.frontend._compiled import tracker_terms
+from gtvo.frontend._compiled import damped_system, tracker_terms
 
 from gtvo.frontend.tracking_types import (PhotometricConfig, PointResiduals, TrackingConfig, TrackingKeyframe,
                                           TrackingResult, frame_pyramid, largest_sigma, pose_covariance)
@@ -131,8 +131,8 @@ def _evaluate_compiled(kf: TrackingKeyframe, level: int, target: GradientImage, 
     model = kf.photometric
     Ih, hv = kf.host_samples[level]
     cam = kf.cameras[level]
-    a_h, b_h = (float(x) for x in kf.affine)
-    a_t, b_t = (float(x) for x in np.asarray(affine, dtype=float).reshape(2))
+    a_h, b_h = kf.affine.tolist()  # Python floats, as float() of each
+    a_t, b_t = np.asarray(affine, dtype=float).reshape(2).tolist()
     T_target_host = invert_poses(T.matrix()) @ _IDENTITY  # factors.photometric's T_world_target^-1 T_world_host
     given = W is not None
     k = model.huber_k
@@ -184,9 +184,10 @@ def _solve(A: NDArray, b: NDArray, lam: float) -> NDArray:
     """The damped step ``-(A + lam diag(A) + eps I)^-1 b`` by Cholesky, least squares when that
     fails. LAPACK's ``potrf`` / ``potrs`` called directly: what ``scipy.linalg.cho_factor`` and
     ``cho_solve`` call (the same numbers) without their per-call checks and wrappers, which cost
-    7x the 8x8 factorisation itself; a non-finite system raises ``ValueError`` as they do."""
-    Ad = A + lam * np.diag(np.diag(A)) + 1e-12 * np.trace(A) / A.shape[0] * np.eye(A.shape[0])
-    if not (np.all(np.isfinite(Ad)) and np.all(np.isfinite(b))):
+    7x the 8x8 factorisation itself; a non-finite system raises ``ValueError`` as they do. The damped
+    matrix ``A + lam diag(A) + eps I`` (eps: 1e-12 of the mean diagonal) is made in one compiled call."""
+    Ad, finite = damped_system(A, b, float(lam), 1e-12 * np.trace(A) / A.shape[0])  # the numpy expression's numbers
+    if not finite:
         raise ValueError("tracking: the normal equations contain infs or NaNs")
     c, info = _POTRF(Ad, lower=0, overwrite_a=0, clean=0)
     if info == 0:
