@@ -37,12 +37,12 @@ KITTI = DATA / "kitti_stereo_sample" / "KITTI_sequence_1"
 # earlier than the run itself imports it) and numba's cache loader, then runs the CLI's entry point.
 _CHILD = r"""
 import importlib.abc, importlib.machinery, os, sys, time
-_marks = {"first": None, "last": None, "kernel_load": 0.0}
+_marks = {"first": None, "first_done": None, "last": None, "kernel_load": 0.0, "kernel_load_first": None}
 _out = sys.argv.pop(1)
 
 def _write():
     with open(_out, "w") as f:
-        f.write("%r %r %r\n" % (_marks["first"], _marks["last"], _marks["kernel_load"]))
+        f.write(" ".join(repr(_marks[k]) for k in ("first", "first_done", "last", "kernel_load", "kernel_load_first")))
 
 def _patch_vo(module):
     cls = module.VisualOdometry
@@ -54,6 +54,8 @@ def _patch_vo(module):
             return process(self, frame)
         finally:
             _marks["last"] = time.process_time()
+            if _marks["first_done"] is None:
+                _marks["first_done"], _marks["kernel_load_first"] = _marks["last"], _marks["kernel_load"]
     cls.process = timed
 
 def _patch_numba(module):
@@ -92,10 +94,21 @@ entry_point()
 """
 
 
-def run_once(tree: Path, args: list[str], out: Path) -> dict:
+def child_env(tree: Path, pyc: bool) -> dict[str, str]:
+    """The run's environment: ``tree`` on the path; with ``pyc``, Python's compiled modules cached as an
+    installed package has them (outside the checkout: ``PYTHONPYCACHEPREFIX``), else every module is
+    compiled from its source in every run (``PYTHONDONTWRITEBYTECODE`` without cached files)."""
+    env = {**os.environ, "PYTHONPATH": str(tree), "MPLBACKEND": "Agg"}
+    if pyc:
+        env.pop("PYTHONDONTWRITEBYTECODE", None)
+        env["PYTHONPYCACHEPREFIX"] = str(Path(tempfile.gettempdir()) / "gtvo_ends_pyc" / str(tree).strip("/").replace("/", "+"))
+    return env
+
+
+def run_once(tree: Path, args: list[str], out: Path, pyc: bool = True) -> dict:
     """One ``gtvo run`` from ``tree``: its marks, total CPU and peak RSS."""
     marks = out.with_suffix(".marks")
-    env = {**os.environ, "PYTHONPATH": str(tree), "MPLBACKEND": "Agg"}
+    env = child_env(tree, pyc)
     cmd = [sys.executable, "-c", _CHILD, str(marks), "run", str(KITTI), "--out", str(out), "--no-progress", *args]
     t0 = time.perf_counter()
     proc = subprocess.Popen(cmd, env=env, cwd=tree, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
@@ -105,10 +118,11 @@ def run_once(tree: Path, args: list[str], out: Path) -> dict:
     proc.returncode = os.waitstatus_to_exitcode(status)
     if proc.returncode != 0:
         raise SystemExit(f"{tree}: gtvo run failed ({proc.returncode}): {err.strip()[-500:]}")
-    first, last, kernel_load = (float(x) for x in marks.read_text().split())
+    first, first_done, last, kernel_load, kernel_load_first = (float(x) for x in marks.read_text().split())
     total = usage.ru_utime + usage.ru_stime
-    return {"before_first": first, "after_last": total - last, "total": total, "wall": wall,
-            "kernel_load": kernel_load, "rss_mib": usage.ru_maxrss / 1024}
+    return {"before_first": first, "first_frame": first_done - first, "first_frame_kernels": kernel_load_first,
+            "after_last": total - last, "total": total, "wall": wall, "kernel_load": kernel_load,
+            "rss_mib": usage.ru_maxrss / 1024}
 
 
 def summary(rows: list[dict], key: str) -> str:
@@ -121,16 +135,20 @@ def main() -> int:
     ap.add_argument("--runs", type=int, default=3, help="runs of each checkout (default 3)")
     ap.add_argument("--ref", type=Path, default=None, help="a second checkout, run alternately (e.g. main)")
     ap.add_argument("--tree", type=Path, default=REPO, help="the checkout to measure (default this one)")
+    ap.add_argument("--no-pyc", action="store_true",
+                    help="no cached compiled modules: every module compiled from source (PYTHONDONTWRITEBYTECODE)")
     ap.add_argument("extra", nargs="*", help="more `gtvo run` arguments (after --)")
     a = ap.parse_args()
     trees = {"this": a.tree} | ({"ref": a.ref} if a.ref is not None else {})
     rows: dict[str, list[dict]] = {k: [] for k in trees}
     with tempfile.TemporaryDirectory(prefix="gtvo_ends_") as tmp:
+        for name, tree in trees.items():  # warm-up, not counted: compiled modules and kernels cached
+            run_once(tree, ["--max-frames", "3"], Path(tmp) / f"{name}_warm", not a.no_pyc)
         for i in range(a.runs):
             for name, tree in trees.items():
-                rows[name].append(run_once(tree, a.extra, Path(tmp) / f"{name}{i}"))
+                rows[name].append(run_once(tree, a.extra, Path(tmp) / f"{name}{i}", not a.no_pyc))
     print(f"load {os.getloadavg()[0]:.1f}; CPU s (median, range) of {a.runs} runs each")
-    keys = ("before_first", "after_last", "total", "kernel_load", "rss_mib", "wall")
+    keys = ("before_first", "first_frame", "first_frame_kernels", "after_last", "total", "kernel_load", "rss_mib", "wall")
     print("| checkout | " + " | ".join(keys) + " |")
     print("|---" * (len(keys) + 1) + "|")
     for name, tree in trees.items():
