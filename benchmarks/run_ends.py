@@ -12,7 +12,10 @@ points without changing what the run does: the CPU time of the process (user + s
 the interpreter, the imports, the readers, the output checks), when its last call returns, and at
 the process's end (``os.wait4``'s user + system time: the teardown included). *After the last frame*
 is the difference of the last two: the final window optimisation, the covariances, the evaluation, the
-plots, the map and the report, the exit. *Kernel loads* is the CPU spent loading numba's compiled
+plots, the map and the report, the exit; *exit* is its part after the last exit handler (the operating
+system freeing the process's memory, in its system time). *First frame*: the first call's CPU, of it
+*first-frame kernels* the loading of compiled kernels (numba's first load also sets up its compiler's
+tables: about half of it). *Kernel loads* is the CPU spent loading numba's compiled
 kernels from the disk cache (wherever in the run they load). Peak RSS is ``wait4``'s ``ru_maxrss``.
 
 Without ``--ref`` only this checkout runs. CPU time, not wall time: the machine may be shared.
@@ -37,12 +40,13 @@ KITTI = DATA / "kitti_stereo_sample" / "KITTI_sequence_1"
 # earlier than the run itself imports it) and numba's cache loader, then runs the CLI's entry point.
 _CHILD = r"""
 import importlib.abc, importlib.machinery, os, sys, time
-_marks = {"first": None, "first_done": None, "last": None, "kernel_load": 0.0, "kernel_load_first": None}
+_marks = {"first": None, "first_done": None, "last": None, "kernel_load": 0.0, "kernel_load_first": None, "exit": None}
 _out = sys.argv.pop(1)
 
 def _write():
+    _marks["exit"] = time.process_time()
     with open(_out, "w") as f:
-        f.write(" ".join(repr(_marks[k]) for k in ("first", "first_done", "last", "kernel_load", "kernel_load_first")))
+        f.write(" ".join(repr(_marks[k]) for k in ("first", "first_done", "last", "kernel_load", "kernel_load_first", "exit")))
 
 def _patch_vo(module):
     cls = module.VisualOdometry
@@ -118,10 +122,10 @@ def run_once(tree: Path, args: list[str], out: Path, pyc: bool = True) -> dict:
     proc.returncode = os.waitstatus_to_exitcode(status)
     if proc.returncode != 0:
         raise SystemExit(f"{tree}: gtvo run failed ({proc.returncode}): {err.strip()[-500:]}")
-    first, first_done, last, kernel_load, kernel_load_first = (float(x) for x in marks.read_text().split())
+    first, first_done, last, kernel_load, kernel_load_first, at_exit = (float(x) for x in marks.read_text().split())
     total = usage.ru_utime + usage.ru_stime
     return {"before_first": first, "first_frame": first_done - first, "first_frame_kernels": kernel_load_first,
-            "after_last": total - last, "total": total, "wall": wall, "kernel_load": kernel_load,
+            "after_last": total - last, "exit": total - at_exit, "total": total, "wall": wall, "kernel_load": kernel_load,
             "rss_mib": usage.ru_maxrss / 1024}
 
 
@@ -148,7 +152,8 @@ def main() -> int:
             for name, tree in trees.items():
                 rows[name].append(run_once(tree, a.extra, Path(tmp) / f"{name}{i}", not a.no_pyc))
     print(f"load {os.getloadavg()[0]:.1f}; CPU s (median, range) of {a.runs} runs each")
-    keys = ("before_first", "first_frame", "first_frame_kernels", "after_last", "total", "kernel_load", "rss_mib", "wall")
+    keys = ("before_first", "first_frame", "first_frame_kernels", "after_last", "exit", "total", "kernel_load",
+            "rss_mib", "wall")
     print("| checkout | " + " | ".join(keys) + " |")
     print("|---" * (len(keys) + 1) + "|")
     for name, tree in trees.items():
