@@ -2,8 +2,9 @@
 
 Usage::
 
-    python benchmarks/run_ends.py --runs 3                          # this checkout against /work/main-like REF
-    python benchmarks/run_ends.py --ref /path/to/other/checkout --runs 3 -- --max-frames 60
+    python benchmarks/run_ends.py --runs 3                                   # this checkout alone
+    python benchmarks/run_ends.py --ref /path/to/main --runs 3               # against another checkout
+    python benchmarks/run_ends.py --ref /path/to/main -- --max-frames 20     # more `gtvo run` arguments
 
 Runs ``python -m gtvo run KITTI_sequence_1 --no-progress`` (extra arguments after ``--``) from this
 checkout and from ``--ref``, alternately, each in a fresh process whose clocks are read at three
