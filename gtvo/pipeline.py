@@ -178,10 +178,16 @@ def run(path: str | Path | Sequence, out: str | Path | None = None,
     if loop_closure:
         config = dataclasses.replace(config, loops=dataclasses.replace(config.loops, enabled=True))
     seq, fmt, out_dir = read_input(path, config, out, format, max_frames, frame_step, open_options)  # 1. read
+    ahead: dict[str, str] = {}
+
+    def after_first_frame() -> None:  # what the outputs need that is known now: made in the run, not after it
+        load_plotting()
+        ahead["config.yaml"] = _config_yaml(config)
+
     with tidy_on_failure(), output_lock(out_dir):  # a failed run leaves no empty folder; one writer at a time
         ensure_output_dir(out_dir)  # an unusable --out is reported before the long work
         _, odo = run_odometry(seq, config, progress=progress, strict=strict, observers=observers,  # 2. odometry
-                              after_first_frame=load_plotting)
+                              after_first_frame=after_first_frame)
         odo = _run_stages(odo, seq, progress)                    # 3. stages: loop closing, the refinement
         odo = gravity_aligned(odo)  # with an IMU: the outputs in the gravity-aligned world (docs/imu.md)
         raise_if_interrupted()
@@ -193,8 +199,13 @@ def run(path: str | Path | Sequence, out: str | Path | None = None,
                     seq, odo, metrics, format=fmt, frame_step=frame_step, points=points,
                     timing=clock_timing(odo.clock, len(odo.estimates))),
                 points=points, loop_closed=odo.loop_closed, covariances=odo.covariances, metrics=metrics,
-                config_yaml=config_to_yaml(config, f"gtvo {__version__}: gtvo run --config this file"))
+                config_yaml=ahead.get("config.yaml") or _config_yaml(config))
     return {**report, "out": str(out_dir)}  # type: ignore[typeddict-item]
+
+
+def _config_yaml(config: OdometryConfig) -> str:
+    """``config.yaml`` of a run's outputs: the whole settings tree, for ``gtvo run --config``."""
+    return config_to_yaml(config, f"gtvo {__version__}: gtvo run --config this file")
 
 
 def _run_stages(odo: OdometryResult, seq: Sequence, progress: bool) -> OdometryResult:

@@ -24,6 +24,12 @@ def test_plots_after_loading_in_the_background(tmp_path):
     assert not plots._loader.is_alive()  # the plots waited for it: one figure drawn at a time
     for path in (top, errs):
         assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert not any(plots._prepared.get(size) for size in plots.PREPARED_SIZES)  # both took the loader's figures
+    plots._prepare_figure((8.0, 4.0))  # as the loader does
+    prepared = plots.plot_errors_over_time(est.timestamps, np.linspace(0, 1, n), tmp_path / "e2.png", title="errors")
+    assert plots._prepared[(8.0, 4.0)] == []  # taken
+    fresh = plots.plot_errors_over_time(est.timestamps, np.linspace(0, 1, n), tmp_path / "e3.png", title="errors")
+    assert prepared.read_bytes() == fresh.read_bytes() == errs.read_bytes()  # the same PNG either way
 
 
 def test_loading_starts_once_and_load_now_waits(monkeypatch):

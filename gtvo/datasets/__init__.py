@@ -9,24 +9,37 @@ lazy :class:`gtvo.datasets.sequence.Sequence`, each an entry of the one registry
 
 from __future__ import annotations
 
+import importlib
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
-
-from tqdm import tqdm
+from typing import TYPE_CHECKING, Any
 
 from gtvo.core.paths import link_problem
-from gtvo.datasets._common import require_dir
-from gtvo.datasets.euroc import read_euroc
-from gtvo.datasets.kitti import read_kitti
-from gtvo.datasets.kitti_raw import read_kitti_raw
 from gtvo.datasets.readers import READERS, DatasetReader, reader_named, reader_taking
-from gtvo.datasets.tum import TUM_INTRINSICS, read_tum
 from gtvo.errors import InputError
-from gtvo.datasets.sequence import Sequence
-from gtvo.datasets.imu import check_imu_clock
-from gtvo.datasets.imu_files import ImuReadOptions, read_imu_folder
-from gtvo.datasets.wheel_files import WHEEL_CSV, WheelReadOptions, read_wheel_csv
+
+if TYPE_CHECKING:
+    from gtvo.config.sections.wheel import WheelReadOptions
+    from gtvo.datasets.euroc import read_euroc
+    from gtvo.datasets.imu_files import ImuReadOptions
+    from gtvo.datasets.kitti import read_kitti
+    from gtvo.datasets.kitti_raw import read_kitti_raw
+    from gtvo.datasets.sequence import Sequence
+    from gtvo.datasets.tum import TUM_INTRINSICS, read_tum
+
+#: The readers' names this package offers, each imported from its module when first asked for
+#: (``from gtvo.datasets import read_tum``): importing the package imports no reader.
+_FROM_READERS = {"read_euroc": "gtvo.datasets.euroc", "read_kitti": "gtvo.datasets.kitti",
+                 "read_kitti_raw": "gtvo.datasets.kitti_raw", "read_tum": "gtvo.datasets.tum",
+                 "TUM_INTRINSICS": "gtvo.datasets.tum"}
+
+
+def __getattr__(name: str) -> Any:
+    module = _FROM_READERS.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return getattr(importlib.import_module(module), name)
+
 
 #: ``"auto"`` or a name of :data:`FORMATS`.
 DatasetFormat = str
@@ -44,6 +57,8 @@ def detect_format(path: str | Path) -> str:
     Raises:
         InputError: the path is missing, a file no reader takes, or matches no known layout.
     """
+    from gtvo.datasets._common import require_dir  # noqa: PLC0415 - the readers' module (_FROM_READERS)
+
     where = Path(path)
     if not where.is_dir():  # a bag file (or a missing one, so that its reader says "not found")
         taken = next((r.name for r in READERS if r.looks_like(where)), None)
@@ -98,6 +113,10 @@ def open_sequence(path: str | Path, format: DatasetFormat = "auto",
     Raises:
         InputError: an unknown format, an option the layout does not take, or the reader's errors.
     """
+    from gtvo.datasets.imu import check_imu_clock  # noqa: PLC0415 - the readers' modules (_FROM_READERS)
+    from gtvo.datasets.imu_files import ImuReadOptions, read_imu_folder  # noqa: PLC0415
+    from gtvo.datasets.wheel_files import WHEEL_CSV, WheelReadOptions, read_wheel_csv  # noqa: PLC0415
+
     folder = Path(path)
     if max_frames is not None and int(max_frames) < 1:
         raise InputError(f"max_frames must be >= 1, got {max_frames}")
@@ -159,6 +178,8 @@ def validate(seq: Sequence, check_images: bool = True, progress: bool = True) ->
     """
     if not check_images:
         return
+    from tqdm import tqdm  # noqa: PLC0415
+
     for i in tqdm(range(len(seq)), desc=f"checking {seq.name}", unit="frame", disable=not progress):
         seq.left(i)
         if seq.kind == "stereo":

@@ -15,10 +15,11 @@ Adding a reader is one entry. Write ``gtvo/datasets/NAME.py`` with
   float32 gray images (:class:`gtvo.datasets._common.GrayImageLoader` does this for image files)
   and raise :class:`gtvo.errors.InputError` naming the file for bad input,
 
-then add ``DatasetReader("NAME", "Title (marker files)", "NAME folders", looks_like_NAME,
-read_NAME)`` to :data:`READERS` (detection tries the entries in order: put it before a layout
-whose test its folders would also pass). Every command then accepts ``--format NAME``, detects
-the layout and lists it in the unknown-layout error (``tests/test_datasets.py`` checks that every
+then add ``DatasetReader("NAME", "Title (marker files)", "NAME folders",
+ReaderFunction("gtvo.datasets.NAME", "looks_like_NAME"), ReaderFunction("gtvo.datasets.NAME", "read_NAME"))``
+to :data:`READERS` (its module is imported when they are first called; detection tries the entries
+in order: put it before a layout whose test its folders would also pass). Every command then accepts
+``--format NAME``, detects the layout and lists it in the unknown-layout error (``tests/test_datasets.py`` checks that every
 command offers the same formats and that no other reader claims a layout's folder); describe the
 layout in ``docs/datasets.md``. A reader with options of its own names them in ``options``
 (keyword arguments of ``open_sequence``, refused for the other layouts).
@@ -26,22 +27,32 @@ layout in ``docs/datasets.md``. A reader with options of its own names them in `
 
 from __future__ import annotations
 
+import importlib
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
-from gtvo.datasets.bag import looks_like_bag, read_bag
-from gtvo.datasets.imu_files import ImuReadOptions, read_imu_folder
-from gtvo.datasets.euroc import looks_like_euroc, read_euroc
-from gtvo.datasets.kitti import looks_like_kitti, read_kitti
-from gtvo.datasets.kitti_raw import looks_like_kitti_raw, read_kitti_raw
-from gtvo.datasets.sequence import Sequence
-from gtvo.datasets.tum import looks_like_tum, read_tum
 from gtvo.errors import InputError
+
+if TYPE_CHECKING:
+    from gtvo.datasets.sequence import Sequence
 
 #: ``open_sequence``'s options for ROS bags (:func:`gtvo.datasets.bag.read_bag`).
 BAG_OPTIONS: tuple[str, ...] = ("calib", "left_topic", "right_topic", "depth_topic", "ground_truth_topic",
                                 "stamp_tolerance", "wheel_topic", "imu_topic")
+
+
+@dataclass(frozen=True)
+class ReaderFunction:
+    """A function of a reader's module, imported when it is first called: a run imports the module of
+    its own layout (and of the layouts detection tried before it), not every reader's (a bag reader's
+    imports are not a KITTI run's start-up). Called like the function ``module.name`` itself."""
+
+    module: str
+    name: str
+
+    def __call__(self, *args: Any, **kwargs: Any) -> Any:
+        return getattr(importlib.import_module(self.module), self.name)(*args, **kwargs)
 
 
 @dataclass(frozen=True)
@@ -82,6 +93,9 @@ def read_bag_log(path: Path, max_frames: int | None = None, ground_truth: Path |
     Raises:
         InputError: ``path`` is not a ROS bag, or the bag's own errors.
     """
+    from gtvo.datasets.bag import looks_like_bag, read_bag  # noqa: PLC0415 - see ReaderFunction
+    from gtvo.datasets.imu_files import ImuReadOptions, read_imu_folder  # noqa: PLC0415
+
     if not looks_like_bag(path):
         raise InputError("not a ROS bag: expected a .bag file or a ROS2 bag folder (metadata.yaml)", path=path)
     imu_options = options.get("imu_options") or ImuReadOptions()
@@ -98,15 +112,20 @@ def read_bag_log(path: Path, max_frames: int | None = None, ground_truth: Path |
 #: folder can only be a bag file).
 READERS: tuple[DatasetReader, ...] = (
     DatasetReader("kitti", "KITTI (calib.txt + image_0/ or image_l/)", "KITTI odometry folders",
-                  looks_like_kitti, read_kitti),
+                  ReaderFunction("gtvo.datasets.kitti", "looks_like_kitti"),
+                  ReaderFunction("gtvo.datasets.kitti", "read_kitti")),
     DatasetReader("kitti_raw", "KITTI raw (image_00/data/ + calib_cam_to_cam.txt)", "KITTI raw drives",
-                  looks_like_kitti_raw, read_kitti_raw),
-    DatasetReader("euroc", "EuRoC (mav0/cam0/ + mav0/cam1/)", "EuRoC folders", looks_like_euroc, read_euroc,
-                  reads_imu=True),
-    DatasetReader("tum", "TUM RGB-D (rgb.txt + depth.txt)", "TUM folders", looks_like_tum, read_tum, ("camera",)),
+                  ReaderFunction("gtvo.datasets.kitti_raw", "looks_like_kitti_raw"),
+                  ReaderFunction("gtvo.datasets.kitti_raw", "read_kitti_raw")),
+    DatasetReader("euroc", "EuRoC (mav0/cam0/ + mav0/cam1/)", "EuRoC folders",
+                  ReaderFunction("gtvo.datasets.euroc", "looks_like_euroc"),
+                  ReaderFunction("gtvo.datasets.euroc", "read_euroc"), reads_imu=True),
+    DatasetReader("tum", "TUM RGB-D (rgb.txt + depth.txt)", "TUM folders",
+                  ReaderFunction("gtvo.datasets.tum", "looks_like_tum"),
+                  ReaderFunction("gtvo.datasets.tum", "read_tum"), ("camera",)),
     DatasetReader("bag", "a ROS bag (a .bag file, or a ROS2 bag folder with metadata.yaml and its .db3 or "
-                         ".mcap files)", "ROS bags", looks_like_bag, read_bag_log, BAG_OPTIONS, logs_wheels=True,
-                  reads_imu=True),
+                         ".mcap files)", "ROS bags", ReaderFunction("gtvo.datasets.bag", "looks_like_bag"),
+                  read_bag_log, BAG_OPTIONS, logs_wheels=True, reads_imu=True),
 )
 
 

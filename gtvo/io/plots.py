@@ -3,7 +3,8 @@
 * :func:`plot_trajectory_top_view`: estimate (and ground truth) seen from above.
 * :func:`plot_errors_over_time`: an error curve (e.g. ATE per pose) against time.
 * :func:`load_in_background` (``gtvo run`` after its first frame), :func:`load_now`: matplotlib's
-  import and font loaded before the plots are drawn, so that a run's end does not wait for them.
+  import and font loaded, and the two plots' figures made with their axes and ticks
+  (:data:`PREPARED_SIZES`), before the plots are drawn, so that a run's end does not wait for them.
 
 The top view projects the positions onto a plane (``plane=``):
 
@@ -82,6 +83,12 @@ def project_to_plane(points: ArrayLike, plane: str,
 
 
 _loader: threading.Thread | None = None
+#: The figure sizes of a run's plots (:func:`plot_trajectory_top_view`, :func:`plot_errors_over_time`):
+#: :func:`load_in_background` prepares one figure of each while the run goes.
+PREPARED_SIZES: tuple[tuple[float, float], ...] = ((7.0, 6.0), (8.0, 4.0))
+#: Ticks made ahead on each axis of a prepared figure (a plot's axes have up to about 10).
+PREPARED_TICKS = 12
+_prepared: dict[tuple[float, float], list] = {}
 #: The plots' margins (fractions of the figure), fixed rather than fitted (``tight_layout``, which lays
 #: the text out once more: a third of a plot's time): room for 6-character tick labels and the titles.
 _TOP_VIEW_MARGINS = {"left": 0.12, "right": 0.97, "bottom": 0.085, "top": 0.94}
@@ -98,6 +105,29 @@ def load_in_background() -> None:
     if _loader is None:
         _loader = threading.Thread(target=_load_matplotlib, name="gtvo-plots-import", daemon=True)
         _loader.start()
+
+
+def _prepare_figure(figsize: tuple[float, float]) -> None:
+    """Make a figure of ``figsize`` with its one axes and :data:`PREPARED_TICKS` ticks on each axis (what a
+    plot otherwise builds before and while it draws: about a sixth of a run's two plots, measured) and keep
+    it for the next plot of that size (:func:`_figure_and_axes`)."""
+    fig = _new_figure(figsize, wait=False)
+    ax = fig.add_subplot(1, 1, 1)
+    for axis in (ax.xaxis, ax.yaxis):
+        axis.get_major_ticks(PREPARED_TICKS)
+    _prepared.setdefault(figsize, []).append((fig, ax))
+
+
+def _figure_and_axes(figsize: tuple[float, float]):
+    """A new figure of ``figsize`` and its one axes: one :func:`load_in_background` prepared when there
+    is one left, else made here."""
+    if _loader is not None:
+        _loader.join()
+    ready = _prepared.get(figsize)
+    if ready:
+        return ready.pop()
+    fig = _new_figure(figsize)
+    return fig, fig.add_subplot(1, 1, 1)
 
 
 def load_now() -> None:
@@ -120,6 +150,8 @@ def _load_matplotlib() -> None:
         ax.legend(loc="best", fontsize=8)
         ax.set_title("x")
         FigureCanvasAgg(fig).draw()  # the font and the renderer's first use
+        for size in PREPARED_SIZES:
+            _prepare_figure(size)
     except Exception:  # noqa: BLE001,S110 - best effort (docstring)
         pass
 
@@ -214,8 +246,7 @@ def plot_trajectory_top_view(est: Trajectory, ref: Trajectory | None = None, pat
     """
     basis = ref.positions if ref is not None else est.positions
     chosen = choose_plane(basis, plane)
-    fig = _new_figure((7.0, 6.0))
-    ax = fig.add_subplot(1, 1, 1)
+    fig, ax = _figure_and_axes((7.0, 6.0))
     if ref is not None:
         uv_ref, xlabel, ylabel = project_to_plane(ref.positions, chosen, basis)
         ax.plot(uv_ref[:, 0], uv_ref[:, 1], "--", color="0.4", lw=1.2, label=_label(ref, "ground truth"))
@@ -244,8 +275,7 @@ def plot_errors_over_time(times: ArrayLike, errors: ArrayLike, path: str | Path 
     if t.size == 0 or t.size != e.size:
         raise InputError(f"plot_errors_over_time needs equally long non-empty arrays, got {t.size} times "
                          f"and {e.size} errors")
-    fig = _new_figure((8.0, 4.0))
-    ax = fig.add_subplot(1, 1, 1)
+    fig, ax = _figure_and_axes((8.0, 4.0))
     ax.plot(t - t[0], e, "-", color="tab:red", lw=1.0, label="error")
     finite = e[np.isfinite(e)]
     if finite.size:
