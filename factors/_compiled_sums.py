@@ -9,6 +9,8 @@ that stays the reference (tests compare them to it):
   the pair's ``-Ad^-T``, docs/factors.md §7);
 * :func:`add_pair_terms`: ``HostPoints.linearize``'s per-pair loop (Huber terms, sums, scatter
   into the caller's system) in one call;
+* :func:`add_depth_terms`: ``HostPoints.linearize``'s depth-only terms (the stereo term's Huber
+  terms and sums, the depth prior) added to ``H_dd``, ``g_d`` and the point costs;
 * :func:`target_normal_equations`: the tracker's normal equations of a frame pose (and affine).
 
 Compiled on first use and cached on disk (:func:`gtvo.core.jit.jit`).
@@ -254,6 +256,76 @@ def add_pair_terms(J_host, J_affine_host, B, gain, W, residual, J_depth, k, robu
         H_dd[i] += Hddt[i]
         g_d[i] += gdt[i]
         cost[i] += loss[i]
+
+
+#: the longest row :func:`_pairwise_sum` sums as numpy does (numpy's pairwise block)
+MAX_PAIRWISE = 128
+
+
+@jit
+def _pairwise_sum(a, n):
+    """``a[:n]`` summed as numpy sums a row (``np.sum(x, axis=-1)``: ``0.0`` plus numpy's pairwise
+    summation, sequential below 8 values, eight interleaved partial sums up to
+    :data:`MAX_PAIRWISE` = 128 values, beyond which numpy splits a row and this does not); the same
+    result to the bit, which keeps the compiled depth terms equal to the numpy expressions."""
+    if n < 8:
+        res = -0.0
+        for m in range(n):
+            res += a[m]
+        return 0.0 + res
+    r0, r1, r2, r3, r4, r5, r6, r7 = a[0], a[1], a[2], a[3], a[4], a[5], a[6], a[7]
+    m = 8
+    while m < n - n % 8:
+        r0 += a[m]
+        r1 += a[m + 1]
+        r2 += a[m + 2]
+        r3 += a[m + 3]
+        r4 += a[m + 4]
+        r5 += a[m + 5]
+        r6 += a[m + 6]
+        r7 += a[m + 7]
+        m += 8
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while m < n:
+        res += a[m]
+        m += 1
+    return 0.0 + res
+
+
+@jit
+def add_depth_terms(W, residual, J_depth, k, robust, stereo, d, prior, variance, prior_on, H_dd, g_d, cost):
+    """``HostPoints.linearize``'s terms on the depths alone, in place: with ``stereo``, the stereo
+    term's (``W``, ``residual``, ``J_depth`` (N, P)) Huber weights and losses (:func:`point_huber`)
+    and its sums ``H_dd += sum_P wW j^2``, ``g_d += sum_P wW j r``, ``cost += loss``; then with
+    ``prior_on`` the depth prior ``H_dd += 1 / V``, ``g_d += (d - prior) / V``,
+    ``cost += (d - prior)^2 / (2 V)``. Returns the stereo term's Huber weights (N,) (ones without
+    it). Each value is computed as the numpy expressions it replaces compute it (the same
+    products, :func:`_pairwise_sum` for the row sums): equal to the bit (tested) for patterns of
+    at most :data:`MAX_PAIRWISE` pixels."""
+    n = H_dd.shape[0]
+    w = np.ones(n)
+    if stereo:
+        p = residual.shape[1]
+        w, loss = point_huber(W, residual, k, robust)
+        hd = np.empty(p)
+        gd = np.empty(p)
+        for i in range(n):
+            for m in range(p):
+                ww = W[i, m] * w[i]
+                j = J_depth[i, m]
+                hd[m] = ww * (j * j)
+                gd[m] = (ww * j) * residual[i, m]
+            H_dd[i] += _pairwise_sum(hd, p)
+            g_d[i] += _pairwise_sum(gd, p)
+            cost[i] += loss[i]
+    if prior_on:
+        for i in range(n):
+            e = d[i] - prior[i]
+            v = variance[i]
+            H_dd[i] += 1.0 / v
+            g_d[i] += e / v
+            cost[i] += (0.5 * (e * e)) / v
+    return w
 
 
 @jit
