@@ -172,15 +172,20 @@ class DepthSystem:
     def back_substitute(self, dx: FloatArray) -> FloatArray:
         """The inverse depths implied by the state step ``dx`` (M,): ``d - (g_d + H_pd dx) / H_dd``,
         kept at least ``0.1 d`` (> 0; an optimiser rejects such far steps anyway)."""
-        step = np.zeros_like(self.d)
         a = self.active
-        step[a] = -(self.g_d[a] + self.H_pd[a] @ dx) / self.H_dd[a]
+        if a.all():  # the usual case: no row selection (the same products)
+            step = -(self.g_d + self.H_pd @ dx) / self.H_dd
+        else:
+            step = np.zeros_like(self.d)
+            step[a] = -(self.g_d[a] + self.H_pd[a] @ dx) / self.H_dd[a]
         return np.maximum(self.d + step, 0.1 * self.d)
 
     def newton_decrease(self) -> float:
         """The decrease of the cost's Gauss-Newton model from the depth-only Newton step at ``dx = 0``:
         ``sum_n g_d^2 / (2 H_dd)`` over the active points."""
         a = self.active
+        if a.all():
+            return 0.5 * float(np.sum(self.g_d ** 2 / self.H_dd))
         return 0.5 * float(np.sum(self.g_d[a] ** 2 / self.H_dd[a]))
 
 
