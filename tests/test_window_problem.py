@@ -152,3 +152,25 @@ def test_the_problem_lists_its_factors_and_puts_the_hosts_after_the_priors(seq):
     graph, values, hosts = build_graph(problem)
     assert graph.size() == 6 + len(hosts) and values.size() == 6
     assert problem.targets == gtvo.window.visible_targets(seq.camera.left, kfs, WindowConfig())
+
+
+def test_seen_in_targets_is_seen_in_per_target_to_the_bit():
+    """The host's points checked against all targets at once are the one-target checks, point for point,
+    also at the image border and behind the camera."""
+    from gtvo.core.camera import PinholeCamera  # noqa: PLC0415
+    from gtvo.window.problem import seen_in, seen_in_targets  # noqa: PLC0415
+
+    rng = np.random.default_rng(7)
+    cam = PinholeCamera(400.0, 400.0, 320.0, 240.0, 640, 480)
+
+    class Frame:  # what seen_in reads of a keyframe
+        def __init__(self, pose):
+            self.pose = pose
+
+    targets = [Frame(gtsam.Pose3(gtsam.Rot3.Expmap(rng.normal(0, 0.3, 3)), rng.normal(0, 2, 3))) for _ in range(6)]
+    Xw = rng.normal(0, 5, (500, 3)) + [0, 0, 6]
+    T = np.stack([t.pose.inverse().matrix() for t in targets])
+    batch = seen_in_targets(cam, Xw, T)
+    assert batch.shape == (6, 500) and batch.any() and not batch.all()
+    for k, t in enumerate(targets):
+        assert np.array_equal(batch[k], seen_in(cam, Frame(gtsam.Pose3()), t, Xw))
