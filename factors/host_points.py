@@ -154,6 +154,25 @@ def keep_cheaper_depths(d: FloatArray, c: FloatArray, lins: list, rows: NDArray[
     return d, c, [None if a is None else put_rows(a, r, b, keep) for a, b in zip(lins, lins_old)]
 
 
+@dataclass(frozen=True)
+class HostSamples:
+    """What a host's points need of the host image and the camera, fixed for the host's life: the
+    host intensities and their validity at the pattern around each point (N, P) and the pattern
+    pixels' bearings (N, P, 3) (:meth:`of`). Shared by the host's factors, never written."""
+
+    intensity: FloatArray  #: (N, P) host intensities
+    valid: NDArray[np.bool_]  #: (N, P) host samples inside the image (and unclipped)
+    bearings: FloatArray  #: (N, P, 3) ``K^-1 [u, v, 1]``
+
+    @classmethod
+    def of(cls, camera: PinholeCamera, pixels: ArrayLike, host_image: GradientSampler, pattern: ArrayLike
+           ) -> "HostSamples":
+        """Sample the host image and the bearings at the pattern around ``pixels`` (N, 2)."""
+        px = np.asarray(pixels, dtype=float).reshape(-1, 2)
+        intensity, valid = sample_host(host_image, px, pattern)
+        return cls(intensity, valid, pattern_bearings(camera, px, pattern))
+
+
 @dataclass
 class DepthSystem:
     """The per-point blocks of one linearisation of a host's points (:meth:`HostPoints.linearize`).
@@ -216,6 +235,8 @@ class HostPoints:
             :meth:`linearize` adds its two columns (``rig_columns``) to the reduced system, a
             non-depth parameter like a pose (the Schur complement over the depths is unchanged).
             Without it the stereo term uses ``offset`` (default zero) as a constant.
+        host_samples: :meth:`HostSamples.of` these pixels, host image and pattern, when the caller
+            keeps them (a keyframe's factor is built again at every window solve); None: sampled here.
 
     The variance weights W are frozen at their first evaluation (:meth:`weights`) and released by
     :meth:`release_weights`: with W moving with the state the Gauss-Newton model would not match
@@ -227,7 +248,8 @@ class HostPoints:
                  prior_inverse_depth: ArrayLike, *, sigma_intensity: float, huber_k: float | None,
                  pattern: ArrayLike, depth_prior: bool, with_affine: bool = True,
                  right_image: GradientSampler | None = None, baseline: float | None = None,
-                 lambda_stereo: float = 1.0, stereo_affine: ArrayLike = (0.0, 0.0), rig: bool = False) -> None:
+                 lambda_stereo: float = 1.0, stereo_affine: ArrayLike = (0.0, 0.0), rig: bool = False,
+                 host_samples: "HostSamples | None" = None) -> None:
         self.camera = camera
         self.pixels = np.asarray(pixels, dtype=float).reshape(-1, 2)
         n = self.pixels.shape[0]
@@ -246,8 +268,13 @@ class HostPoints:
             if not (np.isfinite(lambda_stereo) and lambda_stereo > 0):
                 raise InputError(f"HostPoints: lambda_stereo must be positive, got {lambda_stereo!r}")
         self.pattern = np.asarray(pattern, dtype=float).reshape(-1, 2)
-        self.host_intensity, self.host_valid = sample_host(host_image, self.pixels, self.pattern)
-        self.bearings = pattern_bearings(camera, self.pixels, self.pattern)  # fixed: host pixels only
+        if host_samples is None:
+            host_samples = HostSamples.of(camera, self.pixels, host_image, self.pattern)
+        elif host_samples.intensity.shape != (n, self.pattern.shape[0]) or host_samples.bearings.shape[:2] != (n, self.pattern.shape[0]):
+            raise InputError(f"HostPoints: host_samples of shape {host_samples.intensity.shape} for {n} points "
+                             f"x {self.pattern.shape[0]} pattern pixels")
+        # fixed: host pixels only (shared, never written)
+        self.host_intensity, self.host_valid, self.bearings = host_samples.intensity, host_samples.valid, host_samples.bearings
         self.target_images = list(target_images)
         self.sigma = float(sigma_intensity)
         self.huber_k = huber_k

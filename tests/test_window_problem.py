@@ -174,3 +174,34 @@ def test_seen_in_targets_is_seen_in_per_target_to_the_bit():
     assert batch.shape == (6, 500) and batch.any() and not batch.all()
     for k, t in enumerate(targets):
         assert np.array_equal(batch[k], seen_in(cam, Frame(gtsam.Pose3()), t, Xw))
+
+
+def test_host_samples_are_kept_per_keyframe_and_checked_at_every_use():
+    """A keyframe's host samples are sampled once and reused while its image, pixels, pattern and
+    camera are the same (the values of a fresh sampling); any change samples again."""
+    from factors.photometric import PATTERN_DSO8, GradientImage  # noqa: PLC0415
+    from factors.host_points import HostSamples  # noqa: PLC0415
+    from gtvo.core.camera import PinholeCamera  # noqa: PLC0415
+    from gtvo.window.problem import host_samples  # noqa: PLC0415
+
+    rng = np.random.default_rng(3)
+    cam = PinholeCamera(100.0, 100.0, 40.0, 30.0, 80, 60)
+
+    class Frame:  # what host_samples reads of a keyframe
+        def __init__(self):
+            self.image = GradientImage(rng.uniform(10, 240, (60, 80)))
+            self.pixels = np.c_[rng.uniform(5, 75, 30), rng.uniform(5, 55, 30)]
+
+    kf = Frame()
+    a = host_samples(cam, kf, PATTERN_DSO8)
+    assert host_samples(cam, kf, PATTERN_DSO8) is a
+    fresh = HostSamples.of(cam, kf.pixels, kf.image, PATTERN_DSO8)
+    for name in ("intensity", "valid", "bearings"):
+        assert np.array_equal(getattr(a, name), getattr(fresh, name))
+    assert host_samples(cam, kf, PATTERN_DSO8[:4]) is not a
+    kf.pixels = kf.pixels + 1.0
+    b = host_samples(cam, kf, PATTERN_DSO8)
+    assert b is not a and np.array_equal(b.bearings, HostSamples.of(cam, kf.pixels, kf.image, PATTERN_DSO8).bearings)
+    kf.image = GradientImage(rng.uniform(10, 240, (60, 80)))
+    assert host_samples(cam, kf, PATTERN_DSO8) is not b
+    assert host_samples(PinholeCamera(100.0, 100.0, 40.0, 30.0, 80, 60), kf, PATTERN_DSO8) is not b

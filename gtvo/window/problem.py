@@ -10,6 +10,7 @@ marginalisation and the refinement: every factor but the host factors in one GTS
 from __future__ import annotations
 
 import dataclasses
+import weakref
 from dataclasses import dataclass, field
 from typing import Callable, Protocol, Sequence
 
@@ -19,6 +20,7 @@ from numpy.typing import NDArray
 
 from gtvo.core.keys import affine_key, pose_key, rig_offset_key
 from factors.params import DEFAULT_PHOTOMETRIC, PhotometricConfig
+from factors.host_points import HostSamples
 from factors.smart import HostPointsFactor, JacobianBudget
 from factors.smoothness import ConstantVelocityFactor
 from factors.stacked import stacked
@@ -434,6 +436,33 @@ class WindowProblem:
         return sum(len(self.keyframes[h]) * len(ts) for h, ts in enumerate(self.targets))
 
 
+#: the window's keyframes' :class:`HostSamples`, by ``id`` of their image: (image, pixels, pattern, camera, samples)
+_SAMPLES: dict[int, tuple[weakref.ref, FloatArray, FloatArray, PinholeCamera, HostSamples]] = {}
+#: :data:`_SAMPLES` is pruned of dead images beyond this many entries (a window holds a few keyframes)
+_MAX_SAMPLES = 32
+
+
+def host_samples(camera: PinholeCamera, keyframe: WindowKeyframe, pattern: FloatArray) -> HostSamples:
+    """The keyframe's :class:`factors.host_points.HostSamples` (host intensities and bearings at its
+    points' pattern): sampled once and kept while the keyframe's image lives, for its host factors of
+    every solve, the marginalisation and the rig tests (the same arrays: they depend only on the
+    image, the pixels, the pattern and the camera, checked at every use)."""
+    key = id(keyframe.image)
+    hit = _SAMPLES.get(key)
+    if (hit is not None and hit[0]() is keyframe.image and hit[3] is camera and np.array_equal(hit[1], keyframe.pixels)
+            and np.array_equal(hit[2], pattern)):
+        return hit[4]
+    samples = HostSamples.of(camera, keyframe.pixels, keyframe.image, pattern)
+    if len(_SAMPLES) >= _MAX_SAMPLES:
+        for k in [k for k, v in _SAMPLES.items() if v[0]() is None]:
+            del _SAMPLES[k]
+        while len(_SAMPLES) >= _MAX_SAMPLES:  # all alive: the oldest goes
+            del _SAMPLES[next(iter(_SAMPLES))]
+    _SAMPLES[key] = (weakref.ref(keyframe.image), np.array(keyframe.pixels, dtype=float), np.array(pattern, dtype=float),
+                     camera, samples)
+    return samples
+
+
 @timed("window_build")
 def host_factor(problem: WindowProblem, h: int, targets: Sequence[int] | None = None) -> HostPointsFactor:
     """The :class:`HostPointsFactor` of host ``problem.keyframes[h]`` observed in ``targets``
@@ -453,7 +482,8 @@ def host_factor(problem: WindowProblem, h: int, targets: Sequence[int] | None = 
         lambda_stereo=config.lambda_stereo, stereo_affine=kh.stereo_affine,
         prior_inverse_depth=kh.prior_inverse_depth,
         rig_key=rig_offset_key() if problem.rig is not None and kh.right is not None else None,
-        jacobian_budget=problem.settings.jacobian_budget)
+        jacobian_budget=problem.settings.jacobian_budget,
+        host_samples=host_samples(problem.camera, kh, photometric.pattern_array))
 
 
 @timed("window_build")
