@@ -90,7 +90,8 @@ def gauss_newton_sums(lin: PhotometricLinearization, weight: ArrayLike, with_aff
     if pair:
         return _compiled_sums.accumulate_pair(np.ascontiguousarray(lin.J_host), ah,
                                               target_jacobian_map(lin.T_target_host), float(lin.brightness_gain),
-                                              w, np.ascontiguousarray(lin.residual), np.ascontiguousarray(lin.J_depth))
+                                              w, np.ascontiguousarray(lin.residual), np.ascontiguousarray(lin.J_depth),
+                                              np.ascontiguousarray(lin.valid, dtype=bool))
     at = np.ascontiguousarray(lin.J_affine_target) if with_affine else ah
     return _compiled_sums.accumulate_target(np.ascontiguousarray(lin.J_host), ah, np.ascontiguousarray(lin.J_target),
                                             at, w, np.ascontiguousarray(lin.residual),
@@ -406,12 +407,14 @@ class HostPoints:
             if t in maps:
                 # the loop below as one compiled call (the pair's sums from the host Jacobians); it
                 # indexes without bounds checks, so the shapes are checked here
-                if len(cols) != (16 if self.with_affine else 12) or W.shape != lin.residual.shape:
+                if (len(cols) != (16 if self.with_affine else 12) or W.shape != lin.residual.shape
+                        or lin.valid.shape != W.shape):
                     raise InputError(f"HostPoints.linearize: target {t} has {len(cols)} columns and weights "
                                      f"{W.shape} for residuals {lin.residual.shape} (with_affine={self.with_affine})")
                 _compiled_sums.add_pair_terms(
                     lin.J_host, lin.J_affine_host if self.with_affine else _NO_AFFINE, maps[t],
-                    float(lin.brightness_gain), W, lin.residual, lin.J_depth, k, robust, cols, H, g, H_pd, H_dd, g_d, c)
+                    float(lin.brightness_gain), W, lin.residual, lin.J_depth, lin.valid, k, robust, cols, H, g, H_pd,
+                    H_dd, g_d, c)
                 continue
             w, loss = point_robust_terms(W, lin.residual, self.huber_k)
             H_t, g_t, H_pd_t, H_dd_t, g_d_t = gauss_newton_sums(lin, W * w[:, None], self.with_affine)

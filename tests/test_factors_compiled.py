@@ -419,3 +419,25 @@ def test_depth_terms_equal_the_numpy_expressions_to_the_bit(p, k):
             assert w.tobytes() == w_want.tobytes()
             for a, b in zip(got, want):
                 assert a.tobytes() == b.tobytes()
+
+
+def test_pair_sums_skip_the_invalid_residuals_to_the_bit():
+    """The pair sums skip the residuals flagged invalid (their residual and Jacobians are zero): the
+    same sums, byte for byte, as summing every residual; the points outside the target are many."""
+    rng = np.random.default_rng(11)
+    cam = small_camera()
+    host, target = GradientImage(textured(rng)), GradientImage(textured(rng))
+    px = np.c_[rng.uniform(3, 157, 120), rng.uniform(3, 117, 120)]
+    d = rng.uniform(0.1, 1.5, 120)
+    Tt = HOST_POSE.compose(gtsam.Pose3(gtsam.Rot3.Expmap([0.01, -0.02, 0.01]), np.array([0.4, 0.05, 0.1])))
+    Ih, hv = sample_host(host, px)
+    lin = compiled_residuals(cam, Ih, hv, pattern_bearings(cam, px), d, HOST_POSE, Tt, target, 0.2, 1.0, 3.0,
+                             target_jacobians=False)
+    assert 0.1 < (~lin.valid).mean() < 0.9
+    weight = rng.uniform(0.5, 2.0, lin.residual.shape)  # invalid residuals weighed too
+    B = target_jacobian_map(lin.T_target_host)
+    args = (lin.J_host, lin.J_affine_host, B, float(lin.brightness_gain), weight, lin.residual, lin.J_depth)
+    skipped = _compiled_sums.accumulate_pair(*args, lin.valid)
+    every = _compiled_sums.accumulate_pair(*args, np.zeros((0, 1), dtype=bool))
+    for a, b in zip(skipped, every):
+        assert a.tobytes() == b.tobytes()
