@@ -167,7 +167,7 @@ class HostSamples:
 
     @classmethod
     def of(cls, camera: PinholeCamera, pixels: ArrayLike, host_image: GradientSampler, pattern: ArrayLike
-           ) -> "HostSamples":
+           ) -> HostSamples:
         """Sample the host image and the bearings at the pattern around ``pixels`` (N, 2)."""
         px = np.asarray(pixels, dtype=float).reshape(-1, 2)
         intensity, valid = sample_host(host_image, px, pattern)
@@ -250,7 +250,7 @@ class HostPoints:
                  pattern: ArrayLike, depth_prior: bool, with_affine: bool = True,
                  right_image: GradientSampler | None = None, baseline: float | None = None,
                  lambda_stereo: float = 1.0, stereo_affine: ArrayLike = (0.0, 0.0), rig: bool = False,
-                 host_samples: "HostSamples | None" = None) -> None:
+                 host_samples: HostSamples | None = None) -> None:
         self.camera = camera
         self.pixels = np.asarray(pixels, dtype=float).reshape(-1, 2)
         n = self.pixels.shape[0]
@@ -271,11 +271,13 @@ class HostPoints:
         self.pattern = np.asarray(pattern, dtype=float).reshape(-1, 2)
         if host_samples is None:
             host_samples = HostSamples.of(camera, self.pixels, host_image, self.pattern)
-        elif host_samples.intensity.shape != (n, self.pattern.shape[0]) or host_samples.bearings.shape[:2] != (n, self.pattern.shape[0]):
+        elif (host_samples.intensity.shape != (n, self.pattern.shape[0])
+              or host_samples.bearings.shape[:2] != (n, self.pattern.shape[0])):
             raise InputError(f"HostPoints: host_samples of shape {host_samples.intensity.shape} for {n} points "
                              f"x {self.pattern.shape[0]} pattern pixels")
         # fixed: host pixels only (shared, never written)
-        self.host_intensity, self.host_valid, self.bearings = host_samples.intensity, host_samples.valid, host_samples.bearings
+        self.host_intensity, self.host_valid = host_samples.intensity, host_samples.valid
+        self.bearings = host_samples.bearings
         self.target_images = list(target_images)
         self.sigma = float(sigma_intensity)
         self.huber_k = huber_k

@@ -157,8 +157,8 @@ def test_the_problem_lists_its_factors_and_puts_the_hosts_after_the_priors(seq):
 def test_seen_in_targets_is_seen_in_per_target_to_the_bit():
     """The host's points checked against all targets at once are the one-target checks, point for point,
     also at the image border and behind the camera."""
-    from gtvo.core.camera import PinholeCamera  # noqa: PLC0415
-    from gtvo.window.problem import seen_in, seen_in_targets  # noqa: PLC0415
+    from gtvo.core.camera import PinholeCamera
+    from gtvo.window.problem import seen_in, seen_in_targets
 
     rng = np.random.default_rng(7)
     cam = PinholeCamera(400.0, 400.0, 320.0, 240.0, 640, 480)
@@ -179,10 +179,10 @@ def test_seen_in_targets_is_seen_in_per_target_to_the_bit():
 def test_host_samples_are_kept_per_keyframe_and_checked_at_every_use():
     """A keyframe's host samples are sampled once and reused while its image, pixels, pattern and
     camera are the same (the values of a fresh sampling); any change samples again."""
-    from factors.photometric import PATTERN_DSO8, GradientImage  # noqa: PLC0415
-    from factors.host_points import HostSamples  # noqa: PLC0415
-    from gtvo.core.camera import PinholeCamera  # noqa: PLC0415
-    from gtvo.window.problem import host_samples  # noqa: PLC0415
+    from factors.host_points import HostSamples
+    from factors.photometric import PATTERN_DSO8, GradientImage
+    from gtvo.core.camera import PinholeCamera
+    from gtvo.window.problem import host_samples
 
     rng = np.random.default_rng(3)
     cam = PinholeCamera(100.0, 100.0, 40.0, 30.0, 80, 60)
