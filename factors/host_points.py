@@ -44,6 +44,7 @@ from gtvo.errors import InputError
 
 FloatArray = NDArray[np.float64]
 _NO_AFFINE = np.zeros((0, 1, 2))  # the compiled sums' 'no affine columns'
+_EMPTY_ROWS = np.zeros((0, 1))  # the compiled depth terms' 'no stereo term'
 #: :meth:`HostPoints.residuals` of fewer points than this run in the caller's thread (kernel threads)
 MIN_ROWS_TO_SHARE = 100
 
@@ -89,7 +90,8 @@ def gauss_newton_sums(lin: PhotometricLinearization, weight: ArrayLike, with_aff
     if pair:
         return _compiled_sums.accumulate_pair(np.ascontiguousarray(lin.J_host), ah,
                                               target_jacobian_map(lin.T_target_host), float(lin.brightness_gain),
-                                              w, np.ascontiguousarray(lin.residual), np.ascontiguousarray(lin.J_depth))
+                                              w, np.ascontiguousarray(lin.residual), np.ascontiguousarray(lin.J_depth),
+                                              np.ascontiguousarray(lin.valid, dtype=bool))
     at = np.ascontiguousarray(lin.J_affine_target) if with_affine else ah
     return _compiled_sums.accumulate_target(np.ascontiguousarray(lin.J_host), ah, np.ascontiguousarray(lin.J_target),
                                             at, w, np.ascontiguousarray(lin.residual),
@@ -129,6 +131,15 @@ def target_jacobian_map(T_target_host: ArrayLike) -> FloatArray:
     return -se3_adjoint(R.T, -R.T @ t).T  # Ad^-1 is the adjoint of the inverse pose
 
 
+def target_jacobian_maps(T_target_host: ArrayLike) -> FloatArray:
+    """:func:`target_jacobian_map` of a stack of poses (K, 4, 4) -> (K, 6, 6) in one vectorised call
+    (a host's pairs at once; the same values, the same products)."""
+    T = np.asarray(T_target_host, dtype=float)
+    R, t = T[:, :3, :3], T[:, :3, 3]
+    Rt = R.transpose(0, 2, 1)
+    return -se3_adjoint(Rt, (-Rt @ t[..., None])[..., 0]).transpose(0, 2, 1)
+
+
 def keep_cheaper_depths(d: FloatArray, c: FloatArray, lins: list, rows: NDArray[np.intp], d_old: FloatArray,
                         c_old: FloatArray, lins_old: list) -> tuple[FloatArray, FloatArray, list]:
     """The safeguarded depth step's merge: of the points ``rows`` (whose cost at the new depths
@@ -142,6 +153,25 @@ def keep_cheaper_depths(d: FloatArray, c: FloatArray, lins: list, rows: NDArray[
     d, c = d.copy(), c.copy()
     d[r], c[r] = d_old[r], c_old[keep]
     return d, c, [None if a is None else put_rows(a, r, b, keep) for a, b in zip(lins, lins_old)]
+
+
+@dataclass(frozen=True)
+class HostSamples:
+    """What a host's points need of the host image and the camera, fixed for the host's life: the
+    host intensities and their validity at the pattern around each point (N, P) and the pattern
+    pixels' bearings (N, P, 3) (:meth:`of`). Shared by the host's factors, never written."""
+
+    intensity: FloatArray  #: (N, P) host intensities
+    valid: NDArray[np.bool_]  #: (N, P) host samples inside the image (and unclipped)
+    bearings: FloatArray  #: (N, P, 3) ``K^-1 [u, v, 1]``
+
+    @classmethod
+    def of(cls, camera: PinholeCamera, pixels: ArrayLike, host_image: GradientSampler, pattern: ArrayLike
+           ) -> HostSamples:
+        """Sample the host image and the bearings at the pattern around ``pixels`` (N, 2)."""
+        px = np.asarray(pixels, dtype=float).reshape(-1, 2)
+        intensity, valid = sample_host(host_image, px, pattern)
+        return cls(intensity, valid, pattern_bearings(camera, px, pattern))
 
 
 @dataclass
@@ -162,15 +192,20 @@ class DepthSystem:
     def back_substitute(self, dx: FloatArray) -> FloatArray:
         """The inverse depths implied by the state step ``dx`` (M,): ``d - (g_d + H_pd dx) / H_dd``,
         kept at least ``0.1 d`` (> 0; an optimiser rejects such far steps anyway)."""
-        step = np.zeros_like(self.d)
         a = self.active
-        step[a] = -(self.g_d[a] + self.H_pd[a] @ dx) / self.H_dd[a]
+        if a.all():  # the usual case: no row selection (the same products)
+            step = -(self.g_d + self.H_pd @ dx) / self.H_dd
+        else:
+            step = np.zeros_like(self.d)
+            step[a] = -(self.g_d[a] + self.H_pd[a] @ dx) / self.H_dd[a]
         return np.maximum(self.d + step, 0.1 * self.d)
 
     def newton_decrease(self) -> float:
         """The decrease of the cost's Gauss-Newton model from the depth-only Newton step at ``dx = 0``:
         ``sum_n g_d^2 / (2 H_dd)`` over the active points."""
         a = self.active
+        if a.all():
+            return 0.5 * float(np.sum(self.g_d ** 2 / self.H_dd))
         return 0.5 * float(np.sum(self.g_d[a] ** 2 / self.H_dd[a]))
 
 
@@ -201,6 +236,8 @@ class HostPoints:
             :meth:`linearize` adds its two columns (``rig_columns``) to the reduced system, a
             non-depth parameter like a pose (the Schur complement over the depths is unchanged).
             Without it the stereo term uses ``offset`` (default zero) as a constant.
+        host_samples: :meth:`HostSamples.of` these pixels, host image and pattern, when the caller
+            keeps them (a keyframe's factor is built again at every window solve); None: sampled here.
 
     The variance weights W are frozen at their first evaluation (:meth:`weights`) and released by
     :meth:`release_weights`: with W moving with the state the Gauss-Newton model would not match
@@ -212,7 +249,8 @@ class HostPoints:
                  prior_inverse_depth: ArrayLike, *, sigma_intensity: float, huber_k: float | None,
                  pattern: ArrayLike, depth_prior: bool, with_affine: bool = True,
                  right_image: GradientSampler | None = None, baseline: float | None = None,
-                 lambda_stereo: float = 1.0, stereo_affine: ArrayLike = (0.0, 0.0), rig: bool = False) -> None:
+                 lambda_stereo: float = 1.0, stereo_affine: ArrayLike = (0.0, 0.0), rig: bool = False,
+                 host_samples: HostSamples | None = None) -> None:
         self.camera = camera
         self.pixels = np.asarray(pixels, dtype=float).reshape(-1, 2)
         n = self.pixels.shape[0]
@@ -231,8 +269,15 @@ class HostPoints:
             if not (np.isfinite(lambda_stereo) and lambda_stereo > 0):
                 raise InputError(f"HostPoints: lambda_stereo must be positive, got {lambda_stereo!r}")
         self.pattern = np.asarray(pattern, dtype=float).reshape(-1, 2)
-        self.host_intensity, self.host_valid = sample_host(host_image, self.pixels, self.pattern)
-        self.bearings = pattern_bearings(camera, self.pixels, self.pattern)  # fixed: host pixels only
+        if host_samples is None:
+            host_samples = HostSamples.of(camera, self.pixels, host_image, self.pattern)
+        elif (host_samples.intensity.shape != (n, self.pattern.shape[0])
+              or host_samples.bearings.shape[:2] != (n, self.pattern.shape[0])):
+            raise InputError(f"HostPoints: host_samples of shape {host_samples.intensity.shape} for {n} points "
+                             f"x {self.pattern.shape[0]} pattern pixels")
+        # fixed: host pixels only (shared, never written)
+        self.host_intensity, self.host_valid = host_samples.intensity, host_samples.valid
+        self.bearings = host_samples.bearings
         self.target_images = list(target_images)
         self.sigma = float(sigma_intensity)
         self.huber_k = huber_k
@@ -355,20 +400,23 @@ class HostPoints:
         g_d = np.zeros(n)
         c = np.zeros(n)
         Ws = self.weights(lins)
-
+        k, robust = (0.0 if self.huber_k is None else float(self.huber_k)), self.huber_k is not None
+        # the pairs' maps B in one batched call (the same values as one call per pair)
+        paired = [t for t in range(len(columns)) if lins[t].has_pair_pose and lins[t].J_host is not None]
+        maps = dict(zip(paired, target_jacobian_maps(np.stack([lins[t].T_target_host for t in paired])))) if paired else {}
         for t, cols in enumerate(columns):
             lin, W = lins[t], Ws[t]
-            if lin.has_pair_pose and lin.J_host is not None:
+            if t in maps:
                 # the loop below as one compiled call (the pair's sums from the host Jacobians); it
                 # indexes without bounds checks, so the shapes are checked here
-                if len(cols) != (16 if self.with_affine else 12) or W.shape != lin.residual.shape:
+                if (len(cols) != (16 if self.with_affine else 12) or W.shape != lin.residual.shape
+                        or lin.valid.shape != W.shape):
                     raise InputError(f"HostPoints.linearize: target {t} has {len(cols)} columns and weights "
                                      f"{W.shape} for residuals {lin.residual.shape} (with_affine={self.with_affine})")
                 _compiled_sums.add_pair_terms(
-                    lin.J_host, lin.J_affine_host if self.with_affine else _NO_AFFINE,
-                    target_jacobian_map(lin.T_target_host), float(lin.brightness_gain), W, lin.residual,
-                    lin.J_depth, 0.0 if self.huber_k is None else float(self.huber_k), self.huber_k is not None,
-                    cols, H, g, H_pd, H_dd, g_d, c)
+                    lin.J_host, lin.J_affine_host if self.with_affine else _NO_AFFINE, maps[t],
+                    float(lin.brightness_gain), W, lin.residual, lin.J_depth, lin.valid, k, robust, cols, H, g, H_pd,
+                    H_dd, g_d, c)
                 continue
             w, loss = point_robust_terms(W, lin.residual, self.huber_k)
             H_t, g_t, H_pd_t, H_dd_t, g_d_t = gauss_newton_sums(lin, W * w[:, None], self.with_affine)
@@ -378,35 +426,66 @@ class HostPoints:
             H_pd[:, cols] += H_pd_t
             H_dd += H_dd_t
             g_d += g_d_t
-        if lins[-1] is not None:
-            st, W = lins[-1], Ws[-1]
-            w, loss = point_robust_terms(W, st.residual, self.huber_k)
-            ww = W * w[:, None]
-            H_dd += np.sum(ww * st.J_depth ** 2, axis=1)
-            g_d += np.sum(ww * st.J_depth * st.residual, axis=1)
-            c += loss
-            if self.rig:
-                if rig_columns is None or st.J_offset is None:
-                    raise InputError("HostPoints.linearize: a rig offset variable needs rig_columns and "
-                                     "residuals with offset Jacobians")
-                rc = np.asarray(rig_columns, dtype=np.intp)
-                Jo = st.J_offset.reshape(-1, 2)
-                wJo = ww.reshape(-1, 1) * Jo
-                H[np.ix_(rc, rc)] += Jo.T @ wJo
-                g[rc] += wJo.T @ st.residual.reshape(-1)
-                H_pd[:, rc] += np.sum((wJo * st.J_depth.reshape(-1, 1)).reshape(n, -1, 2), axis=1)
-        if self.depth_prior:
-            H_dd += 1.0 / self.variance
-            g_d += (d - self.prior) / self.variance
-            c += 0.5 * (d - self.prior) ** 2 / self.variance
+        st = lins[-1]
+        w = self._add_depth_terms(st, None if st is None else Ws[-1], d, H_dd, g_d, c)
+        if st is not None and self.rig:
+            if rig_columns is None or st.J_offset is None:
+                raise InputError("HostPoints.linearize: a rig offset variable needs rig_columns and "
+                                 "residuals with offset Jacobians")
+            rc = np.asarray(rig_columns, dtype=np.intp)
+            Jo = st.J_offset.reshape(-1, 2)
+            wJo = (Ws[-1] * w[:, None]).reshape(-1, 1) * Jo
+            H[np.ix_(rc, rc)] += Jo.T @ wJo
+            g[rc] += wJo.T @ st.residual.reshape(-1)
+            H_pd[:, rc] += np.sum((wJo * st.J_depth.reshape(-1, 1)).reshape(n, -1, 2), axis=1)
         return self._eliminate(DepthSystem(d.copy(), H_pd, H_dd, g_d, np.ones(n, dtype=bool), c), H, g)
+
+    def _add_depth_terms(self, stereo: PhotometricLinearization | None, W: FloatArray | None, d: FloatArray,
+                         H_dd: FloatArray, g_d: FloatArray, c: FloatArray) -> FloatArray:
+        """The terms on the depths alone, added in place: the stereo term's (``stereo`` with its
+        weights ``W``; None: no stereo term) robust sums ``H_dd += sum_P wW j^2``, ``g_d += sum_P
+        wW j r`` and losses, then the depth prior's ``1 / V``, ``(d - prior) / V`` and
+        ``(d - prior)^2 / (2 V)``. Returns the stereo term's Huber weights (N,) (ones without it).
+        One compiled pass (:func:`factors._compiled_sums.add_depth_terms`, the same values as these
+        numpy expressions, which patterns longer than its row sums take)."""
+        n = d.shape[0]
+        if stereo is not None and stereo.residual.shape[1] > _compiled_sums.MAX_PAIRWISE:
+            w, loss = point_robust_terms(W, stereo.residual, self.huber_k)
+            ww = W * w[:, None]
+            H_dd += np.sum(ww * stereo.J_depth ** 2, axis=1)
+            g_d += np.sum(ww * stereo.J_depth * stereo.residual, axis=1)
+            c += loss
+            if self.depth_prior:
+                _compiled_sums.add_depth_terms(_EMPTY_ROWS, _EMPTY_ROWS, _EMPTY_ROWS, 0.0, False, False, d,
+                                               self.prior, self.variance, True, H_dd, g_d, c)
+            return w
+        if stereo is None:
+            if not self.depth_prior:
+                return np.ones(n)
+            args = (_EMPTY_ROWS, _EMPTY_ROWS, _EMPTY_ROWS)
+        else:
+            if W.shape != stereo.residual.shape or stereo.J_depth.shape != W.shape or W.shape[0] != n:
+                raise InputError(f"HostPoints.linearize: the stereo term has weights {W.shape} for residuals "
+                                 f"{stereo.residual.shape} of {n} points")
+            args = (np.ascontiguousarray(W), np.ascontiguousarray(stereo.residual),
+                    np.ascontiguousarray(stereo.J_depth))
+        return _compiled_sums.add_depth_terms(*args, 0.0 if self.huber_k is None else float(self.huber_k),
+                                              self.huber_k is not None, stereo is not None, d, self.prior,
+                                              self.variance, self.depth_prior, H_dd, g_d, c)
 
     @staticmethod
     def _eliminate(system: DepthSystem, H: FloatArray, g: FloatArray) -> DepthSystem:
         """Schur-eliminate the active depths from ``H``, ``g`` in place:
-        ``H -= sum_n H_pd H_pd^T / H_dd``, ``g -= sum_n H_pd g_d / H_dd``."""
+        ``H -= sum_n H_pd H_pd^T / H_dd``, ``g -= sum_n H_pd g_d / H_dd`` (all points active, the
+        usual case: no row selection, the same products)."""
         H_dd = system.H_dd
         active = H_dd > 1e-12 * max(float(H_dd.max()), 1e-300)
+        if active.all():
+            L = system.H_pd / H_dd[:, None]
+            H -= L.T @ system.H_pd
+            g -= L.T @ system.g_d
+            system.active = active
+            return system
         Hdd = np.where(active, H_dd, 1.0)
         L = system.H_pd[active] / Hdd[active, None]
         H -= L.T @ system.H_pd[active]

@@ -39,7 +39,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from factors.gtsam_factors import DEFAULT_HUBER_K, DEFAULT_SIGMA_INTENSITY, PythonFactor, _twin_class
-from factors.host_points import DepthSystem, HostPoints
+from factors.host_points import DepthSystem, HostPoints, HostSamples
 from factors.photometric import PATTERN_DSO8, GradientSampler
 from gtvo.core.camera import PinholeCamera
 from gtvo.core.kernel_threads import map_independent
@@ -139,6 +139,8 @@ class HostPointsFactor(PythonFactor):
         jacobian_budget: shared by the host factors of one graph: keep a cost pass's Jacobians for
             the linearisation only while it has room (:class:`JacobianBudget`); None: always keep
             them (the window's few hosts).
+        host_samples: the host's :class:`factors.host_points.HostSamples` when the caller keeps them
+            (the window, across its solves); None: sampled here.
 
     The variance weights W are frozen at the first linearisation of an optimisation run and
     released by :meth:`commit` (so the next run re-evaluates them): with W moving with the
@@ -154,7 +156,7 @@ class HostPointsFactor(PythonFactor):
                  right_image: GradientSampler | None = None, baseline: float | None = None,
                  lambda_stereo: float = 1.0, stereo_affine: ArrayLike = (0.0, 0.0),
                  prior_inverse_depth: ArrayLike | None = None, rig_key: int | None = None,
-                 jacobian_budget: JacobianBudget | None = None) -> None:
+                 jacobian_budget: JacobianBudget | None = None, host_samples: HostSamples | None = None) -> None:
         self.target_keys = list(target_keys)
         if not self.target_keys:
             raise InputError("HostPointsFactor needs at least one target")
@@ -174,7 +176,7 @@ class HostPointsFactor(PythonFactor):
                                  sigma_intensity=sigma_intensity, huber_k=huber_k, pattern=pattern,
                                  depth_prior=depth_prior, with_affine=self.with_affine, right_image=right_image,
                                  baseline=baseline, lambda_stereo=lambda_stereo, stereo_affine=stereo_affine,
-                                 rig=rig_key is not None)
+                                 rig=rig_key is not None, host_samples=host_samples)
         if rig_key is not None and right_image is None:
             raise InputError("HostPointsFactor: a rig_key needs a right image (the stereo term)")
         self.depths = d.copy()

@@ -16,7 +16,8 @@ import gtsam
 import numpy as np
 import pytest
 
-from factors.host_points import gauss_newton_sums, target_jacobian_map, target_normal_equations
+from factors import _compiled_sums
+from factors.host_points import gauss_newton_sums, target_jacobian_map, target_jacobian_maps, target_normal_equations
 from factors.photometric import (GradientImage, PhotometricLinearization, compiled_residuals, pattern_bearings,
                                  photometric_residuals, put_rows, sample_host, stereo_residuals)
 from factors.weights import huber_loss, huber_weight, point_robust_terms
@@ -375,3 +376,68 @@ def test_target_jacobian_map_is_the_inverse_adjoint_to_the_bit():
         T = gtsam.Pose3(gtsam.Rot3.Expmap(rng.normal(0, 1, 3)), rng.normal(0, 5, 3)).matrix()
         R, t = T[:3, :3], T[:3, 3]
         assert target_jacobian_map(T).tobytes() == (-se3_adjoint(R.T, -R.T @ t).T).tobytes()
+
+
+def test_target_jacobian_maps_equal_one_at_a_time_to_the_bit():
+    """The batched maps (a host's pairs in one call) are the single maps byte for byte."""
+    rng = np.random.default_rng(4)
+    T = np.stack([gtsam.Pose3(gtsam.Rot3.Expmap(rng.normal(0, 1, 3)), rng.normal(0, 5, 3)).matrix() for _ in range(64)])
+    B = target_jacobian_maps(T)
+    assert B.shape == (64, 6, 6)
+    assert B.tobytes() == np.stack([target_jacobian_map(t) for t in T]).tobytes()
+
+
+@pytest.mark.parametrize("p", [1, 7, 8, 9, 20, 128])
+@pytest.mark.parametrize("k", [None, 0.8])
+def test_depth_terms_equal_the_numpy_expressions_to_the_bit(p, k):
+    """The compiled stereo and prior terms on the depths are the numpy expressions they replaced
+    (row sums by numpy's pairwise summation), byte for byte, with and without each term."""
+    rng = np.random.default_rng(p)
+    n = 50
+    W = rng.uniform(0.01, 2, (n, p))
+    r = rng.normal(0, 3, (n, p)) * 10 ** rng.uniform(-3, 3, (n, p))
+    j = rng.normal(0, 50, (n, p))
+    d, prior, V = rng.uniform(0.1, 2, n), rng.uniform(0.1, 2, n), rng.uniform(1e-4, 1e-1, n)
+    start = [rng.normal(size=n) for _ in range(3)]
+    for stereo in (False, True):
+        for prior_on in (False, True):
+            want = [a.copy() for a in start]
+            w_want = np.ones(n)
+            if stereo:
+                w_want, loss = point_robust_terms(W, r, k)
+                ww = W * w_want[:, None]
+                want[0] += np.sum(ww * j ** 2, axis=1)
+                want[1] += np.sum(ww * j * r, axis=1)
+                want[2] += loss
+            if prior_on:
+                want[0] += 1.0 / V
+                want[1] += (d - prior) / V
+                want[2] += 0.5 * (d - prior) ** 2 / V
+            got = [a.copy() for a in start]
+            w = _compiled_sums.add_depth_terms(W, r, j, 0.0 if k is None else k, k is not None, stereo, d, prior, V,
+                                               prior_on, *got)
+            assert w.tobytes() == w_want.tobytes()
+            for a, b in zip(got, want):
+                assert a.tobytes() == b.tobytes()
+
+
+def test_pair_sums_skip_the_invalid_residuals_to_the_bit():
+    """The pair sums skip the residuals flagged invalid (their residual and Jacobians are zero): the
+    same sums, byte for byte, as summing every residual; the points outside the target are many."""
+    rng = np.random.default_rng(11)
+    cam = small_camera()
+    host, target = GradientImage(textured(rng)), GradientImage(textured(rng))
+    px = np.c_[rng.uniform(3, 157, 120), rng.uniform(3, 117, 120)]
+    d = rng.uniform(0.1, 1.5, 120)
+    Tt = HOST_POSE.compose(gtsam.Pose3(gtsam.Rot3.Expmap([0.01, -0.02, 0.01]), np.array([0.4, 0.05, 0.1])))
+    Ih, hv = sample_host(host, px)
+    lin = compiled_residuals(cam, Ih, hv, pattern_bearings(cam, px), d, HOST_POSE, Tt, target, 0.2, 1.0, 3.0,
+                             target_jacobians=False)
+    assert 0.1 < (~lin.valid).mean() < 0.9
+    weight = rng.uniform(0.5, 2.0, lin.residual.shape)  # invalid residuals weighed too
+    B = target_jacobian_map(lin.T_target_host)
+    args = (lin.J_host, lin.J_affine_host, B, float(lin.brightness_gain), weight, lin.residual, lin.J_depth)
+    skipped = _compiled_sums.accumulate_pair(*args, lin.valid)
+    every = _compiled_sums.accumulate_pair(*args, np.zeros((0, 1), dtype=bool))
+    for a, b in zip(skipped, every):
+        assert a.tobytes() == b.tobytes()

@@ -97,6 +97,37 @@ def test_linearization_does_not_depend_on_the_callers_layout(stereo):
     assert s1.point_cost.sum() == pytest.approx(pts.point_costs(lins, d).sum(), rel=1e-14)
 
 
+def test_elimination_skips_the_points_without_curvature():
+    """Points with no curvature (``H_dd`` 0: seen nowhere, no prior) are not eliminated and keep their
+    depth; the others' Schur complement is the one of the active points alone, and with all points
+    active it is the same product as with the rows selected (to the bit)."""
+    pts, poses, affines, d = _problem(seed=2)
+    lins = pts.residuals(poses, affines, d)
+    H, g = np.zeros((24, 24)), np.zeros(24)
+    s = pts.linearize(lins, d, H, g, [_local_columns(t) for t in range(2)])
+    assert s.active.all()
+    H_full = H + s.H_pd.T @ (s.H_pd / s.H_dd[:, None])  # undo: the system before the elimination
+    g_full = g + s.H_pd.T @ (s.g_d / s.H_dd)
+    idle = np.arange(0, len(d), 5)
+    H_dd = s.H_dd.copy()
+    H_dd[idle] = 0.0
+    system = dataclasses.replace(s, H_dd=H_dd, active=np.ones(len(d), dtype=bool))
+    H2, g2 = H_full.copy(), g_full.copy()
+    out = HostPoints._eliminate(system, H2, g2)
+    keep = np.setdiff1d(np.arange(len(d)), idle)
+    assert np.array_equal(np.flatnonzero(~out.active), idle) and np.all(out.H_dd[idle] == 1.0)
+    L = s.H_pd[keep] / s.H_dd[keep, None]
+    np.testing.assert_allclose(H2, H_full - L.T @ s.H_pd[keep], rtol=0, atol=1e-9 * np.abs(H_full).max())
+    np.testing.assert_allclose(g2, g_full - L.T @ s.g_d[keep], rtol=0, atol=1e-9 * np.abs(g_full).max())
+    np.testing.assert_array_equal(out.back_substitute(np.zeros(24))[idle], d[idle])
+    # all active: the same numbers as the row-selected products
+    H3, g3 = H_full.copy(), g_full.copy()
+    HostPoints._eliminate(dataclasses.replace(s, active=np.ones(len(d), dtype=bool)), H3, g3)
+    a = np.ones(len(d), dtype=bool)
+    L = s.H_pd[a] / s.H_dd[a, None]
+    assert H3.tobytes() == (H_full - L.T @ s.H_pd[a]).tobytes() and g3.tobytes() == (g_full - L.T @ s.g_d[a]).tobytes()
+
+
 def test_back_substitution_is_the_depth_rows_of_the_newton_system():
     """``H_pd dx + H_dd dd = -g_d`` for every active point, depths kept >= 0.1 d."""
     pts, poses, affines, d = _problem(seed=1)

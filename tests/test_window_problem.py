@@ -152,3 +152,56 @@ def test_the_problem_lists_its_factors_and_puts_the_hosts_after_the_priors(seq):
     graph, values, hosts = build_graph(problem)
     assert graph.size() == 6 + len(hosts) and values.size() == 6
     assert problem.targets == gtvo.window.visible_targets(seq.camera.left, kfs, WindowConfig())
+
+
+def test_seen_in_targets_is_seen_in_per_target_to_the_bit():
+    """The host's points checked against all targets at once are the one-target checks, point for point,
+    also at the image border and behind the camera."""
+    from gtvo.core.camera import PinholeCamera
+    from gtvo.window.problem import seen_in, seen_in_targets
+
+    rng = np.random.default_rng(7)
+    cam = PinholeCamera(400.0, 400.0, 320.0, 240.0, 640, 480)
+
+    class Frame:  # what seen_in reads of a keyframe
+        def __init__(self, pose):
+            self.pose = pose
+
+    targets = [Frame(gtsam.Pose3(gtsam.Rot3.Expmap(rng.normal(0, 0.3, 3)), rng.normal(0, 2, 3))) for _ in range(6)]
+    Xw = rng.normal(0, 5, (500, 3)) + [0, 0, 6]
+    T = np.stack([t.pose.inverse().matrix() for t in targets])
+    batch = seen_in_targets(cam, Xw, T)
+    assert batch.shape == (6, 500) and batch.any() and not batch.all()
+    for k, t in enumerate(targets):
+        assert np.array_equal(batch[k], seen_in(cam, Frame(gtsam.Pose3()), t, Xw))
+
+
+def test_host_samples_are_kept_per_keyframe_and_checked_at_every_use():
+    """A keyframe's host samples are sampled once and reused while its image, pixels, pattern and
+    camera are the same (the values of a fresh sampling); any change samples again."""
+    from factors.host_points import HostSamples
+    from factors.photometric import PATTERN_DSO8, GradientImage
+    from gtvo.core.camera import PinholeCamera
+    from gtvo.window.problem import host_samples
+
+    rng = np.random.default_rng(3)
+    cam = PinholeCamera(100.0, 100.0, 40.0, 30.0, 80, 60)
+
+    class Frame:  # what host_samples reads of a keyframe
+        def __init__(self):
+            self.image = GradientImage(rng.uniform(10, 240, (60, 80)))
+            self.pixels = np.c_[rng.uniform(5, 75, 30), rng.uniform(5, 55, 30)]
+
+    kf = Frame()
+    a = host_samples(cam, kf, PATTERN_DSO8)
+    assert host_samples(cam, kf, PATTERN_DSO8) is a
+    fresh = HostSamples.of(cam, kf.pixels, kf.image, PATTERN_DSO8)
+    for name in ("intensity", "valid", "bearings"):
+        assert np.array_equal(getattr(a, name), getattr(fresh, name))
+    assert host_samples(cam, kf, PATTERN_DSO8[:4]) is not a
+    kf.pixels = kf.pixels + 1.0
+    b = host_samples(cam, kf, PATTERN_DSO8)
+    assert b is not a and np.array_equal(b.bearings, HostSamples.of(cam, kf.pixels, kf.image, PATTERN_DSO8).bearings)
+    kf.image = GradientImage(rng.uniform(10, 240, (60, 80)))
+    assert host_samples(cam, kf, PATTERN_DSO8) is not b
+    assert host_samples(PinholeCamera(100.0, 100.0, 40.0, 30.0, 80, 60), kf, PATTERN_DSO8) is not b

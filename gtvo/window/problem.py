@@ -10,6 +10,7 @@ marginalisation and the refinement: every factor but the host factors in one GTS
 from __future__ import annotations
 
 import dataclasses
+import weakref
 from dataclasses import dataclass, field
 from typing import Callable, Protocol, Sequence
 
@@ -19,6 +20,7 @@ from numpy.typing import NDArray
 
 from gtvo.core.keys import affine_key, pose_key, rig_offset_key
 from factors.params import DEFAULT_PHOTOMETRIC, PhotometricConfig
+from factors.host_points import HostSamples
 from factors.smart import HostPointsFactor, JacobianBudget
 from factors.smoothness import ConstantVelocityFactor
 from factors.stacked import stacked
@@ -115,18 +117,21 @@ def visible_targets(camera: PinholeCamera, keyframes: Sequence[WindowKeyframe], 
     choice = choice or TargetChoice()
     hosts, candidates, max_targets = choice.hosts, choice.candidates, choice.max_targets
     out: list[list[int]] = []
+    inverse: FloatArray | None = None
     for i, h in enumerate(range(len(keyframes)) if hosts is None else hosts):
         if not 0 <= h < len(keyframes):
             raise InputError(f"visible_targets: host position {h} is not in a window of {len(keyframes)} keyframes")
         kh = keyframes[h]
-        Xw = host_points_world(camera, kh)  # once per host, not per host and target
-        seen: list[tuple[int, int]] = []  # (points seen, position)
-        for t in range(len(keyframes)) if candidates is None else candidates[i]:
-            if t == h:
-                continue
-            n = int(np.count_nonzero(seen_in(camera, kh, keyframes[t], Xw)))
-            if n >= config.min_visible_points and n >= config.min_visible_fraction * len(kh):
-                seen.append((n, t))
+        others = [t for t in (range(len(keyframes)) if candidates is None else candidates[i]) if t != h]
+        if not others:
+            out.append([])
+            continue
+        if inverse is None:  # each keyframe's T_cam_world once per call, not per host and target
+            inverse = np.stack([kf.pose.inverse().matrix() for kf in keyframes])
+        # all candidates of the host at once: host_points_world once per host
+        counts = np.count_nonzero(seen_in_targets(camera, host_points_world(camera, kh), inverse[others]), axis=1)
+        seen: list[tuple[int, int]] = [(int(n), t) for n, t in zip(counts, others)  # (points seen, position)
+                                       if n >= config.min_visible_points and n >= config.min_visible_fraction * len(kh)]
         if max_targets is not None and len(seen) > max_targets:
             seen = sorted(seen, key=lambda nt: (-nt[0], abs(nt[1] - h), nt[1]))[:max_targets]
         out.append(sorted(t for _, t in seen))
@@ -154,17 +159,29 @@ def seen_in(camera: PinholeCamera, host: WindowKeyframe, target: WindowKeyframe,
     return front & (u >= 2) & (u <= camera.width - 3) & (v >= 2) & (v <= camera.height - 3)
 
 
+def seen_in_targets(camera: PinholeCamera, points_world: FloatArray, T_cam_world: FloatArray) -> NDArray[np.bool_]:
+    """:func:`seen_in` of one host's points (``points_world`` (N, 3)) in several targets at once, given
+    as their ``T_cam_world`` (K, 4, 4): (K, N), the same values as K calls (the same products)."""
+    Xt = points_world @ T_cam_world[:, :3, :3].transpose(0, 2, 1) + T_cam_world[:, None, :3, 3]
+    front = Xt[..., 2] > MIN_DEPTH
+    z = np.where(front, Xt[..., 2], 1.0)
+    u = camera.fx * Xt[..., 0] / z + camera.cx
+    v = camera.fy * Xt[..., 1] / z + camera.cy
+    return front & (u >= 2) & (u <= camera.width - 3) & (v >= 2) & (v <= camera.height - 3)
+
+
 def observation_counts(camera: PinholeCamera, keyframes: Sequence[WindowKeyframe], targets: list[list[int]]
                        ) -> list[NDArray[np.int64]]:
     """For each host, per point: in how many of its ``targets`` (the keyframes its factor compares it
     with, :func:`visible_targets`) the point is seen (:func:`seen_in`). The host itself is not counted."""
     out: list[NDArray[np.int64]] = []
+    inverse = np.stack([kf.pose.inverse().matrix() for kf in keyframes]) if any(targets) else None
     for h, kh in enumerate(keyframes):
-        n = np.zeros(len(kh), dtype=np.int64)
-        Xw = host_points_world(camera, kh) if targets[h] else None
-        for t in targets[h]:
-            n += seen_in(camera, kh, keyframes[t], Xw)
-        out.append(n)
+        if not targets[h]:
+            out.append(np.zeros(len(kh), dtype=np.int64))
+            continue
+        seen = seen_in_targets(camera, host_points_world(camera, kh), inverse[list(targets[h])])
+        out.append(np.count_nonzero(seen, axis=0).astype(np.int64))
     return out
 
 
@@ -419,6 +436,33 @@ class WindowProblem:
         return sum(len(self.keyframes[h]) * len(ts) for h, ts in enumerate(self.targets))
 
 
+#: the window's keyframes' :class:`HostSamples`, by ``id`` of their image: (image, pixels, pattern, camera, samples)
+_SAMPLES: dict[int, tuple[weakref.ref, FloatArray, FloatArray, PinholeCamera, HostSamples]] = {}
+#: :data:`_SAMPLES` is pruned of dead images beyond this many entries (a window holds a few keyframes)
+_MAX_SAMPLES = 32
+
+
+def host_samples(camera: PinholeCamera, keyframe: WindowKeyframe, pattern: FloatArray) -> HostSamples:
+    """The keyframe's :class:`factors.host_points.HostSamples` (host intensities and bearings at its
+    points' pattern): sampled once and kept while the keyframe's image lives, for its host factors of
+    every solve, the marginalisation and the rig tests (the same arrays: they depend only on the
+    image, the pixels, the pattern and the camera, checked at every use)."""
+    key = id(keyframe.image)
+    hit = _SAMPLES.get(key)
+    if (hit is not None and hit[0]() is keyframe.image and hit[3] is camera and np.array_equal(hit[1], keyframe.pixels)
+            and np.array_equal(hit[2], pattern)):
+        return hit[4]
+    samples = HostSamples.of(camera, keyframe.pixels, keyframe.image, pattern)
+    if len(_SAMPLES) >= _MAX_SAMPLES:
+        for k in [k for k, v in _SAMPLES.items() if v[0]() is None]:
+            del _SAMPLES[k]
+        while len(_SAMPLES) >= _MAX_SAMPLES:  # all alive: the oldest goes
+            del _SAMPLES[next(iter(_SAMPLES))]
+    _SAMPLES[key] = (weakref.ref(keyframe.image), np.array(keyframe.pixels, dtype=float), np.array(pattern, dtype=float),
+                     camera, samples)
+    return samples
+
+
 @timed("window_build")
 def host_factor(problem: WindowProblem, h: int, targets: Sequence[int] | None = None) -> HostPointsFactor:
     """The :class:`HostPointsFactor` of host ``problem.keyframes[h]`` observed in ``targets``
@@ -438,7 +482,8 @@ def host_factor(problem: WindowProblem, h: int, targets: Sequence[int] | None = 
         lambda_stereo=config.lambda_stereo, stereo_affine=kh.stereo_affine,
         prior_inverse_depth=kh.prior_inverse_depth,
         rig_key=rig_offset_key() if problem.rig is not None and kh.right is not None else None,
-        jacobian_budget=problem.settings.jacobian_budget)
+        jacobian_budget=problem.settings.jacobian_budget,
+        host_samples=host_samples(problem.camera, kh, photometric.pattern_array))
 
 
 @timed("window_build")
