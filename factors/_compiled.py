@@ -213,13 +213,31 @@ def _flag_clipped_cells(packed, y, x, h, w):
                 packed[cy, cx, 3] = 1.0
 
 
-@jit
-def pack_gradient_image(img, lo, hi, check_clip):
+def pack_gradient_image(img: np.ndarray, lo: np.float32, hi: np.float32, check_clip: bool
+                        ) -> tuple[np.ndarray, bool, bool]:
     """``GradientImage``'s packed records of a (H, W) float32 image (H, W >= 2): per pixel the
     intensity, ``image_gradients``' central differences (one-sided at the borders, the same float32
     arithmetic) and, with ``check_clip``, 1.0 where the bilinear cell with this top-left corner
     touches a pixel at or beyond ``lo`` / ``hi``. Returns ``(packed (H, W, 4), any pixel clipped,
-    all finite)``.
+    all finite)``, written by :func:`pack_gradient_records`.
+
+    The records are allocated by numpy, not inside the compiled loop: numpy asks the kernel for
+    transparent huge pages (``madvise``) for arrays of 4 MB and more, numba's allocator does not.
+    A residual pass samples a few pixels in each of many rows, and a KITTI row of records is 20 kB,
+    so with 4 kB pages nearly every bilinear sample missed the TLB (a page walk, dearer in a virtual
+    machine); with 2 MB pages the warp kernels' gathers took about half the time
+    (docs/benchmarks.md, "The window's residual passes").
+    """
+    h, w = img.shape
+    packed = np.empty((h, w, 4), dtype=np.float32)
+    clipped_any, finite = pack_gradient_records(img, lo, hi, check_clip, packed)
+    return packed, bool(clipped_any), bool(finite)
+
+
+@jit
+def pack_gradient_records(img, lo, hi, check_clip, packed):
+    """:func:`pack_gradient_image`'s loop: writes the records of ``img`` into ``packed`` (H, W, 4)
+    float32; returns ``(any pixel clipped, all finite)``.
 
     Row by row: the two border columns (one-sided differences), then the interior ones without a
     branch (1.6x faster than one loop with the border tests in it), then the row's clip and
@@ -227,7 +245,6 @@ def pack_gradient_image(img, lo, hi, check_clip):
     The flags' channel is written 0 for every pixel first (no zeroed allocation of the whole
     array)."""
     h, w = img.shape
-    packed = np.empty((h, w, 4), dtype=np.float32)
     half = np.float32(0.5)
     clipped_any = False
     finite = True
@@ -254,4 +271,4 @@ def pack_gradient_image(img, lo, hi, check_clip):
             if check_clip and (c <= lo or c >= hi):
                 clipped_any = True
                 _flag_clipped_cells(packed, y, x, h, w)
-    return packed, clipped_any, finite
+    return clipped_any, finite
