@@ -138,6 +138,25 @@ def _relative_pose(T_world_a: object, T_world_b: object) -> FloatArray:
     return invert_poses(_as_matrix(T_world_a)) @ _as_matrix(T_world_b)
 
 
+def pair_pose(T_world_host: object, T_world_target: object) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """``T_target_host`` of a host-target pair as the compiled loops take it: ``(T (4, 4), R (3, 3),
+    t (3,))``, C-contiguous and read-only (a pass's linearisations may share them), the values
+    :func:`compiled_residuals` computes (:func:`_relative_pose`)."""
+    T = _relative_pose(T_world_target, T_world_host)
+    R, t = np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3])
+    for a in (T, R, t):
+        a.flags.writeable = False
+    return T, R, t
+
+
+def stereo_pair_pose(baseline: float) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """:func:`pair_pose` of :func:`stereo_residuals`' warp (host: the left camera at the origin,
+    target: the right one at ``+baseline`` along its x axis), the same values."""
+    T_world_right = np.eye(4)
+    T_world_right[0, 3] = float(baseline)
+    return pair_pose(np.eye(4), T_world_right)
+
+
 def _as_matrix(T: object) -> FloatArray:
     """A 4x4 matrix from a ``gtsam.Pose3`` or an array."""
     if hasattr(T, "matrix"):
