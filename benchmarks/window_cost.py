@@ -89,7 +89,8 @@ def _child_args(args: argparse.Namespace) -> list[str]:
 
 def _run_child(checkout: Path, args: argparse.Namespace) -> dict[str, Any]:
     env = dict(os.environ, PYTHONPATH=str(checkout))
-    script = Path(__file__).resolve()
+    # the checkout's own copy: this file puts its own checkout first on sys.path
+    script = checkout.resolve() / "benchmarks" / "window_cost.py"
     out = subprocess.run([sys.executable, str(script)] + _child_args(args), env=env, cwd=str(checkout),
                          capture_output=True, text=True, check=True)
     return json.loads(out.stdout.strip().splitlines()[-1])
