@@ -140,13 +140,10 @@ def _relative_pose(T_world_a: object, T_world_b: object) -> FloatArray:
 
 def pair_pose(T_world_host: object, T_world_target: object) -> tuple[FloatArray, FloatArray, FloatArray]:
     """``T_target_host`` of a host-target pair as the compiled loops take it: ``(T (4, 4), R (3, 3),
-    t (3,))``, C-contiguous and read-only (a pass's linearisations may share them), the values
-    :func:`compiled_residuals` computes (:func:`_relative_pose`)."""
+    t (3,))``, C-contiguous, the values :func:`compiled_residuals` computes (:func:`_relative_pose`).
+    The passes at one state share them: not to be modified."""
     T = _relative_pose(T_world_target, T_world_host)
-    R, t = np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3])
-    for a in (T, R, t):
-        a.flags.writeable = False
-    return T, R, t
+    return T, T[:3, :3].copy(), T[:3, 3].copy()
 
 
 def stereo_pair_pose(baseline: float) -> tuple[FloatArray, FloatArray, FloatArray]:
