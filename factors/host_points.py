@@ -395,7 +395,7 @@ class HostPoints:
             _compiled.warp_into(*self.target_images[t]._sampler_args(), fx, fy, cx, cy, float(MIN_DEPTH), R, tv, f,
                                 dc, Ih, hv, idx, e, b_h, float(at[1]), jacobians, True, False, False,
                                 r, valid, Jd, uv, self._no_rows6, Jh, self._no_rows2, Jah, self._no_rows2, counts[t])
-            nb, nbh, no = (int(c) for c in counts[t])
+            nb, nbh, no = counts[t].tolist()
             if jacobians:
                 lins.append(PhotometricLinearization(r, valid, Jd, Jh, None, Jah, None, uv, nb, nbh, no,
                                                      T_target_host=T, brightness_gain=e))
@@ -421,7 +421,7 @@ class HostPoints:
                             hv, idx, float(np.exp(a_r - 0.0)), 0.0, b_r, False, False, False, with_offset,
                             r, valid, Jd, uv, self._no_rows6, self._no_rows6, self._no_rows2, self._no_rows2, Jo,
                             counts[nt])
-        nb, nbh, no = (int(c) for c in counts[nt])
+        nb, nbh, no = counts[nt].tolist()
         lins.append(PhotometricLinearization(r, valid, Jd, None, None, None, None, uv, nb, nbh, no,
                                              J_offset=Jo if with_offset else None))
         return PassLinearizations(lins, buf.residual[:, :m])

@@ -268,13 +268,13 @@ def compiled_residuals(camera: PinholeCamera, host_intensity: FloatArray, host_v
     times (:class:`factors.host_points.HostPoints`). ``target_jacobians=False`` leaves ``J_target`` and
     ``J_affine_target`` out (None): the window's Gauss-Newton sums map them from the host
     Jacobians (:func:`factors.host_points.gauss_newton_sums`)."""
-    T_target_host = _relative_pose(T_world_target, T_world_host)
+    T_target_host, R, t = pair_pose(T_world_host, T_world_target)
+    gain = float(np.exp(log_gain))
     r, valid, J_depth, uv, J_t, J_h, J_at, J_ah, counts = _compiled.warp_residuals(
         *target._sampler_args(), float(camera.fx), float(camera.fy), float(camera.cx), float(camera.cy),
-        float(MIN_DEPTH), np.ascontiguousarray(T_target_host[:3, :3]), np.ascontiguousarray(T_target_host[:3, 3]),
-        bearings, inverse_depth, host_intensity, host_valid, float(np.exp(log_gain)), float(b_host), float(b_target),
-        bool(jacobians), bool(host_jacobians), bool(target_jacobians))
-    n_bad, n_behind, n_out = (int(c) for c in counts)
+        float(MIN_DEPTH), R, t, bearings, inverse_depth, host_intensity, host_valid, gain, float(b_host),
+        float(b_target), bool(jacobians), bool(host_jacobians), bool(target_jacobians))
+    n_bad, n_behind, n_out = counts.tolist()
     if not jacobians:
         return PhotometricLinearization(r, valid, J_depth, None, None, None, None, uv, n_bad, n_behind, n_out)
     if not host_jacobians:
@@ -282,7 +282,7 @@ def compiled_residuals(camera: PinholeCamera, host_intensity: FloatArray, host_v
     if not target_jacobians:
         J_t = J_at = None
     return PhotometricLinearization(r, valid, J_depth, J_h, J_t, J_ah, J_at, uv, n_bad, n_behind, n_out,
-                                    T_target_host=T_target_host, brightness_gain=float(np.exp(log_gain)))
+                                    T_target_host=T_target_host, brightness_gain=gain)
 
 
 def photometric_residuals(camera: PinholeCamera, host_intensity: ArrayLike, host_valid: ArrayLike | None,
