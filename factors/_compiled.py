@@ -306,8 +306,8 @@ def pack_gradient_image(img: np.ndarray, lo: np.float32, hi: np.float32, check_c
     transparent huge pages (``madvise``) for arrays of 4 MB and more, numba's allocator does not.
     A residual pass samples a few pixels in each of many rows, and a KITTI row of records is 20 kB,
     so with 4 kB pages nearly every bilinear sample missed the TLB (a page walk, dearer in a virtual
-    machine); with 2 MB pages the warp kernels' gathers took about half the time
-    (docs/benchmarks.md, "The window's residual passes").
+    machine); with 2 MB pages the warp kernels' gathers took about half the time (docs/window.md,
+    "Cost of an optimisation").
     """
     h, w = img.shape
     packed = np.empty((h, w, 4), dtype=np.float32)
@@ -356,11 +356,13 @@ def pack_gradient_records(img, lo, hi, check_clip, packed):
 
 
 @jit
-def stacked_point_losses(weight, residual, rows, k, robust):
+def stacked_point_losses(weight, residual, rows, k, robust, d, prior, variance, depth_prior):
     """Each point's summed Huber loss over a host's T1 residual terms (its targets, then its stereo
     term): ``weight`` (T1, N, P) of all N points, ``residual`` (T1, M, P) of the points ``rows``
     (M,); per point the terms' losses added in order, each that of
-    :func:`factors._compiled_sums.point_huber` (the same arithmetic, so the same values).
+    :func:`factors._compiled_sums.point_huber` (the same arithmetic, so the same values), then with
+    ``depth_prior`` the prior's ``0.5 (d - prior)^2 / variance`` (``d``, ``prior``, ``variance``
+    (N,)), as ``HostPoints.point_costs`` adds it.
     """
     nt, m, p = residual.shape
     out = np.empty(m)
@@ -376,5 +378,8 @@ def stacked_point_losses(weight, residual, rows, k, robust):
                 c += 0.5 * x * x
             else:
                 c += k * x - 0.5 * k * k
+        if depth_prior:
+            x = d[src] - prior[src]
+            c += 0.5 * (x * x) / variance[src]
         out[i] = c
     return out

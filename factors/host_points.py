@@ -309,6 +309,8 @@ class HostPoints:
         self._pairs: tuple[tuple, list] | None = None  # (the poses, their pair_pose per target)
         p = self.pattern.shape[0]
         self._no_rows6, self._no_rows2 = np.empty((0, p, 6)), np.empty((0, p, 2))
+        self._intrinsics = (float(camera.fx), float(camera.fy), float(camera.cx), float(camera.cy), float(MIN_DEPTH))
+        self._gains: dict[float, float] = {}  # exp of a pair's log gain, by its exact value
 
     def __len__(self) -> int:
         return int(self.pixels.shape[0])
@@ -356,6 +358,16 @@ class HostPoints:
             self._pairs = (tuple(poses), pairs)
         return pairs
 
+    def _gain(self, log_gain: float) -> float:
+        """``exp(log_gain)`` as :func:`factors.photometric.compiled_residuals` computes it, remembered by
+        the exact value (the passes at one state ask again; a few hundred values per solve at most)."""
+        e = self._gains.get(log_gain)
+        if e is None:
+            if len(self._gains) > 256:
+                self._gains.clear()
+            e = self._gains[log_gain] = float(np.exp(log_gain))
+        return e
+
     def _pass_buffers(self) -> PassBuffers:
         """A set of :class:`PassBuffers` no linearisation refers to (a kept one, or a new one)."""
         for b in self._buffers:
@@ -378,7 +390,7 @@ class HostPoints:
         nt = len(self.target_images)
         buf = self._pass_buffers()
         cam = self.camera
-        fx, fy, cx, cy = float(cam.fx), float(cam.fy), float(cam.cx), float(cam.cy)
+        fx, fy, cx, cy, min_depth = self._intrinsics
         f, Ih, hv = self.bearings, self._host_intensity_c, self._host_valid_c
         dc = np.ascontiguousarray(d, dtype=float)
         counts = np.zeros((nt + 1, 3), dtype=np.int64)
@@ -388,11 +400,11 @@ class HostPoints:
         lins: list = []
         for t, (T, R, tv) in enumerate(self._pair_poses(poses)):
             at = np.asarray(affines[1 + t] if self.with_affine else zero, dtype=float)
-            e = float(np.exp(float(at[0] - ah[0])))
+            e = self._gain(float(at[0] - ah[0]))
             Jh = buf.J_host[t, :m] if jacobians else self._no_rows6
             Jah = buf.J_affine_host[t, :m] if jacobians else self._no_rows2
             r, valid, Jd, uv = buf.residual[t, :m], buf.valid[t, :m], buf.J_depth[t, :m], buf.uv[t, :m]
-            _compiled.warp_into(*self.target_images[t]._sampler_args(), fx, fy, cx, cy, float(MIN_DEPTH), R, tv, f,
+            _compiled.warp_into(*self.target_images[t]._sampler_args(), fx, fy, cx, cy, min_depth, R, tv, f,
                                 dc, Ih, hv, idx, e, b_h, float(at[1]), jacobians, True, False, False,
                                 r, valid, Jd, uv, self._no_rows6, Jh, self._no_rows2, Jah, self._no_rows2, counts[t])
             nb, nbh, no = counts[t].tolist()
@@ -417,7 +429,7 @@ class HostPoints:
         Jo = buf.J_offset[:m] if with_offset else self._no_rows2
         r, valid, Jd, uv = buf.residual[nt, :m], buf.valid[nt, :m], buf.J_depth[nt, :m], buf.uv[nt, :m]
         _, R, tv = self._stereo_pose
-        _compiled.warp_into(*self.right_image._sampler_args(), fx, fy, scx, scy, float(MIN_DEPTH), R, tv, f, dc, Ih,
+        _compiled.warp_into(*self.right_image._sampler_args(), fx, fy, scx, scy, min_depth, R, tv, f, dc, Ih,
                             hv, idx, float(np.exp(a_r - 0.0)), 0.0, b_r, False, False, False, with_offset,
                             r, valid, Jd, uv, self._no_rows6, self._no_rows6, self._no_rows2, self._no_rows2, Jo,
                             counts[nt])
@@ -493,11 +505,10 @@ class HostPoints:
             # a compiled pass's residuals: every term's robust loss in one compiled loop
             W_stack = self._stacked_weights(Ws)
             idx = self._all_rows if rows is None else np.ascontiguousarray(rows, dtype=np.intp)
-            c = _compiled.stacked_point_losses(W_stack, stack, idx, 0.0 if self.huber_k is None
-                                               else float(self.huber_k), self.huber_k is not None)
-            if self.depth_prior:
-                c += 0.5 * (d[sel] - self.prior[sel]) ** 2 / self.variance[sel]
-            return c
+            return _compiled.stacked_point_losses(W_stack, stack, idx, 0.0 if self.huber_k is None else
+                                                  float(self.huber_k), self.huber_k is not None,
+                                                  np.ascontiguousarray(d, dtype=float), self.prior, self.variance,
+                                                  self.depth_prior)
         c = np.zeros(d.shape[0] if rows is None else rows.size)
         for W, lin in zip(Ws, lins):
             c += point_robust_terms(W[sel], lin.residual, self.huber_k)[1]
