@@ -64,6 +64,7 @@ class PassBuffers:
     :meth:`in_use`. A pass takes a set that is not in use; a set in use is never written."""
 
     def __init__(self, n_targets: int, n: int, p: int, stereo: bool) -> None:
+        self._args = (n_targets, n, p, stereo)
         t1 = n_targets + (1 if stereo else 0)
         shapes = {"residual": (t1, n, p), "J_depth": (t1, n, p), "uv": (t1, n, p, 2), "J_host": (n_targets, n, p, 6),
                   "J_affine_host": (n_targets, n, p, 2), "J_offset": (n, p, 2)}
@@ -80,6 +81,11 @@ class PassBuffers:
     def in_use(self) -> bool:
         """Some array outside this object still refers to the block (a linearisation made from it)."""
         return sys.getrefcount(self._block) > self._free_count
+
+    def __reduce__(self) -> tuple:
+        """A copy (pickled, deep-copied) is a new free set: copied linearisations hold copies of their
+        arrays, not views of the copied block, and the reference count is this process's own."""
+        return PassBuffers, self._args
 
 
 class PassLinearizations(list):

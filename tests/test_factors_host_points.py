@@ -5,6 +5,7 @@ built on it against each other: tests/test_window.py.)"""
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 
 import gtsam
@@ -236,3 +237,5 @@ def test_pass_buffers_are_reused_only_when_nothing_refers_to_them():
     before = kept.copy()
     pts.residuals(poses, affines, d * 0.9)
     assert kept.tobytes() == before.tobytes()
+    twin = copy.deepcopy(pts)  # a copy's buffers are new and free (its copied arrays are not views of them)
+    assert all(not b.in_use() for b in twin._buffers) and len(twin._buffers) == len(pts._buffers)
