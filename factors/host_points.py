@@ -26,18 +26,20 @@ cost of many points near the optimum). Details: docs/factors.md §7, docs/window
 from __future__ import annotations
 
 import functools
+import sys
 from dataclasses import dataclass
 from typing import Callable, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from factors import _compiled_sums
+from factors import _compiled, _compiled_sums
 from factors.photometric import (GradientImage, GradientSampler, PhotometricLinearization, compiled_residuals,
-                                 pattern_bearings, photometric_residuals, put_rows, sample_host, stereo_residuals)
+                                 pair_pose, pattern_bearings, photometric_residuals, put_rows, sample_host,
+                                 stereo_pair_pose, stereo_residuals)
 from factors.weights import point_robust_terms, variance_weight
-from gtvo.core.camera import PinholeCamera
-from gtvo.core.kernel_threads import map_independent
+from gtvo.core.camera import MIN_DEPTH, PinholeCamera
+from gtvo.core.kernel_threads import kernel_threads, map_independent
 from gtvo.core.lie import se3_adjoint
 from gtvo.core.timing import timed
 from gtvo.errors import InputError
@@ -47,6 +49,63 @@ _NO_AFFINE = np.zeros((0, 1, 2))  # the compiled sums' 'no affine columns'
 _EMPTY_ROWS = np.zeros((0, 1))  # the compiled depth terms' 'no stereo term'
 #: :meth:`HostPoints.residuals` of fewer points than this run in the caller's thread (kernel threads)
 MIN_ROWS_TO_SHARE = 100
+#: per host, at most this many sets of pass buffers (:class:`PassBuffers`) are kept for reuse
+MAX_PASS_BUFFERS = 4
+
+
+class PassBuffers:
+    """The outputs of one host's residual pass over its T targets and its stereo term, laid out for
+    the compiled loops (:func:`factors._compiled.warp_into`): residuals, validity, ``J_depth`` and
+    warped pixels stacked ``(T1, N, P...)`` (T1 = T, plus 1 with a stereo term, last), host pose and
+    affine Jacobians ``(T, N, P, 6 | 2)``, the stereo term's rig-offset Jacobian ``(N, P, 2)``. A
+    pass over ``M <= N`` points uses the first M rows of each target's block (contiguous).
+
+    All arrays are views of one byte block, so whether any linearisation still refers to them
+    (a factor's kept pass, the safeguard's merged one, a caller's) is one reference count:
+    :meth:`in_use`. A pass takes a set that is not in use; a set in use is never written."""
+
+    def __init__(self, n_targets: int, n: int, p: int, stereo: bool) -> None:
+        self._args = (n_targets, n, p, stereo)
+        t1 = n_targets + (1 if stereo else 0)
+        shapes = {"residual": (t1, n, p), "J_depth": (t1, n, p), "uv": (t1, n, p, 2), "J_host": (n_targets, n, p, 6),
+                  "J_affine_host": (n_targets, n, p, 2), "J_offset": (n, p, 2)}
+        sizes = {k: 8 * int(np.prod(v)) for k, v in shapes.items()}
+        self._block = np.empty(sum(sizes.values()) + t1 * n * p, dtype=np.uint8)
+        at = 0
+        for name, shape in shapes.items():
+            setattr(self, name, self._block[at:at + sizes[name]].view(np.float64).reshape(shape))
+            at += sizes[name]
+        self.valid = self._block[at:].view(np.bool_).reshape(t1, n, p)
+        self.capacity = n
+        self._free_count = sys.getrefcount(self._block)
+
+    def in_use(self) -> bool:
+        """Some array outside this object still refers to the block (a linearisation made from it)."""
+        return sys.getrefcount(self._block) > self._free_count
+
+    def __reduce__(self) -> tuple:
+        """A copy (pickled, deep-copied) is a new free set: copied linearisations hold copies of their
+        arrays, not views of the copied block, and the reference count is this process's own."""
+        return PassBuffers, self._args
+
+
+class PassLinearizations(list):
+    """:meth:`HostPoints.residuals`' list (each target's linearisation, then the stereo term's or None)
+    when one compiled pass wrote them into :class:`PassBuffers`: ``residual_stack`` is their
+    residuals stacked (T1, M, P), which :meth:`HostPoints.point_costs` reads in one compiled loop
+    while the list still holds the pass's own linearisations (``residual_arrays``)."""
+
+    def __init__(self, items: list, residual_stack: FloatArray) -> None:
+        super().__init__(items)
+        self.residual_stack = residual_stack
+        self.residual_arrays = [None if lin is None else lin.residual for lin in items]
+
+    def unchanged(self) -> bool:
+        """Every item is still the pass's linearisation with its residual array (then ``residual_stack``
+        holds the residuals the items hold, written in place or not)."""
+        return len(self) == len(self.residual_arrays) and all(
+            (lin is None and a is None) or (lin is not None and lin.residual is a)
+            for lin, a in zip(self, self.residual_arrays))
 
 
 def gauss_newton_sums(lin: PhotometricLinearization, weight: ArrayLike, with_affine: bool = True
@@ -289,6 +348,20 @@ class HostPoints:
         #: the rig offset (delta_x, delta_y) of the stereo term is a variable (its 2 columns in the state)
         self.rig = bool(rig) and right_image is not None
         self.W: list[FloatArray] | None = None
+        self._W_stack: tuple[list, FloatArray] | None = None  # (self.W, its arrays stacked (T1, N, P))
+        # the compiled pass (_compiled_pass): every image a GradientImage; inputs laid out once
+        self._compiled = (all(isinstance(img, GradientImage) for img in self.target_images)
+                          and (right_image is None or isinstance(right_image, GradientImage)))
+        self._host_intensity_c = np.ascontiguousarray(self.host_intensity, dtype=float)
+        self._host_valid_c = np.ascontiguousarray(self.host_valid, dtype=bool)
+        self._all_rows = np.arange(n, dtype=np.intp)
+        self._stereo_pose = None if right_image is None else stereo_pair_pose(self.baseline)
+        self._buffers: list[PassBuffers] = []
+        self._pairs: tuple[tuple, list] | None = None  # (the poses, their pair_pose per target)
+        p = self.pattern.shape[0]
+        self._no_rows6, self._no_rows2 = np.empty((0, p, 6)), np.empty((0, p, 2))
+        self._intrinsics = (float(camera.fx), float(camera.fy), float(camera.cx), float(camera.cy), float(MIN_DEPTH))
+        self._gains: dict[float, float] = {}  # exp of a pair's log gain, by its exact value
 
     def __len__(self) -> int:
         return int(self.pixels.shape[0])
@@ -317,10 +390,104 @@ class HostPoints:
         :data:`MIN_ROWS_TO_SHARE`, the safeguard's points whose cost rose) run in this thread: a
         hand-over to another would cost more than their loops.
         """
+        if self._compiled and kernel_threads() <= 1:
+            return self._compiled_pass(poses, affines, d, rows, offset, jacobians)
         calls = self.residual_calls(poses, affines, d, rows, offset, jacobians)
         if rows is not None and rows.size < MIN_ROWS_TO_SHARE:
             return [call() for call in calls]
         return map_independent(calls)
+
+    def _pair_poses(self, poses: Sequence) -> list:
+        """:func:`factors.photometric.pair_pose` of every target, once per set of poses: the passes at
+        one state (the safeguard's two, a cost pass then its linearisation) are given the same pose
+        objects, immutable ``gtsam.Pose3`` (arrays are not cached: they could change in place)."""
+        cached = self._pairs
+        if cached is not None and len(cached[0]) == len(poses) and all(a is b for a, b in zip(cached[0], poses)):
+            return cached[1]
+        pairs = [pair_pose(poses[0], poses[1 + t]) for t in range(len(self.target_images))]
+        if all(hasattr(T, "between") for T in poses):
+            self._pairs = (tuple(poses), pairs)
+        return pairs
+
+    def _gain(self, log_gain: float) -> float:
+        """``exp(log_gain)`` as :func:`factors.photometric.compiled_residuals` computes it, remembered by
+        the exact value (the passes at one state ask again; a few hundred values per solve at most)."""
+        e = self._gains.get(log_gain)
+        if e is None:
+            if len(self._gains) > 256:
+                self._gains.clear()
+            e = self._gains[log_gain] = float(np.exp(log_gain))
+        return e
+
+    def _pass_buffers(self) -> PassBuffers:
+        """A set of :class:`PassBuffers` no linearisation refers to (a kept one, or a new one)."""
+        for b in self._buffers:
+            if not b.in_use():
+                return b
+        b = PassBuffers(len(self.target_images), len(self), self.pattern.shape[0], self.right_image is not None)
+        if len(self._buffers) < MAX_PASS_BUFFERS:
+            self._buffers.append(b)
+        return b
+
+    def _compiled_pass(self, poses: Sequence, affines: Sequence | None, d: FloatArray,
+                       rows: NDArray[np.intp] | None, offset: ArrayLike | None, jacobians: bool) -> PassLinearizations:
+        """:meth:`residuals` as one compiled call per target and one for the stereo term
+        (:func:`factors._compiled.warp_into`), the points ``rows`` read in place, the outputs written
+        into :class:`PassBuffers` this host keeps (none that a linearisation still refers to): no
+        allocation, no gathered copies, the pair poses once per state. The values of
+        :meth:`residual_calls`, to the bit (the same loops on the same inputs)."""
+        idx = self._all_rows if rows is None else np.ascontiguousarray(rows, dtype=np.intp)
+        m = idx.shape[0]
+        nt = len(self.target_images)
+        buf = self._pass_buffers()
+        cam = self.camera
+        fx, fy, cx, cy, min_depth = self._intrinsics
+        f, Ih, hv = self.bearings, self._host_intensity_c, self._host_valid_c
+        dc = np.ascontiguousarray(d, dtype=float)
+        counts = np.zeros((nt + 1, 3), dtype=np.int64)
+        zero = np.zeros(2)
+        ah = np.asarray(affines[0] if self.with_affine else zero, dtype=float)
+        b_h = float(ah[1])
+        lins: list = []
+        for t, (T, R, tv) in enumerate(self._pair_poses(poses)):
+            at = np.asarray(affines[1 + t] if self.with_affine else zero, dtype=float)
+            e = self._gain(float(at[0] - ah[0]))
+            Jh = buf.J_host[t, :m] if jacobians else self._no_rows6
+            Jah = buf.J_affine_host[t, :m] if jacobians else self._no_rows2
+            r, valid, Jd, uv = buf.residual[t, :m], buf.valid[t, :m], buf.J_depth[t, :m], buf.uv[t, :m]
+            _compiled.warp_into(*self.target_images[t]._sampler_args(), fx, fy, cx, cy, min_depth, R, tv, f,
+                                dc, Ih, hv, idx, e, b_h, float(at[1]), jacobians, True, False, False,
+                                r, valid, Jd, uv, self._no_rows6, Jh, self._no_rows2, Jah, self._no_rows2, counts[t])
+            nb, nbh, no = counts[t].tolist()
+            if jacobians:
+                lins.append(PhotometricLinearization(r, valid, Jd, Jh, None, Jah, None, uv, nb, nbh, no,
+                                                     T_target_host=T, brightness_gain=e))
+            else:
+                lins.append(PhotometricLinearization(r, valid, Jd, None, None, None, None, uv, nb, nbh, no))
+        if self.right_image is None:
+            lins.append(None)
+            return PassLinearizations(lins, buf.residual[:, :m])
+        # the stereo term (stereo_residuals): the right camera's warp, its principal point moved by the offset
+        scx, scy = cx, cy
+        if offset is not None:
+            dx, dy = (float(x) for x in np.asarray(offset, dtype=float).reshape(2))
+            if not (np.isfinite(dx) and np.isfinite(dy)):
+                raise InputError(f"stereo_residuals: rig offset must be finite, got {(dx, dy)!r}")
+            if dx != 0.0 or dy != 0.0:
+                scx, scy = float(cam.cx + dx), float(cam.cy + dy)
+        a_r, b_r = (float(x) for x in self.stereo_affine)
+        with_offset = self.rig and jacobians
+        Jo = buf.J_offset[:m] if with_offset else self._no_rows2
+        r, valid, Jd, uv = buf.residual[nt, :m], buf.valid[nt, :m], buf.J_depth[nt, :m], buf.uv[nt, :m]
+        _, R, tv = self._stereo_pose
+        _compiled.warp_into(*self.right_image._sampler_args(), fx, fy, scx, scy, min_depth, R, tv, f, dc, Ih,
+                            hv, idx, float(np.exp(a_r - 0.0)), 0.0, b_r, False, False, False, with_offset,
+                            r, valid, Jd, uv, self._no_rows6, self._no_rows6, self._no_rows2, self._no_rows2, Jo,
+                            counts[nt])
+        nb, nbh, no = counts[nt].tolist()
+        lins.append(PhotometricLinearization(r, valid, Jd, None, None, None, None, uv, nb, nbh, no,
+                                             J_offset=Jo if with_offset else None))
+        return PassLinearizations(lins, buf.residual[:, :m])
 
     def residual_calls(self, poses: Sequence, affines: Sequence | None, d: FloatArray,
                        rows: NDArray[np.intp] | None = None, offset: ArrayLike | None = None,
@@ -368,6 +535,14 @@ class HostPoints:
     def release_weights(self) -> None:
         """Forget the frozen W: the next evaluation freezes them again at its state."""
         self.W = None
+        self._W_stack = None
+
+    def _stacked_weights(self, Ws: list[FloatArray]) -> FloatArray:
+        """The frozen ``Ws`` stacked (T1, N, P), made once per freeze."""
+        cached = self._W_stack
+        if cached is None or cached[0] is not Ws:
+            cached = self._W_stack = (Ws, np.stack(Ws))
+        return cached[1]
 
     @timed("linearisation")
     def point_costs(self, lins: list, d: FloatArray, rows: NDArray[np.intp] | None = None) -> FloatArray:
@@ -376,6 +551,15 @@ class HostPoints:
         sel = slice(None) if rows is None else rows
         assert rows is None or self.W is not None
         Ws = self.weights(lins)
+        stack = getattr(lins, "residual_stack", None)
+        if stack is not None and lins.unchanged():
+            # a compiled pass's residuals: every term's robust loss in one compiled loop
+            W_stack = self._stacked_weights(Ws)
+            idx = self._all_rows if rows is None else np.ascontiguousarray(rows, dtype=np.intp)
+            return _compiled.stacked_point_losses(W_stack, stack, idx, 0.0 if self.huber_k is None else
+                                                  float(self.huber_k), self.huber_k is not None,
+                                                  np.ascontiguousarray(d, dtype=float), self.prior, self.variance,
+                                                  self.depth_prior)
         c = np.zeros(d.shape[0] if rows is None else rows.size)
         for W, lin in zip(Ws, lins):
             c += point_robust_terms(W[sel], lin.residual, self.huber_k)[1]

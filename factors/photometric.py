@@ -138,6 +138,22 @@ def _relative_pose(T_world_a: object, T_world_b: object) -> FloatArray:
     return invert_poses(_as_matrix(T_world_a)) @ _as_matrix(T_world_b)
 
 
+def pair_pose(T_world_host: object, T_world_target: object) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """``T_target_host`` of a host-target pair as the compiled loops take it: ``(T (4, 4), R (3, 3),
+    t (3,))``, C-contiguous, the values :func:`compiled_residuals` computes (:func:`_relative_pose`).
+    The passes at one state share them: not to be modified."""
+    T = _relative_pose(T_world_target, T_world_host)
+    return T, T[:3, :3].copy(), T[:3, 3].copy()
+
+
+def stereo_pair_pose(baseline: float) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """:func:`pair_pose` of :func:`stereo_residuals`' warp (host: the left camera at the origin,
+    target: the right one at ``+baseline`` along its x axis), the same values."""
+    T_world_right = np.eye(4)
+    T_world_right[0, 3] = float(baseline)
+    return pair_pose(np.eye(4), T_world_right)
+
+
 def _as_matrix(T: object) -> FloatArray:
     """A 4x4 matrix from a ``gtsam.Pose3`` or an array."""
     if hasattr(T, "matrix"):
@@ -252,13 +268,13 @@ def compiled_residuals(camera: PinholeCamera, host_intensity: FloatArray, host_v
     times (:class:`factors.host_points.HostPoints`). ``target_jacobians=False`` leaves ``J_target`` and
     ``J_affine_target`` out (None): the window's Gauss-Newton sums map them from the host
     Jacobians (:func:`factors.host_points.gauss_newton_sums`)."""
-    T_target_host = _relative_pose(T_world_target, T_world_host)
+    T_target_host, R, t = pair_pose(T_world_host, T_world_target)
+    gain = float(np.exp(log_gain))
     r, valid, J_depth, uv, J_t, J_h, J_at, J_ah, counts = _compiled.warp_residuals(
         *target._sampler_args(), float(camera.fx), float(camera.fy), float(camera.cx), float(camera.cy),
-        float(MIN_DEPTH), np.ascontiguousarray(T_target_host[:3, :3]), np.ascontiguousarray(T_target_host[:3, 3]),
-        bearings, inverse_depth, host_intensity, host_valid, float(np.exp(log_gain)), float(b_host), float(b_target),
-        bool(jacobians), bool(host_jacobians), bool(target_jacobians))
-    n_bad, n_behind, n_out = (int(c) for c in counts)
+        float(MIN_DEPTH), R, t, bearings, inverse_depth, host_intensity, host_valid, gain, float(b_host),
+        float(b_target), bool(jacobians), bool(host_jacobians), bool(target_jacobians))
+    n_bad, n_behind, n_out = counts.tolist()
     if not jacobians:
         return PhotometricLinearization(r, valid, J_depth, None, None, None, None, uv, n_bad, n_behind, n_out)
     if not host_jacobians:
@@ -266,7 +282,7 @@ def compiled_residuals(camera: PinholeCamera, host_intensity: FloatArray, host_v
     if not target_jacobians:
         J_t = J_at = None
     return PhotometricLinearization(r, valid, J_depth, J_h, J_t, J_ah, J_at, uv, n_bad, n_behind, n_out,
-                                    T_target_host=T_target_host, brightness_gain=float(np.exp(log_gain)))
+                                    T_target_host=T_target_host, brightness_gain=gain)
 
 
 def photometric_residuals(camera: PinholeCamera, host_intensity: ArrayLike, host_valid: ArrayLike | None,

@@ -190,10 +190,11 @@ class HostPointsFactor(PythonFactor):
         self._column_blocks = [self._columns(t) for t in range(nt)]
         self._lin: _Linearization | None = None
         self._cached: tuple[FloatArray, list[FloatArray]] | None = None
-        self._state_lins: tuple[FloatArray, list] | None = None  # (state, lins) of the last evaluation
+        self._state_lins: tuple[bytes, list] | None = None  # (state key, lins) of the last evaluation
+        self._pose_key: tuple[tuple, bytes] | None = None  # (poses, their part of the state key)
         self._budget = jacobian_budget
         self._reserved = 0  # bytes of self._budget the kept lins hold
-        self._trial: tuple[FloatArray, FloatArray, float] | None = None  # (values, depths, cost) of _safeguarded
+        self._trial: tuple[bytes, FloatArray, float] | None = None  # (values, depths, cost) of _safeguarded
         #: the host factors whose residuals a cache miss computes together (:func:`shared_residual_passes`)
         self._group: list | None = None
         self._values_now: gtsam.Values | None = None  # the Values of the evaluation under way (with a group)
@@ -271,11 +272,21 @@ class HostPointsFactor(PythonFactor):
         return self.depths
 
     # --- residuals ---------------------------------------------------------------------------
-    @staticmethod
-    def _state(poses, affs, d) -> FloatArray:
-        """The state as one vector (cache key)."""
-        parts = [np.concatenate([p.matrix().ravel() for p in poses])] + [np.asarray(a, dtype=float) for a in affs]
-        return np.concatenate(parts + ([] if d is None else [d]))
+    def _state(self, poses, affs, d) -> bytes:
+        """The state as one byte string (cache key: equal bytes, the same residuals): the poses'
+        matrices, the vector variables, the inverse depths. The poses' part is made once per set
+        of pose objects (:meth:`_read`'s, immutable ``gtsam.Pose3``: one evaluation asks for the key
+        of its poses two or three times, with and without depths)."""
+        cached = self._pose_key
+        if cached is not None and len(cached[0]) == len(poses) and all(a is b for a, b in zip(cached[0], poses)):
+            pose_bytes = cached[1]
+        else:
+            pose_bytes = b"".join([np.asarray(p.matrix(), dtype=float).tobytes() for p in poses])
+            self._pose_key = (tuple(poses), pose_bytes)
+        parts = [pose_bytes] + [np.asarray(a, dtype=float).tobytes() for a in affs]
+        if d is not None:
+            parts.append(np.asarray(d, dtype=float).tobytes())
+        return b"".join(parts)
 
     def _lins(self, poses, affs, d, jacobians: bool = False) -> list:
         """Linearisations of every target, then the stereo term (or None), at a state (with
@@ -288,7 +299,7 @@ class HostPointsFactor(PythonFactor):
         Jacobians and keeps nothing, and the linearisation evaluates the state again.
         """
         state = self._state(poses, affs, d)
-        if self._state_lins is not None and np.array_equal(self._state_lins[0], state):
+        if self._state_lins is not None and self._state_lins[0] == state:
             return self._state_lins[1]
         A, offset = self._split(affs)
         if self._group is not None and self._values_now is not None and self._budget is None:
@@ -306,7 +317,7 @@ class HostPointsFactor(PythonFactor):
             self._state_lins = (state, out)
         return out
 
-    def _pending(self, values: gtsam.Values) -> tuple[FloatArray, list, list | None, FloatArray, FloatArray | None] | None:
+    def _pending(self, values: gtsam.Values) -> tuple[bytes, list, list | None, FloatArray, FloatArray | None] | None:
         """``(state, poses, affines, depths, rig offset)`` of the residuals this factor's next
         evaluation at ``values`` computes (the error's and the linearisation's first pass: the
         depths of :meth:`_safeguarded`, or the committed ones before a linearisation), or None when
@@ -317,9 +328,9 @@ class HostPointsFactor(PythonFactor):
         else:
             trial = self._trial
             key = self._state(poses, affs, None)
-            d = trial[1] if trial is not None and np.array_equal(trial[0], key) else self._back_substitution(poses, affs)
+            d = trial[1] if trial is not None and trial[0] == key else self._back_substitution(poses, affs)
         state = self._state(poses, affs, d)
-        if self._state_lins is not None and np.array_equal(self._state_lins[0], state):
+        if self._state_lins is not None and self._state_lins[0] == state:
             return None
         A, offset = self._split(affs)
         return state, poses, A, d, offset
@@ -347,7 +358,7 @@ class HostPointsFactor(PythonFactor):
         n, p = self.points.pixels.shape[0], self.points.pattern.shape[0]
         return n * p * (len(self.target_keys) * (8 * (1 + 1 + 2 + 6 + 2) + 1) + 8 * (1 + 1 + 2 + 2) + 1)
 
-    def _keep(self, kept: tuple[FloatArray, list] | None) -> None:
+    def _keep(self, kept: tuple[bytes, list] | None) -> None:
         """Set the kept linearisations (None: none; their budget given back)."""
         if kept is None and self._budget is not None and self._reserved:
             self._budget.release(self._reserved)

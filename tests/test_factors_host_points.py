@@ -5,6 +5,7 @@ built on it against each other: tests/test_window.py.)"""
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 
 import gtsam
@@ -12,7 +13,7 @@ import numpy as np
 import pytest
 
 from factors.host_points import HostPoints
-from factors.photometric import PATTERN_DSO8
+from factors.photometric import PATTERN_DSO8, GradientImage
 from gtvo.errors import InputError
 from tests._factors_synthetic import SinusoidImage, small_camera
 
@@ -186,3 +187,86 @@ def test_weights_are_frozen_until_released():
     fresh = _problem(seed=3)[0]
     np.testing.assert_array_equal(fresh.point_costs(fresh.residuals(moved, affines, d), d), c_released)
     assert not np.allclose(c_a, c_released, rtol=1e-6)
+
+
+def _gradient_problem(n: int = 60, rig: bool = True):
+    """``_problem``'s host with plain GradientImage targets and right image (the compiled pass),
+    some clipped pixels and some points behind or outside a target: ``(points, poses, affines, d)``."""
+    rng = np.random.default_rng(7)
+    cam = small_camera()
+
+    def image(seed: int) -> GradientImage:
+        s = SinusoidImage(seed=seed)
+        u, v = np.meshgrid(np.arange(160.0), np.arange(120.0))
+        img = s.sample(u, v)[0][..., 0]
+        img[rng.integers(0, 120, 30), rng.integers(0, 160, 30)] = 255.0  # clipped pixels
+        return GradientImage(img)
+
+    px = np.c_[rng.uniform(5, 155, n), rng.uniform(5, 115, n)]
+    d = rng.uniform(0.2, 1.5, n)
+    d[:2] = (-0.5, np.nan)  # bad depths
+    V = rng.uniform(1e-4, 1e-2, n)
+    pts = HostPoints(cam, px, image(1), [image(2), image(3)], V, np.abs(np.nan_to_num(d, nan=1.0)) + 0.1,
+                     sigma_intensity=8.0, huber_k=2.0, pattern=PATTERN_DSO8, depth_prior=True, right_image=image(4),
+                     baseline=0.2, lambda_stereo=0.7, stereo_affine=(0.05, 2.0), rig=rig)
+    poses = [gtsam.Pose3(gtsam.Rot3.Expmap(rng.normal(0, 0.05, 3)), rng.normal(0, 0.3, 3)) for _ in range(3)]
+    affines = [rng.normal(0, 0.1, 2) for _ in range(3)]
+    return pts, poses, affines, d
+
+
+def _assert_same_lins(a: list, b: list) -> None:
+    assert len(a) == len(b)
+    for x, y in zip(a, b):
+        for f in dataclasses.fields(x):
+            u, v = getattr(x, f.name), getattr(y, f.name)
+            if isinstance(u, np.ndarray) or isinstance(v, np.ndarray):
+                assert u is not None and v is not None, f.name
+                assert u.shape == v.shape and u.tobytes() == v.tobytes(), f.name
+            else:
+                assert u == v, f.name
+
+
+@pytest.mark.parametrize("jacobians", [True, False])
+def test_compiled_pass_equals_the_per_target_calls_to_the_bit(jacobians):
+    """``residuals``' compiled pass (one-thread path: buffers, rows read in place, pair poses once per
+    state) gives the per-target calls' (``residual_calls``) values byte for byte: all points and
+    some rows, with a rig offset, bad depths, clipped pixels, points outside a target; the point
+    costs of its stacked residuals equal the per-term sums."""
+    pts, poses, affines, d = _gradient_problem()
+    offset = np.array([0.3, -0.2])
+    full = pts.residuals(poses, affines, d, offset=offset, jacobians=jacobians)
+    assert type(full).__name__ == "PassLinearizations"
+    ref = [c() for c in pts.residual_calls(poses, affines, d, offset=offset, jacobians=jacobians)]
+    _assert_same_lins(full, ref)
+    assert sum(lin.n_outside + lin.n_behind for lin in full) > 0 and full[0].n_bad_depth == 2
+    assert (full[-1].J_offset is not None) == jacobians
+    rows = np.array([3, 0, 17, 42, 5], dtype=np.intp)
+    part = pts.residuals(poses, affines, d, rows, offset=offset, jacobians=jacobians)
+    _assert_same_lins(part, [c() for c in pts.residual_calls(poses, affines, d, rows, offset=offset,
+                                                             jacobians=jacobians)])
+    # the first pass is still intact (a pass never writes buffers a linearisation refers to)
+    _assert_same_lins(full, ref)
+    c = pts.point_costs(full, d)
+    assert c.tobytes() == pts.point_costs(list(full), d).tobytes()  # a plain list: the per-term numpy sums
+    cr = pts.point_costs(part, d, rows)
+    assert cr.tobytes() == pts.point_costs(list(part), d, rows).tobytes() and np.array_equal(cr, c[rows])
+
+
+def test_pass_buffers_are_reused_only_when_nothing_refers_to_them():
+    """A pass writes into a buffer set no linearisation refers to: dropping a pass's results frees
+    its set for the next pass, keeping any one of its arrays keeps it."""
+    pts, poses, affines, d = _gradient_problem(rig=False)
+    a = pts.residuals(poses, affines, d)
+    first = id(a[0].residual.base)  # (an id: a reference would keep the set in use)
+    del a
+    b = pts.residuals(poses, affines, d * 1.01)
+    assert id(b[0].residual.base) == first  # reused
+    kept = b[1].J_host
+    del b
+    c = pts.residuals(poses, affines, d)
+    assert id(c[0].residual.base) != first and id(kept.base) == first
+    before = kept.copy()
+    pts.residuals(poses, affines, d * 0.9)
+    assert kept.tobytes() == before.tobytes()
+    twin = copy.deepcopy(pts)  # a copy's buffers are new and free (its copied arrays are not views of them)
+    assert all(not b.in_use() for b in twin._buffers) and len(twin._buffers) == len(pts._buffers)
