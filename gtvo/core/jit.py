@@ -39,6 +39,13 @@ def jit(fn: Callable) -> Callable:
     return kernel
 
 
+def jit_inline(fn: Callable) -> Callable:
+    """``numba.njit`` for a small helper of compiled loops, inlined into each kernel that calls it
+    (numba's ``inline="always"``: its locals stay the caller's registers). It is compiled as part of
+    its callers and cached with them, so it is not one of :data:`KERNELS`."""
+    return numba.njit(inline="always", nogil=True)(fn)
+
+
 def has_cached_code(kernel: Any) -> bool:
     """Whether ``kernel`` (a :func:`jit` dispatcher) has compiled code in its disk cache for this numba
     and this source file (numba's index of the kernel: missing or stale means it compiles)."""

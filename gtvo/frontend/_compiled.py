@@ -32,6 +32,7 @@ from __future__ import annotations
 import numpy as np
 
 from factors import _compiled as _fc
+from factors import _compiled_sums as _cs
 from gtvo.core.jit import jit
 
 
@@ -660,15 +661,7 @@ def tracker_terms(packed, has_clip, width, height, border, fx, fy, cx, cy, min_d
     R10, R11, R12 = R[1, 0], R[1, 1], R[1, 2]
     R20, R21, R22 = R[2, 0], R[2, 1], R[2, 2]
     t0, t1, t2 = t[0], t[1], t[2]
-    h00 = h01 = h02 = h03 = h04 = h05 = h06 = h07 = 0.0
-    h11 = h12 = h13 = h14 = h15 = h16 = h17 = 0.0
-    h22 = h23 = h24 = h25 = h26 = h27 = 0.0
-    h33 = h34 = h35 = h36 = h37 = 0.0
-    h44 = h45 = h46 = h47 = 0.0
-    h55 = h56 = h57 = 0.0
-    h66 = h67 = 0.0
-    h77 = 0.0
-    g0 = g1 = g2 = g3 = g4 = g5 = g6 = g7 = 0.0
+    sums = _cs.gram8_zero()
     for i in range(n):
         di = d[i]
         good = np.isfinite(di) and di > 0.0
@@ -737,52 +730,10 @@ def tracker_terms(packed, has_clip, width, height, border, fx, fy, cx, cy, min_d
             rr = r[i, m]
             k0, k1, k2, k3 = jrow[m, 0], jrow[m, 1], jrow[m, 2], jrow[m, 3]
             k4, k5, k6, k7 = jrow[m, 4], jrow[m, 5], jrow[m, 6], jrow[m, 7]
-            w0 = w * k0
-            w1 = w * k1
-            w2 = w * k2
-            w3 = w * k3
-            w4 = w * k4
-            w5 = w * k5
-            w6 = w * k6
-            w7 = w * k7
-            g0 += w0 * rr
-            h00 += w0 * k0; h01 += w0 * k1; h02 += w0 * k2; h03 += w0 * k3
-            h04 += w0 * k4; h05 += w0 * k5; h06 += w0 * k6; h07 += w0 * k7
-            g1 += w1 * rr
-            h11 += w1 * k1; h12 += w1 * k2; h13 += w1 * k3; h14 += w1 * k4
-            h15 += w1 * k5; h16 += w1 * k6; h17 += w1 * k7
-            g2 += w2 * rr
-            h22 += w2 * k2; h23 += w2 * k3; h24 += w2 * k4
-            h25 += w2 * k5; h26 += w2 * k6; h27 += w2 * k7
-            g3 += w3 * rr
-            h33 += w3 * k3; h34 += w3 * k4; h35 += w3 * k5
-            h36 += w3 * k6; h37 += w3 * k7
-            g4 += w4 * rr
-            h44 += w4 * k4; h45 += w4 * k5
-            h46 += w4 * k6; h47 += w4 * k7
-            g5 += w5 * rr
-            h55 += w5 * k5; h56 += w5 * k6
-            h57 += w5 * k7
-            g6 += w6 * rr
-            h66 += w6 * k6
-            h67 += w6 * k7
-            g7 += w7 * rr
-            h77 += w7 * k7
+            sums = _cs.gram8_add(sums, w, rr, k0, k1, k2, k3, k4, k5, k6, k7)
     if not jacobians:
         return r, valid, W_out, loss, ints, np.zeros((0, 0)), np.zeros(0)
-    HK = np.empty((8, 8))  # upper triangle from the sums, then mirrored (as _gram8)
-    HK[0, 0:] = (h00, h01, h02, h03, h04, h05, h06, h07)
-    HK[1, 1:] = (h11, h12, h13, h14, h15, h16, h17)
-    HK[2, 2:] = (h22, h23, h24, h25, h26, h27)
-    HK[3, 3:] = (h33, h34, h35, h36, h37)
-    HK[4, 4:] = (h44, h45, h46, h47)
-    HK[5, 5:] = (h55, h56, h57)
-    HK[6, 6:] = (h66, h67)
-    HK[7, 7:] = (h77,)
-    for a in range(8):
-        for c in range(a):
-            HK[a, c] = HK[c, a]
-    gK = np.array([g0, g1, g2, g3, g4, g5, g6, g7])
+    HK, gK = _cs.gram8_arrays(sums)  # the upper triangle from the sums, then mirrored (as _gram8)
     kk = 8 if (with_affine and n > 0) else 6
     return r, valid, W_out, loss, ints, np.ascontiguousarray(HK[:kk, :kk]), np.ascontiguousarray(gK[:kk])
 
