@@ -275,12 +275,12 @@ def add_pair_terms(J_host, J_affine_host, B, gain, W, residual, J_depth, valid, 
         cost[i] += loss[i]
 
 
-#: the longest row :func:`_pairwise_sum` sums as numpy does (numpy's pairwise block)
+#: the longest row :func:`pairwise_sum` sums as numpy does (numpy's pairwise block)
 MAX_PAIRWISE = 128
 
 
 @jit
-def _pairwise_sum(a, n):
+def pairwise_sum(a, n):
     """``a[:n]`` summed as numpy sums a row (``np.sum(x, axis=-1)``: ``0.0`` plus numpy's pairwise
     summation, sequential below 8 values, eight interleaved partial sums up to
     :data:`MAX_PAIRWISE` = 128 values, beyond which numpy splits a row and this does not); the same
@@ -317,7 +317,7 @@ def add_depth_terms(W, residual, J_depth, k, robust, stereo, d, prior, variance,
     ``prior_on`` the depth prior ``H_dd += 1 / V``, ``g_d += (d - prior) / V``,
     ``cost += (d - prior)^2 / (2 V)``. Returns the stereo term's Huber weights (N,) (ones without
     it). Each value is computed as the numpy expressions it replaces compute it (the same
-    products, :func:`_pairwise_sum` for the row sums): equal to the bit (tested) for patterns of
+    products, :func:`pairwise_sum` for the row sums): equal to the bit (tested) for patterns of
     at most :data:`MAX_PAIRWISE` pixels."""
     n = H_dd.shape[0]
     w = np.ones(n)
@@ -332,8 +332,8 @@ def add_depth_terms(W, residual, J_depth, k, robust, stereo, d, prior, variance,
                 j = J_depth[i, m]
                 hd[m] = ww * (j * j)
                 gd[m] = (ww * j) * residual[i, m]
-            H_dd[i] += _pairwise_sum(hd, p)
-            g_d[i] += _pairwise_sum(gd, p)
+            H_dd[i] += pairwise_sum(hd, p)
+            g_d[i] += pairwise_sum(gd, p)
             cost[i] += loss[i]
     if prior_on:
         for i in range(n):

@@ -511,30 +511,6 @@ def cubic_row_with_slope(img, x, v):
 
 
 @jit
-def _row_sum(a, n):
-    """``np.sum`` of the float64 ``a[:n]`` (n >= 8) in numpy's order: eight running sums over
-    blocks of eight, added pairwise, then the rest one by one (its pairwise summation below 128)."""
-    r0, r1, r2, r3, r4, r5, r6, r7 = a[0], a[1], a[2], a[3], a[4], a[5], a[6], a[7]
-    i = 8
-    end = n - n % 8
-    while i < end:
-        r0 += a[i]
-        r1 += a[i + 1]
-        r2 += a[i + 2]
-        r3 += a[i + 3]
-        r4 += a[i + 4]
-        r5 += a[i + 5]
-        r6 += a[i + 6]
-        r7 += a[i + 7]
-        i += 8
-    s = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
-    while i < n:
-        s += a[i]
-        i += 1
-    return s
-
-
-@jit
 def _centred_samples(right, u, v, pu, pv, d, rv, rs):
     """The right row's cubic samples (into ``rv``) and slopes (``rs``) of one point's pattern at
     disparity ``d``, each less its pattern mean; whether all are inside."""
@@ -543,8 +519,8 @@ def _centred_samples(right, u, v, pu, pv, d, rv, rs):
     for k in range(p):
         ok, rv[k], rs[k] = _cubic_at(right, np.float64(u + pu[k]) - d, v + pv[k])
         ok_all &= ok
-    mean_v = _row_sum(rv, p) / p
-    mean_s = _row_sum(rs, p) / p
+    mean_v = _cs.pairwise_sum(rv, p) / p
+    mean_s = _cs.pairwise_sum(rs, p) / p
     for k in range(p):
         rv[k] = rv[k] - mean_v
         rs[k] = rs[k] - mean_s
@@ -555,7 +531,7 @@ def _centred_samples(right, u, v, pu, pv, d, rv, rs):
 def subpixel_refine(right, u, v, pu, pv, left_c, disp, work, iterations):
     """The stereo search's sub-pixel Gauss-Newton steps and final residual
     (``stereo_depth._subpixel_stage``'s numpy loop, the same numbers: its sums in numpy's order,
-    :func:`_row_sum`; patterns of at least 8 pixels). Per point ``i`` from ``disp[i]``:
+    :func:`factors._compiled_sums.pairwise_sum`; patterns of at least 8 pixels). Per point ``i`` from ``disp[i]``:
     ``iterations`` steps ``-sum(J r) / sum(J^2)`` (clipped to +-0.5 px; none once a sample left
     the image or where ``work`` is False or ``sum(J^2) <= 1e-9``) on
     ``r_k = left_c[i, k] - (R_k - mean R)``, ``J_k = R'_k - mean R'`` (:func:`_cubic_at` of
@@ -578,12 +554,12 @@ def subpixel_refine(right, u, v, pu, pv, left_c, disp, work, iterations):
             for k in range(p):
                 res[k] = np.float64(left_c[i, k]) - rv[k]
                 prod[k] = rs[k] * rs[k]
-            jtj = _row_sum(prod, p)
+            jtj = _cs.pairwise_sum(prod, p)
             step = 0.0
             if going and ok_all and jtj > 1e-9:
                 for k in range(p):
                     prod[k] = rs[k] * res[k]
-                step = -_row_sum(prod, p) / jtj
+                step = -_cs.pairwise_sum(prod, p) / jtj
             d = d + min(max(step, -0.5), 0.5)
             going = going and ok_all
         ok_all = _centred_samples(right, u[i], v[i], pu, pv, d, rv, rs)
@@ -592,7 +568,7 @@ def subpixel_refine(right, u, v, pu, pv, left_c, disp, work, iterations):
             prod[k] = r * r
         out[i] = d
         inside[i] = ok_all
-        mse[i] = _row_sum(prod, p) / p if ok_all else np.inf
+        mse[i] = _cs.pairwise_sum(prod, p) / p if ok_all else np.inf
     return out, mse, inside
 
 
