@@ -148,6 +148,19 @@ def test_sample_keeps_the_shape_and_rejects_mismatched_coordinates():
 HOST_POSE = gtsam.Pose3(gtsam.Rot3.Expmap([0.3, -0.2, 0.1]), np.array([1.0, -0.5, 2.0]))
 
 
+def _host_and_target(rng: np.random.Generator, n: int, rotation: list, translation: list) -> tuple:
+    """Two textured images, ``n`` random host pixels with inverse depths in [0.1, 1.5], the target's
+    pose (``HOST_POSE`` moved by the rotation vector and translation) and the host samples:
+    ``(host, target, px, d, T_world_target, I_host, host_valid)``."""
+    host, target = GradientImage(textured(rng)), GradientImage(textured(rng))
+    px = np.c_[rng.uniform(3, 157, n), rng.uniform(3, 117, n)]
+    d = rng.uniform(0.1, 1.5, n)
+    Tt = HOST_POSE.compose(gtsam.Pose3(gtsam.Rot3.Expmap(rotation), np.array(translation)))
+    Ih, hv = sample_host(host, px)
+    return host, target, px, d, Tt, Ih, hv
+
+
+
 @pytest.mark.parametrize("sums", ["pair", "general"])
 @pytest.mark.parametrize("with_affine", [True, False])
 def test_gauss_newton_sums_equal_the_numpy_sums(with_affine, sums):
@@ -155,11 +168,7 @@ def test_gauss_newton_sums_equal_the_numpy_sums(with_affine, sums):
     mapped from the host Jacobians (accumulate_pair); ``general``: without them (accumulate_target)."""
     rng = np.random.default_rng(11)
     cam = small_camera()
-    host, target = GradientImage(textured(rng)), GradientImage(textured(rng))
-    px = np.c_[rng.uniform(3, 157, 150), rng.uniform(3, 117, 150)]
-    d = rng.uniform(0.1, 1.5, 150)
-    Tt = HOST_POSE.compose(gtsam.Pose3(gtsam.Rot3.Expmap([0.01, 0.02, -0.01]), np.array([0.1, 0.0, 0.2])))
-    Ih, hv = sample_host(host, px)
+    host, target, px, d, Tt, Ih, hv = _host_and_target(rng, 150, [0.01, 0.02, -0.01], [0.1, 0.0, 0.2])
     lin = photometric_residuals(cam, Ih, hv, px, d, HOST_POSE, Tt, target, (0.1, 1.0), (-0.2, 3.0))
     assert lin.T_target_host is not None and lin.brightness_gain is not None
     if sums == "general":
@@ -238,11 +247,7 @@ def test_target_jacobians_are_the_host_jacobians_mapped_by_the_pair(compiled):
     are ``(hb, gain)`` and ``(-hb, -1)``."""
     rng = np.random.default_rng(5)
     cam = small_camera()
-    host, target = GradientImage(textured(rng)), GradientImage(textured(rng))
-    px = np.c_[rng.uniform(3, 157, 100), rng.uniform(3, 117, 100)]
-    d = rng.uniform(0.1, 1.5, 100)
-    Tt = HOST_POSE.compose(gtsam.Pose3(gtsam.Rot3.Expmap([-0.02, 0.03, 0.01]), np.array([0.2, 0.1, -0.1])))
-    Ih, hv = sample_host(host, px)
+    host, target, px, d, Tt, Ih, hv = _host_and_target(rng, 100, [-0.02, 0.03, 0.01], [0.2, 0.1, -0.1])
     sampler = target if compiled else NumpySampler(target)
     lin = photometric_residuals(cam, Ih, hv, px, d, HOST_POSE, Tt, sampler, (0.1, 1.0), (-0.2, 3.0))
     assert lin.valid.sum() > 300
@@ -262,11 +267,7 @@ def test_compiled_residuals_without_target_jacobians_and_their_sums():
     the same to the bit, and the Gauss-Newton sums (mapped from the host Jacobians) are the same."""
     rng = np.random.default_rng(8)
     cam = small_camera()
-    host, target = GradientImage(textured(rng)), GradientImage(textured(rng))
-    px = np.c_[rng.uniform(3, 157, 80), rng.uniform(3, 117, 80)]
-    d = rng.uniform(0.1, 1.5, 80)
-    Tt = HOST_POSE.compose(gtsam.Pose3(gtsam.Rot3.Expmap([0.01, -0.02, 0.01]), np.array([0.1, 0.05, 0.1])))
-    Ih, hv = sample_host(host, px)
+    host, target, px, d, Tt, Ih, hv = _host_and_target(rng, 80, [0.01, -0.02, 0.01], [0.1, 0.05, 0.1])
     f = pattern_bearings(cam, px)
     args = (cam, Ih, hv, f, d, HOST_POSE, Tt, target, 0.2, 1.0, 3.0)
     full = compiled_residuals(*args)
@@ -426,11 +427,7 @@ def test_pair_sums_skip_the_invalid_residuals_to_the_bit():
     same sums, byte for byte, as summing every residual; the points outside the target are many."""
     rng = np.random.default_rng(11)
     cam = small_camera()
-    host, target = GradientImage(textured(rng)), GradientImage(textured(rng))
-    px = np.c_[rng.uniform(3, 157, 120), rng.uniform(3, 117, 120)]
-    d = rng.uniform(0.1, 1.5, 120)
-    Tt = HOST_POSE.compose(gtsam.Pose3(gtsam.Rot3.Expmap([0.01, -0.02, 0.01]), np.array([0.4, 0.05, 0.1])))
-    Ih, hv = sample_host(host, px)
+    host, target, px, d, Tt, Ih, hv = _host_and_target(rng, 120, [0.01, -0.02, 0.01], [0.4, 0.05, 0.1])
     lin = compiled_residuals(cam, Ih, hv, pattern_bearings(cam, px), d, HOST_POSE, Tt, target, 0.2, 1.0, 3.0,
                              target_jacobians=False)
     assert 0.1 < (~lin.valid).mean() < 0.9
