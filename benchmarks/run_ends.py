@@ -19,6 +19,11 @@ system freeing the process's memory, in its system time). *First frame*: the fir
 tables: about half of it). *Kernel loads* is the CPU spent loading numba's compiled
 kernels from the disk cache (wherever in the run they load). Peak RSS is ``wait4``'s ``ru_maxrss``.
 
+*Library floor*, measured after each round: a bare interpreter importing numpy, cv2, numba and gtsam
+(*libraries*), then scipy.linalg (which numba imports when it loads its first compiled kernel), then
+numba's first load of one cached one-line kernel: what no run can spend less than before its first
+frame's result.
+
 Without ``--ref`` only this checkout runs. CPU time, not wall time: the machine may be shared.
 """
 
@@ -130,6 +135,37 @@ def run_once(tree: Path, args: list[str], out: Path, pyc: bool = True) -> dict:
             "rss_mib": usage.ru_maxrss / 1024}
 
 
+_FLOOR_KERNEL = "import numba\n@numba.njit(cache=True)\ndef one(x):\n    return x + 1\n"
+_FLOOR_CHILD = r"""
+import sys, time
+sys.path.insert(0, sys.argv[1])
+import numpy, cv2, numba, gtsam
+libs = time.process_time()
+import scipy.linalg
+scipy_done = time.process_time()
+import floor_kernel
+t = time.process_time()
+floor_kernel.one(1)
+print(libs, scipy_done - libs, time.process_time() - t)
+"""
+
+
+def library_floor(folder: Path) -> dict:
+    """What no ``gtvo run`` can spend less than before its first frame's result, in a fresh interpreter:
+    the interpreter with numpy, cv2, numba and gtsam imported (everything gtvo runs on; gtsam's
+    poses are the front end's), then scipy.linalg (numba imports it when it loads its first compiled
+    kernel: ``numba.np.arraymath``), then numba's first load of one cached one-line kernel (its
+    compiler's set-up)."""
+    (folder / "floor_kernel.py").write_text(_FLOOR_KERNEL)
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
+    env["PYTHONPYCACHEPREFIX"] = str(folder / "pyc")
+    cmd = [sys.executable, "-c", _FLOOR_CHILD, str(folder)]
+    subprocess.run(cmd, env=env, check=True, capture_output=True)  # caches the kernel and the modules
+    out = subprocess.run(cmd, env=env, check=True, capture_output=True, text=True).stdout.split()
+    libs, scipy_linalg, kernel = (float(x) for x in out)
+    return {"libraries": libs, "scipy_linalg": scipy_linalg, "first_kernel_load": kernel}
+
+
 def summary(rows: list[dict], key: str) -> str:
     values = [r[key] for r in rows]
     return f"{statistics.median(values):.2f} ({min(values):.2f}-{max(values):.2f})"
@@ -146,12 +182,14 @@ def main() -> int:
     a = ap.parse_args()
     trees = {"this": a.tree} | ({"ref": a.ref} if a.ref is not None else {})
     rows: dict[str, list[dict]] = {k: [] for k in trees}
+    floors: list[dict] = []
     with tempfile.TemporaryDirectory(prefix="gtvo_ends_") as tmp:
         for name, tree in trees.items():  # warm-up, not counted: compiled modules and kernels cached
             run_once(tree, ["--max-frames", "3"], Path(tmp) / f"{name}_warm", not a.no_pyc)
         for i in range(a.runs):
             for name, tree in trees.items():
                 rows[name].append(run_once(tree, a.extra, Path(tmp) / f"{name}{i}", not a.no_pyc))
+            floors.append(library_floor(Path(tmp)))
     print(f"load {os.getloadavg()[0]:.1f}; CPU s (median, range) of {a.runs} runs each")
     keys = ("before_first", "first_frame", "first_frame_kernels", "after_last", "exit", "total", "kernel_load",
             "rss_mib", "wall")
@@ -159,6 +197,8 @@ def main() -> int:
     print("|---" * (len(keys) + 1) + "|")
     for name, tree in trees.items():
         print(f"| {name} ({tree}) | " + " | ".join(summary(rows[name], k) for k in keys) + " |")
+    print("library floor, a bare interpreter (median, range): " + ", ".join(
+        f"{k} {summary(floors, k)}" for k in ("libraries", "scipy_linalg", "first_kernel_load")))
     if a.ref is not None:
         print("ratios this / ref (medians): " + ", ".join(
             f"{k} {statistics.median(r[k] for r in rows['this']) / statistics.median(r[k] for r in rows['ref']):.2f}x"
