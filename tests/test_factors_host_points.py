@@ -274,9 +274,8 @@ def test_pass_buffers_are_reused_only_when_nothing_refers_to_them():
 
 @pytest.mark.parametrize("jacobians", [True, False])
 def test_safeguard_in_place_equals_the_merge_of_an_evaluation_apart_to_the_bit(jacobians):
-    """The safeguard on a compiled pass still in its buffers (the points that rose evaluated without
-    Jacobians into other buffers, those that go back again with them and copied into the pass's
-    buffers) gives the depths, costs and linearisations of the evaluation apart and
+    """The safeguard on a compiled pass still in its buffers (the points that rose evaluated into
+    other buffers, the rows of those that go back copied into the pass's own) gives the depths, costs and linearisations of the evaluation apart and
     ``keep_cheaper_depths``' merge (a plain list of copies takes that path), byte for byte, with a
     rig offset; a point whose depth did not move is not sent back."""
     pts, poses, affines, d = _gradient_problem()
