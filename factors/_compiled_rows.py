@@ -2,7 +2,8 @@
 
 The safeguarded depth step (:meth:`factors.host_points.HostPoints.safeguard`) puts the points that
 go back to their old depth into a trial pass's buffers: a few hundred scattered rows of every
-term's residuals, Jacobians and warped pixels. numpy's ``a[:, rows] = b[:, other_rows]`` gathers
+term's residuals, Jacobians and warped pixels (and :func:`factors.photometric.put_rows` the rows
+of one linearisation into another's, when the passes were made apart). numpy's ``a[:, rows] = b[:, other_rows]`` gathers
 into a temporary and scatters it again (about 5x this loop's time on a KITTI host). Compiled on first
 use and cached on disk (:func:`gtvo.core.jit.jit`).
 """

@@ -1,4 +1,4 @@
-"""factors._compiled_rows: the safeguard's row copies between pass buffers equal numpy's gather and scatter."""
+"""factors._compiled_rows: the safeguard's row copies (between pass buffers, and put_rows') equal numpy's gather and scatter."""
 
 from __future__ import annotations
 
@@ -21,3 +21,33 @@ def test_copy_rows_equals_numpy_fancy_assignment():
         assert dst.tobytes() == expected.tobytes()
         copy_rows(dst, rows[:0], src, other[:0])
         assert dst.tobytes() == expected.tobytes()
+
+
+def test_put_rows_copies_exactly_the_rows_numpy_assignment_does():
+    """``factors.photometric.put_rows`` (one compiled copy per array for indices in range) writes
+    what ``a[rows] = b[other_rows]`` writes in every array, with and without ``other_rows``, and
+    refuses rows out of range as numpy does."""
+    import dataclasses
+
+    import pytest
+
+    from factors.photometric import PhotometricLinearization, put_rows
+
+    rng = np.random.default_rng(1)
+
+    def lin(n: int) -> PhotometricLinearization:
+        return PhotometricLinearization(rng.normal(size=(n, 8)), rng.random((n, 8)) < 0.7, rng.normal(size=(n, 8)),
+                                        rng.normal(size=(n, 8, 6)), None, rng.normal(size=(n, 8, 2)), None,
+                                        rng.normal(size=(n, 8, 2)), 0, 0, 0, J_offset=rng.normal(size=(n, 8, 2)))
+
+    a, b = lin(20), lin(6)
+    names = ("residual", "valid", "J_depth", "J_host", "J_affine_host", "uv_target", "J_offset")
+    rows = np.array([3, 19, 0, 8])
+    for source, src_rows, take in ((b, np.array([5, 0, 2, 1]), np.array([5, 0, 2, 1])), (lin(4), None, slice(None))):
+        merged = put_rows(dataclasses.replace(a, **{f: getattr(a, f).copy() for f in names}), rows, source, src_rows)
+        for name in names:
+            expected = getattr(a, name).copy()
+            expected[rows] = getattr(source, name)[take]
+            assert getattr(merged, name).tobytes() == expected.tobytes(), name
+    with pytest.raises(IndexError):
+        put_rows(a, np.array([20]), b, np.array([0]))
