@@ -33,7 +33,7 @@ from typing import Callable, Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from factors import _compiled, _compiled_sums
+from factors import _compiled, _compiled_rows, _compiled_sums
 from factors.photometric import (GradientImage, GradientSampler, PhotometricLinearization, compiled_residuals,
                                  pair_pose, pattern_bearings, photometric_residuals, put_rows, sample_host,
                                  stereo_pair_pose, stereo_residuals)
@@ -77,6 +77,10 @@ class PassBuffers:
             at += sizes[name]
         self.valid = self._block[at:].view(np.bool_).reshape(t1, n, p)
         self.capacity = n
+        #: every array as (terms, points, a point's entries), for row copies (:meth:`HostPoints._put_back`)
+        self.by_point = {name: a.reshape(a.shape[0], n, k * p) for name, a, k in (
+            ("residual", self.residual, 1), ("valid", self.valid, 1), ("J_depth", self.J_depth, 1), ("uv", self.uv, 2),
+            ("J_host", self.J_host, 6), ("J_affine_host", self.J_affine_host, 2), ("J_offset", self.J_offset[None], 2))}
         self._free_count = sys.getrefcount(self._block)
 
     def in_use(self) -> bool:
@@ -95,10 +99,13 @@ class PassLinearizations(list):
     residuals stacked (T1, M, P), which :meth:`HostPoints.point_costs` reads in one compiled loop
     while the list still holds the pass's own linearisations (``residual_arrays``)."""
 
-    def __init__(self, items: list, residual_stack: FloatArray) -> None:
+    def __init__(self, items: list, residual_stack: FloatArray, buffers: PassBuffers | None = None) -> None:
         super().__init__(items)
         self.residual_stack = residual_stack
         self.residual_arrays = [None if lin is None else lin.residual for lin in items]
+        #: the :class:`PassBuffers` the pass wrote (its arrays are the items' arrays while
+        #: :meth:`writable_buffers` says so)
+        self.buffers = buffers
 
     def unchanged(self) -> bool:
         """Every item is still the pass's linearisation with its residual array (then ``residual_stack``
@@ -106,6 +113,17 @@ class PassLinearizations(list):
         return len(self) == len(self.residual_arrays) and all(
             (lin is None and a is None) or (lin is not None and lin.residual is a)
             for lin, a in zip(self, self.residual_arrays))
+
+    def writable_buffers(self, n: int) -> PassBuffers | None:
+        """The :class:`PassBuffers` whose rows are these items' rows, when the pass was over all
+        ``n`` points and the items are still its own (not copies: a pickled or deep-copied list holds
+        arrays of its own, and its ``buffers`` are a new set); else None. Writing a row of these
+        buffers writes that point's row of every item."""
+        buf = self.buffers
+        if (buf is None or self.residual_stack.shape[1] != n or buf.capacity != n or not self.unchanged()
+                or self.residual_stack.ctypes.data != buf.residual.ctypes.data):
+            return None
+        return buf
 
 
 def gauss_newton_sums(lin: PhotometricLinearization, weight: ArrayLike, with_affine: bool = True
@@ -466,7 +484,7 @@ class HostPoints:
                 lins.append(PhotometricLinearization(r, valid, Jd, None, None, None, None, uv, nb, nbh, no))
         if self.right_image is None:
             lins.append(None)
-            return PassLinearizations(lins, buf.residual[:, :m])
+            return PassLinearizations(lins, buf.residual[:, :m], buf)
         # the stereo term (stereo_residuals): the right camera's warp, its principal point moved by the offset
         scx, scy = cx, cy
         if offset is not None:
@@ -487,7 +505,7 @@ class HostPoints:
         nb, nbh, no = counts[nt].tolist()
         lins.append(PhotometricLinearization(r, valid, Jd, None, None, None, None, uv, nb, nbh, no,
                                              J_offset=Jo if with_offset else None))
-        return PassLinearizations(lins, buf.residual[:, :m])
+        return PassLinearizations(lins, buf.residual[:, :m], buf)
 
     def residual_calls(self, poses: Sequence, affines: Sequence | None, d: FloatArray,
                        rows: NDArray[np.intp] | None = None, offset: ArrayLike | None = None,
@@ -684,12 +702,55 @@ class HostPoints:
         """The safeguarded depth step at a trial state: ``d`` are :meth:`DepthSystem.back_substitute`'s
         depths and ``lins`` the :meth:`residuals` there (``jacobians``: as they were evaluated); the
         points whose cost rose above their cost at ``system``'s linearisation point and that cost
-        less at their depth there keep it.
-        Returns ``(point costs, depths, linearisations)`` (``d`` itself when no point goes back)."""
+        less at their depth there keep it (a point whose depth did not move costs the same there:
+        it is not evaluated again).
+        Returns ``(point costs, depths, linearisations)`` (``d`` itself when no point goes back);
+        ``lins`` are updated in place (the points that go back get their rows at the old depth).
+
+        When ``lins`` are a compiled pass over all points still in its :class:`PassBuffers`
+        (:meth:`PassLinearizations.writable_buffers`), the points whose cost rose are evaluated at
+        their old depth into a free buffer set and the rows of those that go back copied into
+        ``lins``' buffers, one compiled copy per array for all terms (:meth:`_put_back`; evaluating
+        them without Jacobians and those that go back again with them measured 1.25x slower). Else
+        their old depth is evaluated apart and merged (:func:`keep_cheaper_depths`). The same
+        numbers either way (each point's residuals depend on its own depth only)."""
         c = self.point_costs(lins, d)
-        rows = np.flatnonzero(c > system.point_cost)
-        if rows.size:
+        rows = np.flatnonzero((c > system.point_cost) & (d != system.d))
+        if not rows.size:
+            return c, d, lins
+        target = lins.writable_buffers(len(self)) if isinstance(lins, PassLinearizations) else None
+        if target is None or not self._compiled or kernel_threads() > 1 or self._pass_jacobians(lins) != jacobians:
             lins_old = self.residuals(poses, affines, system.d, rows, offset, jacobians=jacobians)
             d, c, lins = keep_cheaper_depths(d, c, lins, rows, system.d, self.point_costs(lins_old, system.d, rows),
                                              lins_old)
+            return c, d, lins
+        old = self._compiled_pass(poses, affines, system.d, rows, offset, jacobians=jacobians)
+        c_old = self.point_costs(old, system.d, rows)
+        keep = np.flatnonzero(c_old < c[rows])
+        if not keep.size:
+            return c, d, lins
+        r = rows[keep]
+        self._put_back(target, r, old.buffers, keep, jacobians)
+        d, c = d.copy(), c.copy()
+        d[r], c[r] = system.d[r], c_old[keep]
         return c, d, lins
+
+    def _pass_jacobians(self, lins: list) -> bool:
+        """Whether the pass ``lins`` came with Jacobians (host Jacobians; without targets, the rig
+        offset's; a pass without either has no Jacobians to want)."""
+        if self.target_images:
+            return lins[0].J_host is not None
+        return lins[-1] is not None and lins[-1].J_offset is not None if self.rig else True
+
+    def _put_back(self, target: PassBuffers, rows: NDArray[np.intp], source: PassBuffers,
+                  source_rows: NDArray[np.intp], jacobians: bool) -> None:
+        """Copy the points ``source_rows`` of a rows pass in ``source`` into the points ``rows`` of a
+        pass over all points in ``target``: residuals, validity, ``J_depth`` and warped pixels of
+        every term, with ``jacobians`` the host pose and affine Jacobians and the rig offset's too
+        (what :func:`factors.photometric.put_rows` copies), one compiled copy per array for all
+        terms (:func:`factors._compiled_rows.copy_rows`)."""
+        names = ["residual", "valid", "J_depth", "uv"]
+        if jacobians:
+            names += ["J_host", "J_affine_host", "J_offset"] if self.rig else ["J_host", "J_affine_host"]
+        for name in names:
+            _compiled_rows.copy_rows(target.by_point[name], rows, source.by_point[name], source_rows)

@@ -30,13 +30,14 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import math
 from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from factors import _compiled
+from factors import _compiled, _compiled_rows
 from gtvo.core.camera import MIN_DEPTH, PinholeCamera
 from gtvo.errors import InputError
 from gtvo.core.lie import invert_poses
@@ -242,11 +243,22 @@ def put_rows(lin: PhotometricLinearization, rows: NDArray[np.intp], other: Photo
     only when ``other`` was evaluated at the same ones (else they are cleared: the rows no longer
     share one pair pose, and the Gauss-Newton sums then need the target Jacobians). Returns ``lin``."""
     sel = slice(None) if other_rows is None else other_rows
+    dst = np.ascontiguousarray(rows, dtype=np.intp)
+    src = np.arange(dst.size, dtype=np.intp) if other_rows is None else np.ascontiguousarray(other_rows, dtype=np.intp)
+    n, m = lin.residual.shape[0], other.residual.shape[0]
+    # one compiled loop per array (numpy's gather and scatter took about 5x its time) for indices in range
+    compiled = dst.size == src.size and (dst.size == 0 or (0 <= dst.min() and dst.max() < n and 0 <= src.min()
+                                                            and src.max() < m))
     for name in ("residual", "valid", "J_depth", "J_host", "J_target", "J_affine_host", "J_affine_target",
                  "uv_target", "J_offset"):
         a, b = getattr(lin, name), getattr(other, name)
         if a is not None and b is not None:
-            a[rows] = b[sel]
+            if (compiled and a.dtype == b.dtype and a.shape[0] == n and b.shape[0] == m and a.shape[1:] == b.shape[1:]
+                    and a.flags.c_contiguous and b.flags.c_contiguous):
+                k = math.prod(a.shape[1:])
+                _compiled_rows.copy_rows(a.reshape(1, n, k), dst, b.reshape(1, m, k), src)
+            else:
+                a[rows] = b[sel]
         elif a is not None:  # nothing to copy from: the array no longer describes every point
             setattr(lin, name, None)
     if lin.T_target_host is not None and not (

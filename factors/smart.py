@@ -239,7 +239,7 @@ class HostPointsFactor(PythonFactor):
         lin = self._lin
         assert lin is not None
         key = self._state(poses, affs, None)
-        if self._trial is not None and np.array_equal(self._trial[0], key):
+        if self._trial is not None and self._trial[0] == key:
             return self._trial[1], self._trial[2]
         d = self._back_substitution(poses, affs)
         A, offset = self._split(affs)

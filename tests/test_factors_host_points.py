@@ -270,3 +270,36 @@ def test_pass_buffers_are_reused_only_when_nothing_refers_to_them():
     assert kept.tobytes() == before.tobytes()
     twin = copy.deepcopy(pts)  # a copy's buffers are new and free (its copied arrays are not views of them)
     assert all(not b.in_use() for b in twin._buffers) and len(twin._buffers) == len(pts._buffers)
+
+
+@pytest.mark.parametrize("jacobians", [True, False])
+def test_safeguard_in_place_equals_the_merge_of_an_evaluation_apart_to_the_bit(jacobians):
+    """The safeguard on a compiled pass still in its buffers (the points that rose evaluated into
+    other buffers, the rows of those that go back copied into the pass's own) gives the depths, costs and linearisations of the evaluation apart and
+    ``keep_cheaper_depths``' merge (a plain list of copies takes that path), byte for byte, with a
+    rig offset; a point whose depth did not move is not sent back."""
+    pts, poses, affines, d = _gradient_problem()
+    d = np.abs(np.nan_to_num(d, nan=1.0)) + 0.1
+    offset = np.array([0.3, -0.2])
+    H, g = np.zeros((26, 26)), np.zeros(26)
+    s = pts.linearize(pts.residuals(poses, affines, d, offset=offset), d, H, g, [_local_columns(t) for t in range(2)],
+                      np.array([24, 25]))
+    dx = np.linalg.solve(H + 1e-3 * np.diag(np.diag(H)), -g) + np.random.default_rng(5).normal(0, 0.01, 26)
+    P = [p.retract(dx[6 * i:6 * i + 6]) for i, p in enumerate(poses)]
+    A = [a + dx[18 + 2 * i:20 + 2 * i] for i, a in enumerate(affines)]
+    d_new = s.back_substitute(dx)
+    d_new[7] = d[7]  # a depth that did not move
+    o = offset + dx[24:]
+    lins = pts.residuals(P, A, d_new, offset=o, jacobians=jacobians)
+    apart = copy.deepcopy(list(lins))
+    assert lins.writable_buffers(len(pts)) is lins.buffers
+    assert copy.deepcopy(lins).writable_buffers(len(pts)) is None  # a copy's arrays are not its buffers'
+    c1, d1, l1 = pts.safeguard(P, A, s, d_new, lins, o, jacobians=jacobians)
+    c2, d2, l2 = pts.safeguard(P, A, s, d_new, apart, o, jacobians=jacobians)
+    assert l1 is lins and type(l2) is list  # the two paths taken
+    back = d1 != d_new
+    assert back.sum() >= 3 and (~back & (c1 > s.point_cost)).any() and not back[7]
+    assert c1.tobytes() == c2.tobytes() and d1.tobytes() == d2.tobytes()
+    _assert_same_lins(l1, l2)
+    assert (l1[0].J_host is not None) == jacobians and (l1[-1].J_offset is not None) == jacobians
+    assert pts.point_costs(l1, d1).tobytes() == c1.tobytes()  # lins belong to the safeguarded depths
