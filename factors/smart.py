@@ -260,6 +260,30 @@ class HostPointsFactor(PythonFactor):
         poses, affs = self._read(values)
         return np.array(self._depths_at(poses, affs), dtype=float)
 
+    def take_residuals(self, poses: Sequence[gtsam.Pose3], vectors: Sequence[FloatArray], lins: list) -> None:
+        """Take ``lins`` as this factor's residuals at ``poses`` (host first, then the targets) and
+        ``vectors`` (the affines, then the rig offset: the factor's vector variables in key order)
+        with its current inverse depths: its first evaluation there reuses them instead of a pass.
+        They must be what a pass there computes (every target then the stereo term, with
+        Jacobians; a caller keeps them across solves, :mod:`gtvo.window.residual_memo`). Ignored
+        with a :class:`JacobianBudget` (the budget decides what a factor keeps)."""
+        if self._budget is None:
+            self._keep((self._state(list(poses), list(vectors), self.depths), lins))
+
+    def kept_residuals(self, values: gtsam.Values, inverse_depth: FloatArray
+                       ) -> tuple[list[gtsam.Pose3], list[FloatArray], FloatArray | None, list] | None:
+        """``(poses, affines, rig offset or None, residuals)`` of the residuals this factor keeps at
+        ``values`` with ``inverse_depth`` (its last evaluation's, when it was there: e.g. at the
+        optimum after :meth:`depths_at`), or None when it keeps none there."""
+        kept = self._state_lins
+        if kept is None:
+            return None
+        poses, affs = self._read(values)
+        if kept[0] != self._state(poses, affs, np.asarray(inverse_depth, dtype=float)):
+            return None
+        affines, offset = self._split(affs)
+        return poses, affines, offset, kept[1]
+
     def commit(self, values: gtsam.Values) -> FloatArray:
         """Set the inverse depths to those implied at ``values`` (call after optimisation)."""
         poses, affs = self._read(values)

@@ -23,6 +23,7 @@ from factors.params import PhotometricConfig
 from gtvo.window.config import MarginalPrior, WindowConfig, WindowKeyframe, WindowResult, WindowSolverName
 from gtvo.window.gtsam_solver import solve_gtsam
 from gtvo.window.handrolled import solve_handrolled, window_cost
+from gtvo.window import residual_memo
 from gtvo.window.marginal import marginalize
 from gtvo.window.fixed_lag import FixedLagBackend
 from gtvo.window.problem import (RigVariable, SolvableWindow, WindowMembers, WindowProblem, WindowSettings,
@@ -270,7 +271,9 @@ class LMBackend:
         """Marginalise the oldest keyframe into :attr:`marginal` (or drop it, ``marginalize=False``)."""
         if window.config.marginalize:
             self.marginal = marginalize(window.problem(rig=window.solved_rig()), 0)
-        return window.keyframes.pop(0)
+        kf = window.keyframes.pop(0)
+        residual_memo.forget(kf.image)  # its residuals are not needed again
+        return kf
 
     def optimize(self, window: SolvableWindow, targets: list[list[int]],
                  solver: WindowSolverName) -> WindowResult:

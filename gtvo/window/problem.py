@@ -27,6 +27,7 @@ from factors.stacked import stacked
 from gtvo.core.camera import MIN_DEPTH, PinholeCamera
 from gtvo.core.timing import timed
 from gtvo.errors import InputError
+from gtvo.window import residual_memo
 from gtvo.window.config import MarginalPrior, WindowConfig, WindowKeyframe, WindowState
 
 FloatArray = NDArray[np.float64]
@@ -472,7 +473,7 @@ def host_factor(problem: WindowProblem, h: int, targets: Sequence[int] | None = 
     keyframes, config, photometric = problem.keyframes, problem.config, problem.settings.photometric
     targets = problem.targets[h] if targets is None else targets
     kh = keyframes[h]
-    return HostPointsFactor(
+    factor = HostPointsFactor(
         pose_key(kh.index), [pose_key(keyframes[t].index) for t in targets], problem.camera, kh.pixels,
         kh.inverse_depth, kh.image, [keyframes[t].image for t in targets], kh.variance,
         sigma_intensity=photometric.sigma_intensity, huber_k=photometric.huber_k, affine_host_key=affine_key(kh.index),
@@ -484,6 +485,24 @@ def host_factor(problem: WindowProblem, h: int, targets: Sequence[int] | None = 
         rig_key=rig_offset_key() if problem.rig is not None and kh.right is not None else None,
         jacobian_budget=problem.settings.jacobian_budget,
         host_samples=host_samples(problem.camera, kh, photometric.pattern_array))
+    if problem.settings.jacobian_budget is None:
+        _start_from_kept(problem, h, targets, factor)
+    return factor
+
+
+def _start_from_kept(problem: WindowProblem, h: int, targets: Sequence[int], factor: HostPointsFactor) -> None:
+    """Give ``factor`` (host ``h`` in ``targets``) the residuals at the problem's state that an
+    earlier pass of its host computed there (:func:`gtvo.window.residual_memo.recall`): its
+    first evaluation, at that state, does not compute them again."""
+    keyframes = problem.keyframes
+    members = [keyframes[h]] + [keyframes[t] for t in targets]
+    poses = [kf.pose for kf in members]
+    affines = [kf.affine for kf in members]
+    offset = problem.rig_offset if factor.rig_key is not None else None
+    lins = residual_memo.recall(factor.points, keyframes[h].image, poses, affines, factor.depths, offset)
+    if lins is not None:
+        vectors = (affines if factor.with_affine else []) + ([] if offset is None else [offset])
+        factor.take_residuals(poses, vectors, lins)
 
 
 @timed("window_build")
