@@ -23,7 +23,7 @@ not remember). The kept arrays are read, never written: a new pass writes into i
 
 from __future__ import annotations
 
-import dataclasses
+import copy
 import weakref
 from dataclasses import dataclass
 from typing import Sequence
@@ -147,12 +147,12 @@ def recall(points: HostPoints, host_image: object, poses: Sequence, affines: Seq
     for t, img in enumerate(points.target_images):
         state = _target_state(points, poses[1 + t], affines[1 + t] if points.with_affine else None)
         hit = next((p for p in entry.targets if p.image() is img and p.state == state), None)
-        kept.append(None if hit is None else dataclasses.replace(hit.lin))
+        kept.append(None if hit is None else copy.copy(hit.lin))
     has_stereo = points.right_image is not None
     stereo = None
     if (has_stereo and entry.stereo is not None and entry.stereo[0]() is points.right_image
             and entry.stereo[1] == _stereo_key(points, offset)):
-        stereo = dataclasses.replace(entry.stereo[2])
+        stereo = copy.copy(entry.stereo[2])
     if not any(lin is not None for lin in kept) and stereo is None:
         return None
     missing = [t for t, lin in enumerate(kept) if lin is None] + ([len(kept)] if has_stereo and stereo is None else [])
