@@ -49,7 +49,8 @@ def solve_gtsam(problem: WindowProblem) -> WindowResult:
         for h, f in hosts.items():
             kept = f.kept_residuals(result, depths[h])
             if kept is not None:
-                residual_memo.remember(f.points, keyframes[h].image, kept[0], kept[1], depths[h], kept[2], kept[3])
+                state = residual_memo.HostState(kept[0], kept[1], depths[h], kept[2])
+                residual_memo.remember(f.points, keyframes[h].image, state, kept[3])
     for h, d in depths.items():
         keyframes[h].inverse_depth = d
     for kf in keyframes:

@@ -63,7 +63,8 @@ class _WindowHost:
         poses, affines = self._local([k.pose for k in keyframes], [k.affine for k in keyframes])
         offset = rig_offset if self.points.rig else None  # the stereo term's (its residuals kept by that key)
         # the residuals an earlier pass computed at this state (gtvo.window.residual_memo), else a pass
-        lins = residual_memo.recall(self.points, kh.image, poses, affines, kh.inverse_depth, offset)
+        lins = residual_memo.recall(self.points, kh.image,
+                                    residual_memo.HostState(poses, affines, kh.inverse_depth, offset))
         if lins is None:
             lins = self.points.residuals(poses, affines, kh.inverse_depth, offset=rig_offset)
         #: (E, lins) at the window's starting state (W frozen there): the initial cost and the first linearisation
@@ -74,7 +75,7 @@ class _WindowHost:
         pass there (:func:`gtvo.window.residual_memo.remember`)."""
         P, A = self._local(state.poses, state.affines)
         offset = state.vectors.get(rig_offset_key()) if self.points.rig else None
-        residual_memo.remember(self.points, self.image, P, A, d, offset, lins)
+        residual_memo.remember(self.points, self.image, residual_memo.HostState(P, A, d, offset), lins)
 
     def _local(self, poses: Sequence, affines: Sequence) -> tuple[list, list]:
         """The host's and its targets' poses and affines, in :class:`HostPoints`' order."""

@@ -499,7 +499,8 @@ def _start_from_kept(problem: WindowProblem, h: int, targets: Sequence[int], fac
     poses = [kf.pose for kf in members]
     affines = [kf.affine for kf in members]
     offset = problem.rig_offset if factor.rig_key is not None else None
-    lins = residual_memo.recall(factor.points, keyframes[h].image, poses, affines, factor.depths, offset)
+    lins = residual_memo.recall(factor.points, keyframes[h].image,
+                                residual_memo.HostState(poses, affines, factor.depths, offset))
     if lins is not None:
         vectors = (affines if factor.with_affine else []) + ([] if offset is None else [offset])
         factor.take_residuals(poses, vectors, lins)

@@ -64,6 +64,18 @@ class _HostPass:
     stereo: tuple[weakref.ref, bytes, PhotometricLinearization] | None
 
 
+@dataclass(frozen=True)
+class HostState:
+    """The state a host's residuals are computed at: ``poses`` (``gtsam.Pose3`` or 4x4: the host's,
+    then its targets' in order), ``affines`` (the same order; ignored without affines), the host's
+    inverse depths ``d`` (N,) and the stereo term's rig offset ``offset`` (None: none)."""
+
+    poses: Sequence
+    affines: Sequence
+    d: FloatArray
+    offset: object | None = None
+
+
 #: per host image (``id``), the residuals of its last remembered pass
 _PASSES: dict[int, _HostPass] = {}
 
@@ -96,12 +108,11 @@ def _same_points(entry: _HostPass, points: HostPoints, host_image: object) -> bo
             and entry.intensity is points.host_intensity)
 
 
-def remember(points: HostPoints, host_image: object, poses: Sequence, affines: Sequence | None, d: FloatArray,
-             offset: object | None, lins: Sequence) -> None:
+def remember(points: HostPoints, host_image: object, state: HostState, lins: Sequence) -> None:
     """Keep ``lins``, the residuals of every target of ``points`` then the stereo term's (or None),
-    with Jacobians, at ``poses``/``affines`` (host first, then the targets), inverse depths ``d``
-    and the rig offset ``offset`` (None: none), as the host's last pass (the previous one goes).
+    with Jacobians, at ``state``, as the host's last pass (the previous one goes).
     ``host_image``: the host keyframe's image (the entry lives as long as it does)."""
+    poses, affines, d, offset = state.poses, state.affines, state.d, state.offset
     if len(lins) != len(points.target_images) + 1 or any(
             lin is None or lin.J_host is None or not lin.has_pair_pose for lin in lins[:-1]):
         return  # not a whole pass with its Jacobians: nothing to reuse
@@ -132,12 +143,11 @@ def _prune() -> None:
         del _PASSES[next(iter(_PASSES))]
 
 
-def recall(points: HostPoints, host_image: object, poses: Sequence, affines: Sequence | None, d: FloatArray,
-           offset: object | None) -> PassLinearizations | None:
-    """The residuals (with Jacobians) of every target of ``points`` and its stereo term at this
-    state (as :meth:`remember` takes it): the kept ones of the targets whose state is byte-equal,
-    the others computed here; None when nothing is kept for this state (the caller's pass
-    computes them all)."""
+def recall(points: HostPoints, host_image: object, state: HostState) -> PassLinearizations | None:
+    """The residuals (with Jacobians) of every target of ``points`` and its stereo term at
+    ``state``: the kept ones of the targets whose state is byte-equal, the others computed here;
+    None when nothing is kept for this state (the caller's pass computes them all)."""
+    poses, affines, d, offset = state.poses, state.affines, state.d, state.offset
     entry = _PASSES.get(id(host_image))
     if entry is None or not _same_points(entry, points, host_image):
         return None
