@@ -190,10 +190,19 @@ def gauge_noise(config: WindowConfig, dim: int) -> gtsam.noiseModel.Base:
     return gtsam.noiseModel.Isotropic.Sigma(dim, config.gauge_sigma)
 
 
+#: the motion prior's factors made so far, by their keys, time steps and sigmas (a factor is a pure
+#: function of the poses: the window's problems, several per keyframe, share them)
+_MOTION: dict[tuple, ConstantVelocityFactor] = {}
+#: :data:`_MOTION` is emptied beyond this many factors (a window has a few)
+_MAX_MOTION = 64
+
+
 def motion_factors(keyframes: Sequence[WindowKeyframe], config: WindowConfig
                    ) -> list[tuple[int, ConstantVelocityFactor]]:
     """The motion-smoothness prior: ``(k, factor)`` for every three consecutive keyframes
-    ``k, k+1, k+2`` (positions) with increasing timestamps (none when ``acceleration_sigma`` is None)."""
+    ``k, k+1, k+2`` (positions) with increasing timestamps (none when ``acceleration_sigma`` is None).
+    A factor with the same keys, time steps and sigmas as one made before is that one (it holds no
+    state: the same errors and Jacobians)."""
     if config.acceleration_sigma is None:
         return []
     out = []
@@ -203,8 +212,15 @@ def motion_factors(keyframes: Sequence[WindowKeyframe], config: WindowConfig
             continue
         dt_prev, dt_next = b.timestamp - a.timestamp, c.timestamp - b.timestamp
         if dt_prev > 0 and dt_next > 0:
-            out.append((k, ConstantVelocityFactor(pose_key(a.index), pose_key(b.index), pose_key(c.index),
-                                                  dt_prev, dt_next, *config.acceleration_sigma)))
+            keys = (pose_key(a.index), pose_key(b.index), pose_key(c.index))
+            sigmas = tuple(np.asarray(config.acceleration_sigma, dtype=float).ravel())
+            made = (keys, float(dt_prev), float(dt_next), sigmas)
+            factor = _MOTION.get(made)
+            if factor is None:
+                if len(_MOTION) >= _MAX_MOTION:
+                    _MOTION.clear()
+                factor = _MOTION[made] = ConstantVelocityFactor(*keys, dt_prev, dt_next, *config.acceleration_sigma)
+            out.append((k, factor))
     return out
 
 
