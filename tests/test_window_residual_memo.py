@@ -121,7 +121,7 @@ def test_a_window_solved_from_kept_residuals_is_the_window_solved_without(seq, s
     def run(keep: bool):
         # the same images (the kept residuals apply), the states copied
         kfs = [dataclasses.replace(k, inverse_depth=k.inverse_depth.copy(), affine=k.affine.copy()) for k in base]
-        solver(problem(cam.left, cam.baseline, kfs[:3], cfg))
+        solver(problem(cam.left, cam.baseline, kfs[:3], cfg, keep_residuals=True))
         if not keep:
             residual_memo._PASSES.clear()
         calls = []
@@ -129,7 +129,7 @@ def test_a_window_solved_from_kept_residuals_is_the_window_solved_without(seq, s
         monkeypatch.setattr(host_points.HostPoints, "residuals",
                             lambda self, *a, **k: calls.append(k.get("rows", a[3] if len(a) > 3 else None)) or
                             real(self, *a, **k))
-        res = solver(problem(cam.left, cam.baseline, kfs, cfg))
+        solver(problem(cam.left, cam.baseline, kfs, cfg, keep_residuals=True))
         marginal = marginalize(problem(cam.left, cam.baseline, kfs, cfg), 0)
         monkeypatch.setattr(host_points.HostPoints, "residuals", real)
         residual_memo._PASSES.clear()

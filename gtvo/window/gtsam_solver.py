@@ -45,7 +45,7 @@ def solve_gtsam(problem: WindowProblem) -> WindowResult:
         t_cov = time.perf_counter()
         covs = marginals_of_graph(graph, result, [kf.index for kf in keyframes]) if config.covariances else None
         t_cov = time.perf_counter() - t_cov
-    if problem.settings.jacobian_budget is None:  # the optimum's residuals, for the next pass there
+    if problem.settings.keep_residuals and problem.settings.jacobian_budget is None:  # for the next pass there
         for h, f in hosts.items():
             kept = f.kept_residuals(result, depths[h])
             if kept is not None:

@@ -277,7 +277,7 @@ def solve_handrolled(problem: WindowProblem) -> WindowResult:
             _terms(problem, state, H, g)
             covs = marginals_of_hessian(H, [kf.index for kf in keyframes])
     t_cov = time.perf_counter() - t_cov
-    if problem.settings.jacobian_budget is None:  # the optimum's residuals, for the next pass there
+    if problem.settings.keep_residuals and problem.settings.jacobian_budget is None:  # for the next pass there
         for host in hosts:
             host.remember(state, depths[host.h], state_lins[host.h])
     for k, kf in enumerate(keyframes):

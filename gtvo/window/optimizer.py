@@ -156,8 +156,9 @@ class SlidingWindowOptimizer:
         its keyframes (``targets``: theirs, None: chosen at the first use), its marginalisation
         prior, its sensors (the wheel calibration, the IMU) and ``rig`` (None: no rig variable;
         :meth:`solved_rig`: the window's)."""
+        settings = WindowSettings(self.config, self.photometric, keep_residuals=True)  # gtvo.window.residual_memo
         return WindowProblem.build(WindowMembers(self.camera, self.baseline, self.keyframes, targets),
-                                   WindowSettings(self.config, self.photometric), self.marginal, rig,
+                                   settings, self.marginal, rig,
                                    (self.wheel, self.imu))  # the IMU: gtvo.window.imu
 
     def cost(self) -> float:

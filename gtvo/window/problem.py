@@ -288,6 +288,10 @@ class WindowSettings:
             (:func:`factors.stacked.stacked`: fewer copies of the Values in GTSAM's optimisers).
         on_iteration: called with ``(iteration, cost)`` after every LM iteration (a progress bar,
             a Ctrl-C check); GTSAM's optimiser then runs iteration by iteration.
+        keep_residuals: the solvers keep each host's residuals at the optimum for the next pass
+            there (:mod:`gtvo.window.residual_memo`: the sliding window's next solve, its
+            marginalisation, its rig test); False: nothing kept (a one-off solve, the refinement).
+            Either way a host factor starts from residuals kept at its state.
     """
 
     config: WindowConfig = field(default_factory=WindowConfig)
@@ -295,6 +299,7 @@ class WindowSettings:
     jacobian_budget: JacobianBudget | None = None
     stack: int = 1
     on_iteration: Callable[[int, float], None] | None = None
+    keep_residuals: bool = False
 
 
 class WindowSensor(Protocol):
