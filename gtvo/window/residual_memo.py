@@ -23,7 +23,6 @@ not remember). The kept arrays are read, never written: a new pass writes into i
 
 from __future__ import annotations
 
-import copy
 import weakref
 from dataclasses import dataclass
 from typing import Sequence
@@ -78,6 +77,13 @@ class HostState:
 
 #: per host image (``id``), the residuals of its last remembered pass
 _PASSES: dict[int, _HostPass] = {}
+
+
+def _copy(lin: PhotometricLinearization) -> PhotometricLinearization:
+    """A new linearisation object with the same arrays (a caller may rebind its attributes)."""
+    out = object.__new__(type(lin))
+    out.__dict__.update(lin.__dict__)
+    return out
 
 
 def _matrix_bytes(pose: object) -> bytes:
@@ -157,12 +163,12 @@ def recall(points: HostPoints, host_image: object, state: HostState) -> PassLine
     for t, img in enumerate(points.target_images):
         state = _target_state(points, poses[1 + t], affines[1 + t] if points.with_affine else None)
         hit = next((p for p in entry.targets if p.image() is img and p.state == state), None)
-        kept.append(None if hit is None else copy.copy(hit.lin))
+        kept.append(None if hit is None else _copy(hit.lin))
     has_stereo = points.right_image is not None
     stereo = None
     if (has_stereo and entry.stereo is not None and entry.stereo[0]() is points.right_image
             and entry.stereo[1] == _stereo_key(points, offset)):
-        stereo = copy.copy(entry.stereo[2])
+        stereo = _copy(entry.stereo[2])
     if not any(lin is not None for lin in kept) and stereo is None:
         return None
     missing = [t for t, lin in enumerate(kept) if lin is None] + ([len(kept)] if has_stereo and stereo is None else [])
@@ -175,4 +181,8 @@ def recall(points: HostPoints, host_image: object, state: HostState) -> PassLine
                 else:
                     stereo = calls[-1]()
     items = kept + [stereo]
-    return PassLinearizations(items, np.stack([lin.residual for lin in items if lin is not None]))
+    # as a pass's: the items' residuals are the rows of the stack the point costs read (a copy)
+    stack = np.stack([lin.residual for lin in items if lin is not None])
+    for row, lin in zip(stack, [lin for lin in items if lin is not None]):
+        lin.residual = row
+    return PassLinearizations(items, stack)
