@@ -58,7 +58,7 @@ class _HostPass:
     bearings: FloatArray  #: the host points' bearings (the host samples' array: identity = same points)
     intensity: FloatArray  #: the host intensities at the pattern (the same, by identity)
     state: bytes  #: the host's pose matrix, affine and inverse depths, as bytes
-    targets: tuple[_TargetPass, ...]
+    targets: dict[int, _TargetPass]  #: by ``id`` of the target image
     #: (the right image, the stereo term's key, its residuals); None: none kept
     stereo: tuple[weakref.ref, bytes, PhotometricLinearization] | None
 
@@ -122,9 +122,10 @@ def remember(points: HostPoints, host_image: object, state: HostState, lins: Seq
     if len(lins) != len(points.target_images) + 1 or any(
             lin is None or lin.J_host is None or not lin.has_pair_pose for lin in lins[:-1]):
         return  # not a whole pass with its Jacobians: nothing to reuse
-    targets = tuple(_TargetPass(weakref.ref(img), _target_state(points, poses[1 + t],
-                                                                affines[1 + t] if points.with_affine else None), lin)
-                    for t, (img, lin) in enumerate(zip(points.target_images, lins)))
+    targets = {}
+    for t, (img, lin) in enumerate(zip(points.target_images, lins)):
+        state_t = _target_state(points, poses[1 + t], affines[1 + t] if points.with_affine else None)
+        targets[id(img)] = _TargetPass(weakref.ref(img), state_t, lin)
     stereo = lins[-1]
     kept_stereo = None
     if stereo is not None and (not points.rig or stereo.J_offset is not None):
@@ -161,8 +162,10 @@ def recall(points: HostPoints, host_image: object, state: HostState) -> PassLine
         return None
     kept: list[PhotometricLinearization | None] = []
     for t, img in enumerate(points.target_images):
-        state = _target_state(points, poses[1 + t], affines[1 + t] if points.with_affine else None)
-        hit = next((p for p in entry.targets if p.image() is img and p.state == state), None)
+        hit = entry.targets.get(id(img))
+        if hit is not None and (hit.image() is not img or hit.state != _target_state(
+                points, poses[1 + t], affines[1 + t] if points.with_affine else None)):
+            hit = None
         kept.append(None if hit is None else _copy(hit.lin))
     has_stereo = points.right_image is not None
     stereo = None
