@@ -31,6 +31,7 @@ again returns the cached system: iSAM2 linearises new factors twice).
 from __future__ import annotations
 
 import contextlib
+import functools
 from dataclasses import dataclass
 from typing import Iterator, Sequence
 
@@ -103,6 +104,19 @@ class _Linearization:
     x_poses: list[gtsam.Pose3]
     x_affines: list[FloatArray]
     system: DepthSystem
+
+
+@functools.lru_cache(maxsize=64)
+def _unit_noise(dim: int) -> gtsam.noiseModel.Base:
+    """``gtsam.noiseModel.Unit.Create(dim)``, one per dimension (immutable: the factors share it)."""
+    return gtsam.noiseModel.Unit.Create(dim)
+
+
+@functools.lru_cache(maxsize=64)
+def _column_blocks(n_targets: int, with_affine: bool) -> tuple[NDArray[np.intp], ...]:
+    """:meth:`HostPointsFactor._columns` of every target of a factor with ``n_targets`` targets, made
+    once per shape (the factors of every solve share them: read, never written)."""
+    return tuple(HostPointsFactor._block_columns(t, n_targets, with_affine) for t in range(n_targets))
 
 
 class HostPointsFactor(PythonFactor):
@@ -187,7 +201,7 @@ class HostPointsFactor(PythonFactor):
         nt = len(self.target_keys)
         self.dim = 6 * (1 + nt) + (2 * (1 + nt) if self.with_affine else 0) + 2 * len(self.rig_keys)
         self._rig_columns = np.arange(self.dim - 2, self.dim, dtype=np.intp) if self.rig_keys else None
-        self._column_blocks = [self._columns(t) for t in range(nt)]
+        self._column_blocks = _column_blocks(nt, self.with_affine)
         self._lin: _Linearization | None = None
         self._cached: tuple[FloatArray, list[FloatArray]] | None = None
         self._state_lins: tuple[bytes, list] | None = None  # (state key, lins) of the last evaluation
@@ -198,7 +212,7 @@ class HostPointsFactor(PythonFactor):
         #: the host factors whose residuals a cache miss computes together (:func:`shared_residual_passes`)
         self._group: list | None = None
         self._values_now: gtsam.Values | None = None  # the Values of the evaluation under way (with a group)
-        super().__init__(gtsam.noiseModel.Unit.Create(self.dim + 1), self.pose_keys + self.affine_keys + self.rig_keys)
+        super().__init__(_unit_noise(self.dim + 1), self.pose_keys + self.affine_keys + self.rig_keys)
 
     # --- state -----------------------------------------------------------------------------
     def _read(self, values: gtsam.Values) -> tuple[list[gtsam.Pose3], list[FloatArray]]:
@@ -259,6 +273,30 @@ class HostPointsFactor(PythonFactor):
         e.g. ``gtsam.Marginals``, reuses the residuals of the cost pass there)."""
         poses, affs = self._read(values)
         return np.array(self._depths_at(poses, affs), dtype=float)
+
+    def take_residuals(self, poses: Sequence[gtsam.Pose3], vectors: Sequence[FloatArray], lins: list) -> None:
+        """Take ``lins`` as this factor's residuals at ``poses`` (host first, then the targets) and
+        ``vectors`` (the affines, then the rig offset: the factor's vector variables in key order)
+        with its current inverse depths: its first evaluation there reuses them instead of a pass.
+        They must be what a pass there computes (every target then the stereo term, with
+        Jacobians; a caller keeps them across solves, :mod:`gtvo.window.residual_memo`). Ignored
+        with a :class:`JacobianBudget` (the budget decides what a factor keeps)."""
+        if self._budget is None:
+            self._keep((self._state(list(poses), list(vectors), self.depths), lins))
+
+    def kept_residuals(self, values: gtsam.Values, inverse_depth: FloatArray
+                       ) -> tuple[list[gtsam.Pose3], list[FloatArray], FloatArray | None, list] | None:
+        """``(poses, affines, rig offset or None, residuals)`` of the residuals this factor keeps at
+        ``values`` with ``inverse_depth`` (its last evaluation's, when it was there: e.g. at the
+        optimum after :meth:`depths_at`), or None when it keeps none there."""
+        kept = self._state_lins
+        if kept is None:
+            return None
+        poses, affs = self._read(values)
+        if kept[0] != self._state(poses, affs, np.asarray(inverse_depth, dtype=float)):
+            return None
+        affines, offset = self._split(affs)
+        return poses, affines, offset, kept[1]
 
     def commit(self, values: gtsam.Values) -> FloatArray:
         """Set the inverse depths to those implied at ``values`` (call after optimisation)."""
@@ -378,10 +416,15 @@ class HostPointsFactor(PythonFactor):
         """Reduced-state columns of target t's Gauss-Newton block, in :func:`gauss_newton_sums`'
         order: host pose, [host affine,] target pose[, target affine] (the reduced state holds all
         poses first, then all affines)."""
+        return self._block_columns(t, len(self.target_keys), self.with_affine)
+
+    @staticmethod
+    def _block_columns(t: int, n_targets: int, with_affine: bool) -> NDArray[np.intp]:
+        """:meth:`_columns` of target ``t`` of a factor with ``n_targets`` targets."""
         host_pose, target_pose = list(range(6)), list(range(6 * (1 + t), 6 * (2 + t)))
-        if not self.with_affine:
+        if not with_affine:
             return np.array(host_pose + target_pose, dtype=np.intp)
-        base = 6 * (1 + len(self.target_keys))
+        base = 6 * (1 + n_targets)
         host_aff, target_aff = [base, base + 1], [base + 2 * (1 + t), base + 2 * (1 + t) + 1]
         return np.array(host_pose + host_aff + target_pose + target_aff, dtype=np.intp)
 

@@ -205,3 +205,48 @@ def test_a_jacobian_budget_changes_no_result_and_keeps_what_fits(room):
 def test_a_jacobian_budget_must_not_be_negative():
     with pytest.raises(InputError, match="max_bytes"):
         JacobianBudget(-1)
+
+
+def test_residuals_kept_at_the_optimum_start_another_factor_without_a_pass(monkeypatch):
+    """``kept_residuals`` gives the residuals a factor holds at a state (None elsewhere);
+    ``take_residuals`` lets a new factor at that state start from them: its cost and its first
+    linearisation are the bits of a factor that evaluated them itself, and it evaluates nothing."""
+    import factors.host_points as host_points  # noqa: PLC0415
+
+    f, g, v, poses, d, d0 = _perturbed_smart_graph()
+    cam, _, imgs, px, _, _ = plane_problem()
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(2)
+    res = gtsam.LevenbergMarquardtOptimizer(g, v, params).optimize()
+    d1 = f.depths_at(res)
+    kept = f.kept_residuals(res, d1)
+    assert kept is not None and f.kept_residuals(res, d1 * (1 + 1e-9)) is None and f.kept_residuals(v, d1) is None
+    kept_poses, affines, offset, lins = kept
+    assert len(kept_poses) == 3 and affines == [] and offset is None
+
+    def fresh():
+        return HostPointsFactor(X(0), [X(1), X(2)], cam, px, d1, imgs[0], imgs[1:], 1e-2, huber_k=3.0,
+                                depth_prior=False)
+
+    alone, seeded = fresh(), fresh()
+    seeded.take_residuals(kept_poses, [], lins)
+    e_alone, J_alone = alone.error(res), alone.linearize(res)
+    passes = []
+    monkeypatch.setattr(host_points.HostPoints, "residuals", lambda *a, **k: passes.append(1))
+    e_seeded, J_seeded = seeded.error(res), seeded.linearize(res)
+    assert not passes
+    assert e_seeded == e_alone
+    A1, b1 = J_alone.jacobian()
+    A2, b2 = J_seeded.jacobian()
+    assert np.array_equal(A1, A2) and np.array_equal(b1, b2)
+
+
+def test_factors_of_one_shape_share_their_column_blocks():
+    cam, _, imgs, px, d, _ = plane_problem()
+    one = HostPointsFactor(X(0), [X(1), X(2)], cam, px, d, imgs[0], imgs[1:], 1e-2, affine_host_key=A(0),
+                           affine_target_keys=[A(1), A(2)])
+    two = HostPointsFactor(X(0), [X(1), X(2)], cam, px[:5], d[:5], imgs[0], imgs[1:], 1e-2, affine_host_key=A(0),
+                           affine_target_keys=[A(1), A(2)])
+    assert one._column_blocks is two._column_blocks
+    assert all(np.array_equal(b, one._columns(t)) for t, b in enumerate(one._column_blocks))
+    assert np.array_equal(one._columns(1), np.r_[0:6, 18:20, 12:18, 22:24])

@@ -205,3 +205,20 @@ def test_host_samples_are_kept_per_keyframe_and_checked_at_every_use():
     kf.image = GradientImage(rng.uniform(10, 240, (60, 80)))
     assert host_samples(cam, kf, PATTERN_DSO8) is not b
     assert host_samples(PinholeCamera(100.0, 100.0, 40.0, 30.0, 80, 60), kf, PATTERN_DSO8) is not b
+
+
+def test_problems_over_the_same_keyframes_share_their_motion_factors(seq):  # noqa: F811
+    """A motion factor holds no state: two problems over the same keyframes get the same objects,
+    other time steps another one."""
+    from gtvo.window.problem import motion_factors  # noqa: PLC0415
+
+    kfs = _keyframes(seq, [0, 2, 4, 6], points=30)
+    for i, kf in enumerate(kfs):
+        kf.timestamp = 0.1 * i
+    cfg = WindowConfig()
+    first, second = motion_factors(kfs, cfg), motion_factors(kfs, cfg)
+    assert len(first) == 2 and all(a[1] is b[1] for a, b in zip(first, second))
+    kfs[3].timestamp = 0.35
+    third = motion_factors(kfs, cfg)
+    assert third[0][1] is first[0][1] and third[1][1] is not first[1][1]
+    assert third[1][1].dt == (kfs[2].timestamp - kfs[1].timestamp, kfs[3].timestamp - kfs[2].timestamp)

@@ -13,6 +13,7 @@ from numpy.typing import NDArray
 from factors.smart import shared_residual_passes
 from gtvo.core.kernel_threads import kernel_threads
 from gtvo.core.keys import affine_key, calibration_key, pose_key, rig_offset_key
+from gtvo.window import residual_memo
 from gtvo.window.covariance import marginals_of_graph
 from gtvo.window.config import WindowResult, values_subset
 from gtvo.window.problem import WindowProblem, build_graph, vector_of
@@ -44,6 +45,12 @@ def solve_gtsam(problem: WindowProblem) -> WindowResult:
         t_cov = time.perf_counter()
         covs = marginals_of_graph(graph, result, [kf.index for kf in keyframes]) if config.covariances else None
         t_cov = time.perf_counter() - t_cov
+    if problem.settings.keep_residuals and problem.settings.jacobian_budget is None:  # for the next pass there
+        for h, f in hosts.items():
+            kept = f.kept_residuals(result, depths[h])
+            if kept is not None:
+                state = residual_memo.HostState(kept[0], kept[1], depths[h], kept[2])
+                residual_memo.remember(f.points, keyframes[h].image, state, kept[3])
     for h, d in depths.items():
         keyframes[h].inverse_depth = d
     for kf in keyframes:

@@ -20,9 +20,10 @@ from numpy.typing import NDArray
 from factors.host_points import DepthSystem, HostPoints
 from gtvo.core.keys import affine_key, calibration_key, pose_key, rig_offset_key
 from gtvo.core.timing import stage, timed
+from gtvo.window import residual_memo
 from gtvo.window.covariance import marginals_of_hessian
 from gtvo.window.config import MarginalPrior, WindowResult
-from gtvo.window.problem import WindowProblem, vector_of
+from gtvo.window.problem import WindowProblem, host_samples, vector_of
 
 FloatArray = NDArray[np.float64]
 
@@ -47,20 +48,34 @@ class _WindowHost:
         rig_offset = problem.rig_offset
         kh = keyframes[h]
         self.h, self.targets = h, list(problem.targets[h])
+        self.image = kh.image  # the host's image: its residuals are kept by it
         self.points = HostPoints(problem.camera, kh.pixels, kh.image, [keyframes[t].image for t in self.targets],
                                  kh.variance, kh.prior_inverse_depth, sigma_intensity=photometric.sigma_intensity,
                                  huber_k=photometric.huber_k, pattern=photometric.pattern_array,
                                  depth_prior=kh.depth_prior,
                                  right_image=kh.right, baseline=problem.baseline, lambda_stereo=config.lambda_stereo,
-                                 stereo_affine=kh.stereo_affine, rig=rig_offset is not None)
+                                 stereo_affine=kh.stereo_affine, rig=rig_offset is not None,
+                                 host_samples=host_samples(problem.camera, kh, photometric.pattern_array))
         K = len(keyframes)
         self.rig_columns = np.arange(8 * K, 8 * K + 2) if self.points.rig else None
         # blocks [host pose, host affine, target pose, target affine]: 8 per keyframe
         self.columns = [np.r_[8 * h:8 * h + 8, 8 * t:8 * t + 8] for t in self.targets]
         poses, affines = self._local([k.pose for k in keyframes], [k.affine for k in keyframes])
-        lins = self.points.residuals(poses, affines, kh.inverse_depth, offset=rig_offset)
+        offset = rig_offset if self.points.rig else None  # the stereo term's (its residuals kept by that key)
+        # the residuals an earlier pass computed at this state (gtvo.window.residual_memo), else a pass
+        lins = residual_memo.recall(self.points, kh.image,
+                                    residual_memo.HostState(poses, affines, kh.inverse_depth, offset))
+        if lins is None:
+            lins = self.points.residuals(poses, affines, kh.inverse_depth, offset=rig_offset)
         #: (E, lins) at the window's starting state (W frozen there): the initial cost and the first linearisation
         self.start = (float(self.points.point_costs(lins, kh.inverse_depth).sum()), lins)
+
+    def remember(self, state: "_State", d: FloatArray, lins: list) -> None:
+        """Keep ``lins``, this host's residuals at ``state`` with inverse depths ``d``, for the next
+        pass there (:func:`gtvo.window.residual_memo.remember`)."""
+        P, A = self._local(state.poses, state.affines)
+        offset = state.vectors.get(rig_offset_key()) if self.points.rig else None
+        residual_memo.remember(self.points, self.image, residual_memo.HostState(P, A, d, offset), lins)
 
     def _local(self, poses: Sequence, affines: Sequence) -> tuple[list, list]:
         """The host's and its targets' poses and affines, in :class:`HostPoints`' order."""
@@ -262,6 +277,9 @@ def solve_handrolled(problem: WindowProblem) -> WindowResult:
             _terms(problem, state, H, g)
             covs = marginals_of_hessian(H, [kf.index for kf in keyframes])
     t_cov = time.perf_counter() - t_cov
+    if problem.settings.keep_residuals and problem.settings.jacobian_budget is None:  # for the next pass there
+        for host in hosts:
+            host.remember(state, depths[host.h], state_lins[host.h])
     for k, kf in enumerate(keyframes):
         kf.pose = state.poses[k]
         kf.affine = np.asarray(state.affines[k], dtype=float).copy()

@@ -23,6 +23,7 @@ from factors.params import PhotometricConfig
 from gtvo.window.config import MarginalPrior, WindowConfig, WindowKeyframe, WindowResult, WindowSolverName
 from gtvo.window.gtsam_solver import solve_gtsam
 from gtvo.window.handrolled import solve_handrolled, window_cost
+from gtvo.window import residual_memo
 from gtvo.window.marginal import marginalize
 from gtvo.window.fixed_lag import FixedLagBackend
 from gtvo.window.problem import (RigVariable, SolvableWindow, WindowMembers, WindowProblem, WindowSettings,
@@ -155,8 +156,9 @@ class SlidingWindowOptimizer:
         its keyframes (``targets``: theirs, None: chosen at the first use), its marginalisation
         prior, its sensors (the wheel calibration, the IMU) and ``rig`` (None: no rig variable;
         :meth:`solved_rig`: the window's)."""
+        settings = WindowSettings(self.config, self.photometric, keep_residuals=True)  # gtvo.window.residual_memo
         return WindowProblem.build(WindowMembers(self.camera, self.baseline, self.keyframes, targets),
-                                   WindowSettings(self.config, self.photometric), self.marginal, rig,
+                                   settings, self.marginal, rig,
                                    (self.wheel, self.imu))  # the IMU: gtvo.window.imu
 
     def cost(self) -> float:
@@ -270,7 +272,9 @@ class LMBackend:
         """Marginalise the oldest keyframe into :attr:`marginal` (or drop it, ``marginalize=False``)."""
         if window.config.marginalize:
             self.marginal = marginalize(window.problem(rig=window.solved_rig()), 0)
-        return window.keyframes.pop(0)
+        kf = window.keyframes.pop(0)
+        residual_memo.forget(kf.image)  # its residuals are not needed again
+        return kf
 
     def optimize(self, window: SolvableWindow, targets: list[list[int]],
                  solver: WindowSolverName) -> WindowResult:

@@ -27,6 +27,7 @@ from factors.stacked import stacked
 from gtvo.core.camera import MIN_DEPTH, PinholeCamera
 from gtvo.core.timing import timed
 from gtvo.errors import InputError
+from gtvo.window import residual_memo
 from gtvo.window.config import MarginalPrior, WindowConfig, WindowKeyframe, WindowState
 
 FloatArray = NDArray[np.float64]
@@ -189,10 +190,19 @@ def gauge_noise(config: WindowConfig, dim: int) -> gtsam.noiseModel.Base:
     return gtsam.noiseModel.Isotropic.Sigma(dim, config.gauge_sigma)
 
 
+#: the motion prior's factors made so far, by their keys, time steps and sigmas (a factor is a pure
+#: function of the poses: the window's problems, several per keyframe, share them)
+_MOTION: dict[tuple, ConstantVelocityFactor] = {}
+#: :data:`_MOTION` is emptied beyond this many factors (a window has a few)
+_MAX_MOTION = 64
+
+
 def motion_factors(keyframes: Sequence[WindowKeyframe], config: WindowConfig
                    ) -> list[tuple[int, ConstantVelocityFactor]]:
     """The motion-smoothness prior: ``(k, factor)`` for every three consecutive keyframes
-    ``k, k+1, k+2`` (positions) with increasing timestamps (none when ``acceleration_sigma`` is None)."""
+    ``k, k+1, k+2`` (positions) with increasing timestamps (none when ``acceleration_sigma`` is None).
+    A factor with the same keys, time steps and sigmas as one made before is that one (it holds no
+    state: the same errors and Jacobians)."""
     if config.acceleration_sigma is None:
         return []
     out = []
@@ -202,8 +212,15 @@ def motion_factors(keyframes: Sequence[WindowKeyframe], config: WindowConfig
             continue
         dt_prev, dt_next = b.timestamp - a.timestamp, c.timestamp - b.timestamp
         if dt_prev > 0 and dt_next > 0:
-            out.append((k, ConstantVelocityFactor(pose_key(a.index), pose_key(b.index), pose_key(c.index),
-                                                  dt_prev, dt_next, *config.acceleration_sigma)))
+            keys = (pose_key(a.index), pose_key(b.index), pose_key(c.index))
+            sigmas = tuple(np.asarray(config.acceleration_sigma, dtype=float).ravel())
+            made = (keys, float(dt_prev), float(dt_next), sigmas)
+            factor = _MOTION.get(made)
+            if factor is None:
+                if len(_MOTION) >= _MAX_MOTION:
+                    _MOTION.clear()
+                factor = _MOTION[made] = ConstantVelocityFactor(*keys, dt_prev, dt_next, *config.acceleration_sigma)
+            out.append((k, factor))
     return out
 
 
@@ -271,6 +288,10 @@ class WindowSettings:
             (:func:`factors.stacked.stacked`: fewer copies of the Values in GTSAM's optimisers).
         on_iteration: called with ``(iteration, cost)`` after every LM iteration (a progress bar,
             a Ctrl-C check); GTSAM's optimiser then runs iteration by iteration.
+        keep_residuals: the solvers keep each host's residuals at the optimum for the next pass
+            there (:mod:`gtvo.window.residual_memo`: the sliding window's next solve, its
+            marginalisation, its rig test); False: nothing kept (a one-off solve, the refinement).
+            Either way a host factor starts from residuals kept at its state.
     """
 
     config: WindowConfig = field(default_factory=WindowConfig)
@@ -278,6 +299,7 @@ class WindowSettings:
     jacobian_budget: JacobianBudget | None = None
     stack: int = 1
     on_iteration: Callable[[int, float], None] | None = None
+    keep_residuals: bool = False
 
 
 class WindowSensor(Protocol):
@@ -472,7 +494,7 @@ def host_factor(problem: WindowProblem, h: int, targets: Sequence[int] | None = 
     keyframes, config, photometric = problem.keyframes, problem.config, problem.settings.photometric
     targets = problem.targets[h] if targets is None else targets
     kh = keyframes[h]
-    return HostPointsFactor(
+    factor = HostPointsFactor(
         pose_key(kh.index), [pose_key(keyframes[t].index) for t in targets], problem.camera, kh.pixels,
         kh.inverse_depth, kh.image, [keyframes[t].image for t in targets], kh.variance,
         sigma_intensity=photometric.sigma_intensity, huber_k=photometric.huber_k, affine_host_key=affine_key(kh.index),
@@ -484,6 +506,25 @@ def host_factor(problem: WindowProblem, h: int, targets: Sequence[int] | None = 
         rig_key=rig_offset_key() if problem.rig is not None and kh.right is not None else None,
         jacobian_budget=problem.settings.jacobian_budget,
         host_samples=host_samples(problem.camera, kh, photometric.pattern_array))
+    if problem.settings.jacobian_budget is None:
+        _start_from_kept(problem, h, targets, factor)
+    return factor
+
+
+def _start_from_kept(problem: WindowProblem, h: int, targets: Sequence[int], factor: HostPointsFactor) -> None:
+    """Give ``factor`` (host ``h`` in ``targets``) the residuals at the problem's state that an
+    earlier pass of its host computed there (:func:`gtvo.window.residual_memo.recall`): its
+    first evaluation, at that state, does not compute them again."""
+    keyframes = problem.keyframes
+    members = [keyframes[h]] + [keyframes[t] for t in targets]
+    poses = [kf.pose for kf in members]
+    affines = [kf.affine for kf in members]
+    offset = problem.rig_offset if factor.rig_key is not None else None
+    lins = residual_memo.recall(factor.points, keyframes[h].image,
+                                residual_memo.HostState(poses, affines, factor.depths, offset))
+    if lins is not None:
+        vectors = (affines if factor.with_affine else []) + ([] if offset is None else [offset])
+        factor.take_residuals(poses, vectors, lins)
 
 
 @timed("window_build")
