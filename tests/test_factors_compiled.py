@@ -438,3 +438,50 @@ def test_pair_sums_skip_the_invalid_residuals_to_the_bit():
     every = _compiled_sums.accumulate_pair(*args, np.zeros((0, 1), dtype=bool))
     for a, b in zip(skipped, every):
         assert a.tobytes() == b.tobytes()
+
+
+def _scalar_gram8(J6, J2, weight, residual, J_depth, valid):
+    """:func:`factors._compiled_sums._gram8`'s sums one scalar at a time (Python floats, IEEE doubles),
+    in the order and with the products of ``gram8_add``: the reference its vector lanes must match."""
+    n, p = residual.shape
+    H, g = np.zeros((8, 8)), np.zeros(8)
+    HpdK, H_dd, g_d = np.zeros((n, 8)), np.zeros(n), np.zeros(n)
+    for i in range(n):
+        q, hd, gd = [0.0] * 8, 0.0, 0.0
+        for m in range(p):
+            if not valid[i, m]:
+                continue
+            w, r, jd = float(weight[i, m]), float(residual[i, m]), float(J_depth[i, m])
+            K = [float(x) for x in J6[i, m]] + ([float(x) for x in J2[i, m]] if J2.shape[0] else [0.0, 0.0])
+            for a in range(8):
+                wa = w * K[a]
+                g[a] += wa * r
+                q[a] += wa * jd
+                for b in range(a, 8):
+                    H[a, b] += wa * K[b]
+            hd += w * jd * jd
+            gd += w * jd * r
+        HpdK[i], H_dd[i], g_d[i] = q, hd, gd
+    return H + np.triu(H, 1).T, g, HpdK, H_dd, g_d
+
+
+@pytest.mark.parametrize("with_affine", [True, False])
+@pytest.mark.parametrize("per_point", [True, False])
+@pytest.mark.parametrize("contiguous", [True, False])
+def test_vector_sums_equal_the_scalar_sums_to_the_bit(with_affine, per_point, contiguous):
+    """The Gauss-Newton sums add each residual eight lanes at a time: the same values, byte for byte,
+    as the scalar sums (each a multiplication then an addition, residual after residual), with
+    invalid residuals skipped, with and without affine columns, from strided Jacobians too."""
+    rng = np.random.default_rng(5)
+    n, p = 23, 8
+    big = rng.normal(size=(n, p, 9)) * 10.0 ** rng.integers(-3, 3, size=(n, p, 1))
+    J6 = big[..., :6] if not contiguous else np.ascontiguousarray(big[..., :6])
+    J2 = (big[..., 6:8] if not contiguous else np.ascontiguousarray(big[..., 6:8])) if with_affine else np.zeros((0, 1, 2))
+    weight, residual, J_depth = rng.uniform(0.1, 3.0, (n, p)), rng.normal(size=(n, p)), rng.normal(size=(n, p))
+    valid = rng.uniform(size=(n, p)) > 0.3
+    got = _compiled_sums._gram8(J6, J2, weight, residual, J_depth, per_point, valid)
+    want = _scalar_gram8(J6, J2, weight, residual, J_depth, valid)
+    if not per_point:
+        want = want[:2] + (np.zeros((0, 8)), np.zeros(0), np.zeros(0))
+    for a, b in zip(got, want):
+        assert a.shape == b.shape and a.tobytes() == b.tobytes()
