@@ -1,0 +1,299 @@
+"""Does the same work cost more CPU when both of this machine's cores are busy?
+
+    python benchmarks/core_contention.py [--rounds 3] [--seconds 4] [--kernels warp,arith,python,memory]
+    python benchmarks/core_contention.py --processes [--rounds 2] [--peer DIR]
+
+Kernel mode (the default): a fixed compute kernel run over and over for ``--seconds`` of wall time,
+
+* ``warp``: gtvo's residual kernel (``factors._compiled.warp_into`` through ``photometric_residuals``):
+  2000 StereoSGBM points of KITTI_sequence_1's frame 0 warped into frame 1 with Jacobians;
+* ``arith``: a compiled scalar loop of dependent floating-point arithmetic (registers only);
+* ``python``: an interpreter loop of integer arithmetic (the Python between gtvo's compiled calls);
+* ``memory``: numpy ``a + b -> c`` over three 128 MB arrays (beyond the caches: memory bound),
+
+in three set-ups, alternately (the order turns from round to round):
+
+* ``solo``: one process, on the first core (``taskset -c 0``);
+* ``pair pinned``: two processes at once, ``taskset`` one to each core;
+* ``pair free``: two processes at once, placed by the scheduler.
+
+Each process imports and warms its kernel, then all start together and each counts its repetitions
+and its own CPU time (``time.process_time``) over the same wall interval. The figure is the CPU
+microseconds per repetition (the cost of a fixed piece of work: the kernel is the same in every
+set-up), and its ratio pair / solo. As the machine is shared, a "solo" process may have had the
+other core busy with someone else's work: each pinned process also samples, every 0.25 s, its own
+cost and the other core's busy fraction (``/proc/stat``), and the table fits the cost against that
+fraction (busy / idle: the line at 1 over the line at 0; and the windows above 0.8 over those
+below 0.2). The operating system's own steal time (``/proc/stat``: time
+the hypervisor ran something else on the virtual core; not counted in a process's CPU time on this
+kernel) and the CPU of processes other than ours (the machine is shared) are printed per set-up.
+Hardware counters (``perf stat -e instructions``) are not exposed by this virtual machine.
+
+Process mode (``--processes``): whole programs run on one core (``taskset -c 0``: their threads and
+processes never run at the same time) and on both, alternately, their total CPU (user + sys of
+every thread and waited-for child) compared: ``gtvo run --parallel`` (front end and window worker)
+on KITTI_sequence_1, and ORB-SLAM3 (tracking and local mapping threads; the peer's ``run.py``,
+``benchmarks/vs_orbslam3.py``) if its build is there.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+SHARED = Path(os.environ.get("GTVO_SHARED_DATA", REPO.parent / "shared" / "data"))
+KITTI = SHARED / "kitti_stereo_sample" / "KITTI_sequence_1"
+PEER = SHARED.parent / "peers" / "orbslam3"
+KERNELS = ("warp", "arith", "python", "memory")
+SETUPS = ("solo", "pair pinned", "pair free")
+WINDOW_S = 0.25  #: wall seconds of one sample window in a child
+
+
+# ---------------------------------------------------------------- the kernels (run in a child)
+
+def make_kernel(name: str):
+    """A function doing one repetition of the fixed work ``name`` (set up and warmed here)."""
+    if name == "warp":
+        sys.path.insert(0, str(REPO))
+        import gtsam
+        import numpy as np
+
+        from benchmarks._kitti_sgbm import load_kitti, read_gray, sgbm_keyframe_points
+        from factors.photometric import GradientImage, pattern_bearings, photometric_residuals, sample_host
+        stereo, lefts, rights, gt = load_kitti(KITTI)
+        left0 = read_gray(lefts[0])
+        px, d, _ = sgbm_keyframe_points(left0, read_gray(rights[0]), stereo, 2000)
+        host, target = GradientImage(left0), GradientImage(read_gray(lefts[1]))
+        Ih, hv = sample_host(host, px)
+        f = pattern_bearings(stereo.left, px)
+        Th, Tt = gtsam.Pose3(gt[0]), gtsam.Pose3(gt[1]).retract(np.array([0.002, -0.001, 0.001, 0.02, -0.01, 0.03]))
+
+        def warp() -> None:
+            photometric_residuals(stereo.left, Ih, hv, px, d, Th, Tt, target, bearings=f)
+        return warp
+    if name == "arith":
+        import numba
+
+        @numba.njit(cache=False)
+        def spin(n: int) -> float:
+            x, y = 1.0, 0.5
+            for _ in range(n):
+                x = x * 0.999999 + y * 1e-6
+                y = y * 0.999998 + x * 2e-6
+            return x + y
+        spin(10)
+        return lambda: spin(2_000_000)
+    if name == "python":
+        def loop() -> None:
+            x = 1
+            for i in range(20_000):
+                x = (x * 1103515245 + 12345 + i) & 0xFFFFFFFF
+        return loop
+    if name == "memory":
+        import numpy as np
+        n = 16 * 1024 * 1024  # 128 MB of float64 each
+        a, b, c = np.ones(n), np.full(n, 2.0), np.empty(n)
+
+        def stream() -> None:
+            np.add(a, b, out=c)
+        return stream
+    raise ValueError(f"unknown kernel {name!r}")
+
+
+def cpu_busy() -> list[int]:
+    """Busy ticks (user, nice, system, irq, softirq) of each core, from ``/proc/stat``."""
+    with open("/proc/stat") as fh:
+        lines = [ln.split() for ln in fh if ln.startswith("cpu") and ln[3].isdigit()]
+    return [sum(int(x) for x in (v[1], v[2], v[3], v[6], v[7])) for v in lines]
+
+
+def child(name: str, seconds: float) -> None:
+    """Set up ``name``, warm it, say ``ready``, wait for the go line, then run it for ``seconds``,
+    in windows of ``WINDOW_S``: each window's repetitions, own CPU, wall and the cores' busy ticks."""
+    fn = make_kernel(name)
+    for _ in range(3):
+        fn()
+    print("ready", flush=True)
+    sys.stdin.readline()
+    w0, c0 = time.perf_counter(), time.process_time()
+    deadline = w0 + seconds
+    windows = []
+    while time.perf_counter() < deadline:
+        ws, cs, bs = time.perf_counter(), time.process_time(), cpu_busy()
+        reps = 0
+        while time.perf_counter() - ws < WINDOW_S:
+            fn()
+            reps += 1
+        windows.append({"reps": reps, "cpu_s": time.process_time() - cs, "wall_s": time.perf_counter() - ws,
+                        "busy": [b - a for a, b in zip(bs, cpu_busy())], })
+    reps = sum(w["reps"] for w in windows)
+    print(json.dumps({"reps": reps, "cpu_s": time.process_time() - c0, "wall_s": time.perf_counter() - w0,
+                      "windows": windows}), flush=True)
+
+
+# ---------------------------------------------------------------- the parent
+
+def proc_stat() -> tuple[int, int]:
+    """(busy ticks of both cores, steal ticks) from ``/proc/stat``."""
+    with open("/proc/stat") as fh:
+        v = [int(x) for x in fh.readline().split()[1:]]
+    user, nice, system, idle, iowait, irq, softirq, steal = v[:8]
+    return user + nice + system + irq + softirq, steal
+
+
+def run_setup(kernel: str, setup: str, seconds: float) -> dict:
+    """One set-up of one kernel: its processes' repetitions and CPU, the steal and the others' CPU."""
+    n = 1 if setup == "solo" else 2
+    cmds = []
+    for i in range(n):
+        pin = ["taskset", "-c", str(i)] if setup != "pair free" else []
+        cmds.append(pin + [sys.executable, __file__, "--child", kernel, "--seconds", str(seconds)])
+    procs = [subprocess.Popen(c, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True) for c in cmds]
+    for p in procs:
+        if p.stdout.readline().strip() != "ready":
+            raise RuntimeError(f"{kernel}: a child did not start")
+    hz = os.sysconf("SC_CLK_TCK")
+    b0, s0 = proc_stat()
+    for p in procs:
+        p.stdin.write("go\n")
+        p.stdin.flush()
+    out = [json.loads(p.stdout.readline()) for p in procs]
+    b1, s1 = proc_stat()
+    for p in procs:
+        p.wait()
+    ours = sum(o["cpu_s"] for o in out)
+    wall = max(o["wall_s"] for o in out)
+    samples = []  # (the other core's busy fraction, us CPU per rep) of each window of a pinned child
+    if setup != "pair free":
+        for i, o in enumerate(out):
+            samples += [(w["busy"][1 - i] / hz / w["wall_s"], 1e6 * w["cpu_s"] / w["reps"]) for w in o["windows"] if w["reps"]]
+    return {"us_per_rep": statistics.mean(1e6 * o["cpu_s"] / o["reps"] for o in out), "samples": samples,
+            "cpu_per_wall": ours / wall / n,
+            "steal": (s1 - s0) / hz / wall, "others": max(0.0, (b1 - b0) / hz - ours) / wall}
+
+
+def busy_ratio(samples: list[tuple[float, float]]) -> str:
+    """The CPU per repetition with the other core busy over that with it idle: the least-squares line
+    of cost against the other core's busy fraction, at 1 over at 0; and the mean cost of the windows
+    with the other core above 0.8 busy over that of those below 0.2 (their counts)."""
+    import numpy as np
+    if len(samples) < 3:
+        return "n/a"
+    x, y = np.array(samples).T
+    x = np.clip(x, 0.0, 1.0)
+    b, a = np.polyfit(x, y, 1)
+    lo, hi = y[x < 0.2], y[x > 0.8]
+    bins = f"{hi.mean() / lo.mean():.2f} ({len(hi)}/{len(lo)})" if len(lo) and len(hi) else f"n/a ({len(hi)}/{len(lo)})"
+    return f"{(a + b) / a:.2f}; {bins}"
+
+
+def kernels_mode(a: argparse.Namespace) -> int:
+    kernels = [k.strip() for k in a.kernels.split(",") if k.strip()]
+    bad = [k for k in kernels if k not in KERNELS]
+    if bad:
+        print(f"core_contention: error: unknown kernel {bad[0]!r} (use {', '.join(KERNELS)})", file=sys.stderr)
+        return 2
+    res: dict = {k: {s: [] for s in SETUPS} for k in kernels}
+    print(f"load average before: {os.getloadavg()[0]:.2f}; {os.cpu_count()} cores; {a.seconds} s per set-up", flush=True)
+    for r in range(a.rounds):
+        order = SETUPS if r % 2 == 0 else SETUPS[::-1]
+        for k in kernels:
+            for s in order:
+                x = run_setup(k, s, a.seconds)
+                res[k][s].append(x)
+                print(f"round {r + 1} {k:6s} {s:11s}: {x['us_per_rep']:9.1f} us CPU/rep, CPU/wall {x['cpu_per_wall']:.2f}, "
+                      f"steal {x['steal']:.2f} cores, others {x['others']:.2f} cores", flush=True)
+    print(f"load average after: {os.getloadavg()[0]:.2f}\n")
+    print("| kernel | solo us CPU/rep | pair pinned / solo | pair free / solo | other core busy / idle (fit; windows) "
+          "| steal (cores) solo, pair | others' CPU (cores) |")
+    print("|---|---|---|---|---|---|---|")
+    for k in kernels:
+        solo = [x["us_per_rep"] for x in res[k]["solo"]]
+        ratios = {}
+        for s in SETUPS[1:]:
+            rr = [x["us_per_rep"] / y for x, y in zip(res[k][s], solo)]
+            ratios[s] = f"{statistics.median(rr):.2f} ({min(rr):.2f}-{max(rr):.2f})"
+        st = [statistics.mean(x["steal"] for x in res[k][s]) for s in ("solo", "pair pinned")]
+        ot = max(x["others"] for s in SETUPS for x in res[k][s])
+        fit = busy_ratio([xy for s in SETUPS for x in res[k][s] for xy in x["samples"]])
+        print(f"| {k} | {statistics.median(solo):.0f} ({min(solo):.0f}-{max(solo):.0f}) | {ratios['pair pinned']} | "
+              f"{ratios['pair free']} | {fit} | {st[0]:.2f}, {st[1]:.2f} | <= {ot:.2f} |")
+    return 0
+
+
+def timed(cmd: list[str], env: dict | None = None) -> tuple[int, float, float]:
+    """(exit code, wall s, CPU s of the process and the children it waited for)."""
+    t0 = time.perf_counter()
+    p = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    _, status, usage = os.wait4(p.pid, 0)
+    return os.waitstatus_to_exitcode(status), time.perf_counter() - t0, usage.ru_utime + usage.ru_stime
+
+
+def processes_mode(a: argparse.Namespace) -> int:
+    tmp = Path(tempfile.mkdtemp(prefix="core_contention_"))
+    env = dict(os.environ, PYTHONPATH=str(REPO), MPLBACKEND="Agg")
+    progs = {"gtvo run --parallel": lambda out: ([sys.executable, "-m", "gtvo", "run", str(KITTI), "--out", str(out),
+                                                  "--no-progress", "--parallel"], env)}
+    build = a.build if a.build is not None else Path("/tmp/peer-orbslam3")
+    if (a.peer / "run.py").exists() and build.exists():
+        progs["ORB-SLAM3"] = lambda out: ([sys.executable, str(a.peer / "run.py"), "--dataset", str(KITTI), "--runs", "1",
+                                           "--out", str(out), "--build", str(build)], None)
+    else:
+        print(f"ORB-SLAM3 skipped: no {a.peer / 'run.py'} or no build at {build}")
+    res: dict = {p: {"one core": [], "two cores": []} for p in progs}
+    print(f"load average before: {os.getloadavg()[0]:.2f}", flush=True)
+    for r in range(a.rounds):
+        order = ("one core", "two cores") if r % 2 == 0 else ("two cores", "one core")
+        for name, make in progs.items():
+            for s in order:
+                out = tmp / f"{name.split()[0]}_{s.replace(' ', '_')}_{r}"
+                cmd, e = make(out)
+                pin = ["taskset", "-c", "0"] if s == "one core" else []
+                code, wall, cpu = timed(pin + cmd, e)
+                if name == "ORB-SLAM3" and code == 0:
+                    cpu = json.loads((out / "results.json").read_text())["runs"][0]["process_cpu_s"]
+                res[name][s].append(None if code else cpu)
+                print(f"round {r + 1} {name} {s}: exit {code}, wall {wall:.2f} s, CPU {cpu:.2f} s", flush=True)
+    print(f"load average after: {os.getloadavg()[0]:.2f}\n")
+    print("| program | CPU s one core | CPU s two cores | two / one (per round) |")
+    print("|---|---|---|---|")
+    for name in progs:
+        one, two = res[name]["one core"], res[name]["two cores"]
+        rr = [y / x for x, y in zip(one, two) if x and y]
+        if not rr:
+            print(f"| {name} | failed | failed | n/a |")
+            continue
+        print(f"| {name} | {statistics.median([x for x in one if x]):.2f} | {statistics.median([y for y in two if y]):.2f} | "
+              f"{statistics.median(rr):.2f} ({min(rr):.2f}-{max(rr):.2f}) |")
+    return 0
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--seconds", type=float, default=4.0, help="wall seconds per set-up and kernel (default 4)")
+    ap.add_argument("--kernels", default=",".join(KERNELS), help=f"comma-separated, of {', '.join(KERNELS)}")
+    ap.add_argument("--processes", action="store_true", help="whole programs on one core against two (see above)")
+    ap.add_argument("--peer", type=Path, default=PEER, help=f"the ORB-SLAM3 peer folder (default {PEER})")
+    ap.add_argument("--build", type=Path, default=None, help="the peer's build folder (default /tmp/peer-orbslam3)")
+    ap.add_argument("--child", default=None, help=argparse.SUPPRESS)
+    a = ap.parse_args()
+    if a.child:
+        child(a.child, a.seconds)
+        return 0
+    if a.rounds < 1 or a.seconds <= 0:
+        print("core_contention: error: --rounds must be >= 1 and --seconds > 0", file=sys.stderr)
+        return 2
+    return processes_mode(a) if a.processes else kernels_mode(a)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
