@@ -31,9 +31,12 @@ Hardware counters (``perf stat -e instructions``) are not exposed by this virtua
 
 Process mode (``--processes``): whole programs run on one core (``taskset -c 0``: their threads and
 processes never run at the same time) and on both, alternately, their total CPU (user + sys of
-every thread and waited-for child) compared: ``gtvo run --parallel`` (front end and window worker)
-on KITTI_sequence_1, and ORB-SLAM3 (tracking and local mapping threads; the peer's ``run.py``,
-``benchmarks/vs_orbslam3.py``) if its build is there.
+every thread and waited-for child) and minor page faults compared: ``gtvo run`` on KITTI_sequence_1
+with ``--no-parallel``, ``window.parallel: auto`` and ``--parallel`` (front end and window worker),
+and ORB-SLAM3 (tracking and local mapping threads; the peer's ``run.py``, as
+``benchmarks/vs_orbslam3.py`` runs it) if its build is there. A program whose CPU is the same on
+one core as on two pays nothing for running its parts at once; the same work done on one core
+cannot have been slowed by the other core.
 """
 
 from __future__ import annotations
@@ -229,21 +232,27 @@ def kernels_mode(a: argparse.Namespace) -> int:
     return 0
 
 
-def timed(cmd: list[str], env: dict | None = None) -> tuple[int, float, float]:
-    """(exit code, wall s, CPU s of the process and the children it waited for)."""
+def timed(cmd: list[str], env: dict | None = None) -> dict:
+    """Exit code, wall s, CPU s (user, sys) and minor page faults of the process and the children it waited for."""
     t0 = time.perf_counter()
     p = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    _, status, usage = os.wait4(p.pid, 0)
-    return os.waitstatus_to_exitcode(status), time.perf_counter() - t0, usage.ru_utime + usage.ru_stime
+    _, status, ru = os.wait4(p.pid, 0)
+    return {"code": os.waitstatus_to_exitcode(status), "wall": time.perf_counter() - t0, "user": ru.ru_utime,
+            "sys": ru.ru_stime, "cpu": ru.ru_utime + ru.ru_stime, "minflt": ru.ru_minflt}
 
 
 def processes_mode(a: argparse.Namespace) -> int:
     tmp = Path(tempfile.mkdtemp(prefix="core_contention_"))
     env = dict(os.environ, PYTHONPATH=str(REPO), MPLBACKEND="Agg")
-    progs = {"gtvo run --parallel": lambda out: ([sys.executable, "-m", "gtvo", "run", str(KITTI), "--out", str(out),
-                                                  "--no-progress", "--parallel"], env)}
+    auto = tmp / "auto.yaml"
+    auto.write_text("window:\n  parallel: auto\n")
+    gtvo = [sys.executable, "-m", "gtvo", "run", str(KITTI), "--no-progress"]
+    progs = {}
+    for mode in a.gtvo_modes.split(","):
+        extra = {"no-parallel": ["--no-parallel"], "auto": ["--config", str(auto)], "parallel": ["--parallel"]}[mode]
+        progs[f"gtvo {mode}"] = lambda out, extra=extra: (gtvo + ["--out", str(out)] + extra, env)
     build = a.build if a.build is not None else Path("/tmp/peer-orbslam3")
-    if (a.peer / "run.py").exists() and build.exists():
+    if (a.peer / "run.py").exists() and (build / "venv").exists():
         progs["ORB-SLAM3"] = lambda out: ([sys.executable, str(a.peer / "run.py"), "--dataset", str(KITTI), "--runs", "1",
                                            "--out", str(out), "--build", str(build)], None)
     else:
@@ -252,27 +261,33 @@ def processes_mode(a: argparse.Namespace) -> int:
     print(f"load average before: {os.getloadavg()[0]:.2f}", flush=True)
     for r in range(a.rounds):
         order = ("one core", "two cores") if r % 2 == 0 else ("two cores", "one core")
-        for name, make in progs.items():
+        names = list(progs) if r % 2 == 0 else list(progs)[::-1]
+        for name in names:
             for s in order:
-                out = tmp / f"{name.split()[0]}_{s.replace(' ', '_')}_{r}"
-                cmd, e = make(out)
+                out = tmp / f"{name.replace(' ', '_')}_{s.replace(' ', '_')}_{r}"
+                cmd, e = progs[name](out)
                 pin = ["taskset", "-c", "0"] if s == "one core" else []
-                code, wall, cpu = timed(pin + cmd, e)
-                if name == "ORB-SLAM3" and code == 0:
-                    cpu = json.loads((out / "results.json").read_text())["runs"][0]["process_cpu_s"]
-                res[name][s].append(None if code else cpu)
-                print(f"round {r + 1} {name} {s}: exit {code}, wall {wall:.2f} s, CPU {cpu:.2f} s", flush=True)
+                x = timed(pin + cmd, e)
+                if x["code"] == 0 and name == "ORB-SLAM3":
+                    run = json.loads((out / "results.json").read_text())["runs"][0]
+                    x["cpu"], x["fps"] = run["process_cpu_s"], run["fps"]  # its worker process, not run.py's
+                elif x["code"] == 0:
+                    x["fps"] = json.loads((out / "report.json").read_text())["frames_per_second"]
+                res[name][s].append(x if x["code"] == 0 else None)
+                print(f"round {r + 1} {name} {s}: exit {x['code']}, wall {x['wall']:.2f} s, CPU {x['cpu']:.2f} s "
+                      f"(sys {x['sys']:.2f}), minor faults {x['minflt']}, load {os.getloadavg()[0]:.1f}", flush=True)
     print(f"load average after: {os.getloadavg()[0]:.2f}\n")
-    print("| program | CPU s one core | CPU s two cores | two / one (per round) |")
-    print("|---|---|---|---|")
+    print("| program | CPU s one core | CPU s two cores | two / one (per round) | sys s one, two | minor faults one, two |")
+    print("|---|---|---|---|---|---|")
     for name in progs:
-        one, two = res[name]["one core"], res[name]["two cores"]
-        rr = [y / x for x, y in zip(one, two) if x and y]
-        if not rr:
-            print(f"| {name} | failed | failed | n/a |")
+        pairs = [(x, y) for x, y in zip(res[name]["one core"], res[name]["two cores"]) if x and y]
+        if not pairs:
+            print(f"| {name} | failed | failed | n/a | | |")
             continue
-        print(f"| {name} | {statistics.median([x for x in one if x]):.2f} | {statistics.median([y for y in two if y]):.2f} | "
-              f"{statistics.median(rr):.2f} ({min(rr):.2f}-{max(rr):.2f}) |")
+        rr = [y["cpu"] / x["cpu"] for x, y in pairs]
+        med = lambda k, i: statistics.median(p[i][k] for p in pairs)  # noqa: E731
+        print(f"| {name} | {med('cpu', 0):.2f} | {med('cpu', 1):.2f} | {statistics.median(rr):.2f} ({min(rr):.2f}-{max(rr):.2f}) | "
+              f"{med('sys', 0):.2f}, {med('sys', 1):.2f} | {med('minflt', 0):.0f}, {med('minflt', 1):.0f} |")
     return 0
 
 
@@ -282,6 +297,8 @@ def main() -> int:
     ap.add_argument("--seconds", type=float, default=4.0, help="wall seconds per set-up and kernel (default 4)")
     ap.add_argument("--kernels", default=",".join(KERNELS), help=f"comma-separated, of {', '.join(KERNELS)}")
     ap.add_argument("--processes", action="store_true", help="whole programs on one core against two (see above)")
+    ap.add_argument("--gtvo-modes", default="no-parallel,auto,parallel",
+                    help="gtvo run's window.parallel modes in --processes (default no-parallel,auto,parallel)")
     ap.add_argument("--peer", type=Path, default=PEER, help=f"the ORB-SLAM3 peer folder (default {PEER})")
     ap.add_argument("--build", type=Path, default=None, help="the peer's build folder (default /tmp/peer-orbslam3)")
     ap.add_argument("--child", default=None, help=argparse.SUPPRESS)
