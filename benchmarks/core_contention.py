@@ -54,6 +54,7 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 SHARED = Path(os.environ.get("GTVO_SHARED_DATA", REPO.parent / "shared" / "data"))
 KITTI = SHARED / "kitti_stereo_sample" / "KITTI_sequence_1"
+LOGS = {"kitti": KITTI, "raw": SHARED / "kitti_raw_2011_09_26_drive_0001_stereo"}
 PEER = SHARED.parent / "peers" / "orbslam3"
 KERNELS = ("warp", "arith", "python", "memory")
 SETUPS = ("solo", "pair pinned", "pair free")
@@ -70,7 +71,12 @@ def make_kernel(name: str):
         import numpy as np
 
         from benchmarks._kitti_sgbm import load_kitti, read_gray, sgbm_keyframe_points
-        from factors.photometric import GradientImage, pattern_bearings, photometric_residuals, sample_host
+        from factors.photometric import (
+            GradientImage,
+            pattern_bearings,
+            photometric_residuals,
+            sample_host,
+        )
         stereo, lefts, rights, gt = load_kitti(KITTI)
         left0 = read_gray(lefts[0])
         px, d, _ = sgbm_keyframe_points(left0, read_gray(rights[0]), stereo, 2000)
@@ -148,7 +154,7 @@ def proc_stat() -> tuple[int, int]:
     """(busy ticks of both cores, steal ticks) from ``/proc/stat``."""
     with open("/proc/stat") as fh:
         v = [int(x) for x in fh.readline().split()[1:]]
-    user, nice, system, idle, iowait, irq, softirq, steal = v[:8]
+    user, nice, system, _idle, _iowait, irq, softirq, steal = v[:8]
     return user + nice + system + irq + softirq, steal
 
 
@@ -192,8 +198,10 @@ def busy_ratio(samples: list[tuple[float, float]]) -> str:
         return "n/a"
     x, y = np.array(samples).T
     x = np.clip(x, 0.0, 1.0)
-    b, a = np.polyfit(x, y, 1)
     lo, hi = y[x < 0.2], y[x > 0.8]
+    if len(lo) < 3 or len(hi) < 3:  # no contrast: a line through one end says nothing
+        return f"n/a ({len(hi)}/{len(lo)})"
+    b, a = np.polyfit(x, y, 1)
     bins = f"{hi.mean() / lo.mean():.2f} ({len(hi)}/{len(lo)})" if len(lo) and len(hi) else f"n/a ({len(hi)}/{len(lo)})"
     return f"{(a + b) / a:.2f}; {bins}"
 
@@ -232,6 +240,41 @@ def kernels_mode(a: argparse.Namespace) -> int:
     return 0
 
 
+def sample_mode(a: argparse.Namespace) -> int:
+    """``--sample``: the kernels on the first core, one window of ``WINDOW_S`` each in turn, one
+    window in ``1 / --duty`` of the time (a light load), each window's cost against the other
+    core's busy fraction; the contrast a shared machine gives whenever the other core idles."""
+    kernels = [k.strip() for k in a.kernels.split(",") if k.strip()]
+    os.sched_setaffinity(0, {0})
+    fns = {k: make_kernel(k) for k in kernels}
+    for fn in fns.values():
+        fn()
+    hz = os.sysconf("SC_CLK_TCK")
+    samples: dict = {k: [] for k in kernels}
+    end = time.perf_counter() + a.sample
+    print(f"sampling {a.sample:.0f} s, duty {a.duty:g}, load {os.getloadavg()[0]:.2f}", flush=True)
+    while time.perf_counter() < end:
+        for k, fn in fns.items():
+            ws, cs, bs = time.perf_counter(), time.process_time(), cpu_busy()
+            reps = 0
+            while time.perf_counter() - ws < WINDOW_S:
+                fn()
+                reps += 1
+            wall = time.perf_counter() - ws
+            busy = [b - x for x, b in zip(bs, cpu_busy())]
+            samples[k].append((busy[1] / hz / wall, 1e6 * (time.process_time() - cs) / reps))
+            time.sleep(WINDOW_S * (1.0 / a.duty - 1.0))
+        if a.out:  # so far (a long sampling may be read before it ends)
+            Path(a.out).write_text(json.dumps(samples))
+    print("| kernel | us CPU/rep, median | other core busy / idle (fit; windows >0.8/<0.2) |")
+    print("|---|---|---|")
+    for k in kernels:
+        print(f"| {k} | {statistics.median(y for _, y in samples[k]):.0f} | {busy_ratio(samples[k])} |")
+    if a.out:
+        Path(a.out).write_text(json.dumps(samples))
+    return 0
+
+
 def timed(cmd: list[str], env: dict | None = None) -> dict:
     """Exit code, wall s, CPU s (user, sys) and minor page faults of the process and the children it waited for."""
     t0 = time.perf_counter()
@@ -246,21 +289,25 @@ def processes_mode(a: argparse.Namespace) -> int:
     env = dict(os.environ, PYTHONPATH=str(REPO), MPLBACKEND="Agg")
     auto = tmp / "auto.yaml"
     auto.write_text("window:\n  parallel: auto\n")
-    gtvo = [sys.executable, "-m", "gtvo", "run", str(KITTI), "--no-progress"]
+    log = LOGS[a.log]
+    gtvo = [sys.executable, "-m", "gtvo", "run", str(log), "--no-progress"]
     progs = {}
     for mode in a.gtvo_modes.split(","):
         extra = {"no-parallel": ["--no-parallel"], "auto": ["--config", str(auto)], "parallel": ["--parallel"]}[mode]
         progs[f"gtvo {mode}"] = lambda out, extra=extra: (gtvo + ["--out", str(out)] + extra, env)
     build = a.build if a.build is not None else Path("/tmp/peer-orbslam3")
-    if (a.peer / "run.py").exists() and (build / "venv").exists():
-        progs["ORB-SLAM3"] = lambda out: ([sys.executable, str(a.peer / "run.py"), "--dataset", str(KITTI), "--runs", "1",
+    if a.no_peer:
+        pass
+    elif (a.peer / "run.py").exists() and (build / "venv").exists():
+        progs["ORB-SLAM3"] = lambda out: ([sys.executable, str(a.peer / "run.py"), "--dataset", str(log), "--runs", "1",
                                            "--out", str(out), "--build", str(build)], None)
     else:
         print(f"ORB-SLAM3 skipped: no {a.peer / 'run.py'} or no build at {build}")
-    res: dict = {p: {"one core": [], "two cores": []} for p in progs}
-    print(f"load average before: {os.getloadavg()[0]:.2f}", flush=True)
+    setups = [f"{c} core{'s' if c == 'two' else ''}" for c in a.cores.split(",")]
+    res: dict = {p: {s: [] for s in setups} for p in progs}
+    print(f"{log.name}; load average before: {os.getloadavg()[0]:.2f}", flush=True)
     for r in range(a.rounds):
-        order = ("one core", "two cores") if r % 2 == 0 else ("two cores", "one core")
+        order = setups if r % 2 == 0 else setups[::-1]
         names = list(progs) if r % 2 == 0 else list(progs)[::-1]
         for name in names:
             for s in order:
@@ -274,9 +321,25 @@ def processes_mode(a: argparse.Namespace) -> int:
                 elif x["code"] == 0:
                     x["fps"] = json.loads((out / "report.json").read_text())["frames_per_second"]
                 res[name][s].append(x if x["code"] == 0 else None)
-                print(f"round {r + 1} {name} {s}: exit {x['code']}, wall {x['wall']:.2f} s, CPU {x['cpu']:.2f} s "
+                print(f"round {r + 1} {name} {s}: exit {x['code']}, {x.get('fps', 0):.2f} frames/s, wall {x['wall']:.2f} s, CPU {x['cpu']:.2f} s "
                       f"(sys {x['sys']:.2f}), minor faults {x['minflt']}, load {os.getloadavg()[0]:.1f}", flush=True)
     print(f"load average after: {os.getloadavg()[0]:.2f}\n")
+    if len(setups) == 1:  # the programs against the first one, per round (frames/s and CPU)
+        first = next(iter(progs))
+        print(f"| program | frames/s | x {first} (per round) | CPU s | x {first} (per round) |")
+        print("|---|---|---|---|---|")
+        for name in progs:
+            pairs = [(x, y) for x, y in zip(res[first][setups[0]], res[name][setups[0]]) if x and y]
+            if not pairs:
+                print(f"| {name} | failed | | | |")
+                continue
+            cells = []
+            for k in ("fps", "cpu"):
+                rr = [y[k] / x[k] for x, y in pairs]
+                cells.append(f"{statistics.median(y[k] for _, y in pairs):.2f} | {statistics.median(rr):.3f} "
+                             f"({min(rr):.3f}-{max(rr):.3f})")
+            print(f"| {name} | {cells[0]} | {cells[1]} |")
+        return 0
     print("| program | CPU s one core | CPU s two cores | two / one (per round) | sys s one, two | minor faults one, two |")
     print("|---|---|---|---|---|---|")
     for name in progs:
@@ -285,7 +348,8 @@ def processes_mode(a: argparse.Namespace) -> int:
             print(f"| {name} | failed | failed | n/a | | |")
             continue
         rr = [y["cpu"] / x["cpu"] for x, y in pairs]
-        med = lambda k, i: statistics.median(p[i][k] for p in pairs)  # noqa: E731
+        def med(k: str, i: int, pairs: list = pairs) -> float:
+            return statistics.median(p[i][k] for p in pairs)
         print(f"| {name} | {med('cpu', 0):.2f} | {med('cpu', 1):.2f} | {statistics.median(rr):.2f} ({min(rr):.2f}-{max(rr):.2f}) | "
               f"{med('sys', 0):.2f}, {med('sys', 1):.2f} | {med('minflt', 0):.0f}, {med('minflt', 1):.0f} |")
     return 0
@@ -299,8 +363,15 @@ def main() -> int:
     ap.add_argument("--processes", action="store_true", help="whole programs on one core against two (see above)")
     ap.add_argument("--gtvo-modes", default="no-parallel,auto,parallel",
                     help="gtvo run's window.parallel modes in --processes (default no-parallel,auto,parallel)")
+    ap.add_argument("--cores", default="one,two", help="--processes: the set-ups, of one (taskset -c 0), two")
+    ap.add_argument("--log", default="kitti", choices=sorted(LOGS), help="--processes: the log (default kitti)")
+    ap.add_argument("--no-peer", action="store_true", help="--processes: without ORB-SLAM3")
     ap.add_argument("--peer", type=Path, default=PEER, help=f"the ORB-SLAM3 peer folder (default {PEER})")
     ap.add_argument("--build", type=Path, default=None, help="the peer's build folder (default /tmp/peer-orbslam3)")
+    ap.add_argument("--sample", type=float, default=0.0, metavar="SECONDS",
+                    help="sample the kernels on the first core at a low duty for SECONDS (see sample_mode)")
+    ap.add_argument("--duty", type=float, default=0.125, help="--sample: the fraction of the time spent sampling")
+    ap.add_argument("--out", default=None, help="--sample: write the samples (JSON) here")
     ap.add_argument("--child", default=None, help=argparse.SUPPRESS)
     a = ap.parse_args()
     if a.child:
@@ -309,6 +380,8 @@ def main() -> int:
     if a.rounds < 1 or a.seconds <= 0:
         print("core_contention: error: --rounds must be >= 1 and --seconds > 0", file=sys.stderr)
         return 2
+    if a.sample > 0:
+        return sample_mode(a)
     return processes_mode(a) if a.processes else kernels_mode(a)
 
 
