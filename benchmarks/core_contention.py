@@ -59,6 +59,7 @@ PEER = SHARED.parent / "peers" / "orbslam3"
 KERNELS = ("warp", "arith", "python", "memory")
 SETUPS = ("solo", "pair pinned", "pair free")
 WINDOW_S = 0.25  #: wall seconds of one sample window in a child
+HALF_PERIOD_S = 0.5  #: ``--toggle``: the second core's process is on, then off, for this long each
 
 
 # ---------------------------------------------------------------- the kernels (run in a child)
@@ -146,6 +147,70 @@ def child(name: str, seconds: float) -> None:
     reps = sum(w["reps"] for w in windows)
     print(json.dumps({"reps": reps, "cpu_s": time.process_time() - c0, "wall_s": time.perf_counter() - w0,
                       "windows": windows}), flush=True)
+
+
+def toggle_child(name: str, seconds: float, role: str) -> None:
+    """``--toggle``'s processes: ``measure`` runs ``name`` without a pause and records its cost per
+    half period; ``toggle`` runs it in the even half periods and sleeps in the odd ones. Both count
+    the half periods from the same start (the go line's monotonic time, shared by the processes)."""
+    fn = make_kernel(name)
+    for _ in range(3):
+        fn()
+    print("ready", flush=True)
+    t0 = float(sys.stdin.readline())
+    halves = int(seconds / HALF_PERIOD_S)
+    while time.perf_counter() < t0:
+        time.sleep(0.001)
+    out = []
+    for k in range(halves):
+        end = t0 + (k + 1) * HALF_PERIOD_S
+        if role == "toggle" and k % 2:
+            time.sleep(max(0.0, end - time.perf_counter()))
+            continue
+        c, reps = time.process_time(), 0
+        while time.perf_counter() < end:
+            fn()
+            reps += 1
+        out.append((k, reps, time.process_time() - c))
+    print(json.dumps(out), flush=True)
+
+
+def toggle_mode(a: argparse.Namespace) -> int:
+    """``--toggle``: the same kernel on the first core without a pause, and on the second core on
+    and off every :data:`HALF_PERIOD_S`; the first core's cost per repetition in the halves with the
+    second core on over the halves around them with it off (the machine's own drift, slower than a
+    second, cancels in each pair)."""
+    kernels = [k.strip() for k in a.kernels.split(",") if k.strip()]
+    print(f"load average before: {os.getloadavg()[0]:.2f}; {a.seconds:g} s per kernel, halves of {HALF_PERIOD_S} s", flush=True)
+    print("| kernel | us CPU/rep, other core off | on / off (median of pairs, quartiles) | pairs |")
+    print("|---|---|---|---|")
+    for k in kernels:
+        procs = [subprocess.Popen(["taskset", "-c", str(i), sys.executable, __file__, "--child", k, "--seconds",
+                                   str(a.seconds), "--role", role], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+                 for i, role in enumerate(("measure", "toggle"))]
+        for p in procs:
+            if p.stdout.readline().strip() != "ready":
+                raise RuntimeError(f"{k}: a child did not start")
+        t0 = time.perf_counter() + 0.2
+        for p in procs:
+            p.stdin.write(f"{t0!r}\n")
+            p.stdin.flush()
+        halves = json.loads(procs[0].stdout.readline())
+        procs[1].stdout.readline()
+        for p in procs:
+            p.wait()
+        cost = {h: c / n for h, n, c in halves if n}
+        ratios = [cost[h] / (0.5 * (cost[h - 1] + cost[h + 1])) for h in cost
+                  if h % 2 == 0 and h - 1 in cost and h + 1 in cost]
+        off = [c for h, c in cost.items() if h % 2]
+        if not ratios:
+            print(f"| {k} | n/a | n/a | 0 |")
+            continue
+        q = statistics.quantiles(ratios, n=4) if len(ratios) > 1 else ratios * 3
+        print(f"| {k} | {1e6 * statistics.median(off):.0f} | {statistics.median(ratios):.3f} ({q[0]:.3f}-{q[2]:.3f}) | "
+              f"{len(ratios)} |", flush=True)
+    print(f"load average after: {os.getloadavg()[0]:.2f}")
+    return 0
 
 
 # ---------------------------------------------------------------- the parent
@@ -372,11 +437,18 @@ def main() -> int:
                     help="sample the kernels on the first core at a low duty for SECONDS (see sample_mode)")
     ap.add_argument("--duty", type=float, default=0.125, help="--sample: the fraction of the time spent sampling")
     ap.add_argument("--out", default=None, help="--sample: write the samples (JSON) here")
+    ap.add_argument("--toggle", action="store_true", help="the second core on and off every half second (see toggle_mode)")
+    ap.add_argument("--role", default=None, help=argparse.SUPPRESS)
     ap.add_argument("--child", default=None, help=argparse.SUPPRESS)
     a = ap.parse_args()
     if a.child:
-        child(a.child, a.seconds)
+        if a.role:
+            toggle_child(a.child, a.seconds, a.role)
+        else:
+            child(a.child, a.seconds)
         return 0
+    if a.toggle:
+        return toggle_mode(a)
     if a.rounds < 1 or a.seconds <= 0:
         print("core_contention: error: --rounds must be >= 1 and --seconds > 0", file=sys.stderr)
         return 2
