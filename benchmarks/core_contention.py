@@ -10,6 +10,7 @@ Kernel mode (the default): a fixed compute kernel run over and over for ``--seco
 * ``arith``: a compiled scalar loop of dependent floating-point arithmetic (registers only);
 * ``python``: an interpreter loop of integer arithmetic (the Python between gtvo's compiled calls);
 * ``memory``: numpy ``a + b -> c`` over three 128 MB arrays (beyond the caches: memory bound),
+* ``gather``: a compiled loop of random reads from an 8 MB table (beyond a core's L2, within the L3),
 
 in three set-ups, alternately (the order turns from round to round):
 
@@ -56,7 +57,7 @@ SHARED = Path(os.environ.get("GTVO_SHARED_DATA", REPO.parent / "shared" / "data"
 KITTI = SHARED / "kitti_stereo_sample" / "KITTI_sequence_1"
 LOGS = {"kitti": KITTI, "raw": SHARED / "kitti_raw_2011_09_26_drive_0001_stereo"}
 PEER = SHARED.parent / "peers" / "orbslam3"
-KERNELS = ("warp", "arith", "python", "memory")
+KERNELS = ("warp", "arith", "python", "memory", "gather")
 SETUPS = ("solo", "pair pinned", "pair free")
 WINDOW_S = 0.25  #: wall seconds of one sample window in a child
 HALF_PERIOD_S = 0.5  #: ``--toggle``: the second core's process is on, then off, for this long each
@@ -115,6 +116,21 @@ def make_kernel(name: str):
         def stream() -> None:
             np.add(a, b, out=c)
         return stream
+    if name == "gather":
+        import numba
+        import numpy as np
+
+        @numba.njit(cache=False)
+        def gather(table, index) -> float:
+            acc = 0.0
+            for i in index:
+                acc += table[i]
+            return acc
+        rng = np.random.default_rng(0)
+        table = rng.random(2 * 1024 * 1024).astype(np.float32)  # 8 MB: beyond a core's L2, within the L3
+        index = rng.integers(0, table.size, 200_000)
+        gather(table, index[:10])
+        return lambda: gather(table, index)
     raise ValueError(f"unknown kernel {name!r}")
 
 
@@ -176,8 +192,8 @@ def toggle_child(name: str, seconds: float, role: str) -> None:
 
 
 def toggle_mode(a: argparse.Namespace) -> int:
-    """``--toggle``: the same kernel on the first core without a pause, and on the second core on
-    and off every :data:`HALF_PERIOD_S`; the first core's cost per repetition in the halves with the
+    """``--toggle``: a kernel on the first core without a pause, and the same (or ``--partner``) on
+    the second core on and off every :data:`HALF_PERIOD_S`; the first core's cost per repetition in the halves with the
     second core on over the halves around them with it off (the machine's own drift, slower than a
     second, cancels in each pair)."""
     kernels = [k.strip() for k in a.kernels.split(",") if k.strip()]
@@ -185,9 +201,10 @@ def toggle_mode(a: argparse.Namespace) -> int:
     print("| kernel | us CPU/rep, other core off | on / off (median of pairs, quartiles) | pairs |")
     print("|---|---|---|---|")
     for k in kernels:
-        procs = [subprocess.Popen(["taskset", "-c", str(i), sys.executable, __file__, "--child", k, "--seconds",
+        partner = a.partner or k
+        procs = [subprocess.Popen(["taskset", "-c", str(i), sys.executable, __file__, "--child", kk, "--seconds",
                                    str(a.seconds), "--role", role], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
-                 for i, role in enumerate(("measure", "toggle"))]
+                 for i, (role, kk) in enumerate((("measure", k), ("toggle", partner)))]
         for p in procs:
             if p.stdout.readline().strip() != "ready":
                 raise RuntimeError(f"{k}: a child did not start")
@@ -207,7 +224,7 @@ def toggle_mode(a: argparse.Namespace) -> int:
             print(f"| {k} | n/a | n/a | 0 |")
             continue
         q = statistics.quantiles(ratios, n=4) if len(ratios) > 1 else ratios * 3
-        print(f"| {k} | {1e6 * statistics.median(off):.0f} | {statistics.median(ratios):.3f} ({q[0]:.3f}-{q[2]:.3f}) | "
+        print(f"| {k}{'' if partner == k else ' beside ' + partner} | {1e6 * statistics.median(off):.0f} | {statistics.median(ratios):.3f} ({q[0]:.3f}-{q[2]:.3f}) | "
               f"{len(ratios)} |", flush=True)
     print(f"load average after: {os.getloadavg()[0]:.2f}")
     return 0
@@ -438,6 +455,7 @@ def main() -> int:
     ap.add_argument("--duty", type=float, default=0.125, help="--sample: the fraction of the time spent sampling")
     ap.add_argument("--out", default=None, help="--sample: write the samples (JSON) here")
     ap.add_argument("--toggle", action="store_true", help="the second core on and off every half second (see toggle_mode)")
+    ap.add_argument("--partner", default=None, help="--toggle: the kernel on the second core (default: the same)")
     ap.add_argument("--role", default=None, help=argparse.SUPPRESS)
     ap.add_argument("--child", default=None, help=argparse.SUPPRESS)
     a = ap.parse_args()
