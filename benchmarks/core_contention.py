@@ -191,6 +191,16 @@ def toggle_child(name: str, seconds: float, role: str) -> None:
     print(json.dumps(out), flush=True)
 
 
+def on_off_ratios(halves: list[tuple[int, int, float]]) -> tuple[list[float], list[float]]:
+    """From the measuring process's ``(half, repetitions, CPU s)``: per "on" half (even) with both
+    neighbours measured, its CPU per repetition over the mean of its two "off" neighbours'; and the
+    "off" halves' CPU per repetition. Halves without a repetition are left out."""
+    cost = {h: c / n for h, n, c in halves if n}
+    ratios = [cost[h] / (0.5 * (cost[h - 1] + cost[h + 1])) for h in sorted(cost)
+              if h % 2 == 0 and h - 1 in cost and h + 1 in cost]
+    return ratios, [c for h, c in sorted(cost.items()) if h % 2]
+
+
 def toggle_mode(a: argparse.Namespace) -> int:
     """``--toggle``: a kernel on the first core without a pause, and the same (or ``--partner``) on
     the second core on and off every :data:`HALF_PERIOD_S`; the first core's cost per repetition in the halves with the
@@ -216,10 +226,7 @@ def toggle_mode(a: argparse.Namespace) -> int:
         procs[1].stdout.readline()
         for p in procs:
             p.wait()
-        cost = {h: c / n for h, n, c in halves if n}
-        ratios = [cost[h] / (0.5 * (cost[h - 1] + cost[h + 1])) for h in cost
-                  if h % 2 == 0 and h - 1 in cost and h + 1 in cost]
-        off = [c for h, c in cost.items() if h % 2]
+        ratios, off = on_off_ratios(halves)
         if not ratios:
             print(f"| {k} | n/a | n/a | 0 |")
             continue
