@@ -1,9 +1,19 @@
 """Does the same work cost more CPU when both of this machine's cores are busy?
 
-    python benchmarks/core_contention.py [--rounds 3] [--seconds 4] [--kernels warp,arith,python,memory]
-    python benchmarks/core_contention.py --processes [--rounds 2] [--peer DIR]
+    python benchmarks/core_contention.py --toggle [--seconds 40] [--kernels ...] [--partner KERNEL]
+    python benchmarks/core_contention.py [--rounds 3] [--seconds 4] [--kernels warp,arith,python,memory,gather]
+    python benchmarks/core_contention.py --processes [--rounds 2] [--cores one,two] [--log kitti|raw] [--no-peer]
+    python benchmarks/core_contention.py --sample SECONDS [--duty 0.125] [--out FILE]
 
-Kernel mode (the default): a fixed compute kernel run over and over for ``--seconds`` of wall time,
+The figures of 2026-11-29 are in docs/benchmarks.md ("Two cores at once") and docs/window.md.
+
+Toggle mode (``--toggle``, the one to trust on a shared machine): a kernel pinned to the first core
+runs without a pause while the same kernel (or ``--partner``) on the second core runs for half a
+second and sleeps for half a second, in turn; the first kernel's CPU per repetition in each "on"
+half over the two "off" halves around it. The machine's own drift (the same loop's cost changes by
+up to 1.4x between runs minutes apart) is slower than a second and cancels in each pair.
+
+Kernels: a fixed piece of work run over and over,
 
 * ``warp``: gtvo's residual kernel (``factors._compiled.warp_into`` through ``photometric_residuals``):
   2000 StereoSGBM points of KITTI_sequence_1's frame 0 warped into frame 1 with Jacobians;
@@ -12,7 +22,8 @@ Kernel mode (the default): a fixed compute kernel run over and over for ``--seco
 * ``memory``: numpy ``a + b -> c`` over three 128 MB arrays (beyond the caches: memory bound),
 * ``gather``: a compiled loop of random reads from an 8 MB table (beyond a core's L2, within the L3),
 
-in three set-ups, alternately (the order turns from round to round):
+Kernel mode (the default): each kernel for ``--seconds`` of wall time in three set-ups,
+alternately (the order turns from round to round):
 
 * ``solo``: one process, on the first core (``taskset -c 0``);
 * ``pair pinned``: two processes at once, ``taskset`` one to each core;
@@ -37,7 +48,12 @@ with ``--no-parallel``, ``window.parallel: auto`` and ``--parallel`` (front end 
 and ORB-SLAM3 (tracking and local mapping threads; the peer's ``run.py``, as
 ``benchmarks/vs_orbslam3.py`` runs it) if its build is there. A program whose CPU is the same on
 one core as on two pays nothing for running its parts at once; the same work done on one core
-cannot have been slowed by the other core.
+cannot have been slowed by the other core. ``--cores two --no-peer --gtvo-modes no-parallel,auto``
+compares the modes' frames/s and CPU on two cores, per round.
+
+Sample mode (``--sample``): the kernels on the first core, a quarter second each in turn at a low
+duty, against the other core's busy fraction: the contrast whenever the shared machine's other core
+happens to idle (it did not, on 2026-11-29).
 """
 
 from __future__ import annotations
