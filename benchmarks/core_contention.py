@@ -490,6 +490,10 @@ def main() -> int:
         return 0
     if a.toggle:
         return toggle_mode(a)
+    bad = [k for k in [*a.kernels.split(","), a.partner or "warp"] if k.strip() and k.strip() not in KERNELS]
+    if bad:
+        print(f"core_contention: error: unknown kernel {bad[0]!r} (use {', '.join(KERNELS)})", file=sys.stderr)
+        return 2
     if a.rounds < 1 or a.seconds <= 0:
         print("core_contention: error: --rounds must be >= 1 and --seconds > 0", file=sys.stderr)
         return 2
