@@ -488,8 +488,6 @@ def main() -> int:
         else:
             child(a.child, a.seconds)
         return 0
-    if a.toggle:
-        return toggle_mode(a)
     bad = [k for k in [*a.kernels.split(","), a.partner or "warp"] if k.strip() and k.strip() not in KERNELS]
     if bad:
         print(f"core_contention: error: unknown kernel {bad[0]!r} (use {', '.join(KERNELS)})", file=sys.stderr)
@@ -497,6 +495,8 @@ def main() -> int:
     if a.rounds < 1 or a.seconds <= 0:
         print("core_contention: error: --rounds must be >= 1 and --seconds > 0", file=sys.stderr)
         return 2
+    if a.toggle:
+        return toggle_mode(a)
     if a.sample > 0:
         return sample_mode(a)
     return processes_mode(a) if a.processes else kernels_mode(a)
