@@ -224,8 +224,8 @@ def toggle_mode(a: argparse.Namespace) -> int:
     second, cancels in each pair)."""
     kernels = [k.strip() for k in a.kernels.split(",") if k.strip()]
     print(f"load average before: {os.getloadavg()[0]:.2f}; {a.seconds:g} s per kernel, halves of {HALF_PERIOD_S} s", flush=True)
-    print("| kernel | us CPU/rep, other core off | on / off (median of pairs, quartiles) | pairs |")
-    print("|---|---|---|---|")
+    print("| kernel | us CPU/rep, other core off | on / off (median of pairs, quartiles) | pairs | CPU share: measured, partner on |")
+    print("|---|---|---|---|---|")
     for k in kernels:
         partner = a.partner or k
         procs = [subprocess.Popen(["taskset", "-c", str(i), sys.executable, __file__, "--child", kk, "--seconds",
@@ -239,16 +239,20 @@ def toggle_mode(a: argparse.Namespace) -> int:
             p.stdin.write(f"{t0!r}\n")
             p.stdin.flush()
         halves = json.loads(procs[0].stdout.readline())
-        procs[1].stdout.readline()
+        partner_halves = json.loads(procs[1].stdout.readline())
         for p in procs:
             p.wait()
         ratios, off = on_off_ratios(halves)
+        # how much of its "on" halves the partner ran, and of every half the measured kernel (a loaded
+        # machine gives each a share: the contrast is then that share's)
+        partner_share = statistics.mean(c / HALF_PERIOD_S for _, _, c in partner_halves) if partner_halves else 0.0
+        own_share = statistics.mean(c / HALF_PERIOD_S for _, _, c in halves) if halves else 0.0
         if not ratios:
-            print(f"| {k} | n/a | n/a | 0 |")
+            print(f"| {k} | n/a | n/a | 0 | |")
             continue
         q = statistics.quantiles(ratios, n=4) if len(ratios) > 1 else ratios * 3
         print(f"| {k}{'' if partner == k else ' beside ' + partner} | {1e6 * statistics.median(off):.0f} | {statistics.median(ratios):.3f} ({q[0]:.3f}-{q[2]:.3f}) | "
-              f"{len(ratios)} |", flush=True)
+              f"{len(ratios)} | {own_share:.2f}, {partner_share:.2f} |", flush=True)
     print(f"load average after: {os.getloadavg()[0]:.2f}")
     return 0
 

@@ -18,7 +18,7 @@ sequential run's CPU is the speed-up this schedule allows (the determinism rule'
 included); ``--window-scale`` replays it with every window message (joins and optimisations) at
 that fraction of its CPU: what ``auto`` gives once the window is cheaper, the schedule unchanged.
 Printed per mode: CPU of both processes against the sequential run's (and the worker's start, the
-move's pickle), the replayed frames/s ratio per scale, the front end's replayed waits and the
+move's pickle), the messages' pickled bytes and the front end's CPU in its sends and waits, the replayed frames/s ratio per scale, the front end's replayed waits and the
 worker's idles, and where the extra CPU goes (the worker's CPU by message kind).
 """
 
@@ -185,6 +185,12 @@ def main() -> int:
             print(f"  {name}: CPU front end {front:.2f} + worker {worker:.2f} = {front + worker:.2f} s "
                   f"({(front + worker) / seq_cpu:.3f}x sequential), wall {run['wall']:.1f} s; worker by message "
                   + ", ".join(f"{k} {v:.2f}" for k, v in kinds.items()))
+            sent = [e for e in run["events"] if e.kind == "send"]
+            got = [e for e in run["events"] if e.kind == "wait"]
+            print(f"    messages: {len(sent)} sent, {sum(e.nbytes for e in sent) / 1024:.0f} KiB pickled, "
+                  f"{1000 * sum(e.cpu_seconds for e in sent):.0f} ms of the front end's CPU; replies "
+                  f"{sum(e.nbytes for e in got) / 1024:.0f} KiB, {1000 * sum(e.cpu_seconds for e in got):.0f} ms "
+                  "of its CPU in its waits (reading, unpickling)")
             move = [e for e in run["events"]][:1]
             if run["started"] is not None:
                 print(f"    worker asked for at front-end CPU {run['started'][1] - run['cpu0']:.2f} s "
