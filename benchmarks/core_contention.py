@@ -11,7 +11,12 @@ Toggle mode (``--toggle``, the one to trust on a shared machine): a kernel pinne
 runs without a pause while the same kernel (or ``--partner``) on the second core runs for half a
 second and sleeps for half a second, in turn; the first kernel's CPU per repetition in each "on"
 half over the two "off" halves around it. The machine's own drift (the same loop's cost changes by
-up to 1.4x between runs minutes apart) is slower than a second and cancels in each pair.
+up to 1.4x between runs minutes apart) is slower than a second and cancels in each pair. On a
+loaded machine each process gets a share of its core (printed) and the contrast is that share's;
+``--realtime`` runs both at real-time priority (``chrt -f 10``: each holds its core, the other jobs
+wait, for ``--seconds`` per kernel) and the second process spends its "off" halves on a
+register-only loop: the contrast is then a memory-hungry neighbour against a quiet one, whatever
+the load.
 
 Kernels: a fixed piece of work run over and over,
 
@@ -81,6 +86,21 @@ HALF_PERIOD_S = 0.5  #: ``--toggle``: the second core's process is on, then off,
 
 # ---------------------------------------------------------------- the kernels (run in a child)
 
+def make_spin():
+    """A compiled loop of ``n`` steps of dependent floating-point arithmetic (registers only), compiled."""
+    import numba
+
+    @numba.njit(cache=False)
+    def spin(n: int) -> float:
+        x, y = 1.0, 0.5
+        for _ in range(n):
+            x = x * 0.999999 + y * 1e-6
+            y = y * 0.999998 + x * 2e-6
+        return x + y
+    spin(10)
+    return spin
+
+
 def make_kernel(name: str):
     """A function doing one repetition of the fixed work ``name`` (set up and warmed here)."""
     if name == "warp":
@@ -107,16 +127,7 @@ def make_kernel(name: str):
             photometric_residuals(stereo.left, Ih, hv, px, d, Th, Tt, target, bearings=f)
         return warp
     if name == "arith":
-        import numba
-
-        @numba.njit(cache=False)
-        def spin(n: int) -> float:
-            x, y = 1.0, 0.5
-            for _ in range(n):
-                x = x * 0.999999 + y * 1e-6
-                y = y * 0.999998 + x * 2e-6
-            return x + y
-        spin(10)
+        spin = make_spin()
         return lambda: spin(2_000_000)
     if name == "python":
         def loop() -> None:
@@ -188,6 +199,7 @@ def toggle_child(name: str, seconds: float, role: str) -> None:
     fn = make_kernel(name)
     for _ in range(3):
         fn()
+    quiet = make_spin() if role == "quiet" else None
     print("ready", flush=True)
     t0 = float(sys.stdin.readline())
     halves = int(seconds / HALF_PERIOD_S)
@@ -198,6 +210,10 @@ def toggle_child(name: str, seconds: float, role: str) -> None:
         end = t0 + (k + 1) * HALF_PERIOD_S
         if role == "toggle" and k % 2:
             time.sleep(max(0.0, end - time.perf_counter()))
+            continue
+        if role == "quiet" and k % 2:  # the off half on a register-only loop: the core held, no memory traffic
+            while time.perf_counter() < end:
+                quiet(100_000)
             continue
         c, reps = time.process_time(), 0
         while time.perf_counter() < end:
@@ -228,9 +244,10 @@ def toggle_mode(a: argparse.Namespace) -> int:
     print("|---|---|---|---|---|")
     for k in kernels:
         partner = a.partner or k
-        procs = [subprocess.Popen(["taskset", "-c", str(i), sys.executable, __file__, "--child", kk, "--seconds",
+        rt = ["chrt", "-f", "10"] if a.realtime else []
+        procs = [subprocess.Popen([*rt, "taskset", "-c", str(i), sys.executable, __file__, "--child", kk, "--seconds",
                                    str(a.seconds), "--role", role], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
-                 for i, (role, kk) in enumerate((("measure", k), ("toggle", partner)))]
+                 for i, (role, kk) in enumerate((("measure", k), ("quiet" if a.realtime else "toggle", partner)))]
         for p in procs:
             if p.stdout.readline().strip() != "ready":
                 raise RuntimeError(f"{k}: a child did not start")
@@ -423,7 +440,7 @@ def processes_mode(a: argparse.Namespace) -> int:
                 out = tmp / f"{name.replace(' ', '_')}_{s.replace(' ', '_')}_{r}"
                 cmd, e = progs[name](out)
                 pin = ["taskset", "-c", "0"] if s == "one core" else []
-                x = timed(pin + cmd, e)
+                x = timed((["chrt", "-f", "10"] if a.realtime else []) + pin + cmd, e)
                 if x["code"] == 0 and name == "ORB-SLAM3":
                     run = json.loads((out / "results.json").read_text())["runs"][0]
                     x["cpu"], x["fps"] = run["process_cpu_s"], run["fps"]  # its worker process, not run.py's
@@ -482,6 +499,10 @@ def main() -> int:
     ap.add_argument("--duty", type=float, default=0.125, help="--sample: the fraction of the time spent sampling")
     ap.add_argument("--out", default=None, help="--sample: write the samples (JSON) here")
     ap.add_argument("--toggle", action="store_true", help="the second core on and off every half second (see toggle_mode)")
+    ap.add_argument("--realtime", action="store_true",
+                    help="--toggle: both processes at real-time priority (chrt -f 10: each holds its core, "
+                         "the other jobs wait), the off halves on a register-only loop instead of a sleep; "
+                         "--processes: the programs at real-time priority")
     ap.add_argument("--partner", default=None, help="--toggle: the kernel on the second core (default: the same)")
     ap.add_argument("--role", default=None, help=argparse.SUPPRESS)
     ap.add_argument("--child", default=None, help=argparse.SUPPRESS)
