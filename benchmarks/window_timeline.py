@@ -18,7 +18,7 @@ sequential run's CPU is the speed-up this schedule allows (the determinism rule'
 included); ``--window-scale`` replays it with every window message (joins and optimisations) at
 that fraction of its CPU: what ``auto`` gives once the window is cheaper, the schedule unchanged.
 Printed per mode: CPU of both processes against the sequential run's (and the worker's start, the
-move's pickle), the replayed frames/s ratio per scale, the front end's replayed waits and the
+move's pickle), the messages' pickled bytes and the front end's CPU in its sends and waits, the replayed frames/s ratio per scale, the front end's replayed waits and the
 worker's idles, and where the extra CPU goes (the worker's CPU by message kind).
 """
 
@@ -79,7 +79,8 @@ def one_run(camera: Any, frames: list, parallel: bool | str) -> dict[str, Any]:
             "worker_stages": None if usage is None else usage.seconds_by_stage}
 
 
-def replay(run: dict[str, Any], scale: float = 1.0, lag: int = LAG, rows: list[str] | None = None) -> dict[str, float]:
+def replay(run: dict[str, Any], scale: float = 1.0, lag: int = LAG, rows: list[str] | None = None,
+           contention: float = 0.0) -> dict[str, float]:
     """The run's schedule on two idle cores (module docstring): seconds, the front end's waits, the
     worker's idle seconds between its first and last message. ``lag``: the waits the run made
     :data:`LAG` messages behind its last send are replayed ``lag`` behind instead (the waits at once
@@ -93,7 +94,8 @@ def replay(run: dict[str, Any], scale: float = 1.0, lag: int = LAG, rows: list[s
         return {"seconds": run["cpu1"] - run["cpu0"] - (1 - scale) * local_window, "waits": 0.0, "idle": 0.0}
     start_cpu = run["started"][1] - run["cpu0"]  # when (front end CPU) the worker was asked for
     t_front, cpu_prev = start_cpu, run["started"][1]
-    worker_free = start_cpu + spans[0].cpu_seconds  # the worker's start: imports, its window, warm-up
+    slow = 1.0 + contention
+    worker_free = start_cpu + slow * spans[0].cpu_seconds  # the worker's start: imports, its window, warm-up
     messages = spans[1:]
     arrival: dict[int, float] = {}
     done: dict[int, float] = {}
@@ -104,7 +106,7 @@ def replay(run: dict[str, Any], scale: float = 1.0, lag: int = LAG, rows: list[s
         nonlocal worker_free, next_message, idle
         while next_message <= number:
             span = messages[next_message]
-            cost = span.cpu_seconds * (scale if span.kind in WINDOW_MESSAGES else 1.0)
+            cost = slow * span.cpu_seconds * (scale if span.kind in WINDOW_MESSAGES else 1.0)
             begin = max(worker_free, arrival[next_message])
             idle += begin - worker_free
             if rows is not None:
@@ -116,7 +118,7 @@ def replay(run: dict[str, Any], scale: float = 1.0, lag: int = LAG, rows: list[s
 
     last_sent = -1
     for ev in events:
-        t_front += ev.cpu - cpu_prev
+        t_front += slow * (ev.cpu - cpu_prev)
         cpu_prev = ev.cpu
         if ev.kind == "send":
             arrival[ev.number] = t_front
@@ -133,7 +135,7 @@ def replay(run: dict[str, Any], scale: float = 1.0, lag: int = LAG, rows: list[s
                     rows.append(f"     front end waits {done[number] - t_front:6.3f} at {t_front:7.3f} for {number}")
                 waits += done[number] - t_front
                 t_front = done[number]
-    t_front += run["cpu1"] - cpu_prev
+    t_front += slow * (run["cpu1"] - cpu_prev)
     # the window's stages in this process ran before the move (auto), the schedule then sequential
     return {"seconds": t_front - (1 - scale) * local_window, "waits": waits, "idle": idle}
 
@@ -154,6 +156,8 @@ def main() -> int:
     ap.add_argument("--window-scale", default="1,0.5", help="window message CPU factors replayed")
     ap.add_argument("--repeat", type=int, default=1)
     ap.add_argument("--per-message", action="store_true", help="print the replayed timeline (window x1, the run's lag)")
+    ap.add_argument("--contention", default="0", help="replayed with both processes' CPU at 1 + C once the worker "
+                    "is asked for (comma-separated; a bound, see replay)")
     ap.add_argument("--lags", default=str(LAG), help="lags replayed (the run's own: gtvo.odometry.window_worker.LAG)")
     args = ap.parse_args()
     window_worker.STAGE_TIMER = time.process_time  # the forked worker's stages in CPU seconds
@@ -181,6 +185,12 @@ def main() -> int:
             print(f"  {name}: CPU front end {front:.2f} + worker {worker:.2f} = {front + worker:.2f} s "
                   f"({(front + worker) / seq_cpu:.3f}x sequential), wall {run['wall']:.1f} s; worker by message "
                   + ", ".join(f"{k} {v:.2f}" for k, v in kinds.items()))
+            sent = [e for e in run["events"] if e.kind == "send"]
+            got = [e for e in run["events"] if e.kind == "wait"]
+            print(f"    messages: {len(sent)} sent, {sum(e.nbytes for e in sent) / 1024:.0f} KiB pickled, "
+                  f"{1000 * sum(e.cpu_seconds for e in sent):.0f} ms of the front end's CPU; replies "
+                  f"{sum(e.nbytes for e in got) / 1024:.0f} KiB, {1000 * sum(e.cpu_seconds for e in got):.0f} ms "
+                  "of its CPU in its waits (reading, unpickling)")
             move = [e for e in run["events"]][:1]
             if run["started"] is not None:
                 print(f"    worker asked for at front-end CPU {run['started'][1] - run['cpu0']:.2f} s "
@@ -194,10 +204,11 @@ def main() -> int:
                 lines: list[str] = []
                 replay(run, 1.0, LAG, lines)
                 print("\n".join("      " + line for line in lines))
-            for scale, lag in ((x, int(n)) for x in scales for n in args.lags.split(",")):
-                rp = replay(run, scale, lag)
+            for scale, lag, c in ((x, int(n), float(c)) for x in scales for n in args.lags.split(",")
+                                  for c in args.contention.split(",")):
+                rp = replay(run, scale, lag, contention=c)
                 seq_scaled = replay(seqrun, scale)["seconds"]
-                print(f"    window x{scale:g}, lag {lag}: replay {rp['seconds']:.2f} s -> {seq_scaled / rp['seconds']:.3f}x the "
+                print(f"    window x{scale:g}, lag {lag}, contention {c:g}: replay {rp['seconds']:.2f} s -> {seq_scaled / rp['seconds']:.3f}x the "
                       f"sequential frames/s (sequential {seq_scaled:.2f} s); front end waits {rp['waits']:.2f} s, "
                       f"worker idle {rp['idle']:.2f} s")
     return 0

@@ -33,3 +33,16 @@ def test_a_cheaper_window_shortens_the_replay_and_a_sequential_run_is_its_cpu():
                   "stages": {"linearisation": 1.0}}
     assert replay(sequential)["seconds"] == pytest.approx(2.0)
     assert replay(sequential, scale=0.5)["seconds"] == pytest.approx(1.5)  # its window stages halved
+
+
+def test_contention_slows_both_processes_once_the_worker_is_asked_for():
+    # every CPU second after the start at 1.1: the whole replay of two_joins at 1.1x (1.8 -> 1.98)
+    out = replay(two_joins(), contention=0.1)
+    assert out["seconds"] == pytest.approx(1.98) and out["waits"] == pytest.approx(0.88)
+    assert out["idle"] == pytest.approx(0.11)
+    # asked for at 0.1 s of the front end's CPU: its first 0.1 s at full speed (1.8 * 1.1 - 0.01)
+    late = two_joins()
+    late["started"] = (0.0, 0.1)
+    assert replay(late, contention=0.1)["seconds"] == pytest.approx(1.97)
+    sequential = {"cpu0": 0.0, "cpu1": 2.0, "spans": None, "events": [], "started": None, "stages": {}}
+    assert replay(sequential, contention=0.1)["seconds"] == pytest.approx(2.0)  # one process: nothing beside it

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+from multiprocessing.reduction import ForkingPickler
 
 import pytest
 
@@ -87,7 +88,12 @@ def test_the_timeline_has_the_start_and_one_span_per_message_and_the_front_ends_
     sends = [e.number for e in worker.events if e.kind == "send"]
     waits = [e.number for e in worker.events if e.kind == "wait"]
     assert sends == [0, 1, 2] and waits == [0, 1, 2]  # the joins' replies in order, then the timeline's
-    assert all(e.wall_end >= e.wall_start for e in worker.events)
+    assert all(e.wall_end >= e.wall_start and e.cpu_seconds >= 0 for e in worker.events)
+    # the pickled sizes: a join (its points) outweighs the question for the timeline, whose reply is
+    # the spans as they were pickled back, byte for byte
+    sent = [e.nbytes for e in worker.events if e.kind == "send"]
+    assert sent[0] > 1000 and sent[2] < sent[0]
+    assert [e for e in worker.events if e.kind == "wait"][-1].nbytes == len(ForkingPickler.dumps(("ok", spans)))
 
 
 def test_a_forked_process_handle_reports_its_exit_code():

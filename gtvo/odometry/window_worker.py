@@ -63,6 +63,7 @@ import dataclasses
 from collections import deque
 from dataclasses import dataclass
 from multiprocessing.connection import Connection
+from multiprocessing.reduction import ForkingPickler
 from typing import Any, Callable, TypeVar
 
 import numpy as np
@@ -135,13 +136,17 @@ class MessageSpan:
 class FrontEndEvent:
     """What the front end did with the worker: ``"send"`` (message ``number`` sent) or ``"wait"``
     (for the reply of message ``number``: wall clock before and after), with the front end's
-    process CPU seconds (``time.process_time``) at the event's start."""
+    process CPU seconds (``time.process_time``) at the event's start, the pickled bytes it sent
+    (a send) or received (a wait: every reply that came in it), and the CPU seconds it took
+    (pickling and writing; waiting, reading and unpickling)."""
 
     kind: str
     number: int
     wall_start: float
     wall_end: float
     cpu: float
+    nbytes: int = 0
+    cpu_seconds: float = 0.0
 
 
 class WindowWorker:
@@ -319,11 +324,13 @@ class WindowWorker:
     # -- the pipe ------------------------------------------------------------------------------
     def _send(self, message: tuple) -> None:
         wall, cpu = time.perf_counter(), time.process_time()
+        data = ForkingPickler.dumps(message)  # as Connection.send pickles it, its size counted
         try:
-            self._conn.send(message)
+            self._conn.send_bytes(data)
         except (BrokenPipeError, EOFError, OSError):
             raise self._died() from None
-        self.events.append(FrontEndEvent("send", self._sent, wall, time.perf_counter(), cpu))
+        self.events.append(FrontEndEvent("send", self._sent, wall, time.perf_counter(), cpu, len(data),
+                                         time.process_time() - cpu))
         self._sent += 1
 
     def _hand_out(self, count: int) -> list[WindowUpdate]:
@@ -359,18 +366,22 @@ class WindowWorker:
         if self._n_received > number:
             return
         wall, cpu = time.perf_counter(), time.process_time()
+        nbytes = 0
         with stage("window_wait"):
             while self._n_received <= number:
                 try:
-                    kind, value = self._conn.recv()
+                    data = self._conn.recv_bytes()
                 except (EOFError, OSError):
                     raise self._died() from None
+                nbytes += len(data)
+                kind, value = ForkingPickler.loads(data)  # as Connection.recv unpickles it
                 self._n_received += 1
                 if kind == "error":
                     self.close()
                     raise value
                 self._received.append(value)
-        self.events.append(FrontEndEvent("wait", number, wall, time.perf_counter(), cpu))
+        self.events.append(FrontEndEvent("wait", number, wall, time.perf_counter(), cpu, nbytes,
+                                         time.process_time() - cpu))
 
     def _died(self) -> WindowWorkerError:
         try:
