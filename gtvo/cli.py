@@ -223,9 +223,12 @@ def _release_process_resources() -> None:
 def _quiet_interrupts(hook: Callable[[Any], None]) -> Callable[[Any], None]:
     """An unraisable-exception hook that drops a Ctrl-C raised where Python cannot propagate it (a
     weakref or ctypes callback: "Exception ignored in ..."): the interrupt is recorded anyway
-    (:mod:`gtvo.core.interrupt`) and the command ends with its one line."""
+    (:mod:`gtvo.core.interrupt`) and the command ends with its one line. Once a Ctrl-C was seen, it
+    drops any unraisable exception: they are the finalisers of objects the interrupt left half-made
+    inside a library (seen: llvmlite's ``ObjectRef.__del__`` when the Ctrl-C came while numba loaded a
+    compiled kernel). Without an interrupt they are printed as before."""
     def hook_(unraisable: Any) -> None:
-        if not isinstance(unraisable.exc_value, KeyboardInterrupt):
+        if not isinstance(unraisable.exc_value, KeyboardInterrupt) and not interrupt_requested():
             hook(unraisable)
     return hook_
 

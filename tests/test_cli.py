@@ -376,3 +376,26 @@ def test_exit_without_teardown_joins_threads_and_runs_exit_handlers(monkeypatch)
     with pytest.raises(SystemExit):
         cli._exit_without_teardown(3)
     assert events == ["thread", "threads joined", "atexit", "exit 3"]
+
+
+def test_unraisable_exceptions_after_a_ctrl_c_are_dropped(monkeypatch):
+    """The command's unraisable hook: a KeyboardInterrupt in a finaliser is always dropped; any other
+    unraisable exception is printed (passed on) until a Ctrl-C was seen, then dropped (the finalisers
+    of objects the interrupt left half-made in a library)."""
+    import types
+
+    from gtvo import cli
+    from gtvo.core import interrupt
+
+    seen = []
+    hook = cli._quiet_interrupts(seen.append)
+    other = types.SimpleNamespace(exc_value=AttributeError("half-made"))
+    ctrl_c = types.SimpleNamespace(exc_value=KeyboardInterrupt())
+    monkeypatch.setattr(interrupt, "_interrupted", False)
+    hook(ctrl_c)
+    hook(other)
+    assert seen == [other]
+    monkeypatch.setattr(interrupt, "_interrupted", True)
+    hook(other)
+    hook(ctrl_c)
+    assert seen == [other]
